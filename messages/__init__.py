@@ -1,0 +1,28 @@
+"""touch4d.messages: one class per topic type; msgpack on the wire with numpy arrays kept intact.
+
+See docs/contracts.md for the table of topics and fields.
+"""
+from .base import Message, MessageError, TYPES, decode, encode
+from .hand import ControllerState, HandPose
+from .scene import PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
+from .system import Heartbeat, InputEvents, MotorStatus, Stop
+from .tactile import MotorCommand, TactileField
+
+TOPIC_TYPES: dict[str, type[Message]] = {
+    "hand/pose": HandPose,
+    "controller/state": ControllerState,
+    "scene/state": SceneState,
+    "scene/command": SceneCommand,
+    "tactile/field": TactileField,
+    "tactile/motors": MotorCommand,
+    "motors/status": MotorStatus,
+    "safety/stop": Stop,
+    "node/heartbeat": Heartbeat,
+    "ui/input": InputEvents,
+}
+
+__all__ = [
+    "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode",
+    "HandPose", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
+    "MotorStatus", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
+]

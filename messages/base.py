@@ -1,0 +1,348 @@
+"""The message base class: typed fields, a header on every message, checked decoding."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .codec import CodecError, pack, unpack
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid message; the text names the type, the field and the problem."""
+
+
+# ---- field kinds ---------------------------------------------------------------------------------
+
+
+class Kind:
+    """How one field is checked and coerced; `check` returns the clean value or raises ValueError."""
+
+    def coerce(self, value):
+        return value
+
+    def check(self, value):
+        return value
+
+    def default(self):
+        return None
+
+
+class Float(Kind):
+    def __init__(self, finite: bool = True):
+        self.finite = finite
+
+    def coerce(self, value):
+        return float(value)
+
+    def check(self, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"expected a number, got {type(value).__name__}")
+        value = float(value)
+        if self.finite and not math.isfinite(value):
+            raise ValueError(f"expected a finite number, got {value}")
+        return value
+
+    def default(self):
+        return 0.0
+
+
+class Int(Kind):
+    def coerce(self, value):
+        return int(value)
+
+    def check(self, value):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"expected an integer, got {type(value).__name__}")
+        return value
+
+    def default(self):
+        return 0
+
+
+class Bool(Kind):
+    def check(self, value):
+        if not isinstance(value, bool):
+            raise ValueError(f"expected true or false, got {type(value).__name__}")
+        return value
+
+    def default(self):
+        return False
+
+
+class Str(Kind):
+    def __init__(self, choices: tuple[str, ...] | None = None):
+        self.choices = choices
+
+    def check(self, value):
+        if not isinstance(value, str):
+            raise ValueError(f"expected a string, got {type(value).__name__}")
+        if self.choices is not None and value not in self.choices:
+            raise ValueError(f"expected one of {', '.join(self.choices)}, got {value!r}")
+        return value
+
+    def default(self):
+        return self.choices[0] if self.choices else ""
+
+
+class StrList(Kind):
+    def coerce(self, value):
+        return list(value)
+
+    def check(self, value):
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise ValueError("expected a list of strings")
+        return value
+
+    def default(self):
+        return []
+
+
+class IntList(Kind):
+    def coerce(self, value):
+        return [int(v) for v in value]
+
+    def check(self, value):
+        if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            raise ValueError("expected a list of integers")
+        return value
+
+    def default(self):
+        return []
+
+
+class Map(Kind):
+    """A map with string keys and plain values (numbers, strings, bools, lists)."""
+
+    def coerce(self, value):
+        return dict(value)
+
+    def check(self, value):
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise ValueError("expected a map with string keys")
+        return value
+
+    def default(self):
+        return {}
+
+
+class Array(Kind):
+    """A numpy array of a dtype kind ('f' float, 'i' int, 'b' bool) and a shape; None is any length."""
+
+    def __init__(self, shape: tuple[int | None, ...], dtype: str = "f8", finite: bool = True):
+        self.shape = shape
+        self.dtype = np.dtype(dtype)
+        self.finite = finite
+
+    def coerce(self, value):
+        arr = np.asarray(value)
+        if arr.dtype != self.dtype and not (arr.dtype.kind == self.dtype.kind and arr.dtype.kind in "fiu"):
+            arr = arr.astype(self.dtype)
+        return arr
+
+    def check(self, value):
+        if not isinstance(value, np.ndarray):
+            raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+        kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
+        if value.dtype.kind not in kinds:
+            raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
+        if len(value.shape) != len(self.shape) or any(
+            want is not None and want != got for want, got in zip(self.shape, value.shape)
+        ):
+            want = "x".join("N" if n is None else str(n) for n in self.shape) or "scalar"
+            raise ValueError(f"expected shape {want}, got {'x'.join(map(str, value.shape)) or 'scalar'}")
+        if self.finite and value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise ValueError("expected finite values, got NaN or infinity")
+        return value
+
+    def default(self):
+        return np.zeros([n or 0 for n in self.shape], dtype=self.dtype)
+
+
+class Records(Kind):
+    """A list of maps, each checked against its own field kinds (e.g. the objects of a scene)."""
+
+    def __init__(self, fields: dict[str, Kind], optional: tuple[str, ...] = ()):
+        self.fields = fields
+        self.optional = optional
+
+    def coerce(self, value):
+        out = []
+        for item in value:
+            item = dict(item)
+            for key, kind in self.fields.items():
+                if key in item:
+                    item[key] = kind.coerce(item[key])
+            out.append(item)
+        return out
+
+    def check(self, value):
+        if not isinstance(value, list):
+            raise ValueError(f"expected a list, got {type(value).__name__}")
+        for index, item in enumerate(value):
+            if not isinstance(item, dict):
+                raise ValueError(f"[{index}]: expected a map, got {type(item).__name__}")
+            for key, kind in self.fields.items():
+                if key not in item:
+                    if key in self.optional:
+                        continue
+                    raise ValueError(f"[{index}].{key}: missing")
+                try:
+                    item[key] = kind.check(item[key])
+                except ValueError as exc:
+                    raise ValueError(f"[{index}].{key}: {exc}") from None
+        return value
+
+    def default(self):
+        return []
+
+
+class ArrayList(Kind):
+    """A list of arrays of one kind (e.g. the half-space tables of a union's parts)."""
+
+    def __init__(self, item: Array):
+        self.item = item
+
+    def coerce(self, value):
+        return [self.item.coerce(v) for v in value]
+
+    def check(self, value):
+        if not isinstance(value, list):
+            raise ValueError(f"expected a list, got {type(value).__name__}")
+        for index, item in enumerate(value):
+            try:
+                self.item.check(item)
+            except ValueError as exc:
+                raise ValueError(f"[{index}]: {exc}") from None
+        return value
+
+    def default(self):
+        return []
+
+
+def spec(kind: Kind, doc: str):
+    """Declare a message field: its kind (checked on decode) and what it means (units, frame)."""
+    return field(default_factory=kind.default, metadata={"kind": kind, "doc": doc})
+
+
+# ---- the message base class ------------------------------------------------------------------------
+
+TYPES: dict[str, type[Message]] = {}
+
+
+@dataclass(kw_only=True)
+class Message:
+    """Base of all messages: the header, encoding to msgpack bytes and checked decoding."""
+
+    TYPE: ClassVar[str] = ""
+
+    stamp: float = spec(Float(), "wall-clock time the message was made, seconds (time.time()); set on publish")
+    seq: int = spec(Int(), "per-topic, per-publisher sequence number from 0; a gap means a drop; set on publish")
+    source_stamp: float = spec(
+        Float(), "stamp of the hand/pose this message was derived from (= stamp for originating messages)"
+    )
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "TYPE" not in cls.__dict__:
+            cls.TYPE = cls.__name__
+        TYPES[cls.TYPE] = cls
+
+    def __post_init__(self):
+        for f in self._fields():
+            value = getattr(self, f.name)
+            try:
+                object.__setattr__(self, f.name, f.metadata["kind"].coerce(value))
+            except (TypeError, ValueError) as exc:
+                raise MessageError(f"{self.TYPE}.{f.name}: {exc}") from None
+
+    @classmethod
+    def _fields(cls) -> tuple[dataclasses.Field, ...]:
+        cached = cls.__dict__.get("_FIELDS_CACHE")
+        if cached is None:
+            cached = tuple(f for f in dataclasses.fields(cls) if "kind" in f.metadata)
+            cls._FIELDS_CACHE = cached
+        return cached
+
+    @classmethod
+    def field_docs(cls) -> dict[str, str]:
+        """Each field's documentation (units, frame), e.g. for log schemas and `topic echo`."""
+        return {f.name: f.metadata["doc"] for f in cls._fields()}
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {"type": self.TYPE}
+        for f in self._fields():
+            out[f.name] = getattr(self, f.name)
+        return out
+
+    def validate(self) -> None:
+        """Check every field (types, shapes, finiteness) and the message's own rules."""
+        for f in self._fields():
+            try:
+                f.metadata["kind"].check(getattr(self, f.name))
+            except ValueError as exc:
+                raise MessageError(_where(self.TYPE, f.name, exc)) from None
+        try:
+            self.check()
+        except ValueError as exc:
+            raise MessageError(f"{self.TYPE}: {exc}") from None
+
+    def check(self) -> None:
+        """Rules across fields (equal lengths, unit quaternions); subclasses override."""
+
+    def encode(self) -> bytes:
+        return pack(self.to_dict())
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Message:
+        """Build and fully check a message of this class from a decoded map."""
+        values = {}
+        for f in cls._fields():
+            if f.name not in data:
+                raise MessageError(f"{cls.TYPE}.{f.name}: missing")
+            try:
+                values[f.name] = f.metadata["kind"].check(data[f.name])
+            except ValueError as exc:
+                raise MessageError(_where(cls.TYPE, f.name, exc)) from None
+        unknown = set(data) - {f.name for f in cls._fields()} - {"type"}
+        if unknown:
+            raise MessageError(f"{cls.TYPE}: unknown field(s) {', '.join(sorted(unknown))}")
+        msg = cls.__new__(cls)
+        for name, value in values.items():
+            object.__setattr__(msg, name, value)
+        try:
+            msg.check()
+        except ValueError as exc:
+            raise MessageError(f"{cls.TYPE}: {exc}") from None
+        return msg
+
+
+def _where(type_name: str, field_name: str, exc: Exception) -> str:
+    text = str(exc)
+    sep = "" if text.startswith("[") else ": "  # list items read as objects[2].size: ...
+    return f"{type_name}.{field_name}{sep}{text}"
+
+
+def encode(msg: Message) -> bytes:
+    """Message -> msgpack payload bytes (the second frame on the wire)."""
+    return msg.encode()
+
+
+def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
+    """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
+    try:
+        data = unpack(payload)
+    except CodecError as exc:
+        raise MessageError(str(exc)) from None
+    if not isinstance(data, dict):
+        raise MessageError(f"expected a message map, got {type(data).__name__}")
+    name = data.get("type")
+    cls = TYPES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise MessageError(f"unknown message type {name!r}")
+    if expected is not None and cls is not expected:
+        raise MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
+    return cls.from_dict(data)

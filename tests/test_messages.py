@@ -1,0 +1,108 @@
+"""Messages: round trips keep types, dtypes and shapes; bad payloads are rejected with a clear reason."""
+import msgpack
+import numpy as np
+import pytest
+
+from touch4d.messages import (
+    TOPIC_TYPES, TYPES, ControllerState, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
+    MotorStatus, SceneCommand, SceneState, Stop, TactileField, decode, encode,
+)
+from touch4d.messages.codec import pack
+
+
+def scene_object(**over):
+    obj = dict(name="cube", shape="tesseract", params={}, size=1.0, position=np.array([0, 0, 0, 1.5]),
+               orientation=np.eye(4), color=np.array([1.0, 0.5, 0.0, 1.0]))
+    obj.update(over)
+    return obj
+
+
+EXAMPLES = [
+    HandPose(position=[0.1, -0.2, 0.3], orientation=[0, 0, 0.6, 0.8], valid=True, stamp=12.5, seq=3, source_stamp=12.5),
+    ControllerState(position=[1, 2, 3], orientation=[0, 0, 0, 1], trigger=0.7, buttons=["menu"], valid=True),
+    SceneState(objects=[scene_object(), scene_object(shape="custom", parts=[np.ones((6, 5))])],
+               projection="perspective", eye_distance=3.0, selected=1, revision=7),
+    SceneCommand(command="projection", argument="toggle"),
+    TactileField(positions=np.zeros((4, 3)), l=np.array([0.1, np.nan, 0.3, np.nan]), s=np.ones(4),
+                 h=np.full(4, 0.5), alpha=1.0, beta=0.5, gamma=1.0),
+    MotorCommand(names=["palm0", "palm1"], intensity=[0.0, 0.4]),
+    MotorStatus(boards=[dict(id=1, online=True, faults=[], last_frame=1.0, state="operational")],
+                duty=np.zeros(30), bus_load=0.21, errors={"send": 0}),
+    Stop(reason="test", origin="pytest"),
+    Heartbeat(node="tactile", pid=42, kind="tactile", publishes=["tactile/field"], subscribes=[], stats={"received": 3}),
+    InputEvents(keys_down=["w"], pressed=["space"], mouse=[10, 20], mouse_delta=[1, -1], buttons=[1], scroll=0.5),
+]
+
+
+@pytest.mark.parametrize("msg", EXAMPLES, ids=lambda m: m.TYPE)
+def test_round_trip_keeps_values_dtypes_and_shapes(msg):
+    back = decode(encode(msg))
+    assert type(back) is type(msg)
+    for name in msg.field_docs():
+        a, b = getattr(msg, name), getattr(back, name)
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape
+            np.testing.assert_array_equal(a, b)
+        elif name == "objects":
+            for oa, ob in zip(a, b):
+                assert oa.keys() == ob.keys()
+                np.testing.assert_array_equal(oa["orientation"], ob["orientation"])
+        else:
+            assert a == b
+
+
+def test_every_topic_type_is_registered_and_documented():
+    assert set(TOPIC_TYPES.values()) <= set(TYPES.values())
+    for cls in TOPIC_TYPES.values():
+        docs = cls.field_docs()
+        assert {"stamp", "seq", "source_stamp"} <= docs.keys()
+        assert all(doc for doc in docs.values())
+
+
+def test_integer_and_float32_arrays_keep_their_dtype():
+    msg = TactileField(positions=np.zeros((2, 3), np.float32), l=np.zeros(2, np.float32), s=np.zeros(2),
+                       h=np.zeros(2))
+    back = decode(encode(msg))
+    assert back.positions.dtype == np.float32 and back.l.dtype == np.float32
+
+
+@pytest.mark.parametrize("payload, reason", [
+    (b"\xc1garbage", "not a msgpack payload"),
+    (pack([1, 2, 3]), "expected a message map"),
+    (pack({"type": "Nope"}), "unknown message type 'Nope'"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "valid": True}), "HandPose.orientation: missing"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.zeros(4),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.position: expected shape 3, got 4"),
+    (pack({"type": "HandPose", "stamp": "now", "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.stamp: expected a number"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.array([np.inf, 0, 0]),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.position: expected finite"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "orientation": np.zeros(4), "valid": True}), "expected a unit quaternion"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True, "extra": 1}), "unknown field(s) extra"),
+    (msgpack.packb({"type": "HandPose", "position": msgpack.ExtType(1, b"\x03<f8\x01\x03\x00\x00\x00abc")}),
+     "needs 24 bytes, got 3"),
+    (msgpack.packb({"type": "HandPose", "position": msgpack.ExtType(1, b"\x03|O8\x00")}), "not allowed"),
+    (msgpack.packb({"type": "HandPose", "position": msgpack.ExtType(9, b"")}), "unknown msgpack ext type 9"),
+])
+def test_bad_payloads_are_rejected_with_the_reason(payload, reason):
+    with pytest.raises(MessageError) as info:
+        decode(payload)
+    assert reason in str(info.value)
+
+
+def test_expected_type_is_enforced():
+    with pytest.raises(MessageError, match="expected a HandPose message, got Stop"):
+        decode(encode(Stop(reason="x", origin="y")), expected=HandPose)
+
+
+def test_cross_field_rules():
+    with pytest.raises(MessageError, match="intensity: expected 2 values"):
+        decode(encode(MotorCommand(names=["a", "b"], intensity=[1.0])))
+    bad = scene_object(orientation=np.full((4, 4), 0.5) + np.eye(4))
+    with pytest.raises(MessageError, match=r"objects\[0\].orientation: expected an orthogonal"):
+        decode(encode(SceneState(objects=[bad], projection="orthographic", eye_distance=0.0)))
+    with pytest.raises(MessageError, match=r"objects\[0\].position: expected shape 4"):
+        decode(encode(SceneState(objects=[scene_object(position=np.zeros(3))])))

@@ -1,0 +1,85 @@
+"""A parametric hand (a palm box and five capsule fingers) and the grid of sample points inside it.
+
+Hand frame, metres: origin at the centre of the palm, x toward the thumb, y along the fingers,
+z out of the back of the hand (the palm faces -z).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FINGER_NAMES = ("thumb", "index", "middle", "ring", "little")
+
+
+@dataclass(frozen=True)
+class Finger:
+    """A finger as a capsule: a segment from `base` to `tip` swept by `radius` (metres)."""
+
+    name: str
+    base: np.ndarray   # (3,)
+    tip: np.ndarray    # (3,)
+    radius: float
+
+    def point_at(self, fraction: float) -> np.ndarray:
+        """The point on the finger's axis `fraction` of the way from base (0) to tip (1)."""
+        return self.base + fraction * (self.tip - self.base)
+
+
+@dataclass(frozen=True)
+class Hand:
+    """A palm (axis-aligned box centred at the origin) and fingers (capsules)."""
+
+    palm_half: np.ndarray          # (3,) half extents of the palm box
+    fingers: tuple[Finger, ...]
+
+    @classmethod
+    def from_sizes(cls, palm: dict, fingers: list[dict]) -> "Hand":
+        """Build from config sizes: palm {width, length, thickness}; fingers [{name, base [x, y], angle_deg, length, radius}].
+
+        `base` is where the finger's axis starts, in the palm plane z = 0; `angle_deg` turns the
+        finger from +y toward +x (the thumb side).
+        """
+        half = 0.5 * np.array([palm["width"], palm["length"], palm["thickness"]], dtype=float)
+        made = []
+        for f in fingers:
+            angle = np.radians(f["angle_deg"])
+            base = np.array([f["base"][0], f["base"][1], 0.0], dtype=float)
+            direction = np.array([np.sin(angle), np.cos(angle), 0.0])
+            made.append(Finger(f["name"], base, base + f["length"] * direction, float(f["radius"])))
+        return cls(half, tuple(made))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hand's axis-aligned bounding box (low corner, high corner)."""
+        lows = [-self.palm_half]
+        highs = [self.palm_half]
+        for f in self.fingers:
+            ends = np.stack([f.base, f.tip])
+            lows.append(ends.min(axis=0) - f.radius)
+            highs.append(ends.max(axis=0) + f.radius)
+        return np.min(lows, axis=0), np.max(highs, axis=0)
+
+    def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Which of `points` (N, 3) lie inside the palm or a finger (boundary included)."""
+        points = np.asarray(points, dtype=float)
+        inside = np.all(np.abs(points) <= self.palm_half + tol, axis=1)
+        for f in self.fingers:
+            axis = f.tip - f.base
+            t = np.clip((points - f.base) @ axis / (axis @ axis), 0.0, 1.0)
+            nearest = f.base + t[:, None] * axis
+            inside |= np.sum((points - nearest) ** 2, axis=1) <= (f.radius + tol) ** 2
+        return inside
+
+    def grid_samples(self, n: int | tuple[int, int, int]) -> np.ndarray:
+        """Sample points: an n x n x n grid over the bounding box, keeping those inside the hand (paper §6)."""
+        counts = (n, n, n) if np.isscalar(n) else tuple(n)
+        low, high = self.bounds()
+        axes = [np.linspace(low[k], high[k], counts[k]) for k in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return grid[self.contains(grid)]
+
+    def finger(self, name: str) -> Finger:
+        for f in self.fingers:
+            if f.name == name:
+                return f
+        raise KeyError(name)
