@@ -1,1 +1,10 @@
-"""touch4d."""
+"""The topic bus: broker, node runtime, launcher and introspection (see docs/contracts.md)."""
+from touch4d.bus.broker import Broker
+from touch4d.bus.config import BusConfig, CurveKeys, load_bus_config, resolve_bus_config
+from touch4d.bus.node import Node, Publisher, Subscription, Timer
+from touch4d.bus.process import run_node
+
+__all__ = [
+    "Broker", "BusConfig", "CurveKeys", "Node", "Publisher", "Subscription", "Timer",
+    "load_bus_config", "resolve_bus_config", "run_node",
+]

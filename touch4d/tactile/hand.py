@@ -1,4 +1,4 @@
-"""A parametric hand (a palm box and five capsule fingers) and the grid of sample points inside it.
+"""A parametric hand (a rounded palm slab and five capsule fingers) and the grid of samples inside it.
 
 Hand frame, metres: origin at the centre of the palm, x toward the thumb, y along the fingers,
 z out of the back of the hand (the palm faces -z).
@@ -28,9 +28,13 @@ class Finger:
 
 @dataclass(frozen=True)
 class Hand:
-    """A palm (axis-aligned box centred at the origin) and fingers (capsules)."""
+    """A palm and fingers (capsules).
 
-    palm_half: np.ndarray          # (3,) half extents of the palm box
+    The palm is a slab centred at the origin, `palm_half` (3,) its half extents, whose thumb and
+    little-finger sides are rounded (half-cylinders of radius palm_half[2]) like a real palm's.
+    """
+
+    palm_half: np.ndarray
     fingers: tuple[Finger, ...]
 
     @classmethod
@@ -41,6 +45,8 @@ class Hand:
         finger from +y toward +x (the thumb side).
         """
         half = 0.5 * np.array([palm["width"], palm["length"], palm["thickness"]], dtype=float)
+        if half[0] < half[2]:
+            raise ValueError("palm: expected width >= thickness")
         made = []
         for f in fingers:
             angle = np.radians(f["angle_deg"])
@@ -62,13 +68,19 @@ class Hand:
     def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         """Which of `points` (N, 3) lie inside the palm or a finger (boundary included)."""
         points = np.asarray(points, dtype=float)
-        inside = np.all(np.abs(points) <= self.palm_half + tol, axis=1)
+        inside = self.in_palm(points, tol)
         for f in self.fingers:
             axis = f.tip - f.base
             t = np.clip((points - f.base) @ axis / (axis @ axis), 0.0, 1.0)
             nearest = f.base + t[:, None] * axis
             inside |= np.sum((points - nearest) ** 2, axis=1) <= (f.radius + tol) ** 2
         return inside
+
+    def in_palm(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Which of `points` (N, 3) lie inside the rounded palm slab."""
+        hx, hy, hz = self.palm_half
+        dx = np.maximum(np.abs(points[:, 0]) - (hx - hz), 0.0)
+        return (np.abs(points[:, 1]) <= hy + tol) & (dx**2 + points[:, 2] ** 2 <= (hz + tol) ** 2)
 
     def grid_samples(self, n: int | tuple[int, int, int]) -> np.ndarray:
         """Sample points: an n x n x n grid over the bounding box, keeping those inside the hand (paper §6)."""

@@ -1,0 +1,62 @@
+"""Desktop tracker: the hand and the controller's trigger steered from the renderer window's `ui/input`.
+
+Keys and mouse as in touch4d.tracking.desktop; publishes `hand/pose` and `controller/state` at `rate` Hz.
+"""
+from __future__ import annotations
+
+import time
+
+from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
+from touch4d.messages import ControllerState, HandPose, InputEvents
+from touch4d.tracking.calibration import load_calibration
+from touch4d.tracking.config import resolve
+from touch4d.tracking.desktop import DesktopConfig, DesktopHand
+from touch4d.tracking.outputs import from_hand
+
+MAX_RATE = 1000.0
+
+
+class DesktopTracker(Node):
+    def __init__(self, **kwargs):
+        super().__init__("tracker", **kwargs)
+        source = f"parameters of node '{self.name}'"
+        self.rate = self.declare_parameter("rate", 90.0)
+        if not 0 < self.rate <= MAX_RATE:
+            raise ConfigError(source, "rate", f"a rate in (0, {MAX_RATE:g}] Hz", got=self.rate)
+        defaults = DesktopConfig()
+        home = self.declare_parameter("home", list(defaults.home))
+        if len(home) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in home):
+            raise ConfigError(source, "home", "[x, y, z] in screen units", got=home)
+        config = DesktopConfig(
+            move_speed=self.declare_parameter("move_speed", defaults.move_speed),
+            turn_speed_deg=self.declare_parameter("turn_speed_deg", defaults.turn_speed_deg),
+            drag_turn=self.declare_parameter("drag_turn", defaults.drag_turn),
+            drag_move=self.declare_parameter("drag_move", defaults.drag_move),
+            home=tuple(float(v) for v in home),
+        )
+        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+        self.hand = DesktopHand(config)
+        self.hand_pub = self.create_publisher("hand/pose", HandPose)
+        self.controller_pub = self.create_publisher("controller/state", ControllerState)
+        self.create_subscription("ui/input", InputEvents, self.on_input)
+        self.create_timer(1.0 / self.rate, self.tick)
+        self.log.info("steer the hand from the renderer window: a/d q/e w/s move, arrows z/c turn, space "
+                      "or a mouse drag holds the trigger, n/r/p next/reset/projection, h home")
+
+    def on_input(self, msg: InputEvents) -> None:
+        self.hand.on_input(msg.keys_down, msg.pressed, msg.mouse_delta, msg.buttons, time.monotonic())
+
+    def tick(self) -> None:
+        sample = self.hand.step(1.0 / self.rate, time.monotonic())
+        hand, controller = from_hand(sample, self.calibration)
+        self.hand_pub.publish(hand)
+        self.controller_pub.publish(controller)
+
+
+def main(argv=None):
+    return run_node(DesktopTracker, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

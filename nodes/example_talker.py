@@ -1,0 +1,42 @@
+"""Example node: publishes a HandPose moving on a circle, at `rate` Hz, on `topic`.
+
+A minimal node to copy, and the publisher of the bus's own tests and demo.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
+from touch4d.messages import HandPose
+
+
+class ExampleTalker(Node):
+    def __init__(self, **kwargs):
+        super().__init__("talker", **kwargs)
+        self.topic = self.declare_parameter("topic", "example/pose")
+        self.rate = self.declare_parameter("rate", 10.0)
+        self.count = self.declare_parameter("count", 0)  # stop publishing after this many; 0 = never
+        if not self.rate > 0:
+            raise ConfigError(f"parameters of node '{self.name}'", "rate", "a rate > 0 Hz", got=self.rate)
+        self.pub = self.create_publisher(self.topic, HandPose)
+        self.sent = 0
+        self.create_timer(1.0 / self.rate, self.tick)
+        self.log.info("publishing HandPose on %s at %g Hz", self.topic, self.rate)
+
+    def tick(self):
+        if self.count and self.sent >= self.count:
+            return
+        angle = 2.0 * math.pi * 0.2 * self.sent / self.rate
+        self.pub.publish(HandPose(
+            position=np.array([0.5 * math.cos(angle), 0.5 * math.sin(angle), 0.0]),
+            orientation=np.array([0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2)]),
+            valid=True,
+        ))
+        self.sent += 1
+
+
+def main(argv=None):
+    return run_node(ExampleTalker, argv)

@@ -1,0 +1,147 @@
+"""Motor node: `tactile/motors` intensities -> PWM duty frames on the glove's CAN bus.
+
+Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The logic lives in
+touch4d.glove (driver: what to send; link: python-can without exceptions); this node wires it to
+topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
+`channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
+this process), `status_hz` (motors/status rate).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from touch4d.bus import Node, run_node
+from touch4d.glove.busload import check_bus_load
+from touch4d.glove.config import load_glove_can
+from touch4d.glove.driver import MotorDriver, Outgoing
+from touch4d.glove.emulator import GloveEmulator
+from touch4d.glove.link import CAN_ERR_BUSOFF, CanLink
+from touch4d.glove.protocol import FrameError, GloveProtocol
+from touch4d.messages import MotorCommand, MotorStatus, Stop
+
+WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
+
+
+class MotorsNode(Node):
+    """Drives the glove's motor boards over CAN."""
+
+    def __init__(self, bus_factory=None, **kwargs):
+        super().__init__("motors", **kwargs)
+        glove = self.declare_parameter("glove", "")
+        interface = self.declare_parameter("interface", "")
+        channel = self.declare_parameter("channel", "")
+        emulate = self.declare_parameter("emulate", False)
+        status_hz = self.declare_parameter("status_hz", 10.0)
+        cfg = load_glove_can(glove or None)
+        cfg = dataclasses.replace(cfg, interface=interface or cfg.interface, channel=channel or cfg.channel)
+        self.cfg = cfg
+        self.load = check_bus_load(cfg)
+        self.protocol = GloveProtocol(cfg)
+        self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
+        self.emulator = GloveEmulator(cfg).start() if emulate else None
+        self.link = CanLink(cfg.interface, cfg.channel, cfg.bitrate, cfg.send_timeout_s,
+                            bus=bus_factory() if bus_factory else None)
+        fault = self.link.ensure_open()
+        if fault:
+            self.driver.errors[fault] += 1
+            self.log.error("CAN: %s; retrying", self.link.last_error)
+        self._can_warned: dict[str, float] = {}
+        self._can_bus_off = False
+        self.status_pub = self.create_publisher("motors/status", MotorStatus)
+        self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
+        self.create_subscription("safety/stop", Stop, self.on_stop)
+        self.create_timer(1.0 / cfg.refresh_hz, self.on_refresh)
+        self.create_timer(1.0 / status_hz, self.publish_status)
+        self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
+                      len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
+                      100 * self.load.fraction, " (emulated boards)" if emulate else "")
+
+    def on_command(self, msg: MotorCommand) -> None:
+        now = time.monotonic()
+        self.driver.command(msg.names, msg.intensity, now)
+        self._send_frames(self.driver.outgoing(now), now)
+
+    def on_stop(self, msg: Stop) -> None:
+        now = time.monotonic()
+        self.log.warning("stop from %s: %s", msg.origin or "?", msg.reason or "-")
+        self._stop_all(now)
+        self.publish_status()
+
+    def _stop_all(self, now: float) -> None:
+        """NMT STOP first (highest priority frame), then zero duty to every board."""
+        stop = self.driver.stop(now)
+        self._send_frames([Outgoing(0, stop)], now)
+        self._send_frames(self.driver.outgoing(now, refresh=True, force=True), now)
+
+    def on_refresh(self) -> None:
+        now = time.monotonic()
+        self._receive_frames(now)
+        for event in self.driver.check_boards(now):
+            self.log.warning("%s", event) if "not answering" in event else self.log.info("%s", event)
+        self._send_frames(self.driver.outgoing(now, refresh=True), now)
+
+    def _receive_frames(self, now: float) -> None:
+        msgs, fault = self.link.receive()
+        if fault:
+            self._can_fault(fault)
+        for m in msgs:
+            if m.is_error_frame:
+                self.driver.errors["error_frames"] += 1
+                if m.arbitration_id & CAN_ERR_BUSOFF:
+                    self._can_fault("bus_off")
+                continue
+            try:
+                frame = self.protocol.decode(m)
+            except FrameError as exc:
+                self._can_fault("malformed_rx", str(exc))
+                continue
+            self.driver.receive(m, frame, now)
+        bus_off = self.link.bus_state_fault() == "bus_off"
+        if bus_off and not self._can_bus_off:
+            self._can_fault("bus_off")
+        self._can_bus_off = bus_off
+
+    def _send_frames(self, outs: list[Outgoing], now: float) -> None:
+        for out in outs:
+            fault = self.link.send(out.msg)
+            if fault is None:
+                self.driver.sent(out, now)
+            else:
+                self.driver.failed(out, fault)
+                self._can_warn(fault, self.link.last_error)
+
+    def _can_fault(self, kind: str, detail: str | None = None) -> None:
+        self.driver.errors[kind] += 1
+        self._can_warn(kind, detail)
+
+    def _can_warn(self, kind: str, detail: str | None) -> None:
+        now = time.monotonic()
+        if now - self._can_warned.get(kind, -WARN_PERIOD_S) >= WARN_PERIOD_S:
+            self._can_warned[kind] = now
+            self.log.warning("CAN %s (%d so far): %s", kind, self.driver.errors[kind], detail or "-")
+
+    def status(self) -> MotorStatus:
+        errors = {k: int(v) for k, v in self.driver.errors.items()}
+        return MotorStatus(boards=self.driver.board_report(), duty=self.driver.sent_duty(),
+                           bus_load=float(self.load.fraction), errors=errors)
+
+    def publish_status(self) -> None:
+        self.status_pub.publish(self.status())
+
+    def on_shutdown(self) -> None:
+        try:
+            self._stop_all(time.monotonic())
+            self.publish_status()
+        finally:
+            if self.emulator is not None:
+                self.emulator.stop()
+            self.link.close()
+
+
+def main(argv=None):
+    return run_node(MotorsNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,94 @@
+"""OpenVR tracker: a real SteamVR controller (HTC Vive, Index...) through the `openvr` package.
+
+Publishes the controller's pose, trigger and buttons on `controller/state` (room = SteamVR's
+standing space) and the glove hand it holds on `hand/pose` (screen coordinates, through the
+calibration) at `rate` Hz. Without the package or without a running SteamVR it exits at once
+with code 1 and says what is missing.
+"""
+from __future__ import annotations
+
+import functools
+import sys
+
+from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
+from touch4d.messages import ControllerState, HandPose
+from touch4d.tracking.calibration import load_calibration
+from touch4d.tracking.config import resolve
+from touch4d.tracking.outputs import from_controller
+from touch4d.tracking.vr import MISSING_PACKAGE, NO_STEAMVR, buttons_from_mask, pose_from_matrix
+
+HANDS = ("right", "left")
+TRIGGER_AXIS = 1  # rAxis[1].x is the trigger on Vive and Index controllers
+
+
+class OpenVRTracker(Node):
+    def __init__(self, openvr=None, system=None, **kwargs):
+        super().__init__("tracker", **kwargs)
+        source = f"parameters of node '{self.name}'"
+        self.openvr, self.system = openvr, system
+        self.rate = self.declare_parameter("rate", 90.0)
+        if not 0 < self.rate <= 1000.0:
+            raise ConfigError(source, "rate", "a rate in (0, 1000] Hz", got=self.rate)
+        hand = self.declare_parameter("hand", "right")
+        if hand not in HANDS:
+            raise ConfigError(source, "hand", "right or left", got=hand)
+        self.role = openvr.TrackedControllerRole_RightHand if hand == "right" else openvr.TrackedControllerRole_LeftHand
+        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+        self.hand_pub = self.create_publisher("hand/pose", HandPose)
+        self.controller_pub = self.create_publisher("controller/state", ControllerState)
+        self.create_timer(1.0 / self.rate, self.tick)
+        self.was_found = None
+        self.log.info("reading the %s-hand controller at %g Hz", hand, self.rate)
+
+    def tick(self) -> None:
+        vr, system = self.openvr, self.system
+        index = system.getTrackedDeviceIndexForControllerRole(self.role)
+        found = index != vr.k_unTrackedDeviceIndexInvalid
+        if found != self.was_found:
+            self.was_found = found
+            self.log.log(20 if found else 30, "controller %s", "found" if found else "not found: is it on?")
+        position, quat, trigger, buttons, valid = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], 0.0, [], False
+        if found:
+            poses = system.getDeviceToAbsoluteTrackingPose(vr.TrackingUniverseStanding, 0, vr.k_unMaxTrackedDeviceCount)
+            pose = poses[index]
+            if pose.bPoseIsValid:
+                position, quat = pose_from_matrix([list(row) for row in pose.mDeviceToAbsoluteTracking])
+                valid = True
+            ok, state = system.getControllerState(index)
+            if ok:
+                trigger = float(state.rAxis[TRIGGER_AXIS].x)
+                buttons = buttons_from_mask(state.ulButtonPressed)
+        hand, controller = from_controller(position, quat, trigger, buttons, valid, self.calibration)
+        self.hand_pub.publish(hand)
+        self.controller_pub.publish(controller)
+
+    def on_shutdown(self) -> None:
+        self.openvr.shutdown()
+
+
+def connect():
+    """(openvr module, IVRSystem), or a message saying what is missing."""
+    try:
+        import openvr
+    except ImportError:
+        return None, MISSING_PACKAGE
+    try:
+        # Background: use a running SteamVR, never start one (so this fails at once without it).
+        system = openvr.init(openvr.VRApplication_Background)
+    except Exception as exc:  # noqa: BLE001 - openvr raises its own error classes per init failure
+        return None, NO_STEAMVR.format(error=str(exc) or type(exc).__name__)
+    return (openvr, system), None
+
+
+def main(argv=None):
+    found, problem = connect()
+    if problem:
+        print(problem, file=sys.stderr)
+        return 1
+    openvr, system = found
+    return run_node(functools.partial(OpenVRTracker, openvr=openvr, system=system), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,183 @@
+"""Renderer node: draws `scene/state`, `hand/pose`, `tactile/field` and `tactile/motors` (paper §4.3, Fig. 17).
+
+With a display it opens a window (moderngl-window, glfw) with an orbit camera and publishes the
+window's keyboard and mouse as `ui/input` for the desktop tracker. Without one (no DISPLAY, or
+`headless: true`) it renders offscreen through EGL and can write frames to PNG (`output`, with
+`{frame}` for numbered files). A message it cannot use is logged once per cause and counted; the
+last good state keeps being drawn.
+
+Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
+glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
+fill_alpha, centre_alpha, clip, show_frame, show_tactile, show_status.
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
+from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
+from touch4d.render.camera import OrbitCamera, parse_camera
+from touch4d.render.context import RenderError, save_png
+from touch4d.render.scene_mesh import Style
+from touch4d.render.view import BACKGROUND, OffscreenRenderer, SceneView, Show
+from touch4d.tactile.glove import load_glove
+
+
+class RendererNode(Node):
+    """Keeps the last good state of every input and draws it at `rate`."""
+
+    def __init__(self, **kwargs):
+        super().__init__("renderer", **kwargs)
+        source = self._params_source or f"parameters of node '{self.name}'"
+        rate = self.declare_parameter("rate", 60.0)
+        width = self.declare_parameter("width", 1024)
+        height = self.declare_parameter("height", 640)
+        samples = self.declare_parameter("samples", 4)
+        camera = self.declare_parameter("camera", "")
+        glove_file = self.declare_parameter("glove", "")
+        headless = self.declare_parameter("headless", False)
+        self.output = self.declare_parameter("output", "")
+        self.save_every = self.declare_parameter("save_every", 1)
+        self.max_frames = self.declare_parameter("max_frames", 0)
+        style = Style(fill_alpha=self.declare_parameter("fill_alpha", Style.fill_alpha),
+                      centre_alpha=self.declare_parameter("centre_alpha", Style.centre_alpha),
+                      clip=self.declare_parameter("clip", True))
+        show = Show(frame=self.declare_parameter("show_frame", True),
+                    tactile=self.declare_parameter("show_tactile", True),
+                    status=self.declare_parameter("show_status", True))
+        if not rate > 0:
+            raise ConfigError(source, "rate", "frames per second > 0", got=rate)
+        if not (16 <= width <= 8192 and 16 <= height <= 8192):
+            raise ConfigError(source, "width/height", "16..8192 pixels", got=(width, height))
+        if self.save_every < 1 or self.max_frames < 0 or samples < 0:
+            raise ConfigError(source, "save_every/max_frames/samples", "save_every >= 1, the others >= 0",
+                              got=(self.save_every, self.max_frames, samples))
+        self.camera = parse_camera(camera, OrbitCamera())
+        self.view = SceneView(load_glove(glove_file or None), style, show)
+        self.counts = {"frames": 0, "saved": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
+        self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
+        self._rates = dict.fromkeys(self._received, 0.0)
+        self._fps = 0.0
+        self._rate_mark = (time.monotonic(), 0, dict(self._received))
+        self._logged: set[str] = set()
+
+        self.headless = headless or not os.environ.get("DISPLAY")
+        self.window = None
+        self.input = None
+        self.input_pub = None
+        if self.headless:
+            self.renderer = OffscreenRenderer((width, height), samples=samples)
+            self.log.info("headless: rendering offscreen through EGL at %g Hz%s", rate,
+                          f", frames to {self.output}" if self.output else "")
+        else:
+            from touch4d.render.draw import Painter
+            from touch4d.render.window import InputState, open_window
+
+            self.input = InputState()
+            self.window = open_window((width, height), self.camera, self.input, samples=samples)
+            self.painter = Painter(self.window.ctx)
+            self.input_pub = self.create_publisher("ui/input", InputEvents)
+            self.log.info("window %dx%d at %g Hz; publishing ui/input", width, height, rate)
+
+        self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
+        self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
+        self.create_subscription("tactile/field", TactileField, self.on_field, latest_only=True)
+        self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
+        self.create_timer(1.0 / rate, self.on_frame)
+
+    # ---- inputs: keep the last good state ----------------------------------------------------------
+    def on_scene(self, msg: SceneState) -> None:
+        self._received["scene"] += 1
+        try:
+            self.view.set_scene(msg)
+        except (ValueError, TypeError, KeyError) as exc:   # MessageError, GeometryError, odd params
+            self.counts["bad_scenes"] += 1
+            self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "
+                                            f"keeping the last good scene: {exc}")
+
+    def on_pose(self, msg: HandPose) -> None:
+        self._received["pose"] += 1
+        try:
+            self.view.set_hand(msg)
+        except ValueError as exc:
+            self.counts["bad_poses"] += 1
+            self._warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
+
+    def on_field(self, msg: TactileField) -> None:
+        self._received["field"] += 1
+        try:
+            self.view.set_field(msg)
+        except ValueError as exc:
+            self.counts["bad_fields"] += 1
+            self._warn_once(f"field:{exc}", f"tactile/field ignored: {exc}")
+
+    def on_motors(self, msg: MotorCommand) -> None:
+        self._received["motors"] += 1
+        self.view.set_motors(msg)
+
+    # ---- drawing ------------------------------------------------------------------------------------
+    def on_frame(self) -> None:
+        self._update_rates()
+        status = [f"renderer {self._fps:.0f} fps | scene {self._rates['scene']:.1f} Hz, "
+                  f"pose {self._rates['pose']:.0f} Hz, field {self._rates['field']:.0f} Hz"]
+        layers = self.view.layers(status)
+        if self.window is not None:
+            if self.window.is_closing:
+                self.request_shutdown()
+                return
+            self.window.use()
+            size = self.window.buffer_size
+            self.painter.paint(layers, self.camera.matrix(size), size, BACKGROUND)
+            if self.output and self.counts["frames"] % self.save_every == 0:
+                self._save(self._read_window(size))
+            self.window.swap_buffers()          # also polls the window's events
+            self.input_pub.publish(self.input.take())
+        else:
+            self.renderer.draw_layers(layers, self.camera)
+            if self.output and self.counts["frames"] % self.save_every == 0:
+                self._save(self.renderer.read())
+        self.counts["frames"] += 1
+        if self.max_frames and self.counts["frames"] >= self.max_frames:
+            self.request_shutdown()
+
+    def _read_window(self, size) -> np.ndarray:
+        raw = self.window.ctx.screen.read(viewport=(0, 0, *size), components=4, alignment=1)
+        return np.frombuffer(raw, dtype=np.uint8).reshape(size[1], size[0], 4)[::-1].copy()
+
+    def _save(self, image) -> None:
+        path = self.output.format(frame=self.counts["frames"]) if "{" in self.output else self.output
+        try:
+            save_png(image, Path(path))
+            self.counts["saved"] += 1
+        except RenderError as exc:
+            self._warn_once(f"save:{exc}", f"cannot write frame to {path}: {exc}")
+
+    def _update_rates(self) -> None:
+        now = time.monotonic()
+        t0, frames0, received0 = self._rate_mark
+        if now - t0 >= 1.0:
+            self._fps = (self.counts["frames"] - frames0) / (now - t0)
+            self._rates = {k: (self._received[k] - received0[k]) / (now - t0) for k in self._received}
+            self._rate_mark = (now, self.counts["frames"], dict(self._received))
+
+    def _warn_once(self, cause: str, text: str) -> None:
+        if cause not in self._logged and len(self._logged) < 100:
+            self._logged.add(cause)
+            self.log.warning("%s (further identical problems are only counted)", text)
+
+    def on_shutdown(self) -> None:
+        self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
+        if self.window is not None:
+            self.painter.release()
+            self.window.destroy()
+        else:
+            self.renderer.release()
+
+
+def main(argv=None):
+    return run_node(RendererNode, argv)

@@ -1,0 +1,92 @@
+"""Scene node: holds the 4D scene, turns it with the controller (paper §4.4), publishes `scene/state`.
+
+Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
+skipping a backlog loses no rotation) and `scene/command`. Publishes `scene/state` on every change,
+at most `max_rate` times a second, and every 1/`rate` s for late joiners.
+"""
+from __future__ import annotations
+
+import time
+
+from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
+from touch4d.geometry.scene import load_scene
+from touch4d.messages import ControllerState, SceneCommand, SceneState
+from touch4d.tracking.calibration import load_calibration
+from touch4d.tracking.config import resolve
+from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
+
+
+class SceneNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("scene", **kwargs)
+        source = f"parameters of node '{self.name}'"
+        scene_file = self.declare_parameter("scene", "config/scenes/hypercube.yaml")
+        calibration = self.declare_parameter("calibration", "config/calibration.yaml")
+        rate = self.declare_parameter("rate", 2.0)
+        self.min_period = 1.0 / _positive(self.declare_parameter("max_rate", 120.0), source, "max_rate")
+        spin_rate = _positive(self.declare_parameter("spin_rate", 30.0), source, "spin_rate")
+        config = ControlConfig.from_params(
+            gains=self.declare_parameter("gains", {}),
+            trigger_threshold=self.declare_parameter("trigger_threshold", 0.5),
+            buttons=self.declare_parameter("buttons", dict(DEFAULT_BUTTONS)),
+            rotate=self.declare_parameter("rotate", "object"),
+            spin=self.declare_parameter("spin", {}),
+            source=source,
+        )
+        self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(resolve(calibration)), config)
+        self.pub = self.create_publisher("scene/state", SceneState)
+        self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
+        self.create_subscription("scene/command", SceneCommand, self.on_command)
+        self.create_timer(1.0 / _positive(rate, source, "rate"), self.publish)
+        self.create_timer(self.min_period, self.flush)
+        if config.spin_plane is not None:
+            self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
+        self.dirty = False
+        self.last_publish = 0.0
+        self.publish()
+        self.log.info("scene %s: %d object(s), rotating %s", scene_file, len(self.control.scene.objects),
+                      "the whole scene" if self.control.scene.selected < 0 else "the selected object")
+
+    def on_controller(self, msg: ControllerState) -> None:
+        self.changed(self.control.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid))
+
+    def on_command(self, msg: SceneCommand) -> None:
+        try:
+            changed = self.control.command(msg.command, msg.argument)
+        except ValueError as exc:
+            self.log.warning("scene/command ignored: %s", exc)
+            return
+        self.changed(changed)
+
+    def changed(self, changed: bool) -> None:
+        """Publish a change now, or on the next flush if the last message went out under min_period ago."""
+        if not changed:
+            return
+        if time.monotonic() - self.last_publish >= self.min_period:
+            self.publish()
+        else:
+            self.dirty = True
+
+    def flush(self) -> None:
+        if self.dirty:
+            self.publish()
+
+    def publish(self) -> None:
+        self.pub.publish(self.control.message())
+        self.dirty = False
+        self.last_publish = time.monotonic()
+
+
+def _positive(value: float, source: str, key: str) -> float:
+    if not value > 0:
+        raise ConfigError(source, key, "a number > 0", got=value)
+    return value
+
+
+def main(argv=None):
+    return run_node(SceneNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,79 @@
+"""Bus config: endpoints, the loopback-only default, CURVE keys from files, clear errors."""
+import pytest
+
+from touch4d.bus.config import BusConfig, load_bus_config, parse_bus_config, resolve_bus_config
+from touch4d.bus.keys import keygen
+from touch4d.errors import ConfigError
+
+
+def test_project_config_binds_loopback_without_keys():
+    cfg = load_bus_config()
+    assert cfg.bind_host == "127.0.0.1" and cfg.curve is None
+    assert cfg.pub_endpoint == "tcp://127.0.0.1:7710" and cfg.sub_endpoint == "tcp://127.0.0.1:7711"
+
+
+def test_non_loopback_bind_requires_curve(tmp_path):
+    path = tmp_path / "bus.yaml"
+    path.write_text("broker: {bind: 0.0.0.0}\n")
+    with pytest.raises(ConfigError) as err:
+        load_bus_config(path)
+    assert str(path) in str(err.value) and "'curve'" in str(err.value) and "0.0.0.0" in str(err.value)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("broker: {bnd: 127.0.0.1}", "broker.bnd"),
+    ("broker: {pub_port: 70000}", "broker.pub_port"),
+    ("broker: {sub_port: '7711'}", "broker.sub_port"),
+    ("hwm: 0", "hwm"),
+    ("conect: 127.0.0.1", "conect"),
+    ("broker: [1, 2]", "broker"),
+])
+def test_bad_keys_and_values_are_named(tmp_path, text, key):
+    path = tmp_path / "bus.yaml"
+    path.write_text(text + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_bus_config(path)
+    assert err.value.key == key and err.value.file == str(path)
+
+
+def test_curve_keys_load_from_files_relative_to_the_config(tmp_path):
+    keys = tmp_path / "keys"
+    server_pub, server_sec = keygen(keys, "broker")
+    pc_pub, pc_sec = keygen(keys / "clients", "pc")
+    pi_pub, _ = keygen(keys / "clients", "pi")
+    assert (server_sec.stat().st_mode & 0o077) == 0
+    path = tmp_path / "bus.yaml"
+    path.write_text(
+        "broker: {bind: 0.0.0.0, pub_port: 7000, sub_port: 7001}\nconnect: 192.0.2.10\n"
+        "curve:\n  server_public: keys/broker.key\n  server_secret: keys/broker.key_secret\n"
+        "  client_secret: keys/clients/pc.key_secret\n  authorized: [keys/clients]\n"
+    )
+    cfg = load_bus_config(path)
+    public = lambda p: p.read_text().split('public-key = "')[1].split('"')[0]  # noqa: E731
+    assert cfg.curve.server_public == public(server_pub)
+    assert cfg.curve.client_public == public(pc_pub)
+    assert sorted(cfg.curve.authorized) == sorted([public(pc_pub), public(pi_pub)])
+    assert cfg.pub_endpoint == "tcp://192.0.2.10:7000"
+    assert BusConfig.from_json(cfg.to_json()) == cfg
+
+
+def test_curve_errors_name_the_key(tmp_path):
+    keygen(tmp_path, "broker")
+    with pytest.raises(ConfigError) as err:
+        parse_bus_config({"curve": {"server_public": "broker.key", "server_secret": "broker.key_secret"}}, tmp_path / "b.yaml")
+    assert err.value.key == "curve.authorized"
+    with pytest.raises(ConfigError) as err:
+        parse_bus_config({"curve": {"server_public": "nope.key"}}, tmp_path / "b.yaml")
+    assert err.value.key == "curve.server_public"
+    with pytest.raises(ConfigError) as err:
+        parse_bus_config({"curve": {"server_public": "broker.key", "client_secret": "broker.key"}}, tmp_path / "b.yaml")
+    assert err.value.key == "curve.client_secret" and "secret" in str(err.value)
+
+
+def test_the_launchers_environment_wins_over_the_project_file(monkeypatch):
+    cfg = BusConfig(pub_port=1234, sub_port=1235)
+    monkeypatch.setenv("TOUCH4D_BUS", cfg.to_json())
+    assert resolve_bus_config() == cfg
+    monkeypatch.setenv("TOUCH4D_BUS", "{not json")
+    with pytest.raises(ConfigError, match="TOUCH4D_BUS"):
+        resolve_bus_config()

@@ -1,0 +1,215 @@
+"""The node runtime over a real broker: order and types across processes, latest-only delivery,
+the slow joiner, malformed input, parameters, heartbeats and shutdown."""
+import math
+import signal
+import statistics
+import time
+
+import numpy as np
+import pytest
+import zmq
+
+from touch4d.bus import Node
+from touch4d.bus.testing import collect, node_process, running_broker, wait_until
+from touch4d.errors import ConfigError
+from touch4d.messages import Heartbeat, HandPose, Stop, TactileField, encode
+from touch4d.messages.codec import pack
+
+pytestmark = pytest.mark.timeout(90)
+
+
+def pose(x=0.0, seq=0):
+    msg = HandPose(position=np.array([x, 0.0, 0.0]), orientation=np.array([0.0, 0.0, 0.0, 1.0]), valid=True)
+    msg.seq = seq
+    return msg
+
+
+def raw_publisher(bus, ctx):
+    """A bare pyzmq publisher on the broker, ready once the broker has subscribed to it."""
+    sock = ctx.socket(zmq.XPUB)
+    sock.linger = 1000
+    sock.connect(bus.pub_endpoint)
+    assert sock.poll(10000), "broker did not subscribe"
+    assert sock.recv() == b"\x01"
+    return sock
+
+
+def test_messages_cross_processes_in_order_with_arrays_intact():
+    with running_broker() as bus, Node("probe", bus=bus) as probe:
+        poses = collect(probe, "test/pose", HandPose)
+        relayed = collect(probe, "test/relay", HandPose)
+        with node_process("example_listener", bus, params={"topic": "test/pose", "relay_topic": "test/relay"}) as lis:
+            lis.wait_for_line("listening on test/pose", timeout=30)
+            with node_process("example_talker", bus, params={"topic": "test/pose", "rate": 200.0, "count": 40}):
+                wait_until(lambda: len(relayed) >= 40, timeout=30, spin=probe)
+    assert [m.seq for m in poses] == list(range(40))
+    assert [m.seq for m in relayed] == list(range(40))
+    for i, (sent, back) in enumerate(zip(poses, relayed)):
+        angle = 2 * math.pi * 0.2 * i / 200.0
+        assert isinstance(back, HandPose) and back.valid
+        assert back.position.dtype == np.float64 and back.position.shape == (3,)
+        np.testing.assert_allclose(sent.position, [0.5 * math.cos(angle), 0.5 * math.sin(angle), 0.0])
+        np.testing.assert_array_equal(back.position, sent.position)
+        np.testing.assert_array_equal(back.orientation, sent.orientation)
+        assert back.source_stamp == sent.stamp  # the relay keeps the originating pose's stamp
+        assert back.stamp >= sent.stamp
+    assert probe.stats["test/pose"] == {"received": 40, "dropped": 0, "malformed": 0, "gaps": 0}
+
+
+def test_latest_only_slow_subscriber_handles_newest_never_a_backlog():
+    with running_broker() as bus, Node("slow", bus=bus) as node:
+        handled = []
+
+        def slow(msg):
+            handled.append(msg.seq)
+            time.sleep(0.02)
+
+        node.create_subscription("fast/pose", HandPose, slow, latest_only=True)
+        with node_process("example_talker", bus, params={"topic": "fast/pose", "rate": 1000.0, "count": 1500}):
+            wait_until(lambda: handled and handled[-1] == 1499, timeout=60, spin=node)
+            node.spin(0.3)  # nothing may follow the last message
+    stats = node.stats["fast/pose"]
+    assert handled[-1] == 1499 and handled == sorted(set(handled))
+    assert len(handled) < 1500 / 3  # 20 ms per callback at 1 kHz: most messages must be skipped
+    assert statistics.median(np.diff(handled)) >= 5  # jumps to the newest, not through a queue
+    assert stats["received"] == stats["dropped"] + len(handled)
+    assert stats["gaps"] == 0 and stats["malformed"] == 0
+
+
+def test_first_message_after_subscribe_returns_is_never_lost():
+    with running_broker() as bus, Node("pub", bus=bus) as pub_node:
+        publishers = [pub_node.create_publisher(f"join/{i}", HandPose) for i in range(25)]
+        for i, pub in enumerate(publishers):
+            with Node(f"late{i}", bus=bus, heartbeat=False) as late:
+                got = collect(late, f"join/{i}", HandPose)
+                pub.publish(pose(float(i)))  # right after create_subscription returned
+                wait_until(lambda: got, timeout=10, spin=late)
+                assert got[0].position[0] == float(i) and got[0].seq == 0
+
+
+def test_first_message_reaches_a_subscriber_in_another_process():
+    with running_broker() as bus, Node("probe", bus=bus) as probe:
+        relayed = collect(probe, "x/relay", HandPose)
+        pub = probe.create_publisher("x/pose", HandPose)
+        with node_process("example_listener", bus, params={"topic": "x/pose", "relay_topic": "x/relay"}) as lis:
+            lis.wait_for_line("listening on x/pose", timeout=30)  # logged after create_subscription
+            pub.publish(pose(7.0))
+            wait_until(lambda: relayed, timeout=20, spin=probe)
+    assert relayed[0].position[0] == 7.0 and relayed[0].source_stamp > 0
+
+
+def test_garbage_and_wrong_types_are_counted_and_dropped_while_the_node_keeps_serving():
+    ctx = zmq.Context()
+    try:
+        with running_broker() as bus, Node("probe", bus=bus) as probe:
+            relayed = collect(probe, "g/relay", HandPose)
+            beats = collect(probe, "node/heartbeat", Heartbeat)
+            with node_process("example_listener", bus, name="victim",
+                              params={"topic": "g/pose", "relay_topic": "g/relay"}) as lis:
+                lis.wait_for_line("listening on g/pose", timeout=30)
+                raw = raw_publisher(bus, ctx)
+                raw.send_multipart([b"g/pose", b"\xc1\xff garbage"])
+                raw.send_multipart([b"g/pose", encode(Stop(reason="x", origin="y"))])  # wrong type
+                raw.send_multipart([b"g/pose", encode(pose(1.0, seq=0)), b"extra frame"])
+                bad = pose(1.0).to_dict()
+                bad["position"] = np.array([1.0, np.nan, 0.0])  # non-finite
+                raw.send_multipart([b"g/pose", pack(bad)])
+                for seq in (0, 1, 5):  # seq 2..4 never sent: 3 gaps
+                    msg = pose(float(seq), seq=seq)
+                    msg.stamp = msg.source_stamp = time.time()
+                    raw.send_multipart([b"g/pose", encode(msg)])
+                wait_until(lambda: len(relayed) >= 3, timeout=20, spin=probe)
+                wait_until(lambda: any(b.node == "victim" and b.stats.get("g/pose:received") == 7 for b in beats),
+                           timeout=20, spin=probe)
+                raw.close()
+                assert lis.proc.poll() is None, "the node must keep serving"
+            stats = [b for b in beats if b.node == "victim"][-1].stats
+            assert stats["g/pose:malformed"] == 4
+            assert stats["g/pose:gaps"] == 3
+            assert stats["malformed"] == 4
+            assert [m.position[0] for m in relayed] == [0.0, 1.0, 5.0]
+            assert "dropped a malformed message on g/pose" in lis.text
+    finally:
+        ctx.term()
+
+
+def test_on_shutdown_publishes_before_sockets_close_and_the_process_exits_0():
+    with running_broker() as bus, Node("probe", bus=bus) as probe:
+        stops = collect(probe, "safety/stop", Stop)
+        with node_process("example_listener", bus, name="motors", params={"stop_on_shutdown": True}) as lis:
+            lis.wait_for_line("listening on", timeout=30)
+            lis.proc.send_signal(signal.SIGTERM)
+            assert lis.proc.wait(10) == 0
+            wait_until(lambda: stops, timeout=10, spin=probe)
+    assert stops[0].origin == "motors" and "shutting down" in stops[0].reason
+
+
+def test_heartbeat_lists_topics_and_stats():
+    with running_broker() as bus, Node("probe", bus=bus) as probe:
+        beats = collect(probe, "node/heartbeat", Heartbeat)
+        with Node("worker", bus=bus, kind="test_kind") as worker:
+            worker.create_publisher("w/out", TactileField)
+            worker.create_subscription("w/in", HandPose, lambda m: None, latest_only=True)
+            deadline = time.monotonic() + 10
+            while not beats and time.monotonic() < deadline:
+                worker.spin_once(0.01)
+                probe.spin_once(0.01)
+    hb = beats[0]
+    assert (hb.node, hb.kind, hb.publishes, hb.subscribes) == ("worker", "test_kind", ["w/out"], ["w/in"])
+    assert hb.stats["w/in:received"] == 0 and hb.stats["published"] == 0
+
+
+def test_timers_run_on_the_spin_thread_at_their_period():
+    with running_broker() as bus, Node("timed", bus=bus, heartbeat=False) as node:
+        ticks = []
+        timer = node.create_timer(0.05, lambda: ticks.append(time.monotonic()))
+        node.spin(0.6)
+        timer.cancel()
+        count = len(ticks)
+        node.spin(0.15)
+    assert 4 <= count <= 13  # 12 at the nominal period; generous for a loaded machine
+    assert len(ticks) == count
+    assert min(np.diff(ticks)) > 0.03
+
+
+def test_callback_errors_are_counted_and_the_node_keeps_serving():
+    with running_broker() as bus, Node("n", bus=bus, heartbeat=False) as node:
+        seen = []
+
+        def flaky(msg):
+            seen.append(msg.seq)
+            if msg.seq == 0:
+                raise RuntimeError("boom")
+
+        node.create_subscription("f/pose", HandPose, flaky)
+        pub = node.create_publisher("f/pose", HandPose)
+        pub.publish(pose())
+        pub.publish(pose())
+        wait_until(lambda: len(seen) == 2, timeout=10, spin=node)
+    assert node.stats_flat()["errors"] == 1
+
+
+def test_parameters_come_from_params_and_are_type_checked():
+    with running_broker() as bus:
+        with Node("p", params={"rate": 30, "name": "x", "on": True}, bus=bus, heartbeat=False) as node:
+            assert node.declare_parameter("rate", 90.0) == 30.0 and isinstance(node.declare_parameter("rate", 1.0), float)
+            assert node.declare_parameter("name", "y") == "x"
+            assert node.declare_parameter("missing", [1, 2]) == [1, 2]
+            assert node.undeclared_parameters() == ["on"]
+        with Node("tracker", params={"rate": "fast"}, bus=bus, heartbeat=False,
+                  params_source="launch/x.yaml") as node:
+            with pytest.raises(ConfigError) as err:
+                node.declare_parameter("rate", 90.0)
+    assert "launch/x.yaml" in str(err.value) and "nodes.tracker.params.rate" in str(err.value)
+    assert "'fast'" in str(err.value)
+
+
+def test_publish_rejects_wrong_type_and_invalid_messages_naming_the_topic():
+    with running_broker() as bus, Node("n", bus=bus, heartbeat=False) as node:
+        pub = node.create_publisher("h/pose", HandPose)
+        with pytest.raises(TypeError, match="h/pose"):
+            pub.publish(Stop(reason="r", origin="o"))
+        msg = pose()
+        msg.position = np.array([np.inf, 0.0, 0.0])
+        with pytest.raises(ValueError, match="h/pose.*position"):
+            pub.publish(msg)

@@ -1,0 +1,238 @@
+"""`touch4d replay` and the replay node: same messages, same order, same bytes, same timing."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.testing import bus_env, collect, launch_process, node_process, running_broker, wait_until
+from touch4d.log.reader import LogReader
+from touch4d.log.writer import LogWriter
+from touch4d.messages import HandPose, Heartbeat, encode
+
+T0 = 1_700_000_000_000_000_000
+
+
+def touch4d(bus, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "touch4d.cli", *args], env=bus_env(bus),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def read_until(proc: subprocess.Popen, text: str, timeout: float = 30.0) -> str:
+    """stderr lines until one holds `text` (the recorder prints 'recording ...' once subscribed)."""
+    seen = ""
+    deadline = time.monotonic() + timeout
+    while text not in seen:
+        assert time.monotonic() < deadline and proc.poll() is None, f"never printed {text!r}: {seen!r}"
+        seen += proc.stderr.readline()
+    return seen
+
+
+class Procs:
+    """Child processes of a test, killed (whole process group) at the end whatever happens."""
+
+    def __init__(self):
+        self.all: list[subprocess.Popen] = []
+
+    def start(self, bus, *args: str) -> subprocess.Popen:
+        proc = touch4d(bus, *args)
+        self.all.append(proc)
+        return proc
+
+    def kill(self):
+        for proc in self.all:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+
+
+@pytest.fixture
+def procs():
+    p = Procs()
+    yield p
+    p.kill()
+
+
+def stop(proc: subprocess.Popen, timeout: float = 30.0) -> tuple[str, str]:
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=timeout)
+    assert proc.returncode == 0, err
+    return out, err
+
+
+def record(procs, bus, path, *topics) -> subprocess.Popen:
+    proc = procs.start(bus, "record", "-o", str(path), *topics)
+    read_until(proc, "recording")
+    return proc
+
+
+def synthetic_log(path, n=50, period_ns=20_000_000, topics=("hand/pose",)) -> list[bytes]:
+    """`n` HandPoses per topic at 1 / period; returns the payloads in file order."""
+    payloads = []
+    with LogWriter(path) as w:
+        for i in range(n):
+            for k, topic in enumerate(topics):
+                payload = encode(HandPose(position=np.array([i * 0.01, k * 1.0, 0.5]), valid=True,
+                                          stamp=1700000000.0 + i * period_ns / 1e9, seq=i,
+                                          source_stamp=1700000000.0 + i * period_ns / 1e9))
+                w.write(topic, payload, T0 + i * period_ns + k * 1000)
+                payloads.append(payload)
+    return payloads
+
+
+@pytest.mark.timeout(180)
+def test_replayed_stack_recorded_again_is_byte_identical_with_timing_kept(procs, tmp_path):
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    with launch_process(["launch/example.yaml", "talker.topic:=hand/pose", "talker.rate:=200.0",
+                         "listener.topic:=hand/pose"]) as run:
+        bus = run.bus
+        run.wait_for_line("listener", timeout=30)
+        rec = record(procs, bus, first)
+        time.sleep(3.0)
+        stop(rec)
+    original = list(LogReader(first).messages())
+    assert {"hand/pose", "example/relay", "node/heartbeat"} <= {m.topic for m in original}
+    assert len(original) > 400
+    with running_broker() as bus:
+        rec = record(procs, bus, second)
+        replay = procs.start(bus, "replay", str(first))
+        _, err = replay.communicate(timeout=60)
+        assert replay.returncode == 0, err
+        assert f"replay done: {len(original)} messages sent" in err
+        time.sleep(0.5)
+        stop(rec)
+    replayed = list(LogReader(second).messages())
+    assert [(m.topic, m.data) for m in replayed] == [(m.topic, m.data) for m in original]
+    d1 = np.diff([m.log_time for m in original]) / 1e9
+    d2 = np.diff([m.log_time for m in replayed]) / 1e9
+    error = np.abs(d2 - d1)
+    assert np.percentile(error, 99) < 0.002, f"p99 timing error {np.percentile(error, 99) * 1e3:.2f} ms"
+
+
+@pytest.mark.timeout(120)
+def test_topics_filter_reports_unknown_topics_and_remap_start_rate(procs, tmp_path):
+    path, out = tmp_path / "in.mcap", tmp_path / "out.mcap"
+    payloads = synthetic_log(path, n=50, topics=("hand/pose", "controller/pose"))
+    with running_broker() as bus:
+        rec = record(procs, bus, out)
+        replay = procs.start(bus, "replay", str(path), "--topics", "hand/pose", "hand/psoe",
+                             "--remap", "hand/pose:=hand/pose_replayed", "--start", "0.5", "--rate", "2")
+        _, err = replay.communicate(timeout=60)
+        assert replay.returncode == 0, err
+        assert "not in the log, not replayed: hand/psoe" in err
+        time.sleep(0.5)
+        stop(rec)
+    got = list(LogReader(out).messages())
+    # 0.5 s skipped = the first 25 poses; only hand/pose, under its new name
+    assert [m.topic for m in got] == ["hand/pose_replayed"] * 25
+    assert [m.data for m in got] == payloads[50::2]
+    span = (got[-1].log_time - got[0].log_time) / 1e9
+    assert 0.3 < span < 0.6  # 0.48 s of log at rate 2 takes 0.24 s; generous for a loaded machine
+
+
+@pytest.mark.timeout(60)
+def test_replay_errors_name_the_file_and_topics(procs, tmp_path):
+    path = tmp_path / "in.mcap"
+    synthetic_log(path, n=5)
+    with running_broker() as bus:
+        replay = procs.start(bus, "replay", str(path), "--topics", "nope")
+        _, err = replay.communicate(timeout=60)
+        assert replay.returncode == 2
+        assert str(path) in err and "nope" in err and "hand/pose" in err and "Traceback" not in err
+        replay = procs.start(bus, "replay", str(tmp_path / "missing.mcap"))
+        _, err = replay.communicate(timeout=60)
+        assert replay.returncode == 2 and "missing.mcap: no such file" in err
+        replay = procs.start(bus, "replay", str(path), "--remap", "hand/pose=x")
+        _, err = replay.communicate(timeout=60)
+        assert replay.returncode == 2 and "FROM:=TO" in err
+
+
+@pytest.mark.timeout(60)
+def test_replay_loop_stops_cleanly_on_ctrl_c(procs, tmp_path):
+    path = tmp_path / "in.mcap"
+    synthetic_log(path, n=10, period_ns=10_000_000)
+    with running_broker() as bus:
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            got = collect(probe, "hand/pose", HandPose)
+            replay = procs.start(bus, "replay", str(path), "--loop")
+            wait_until(lambda: len(got) >= 35, timeout=30, spin=probe)  # several passes of 10
+            replay.send_signal(signal.SIGINT)
+            _, err = replay.communicate(timeout=30)
+        finally:
+            probe.close()
+    assert replay.returncode == 0
+    assert "replay stopped" in err and "full pass(es)" in err
+    assert [m.seq for m in got[:30]] == list(range(10)) * 3  # recorded bytes: seq as recorded
+
+
+@pytest.mark.timeout(120)
+def test_replay_node_drives_the_tracker_role_with_fresh_stamps(tmp_path):
+    path = tmp_path / "session.mcap"
+    payloads = synthetic_log(path, n=100, period_ns=10_000_000, topics=("hand/pose", "tactile/motors"))
+    with launch_process(["launch/example.yaml", "talker:=replay", f"talker.file:={path}", "talker.loop:=true",
+                         "listener.topic:=hand/pose"]) as run:
+        bus = run.bus
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            poses = collect(probe, "hand/pose", HandPose)
+            others = collect(probe, "tactile/motors", HandPose)
+            relayed = collect(probe, "example/relay", HandPose)
+            wait_until(lambda: len(poses) >= 150 and relayed, timeout=30, spin=probe)
+            now = time.time()
+        finally:
+            probe.close()
+    assert not others  # the tracker role replays only tracker topics by default
+    recorded = [p for i, p in enumerate(payloads) if i % 2 == 0]
+    first = next(i for i, m in enumerate(poses) if m.seq == 0)
+    positions = [m.position[0] for m in poses[first:first + 100]]
+    expected = [HandPoseOf(p).position[0] for p in recorded]
+    assert positions == expected[:len(positions)]
+    assert all(abs(m.stamp - now) < 30 for m in poses)  # restamped: now, not 2023
+    seqs = [m.seq for m in poses[first:]]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # a fresh, gapless seq across loops
+
+
+def HandPoseOf(payload: bytes) -> HandPose:
+    from touch4d.messages import decode
+    return decode(payload, HandPose)
+
+
+@pytest.mark.timeout(60)
+def test_replay_node_with_a_bad_file_stops_with_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not a log")
+    with running_broker() as bus:
+        with node_process("replay", bus, name="tracker", params={"file": str(bad)}) as proc:
+            proc.proc.wait(timeout=30)
+            assert proc.proc.returncode == 2
+            proc.wait_for_line("bad.mcap: not an MCAP log", timeout=10)
+
+
+@pytest.mark.timeout(60)
+def test_recorder_node_records_until_shutdown(tmp_path):
+    path = tmp_path / "node.mcap"
+    with running_broker() as bus:
+        with node_process("recorder", bus, params={"file": str(path), "topics": ["hand/pose"]}) as proc:
+            proc.wait_for_line("recording hand/pose", timeout=30)
+            probe = Node("probe", bus=bus, heartbeat=False)
+            try:
+                pub = probe.create_publisher("hand/pose", HandPose)
+                for i in range(20):
+                    pub.publish(HandPose(position=np.array([i, 0.0, 0.0]), valid=False))
+                pub2 = probe.create_publisher("node/heartbeat", Heartbeat)
+                pub2.publish(Heartbeat(node="x"))
+                time.sleep(0.5)
+            finally:
+                probe.close()
+            proc.proc.send_signal(signal.SIGTERM)
+            proc.wait_for_line("seq gaps: none", timeout=30)
+    got = list(LogReader(path).messages())
+    assert [m.decode()["position"][0] for m in got] == list(range(20))

@@ -1,0 +1,314 @@
+"""The motor node on a real topic bus and python-can's virtual bus, with the board emulator."""
+from __future__ import annotations
+
+import errno
+import time
+import uuid
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+import yaml
+
+from touch4d.bus import Broker, BusConfig, Node
+from touch4d.errors import ConfigError
+from touch4d.glove.config import load_glove_can
+from touch4d.glove.duty import duty_to_levels, intensity_to_duty
+from touch4d.glove.protocol import GloveProtocol
+from touch4d.messages import MotorCommand, MotorStatus, Stop
+from touch4d.nodes.motors import MotorsNode
+
+pytestmark = pytest.mark.timeout(60)
+
+TEST_GLOVE = Path(__file__).parent / "data" / "glove_can_test.yaml"
+CFG = load_glove_can(TEST_GLOVE)
+NAMES = list(CFG.motor_names)
+WAIT = 10.0  # generous: the machine is shared
+
+
+@pytest.fixture
+def bus():
+    with Broker(BusConfig(pub_port=0, sub_port=0)) as endpoints:
+        yield endpoints
+
+
+class Rig:
+    """A motor node (emulated boards, private CAN channel) and a tester node, spun together."""
+
+    def __init__(self, bus, glove=TEST_GLOVE, bus_factory=None, **params):
+        self.channel = f"motors-{uuid.uuid4().hex}"
+        self.node = MotorsNode(params={"glove": str(glove), "channel": self.channel, "emulate": True,
+                                       "status_hz": 20.0, **params}, bus=bus, bus_factory=bus_factory)
+        self.tester = Node("tester", bus=bus, heartbeat=False)
+        self.status: list[MotorStatus] = []
+        self.tester.create_subscription("motors/status", MotorStatus, self.status.append)
+        self.cmd = self.tester.create_publisher("tactile/motors", MotorCommand)
+        self.stop_pub = self.tester.create_publisher("safety/stop", Stop)
+        self.emu = self.node.emulator
+
+    def spin(self, seconds: float, intensity=None, until=None) -> bool:
+        """Spin both nodes; publish `intensity` every 10 ms if given; stop early when `until()` holds."""
+        end = time.monotonic() + seconds
+        next_cmd = 0.0
+        while time.monotonic() < end:
+            if intensity is not None and time.monotonic() >= next_cmd:
+                self.cmd.publish(MotorCommand(names=NAMES, intensity=np.asarray(intensity, dtype=float)))
+                next_cmd = time.monotonic() + 0.01
+            self.node.spin_once(0.002)
+            self.tester.spin_once(0.0)
+            if until is not None and until():
+                return True
+        return until is None
+
+    def close(self):
+        for n in (self.tester, self.node):
+            n.shutdown()
+
+
+@pytest.fixture
+def rig(bus):
+    r = Rig(bus)
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+def expected_levels(intensity):
+    return duty_to_levels(intensity_to_duty(intensity, CFG.duty)).tolist()
+
+
+def test_intensities_arrive_as_duty_on_the_right_board_and_channel(rig):
+    v = np.linspace(0.0, 1.2, 30)  # 0 (off), one under the deadband, ramps, and over full scale
+    v[1] = 0.01
+    want = expected_levels(v)
+    assert want[0] == 0 and want[1] == 0
+    assert min(x for x in want if x) >= round(CFG.duty.start * 127)   # start threshold
+    assert max(want) == round(CFG.duty.max * 127)                      # maximum duty
+    assert rig.spin(WAIT, intensity=v, until=lambda: rig.emu.motor_levels() == want)
+    for k, level in enumerate(want):
+        assert rig.emu.levels(1 + k // 8)[k % 8] == level
+    assert rig.spin(WAIT, intensity=v, until=lambda: rig.status and all(b["online"] for b in rig.status[-1].boards))
+    last = rig.status[-1]
+    assert np.allclose(last.duty, np.array(want) / 127)
+    assert [b["state"] for b in last.boards] == ["operational"] * 4
+    assert 0 < last.bus_load < 0.7
+
+
+def test_silence_turns_every_motor_off_within_the_watchdog(rig):
+    v = np.full(30, 0.7)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    t0 = time.monotonic()
+    assert rig.spin(WAIT, until=lambda: not any(rig.emu.motor_levels()))
+    # node-side watchdog (100 ms) + one refresh period; generous for a loaded machine
+    assert time.monotonic() - t0 < 2.0
+    assert rig.node.driver.errors["watchdog_off"] >= 1
+    # the node keeps refreshing zeros: the boards do not trip their own watchdog
+    assert not any(b.watchdog_tripped for b in rig.emu.boards.values())
+
+
+def test_board_watchdog_turns_off_when_the_node_stops_sending(rig):
+    v = np.full(30, 0.7)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    rig.node.link.close()  # the node's CAN side goes quiet (as if unplugged); the emulator keeps running
+    rig.node.link.ensure_open = lambda: "bus_closed"
+    deadline = time.monotonic() + WAIT
+    while any(rig.emu.motor_levels()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not any(rig.emu.motor_levels())
+    assert all(b.watchdog_tripped for b in rig.emu.boards.values())
+
+
+def test_stop_turns_everything_off_and_holds(rig):
+    v = np.full(30, 0.7)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    rig.stop_pub.publish(Stop(reason="test", origin="tester"))
+    # commands keep coming: the stop still wins
+    assert rig.spin(WAIT, intensity=v, until=lambda: not any(rig.emu.motor_levels()))
+    assert all(b.nmt_state == "STOPPED" for b in rig.emu.boards.values())
+    assert rig.spin(0.3, intensity=v) and not any(rig.emu.motor_levels())
+    assert rig.spin(WAIT, intensity=v, until=lambda: rig.status and rig.status[-1].errors.get("stops") == 1)
+
+
+def test_stop_reaches_the_boards_within_one_frame(rig):
+    v = np.full(30, 0.7)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    received = []
+    with can.Bus(interface="virtual", channel=rig.channel) as spy:
+        rig.node.on_stop(Stop(reason="direct", origin="test"))
+        m = spy.recv(timeout=WAIT)
+        while m is not None:
+            received.append(GloveProtocol(CFG).decode(m))
+            m = spy.recv(timeout=0)
+    sent = [f for f in received if f.kind in ("nmt", "duty")]
+    # the very first frame on the bus after the stop is the broadcast NMT STOP
+    assert sent[0].kind == "nmt" and sent[0].signals == {"Command": 2, "Node": 0}
+    assert all(GloveProtocol.levels(f, 8) == [0] * 8 for f in sent if f.kind == "duty")
+
+
+def test_a_removed_board_is_reported_while_the_others_keep_working(rig):
+    v = np.full(30, 0.5)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    rig.emu.remove(2)
+
+    def reported():
+        if not rig.status:
+            return False
+        boards = {b["id"]: b for b in rig.status[-1].boards}
+        return boards[2]["online"] is False and "not_answering" in boards[2]["faults"]
+
+    assert rig.spin(WAIT, intensity=v, until=reported)
+    boards = {b["id"]: b for b in rig.status[-1].boards}
+    assert all(boards[b]["online"] for b in (1, 3, 4)) and boards[2]["state"] == "offline"
+    w = np.full(30, 0.9)
+    want = expected_levels(w)
+    others = [k for k in range(30) if k // 8 != 1]  # motors not on board 2
+    assert rig.spin(WAIT, intensity=w, until=lambda: [rig.emu.motor_levels()[k] for k in others]
+                    == [want[k] for k in others])
+    # plugged back in: it boots, the node starts it again and it follows the commands
+    rig.emu.restore(2)
+    assert rig.spin(WAIT, intensity=w, until=lambda: rig.emu.motor_levels() == want)
+    assert rig.node.driver.errors["nmt_restart"] >= 1
+
+
+def test_malformed_and_unknown_frames_are_ignored_and_counted(rig):
+    v = np.full(30, 0.5)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    with can.Bus(interface="virtual", channel=rig.channel) as rogue:
+        rogue.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))     # short status
+        rogue.send(can.Message(arbitration_id=0x202, data=b"\x00" * 3, is_extended_id=False))  # short duty
+        rogue.send(can.Message(arbitration_id=0x555, data=b"\x00", is_extended_id=False))      # unknown
+        rogue.send(can.Message(arbitration_id=0x18FF00AA, data=b"\x00", is_extended_id=True))  # unknown
+
+        def counted():
+            e = rig.status[-1].errors if rig.status else {}
+            return e.get("malformed_rx", 0) >= 2 and e.get("unknown_rx", 0) >= 2
+
+        assert rig.spin(WAIT, intensity=v, until=counted)
+    assert rig.emu.counters["malformed"] >= 2 and rig.emu.counters["unknown"] >= 2
+    assert all(rig.emu.motor_levels())  # still working
+
+
+def test_thermal_limit_through_the_node(bus, tmp_path):
+    data = yaml.safe_load(TEST_GLOVE.read_text())
+    data["can"]["thermal"] = {"max_on_s": 0.4, "cool_s": 0.6}
+    glove = tmp_path / "hot.yaml"
+    glove.write_text(yaml.safe_dump(data))
+    r = Rig(bus, glove=glove)
+    try:
+        v = np.full(30, 0.5)
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        on = time.monotonic()
+        assert r.spin(WAIT, intensity=v, until=lambda: not any(r.emu.motor_levels()))
+        off = time.monotonic()
+        assert off - on < 0.4 + 2.0
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        assert time.monotonic() - off >= 0.6 - 0.05  # cooled down for cool_s before coming back
+    finally:
+        r.close()
+
+
+class FlakyBus:
+    """A virtual bus whose sends can be made to fail like a real controller's."""
+
+    def __init__(self, channel):
+        self.inner = can.Bus(interface="virtual", channel=channel)
+        self.fail: Exception | None = None
+        self.bus_off = False
+
+    def send(self, msg, timeout=None):
+        if self.fail is not None:
+            raise self.fail
+        self.inner.send(msg, timeout)
+
+    def recv(self, timeout=None):
+        return self.inner.recv(timeout)
+
+    @property
+    def state(self):
+        return can.BusState.ERROR if self.bus_off else can.BusState.ACTIVE
+
+    def shutdown(self):
+        self.inner.shutdown()
+
+
+@pytest.mark.parametrize("error, kind", [
+    (can.CanOperationError("Failed to transmit: No buffer space available", errno.ENOBUFS), "tx_queue_full"),
+    (can.CanOperationError("Failed to transmit: Network is down", errno.ENETDOWN), "bus_off"),
+    (can.CanOperationError("Failed to transmit: I/O error", errno.EIO), "send_error"),
+])
+def test_send_faults_are_reported_and_retried_without_crashing(bus, error, kind):
+    holder = {}
+    channel = f"motors-{uuid.uuid4().hex}"
+
+    def factory():
+        holder["bus"] = FlakyBus(channel)
+        return holder["bus"]
+
+    r = Rig(bus, bus_factory=factory)
+    r.channel = channel
+    r.node.emulator.stop()
+    r.emu = r.node.emulator = __import__("touch4d.glove.emulator", fromlist=["GloveEmulator"]).GloveEmulator(
+        CFG, interface="virtual", channel=channel).start()
+    try:
+        v = np.full(30, 0.5)
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        holder["bus"].fail = error
+        holder["bus"].bus_off = kind == "bus_off"
+        assert r.spin(WAIT, intensity=v, until=lambda: r.status and r.status[-1].errors.get(kind, 0) > 0)
+        # the boards lose their commands: their own watchdog turns them off
+        assert r.spin(WAIT, intensity=v, until=lambda: not any(r.emu.motor_levels()))
+        holder["bus"].fail = None
+        holder["bus"].bus_off = False
+        w = np.full(30, 0.8)
+        want = expected_levels(w)
+        assert r.spin(WAIT, intensity=w, until=lambda: r.emu.motor_levels() == want)
+        assert all(b["online"] for b in r.status[-1].boards) or r.spin(
+            WAIT, intensity=w, until=lambda: all(b["online"] for b in r.status[-1].boards))
+    finally:
+        r.close()
+
+
+def test_a_full_virtual_receive_queue_is_reported_as_a_full_transmit_queue(rig):
+    v = np.full(30, 0.5)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+    stalled = can.Bus(interface="virtual", channel=rig.channel, rx_queue_size=1)
+    try:
+        assert rig.spin(WAIT, intensity=v,
+                        until=lambda: rig.status and rig.status[-1].errors.get("tx_queue_full", 0) > 0)
+    finally:
+        stalled.shutdown()
+    assert all(rig.emu.motor_levels())
+
+
+def test_shutdown_sends_stop_before_exit(bus):
+    r = Rig(bus)
+    channel = r.channel
+    with can.Bus(interface="virtual", channel=channel) as spy:
+        try:
+            v = np.full(30, 0.5)
+            assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+            while spy.recv(timeout=0) is not None:
+                pass
+        finally:
+            r.close()
+        proto = GloveProtocol(CFG)
+        frames = []
+        m = spy.recv(timeout=1.0)
+        while m is not None:
+            f = proto.decode(m)
+            if f.kind in ("nmt", "duty"):
+                frames.append(f)
+            m = spy.recv(timeout=0.2)
+    assert frames[0].kind == "nmt" and frames[0].signals == {"Command": 2, "Node": 0}
+    assert all(GloveProtocol.levels(f, 8) == [0] * 8 for f in frames if f.kind == "duty")
+
+
+def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
+    data = yaml.safe_load(TEST_GLOVE.read_text())
+    data["can"]["bitrate"] = 125000
+    glove = tmp_path / "slow.yaml"
+    glove.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="slow.yaml.*bus load"):
+        MotorsNode(params={"glove": str(glove), "channel": "never"}, bus=bus)

@@ -1,0 +1,141 @@
+"""The bus broker: an XSUB/XPUB proxy that every node connects to.
+
+Publishers connect to the XSUB side, subscribers to the XPUB side. The XSUB side subscribes to
+every topic up front, so a publisher sends everything to the broker as soon as it is connected
+and filtering happens once, at the XPUB side, per subscriber. With CurveZMQ keys in the config,
+both sides are CURVE servers and a ZAP handler admits only the allow-listed client keys.
+"""
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+
+import zmq
+from zmq.auth.thread import ThreadAuthenticator
+
+from touch4d.bus.config import BusConfig
+from touch4d.errors import ConfigError
+
+log = logging.getLogger("touch4d.bus.broker")
+ZAP_DOMAIN = "touch4d"
+
+
+class _AllowList:
+    """ZAP credentials provider: a client key is admitted when it is on the list."""
+
+    def __init__(self, keys):
+        self.keys = {k.encode() if isinstance(k, str) else k for k in keys}
+
+    def callback(self, domain, key: bytes) -> bool:
+        allowed = key in self.keys
+        if not allowed:
+            log.warning("refused a peer with an unknown CURVE key %s", key.decode(errors="replace"))
+        return allowed
+
+
+class Broker:
+    """Runs the proxy in a background thread (`start`/`stop`) or in the caller's thread (`run`)."""
+
+    def __init__(self, config: BusConfig, context: zmq.Context | None = None):
+        self.config = config
+        self._own_context = context is None
+        self.context = context or zmq.Context()
+        self._thread: threading.Thread | None = None
+        self._auth: ThreadAuthenticator | None = None
+        self._control_endpoint = f"inproc://touch4d-broker-{id(self)}"
+        self._frontend = self._backend = self._control = None
+        self.endpoints: BusConfig | None = None
+
+    def _bind(self) -> BusConfig:
+        cfg = self.config
+        curve = cfg.curve
+        if curve is not None:
+            if not curve.server_secret:
+                raise ConfigError(cfg.source, "curve.server_secret", "the broker's secret key file on the broker machine")
+            self._auth = ThreadAuthenticator(self.context)
+            self._auth.start()
+            self._auth.configure_curve_callback(ZAP_DOMAIN, credentials_provider=_AllowList(curve.authorized))
+        frontend = self.context.socket(zmq.XSUB)
+        backend = self.context.socket(zmq.XPUB)
+        for sock in (frontend, backend):
+            sock.linger = 0
+            sock.sndhwm = cfg.hwm
+            sock.rcvhwm = cfg.hwm
+            if curve is not None:
+                sock.curve_server = True
+                sock.curve_secretkey = curve.server_secret.encode()
+                sock.zap_domain = ZAP_DOMAIN.encode()
+        try:
+            frontend.bind(cfg.bind_endpoint(cfg.pub_port))
+            backend.bind(cfg.bind_endpoint(cfg.sub_port))
+        except zmq.ZMQError as exc:
+            frontend.close()
+            backend.close()
+            self._stop_auth()
+            raise ConfigError(cfg.source, "broker", f"free ports to bind on {cfg.bind_host}", got=str(exc)) from None
+        # Subscribe to everything: publishers then forward all topics to the broker at once.
+        frontend.send(b"\x01")
+        self._frontend, self._backend = frontend, backend
+        self._control = self.context.socket(zmq.PAIR)
+        self._control.bind(self._control_endpoint)
+        pub_port = int(frontend.last_endpoint.decode().rsplit(":", 1)[1])
+        sub_port = int(backend.last_endpoint.decode().rsplit(":", 1)[1])
+        self.endpoints = cfg.with_ports(pub_port, sub_port)
+        return self.endpoints
+
+    def _proxy(self) -> None:
+        try:
+            zmq.proxy_steerable(self._frontend, self._backend, None, self._control)
+        except zmq.ContextTerminated:
+            pass
+        finally:
+            for sock in (self._frontend, self._backend, self._control):
+                sock.close(linger=0)
+
+    def start(self) -> BusConfig:
+        """Bind and proxy in a daemon thread; returns the config with the ports actually bound."""
+        endpoints = self._bind()
+        self._thread = threading.Thread(target=self._proxy, name="touch4d-broker", daemon=True)
+        self._thread.start()
+        log.debug("broker up: pub %s sub %s", endpoints.pub_endpoint, endpoints.sub_endpoint)
+        return endpoints
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            ctl = self.context.socket(zmq.PAIR)
+            ctl.linger = 0
+            ctl.connect(self._control_endpoint)
+            ctl.send(b"TERMINATE")
+            self._thread.join(timeout=2.0)
+            ctl.close()
+            self._thread = None
+        self._stop_auth()
+        if self._own_context:
+            self.context.term()
+
+    def _stop_auth(self) -> None:
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+
+    def run(self) -> None:
+        """Serve until SIGINT or SIGTERM (the `touch4d bus broker` command)."""
+        done = threading.Event()
+        previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        endpoints = self.start()
+        print(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to {endpoints.sub_endpoint}"
+              + (" (CURVE)" if endpoints.curve else ""), flush=True)
+        try:
+            while not done.wait(0.5):
+                pass
+        finally:
+            self.stop()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def __enter__(self) -> BusConfig:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

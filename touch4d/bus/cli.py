@@ -1,0 +1,138 @@
+"""Sub-commands of the bus: `launch`, `topic list|echo|hz|pub`, `node list|run`, `bus broker|keygen`."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from touch4d.bus.config import load_bus_config, resolve_bus_config
+from touch4d.errors import ConfigError
+
+DEFAULT_LAUNCH = Path(__file__).resolve().parents[2] / "launch" / "demo.yaml"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("launch", help="start the broker and the nodes of a launch file",
+                              description="Start the broker and every node of a launch file. Overrides: "
+                              "ROLE:=MODULE swaps a node (ROLE:=none drops it), ROLE.PARAM:=VALUE sets a parameter.")
+    p.add_argument("items", nargs="*", metavar="FILE|OVERRIDE",
+                   help=f"launch file (default {DEFAULT_LAUNCH.relative_to(DEFAULT_LAUNCH.parents[1])}) and overrides")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--no-broker", action="store_true", help="use a broker that already runs (e.g. on another machine)")
+    p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
+    p.set_defaults(func=_launch)
+
+    topic = subparsers.add_parser("topic", help="inspect topics").add_subparsers(dest="topic_command", metavar="ACTION")
+    p = topic.add_parser("list", help="topics with their type, rate and publishers")
+    p.add_argument("--duration", type=float, default=2.0, help="listen for S seconds (default 2)")
+    p.set_defaults(func=_topic_list)
+    p = topic.add_parser("echo", help="print the messages of a topic")
+    p.add_argument("topic")
+    p.add_argument("-n", "--count", type=int, help="stop after N messages")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--type", help="message type (default: the topic's standard type)")
+    p.add_argument("--full", action="store_true", help="print long arrays whole")
+    p.set_defaults(func=_topic_echo)
+    p = topic.add_parser("hz", help="the rate of a topic")
+    p.add_argument("topic")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--window", type=float, default=1.0, help="print every S seconds (default 1)")
+    p.set_defaults(func=_topic_hz)
+    p = topic.add_parser("pub", help="publish a message given as YAML, e.g. \"{reason: test, origin: me}\"")
+    p.add_argument("topic")
+    p.add_argument("yaml", help="the message's fields as a YAML mapping (header fields are filled in)")
+    p.add_argument("--type", help="message type (default: the topic's standard type)")
+    p.add_argument("-r", "--rate", type=float, help="publish repeatedly at HZ")
+    p.add_argument("-n", "--count", type=int, help="publish N times")
+    p.set_defaults(func=_topic_pub)
+    for parser in topic.choices.values():
+        parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+
+    node = subparsers.add_parser("node", help="inspect or run nodes").add_subparsers(dest="node_command", metavar="ACTION")
+    p = node.add_parser("list", help="live nodes, from their heartbeats")
+    p.add_argument("--duration", type=float, default=2.5, help="listen for S seconds (default 2.5)")
+    p.add_argument("--bus", help="bus config file")
+    p.set_defaults(func=_node_list)
+    p = node.add_parser("run", help="run one node in this process: MODULE [--name N] [--params JSON]")
+    p.add_argument("module", help="module in touch4d.nodes")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="--name N --params JSON --bus FILE --log-level L")
+    p.set_defaults(func=_node_run)
+
+    bus = subparsers.add_parser("bus", help="the broker and its keys").add_subparsers(dest="bus_command", metavar="ACTION")
+    p = bus.add_parser("broker", help="run the broker alone (the launcher normally runs it)")
+    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.set_defaults(func=_broker)
+    p = bus.add_parser("keygen", help="make a CurveZMQ key pair for a machine or the broker")
+    p.add_argument("name", help="key name, e.g. broker, pc, pi")
+    p.add_argument("--dir", default="config/keys", help="folder for the key files (default config/keys)")
+    p.set_defaults(func=_keygen)
+
+
+def _launch(args) -> int:
+    from touch4d.bus.launcher import Launcher
+    from touch4d.bus.launchfile import load_launch
+
+    files = [i for i in args.items if ":=" not in i]
+    overrides = [i for i in args.items if ":=" in i]
+    if len(files) > 1:
+        raise ConfigError("command line", "FILE", "one launch file", got=files)
+    nodes = load_launch(files[0] if files else DEFAULT_LAUNCH, overrides)
+    bus = load_bus_config(args.bus)
+    return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
+                    ready_file=args.ready_file).run()
+
+
+def _topic_list(args) -> int:
+    from touch4d.bus.introspect import topic_list
+
+    topic_list(resolve_bus_config(args.bus), args.duration)
+    return 0
+
+
+def _topic_echo(args) -> int:
+    from touch4d.bus.introspect import topic_echo
+
+    topic_echo(args.topic, resolve_bus_config(args.bus), args.count, args.duration, args.type, args.full)
+    return 0
+
+
+def _topic_hz(args) -> int:
+    from touch4d.bus.introspect import topic_hz
+
+    topic_hz(args.topic, resolve_bus_config(args.bus), args.duration, args.window)
+    return 0
+
+
+def _topic_pub(args) -> int:
+    from touch4d.bus.introspect import topic_pub
+
+    topic_pub(args.topic, args.yaml, resolve_bus_config(args.bus), args.type, args.rate, args.count)
+    return 0
+
+
+def _node_list(args) -> int:
+    from touch4d.bus.introspect import node_list
+
+    node_list(resolve_bus_config(args.bus), args.duration)
+    return 0
+
+
+def _node_run(args) -> int:
+    from touch4d.bus.process import main
+
+    return main([args.module, *args.args])
+
+
+def _broker(args) -> int:
+    from touch4d.bus.broker import Broker
+
+    Broker(load_bus_config(args.bus)).run()
+    return 0
+
+
+def _keygen(args) -> int:
+    from touch4d.bus.keys import HOWTO, keygen
+
+    public, secret = keygen(args.dir, args.name)
+    print(HOWTO.format(public=public, secret=secret))
+    return 0

@@ -1,0 +1,236 @@
+"""`touch4d launch`: the broker plus one process per node, their output prefixed, a clean stop.
+
+Children stay in the launcher's process group (Ctrl+C in a terminal reaches them all at once) and
+are told to die with the launcher. On Ctrl+C, SIGTERM or the end of `--duration`, every node gets
+SIGTERM, has STOP_GRACE seconds to run `on_shutdown` and exit, and is then killed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from touch4d.bus.broker import Broker
+from touch4d.bus.config import ENV_VAR, BusConfig
+from touch4d.bus.launchfile import NodeSpec
+from touch4d.bus.process import LAUNCHER_PID_ENV
+
+STOP_GRACE = 1.5
+START_WINDOW = 2.0  # a node that dies within this time of starting "failed to start"
+_MAX_RESPAWN_DELAY = 5.0
+_COLORS = ("36", "33", "35", "32", "34", "31", "96", "93", "95", "92")
+
+
+@dataclass
+class _Child:
+    spec: NodeSpec
+    proc: subprocess.Popen | None = None
+    started: float = 0.0
+    buffer: bytes = b""
+    last_lines: list[str] = field(default_factory=list)
+    restart_at: float | None = None
+    delay: float = 0.0
+    failed: bool = False
+
+
+class Launcher:
+    """Runs one launch: `run()` returns the exit code (0 after a clean stop)."""
+
+    def __init__(self, nodes: dict[str, NodeSpec], bus: BusConfig, *, start_broker: bool = True,
+                 duration: float | None = None, ready_file: str | None = None, out=None):
+        self.bus = bus
+        self.start_broker = start_broker
+        self.duration = duration
+        self.ready_file = ready_file
+        self.out = out or sys.stdout.buffer
+        self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
+        width = max([len(r) for r in nodes] + [6])
+        color = self.out is sys.stdout.buffer and sys.stdout.isatty()
+        self._prefix = {}
+        for i, role in enumerate([*nodes, "launch"]):
+            text = f"[{role}]".ljust(width + 2) + " "
+            self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
+        self._stop_reason: str | None = None
+        self._selector = selectors.DefaultSelector()
+        self._env: dict[str, str] = {}
+
+    # ---- output ------------------------------------------------------------------------------
+
+    def say(self, text: str) -> None:
+        self._emit("launch", [text.encode()])
+
+    def _emit(self, role: str, lines: list[bytes]) -> None:
+        prefix = self._prefix[role]
+        self.out.write(b"".join(prefix + line + b"\n" for line in lines))
+        self.out.flush()
+
+    def _read(self, child: _Child) -> bool:
+        """Pass on the complete lines a child has written; False at end of file."""
+        try:
+            data = os.read(child.proc.stdout.fileno(), 65536)
+        except BlockingIOError:
+            return True
+        except OSError:
+            data = b""
+        if not data:
+            if child.buffer:
+                self._emit(child.spec.role, [child.buffer])
+                self._remember(child, [child.buffer])
+                child.buffer = b""
+            return False
+        *lines, child.buffer = (child.buffer + data).split(b"\n")
+        if lines:
+            self._emit(child.spec.role, lines)
+            self._remember(child, lines)
+        return True
+
+    @staticmethod
+    def _remember(child: _Child, lines: list[bytes]) -> None:
+        text = [ln.decode(errors="replace").rstrip() for ln in lines]
+        child.last_lines = (child.last_lines + [t for t in text if t.strip()])[-5:]
+
+    # ---- processes ---------------------------------------------------------------------------
+
+    def _spawn(self, child: _Child) -> None:
+        spec = child.spec
+        cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,
+               "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
+        child.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, env=self._env, close_fds=True)
+        os.set_blocking(child.proc.stdout.fileno(), False)
+        self._selector.register(child.proc.stdout, selectors.EVENT_READ, child)
+        child.started = time.monotonic()
+        child.restart_at = None
+        child.last_lines = []
+
+    def _reap(self, child: _Child) -> None:
+        """Handle a child that exited: report it and plan a restart if its spec asks for one."""
+        proc = child.proc
+        while self._read(child):
+            pass
+        self._selector.unregister(proc.stdout)
+        proc.stdout.close()
+        child.proc = None
+        code = proc.returncode
+        if self._stop_reason is not None:
+            return
+        lived = time.monotonic() - child.started
+        role, module = child.spec.role, child.spec.module
+        what = f"exited with code {code}" if code >= 0 else f"was killed by {signal.Signals(-code).name}"
+        if lived < START_WINDOW and code != 0:
+            cause = child.last_lines[-1] if child.last_lines else "no output"
+            self.say(f"node '{role}' ({module}) failed to start: {what}: {cause}")
+        else:
+            self.say(f"node '{role}' ({module}) {what}")
+        if child.spec.respawn:
+            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if lived < START_WINDOW else child.spec.respawn_delay
+            child.restart_at = time.monotonic() + child.delay
+            self.say(f"respawning '{role}' in {child.delay:.1f} s")
+        elif code != 0:
+            child.failed = True
+
+    def _running(self) -> list[_Child]:
+        return [c for c in self.children.values() if c.proc is not None]
+
+    # ---- main loop ---------------------------------------------------------------------------
+
+    def run(self) -> int:
+        broker = Broker(self.bus) if self.start_broker else None
+        endpoints = broker.start() if broker else self.bus
+        self._env = {**os.environ, ENV_VAR: endpoints.to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
+                     "PYTHONUNBUFFERED": "1"}
+        wake_r, wake_w = os.pipe()
+        os.set_blocking(wake_r, False)
+        os.set_blocking(wake_w, False)
+        old_fd = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
+        handlers = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
+        self._selector.register(wake_r, selectors.EVENT_READ, None)
+        try:
+            if broker:
+                self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
+                         f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
+            for child in self.children.values():
+                self._spawn(child)
+            self.say(f"started {len(self.children)} node(s): "
+                     + ", ".join(f"{c.spec.role} ({c.spec.module})" for c in self.children.values()))
+            if self.ready_file:
+                Path(self.ready_file).write_text(endpoints.to_json())
+            self._loop()
+            self._stop_all()
+        finally:
+            for child in self._running():
+                child.proc.kill()
+                child.proc.wait()
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+            signal.signal(signal.SIGCHLD, old_chld)
+            signal.set_wakeup_fd(old_fd)
+            self._selector.close()
+            os.close(wake_r)
+            os.close(wake_w)
+            if broker:
+                broker.stop()
+        failed = [c.spec.role for c in self.children.values() if c.failed]
+        if failed:
+            self.say(f"stopped; node(s) that failed: {', '.join(failed)}")
+            return 1
+        self.say("stopped")
+        return 0
+
+    def _on_signal(self, signum, frame) -> None:
+        if self._stop_reason is None:
+            self._stop_reason = signal.Signals(signum).name
+
+    def _loop(self) -> None:
+        end = None if self.duration is None else time.monotonic() + self.duration
+        while self._stop_reason is None:
+            now = time.monotonic()
+            if end is not None and now >= end:
+                self._stop_reason = f"--duration {self.duration:g} s"
+                break
+            self._pump(0.2 if end is None else min(0.2, end - now))
+            for child in self.children.values():
+                if child.proc is not None and child.proc.poll() is not None:
+                    self._reap(child)
+                elif child.proc is None and child.restart_at is not None and time.monotonic() >= child.restart_at \
+                        and self._stop_reason is None:
+                    self._spawn(child)
+            if self.children and not self._running() and not any(c.restart_at for c in self.children.values()):
+                self._stop_reason = "every node has exited"
+
+    def _pump(self, timeout: float) -> None:
+        for key, _ in self._selector.select(max(timeout, 0)):
+            if key.data is None:
+                try:
+                    os.read(key.fd, 4096)
+                except BlockingIOError:
+                    pass
+            elif key.data.proc is not None:
+                self._read(key.data)
+
+    def _stop_all(self) -> None:
+        self.say(f"stopping ({self._stop_reason})")
+        running = self._running()
+        for child in running:
+            try:
+                child.proc.send_signal(signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + STOP_GRACE
+        while (running := self._running()) and time.monotonic() < deadline:
+            self._pump(min(0.05, max(0.0, deadline - time.monotonic())))
+            for child in running:
+                if child.proc.poll() is not None:
+                    self._reap(child)
+        for child in self._running():
+            self.say(f"node '{child.spec.role}' did not stop within {STOP_GRACE} s: killing it")
+            child.proc.kill()
+            child.proc.wait()
+            self._reap(child)

@@ -1,0 +1,504 @@
+"""The node runtime: publishers, subscriptions, timers, parameters, heartbeats, clean shutdown.
+
+One thread runs everything (callbacks, timers, `on_shutdown`), so node code needs no locks.
+Each node has one publishing socket (an XPUB connected to the broker's XSUB, which tells it when
+the broker has subscribed, i.e. when publishing starts to reach the broker) and one SUB socket.
+
+Slow joiner: `create_subscription` returns only once the broker applies the subscription. After
+subscribing, the node publishes a probe on a private `_bus/sync/...` topic it subscribed to last,
+through the broker, until the probe comes back; subscriptions on one connection are applied in
+order, so every message the broker forwards after that point reaches this node.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import zmq
+
+from touch4d.bus.config import BusConfig, resolve_bus_config
+from touch4d.errors import ConfigError
+from touch4d.messages import Heartbeat, Message, MessageError, decode
+
+HEARTBEAT_TOPIC = "node/heartbeat"
+HEARTBEAT_PERIOD = 1.0
+INTERNAL_PREFIX = b"_bus/"  # topics of the runtime itself, never delivered to callbacks
+_MAX_BATCH = 4096
+_MAX_LOGGED_CAUSES = 200
+
+
+class Publisher:
+    """Publishes one message type on one topic; `publish` fills the header."""
+
+    def __init__(self, node: "Node", topic: str, msg_type: type[Message]):
+        self.node = node
+        self.topic = topic
+        self.msg_type = msg_type
+        self._topic = topic.encode()
+
+    def publish(self, msg: Message) -> None:
+        """Stamp (if 0), number and send `msg`; raises MessageError if a field is invalid."""
+        if not isinstance(msg, self.msg_type):
+            raise TypeError(f"{self.topic}: expected a {self.msg_type.TYPE}, got {type(msg).__name__}")
+        if not msg.stamp:
+            msg.stamp = time.time()
+        if not msg.source_stamp:
+            msg.source_stamp = msg.stamp
+        try:
+            msg.validate()
+        except MessageError as exc:
+            raise MessageError(f"publishing on {self.topic}: {exc}") from None
+        self.node._send(self._topic, msg)
+
+
+@dataclass
+class Subscription:
+    """A callback on one topic (typed) or on every topic under a prefix (raw)."""
+
+    topic: str
+    msg_type: type[Message] | None
+    callback: Callable
+    latest_only: bool = False
+    raw: bool = False
+    active: bool = True
+
+
+@dataclass
+class Timer:
+    """Calls `callback()` every `period` seconds on the node's thread, until cancelled."""
+
+    period: float
+    callback: Callable[[], Any]
+    next_due: float
+    cancelled: bool = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+@dataclass
+class _TopicState:
+    last_seq: int | None = None
+    stale_since_last: int = 0
+    stats: dict = field(default_factory=lambda: {"received": 0, "dropped": 0, "malformed": 0, "gaps": 0})
+
+
+class Node:
+    """Base class of every node; see docs/contracts.md for the API."""
+
+    def __init__(
+        self,
+        name: str,
+        params: dict | None = None,
+        bus: BusConfig | None = None,
+        *,
+        role: str | None = None,
+        kind: str | None = None,
+        params_source: str | None = None,
+        heartbeat: bool = True,
+        connect_timeout: float = 5.0,
+        context: zmq.Context | None = None,
+    ):
+        self.name = role or name
+        self.kind = kind or type(self).__module__.rsplit(".", 1)[-1]
+        self.params = dict(params or {})
+        self.bus = bus if bus is not None else resolve_bus_config()
+        self.log = logging.getLogger(self.name)
+        self.pid = os.getpid()
+        self.connect_timeout = connect_timeout
+        self._params_source = params_source
+        self._declared: set[str] = set()
+        self._own_context = context is None
+        self._ctx = context or zmq.Context()
+        self._seq: dict[bytes, int] = {}
+        self._published: dict[str, int] = {}
+        self._subs: dict[bytes, list[Subscription]] = {}
+        self._raw_subs: list[tuple[bytes, Subscription]] = []
+        self._zmq_topics: set[bytes] = set()
+        self._topics: dict[bytes, _TopicState] = {}
+        self._timers: list[Timer] = []
+        self._pending: list[list[bytes]] = []
+        self._logged: set = set()
+        self._counters = {"errors": 0}
+        self._sync_count = 0
+        self._uid = uuid.uuid4().hex[:12]
+        self._stopping = False
+        self._closed = False
+        self._shutdown_called = False
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+
+        self._pub = self._ctx.socket(zmq.XPUB)
+        self._sub = self._ctx.socket(zmq.SUB)
+        for sock in (self._pub, self._sub):
+            sock.sndhwm = self.bus.hwm
+            sock.rcvhwm = self.bus.hwm
+            sock.linger = 0
+            self.bus.client_socket_options(sock)
+        self._pub.linger = 1000  # lets on_shutdown's last messages (e.g. a stop) reach the broker
+        self._pub.connect(self.bus.pub_endpoint)
+        self._sub.connect(self.bus.sub_endpoint)
+        self._poller = zmq.Poller()
+        self._poller.register(self._sub, zmq.POLLIN)
+        self._poller.register(self._pub, zmq.POLLIN)
+        self._poller.register(self._wake_r, zmq.POLLIN)
+        self._await_broker()
+        self._heartbeat_pub = None
+        if heartbeat:
+            self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
+            self._timers.append(Timer(HEARTBEAT_PERIOD, self._send_heartbeat, time.monotonic()))
+
+    # ---- parameters --------------------------------------------------------------------------
+
+    def declare_parameter(self, name: str, default):
+        """The launch file's value of parameter `name`, else `default`; its type must match the default's."""
+        self._declared.add(name)
+        if name not in self.params:
+            return default
+        value = self.params[name]
+        expected = _type_name(default)
+        ok = default is None or (
+            isinstance(value, bool) if isinstance(default, bool)
+            else (isinstance(value, int) and not isinstance(value, bool)) if isinstance(default, int)
+            else (isinstance(value, (int, float)) and not isinstance(value, bool)) if isinstance(default, float)
+            else isinstance(value, type(default))
+        )
+        if not ok:
+            source = self._params_source or f"parameters of node '{self.name}'"
+            key = f"nodes.{self.name}.params.{name}" if self._params_source else name
+            raise ConfigError(source, key, expected, got=value)
+        return float(value) if isinstance(default, float) else value
+
+    def undeclared_parameters(self) -> list[str]:
+        """Parameters given to the node that it never declared (likely typos in a launch file)."""
+        return sorted(set(self.params) - self._declared)
+
+    # ---- topics and timers -------------------------------------------------------------------
+
+    def create_publisher(self, topic: str, msg_type: type[Message]) -> Publisher:
+        _check_topic(topic)
+        self._published.setdefault(topic, 0)
+        return Publisher(self, topic, msg_type)
+
+    def create_subscription(
+        self, topic: str, msg_type: type[Message], callback: Callable[[Message], Any], latest_only: bool = False
+    ) -> Subscription:
+        """Call `callback(msg)` for each `msg_type` message on exactly `topic`. With `latest_only`, a
+        backlog is skipped: only the newest queued message is handled (the rest count as dropped)."""
+        _check_topic(topic)
+        sub = Subscription(topic, msg_type, callback, latest_only)
+        key = topic.encode()
+        self._subs.setdefault(key, []).append(sub)
+        self._state(key)
+        self._subscribe(key)
+        return sub
+
+    def create_raw_subscription(self, prefix: str, callback: Callable[[str, bytes], Any]) -> Subscription:
+        """Call `callback(topic, payload_bytes)` for every message whose topic starts with `prefix`
+        ("" = all), undecoded (for recorders and introspection)."""
+        sub = Subscription(prefix, None, callback, raw=True)
+        key = prefix.encode()
+        self._raw_subs.append((key, sub))
+        self._subscribe(key)
+        return sub
+
+    def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
+        if not period > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period}")
+        timer = Timer(float(period), callback, time.monotonic() + period)
+        self._timers.append(timer)
+        return timer
+
+    @property
+    def stats(self) -> dict[str, dict]:
+        """Per subscribed topic: received, dropped (stale, latest-only), malformed, gaps (from seq)."""
+        return {key.decode(): state.stats for key, state in self._topics.items()}
+
+    def stats_flat(self) -> dict[str, int]:
+        """Totals plus "topic:counter" entries, as sent in the heartbeat."""
+        out: dict[str, int] = {"received": 0, "dropped": 0, "malformed": 0, "gaps": 0}
+        for topic, counters in self.stats.items():
+            for name, value in counters.items():
+                out[name] += value
+                out[f"{topic}:{name}"] = value
+        out["published"] = sum(self._published.values())
+        out.update(self._counters)
+        return out
+
+    # ---- spinning ----------------------------------------------------------------------------
+
+    def spin_once(self, timeout: float = 0.1) -> int:
+        """Wait up to `timeout` s for messages or a due timer and handle them; returns how many."""
+        handled = self._run_timers()
+        if self._pending:
+            handled += self._dispatch(self._pending)
+            self._pending = []
+        if handled or self._stopping:
+            timeout = 0.0
+        due = min((t.next_due for t in self._timers if not t.cancelled), default=None)
+        if due is not None:
+            timeout = max(0.0, min(timeout, due - time.monotonic()))
+        events = dict(self._poller.poll(int(timeout * 1000) if timeout > 0 else 0))
+        if self._sub in events:
+            handled += self._dispatch(self._drain())
+        if self._pub in events:
+            self._drain_subscriptions()
+        if self._wake_r.fileno() in events:
+            try:
+                self._wake_r.recv(4096)
+            except BlockingIOError:
+                pass
+        return handled + self._run_timers()
+
+    def spin(self, duration: float | None = None) -> None:
+        """Handle messages and timers until `request_shutdown()` (or for `duration` seconds)."""
+        end = None if duration is None else time.monotonic() + duration
+        while not self._stopping:
+            left = 0.1 if end is None else end - time.monotonic()
+            if left <= 0:
+                break
+            self.spin_once(min(left, 0.1))
+
+    def request_shutdown(self) -> None:
+        """Ask `spin` to return; safe from signal handlers and other threads."""
+        self._stopping = True
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping
+
+    def on_shutdown(self) -> None:
+        """Override to act on shutdown (e.g. send a stop); runs once, while sockets are still open."""
+
+    def shutdown(self) -> None:
+        """Call `on_shutdown` once, then close the sockets (flushing what it published)."""
+        if self._closed:
+            return
+        self._stopping = True
+        if not self._shutdown_called:
+            self._shutdown_called = True
+            try:
+                self.on_shutdown()
+            except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
+                self.log.exception("on_shutdown failed")
+        self._closed = True
+        self._sub.close(linger=0)
+        self._pub.close()
+        self._wake_r.close()
+        self._wake_w.close()
+        if self._own_context:
+            self._ctx.term()
+
+    close = shutdown
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.shutdown()
+
+    # ---- internals ---------------------------------------------------------------------------
+
+    def _state(self, key: bytes) -> _TopicState:
+        state = self._topics.get(key)
+        if state is None:
+            state = self._topics[key] = _TopicState()
+        return state
+
+    def _send(self, topic: bytes, msg: Message) -> None:
+        seq = self._seq.get(topic, 0)
+        msg.seq = seq
+        self._seq[topic] = seq + 1
+        self._pub.send_multipart((topic, msg.encode()), copy=False)
+        name = topic.decode()
+        self._published[name] = self._published.get(name, 0) + 1
+
+    def _await_broker(self) -> None:
+        """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
+        deadline = time.monotonic() + self.connect_timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self._pub.poll(int(left * 1000)):
+                self.log.warning("broker not reached at %s within %.1f s; messages published before it "
+                                 "connects are lost", self.bus.pub_endpoint, self.connect_timeout)
+                return
+            if self._pub.recv() == b"\x01":
+                return
+
+    def _drain_subscriptions(self) -> None:
+        while True:
+            try:
+                self._pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+
+    def _subscribe(self, key: bytes) -> None:
+        if key in self._zmq_topics:
+            return
+        self._zmq_topics.add(key)
+        self._sub.subscribe(key)
+        self._sync()
+
+    def _sync(self) -> None:
+        """Block until the broker has applied this node's subscriptions (see the module doc)."""
+        self._sync_count += 1
+        token = b"_bus/sync/%s/%d" % (self._uid.encode(), self._sync_count)
+        self._sub.subscribe(token)
+        deadline = time.monotonic() + self.connect_timeout
+        interval = 0.002
+        try:
+            while time.monotonic() < deadline:
+                self._pub.send_multipart((token, b""))
+                until = time.monotonic() + interval
+                while (left := until - time.monotonic()) > 0 and self._sub.poll(int(left * 1000) + 1):
+                    frames = self._sub.recv_multipart()
+                    if frames[0] == token:
+                        return
+                    if not frames[0].startswith(INTERNAL_PREFIX):
+                        self._pending.append(frames)
+                interval = min(interval * 2, 0.1)
+            self.log.warning("subscription not confirmed by the broker at %s within %.1f s",
+                             self.bus.sub_endpoint, self.connect_timeout)
+        finally:
+            self._sub.unsubscribe(token)
+
+    def _drain(self) -> list[list[bytes]]:
+        batch = []
+        recv = self._sub.recv_multipart
+        while len(batch) < _MAX_BATCH:
+            try:
+                batch.append(recv(zmq.NOBLOCK))
+            except zmq.Again:
+                break
+        return batch
+
+    def _dispatch(self, batch: list[list[bytes]]) -> int:
+        last: dict[bytes, int] = {}
+        for i, frames in enumerate(batch):
+            last[frames[0]] = i
+        handled = 0
+        for i, frames in enumerate(batch):
+            topic = frames[0]
+            if topic.startswith(INTERNAL_PREFIX):
+                continue
+            subs = self._subs.get(topic)
+            if subs is not None:
+                handled += self._deliver(topic, frames, subs, i == last[topic])
+            if self._raw_subs and len(frames) == 2:
+                for prefix, sub in self._raw_subs:
+                    if sub.active and topic.startswith(prefix):
+                        self._call(sub.callback, (topic.decode(errors="replace"), frames[1]), sub.topic)
+                        handled += 1
+        return handled
+
+    def _deliver(self, topic: bytes, frames: list[bytes], subs: list[Subscription], newest: bool) -> int:
+        state = self._topics[topic]
+        stats = state.stats
+        stats["received"] += 1
+        takers = [s for s in subs if s.active and (newest or not s.latest_only)]
+        if not takers:
+            stats["dropped"] += 1
+            state.stale_since_last += 1
+            return 0
+        if len(frames) != 2:
+            stats["malformed"] += 1
+            self._log_once(topic, f"expected 2 frames [topic, payload], got {len(frames)}")
+            return 0
+        decoded: dict[type, Message] = {}
+        handled = 0
+        for sub in takers:
+            msg = decoded.get(sub.msg_type)
+            if msg is None:
+                try:
+                    msg = decoded[sub.msg_type] = decode(frames[1], sub.msg_type)
+                except MessageError as exc:
+                    stats["malformed"] += 1
+                    self._log_once(topic, str(exc))
+                    return handled
+                if handled == 0:
+                    self._track_seq(state, msg.seq)
+            self._call(sub.callback, (msg,), sub.topic)
+            handled += 1
+        return handled
+
+    @staticmethod
+    def _track_seq(state: _TopicState, seq: int) -> None:
+        if state.last_seq is not None and seq > state.last_seq + 1:
+            missing = seq - state.last_seq - 1 - state.stale_since_last
+            if missing > 0:
+                state.stats["gaps"] += missing
+        # A seq that does not advance means another publisher or a restarted one: start over.
+        state.last_seq = seq
+        state.stale_since_last = 0
+
+    def _call(self, callback: Callable, args: tuple, where: str) -> None:
+        try:
+            callback(*args)
+        except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the node
+            self._counters["errors"] += 1
+            cause = (where, type(exc).__name__, str(exc)[:120])
+            if cause not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
+                self._logged.add(cause)
+                self.log.exception("callback for %s failed (further identical failures are only counted)", where)
+
+    def _log_once(self, topic: bytes, cause: str) -> None:
+        key = (topic, cause)
+        if key not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
+            self._logged.add(key)
+            self.log.warning("dropped a malformed message on %s: %s", topic.decode(errors="replace"), cause)
+
+    def _run_timers(self) -> int:
+        ran = 0
+        now = time.monotonic()
+        for timer in list(self._timers):
+            if timer.cancelled or timer.next_due > now or self._stopping:
+                continue
+            timer.next_due += timer.period
+            if timer.next_due <= now:
+                timer.next_due = now + timer.period
+            self._call(timer.callback, (), f"timer {timer.period:g} s")
+            ran += 1
+        if any(t.cancelled for t in self._timers):
+            self._timers = [t for t in self._timers if not t.cancelled]
+        return ran
+
+    def _send_heartbeat(self) -> None:
+        self._heartbeat_pub.publish(Heartbeat(
+            node=self.name,
+            pid=self.pid,
+            kind=self.kind,
+            publishes=sorted(t for t in self._published if t != HEARTBEAT_TOPIC),
+            subscribes=sorted({k.decode() for k in self._subs} | {k.decode() + "*" for k, _ in self._raw_subs}),
+            stats=self.stats_flat(),
+        ))
+
+
+def _check_topic(topic: str) -> None:
+    if not isinstance(topic, str) or not topic or topic.encode().startswith(INTERNAL_PREFIX):
+        raise ValueError(f"topic must be a non-empty string not starting with '_bus/', got {topic!r}")
+
+
+def _type_name(default) -> str:
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, float):
+        return "a number"
+    if isinstance(default, str):
+        return "a string"
+    if isinstance(default, list):
+        return "a list"
+    if isinstance(default, dict):
+        return "a mapping"
+    return f"a {type(default).__name__}"

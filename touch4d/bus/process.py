@@ -1,0 +1,118 @@
+"""One node process: `run_node` builds a node from its command line and spins it until a signal.
+
+The launcher starts each node as `python -u -m touch4d.bus MODULE --name ROLE --params JSON`;
+that imports `touch4d.nodes.MODULE` and calls its `main(argv)`, which calls `run_node`.
+SIGINT/SIGTERM make `spin` return, then `on_shutdown` runs before the sockets close and the
+process exits 0.
+"""
+from __future__ import annotations
+
+import argparse
+import ctypes
+import importlib
+import json
+import logging
+import os
+import signal
+import sys
+
+from touch4d.bus.config import resolve_bus_config
+from touch4d.errors import Touch4dError
+
+LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
+_PR_SET_PDEATHSIG = 1
+
+
+def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=default_name or "node", description="Run one touch4d node.")
+    parser.add_argument("--name", help="node name (its role in the launch file)")
+    parser.add_argument("--kind", help="node module name, for heartbeats")
+    parser.add_argument("--params", default="{}", help="parameters as a JSON object")
+    parser.add_argument("--params-source", help="where the parameters came from (for error messages)")
+    parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+    parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
+    return parser.parse_args(argv)
+
+
+def _die_with_launcher() -> None:
+    """Ask the kernel to SIGTERM this process if the launcher that started it dies (even by SIGKILL)."""
+    launcher = os.environ.get(LAUNCHER_PID_ENV)
+    if not launcher or not sys.platform.startswith("linux"):
+        return
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != int(launcher):
+        sys.exit(0)  # the launcher is already gone
+
+
+def run_node(node_class, argv: list[str] | None = None) -> int:
+    """Build `node_class` from the command line, spin it until SIGINT/SIGTERM, shut it down; returns
+    the exit code (0 after a clean stop, 2 when the node's parameters or config are wrong)."""
+    args = parse_node_args(sys.argv[1:] if argv is None else argv, getattr(node_class, "__name__", None))
+    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+    _die_with_launcher()
+    try:
+        params = json.loads(args.params)
+        if not isinstance(params, dict):
+            raise ValueError("not an object")
+    except ValueError as exc:
+        print(f"node {args.name}: --params: expected a JSON object, got {args.params!r} ({exc})", file=sys.stderr)
+        return 2
+    kwargs = {"params": params, "bus": None, "kind": args.kind, "params_source": args.params_source}
+    if args.name:
+        kwargs["role"] = args.name
+    # Handlers go in before the node is built: a stop that arrives while it starts is kept for later.
+    holder: dict = {"node": None, "stop": False}
+
+    def stop(signum, frame):
+        holder["stop"] = True
+        if holder["node"] is not None:
+            holder["node"].request_shutdown()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, stop)
+    try:
+        kwargs["bus"] = resolve_bus_config(args.bus)
+        node = holder["node"] = node_class(**kwargs)
+    except Touch4dError as exc:
+        print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
+        return 2
+    if holder["stop"]:
+        node.request_shutdown()
+    unknown = node.undeclared_parameters()
+    if unknown:
+        node.log.warning("ignoring parameters it does not declare: %s", ", ".join(unknown))
+    try:
+        node.spin()
+    finally:
+        node.shutdown()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m touch4d.bus MODULE [node args]`: run `touch4d.nodes.MODULE`'s main."""
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0].startswith("-"):
+        print("usage: python -m touch4d.bus MODULE [--name N] [--params JSON] ...", file=sys.stderr)
+        return 2
+    module_name, rest = argv[0], argv[1:]
+    if "--kind" not in rest:
+        rest = [*rest, "--kind", module_name]
+    try:
+        module = importlib.import_module(f"touch4d.nodes.{module_name}")
+    except ModuleNotFoundError as exc:
+        if exc.name == f"touch4d.nodes.{module_name}":
+            print(f"node module touch4d.nodes.{module_name} not found", file=sys.stderr)
+            return 2
+        raise
+    if not callable(getattr(module, "main", None)):
+        print(f"node module touch4d.nodes.{module_name} has no main(argv)", file=sys.stderr)
+        return 2
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

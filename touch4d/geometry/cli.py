@@ -1,0 +1,69 @@
+"""`touch4d shape list` and `touch4d shape info NAME [-p KEY=VALUE ...]`: what the catalog holds."""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import yaml
+
+from touch4d.errors import ConfigError
+
+from .polytope import GeometryError
+from .shapes import get_shape, list_shapes, shape_params
+
+
+def register(subparsers) -> None:
+    shape = subparsers.add_parser("shape", help="the 4D shape catalog")
+    sub = shape.add_subparsers(dest="shape_command", metavar="ACTION")
+    lst = sub.add_parser("list", help="every catalog shape with its vertex/edge/face/cell counts")
+    lst.set_defaults(func=_list)
+    info = sub.add_parser("info", help="one shape: its size convention, parameters and boundary")
+    info.add_argument("name", help="a catalog name (see `touch4d shape list`)")
+    info.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
+                      help="a shape parameter, e.g. -p base=dodecahedron (repeatable)")
+    info.set_defaults(func=_info)
+    shape.set_defaults(func=lambda args: shape.print_help() or 2)
+
+
+def _counts(shape) -> tuple[int, int, int, int]:
+    return tuple(int(x) for x in np.sum([p.counts for p in shape.parts], axis=0))
+
+
+def _list(args) -> int:
+    print(f"{'name':<14}{'parts':>6}{'V':>6}{'E':>6}{'F':>6}{'C':>6}  size / description")
+    for name in list_shapes():
+        shape = get_shape(name)
+        v, e, f, c = _counts(shape)
+        print(f"{name:<14}{len(shape.parts):>6}{v:>6}{e:>6}{f:>6}{c:>6}  {shape.doc}")
+    return 0
+
+
+def _info(args) -> int:
+    if args.name not in list_shapes():
+        raise ConfigError("(command line)", "NAME", f"a catalog shape ({', '.join(list_shapes())})", got=args.name)
+    params = {}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ConfigError("(command line)", "--param", "KEY=VALUE", got=item)
+        params[key] = yaml.safe_load(value)
+    try:
+        shape = get_shape(args.name, **params)
+    except GeometryError as exc:
+        raise ConfigError("(command line)", "--param", f"parameters of {args.name}: {shape_params(args.name)}",
+                          got=str(exc)) from None
+    print(f"{shape.name}: {shape.doc}")
+    print(f"parameters: {shape.params or 'none'}")
+    for i, part in enumerate(shape.parts):
+        v, e, f, c = part.counts
+        lo, hi = part.vertices.min(axis=0), part.vertices.max(axis=0)
+        cells = ", ".join(f"{n}x{k}" for k, n in sorted(_cell_kinds(part).items()))
+        print(f"part {i}: {v} vertices, {e} edges, {f} faces, {c} cells ({cells}); "
+              f"V-E+F-C = {v - e + f - c}; box {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
+    return 0
+
+
+def _cell_kinds(part) -> dict[int, int]:
+    """How many cells have each number of faces."""
+    sizes = [len(f) for f in part.cell_faces]
+    return {k: sizes.count(k) for k in set(sizes)}

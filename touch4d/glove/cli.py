@@ -1,0 +1,72 @@
+"""`touch4d glove ...`: write the glove's DBC, show its bus load, run the board emulator."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from touch4d.glove.busload import bus_load
+from touch4d.glove.config import load_glove_can
+from touch4d.glove.dbc import dbc_text
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("glove", help="the glove's CAN protocol and board emulator")
+    sub = parser.add_subparsers(dest="glove_command", metavar="ACTION", required=True)
+
+    p = sub.add_parser("dbc", help="write the DBC file of the glove's CAN protocol")
+    p.add_argument("--glove", help="glove file (default config/glove.yaml)")
+    p.add_argument("-o", "--output", help="output file (default: standard output)")
+    p.set_defaults(func=cmd_dbc)
+
+    p = sub.add_parser("busload", help="print the worst-case CAN bus load of the glove's configuration")
+    p.add_argument("--glove", help="glove file (default config/glove.yaml)")
+    p.set_defaults(func=cmd_busload)
+
+    p = sub.add_parser("emulate", help="run the motor-board emulator on a python-can channel")
+    p.add_argument("--glove", help="glove file (default config/glove.yaml)")
+    p.add_argument("--interface", help="python-can interface (default: the glove's can.interface)")
+    p.add_argument("--channel", help="python-can channel (default: the glove's can.channel)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
+    p.set_defaults(func=cmd_emulate)
+
+
+def cmd_dbc(args) -> int:
+    text = dbc_text(load_glove_can(args.glove))
+    if args.output:
+        Path(args.output).write_bytes(text.encode())
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def cmd_busload(args) -> int:
+    cfg = load_glove_can(args.glove)
+    print(f"{cfg.file}: {len(cfg.boards)} boards at {cfg.bitrate} bit/s, refresh {cfg.refresh_hz:g} Hz")
+    print(bus_load(cfg).describe())
+    return 0
+
+
+def cmd_emulate(args) -> int:
+    from touch4d.glove.emulator import GloveEmulator
+
+    cfg = load_glove_can(args.glove)
+    emulator = GloveEmulator(cfg, interface=args.interface, channel=args.channel)
+    print(f"emulating boards {[b.id for b in cfg.boards]} on {args.interface or cfg.interface} "
+          f"channel {args.channel or cfg.channel}", flush=True)
+    end = None if args.duration is None else time.monotonic() + args.duration
+    emulator.start()
+    try:
+        while end is None or time.monotonic() < end:
+            time.sleep(args.print_period if end is None else max(0.0, min(args.print_period, end - time.monotonic())))
+            for bid, board in emulator.boards.items():
+                gone = " (removed)" if bid in emulator.removed else ""
+                print(f"board {bid}: {board.nmt_state.lower()} {board.output_state().lower()} "
+                      f"levels {board.levels}{gone}", flush=True)
+            print(f"frames: {dict(emulator.counters)}", flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emulator.stop()
+    return 0

@@ -1,0 +1,247 @@
+"""The motor-side logic: what to send to the boards, and what the boards' answers mean.
+
+No I/O here: the motor node feeds commands, stops, received frames and the time in, and sends
+the frames `outgoing` returns. Rules:
+- a board's duty frame goes out at once when its duties changed, but never sooner than half a
+  refresh period after its previous frame (busload.py counts 2 x refresh_hz per board);
+- every refresh tick, each board whose last frame is half a period old or more is sent again, so
+  the boards' watchdogs stay fed and a lost or failed frame is retried;
+- no `tactile/motors` within `watchdog_s` -> every duty 0; a stop -> NMT STOP at once, every duty
+  0, commands ignored for `stop_hold_s`, then NMT START;
+- a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
+  every `RESTART_PERIOD_S`; a board silent for `board_timeout_s` is reported offline.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import can
+import numpy as np
+
+from touch4d.glove.config import GloveCan
+from touch4d.glove.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
+from touch4d.glove.protocol import Frame, GloveProtocol
+
+RESTART_PERIOD_S = 0.1
+
+
+class Outgoing(NamedTuple):
+    """A frame to send: board id (0 for a broadcast NMT), the message, the duty levels it carries."""
+
+    board: int
+    msg: can.Message
+    levels: tuple = ()
+
+
+@dataclass
+class BoardView:
+    """What the controller knows of one board."""
+
+    id: int
+    channels: int
+    motors: np.ndarray          # motor index per used channel
+    motor_channels: np.ndarray  # channel of each of those motors
+    sent_levels: tuple | None = None
+    last_sent: float = -np.inf
+    counter: int = 0
+    last_heard: float | None = None
+    last_frame_stamp: float = 0.0
+    nmt_state: str = "UNKNOWN"
+    output_state: str = "UNKNOWN"
+    board_faults: list = field(default_factory=list)
+    acked_counter: int | None = None
+    online: bool | None = None  # None until heard or the start grace (board_timeout_s) ends
+    last_nmt_at: float = -np.inf
+    send_failures: int = 0
+
+
+class MotorDriver:
+    """Decides the duty frames and NMT commands for every board of one glove."""
+
+    def __init__(self, cfg: GloveCan, protocol: GloveProtocol | None = None, now: float = 0.0):
+        self.cfg = cfg
+        self.protocol = protocol or GloveProtocol(cfg)
+        self.names = list(cfg.motor_names)
+        self._index = {n: k for k, n in enumerate(self.names)}
+        self._names_cache: tuple[tuple, np.ndarray, np.ndarray] | None = None
+        m = len(self.names)
+        self.intensity = np.zeros(m)
+        self.duty = np.zeros(m)            # after watchdog, stop and thermal limit: what is to be sent
+        self.thermal = ThermalState.initial(m)
+        self.last_command_at: float | None = None
+        self.stop_until = -np.inf
+        self._restart_pending = True  # the first refresh tick broadcasts NMT START
+        self.watchdog_off = True
+        self.errors: Counter = Counter()
+        self.period = 1.0 / cfg.refresh_hz
+        board_of = np.asarray(cfg.motor_board)
+        channel_of = np.asarray(cfg.motor_channel)
+        self.boards = {}
+        for b in cfg.boards:
+            idx = np.flatnonzero(board_of == b.id)
+            self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx])
+        self._started = now
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def command(self, names, intensity, now: float) -> None:
+        """A `tactile/motors` command: intensity per named motor (unnamed motors go to 0)."""
+        key = tuple(names)
+        if self._names_cache is None or self._names_cache[0] != key:
+            known = [(i, self._index[n]) for i, n in enumerate(key) if n in self._index]
+            unknown = len(key) - len(known)
+            if unknown:
+                self.errors["unknown_motor"] += unknown
+            src = np.array([i for i, _ in known], dtype=np.int64)
+            dst = np.array([k for _, k in known], dtype=np.int64)
+            self._names_cache = (key, src, dst)
+        _, src, dst = self._names_cache
+        if now < self.stop_until:
+            self.errors["ignored_during_stop"] += 1
+            return
+        values = np.zeros(len(self.names))
+        values[dst] = np.asarray(intensity, dtype=np.float64)[src]
+        self.intensity = values
+        self.last_command_at = now
+
+    def stop(self, now: float) -> can.Message:
+        """Safety stop: every duty 0 and commands ignored for stop_hold_s; returns the NMT STOP to send first."""
+        self.stop_until = now + self.cfg.stop_hold_s
+        self._restart_pending = True
+        self.intensity = np.zeros(len(self.names))
+        self.last_command_at = None
+        self.errors["stops"] += 1
+        for b in self.boards.values():
+            b.last_nmt_at = now
+        return self.protocol.nmt("STOP", 0)
+
+    def receive(self, msg: can.Message, frame: Frame | None, now: float) -> None:
+        """A decoded frame from the bus (None: an id the glove does not use)."""
+        if frame is None:
+            self.errors["unknown_rx"] += 1
+            return
+        if frame.kind not in ("status", "heartbeat") or frame.board not in self.boards:
+            return  # another controller's frames, or our own echoed
+        b = self.boards[frame.board]
+        b.last_heard = now
+        b.last_frame_stamp = msg.timestamp or 0.0
+        if frame.kind == "heartbeat":
+            b.nmt_state = GloveProtocol.state_name(frame)
+        else:
+            b.output_state = GloveProtocol.state_name(frame)
+            b.board_faults = GloveProtocol.faults(frame)
+            b.acked_counter = frame.signals["LastCounter"]
+            if b.output_state in ("STOPPED", "PRE_OPERATIONAL"):
+                b.nmt_state = b.output_state
+            elif b.nmt_state in ("UNKNOWN", "STOPPED", "PRE_OPERATIONAL", "BOOTUP"):
+                b.nmt_state = "OPERATIONAL"
+
+    # -- outputs ------------------------------------------------------------------------------
+
+    def update(self, now: float) -> np.ndarray:
+        """Recompute the duty of every motor: watchdog, stop, intensity -> duty, thermal limit."""
+        stopped = now < self.stop_until
+        silent = self.last_command_at is None or now - self.last_command_at > self.cfg.watchdog_s
+        if silent and not self.watchdog_off and not stopped:
+            self.errors["watchdog_off"] += 1
+        self.watchdog_off = silent
+        wanted = np.zeros(len(self.names)) if (silent or stopped) else intensity_to_duty(self.intensity, self.cfg.duty)
+        self.duty, self.thermal = thermal_limit(wanted, self.thermal, now, self.cfg.thermal)
+        return self.duty
+
+    def board_levels(self, board_id: int) -> tuple:
+        b = self.boards[board_id]
+        levels = np.zeros(b.channels, dtype=np.int64)
+        levels[b.motor_channels] = duty_to_levels(self.duty[b.motors])
+        return tuple(int(v) for v in levels)
+
+    def outgoing(self, now: float, refresh: bool = False, force: bool = False) -> list[Outgoing]:
+        """Frames to send now.
+
+        `refresh=False` (on a command): only changed boards; `refresh=True` (the refresh tick):
+        also every board whose last frame is half a period old, and any NMT start/stop due.
+        `force` (a stop, shutdown): every board now, whatever its last frame's age.
+        """
+        self.update(now)
+        out: list[Outgoing] = []
+        stopped = now < self.stop_until
+        if refresh:
+            if self._restart_pending and not stopped:
+                self._restart_pending = False
+                out.append(Outgoing(0, self.protocol.nmt("START", 0)))
+                for b in self.boards.values():
+                    b.last_nmt_at = now
+            for b in self.boards.values():
+                want_stop = stopped and b.nmt_state == "OPERATIONAL"
+                want_start = not stopped and b.nmt_state in ("BOOTUP", "PRE_OPERATIONAL", "STOPPED")
+                if (want_stop or want_start) and now - b.last_nmt_at >= RESTART_PERIOD_S:
+                    b.last_nmt_at = now
+                    self.errors["nmt_restart" if want_start else "nmt_restop"] += 1
+                    out.append(Outgoing(0, self.protocol.nmt("STOP" if want_stop else "START", b.id)))
+        half = 0.5 * self.period
+        for b in self.boards.values():
+            levels = self.board_levels(b.id)
+            if now - b.last_sent < half - 1e-9 and not force:
+                continue
+            if levels != b.sent_levels or refresh:
+                b.counter = (b.counter + 1) & 0xFF
+                out.append(Outgoing(b.id, self.protocol.duty(b.id, levels, b.counter), levels))
+        return out
+
+    def sent(self, out: Outgoing, now: float) -> None:
+        """A frame from `outgoing` went out."""
+        if out.board == 0:
+            return
+        b = self.boards[out.board]
+        b.last_sent = now
+        b.sent_levels = out.levels
+        b.send_failures = 0
+
+    def failed(self, out: Outgoing, kind: str) -> None:
+        """A frame from `outgoing` could not be sent (kind: send_error, tx_queue_full, bus_off, ...).
+
+        The board's duties stay unsent, so the next tick sends them again.
+        """
+        self.errors[kind] += 1
+        if out.board:
+            self.boards[out.board].send_failures += 1
+
+    def check_boards(self, now: float) -> list[str]:
+        """Update which boards are online; returns a line per board that changed, for the log."""
+        events = []
+        for b in self.boards.values():
+            heard = b.last_heard is not None and now - b.last_heard <= self.cfg.board_timeout_s
+            if heard and b.online is not True:
+                events.append(f"board {b.id} online ({b.nmt_state.lower()})")
+                b.online = True
+            elif not heard and b.online is not False and (b.online or now - self._started > self.cfg.board_timeout_s):
+                self.errors["board_offline"] += 1
+                events.append(f"board {b.id} not answering for {self.cfg.board_timeout_s} s")
+                b.online = False
+        return events
+
+    def sent_duty(self) -> np.ndarray:
+        """The duty last sent to every motor (0..1, glove file order)."""
+        out = np.zeros(len(self.names))
+        for b in self.boards.values():
+            if b.sent_levels is not None:
+                out[b.motors] = levels_to_duty(np.asarray(b.sent_levels)[b.motor_channels])
+        return out
+
+    def board_report(self) -> list[dict]:
+        """The `boards` field of MotorStatus."""
+        out = []
+        for b in self.boards.values():
+            faults = [] if b.online else ["not_answering"]
+            online = bool(b.online)
+            faults += list(b.board_faults) if online else []
+            if b.send_failures:
+                faults.append("send_failing")
+            state = b.nmt_state.lower() if online else "offline"
+            if online and b.nmt_state == "OPERATIONAL" and b.output_state not in ("UNKNOWN",):
+                state = "operational" if b.output_state in ("ACTIVE", "IDLE") else b.output_state.lower()
+            out.append({"id": b.id, "online": online, "faults": faults,
+                        "last_frame": float(b.last_frame_stamp), "state": state})
+        return out

@@ -1,0 +1,221 @@
+"""The recording engine: a dedicated subscriber thread stamps messages, a writer thread logs them.
+
+The subscriber socket has no receive high-water mark, so a burst queues in memory instead of being
+dropped, and its thread does nothing but receive and stamp (receive times stay accurate while the
+writer compresses). The writer flushes a chunk at least every `flush_interval` seconds, so a
+recorder killed with SIGKILL leaves a file from which everything older than that is recovered.
+"""
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import zmq
+
+from touch4d.bus.config import BusConfig
+from touch4d.bus.node import INTERNAL_PREFIX
+from touch4d.errors import Touch4dError
+
+from .realtime import bus_context, raise_thread_priority
+from .writer import LogWriter, WallClock
+
+
+def _wanted(topic: bytes, wanted: set[bytes]) -> bool:
+    """Exact topics asked for (a subscription matches by prefix), or every topic but the bus's own."""
+    return topic in wanted if wanted else not topic.startswith(INTERNAL_PREFIX)
+
+
+@dataclass
+class RecordingReport:
+    """What a finished recording holds, for the end-of-recording report (and the file's metadata)."""
+
+    path: str
+    counts: dict[str, int]
+    lost: dict[str, int]                       # topic -> messages missing from its seq sequence
+    malformed: dict[str, int]                  # topic -> payloads that were not message maps
+    missing: list[str] = field(default_factory=list)   # topics asked for that never arrived
+    duration: float = 0.0
+    bytes: int = 0
+    error: str = ""
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def metadata(self) -> dict[str, str]:
+        return {"counts": json.dumps(self.counts), "lost": json.dumps(self.lost),
+                "malformed": json.dumps(self.malformed), "missing": json.dumps(self.missing),
+                "duration": f"{self.duration:.3f}"}
+
+    def lines(self) -> list[str]:
+        out = [f"recorded {self.total} messages ({self.bytes / 1e6:.2f} MB) on {len(self.counts)} topic(s) "
+               f"in {self.duration:.1f} s to {self.path}"]
+        for topic, n in sorted(self.counts.items()):
+            extra = f", {self.lost[topic]} lost (seq gaps)" if self.lost.get(topic) else ""
+            extra += f", {self.malformed[topic]} not messages" if self.malformed.get(topic) else ""
+            out.append(f"  {topic}: {n}{extra}")
+        out.append(f"seq gaps: {sum(self.lost.values())} message(s) lost before the recorder"
+                   if self.lost else "seq gaps: none")
+        if self.missing:
+            out.append(f"no messages on: {', '.join(self.missing)}")
+        if self.error:
+            out.append(f"error: {self.error}")
+        return out
+
+
+class Recorder:
+    """Records `topics` (all when empty) from the bus into the MCAP file `path`."""
+
+    def __init__(self, bus: BusConfig, path: str | os.PathLike, topics: list[str] | None = None, *,
+                 flush_interval: float = 0.5, context: zmq.Context | None = None,
+                 chunk_size: int = 1 << 20, realtime: bool = True) -> None:
+        self.bus = bus
+        self.path = os.fspath(path)
+        self.topics = list(dict.fromkeys(topics or []))
+        self.flush_interval = flush_interval
+        self.chunk_size = chunk_size
+        self.realtime = realtime
+        self._own_context = context is None
+        self._context = context or bus_context(realtime)
+        self._queue: deque[tuple[bytes, bytes, int]] = deque()
+        self._stopping = threading.Event()
+        self._received = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._clock = WallClock()
+        self._writer: LogWriter | None = None
+        self._started = 0.0
+        self.error = ""
+        self.received = 0
+
+    def start(self, timeout: float = 5.0) -> None:
+        """Open the file, subscribe, start the threads; returns once the broker forwards to us."""
+        self._writer = LogWriter(self.path, chunk_size=self.chunk_size)
+        sock = self._context.socket(zmq.SUB)
+        sock.linger = 0
+        sock.rcvhwm = 0  # unbounded: a slow disk queues messages in memory, never drops them
+        self.bus.client_socket_options(sock)
+        for topic in self.topics or [""]:
+            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        sock.connect(self.bus.sub_endpoint)
+        self._started = time.monotonic()
+        early = self._sync(sock, timeout)
+        self._queue.extend(early)
+        self.received += len(early)
+        self._threads = [threading.Thread(target=self._receive, args=(sock,), name="recorder-receive", daemon=True),
+                         threading.Thread(target=self._write, name="recorder-write", daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def _sync(self, sock: zmq.Socket, timeout: float) -> list[tuple[bytes, bytes, int]]:
+        """Send a probe through the broker until it comes back: from then on nothing is missed.
+
+        Returns the messages that arrived meanwhile (they are recorded too)."""
+        token = b"_bus/sync/recorder/%d/%d" % (os.getpid(), id(self))
+        sock.setsockopt(zmq.SUBSCRIBE, token)
+        pub = self._context.socket(zmq.XPUB)
+        pub.linger = 0
+        self.bus.client_socket_options(pub)
+        pub.connect(self.bus.pub_endpoint)
+        early: list[tuple[bytes, bytes, int]] = []
+        wanted = {t.encode() for t in self.topics}
+        deadline = time.monotonic() + timeout
+        interval = 0.002
+        try:
+            while time.monotonic() < deadline:
+                pub.send_multipart([token, b""])
+                until = time.monotonic() + interval
+                while (left := until - time.monotonic()) > 0 and sock.poll(int(left * 1000) + 1):
+                    frames = sock.recv_multipart()
+                    if frames[0] == token:
+                        return early
+                    if _wanted(frames[0], wanted):
+                        early.append((frames[0], frames[-1] if len(frames) > 1 else b"", self._clock()))
+                interval = min(interval * 2, 0.1)
+        finally:
+            sock.setsockopt(zmq.UNSUBSCRIBE, token)
+            pub.close(linger=0)
+        sock.close(linger=0)
+        self._writer.close()
+        if self._own_context:
+            self._context.term()
+        raise Touch4dError(f"recorder: no bus broker forwarded messages at {self.bus.sub_endpoint} "
+                           f"within {timeout:.0f} s (is one running?)")
+
+    def _receive(self, sock: zmq.Socket) -> None:
+        if self.realtime:
+            self.realtime = raise_thread_priority()  # receive stamps stay accurate on a busy machine
+        wanted = {t.encode() for t in self.topics}
+        append, clock = self._queue.append, self._clock
+        try:
+            while not self._stopping.is_set():
+                if not sock.poll(50):
+                    continue
+                while True:
+                    try:
+                        frames = sock.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    if _wanted(frames[0], wanted):
+                        append((frames[0], frames[-1] if len(frames) > 1 else b"", clock()))
+                        self.received += 1
+        finally:
+            sock.close(linger=0)
+            self._received.set()
+
+    def _write(self) -> None:
+        writer, queue = self._writer, self._queue
+        last_flush = time.monotonic()
+        dirty = False
+        try:
+            while True:
+                done = self._received.is_set()
+                n = 0
+                while queue:
+                    topic, payload, t = queue.popleft()
+                    writer.write(topic.decode("utf-8", "replace"), payload, t)
+                    n += 1
+                    if n >= 2000:
+                        break
+                dirty = dirty or n > 0
+                now = time.monotonic()
+                if dirty and now - last_flush >= self.flush_interval:
+                    writer.flush()
+                    last_flush, dirty = now, False
+                if not n:
+                    if done:
+                        break
+                    time.sleep(0.01)
+        except OSError as exc:
+            self.error = f"writing {self.path}: {exc}"
+            self._stopping.set()
+
+    def report(self) -> RecordingReport:
+        w = self._writer
+        counts = dict(w.counts) if w else {}
+        return RecordingReport(
+            self.path, counts, w.gaps.report() if w else {}, {k: v for k, v in (w.malformed if w else {}).items() if v},
+            [t for t in self.topics if t not in counts], time.monotonic() - self._started if self._started else 0.0,
+            w.bytes if w else 0, self.error)
+
+    def stop(self) -> RecordingReport:
+        """Stop receiving, write everything queued, close the file with its metadata; the report."""
+        self._stopping.set()
+        for thread in self._threads:
+            thread.join()
+        if self._own_context and self._threads:
+            self._context.term()
+        report = self.report()
+        if self._writer is not None:
+            try:
+                self._writer.close(report.metadata())
+            except OSError as exc:
+                report.error = report.error or f"closing {self.path}: {exc}"
+        return report
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until the recording stops by itself (a write error); True if it did."""
+        return self._stopping.wait(timeout)

@@ -1,0 +1,121 @@
+"""JSON schemas for message types, and the JSON form of decoded messages (NaN -> null, arrays -> lists).
+
+One schema per message type goes into every log, so `mcap info` and Foxglove can show the fields.
+Known types (`touch4d.messages.TYPES`) get a schema from their field kinds and docs; anything else
+gets one inferred from a sample message.
+"""
+from __future__ import annotations
+
+import base64
+import math
+from typing import Any
+
+import numpy as np
+
+from touch4d.messages import TYPES
+from touch4d.messages import base as kinds
+
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+MSGPACK_NOTE = "msgpack map; numpy arrays are msgpack ext type 1 holding [dtype.str, shape, raw bytes]"
+_HEADER = {"type": {"type": "string", "description": "message type name"}}
+
+
+def _number_kind(dtype: np.dtype) -> str:
+    return {"b": "boolean", "i": "integer", "u": "integer"}.get(dtype.kind, "number")
+
+
+def _array_schema(ndim: int, dtype: np.dtype, shape=None) -> dict:
+    """Nested arrays `ndim` deep; floats may be null in JSON where the value is NaN or infinite."""
+    item: dict = {"type": _number_kind(dtype)}
+    if item["type"] == "number":
+        item = {"type": ["number", "null"]}
+    for depth in reversed(range(ndim)):
+        item = {"type": "array", "items": item}
+        if shape is not None and shape[depth] is not None:
+            item["minItems"] = item["maxItems"] = shape[depth]
+    return item
+
+
+def kind_schema(kind: kinds.Kind) -> dict:
+    """The JSON schema of one field kind of `touch4d.messages.base`."""
+    if isinstance(kind, kinds.Float):
+        return {"type": "number"} if kind.finite else {"type": ["number", "null"]}
+    if isinstance(kind, kinds.Bool):
+        return {"type": "boolean"}
+    if isinstance(kind, kinds.Int):
+        return {"type": "integer"}
+    if isinstance(kind, kinds.Str):
+        return {"type": "string", "enum": list(kind.choices)} if kind.choices else {"type": "string"}
+    if isinstance(kind, kinds.StrList):
+        return {"type": "array", "items": {"type": "string"}}
+    if isinstance(kind, kinds.IntList):
+        return {"type": "array", "items": {"type": "integer"}}
+    if isinstance(kind, kinds.Map):
+        return {"type": "object"}
+    if isinstance(kind, kinds.Array):
+        return _array_schema(len(kind.shape), kind.dtype, kind.shape)
+    if isinstance(kind, kinds.Records):
+        props = {name: kind_schema(k) for name, k in kind.fields.items()}
+        required = [name for name in kind.fields if name not in kind.optional]
+        return {"type": "array", "items": {"type": "object", "properties": props, "required": required}}
+    if isinstance(kind, kinds.ArrayList):
+        return {"type": "array", "items": kind_schema(kind.item)}
+    return {}
+
+
+def value_schema(value: Any) -> dict:
+    """A JSON schema inferred from one decoded value (for types this build does not know)."""
+    if isinstance(value, np.ndarray):
+        return _array_schema(value.ndim, value.dtype)
+    if isinstance(value, bool):
+        return {"type": "boolean"}
+    if isinstance(value, int):
+        return {"type": "integer"}
+    if isinstance(value, float):
+        return {"type": ["number", "null"]}
+    if isinstance(value, str):
+        return {"type": "string"}
+    if isinstance(value, bytes):
+        return {"type": "string", "contentEncoding": "base64"}
+    if isinstance(value, dict):
+        return {"type": "object", "properties": {str(k): value_schema(v) for k, v in value.items()}}
+    if isinstance(value, (list, tuple)):
+        return {"type": "array", "items": value_schema(value[0]) if value else {}}
+    return {}
+
+
+def message_schema(type_name: str, sample: dict | None = None) -> dict:
+    """The JSON schema of a message type: from its class when known, else inferred from `sample`."""
+    cls = TYPES.get(type_name)
+    schema: dict = {"$schema": JSON_SCHEMA_DIALECT, "title": type_name or "unknown", "type": "object"}
+    if cls is not None:
+        if cls.__doc__:
+            schema["description"] = cls.__doc__.strip().splitlines()[0]
+        props = dict(_HEADER)
+        docs = cls.field_docs()
+        for f in cls._fields():
+            props[f.name] = {**kind_schema(f.metadata["kind"]), "description": docs[f.name]}
+        schema["properties"] = props
+        schema["required"] = list(props)
+    elif isinstance(sample, dict):
+        schema["properties"] = {str(k): value_schema(v) for k, v in sample.items()}
+    return schema
+
+
+def to_jsonable(value: Any) -> Any:
+    """A decoded message value as plain JSON data: arrays to lists, NaN and infinities to null."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            return to_jsonable(value.tolist())
+        return value.tolist()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item())
+    if isinstance(value, dict):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    return value

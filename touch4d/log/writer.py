@@ -1,0 +1,135 @@
+"""Writes topic messages into an MCAP file: original msgpack bytes, one channel per topic and type.
+
+Each message keeps its payload exactly as received; MCAP `log_time` is the receive time,
+`publish_time` the message's own `stamp` and `sequence` its `seq` (mod 2^32). One JSON schema per
+message type describes the fields, so standard MCAP tools (`mcap info`, `mcap filter`,
+`mcap recover`) and Foxglove's topic list understand the file.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections import Counter
+from typing import IO
+
+import msgpack
+from mcap.writer import CompressionType, Writer
+
+from touch4d.messages.codec import CodecError, unpack
+
+from .gaps import SeqGaps
+from .schema import MSGPACK_NOTE, message_schema
+
+PROFILE = "touch4d"
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+RECORDING_METADATA = "touch4d.recording"
+
+
+def peek_header(payload: bytes) -> tuple[str, float, int] | None:
+    """(type, stamp, seq) of a payload, without decoding its arrays; None if it is not a message map."""
+    try:
+        data = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except Exception:  # noqa: BLE001 - any garbage: recorded as is, counted as malformed
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("type"), str):
+        return None
+    stamp, seq = data.get("stamp"), data.get("seq")
+    if isinstance(stamp, bool) or not isinstance(stamp, (int, float)) or not math.isfinite(stamp) or stamp < 0:
+        stamp = 0.0
+    if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
+        seq = -1
+    return data["type"], float(stamp), seq
+
+
+class WallClock:
+    """Wall-clock nanoseconds that never step backwards (anchored once, advanced by perf_counter)."""
+
+    def __init__(self) -> None:
+        self._wall0 = time.time_ns()
+        self._perf0 = time.perf_counter_ns()
+
+    def __call__(self) -> int:
+        return self._wall0 + (time.perf_counter_ns() - self._perf0)
+
+
+class LogWriter:
+    """An MCAP log being written; `write` one message at a time, `flush` to make it crash-safe."""
+
+    def __init__(self, path: str | os.PathLike, *, chunk_size: int = 1 << 20,
+                 compression: str = "zstd", output: IO[bytes] | None = None) -> None:
+        self.path = os.fspath(path)
+        self._file = output if output is not None else open(self.path, "wb")
+        self._mcap = Writer(self._file, chunk_size=chunk_size, compression=CompressionType[compression.upper()])
+        self._mcap.start(profile=PROFILE, library="touch4d")
+        self._file.flush()
+        self._channels: dict[tuple[str, str], int] = {}
+        self._schemas: dict[str, int] = {}
+        self.counts: Counter[str] = Counter()
+        self.malformed: Counter[str] = Counter()
+        self.bytes = 0
+        self.first_time = self.last_time = 0
+        self.gaps = SeqGaps()
+        self._closed = False
+
+    def write(self, topic: str, payload: bytes, log_time: int) -> None:
+        """Record `payload` as received on `topic` at `log_time` (ns since the epoch)."""
+        header = peek_header(payload)
+        if header is None:
+            self.malformed[topic] += 1
+            type_name, stamp, seq = "", 0.0, -1
+        else:
+            type_name, stamp, seq = header
+        channel = self._channels.get((topic, type_name))
+        if channel is None:
+            channel = self._add_channel(topic, type_name, payload)
+        if seq >= 0:
+            self.gaps.add(topic, seq)
+        publish_time = int(stamp * 1e9) if stamp > 0 else log_time
+        self._mcap.add_message(channel, log_time=log_time, data=payload, publish_time=publish_time,
+                               sequence=max(seq, 0) & 0xFFFFFFFF)
+        self.counts[topic] += 1
+        self.bytes += len(payload)
+        if not self.first_time:
+            self.first_time = log_time
+        self.last_time = log_time
+
+    def _add_channel(self, topic: str, type_name: str, payload: bytes) -> int:
+        schema_id = self._schemas.get(type_name)
+        if schema_id is None:
+            if type_name:
+                try:
+                    sample = unpack(payload)
+                except CodecError:
+                    sample = None
+                data = json.dumps(message_schema(type_name, sample)).encode()
+                schema_id = self._mcap.register_schema(type_name, SCHEMA_ENCODING, data)
+            else:
+                schema_id = 0  # not a message map: kept as bytes, no schema
+            self._schemas[type_name] = schema_id
+        channel = self._mcap.register_channel(topic, MESSAGE_ENCODING, schema_id,
+                                              metadata={"encoding_note": MSGPACK_NOTE})
+        self._channels[(topic, type_name)] = channel
+        return channel
+
+    def flush(self) -> None:
+        """Close the chunk in progress and hand it to the OS: a crash after this loses nothing written."""
+        self._mcap.flush()
+
+    def close(self, metadata: dict[str, str] | None = None) -> None:
+        """Write the recording's metadata, the summary and the footer; the file is then complete."""
+        if self._closed:
+            return
+        self._closed = True
+        if metadata:
+            self._mcap.add_metadata(RECORDING_METADATA, {str(k): str(v) for k, v in metadata.items()})
+        self._mcap.finish()
+        self._file.close()
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,90 @@
+"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] -o out.png`: one frame, offline."""
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+
+import numpy as np
+
+from touch4d.errors import ConfigError
+
+from .camera import OrbitCamera, parse_camera
+from .scene_mesh import Style
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("render", help="render one frame of a scene to a PNG (headless, EGL)",
+                              formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--scene", required=True, help="scene file (YAML), e.g. config/scenes/hypercube.yaml")
+    p.add_argument("--hand", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="put the glove hand here (screen units) and show its tactile field")
+    p.add_argument("--hand-rotation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
+                   default=[0.0, 0.0, 0.0, 1.0], help="the hand's orientation quaternion")
+    p.add_argument("--glove", default=None, help="glove file (default config/glove.yaml)")
+    p.add_argument("--camera", default="",
+                   help="orbit camera: yaw=DEG,pitch=DEG,distance=D,fov=DEG,target=X:Y:Z,ortho")
+    p.add_argument("--projection", choices=("orthographic", "perspective"),
+                   help="override the scene's 4D -> 3D projection")
+    p.add_argument("--size", default="1280x800", help="image size WIDTHxHEIGHT in pixels")
+    p.add_argument("--samples", type=int, default=4, help="multisampling (0 for exact pixel colours)")
+    p.add_argument("--no-frame", action="store_true", help="leave out the screen's frame")
+    p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube")
+    p.add_argument("--no-status", action="store_true", help="leave out the status line")
+    p.add_argument("--no-centres", action="store_true", help="leave out the cells' centre copies")
+    p.add_argument("--no-clip", action="store_true", help="draw hidden parts too (no clip units)")
+    p.add_argument("-o", "--output", required=True, help="PNG file to write")
+    p.set_defaults(func=_render)
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError("--size", "size", "WIDTHxHEIGHT, e.g. 1280x800", got=text) from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise ConfigError("--size", "size", "16..8192 pixels each way", got=text)
+    return w, h
+
+
+def _render(args) -> int:
+    from touch4d.geometry.scene import load_scene
+    from touch4d.messages import HandPose
+    from touch4d.tactile.engine import TactileEngine
+    from touch4d.tactile.glove import load_glove
+
+    from .context import save_png
+    from .view import OffscreenRenderer, SceneView, Show
+
+    size = parse_size(args.size)
+    camera = parse_camera(args.camera, OrbitCamera())
+    if args.samples < 0:
+        raise ConfigError("--samples", "samples", "0 or more", got=args.samples)
+    scene = load_scene(args.scene)
+    if args.projection:
+        scene = replace(scene, projection=args.projection)
+    glove = load_glove(args.glove)
+    show = Show(frame=not args.no_frame, tactile=not args.no_tactile, status=not args.no_status)
+    view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)
+    view.set_scene(scene)
+    if args.hand:
+        pose = HandPose(position=np.array(args.hand, dtype=float),
+                        orientation=np.array(args.hand_rotation, dtype=float), valid=True)
+        try:
+            pose.check()
+        except ValueError as exc:
+            raise ConfigError("--hand-rotation", "orientation", "a unit quaternion", got=str(exc)) from None
+        engine = TactileEngine(glove)
+        engine.set_scene(scene.to_message())
+        field, motors = engine.messages(pose)
+        view.set_hand(pose)
+        if field is not None:
+            view.set_field(field)
+        view.set_motors(motors)
+    renderer = OffscreenRenderer(size, samples=args.samples)
+    try:
+        image = renderer.render(view, camera)
+    finally:
+        renderer.release()
+    path = save_png(image, args.output)
+    print(f"wrote {path} ({size[0]}x{size[1]})")
+    return 0

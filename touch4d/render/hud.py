@@ -1,0 +1,142 @@
+"""What is drawn around the scene: the screen's frame, the hand, the tactile cube (Fig. 17), the status line.
+
+Pure numpy builders of vertex arrays (and a Pillow-drawn text image); the painter draws them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from itertools import product
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+FRAME_COLOR = (0.75, 0.75, 0.8, 0.9)
+MOTOR_COLOR = (0.0, 1.0, 1.0, 1.0)        # cyan, as in the paper's Fig. 17
+MISS_COLOR = (0.45, 0.45, 0.5, 0.6)        # samples whose ray misses (l is NaN)
+# The amplitude colour map: h = 0 dark blue-grey, 0.5 yellow, 1 red.
+AMPLITUDE_STOPS = np.array([0.0, 0.5, 1.0])
+AMPLITUDE_RGB = np.array([[0.2, 0.25, 0.45], [1.0, 0.85, 0.15], [1.0, 0.15, 0.05]])
+
+
+def amplitude_colors(h: np.ndarray) -> np.ndarray:
+    """RGB (N, 3) for amplitudes h, clipped to 0..1."""
+    h = np.clip(np.nan_to_num(np.asarray(h, dtype=float)), 0.0, 1.0)
+    return np.stack([np.interp(h, AMPLITUDE_STOPS, AMPLITUDE_RGB[:, k]) for k in range(3)], axis=-1)
+
+
+def amplitude_sizes(h: np.ndarray, small: float = 4.0, large: float = 13.0) -> np.ndarray:
+    """Point sizes in pixels for amplitudes h."""
+    h = np.clip(np.nan_to_num(np.asarray(h, dtype=float)), 0.0, 1.0)
+    return small + (large - small) * h
+
+
+def _cube_edges() -> np.ndarray:
+    corners = np.array(list(product((-1.0, 1.0), repeat=3)))
+    pairs = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(corners[i] != corners[j]) == 1]
+    return corners[np.array(pairs)]                                    # (12, 2, 3)
+
+
+CUBE_EDGES = _cube_edges()
+
+
+def wire_cube(center, half: float, color=FRAME_COLOR) -> np.ndarray:
+    """The 12 edges of an axis-aligned cube as line vertices (24, 7)."""
+    pts = np.asarray(center, dtype=float) + half * CUBE_EDGES.reshape(-1, 3)
+    return np.c_[pts, np.tile(color, (len(pts), 1))].astype(np.float32)
+
+
+def screen_frame(color=FRAME_COLOR) -> np.ndarray:
+    """The 3D screen [-1, 1]^3 as a wire cube."""
+    return wire_cube((0.0, 0.0, 0.0), 1.0, color)
+
+
+def points(positions: np.ndarray, rgba: np.ndarray, sizes) -> np.ndarray:
+    """Point vertices (N, 8) from positions (N, 3), colours (N, 4) and sizes (N,) or a scalar."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    sizes = np.broadcast_to(np.asarray(sizes, dtype=float), (len(positions),))
+    return np.c_[positions, np.broadcast_to(rgba, (len(positions), 4)), sizes].astype(np.float32)
+
+
+@dataclass(frozen=True)
+class TactileCube:
+    """Where the tactile cube sits beside the screen (screen units): centre and half edge."""
+
+    center: tuple = (-2.1, 0.0, 0.0)
+    half: float = 0.6
+
+    def layout(self, local: np.ndarray) -> np.ndarray:
+        """Place points (N, 3) (hand frame, any unit) in the cube: centred, scaled to fit with a margin."""
+        local = np.asarray(local, dtype=float)
+        if len(local) == 0:
+            return local.reshape(0, 3)
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        extent = float(np.max(hi - lo))
+        scale = 0.9 * 2 * self.half / extent if extent > 0 else 1.0
+        return (local - 0.5 * (lo + hi)) * scale + np.asarray(self.center)
+
+    def geometry(self, local: np.ndarray, h: np.ndarray, l: np.ndarray | None = None,
+                 motor_sample: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(line vertices, point vertices): the cube and a point per sample coloured and sized by h;
+        samples driving a motor get a cyan ring (a larger cyan point under the sample's point)."""
+        where = self.layout(local)
+        h = np.asarray(h, dtype=float)
+        rgba = np.c_[amplitude_colors(h), np.ones(len(h))]
+        if l is not None:
+            rgba[np.isnan(np.asarray(l, dtype=float))] = MISS_COLOR
+        sizes = amplitude_sizes(h)
+        parts = []
+        if motor_sample is not None and len(motor_sample):
+            m = np.asarray(motor_sample, dtype=int)
+            m = m[(m >= 0) & (m < len(where))]
+            parts.append(points(where[m], MOTOR_COLOR, sizes[m] + 5.0))
+        parts.append(points(where, rgba, sizes))
+        return wire_cube(self.center, self.half), np.concatenate(parts)
+
+
+HAND_COLOR = (0.95, 0.85, 0.75, 0.9)
+
+
+def hand_geometry(samples_screen: np.ndarray, origin, rotation: np.ndarray, h: np.ndarray | None = None,
+                  axis_length: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """(line vertices, point vertices) of the hand: its axes at the origin (x red, y green, z blue)
+    and its sample points, coloured by the stimulus when a field for them is known."""
+    origin = np.asarray(origin, dtype=float)
+    axes = []
+    for k, color in enumerate(((1, 0.3, 0.3, 1), (0.3, 1, 0.3, 1), (0.4, 0.5, 1, 1))):
+        axes += [[*origin, *color], [*(origin + axis_length * rotation[:, k]), *color]]
+    if h is not None and len(h) == len(samples_screen):
+        rgba = np.c_[amplitude_colors(h), np.full(len(h), 0.9)]
+    else:
+        rgba = HAND_COLOR
+    return np.array(axes, np.float32), points(samples_screen, rgba, 4.0)
+
+
+@lru_cache(maxsize=4)
+def _font(size: int):
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow built without FreeType: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def text_image(lines: list[str], size: int = 14, color=(230, 230, 235, 255),
+               background=(0, 0, 0, 150)) -> np.ndarray:
+    """An RGBA image (H, W, 4) uint8 holding the text lines, for the status overlay."""
+    font = _font(size)
+    probe = ImageDraw.Draw(Image.new("RGBA", (1, 1)))
+    boxes = [probe.textbbox((0, 0), line or " ", font=font) for line in lines]
+    line_h = max(b[3] for b in boxes) + 4
+    width = max(b[2] for b in boxes) + 12
+    image = Image.new("RGBA", (width, line_h * len(lines) + 8), background)
+    draw = ImageDraw.Draw(image)
+    for i, line in enumerate(lines):
+        draw.text((6, 4 + i * line_h), line, font=font, fill=color)
+    return np.asarray(image)
+
+
+def touched_motors(names: list[str], intensity: np.ndarray, threshold: float = 0.05) -> list[str]:
+    """Names of the motors driven above `threshold`, strongest first."""
+    intensity = np.asarray(intensity, dtype=float)
+    order = np.argsort(-intensity, kind="stable")
+    return [names[i] for i in order if intensity[i] > threshold]

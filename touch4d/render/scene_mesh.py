@@ -1,0 +1,538 @@
+"""CPU frame build (paper §4.3): back-cell culling, clip units between bodies, convex pieces, vertex arrays.
+
+Every convex part of every object is a *body*. Bodies with the same local polytope are transformed,
+culled and cut together in numpy. Perspective is handled by `projection.perspective_points`, which
+maps the scene so that perspective becomes orthographic: afterwards every point is (u, v) with u its
+3D screen position and v a depth that grows away from the viewer and varies linearly across a flat
+face, so clipping and depth comparisons are the same code for both projections.
+
+Clip units: where a front cell f meets a back cell b of a body, the half-space
+m = n_b,w n_f - n_f,w n_b (a non-negative mix of the two cells, with no w part) holds the body and
+has the shared 2-face on its boundary, orthogonal to the screen; the silhouette units intersect in the
+body's 3D outline. A face or edge of another body is cut by that outline, and the part inside is
+dropped when, at an interior point, it lies deeper than the body's front there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from touch4d.geometry.polytope import Polytope
+from touch4d.geometry.projection import perspective_halfspaces, perspective_points
+
+FLOATS_PER_VERTEX = 7          # x, y, z, r, g, b, a
+_EPS = 1e-9
+_TOUCH = 1e-9                 # screen units: closer to an outline than this counts as on it
+
+# Centre copies are colour-coded per cell (local cell index), so a cell keeps its colour as it turns.
+CELL_PALETTE = np.array([
+    [0.95, 0.33, 0.25], [0.25, 0.70, 0.95], [0.98, 0.80, 0.20], [0.55, 0.35, 0.90],
+    [0.20, 0.85, 0.45], [0.95, 0.45, 0.75], [0.10, 0.55, 0.55], [0.90, 0.60, 0.25],
+    [0.60, 0.80, 0.20], [0.35, 0.40, 0.95], [0.85, 0.20, 0.45], [0.55, 0.95, 0.85],
+])
+
+
+def cell_color(index) -> np.ndarray:
+    """The RGB colour of the centre copy of local cell `index` (array-valued for arrays)."""
+    return CELL_PALETTE[np.asarray(index) % len(CELL_PALETTE)]
+
+
+@dataclass(frozen=True)
+class Style:
+    """How the scene is drawn: alphas of fills, edges and centre copies; what is shown."""
+
+    fill_alpha: float = 0.18
+    edge_alpha: float = 1.0
+    centre_scale: float = 0.3
+    centre_alpha: float = 0.55
+    cell_colors: bool = True      # centre copies in per-cell colours; False: the object's colour
+    centres: bool = True
+    clip: bool = True             # hidden-hypersurface removal between bodies
+
+
+@dataclass(frozen=True)
+class Body:
+    """One convex part of one object, placed: world = orientation @ (size * local) + position."""
+
+    polytope: Polytope
+    orientation: np.ndarray
+    position: np.ndarray
+    size: float
+    color: np.ndarray
+    object_index: int = 0
+
+
+@dataclass
+class SceneMesh:
+    """Vertex arrays (float32, FLOATS_PER_VERTEX per vertex) for one frame, and what was seen."""
+
+    fills: np.ndarray         # triangles of visible 2-faces
+    centres: np.ndarray       # triangles of the centre copies of visible cells
+    edges: np.ndarray         # line segments (vertex pairs)
+    visible_cells: list = field(default_factory=list)   # per body: local indices of front cells
+    bounds: np.ndarray | None = None                     # per body (2,3) screen bounding box
+
+    @property
+    def counts(self) -> dict:
+        return {"fill_triangles": len(self.fills) // 3, "centre_triangles": len(self.centres) // 3,
+                "edge_segments": len(self.edges) // 2}
+
+
+def empty_vertices() -> np.ndarray:
+    return np.zeros((0, FLOATS_PER_VERTEX), np.float32)
+
+
+class _Template:
+    """What a local polytope needs per frame, precomputed once: padded faces, edge-cell incidence."""
+
+    def __init__(self, poly: Polytope):
+        self.polytope = poly           # keeps the topology alive while cached by id
+        topo = poly.topology
+        faces = topo.faces
+        self.vertices = poly.vertices
+        self.normals = poly.normals
+        self.offsets = poly.offsets
+        self.face_cells = np.asarray(topo.face_cells)
+        width = max(len(f) for f in faces)
+        # Padding repeats a face's first vertex: bounding boxes and inside tests stay exact.
+        self.face_index = np.array([np.r_[f, np.full(width - len(f), f[0])] for f in faces], np.int64)
+        self.face_count = np.array([len(f) for f in faces], np.int64)
+        n_cells = len(poly.normals)
+        edge_cells = np.zeros((len(topo.edges), n_cells))
+        for e, fs in enumerate(topo.edge_faces):
+            edge_cells[e, self.face_cells[fs].ravel()] = 1.0
+        self.edge_cells_t = edge_cells.T.copy()
+        self.edges = np.asarray(topo.edges)
+        self.centre_face = np.concatenate([np.asarray(fs) for fs in topo.cell_faces]).astype(np.int64)
+        self.centre_cell = np.repeat(np.arange(n_cells), [len(fs) for fs in topo.cell_faces])
+        self.cell_centroids = np.array([poly.vertices[vs].mean(axis=0) for vs in topo.cell_vertices])
+
+
+class MeshBuilder:
+    """Builds `SceneMesh` frames; keeps the per-shape templates between frames."""
+
+    def __init__(self):
+        self._templates: dict[int, _Template] = {}
+
+    def template(self, poly: Polytope) -> _Template:
+        key = id(poly.topology)
+        t = self._templates.get(key)
+        if t is None or t.polytope.topology is not poly.topology or t.polytope.vertices is not poly.vertices:
+            if len(self._templates) > 256:
+                self._templates.clear()
+            t = self._templates[key] = _Template(poly)
+        return t
+
+    def build(self, bodies: list[Body], projection: str = "orthographic", eye_distance: float = 3.0,
+              style: Style = Style()) -> SceneMesh:
+        """One frame's vertex arrays from the bodies (world placement, colours) and the projection."""
+        perspective = projection == "perspective"
+        groups: dict[int, list[int]] = {}
+        for i, body in enumerate(bodies):
+            groups.setdefault(id(self.template(body.polytope)), []).append(i)
+
+        polys, segs, clips = [], [], []
+        visible = [None] * len(bodies)
+        bounds = np.zeros((len(bodies), 2, 3))
+        for members in groups.values():
+            t = self.template(bodies[members[0]].polytope)
+            g = _place_group(t, [bodies[i] for i in members], perspective, eye_distance, style)
+            ids = np.asarray(members)
+            polys.append(_with_body(g["polys"], ids))
+            segs.append(_with_body(g["segs"], ids))
+            clips.append((ids, g["clip"]))
+            for k, i in enumerate(members):
+                visible[i] = np.nonzero(g["front"][k])[0]
+            bounds[ids] = g["bounds"]
+
+        poly_v, poly_c, poly_rgba, poly_body, poly_kind = _concat_polys(polys)
+        seg_v, seg_rgba, seg_body = _concat_segs(segs)
+        if style.clip and len(bodies) > 1:
+            occ = _Occluders(clips, bounds, len(bodies))
+            poly_v, poly_c, src = _cut_polygons(poly_v, poly_c, poly_body, occ)
+            poly_rgba, poly_kind = poly_rgba[src], poly_kind[src]
+            seg_v, src = _cut_segments(seg_v, seg_body, occ)
+            seg_rgba = seg_rgba[src]
+        fills = _triangles(poly_v[poly_kind == 0], poly_c[poly_kind == 0], poly_rgba[poly_kind == 0])
+        centres = _triangles(poly_v[poly_kind == 1], poly_c[poly_kind == 1], poly_rgba[poly_kind == 1])
+        edges = np.concatenate([seg_v[..., :3], np.repeat(seg_rgba[:, None], 2, axis=1)], axis=-1)
+        return SceneMesh(fills, centres, edges.reshape(-1, FLOATS_PER_VERTEX).astype(np.float32),
+                         visible, bounds)
+
+
+def _with_body(arrays: dict, ids: np.ndarray) -> dict:
+    out = dict(arrays)
+    out["body"] = ids[arrays["group_index"]]
+    return out
+
+
+def _place_group(t: _Template, bodies: list[Body], perspective: bool, eye: float, style: Style) -> dict:
+    """Transform, cull and collect the drawable polygons, segments and clip units of same-shape bodies."""
+    rot = np.stack([b.orientation for b in bodies])
+    pos = np.stack([b.position for b in bodies])
+    size = np.array([b.size for b in bodies], dtype=float)
+    color = np.stack([b.color for b in bodies])
+    n_g = len(bodies)
+
+    world = size[:, None, None] * np.einsum("vj,gij->gvi", t.vertices, rot) + pos[:, None]
+    normals = np.einsum("cj,gij->gci", t.normals, rot)
+    offsets = size[:, None] * t.offsets + np.einsum("gci,gi->gc", normals, pos)
+    centroids = size[:, None, None] * np.einsum("cj,gij->gci", t.cell_centroids, rot) + pos[:, None]
+    if perspective:
+        # Map to the space where perspective is orthographic; depth v = w / (w + d).
+        world_mapped = perspective_points(world, eye)
+        normals, offsets = perspective_halfspaces(normals, offsets, eye)
+    else:
+        world_mapped = world
+
+    front = normals[..., 3] < -_EPS                                    # (G, C) back-cell culling
+    f0, f1 = t.face_cells[:, 0], t.face_cells[:, 1]
+    face_vis = front[:, f0] | front[:, f1]
+    edge_vis = (front.astype(float) @ t.edge_cells_t) > 0
+
+    gi, fi = np.nonzero(face_vis)
+    face_v = world_mapped[gi[:, None], t.face_index[fi]]               # (Pf, K, 4)
+    face_rgba = np.c_[color[gi, :3], color[gi, 3] * style.fill_alpha]
+
+    parts_v, parts_c, parts_rgba, parts_g, parts_kind = [face_v], [t.face_count[fi]], [face_rgba], [gi], [np.zeros(len(gi), int)]
+    if style.centres:
+        gc, pc = np.nonzero(front[:, t.centre_cell])
+        cell = t.centre_cell[pc]
+        cen = centroids[gc, cell][:, None]
+        centre_world = cen + style.centre_scale * (world[gc[:, None], t.face_index[t.centre_face[pc]]] - cen)
+        centre_v = perspective_points(centre_world, eye) if perspective else centre_world
+        rgb = cell_color(cell) if style.cell_colors else color[gc, :3]
+        parts_v.append(centre_v)
+        parts_c.append(t.face_count[t.centre_face[pc]])
+        parts_rgba.append(np.c_[rgb, color[gc, 3] * style.centre_alpha])
+        parts_g.append(gc)
+        parts_kind.append(np.ones(len(gc), int))
+
+    ge, ei = np.nonzero(edge_vis)
+    seg_v = world_mapped[ge[:, None], t.edges[ei]]                      # (S, 2, 4)
+    seg_rgba = np.c_[color[ge, :3], color[ge, 3] * style.edge_alpha]
+
+    # Clip units on silhouette faces (front cell against back cell), compacted per body.
+    sil = front[:, f0] != front[:, f1]
+    fr = np.where(front[:, f0], f0, f1)
+    bk = np.where(front[:, f0], f1, f0)
+    g_idx = np.arange(n_g)[:, None]
+    n_f, n_b = normals[g_idx, fr], normals[g_idx, bk]
+    d_f, d_b = offsets[g_idx, fr], offsets[g_idx, bk]
+    m = n_b[..., 3:4] * n_f - n_f[..., 3:4] * n_b
+    dm = n_b[..., 3] * d_f - n_f[..., 3] * d_b
+    norm = np.linalg.norm(m[..., :3], axis=-1)
+    sil &= norm > 1e-12
+    planes = np.concatenate([m[..., :3], dm[..., None]], axis=-1) / np.where(norm > 1e-12, norm, 1.0)[..., None]
+    order = np.argsort(~sil, axis=1, kind="stable")
+    width = max(int(sil.sum(axis=1).max(initial=0)), 1)
+    planes = np.take_along_axis(planes, order[..., None], axis=1)[:, :width]
+    keep = np.take_along_axis(sil, order, axis=1)[:, :width]
+    planes[~keep] = _DUMMY_PLANE
+
+    screen = world_mapped[..., :3]
+    return {
+        "front": front,
+        "bounds": np.stack([screen.min(axis=1), screen.max(axis=1)], axis=1),
+        "polys": {"v": np.concatenate(parts_v), "count": np.concatenate(parts_c),
+                  "rgba": np.concatenate(parts_rgba), "group_index": np.concatenate(parts_g),
+                  "kind": np.concatenate(parts_kind)},
+        "segs": {"v": seg_v, "rgba": seg_rgba, "group_index": ge},
+        "clip": {"planes": planes, "normals": normals, "offsets": offsets, "front": front,
+                 "vertices": world_mapped},
+    }
+
+
+# A plane every point is inside of (0.x - 1 <= 0): pads clip-unit lists.
+_DUMMY_PLANE = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _concat_polys(polys: list[dict]):
+    if not polys or sum(len(p["v"]) for p in polys) == 0:
+        return (np.zeros((0, 3, 4)), np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros(0, np.int64),
+                np.zeros(0, np.int64))
+    width = max(p["v"].shape[1] for p in polys)
+    vs = [_pad_width(p["v"], width) for p in polys]
+    return (np.concatenate(vs), np.concatenate([p["count"] for p in polys]),
+            np.concatenate([p["rgba"] for p in polys]), np.concatenate([p["body"] for p in polys]),
+            np.concatenate([p["kind"] for p in polys]))
+
+
+def _concat_segs(segs: list[dict]):
+    if not segs:
+        return np.zeros((0, 2, 4)), np.zeros((0, 4)), np.zeros(0, np.int64)
+    return (np.concatenate([s["v"] for s in segs]), np.concatenate([s["rgba"] for s in segs]),
+            np.concatenate([s["body"] for s in segs]))
+
+
+def _pad_width(v: np.ndarray, width: int) -> np.ndarray:
+    """Pad polygons (P, K, 4) to `width` vertices by repeating each polygon's first vertex."""
+    if v.shape[1] >= width:
+        return v
+    return np.concatenate([v, np.repeat(v[:, :1], width - v.shape[1], axis=1)], axis=1)
+
+
+class _Occluders:
+    """Every body's clip units (padded), front cells (for depth) and screen bounds, indexed by body."""
+
+    def __init__(self, clips: list, bounds: np.ndarray, n_bodies: int):
+        m_width = max(c["planes"].shape[1] for _, c in clips)
+        c_width = max(c["normals"].shape[1] for _, c in clips)
+        self.planes = np.tile(_DUMMY_PLANE, (n_bodies, m_width, 1))
+        self.normals = np.zeros((n_bodies, c_width, 4))
+        self.normals[..., 3] = -1.0
+        self.offsets = np.zeros((n_bodies, c_width))
+        self.front = np.zeros((n_bodies, c_width), bool)
+        v_width = max(c["vertices"].shape[1] for _, c in clips)
+        self.vertices = np.zeros((n_bodies, v_width, 4))
+        for ids, c in clips:
+            self.vertices[ids] = _pad_width(c["vertices"], v_width)
+            self.planes[ids, :c["planes"].shape[1]] = c["planes"]
+            self.normals[ids, :c["normals"].shape[1]] = c["normals"]
+            self.offsets[ids, :c["offsets"].shape[1]] = c["offsets"]
+            self.front[ids, :c["front"].shape[1]] = c["front"]
+        self.bounds = bounds
+        lo, hi = bounds[:, 0], bounds[:, 1]
+        overlap = np.all(lo[:, None] <= hi[None] + 1e-9, axis=-1) & np.all(hi[:, None] >= lo[None] - 1e-9, axis=-1)
+        np.fill_diagonal(overlap, False)
+        self.overlap = overlap
+        self.hides = self._order(overlap)
+
+    def _order(self, overlap: np.ndarray) -> np.ndarray:
+        """hides[a, b]: body a may hide body b (a is in front of b where they overlap, or unknown).
+
+        Two disjoint convex bodies are ordered the same at every screen point they share; such a
+        point is the mean of the vertices of each that project inside the other's outline."""
+        hides = overlap.copy()
+        i, j = np.nonzero(np.triu(overlap))
+        if len(i) == 0:
+            return hides
+        in_j, apart_j = self._inside(self.vertices[i], j)
+        in_i, apart_i = self._inside(self.vertices[j], i)
+        apart = apart_i | apart_j
+        hides[i[apart], j[apart]] = hides[j[apart], i[apart]] = False
+        total = (self.vertices[i] * in_j[..., None]).sum(axis=1) + (self.vertices[j] * in_i[..., None]).sum(axis=1)
+        n = in_j.sum(axis=1) + in_i.sum(axis=1)
+        known = n > 0
+        p = total[known, :3] / n[known, None]
+        i, j = i[known], j[known]
+        di, dj = self.front_depth(i, p), self.front_depth(j, p)
+        i_front, j_front = di < dj - 1e-7, dj < di - 1e-7
+        hides[j[i_front], i[i_front]] = False
+        hides[i[j_front], j[j_front]] = False
+        return hides
+
+    def _inside(self, points: np.ndarray, body: np.ndarray):
+        """For points (Q, V, 4) and bodies (Q,): which project inside the body's outline (Q, V), and
+        whether all lie beyond one of its clip units (Q,), so the two outlines are apart."""
+        planes = self.planes[body]
+        s = _plane_values(planes, points)
+        return np.all(s <= _TOUCH, axis=1), np.any(np.all(s > _TOUCH, axis=2), axis=1)
+
+    def front_depth(self, body: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Depth v where the sight line through screen point u (Q,3) enters `body` (Q,): its front."""
+        n = self.normals[body]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = (self.offsets[body] - np.einsum("qcj,qj->qc", n[..., :3], u)) / n[..., 3]
+        return np.where(self.front[body], depth, -np.inf).max(axis=1)
+
+    def candidates(self, lo: np.ndarray, hi: np.ndarray, own: np.ndarray):
+        """(item, body, rank) for items (bounding boxes lo, hi (N,3), owner body) that other bodies may hide."""
+        hider, hidden = np.nonzero(self.hides)                      # sorted by hider
+        order = np.argsort(hidden, kind="stable")
+        hider = hider[order]
+        starts = np.searchsorted(hidden[order], np.arange(len(self.hides) + 1))
+        n_hiders = np.diff(starts)[own]
+        item = np.repeat(np.arange(len(own)), n_hiders)
+        first = np.repeat(starts[own], n_hiders)
+        b = hider[first + np.arange(len(item)) - np.repeat(np.cumsum(n_hiders) - n_hiders, n_hiders)]
+        b_lo, b_hi = self.bounds[b, 0], self.bounds[b, 1]
+        hit = np.all(lo[item] <= b_hi + 1e-9, axis=1) & np.all(hi[item] >= b_lo - 1e-9, axis=1)
+        item, b = item[hit], b[hit]
+        rank = np.arange(len(item)) - np.searchsorted(item, item)   # 0, 1, ... within each item
+        return item, b, rank
+
+
+def _plane_values(planes: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """n.u - d for planes (Q, M, 4) and points (Q, K, >=3): (Q, M, K), positive outside."""
+    n = planes[..., None, :]
+    p = points[:, None]
+    return n[..., 0] * p[..., 0] + n[..., 1] * p[..., 1] + n[..., 2] * p[..., 2] - n[..., 3]
+
+
+def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occluders):
+    """Remove what other bodies hide from convex polygons; returns pieces and each piece's source index."""
+    src = np.arange(len(v))
+    if len(v) == 0:
+        return v, count, src
+    item, b, rank = occ.candidates(v.min(axis=1)[:, :3], v.max(axis=1)[:, :3], body)
+    # Drop pairs where the polygon lies outside one clip unit; keep each pair's straddled units.
+    # A polygon lying on the outline's boundary counts as inside, so coplanar faces get hidden.
+    s = _plane_values(occ.planes[b], v[item])
+    near = ~np.any(np.all(s > _TOUCH, axis=2), axis=1)
+    item, b, s = item[near], b[near], s[near]
+    if len(item) == 0:
+        return v, count, src
+    rank = np.arange(len(item)) - np.searchsorted(item, item)
+    straddle = np.any(s > _TOUCH, axis=2) & np.any(s < -_TOUCH, axis=2)
+    order = np.argsort(~straddle, axis=1, kind="stable")
+    width = max(int(straddle.sum(axis=1).max()), 1)
+    sel = np.take_along_axis(occ.planes[b], order[..., None], axis=1)[:, :width]
+    sel[~np.take_along_axis(straddle, order, axis=1)[:, :width]] = _DUMMY_PLANE
+
+    # Only polygons some body may hide take part; the others pass unchanged.
+    touched = np.zeros(len(v), bool)
+    touched[item] = True
+    work_src = np.nonzero(touched)[0]
+    wv, wc = v[work_src], count[work_src]
+    for r in range(int(rank.max()) + 1):
+        at = rank == r
+        pair_of_src = np.full(len(v), -1)
+        pair_of_src[item[at]] = np.nonzero(at)[0]
+        pair = pair_of_src[work_src]
+        act = pair >= 0
+        pv, pc, parent = _subtract(wv[act], wc[act], sel[pair[act]], b[pair[act]], occ)
+        wv = np.concatenate([_pad_width(wv[~act], pv.shape[1]), _pad_width(pv, wv.shape[1])])
+        wc = np.concatenate([wc[~act], pc])
+        work_src = np.concatenate([work_src[~act], work_src[act][parent]])
+    keep = ~touched
+    width = max(v.shape[1], wv.shape[1])
+    return (np.concatenate([_pad_width(v[keep], width), _pad_width(wv, width)]),
+            np.concatenate([count[keep], wc]), np.concatenate([src[keep], work_src]))
+
+
+def _subtract(v, count, planes, body, occ: _Occluders):
+    """Pieces of each polygon outside `body`'s outline (clip units `planes`) if it is behind the body there.
+
+    Returns (pieces, counts, parent index into the inputs)."""
+    rem_v, rem_c = v.copy(), count.copy()
+    outs_v, outs_c, outs_p = [], [], []
+    real = np.any(planes != _DUMMY_PLANE, axis=2)
+    for j in range(planes.shape[1]):
+        rows = np.nonzero(real[:, j] & (rem_c >= 3))[0]
+        if len(rows) == 0:
+            continue
+        n = planes[rows, j]
+        part = rem_v[rows]
+        s = np.einsum("qkj,qj->qk", part[..., :3], n[:, :3]) - n[:, 3:4]
+        in_v, in_c, out_v, out_c = _split(part, rem_c[rows], s)
+        outs_v.append(out_v)
+        outs_c.append(out_c)
+        outs_p.append(rows)
+        width = in_v.shape[1]
+        if width > rem_v.shape[1]:
+            rem_v = _pad_width(rem_v, width)
+        rem_v[rows] = _pad_width(in_v, rem_v.shape[1])
+        rem_c[rows] = in_c
+    # Depth test at an interior point of the overlap: the mean of the remainder's vertices.
+    overlap = rem_c >= 3
+    k = np.arange(rem_v.shape[1])[None] < rem_c[:, None]
+    mean = (rem_v * k[..., None]).sum(axis=1) / np.maximum(rem_c, 1)[:, None]
+    hidden = overlap & (mean[:, 3] > occ.front_depth(body, mean[:, :3]) + 1e-9)
+
+    width = max([o.shape[1] for o in outs_v] + [v.shape[1]])
+    keep_v, keep_c, keep_p = [_pad_width(v[~hidden], width)], [count[~hidden]], [np.nonzero(~hidden)[0]]
+    for ov, oc, op in zip(outs_v, outs_c, outs_p):
+        h = hidden[op] & (oc >= 3)
+        keep_v.append(_pad_width(ov[h], width))
+        keep_c.append(oc[h])
+        keep_p.append(op[h])
+    return np.concatenate(keep_v), np.concatenate(keep_c), np.concatenate(keep_p)
+
+
+def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray):
+    """Sutherland-Hodgman for a batch of convex polygons, each against its own plane.
+
+    Returns the pieces with s <= 0 and with s >= 0, as (vertices, counts) each."""
+    q, k = s.shape
+    rows = np.arange(q)[:, None]
+    col = np.arange(k)[None]
+    valid = col < count[:, None]
+    nxt = (col + 1) % np.maximum(count, 1)[:, None]
+    s_n = s[rows, nxt]
+    inside = s <= 0
+    cross = valid & (inside != (s_n <= 0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(cross, s / (s - s_n), 0.0)
+    # Each vertex emits itself (if on the kept side) and then the crossing on its edge (if any).
+    pts = np.empty((q, k, 2, 4))
+    pts[:, :, 0] = v
+    pts[:, :, 1] = v + t[..., None] * (v[rows, nxt] - v)
+    emit = np.empty((2, q, k, 2), bool)
+    emit[0, :, :, 0] = valid & inside
+    emit[1, :, :, 0] = valid & ~inside
+    emit[:, :, :, 1] = cross
+    out, new_count = _compact(pts.reshape(q, 2 * k, 4), emit.reshape(2, q, 2 * k))
+    return out[0], new_count[0], out[1], new_count[1]
+
+
+def _compact(pts: np.ndarray, emit: np.ndarray):
+    """Keep the emitted points (emit (S, Q, L)) of each row of pts (Q, L, 4) in order, padded with
+    the row's first kept point; returns (S, Q, width, 4) and counts (S, Q)."""
+    new_count = emit.sum(axis=2)
+    width = max(int(new_count.max()), 1)
+    dest = np.cumsum(emit, axis=2) - 1
+    side, r, c = np.nonzero(emit)
+    out = np.zeros((emit.shape[0], len(pts), width, 4))
+    out[side, r, dest[side, r, c]] = pts[r, c]
+    pad = np.arange(width) >= new_count[..., None]
+    return np.where(pad[..., None], out[:, :, :1], out), new_count
+
+
+def _cut_segments(v: np.ndarray, body: np.ndarray, occ: _Occluders):
+    """Remove what other bodies hide from segments (S, 2, 4); returns pieces and source indices."""
+    src = np.arange(len(v))
+    if len(v) == 0:
+        return v, src
+    item, b, rank = occ.candidates(v.min(axis=1)[:, :3], v.max(axis=1)[:, :3], body)
+    for r in range(int(rank.max(initial=-1)) + 1):
+        at = rank == r
+        pair_of_src = np.full(len(body), -1)
+        pair_of_src[item[at]] = b[at]
+        occluder = pair_of_src[src]
+        act = occluder >= 0
+        if not act.any():
+            continue
+        pv, parent = _subtract_segments(v[act], occluder[act], occ)
+        v = np.concatenate([v[~act], pv])
+        src = np.concatenate([src[~act], src[act][parent]])
+    return v, src
+
+
+def _subtract_segments(v: np.ndarray, body: np.ndarray, occ: _Occluders):
+    """Cyrus-Beck: the part of each segment inside the body's outline, dropped where behind the body."""
+    a, d = v[:, 0], v[:, 1] - v[:, 0]
+    planes = occ.planes[body]
+    sa = np.einsum("qj,qmj->qm", a[:, :3], planes[..., :3]) - planes[..., 3]
+    sb = np.einsum("qj,qmj->qm", v[:, 1, :3], planes[..., :3]) - planes[..., 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = sa / (sa - sb)
+    t0 = np.where((sa > 0) & (sb <= 0), t, 0.0).max(axis=1)
+    t1 = np.where((sb > 0) & (sa <= 0), t, 1.0).min(axis=1)
+    outside = np.any((sa > _TOUCH) & (sb > _TOUCH), axis=1)
+    overlap = ~outside & (t1 - t0 > 1e-9)
+    mid = a + 0.5 * (t0 + t1)[:, None] * d
+    hidden = overlap & (mid[:, 3] > occ.front_depth(body, mid[:, :3]) + 1e-9)
+    idx = np.arange(len(v))
+    head = hidden & (t0 > 1e-9)
+    tail = hidden & (t1 < 1 - 1e-9)
+    pieces = np.concatenate([
+        v[~hidden],
+        np.stack([a[head], a[head] + t0[head, None] * d[head]], axis=1),
+        np.stack([a[tail] + t1[tail, None] * d[tail], v[tail, 1]], axis=1),
+    ])
+    parent = np.concatenate([idx[~hidden], idx[head], idx[tail]])
+    return pieces, parent
+
+
+def _triangles(v: np.ndarray, count: np.ndarray, rgba: np.ndarray) -> np.ndarray:
+    """Fan-triangulate convex polygons into (3T, FLOATS_PER_VERTEX) float32 vertices."""
+    if len(v) == 0:
+        return empty_vertices()
+    k = v.shape[1]
+    j = np.arange(k - 2)
+    p, jj = np.nonzero(j[None] + 2 < count[:, None])
+    tri = np.stack([v[p, 0, :3], v[p, jj + 1, :3], v[p, jj + 2, :3]], axis=1)      # (T, 3, 3)
+    out = np.concatenate([tri, np.repeat(rgba[p][:, None], 3, axis=1)], axis=-1)
+    return out.reshape(-1, FLOATS_PER_VERTEX).astype(np.float32)

@@ -1,0 +1,47 @@
+"""Hand poses: checking them, and placing the glove's sample points in screen coordinates."""
+from __future__ import annotations
+
+import numpy as np
+
+from touch4d.errors import Touch4dError
+
+UNIT_TOLERANCE = 1e-3  # as touch4d.messages.hand: a tracker's float32 quaternion passes
+
+
+class PoseError(Touch4dError, ValueError):
+    """A hand pose that cannot be used: names the field (position / orientation) and the problem."""
+
+
+def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
+    """Return (position (3,), unit quaternion (4,) x,y,z,w) as floats, or raise PoseError."""
+    p = np.asarray(position, dtype=float)
+    q = np.asarray(orientation, dtype=float)
+    if p.shape != (3,):
+        raise PoseError(f"position: expected 3 numbers (x, y, z), got shape {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise PoseError(f"position: expected finite numbers, got {p.tolist()}")
+    if q.shape != (4,):
+        raise PoseError(f"orientation: expected a quaternion of 4 numbers (x, y, z, w), got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise PoseError(f"orientation: expected finite numbers, got {q.tolist()}")
+    norm = float(np.sqrt(q @ q))
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        raise PoseError(f"orientation: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
+    return p, q / norm
+
+
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """The 3 x 3 rotation of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def place(points_m: np.ndarray, units_per_metre: float, position, orientation) -> np.ndarray:
+    """Hand-frame points (N, 3) in metres -> screen coordinates (N, 3): rotate, scale, translate."""
+    p, q = check_pose(position, orientation)
+    rotation = quaternion_matrix(q) * units_per_metre
+    return points_m @ rotation.T + p

@@ -1,0 +1,89 @@
+"""A hand steered by keyboard and mouse (the renderer window's `ui/input`), integrated step by step.
+
+Keys (held): a/d move the hand along -x/+x, q/e along -y/+y, w/s along -z/+z (into / out of
+the screen); the arrows turn it (left/right about y, up/down about x), z/c roll it about z;
+left_shift slows everything to a quarter; space holds the trigger. n, r, p hold the controller's
+'menu' (next object), 'grip' (reset) and 'trackpad' (projection) buttons; pressing h brings the
+hand home. Mouse drags hold the trigger: with the left button they turn the hand (and so the
+selected object's yz/zx planes), with the right button they move it in x/y (the xw/yw planes).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .paths import PathSample
+
+MOVE_KEYS = {"d": (0, 1.0), "a": (0, -1.0), "e": (1, 1.0), "q": (1, -1.0), "s": (2, 1.0), "w": (2, -1.0)}
+TURN_KEYS = {"right": (1, -1.0), "left": (1, 1.0), "up": (0, -1.0), "down": (0, 1.0), "c": (2, -1.0), "z": (2, 1.0)}
+BUTTON_KEYS = {"n": "menu", "r": "grip", "p": "trackpad"}
+SLOW_KEYS = ("left_shift", "right_shift")
+LEFT_BUTTON, RIGHT_BUTTON = 1, 2
+
+
+@dataclass(frozen=True)
+class DesktopConfig:
+    move_speed: float = 0.8          # screen units per second while a move key is held
+    turn_speed_deg: float = 90.0     # degrees per second while a turn key is held
+    drag_turn: float = 0.01          # radians per pixel of a left-button drag
+    drag_move: float = 0.004         # screen units per pixel of a right-button drag
+    limit: float = 2.0               # the hand stays within [-limit, limit]^3
+    input_timeout: float = 1.0       # seconds without input after which held keys count as released
+    home: tuple = (0.0, 0.0, 1.5)    # start outside the screen, in front of it
+
+
+class DesktopHand:
+    """The integrated hand pose; feed it `ui/input` messages and step it at the tracker's rate."""
+
+    def __init__(self, config: DesktopConfig | None = None):
+        self.config = config or DesktopConfig()
+        self.position = np.array(self.config.home, dtype=float)
+        self.rotation = Rotation.identity()
+        self._keys: frozenset[str] = frozenset()
+        self._buttons: frozenset[int] = frozenset()
+        self._drag = np.zeros(2)
+        self._last_input = -np.inf
+
+    def on_input(self, keys_down, pressed, mouse_delta, buttons, now: float) -> None:
+        """One `ui/input` message (held keys and buttons, mouse motion since the previous one)."""
+        self._keys = frozenset(keys_down)
+        self._buttons = frozenset(buttons)
+        self._last_input = now
+        if self._buttons & {LEFT_BUTTON, RIGHT_BUTTON}:
+            self._drag += np.asarray(mouse_delta, dtype=float)
+        if "h" in pressed:
+            self.position = np.array(self.config.home, dtype=float)
+            self.rotation = Rotation.identity()
+
+    def step(self, dt: float, now: float) -> PathSample:
+        """Advance by `dt` seconds and return the hand's pose and the controller's inputs."""
+        cfg = self.config
+        if now - self._last_input > cfg.input_timeout:
+            self._keys, self._buttons, self._drag = frozenset(), frozenset(), np.zeros(2)
+        keys = self._keys
+        scale = 0.25 if keys & set(SLOW_KEYS) else 1.0
+        move = np.zeros(3)
+        for key in keys & MOVE_KEYS.keys():
+            axis, sign = MOVE_KEYS[key]
+            move[axis] += sign
+        turn = np.zeros(3)
+        for key in keys & TURN_KEYS.keys():
+            axis, sign = TURN_KEYS[key]
+            turn[axis] += sign
+        move *= cfg.move_speed * scale * dt
+        turn *= np.radians(cfg.turn_speed_deg) * scale * dt
+        dx, dy = self._drag * scale
+        self._drag = np.zeros(2)
+        if LEFT_BUTTON in self._buttons:
+            turn += cfg.drag_turn * np.array([dy, dx, 0.0])      # drag right turns about +y, down about +x
+        elif RIGHT_BUTTON in self._buttons:
+            move += cfg.drag_move * np.array([dx, -dy, 0.0])     # window pixels grow downward
+        self.position = np.clip(self.position + move, -cfg.limit, cfg.limit)
+        if turn.any():
+            self.rotation = Rotation.from_rotvec(turn) * self.rotation   # about the screen's axes
+        trigger = 1.0 if "space" in keys or self._buttons & {LEFT_BUTTON, RIGHT_BUTTON} else 0.0
+        buttons = tuple(sorted(BUTTON_KEYS[k] for k in keys & BUTTON_KEYS.keys()))
+        quat = self.rotation.as_quat()
+        return PathSample(self.position.copy(), -quat if quat[3] < 0 else quat, trigger, buttons)

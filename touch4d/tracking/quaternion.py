@@ -1,0 +1,66 @@
+"""Unit quaternions (x, y, z, w) for one pose at a time, in plain numpy.
+
+scipy's Rotation is the reference (the tests compare against it) and reads config, but costs tens
+of microseconds per call on single rotations; a tracker at 1 kHz composes several per pose, so the
+per-sample path uses these few closed forms instead (bench/bench_tracking.py has the figures).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation b followed by a (Hamilton product a * b)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ])
+
+
+def conjugate(q: np.ndarray) -> np.ndarray:
+    """The inverse of a unit quaternion."""
+    return np.array([-q[0], -q[1], -q[2], q[3]])
+
+
+def canonical(q: np.ndarray) -> np.ndarray:
+    """q and -q are the same rotation; the one with w >= 0, normalised, so equal poses give equal numbers."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.sqrt(q @ q)
+    return -q if q[3] < 0 else q
+
+
+def to_matrix(q: np.ndarray) -> np.ndarray:
+    """3x3 rotation matrix of a unit quaternion."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (axis times angle in radians, angle <= pi) of a unit quaternion."""
+    q = -q if q[3] < 0 else q
+    s = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+    angle = 2.0 * np.arctan2(s, q[3])
+    # angle / sin(angle / 2) -> 2 as the angle -> 0 (series keeps small rotations exact)
+    scale = angle / s if s > 1e-8 else 2.0 + angle * angle / 12.0
+    return scale * q[:3]
+
+
+def slerp(a: np.ndarray, b: np.ndarray, u: float) -> np.ndarray:
+    """The rotation a fraction u of the shortest way from a to b."""
+    dot = float(a @ b)
+    if dot < 0:
+        b, dot = -b, -dot
+    if dot > 0.9995:  # nearly equal: linear interpolation is exact to rounding
+        return canonical(a + u * (b - a))
+    theta = np.arccos(dot)
+    return canonical((np.sin((1 - u) * theta) * a + np.sin(u * theta) * b) / np.sin(theta))

@@ -1,0 +1,203 @@
+"""The scene node's logic, without a bus: controller samples and commands in, a changed scene out.
+
+While the trigger is held, the controller's motion between two samples turns the selected object
+(or the whole scene, about its centre) by `geometry.rotation.controller_rotation` (paper §4.4):
+its translation, in the screen's axes and in metres, turns the xw, yw, zw planes; its rotation
+turns the yz, zx, xy planes. Button presses (edges, not levels) and `scene/command` messages
+select the next object, reset the scene or switch the projection.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from touch4d.errors import ConfigError
+from touch4d.geometry.rotation import PLANES, controller_rotation, orthonormalize, plane_axes, plane_rotation
+from touch4d.geometry.scene import Scene
+from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
+
+from . import quaternion
+from .calibration import Calibration
+
+DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
+ROTATE_TARGETS = ("object", "scene")
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """How the controller drives the scene; every field is a scene node parameter of the same name."""
+
+    translation_gain: float = 6.0      # radians of xw/yw/zw rotation per metre of controller travel
+    rotation_gain: float = 1.0         # radians of yz/zx/xy rotation per radian the controller turns
+    trigger_threshold: float = 0.5     # trigger travel above which the controller holds the object
+    buttons: dict = field(default_factory=lambda: dict(DEFAULT_BUTTONS))  # button -> command
+    rotate: str = "object"             # "object": the selected one; "scene": everything, about its centre
+    spin_plane: str | None = None      # slow automatic rotation (the demo's turning hypercube)
+    spin_deg_per_s: float = 0.0
+
+    @classmethod
+    def from_params(cls, gains: dict, trigger_threshold: float, buttons: dict, rotate: str, spin: dict,
+                    source: str = "scene parameters") -> "ControlConfig":
+        """Check the scene node's parameters; errors name the parameter and what was expected."""
+        unknown = set(gains) - {"translation", "rotation"}
+        if unknown:
+            raise ConfigError(source, f"gains.{sorted(unknown)[0]}", "only 'translation' and 'rotation'")
+        t_gain = _number(gains.get("translation", cls.translation_gain), source, "gains.translation")
+        r_gain = _number(gains.get("rotation", cls.rotation_gain), source, "gains.rotation")
+        threshold = _number(trigger_threshold, source, "trigger_threshold")
+        if not 0.0 < threshold <= 1.0:
+            raise ConfigError(source, "trigger_threshold", "a number in (0, 1]", got=threshold)
+        for button, command in buttons.items():
+            if command not in SCENE_COMMANDS:
+                raise ConfigError(source, f"buttons.{button}", f"one of {', '.join(SCENE_COMMANDS)}", got=command)
+        if rotate not in ROTATE_TARGETS:
+            raise ConfigError(source, "rotate", "object or scene", got=rotate)
+        plane, rate = None, 0.0
+        if spin:
+            unknown = set(spin) - {"plane", "deg_per_s"}
+            if unknown:
+                raise ConfigError(source, f"spin.{sorted(unknown)[0]}", "only 'plane' and 'deg_per_s'")
+            plane = spin.get("plane")
+            try:
+                plane_axes(plane)
+            except ValueError:
+                raise ConfigError(source, "spin.plane", f"a rotation plane ({', '.join(PLANES)})", got=plane) from None
+            rate = _number(spin.get("deg_per_s", 10.0), source, "spin.deg_per_s")
+        return cls(t_gain, r_gain, threshold, dict(buttons), rotate, plane, rate)
+
+
+def _number(value, source, key) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ConfigError(source, key, "a finite number", got=value)
+    return float(value)
+
+
+class SceneControl:
+    """The scene and what the controller does to it; every method returns whether the scene changed."""
+
+    def __init__(self, scene: Scene, calibration: Calibration, config: ControlConfig | None = None):
+        self.config = config or ControlConfig()
+        self.calibration = calibration
+        self.scene = scene.copy()
+        if self.config.rotate == "scene":
+            self.scene.selected = -1
+        self._initial = self.scene.copy()
+        self._grab: tuple[np.ndarray, np.ndarray] | None = None
+        self._held: frozenset[str] = frozenset()
+
+    # ---- controller ----------------------------------------------------------------------------
+
+    def on_controller(self, position_m, quat_room, trigger: float, buttons, valid: bool = True) -> bool:
+        """One controller sample (room frame): button edges run commands, a held trigger rotates."""
+        changed = False
+        now = frozenset(buttons)
+        for button in sorted(now - self._held):
+            command = self.config.buttons.get(button)
+            if command is not None:
+                changed |= self.command(command)
+        self._held = now
+        if not valid or trigger < self.config.trigger_threshold:
+            self._grab = None
+            return changed
+        position = np.asarray(position_m, dtype=float)
+        rotation = quaternion.canonical(quat_room)
+        grab, self._grab = self._grab, (position, rotation)
+        if grab is None:
+            return changed  # the first held sample only anchors the motion
+        d_trans = self.calibration.direction_to_screen(position - grab[0])
+        d_rot = self.calibration.direction_to_screen(
+            quaternion.to_rotvec(quaternion.multiply(rotation, quaternion.conjugate(grab[1]))))
+        if not (d_trans.any() or d_rot.any()):
+            return changed
+        gains = (self.config.translation_gain, self.config.rotation_gain)
+        self.rotate(controller_rotation(d_trans, d_rot, gains))
+        return True
+
+    def advance(self, dt: float) -> bool:
+        """The slow automatic spin over `dt` seconds, if configured."""
+        if self.config.spin_plane is None or self.config.spin_deg_per_s == 0.0 or dt <= 0:
+            return False
+        self.rotate(plane_rotation(self.config.spin_plane, np.radians(self.config.spin_deg_per_s * dt)))
+        return True
+
+    def rotate(self, r: np.ndarray) -> None:
+        """Turn the selected object about its centre, or (selected -1) every object about the scene's centre."""
+        objects = self.scene.objects
+        if self.scene.selected >= 0:
+            obj = objects[self.scene.selected]
+            obj.orientation = orthonormalize(r @ obj.orientation)
+        else:
+            centre = np.mean([o.position for o in objects], axis=0)
+            for obj in objects:
+                obj.position = centre + r @ (obj.position - centre)
+                obj.orientation = orthonormalize(r @ obj.orientation)
+        self.scene.revision += 1
+
+    # ---- commands ------------------------------------------------------------------------------
+
+    def command(self, name: str, argument: str = "") -> bool:
+        """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle].
+
+        A bad command or argument raises ValueError saying what was expected.
+        """
+        if name == "next":
+            return self._select(self._next_index())
+        if name == "select":
+            return self._select(self._parse_selection(argument))
+        if name == "reset":
+            revision = self.scene.revision
+            self.scene = self._initial.copy()
+            self.scene.revision = revision + 1
+            self._grab = None
+            return True
+        if name == "projection":
+            return self._projection(argument)
+        raise ValueError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+
+    def _next_index(self) -> int:
+        order = list(range(len(self.scene.objects))) + [-1]
+        if len(order) <= 2:
+            return self.scene.selected  # one object: it is the whole scene
+        return order[(order.index(self.scene.selected) + 1) % len(order)]
+
+    def _parse_selection(self, argument: str) -> int:
+        argument = argument.strip()
+        if argument in ("scene", "-1"):
+            return -1
+        names = [o.name for o in self.scene.objects]
+        if argument in names:
+            return names.index(argument)
+        try:
+            index = int(argument)
+        except ValueError:
+            index = None
+        if index is None or not 0 <= index < len(names):
+            raise ValueError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
+                             f"or 'scene', got {argument!r}")
+        return index
+
+    def _select(self, index: int) -> bool:
+        if index == self.scene.selected:
+            return False
+        self.scene.selected = index
+        self._grab = None
+        self.scene.revision += 1
+        return True
+
+    def _projection(self, argument: str) -> bool:
+        argument = argument.strip() or "toggle"
+        if argument == "toggle":
+            target = PROJECTIONS[1 - PROJECTIONS.index(self.scene.projection)]
+        elif argument in PROJECTIONS:
+            target = argument
+        else:
+            raise ValueError(f"projection: expected {', '.join(PROJECTIONS)} or toggle, got {argument!r}")
+        if target == self.scene.projection:
+            return False
+        self.scene.projection = target
+        self.scene.revision += 1
+        return True
+
+    def message(self):
+        """The current scene as a `scene/state` message."""
+        return self.scene.to_message()
