@@ -8,6 +8,7 @@ with code 1 and says what is missing.
 from __future__ import annotations
 
 import functools
+import logging
 import sys
 
 from touch4d.bus import Node, run_node
@@ -47,7 +48,7 @@ class OpenVRTracker(Node):
         found = index != vr.k_unTrackedDeviceIndexInvalid
         if found != self.was_found:
             self.was_found = found
-            self.log.log(20 if found else 30, "controller %s", "found" if found else "not found: is it on?")
+            self.log.log(logging.INFO if found else logging.WARNING, "controller %s", "found" if found else "not found: is it on?")
         position, quat, trigger, buttons, valid = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], 0.0, [], False
         if found:
             poses = system.getDeviceToAbsoluteTrackingPose(vr.TrackingUniverseStanding, 0, vr.k_unMaxTrackedDeviceCount)

@@ -33,6 +33,13 @@ class RendererNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("renderer", **kwargs)
+        try:
+            self._setup()
+        except Exception:
+            self.shutdown()                     # close the sockets of a node that cannot start
+            raise
+
+    def _setup(self) -> None:
         source = self._params_source or f"parameters of node '{self.name}'"
         rate = self.declare_parameter("rate", 60.0)
         width = self.declare_parameter("width", 1024)
@@ -68,6 +75,7 @@ class RendererNode(Node):
 
         self.headless = headless or not os.environ.get("DISPLAY")
         self.window = None
+        self.renderer = None
         self.input = None
         self.input_pub = None
         if self.headless:
@@ -79,7 +87,11 @@ class RendererNode(Node):
             from touch4d.render.window import InputState, open_window
 
             self.input = InputState()
-            self.window = open_window((width, height), self.camera, self.input, samples=samples)
+            try:
+                self.window = open_window((width, height), self.camera, self.input, samples=samples)
+            except (ValueError, RuntimeError) as exc:   # glfw: no display, no GL 3.3
+                raise RenderError(f"cannot open a window on display {os.environ.get('DISPLAY')!r}: {exc}; "
+                                  "set the parameter headless: true to render offscreen") from exc
             self.painter = Painter(self.window.ctx)
             self.input_pub = self.create_publisher("ui/input", InputEvents)
             self.log.info("window %dx%d at %g Hz; publishing ui/input", width, height, rate)
@@ -171,11 +183,13 @@ class RendererNode(Node):
             self.log.warning("%s (further identical problems are only counted)", text)
 
     def on_shutdown(self) -> None:
+        if not hasattr(self, "counts"):
+            return                              # stopped before it was set up
         self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
         if self.window is not None:
             self.painter.release()
             self.window.destroy()
-        else:
+        elif self.renderer is not None:
             self.renderer.release()
 
 

@@ -66,13 +66,11 @@ def test_only_allow_listed_peers_are_heard(tmp_path):
                 wait_until(lambda: heard[-1].intensity[0] == 0.75, timeout=10, spin=motors)
                 motors.spin(0.3)
                 assert eavesdropper.poll(200) == 0, "an unknown key must not receive anything"
-                for sock in (plain, wrong_key, eavesdropper):
-                    sock.close()
         values = {float(m.intensity[0]) for m in heard}
         assert values == {0.25, 0.5, 0.75}
         assert len(heard) == 102
     finally:
-        ctx.term()
+        ctx.destroy(linger=0)
 
 
 def test_a_node_without_the_servers_key_cannot_join(tmp_path, caplog):

@@ -130,7 +130,7 @@ def test_garbage_and_wrong_types_are_counted_and_dropped_while_the_node_keeps_se
             assert [m.position[0] for m in relayed] == [0.0, 1.0, 5.0]
             assert "dropped a malformed message on g/pose" in lis.text
     finally:
-        ctx.term()
+        ctx.destroy(linger=0)
 
 
 def test_on_shutdown_publishes_before_sockets_close_and_the_process_exits_0():

@@ -1,4 +1,6 @@
 """Scene files and scene/state messages."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -8,8 +10,6 @@ from touch4d.geometry import scene as scene_mod
 from touch4d.geometry.rotation import plane_rotation
 from touch4d.geometry.scene import Scene, load_scene, parse_scene
 from touch4d.messages import SceneState, decode, encode
-
-from pathlib import Path
 
 SCENES = Path(__file__).parent / "data" / "scenes"
 

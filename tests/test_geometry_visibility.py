@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from touch4d.geometry.raycast import RayCaster
-from touch4d.geometry.rotation import PLANES, plane_rotation, rotation_from_list
+from touch4d.geometry.rotation import PLANES, plane_rotation
 from touch4d.geometry.shapes import get_shape
 from touch4d.geometry.visibility import (Relation, _relation_lp, clip_units, facing_cells, in_region, relation,
                                          relations, silhouette_faces, subtract_polygon, subtract_segment,
@@ -111,7 +111,6 @@ def test_perspective_order_follows_the_eye():
     assert relation(near, far, eye_distance=1.0) == Relation.APART
     # x in [0.65, 0.75] at w = 3 and x in [0.25, 0.35] at w = 1: apart orthographically, but the images
     # 0.144..0.214 and 0.122..0.179 overlap, the nearer one in front.
-    back = place("tesseract", [0.7, 0, 0, 3.0], 0.1 * 10)
     back = place("tesseract", [0.7, 0, 0, 3.0], 0.1)
     front = place("tesseract", [0.3, 0, 0, 1.0], 0.1)
     assert relation(front, back) == Relation.APART

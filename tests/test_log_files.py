@@ -323,3 +323,24 @@ def test_other_message_types_flatten_into_columns(tmp_path):
     export_csv(LogReader(path), "tactile/motors", out)
     row = next(csv.DictReader(io.StringIO(out.getvalue())))
     assert (row["names.0"], row["names.1"], float(row["intensity.1"])) == ("thumb", "index", 1.0)
+
+
+def test_header_peek_finds_keys_anywhere_and_rejects_non_messages():
+    import msgpack
+    from touch4d.log.writer import peek_header
+    late = msgpack.packb({"a": "x" * 300, "seq": 3, "type": "HandPose", "stamp": 2.5})
+    assert peek_header(late) == ("HandPose", 2.5, 3)
+    assert peek_header(hand(7)) == ("HandPose", 1700000000.07, 7)
+    assert peek_header(msgpack.packb([1, 2])) is None
+    assert peek_header(b"\xc1") is None
+    assert peek_header(msgpack.packb({"type": "X", "stamp": float("nan"), "seq": -4})) == ("X", 0.0, -1)
+
+
+def test_seq_gaps_stay_bounded_for_publishers_that_do_not_count():
+    g = SeqGaps()
+    for _ in range(1000):
+        g.add("t", 0)  # a foreign publisher that always sends seq 0
+    assert g.streams("t") == 1 and g.total_lost() == 0
+    for seq in range(1000, 0, -1):  # counting down: each one looks like a new publisher
+        g.add("u", seq)
+    assert g.streams("u") == 32 and g.total_lost() == 0

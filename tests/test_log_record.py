@@ -66,7 +66,8 @@ def procs():
 
 
 def poses(n: int, skip=()) -> list[bytes]:
-    return [encode(HandPose(position=np.array([i * 1e-3, 0.0, 0.5]), valid=True, stamp=time.time(), seq=i,
+    return [encode(HandPose(position=np.array([i * 1e-3, 0.0, 0.5]), orientation=np.array([0.0, 0.0, 0.0, 1.0]),
+                            valid=True, stamp=time.time(), seq=i,
                             source_stamp=time.time())) for i in range(n) if i not in skip]
 
 

@@ -36,8 +36,8 @@ def bus():
 class Rig:
     """A motor node (emulated boards, private CAN channel) and a tester node, spun together."""
 
-    def __init__(self, bus, glove=TEST_GLOVE, bus_factory=None, **params):
-        self.channel = f"motors-{uuid.uuid4().hex}"
+    def __init__(self, bus, glove=TEST_GLOVE, bus_factory=None, channel=None, **params):
+        self.channel = channel or f"motors-{uuid.uuid4().hex}"
         self.node = MotorsNode(params={"glove": str(glove), "channel": self.channel, "emulate": True,
                                        "status_hz": 20.0, **params}, bus=bus, bus_factory=bus_factory)
         self.tester = Node("tester", bus=bus, heartbeat=False)
@@ -246,11 +246,7 @@ def test_send_faults_are_reported_and_retried_without_crashing(bus, error, kind)
         holder["bus"] = FlakyBus(channel)
         return holder["bus"]
 
-    r = Rig(bus, bus_factory=factory)
-    r.channel = channel
-    r.node.emulator.stop()
-    r.emu = r.node.emulator = __import__("touch4d.glove.emulator", fromlist=["GloveEmulator"]).GloveEmulator(
-        CFG, interface="virtual", channel=channel).start()
+    r = Rig(bus, bus_factory=factory, channel=channel)
     try:
         v = np.full(30, 0.5)
         assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))

@@ -123,3 +123,24 @@ def test_tactile_cube_colours_follow_the_field(renderer):
     cyan = np.all(image[..., :3] == np.round(np.array(MOTOR_COLOR[:3]) * 255), axis=-1)
     for x, y in where[glove.motor_sample]:
         assert cyan[int(y) - 5:int(y) + 6, int(x) - 5:int(x) + 6].any()
+
+
+def test_hand_is_drawn_where_its_pose_puts_it(renderer):
+    from touch4d.messages import HandPose
+    from touch4d.render.hud import HAND_COLOR
+    from touch4d.tactile.pose import place
+
+    glove = load_glove()
+    view = SceneView(glove, Style(), Show(frame=False, hand=True, tactile=False, status=False))
+    pose = HandPose(position=np.array([0.3, -0.2, 0.0]), orientation=np.array([0.0, 0.0, np.sin(0.3), np.cos(0.3)]),
+                    valid=True)
+    view.set_hand(pose)
+    image = renderer.render(view, FACE_ON)
+    where = FACE_ON.to_pixels(place(glove.samples, glove.units_per_metre, pose.position, pose.orientation), SIZE)
+    seen = image[where[:, 1].astype(int), where[:, 0].astype(int), :3].astype(int)
+    # The hand's colour at every sample (brighter where samples at several depths overlap, alpha 0.9).
+    ratio = seen / (np.array(HAND_COLOR[:3]) * 255)
+    assert ratio.min() >= HAND_COLOR[3] - 0.02 and ratio.max() <= 1.01
+    assert np.ptp(ratio, axis=1).max() <= 0.02
+    view.set_hand(HandPose(position=pose.position, orientation=pose.orientation, valid=False))
+    assert renderer.render(view, FACE_ON)[..., :3].max() == 0          # tracking lost: no hand

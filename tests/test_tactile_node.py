@@ -144,13 +144,21 @@ def test_node_publishes_field_and_motors_for_every_pose_and_survives_bad_input(g
             raw.connect(bus.pub_endpoint)
             bad = scene_msg(revision=7)
             bad.objects[0]["shape"] = "no-such-shape"
-            wait_until(lambda: (raw.send_multipart([b"hand/pose", b"\x93garbage"]),
-                                raw.send_multipart([b"scene/state", b"junk"]),
-                                scene_pub.publish(bad),
-                                [n.spin_once(0.02) for n in nodes],
-                                tactile.stats["hand/pose"]["malformed"] > 0
-                                and tactile.counts["bad_scenes"] > 0)[-1], timeout=20, interval=0.05)
-            assert tactile.stats["scene/state"]["malformed"] > 0
+            def junk():
+                raw.send_multipart([b"hand/pose", b"\x93garbage"])
+                raw.send_multipart([b"scene/state", b"junk"])
+                for n in nodes:
+                    n.spin_once(0.02)
+                return tactile.stats["hand/pose"]["malformed"] and tactile.stats["scene/state"]["malformed"]
+
+            def unbuildable():
+                scene_pub.publish(bad)
+                for n in nodes:
+                    n.spin_once(0.02)
+                return tactile.counts["bad_scenes"]
+
+            wait_until(junk, timeout=20, interval=0.05)
+            wait_until(unbuildable, timeout=20, interval=0.05)
 
             # Still serving, with the last good scene: a tilted cell now gives a gradient.
             scene_pub.publish(scene_msg([["xw", -20]], revision=8))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from touch4d.bus import Node
-from touch4d.bus.testing import REPO, bus_env, collect, launch_process, node_process, running_broker, wait_until
+from touch4d.bus.testing import REPO, collect, launch_process, node_process, running_broker, wait_until
 from touch4d.messages import ControllerState, HandPose, InputEvents, SceneState
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.outputs import from_hand
@@ -208,7 +208,7 @@ def write_tracker_log(path, seconds=3.0, rate=90.0):
             log.write("controller/state", controller.encode(), at)
 
 
-@pytest.mark.parametrize("tracker", ["scripted", "desktop", "replay", "scripted_tracker", "desktop_tracker"])
+@pytest.mark.parametrize("tracker", ["scripted", "desktop", "replay", "scripted_tracker"])
 def test_every_tracker_fits_the_tracker_role_of_one_launch_file(tracker, tmp_path):
     args = [TRACKERS_LAUNCH, f"tracker:={tracker}"]
     if tracker == "replay":

@@ -211,6 +211,7 @@ def test_message_carries_the_scene():
     ({"gains": {"twist": 1.0}}, "gains.twist"),
     ({"trigger_threshold": 0.0}, "trigger_threshold"),
     ({"buttons": {"menu": "explode"}}, "buttons.menu"),
+    ({"buttons": {"grip": "select"}}, "buttons.grip"),
     ({"rotate": "world"}, "rotate"),
     ({"spin": {"plane": "xq"}}, "spin.plane"),
 ])

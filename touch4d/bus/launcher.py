@@ -123,13 +123,14 @@ class Launcher:
         lived = time.monotonic() - child.started
         role, module = child.spec.role, child.spec.module
         what = f"exited with code {code}" if code >= 0 else f"was killed by {signal.Signals(-code).name}"
-        if lived < START_WINDOW and code != 0:
+        failed_start = lived < START_WINDOW and code > 0
+        if failed_start:
             cause = child.last_lines[-1] if child.last_lines else "no output"
             self.say(f"node '{role}' ({module}) failed to start: {what}: {cause}")
         else:
             self.say(f"node '{role}' ({module}) {what}")
         if child.spec.respawn:
-            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if lived < START_WINDOW else child.spec.respawn_delay
+            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if failed_start else child.spec.respawn_delay
             child.restart_at = time.monotonic() + child.delay
             self.say(f"respawning '{role}' in {child.delay:.1f} s")
         elif code != 0:

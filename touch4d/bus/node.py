@@ -27,6 +27,7 @@ from touch4d.messages import Heartbeat, Message, MessageError, decode
 
 HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
+_HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
 INTERNAL_PREFIX = b"_bus/"  # topics of the runtime itself, never delivered to callbacks
 _MAX_BATCH = 4096
 _MAX_LOGGED_CAUSES = 200
@@ -45,14 +46,14 @@ class Publisher:
         """Stamp (if 0), number and send `msg`; raises MessageError if a field is invalid."""
         if not isinstance(msg, self.msg_type):
             raise TypeError(f"{self.topic}: expected a {self.msg_type.TYPE}, got {type(msg).__name__}")
-        if not msg.stamp:
-            msg.stamp = time.time()
-        if not msg.source_stamp:
-            msg.source_stamp = msg.stamp
         try:
             msg.validate()
         except MessageError as exc:
             raise MessageError(f"publishing on {self.topic}: {exc}") from None
+        if not msg.stamp:
+            msg.stamp = time.time()
+        if not msg.source_stamp:
+            msg.source_stamp = msg.stamp
         self.node._send(self._topic, msg)
 
 
@@ -115,10 +116,11 @@ class Node:
         self._declared: set[str] = set()
         self._own_context = context is None
         self._ctx = context or zmq.Context()
-        self._seq: dict[bytes, int] = {}
-        self._published: dict[str, int] = {}
+        self._seq: dict[bytes, int] = {}  # next seq per published topic = messages published on it
+        self._publishes: set[str] = set()
         self._subs: dict[bytes, list[Subscription]] = {}
         self._raw_subs: list[tuple[bytes, Subscription]] = []
+        self._latest_only_topics: set[bytes] = set()
         self._zmq_topics: set[bytes] = set()
         self._topics: dict[bytes, _TopicState] = {}
         self._timers: list[Timer] = []
@@ -183,7 +185,7 @@ class Node:
 
     def create_publisher(self, topic: str, msg_type: type[Message]) -> Publisher:
         _check_topic(topic)
-        self._published.setdefault(topic, 0)
+        self._publishes.add(topic)
         return Publisher(self, topic, msg_type)
 
     def create_subscription(
@@ -195,6 +197,8 @@ class Node:
         sub = Subscription(topic, msg_type, callback, latest_only)
         key = topic.encode()
         self._subs.setdefault(key, []).append(sub)
+        if latest_only:
+            self._latest_only_topics.add(key)
         self._state(key)
         self._subscribe(key)
         return sub
@@ -227,7 +231,7 @@ class Node:
             for name, value in counters.items():
                 out[name] += value
                 out[f"{topic}:{name}"] = value
-        out["published"] = sum(self._published.values())
+        out["published"] = sum(n for t, n in self._seq.items() if t != _HEARTBEAT_KEY)
         out.update(self._counters)
         return out
 
@@ -319,9 +323,7 @@ class Node:
         seq = self._seq.get(topic, 0)
         msg.seq = seq
         self._seq[topic] = seq + 1
-        self._pub.send_multipart((topic, msg.encode()), copy=False)
-        name = topic.decode()
-        self._published[name] = self._published.get(name, 0) + 1
+        self._pub.send_multipart((topic, msg.encode()))
 
     def _await_broker(self) -> None:
         """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
@@ -373,19 +375,18 @@ class Node:
             self._sub.unsubscribe(token)
 
     def _drain(self) -> list[list[bytes]]:
+        """Everything queued on the SUB socket now (up to _MAX_BATCH messages)."""
+        sock = self._sub
         batch = []
-        recv = self._sub.recv_multipart
-        while len(batch) < _MAX_BATCH:
-            try:
-                batch.append(recv(zmq.NOBLOCK))
-            except zmq.Again:
-                break
+        while len(batch) < _MAX_BATCH and sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            batch.append(sock.recv_multipart(zmq.NOBLOCK))
         return batch
 
     def _dispatch(self, batch: list[list[bytes]]) -> int:
         last: dict[bytes, int] = {}
-        for i, frames in enumerate(batch):
-            last[frames[0]] = i
+        if self._latest_only_topics and len(batch) > 1:
+            for i, frames in enumerate(batch):
+                last[frames[0]] = i
         handled = 0
         for i, frames in enumerate(batch):
             topic = frames[0]
@@ -393,7 +394,7 @@ class Node:
                 continue
             subs = self._subs.get(topic)
             if subs is not None:
-                handled += self._deliver(topic, frames, subs, i == last[topic])
+                handled += self._deliver(topic, frames, subs, last.get(topic, i) == i)
             if self._raw_subs and len(frames) == 2:
                 for prefix, sub in self._raw_subs:
                     if sub.active and topic.startswith(prefix):
@@ -405,7 +406,8 @@ class Node:
         state = self._topics[topic]
         stats = state.stats
         stats["received"] += 1
-        takers = [s for s in subs if s.active and (newest or not s.latest_only)]
+        takers = subs if newest and len(subs) == 1 and subs[0].active else \
+            [s for s in subs if s.active and (newest or not s.latest_only)]
         if not takers:
             stats["dropped"] += 1
             state.stale_since_last += 1
@@ -477,7 +479,7 @@ class Node:
             node=self.name,
             pid=self.pid,
             kind=self.kind,
-            publishes=sorted(t for t in self._published if t != HEARTBEAT_TOPIC),
+            publishes=sorted(t for t in self._publishes if t != HEARTBEAT_TOPIC),
             subscribes=sorted({k.decode() for k in self._subs} | {k.decode() + "*" for k, _ in self._raw_subs}),
             stats=self.stats_flat(),
         ))

@@ -1,7 +1,6 @@
 """`touch4d shape list` and `touch4d shape info NAME [-p KEY=VALUE ...]`: what the catalog holds."""
 from __future__ import annotations
 
-import argparse
 
 import numpy as np
 import yaml

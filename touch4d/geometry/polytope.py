@@ -115,9 +115,11 @@ class Polytope:
         # Facets of the triangulated hull that hold the same vertices form one cell.
         on_plane = np.abs(candidates @ eq[:, :4].T + eq[:, 4]) <= tol          # (V, facets)
         _, first = np.unique(np.packbits(on_plane.T, axis=1), axis=0, return_index=True)
-        incidence = on_plane[:, np.sort(first)].T                               # (C, V)
+        cells = np.sort(first)
+        incidence = on_plane[:, cells].T                                        # (C, V)
+        planes = eq[cells, :4]
         # Keep only true vertices: points on cells whose normals span 4 dimensions.
-        keep = np.array([np.linalg.matrix_rank(eq[np.sort(first)][incidence[:, i], :4], tol=1e-6) == 4
+        keep = np.array([np.linalg.matrix_rank(planes[incidence[:, i]], tol=1e-6) == 4
                          for i in range(len(candidates))])
         vertices = candidates[keep]
         incidence = incidence[:, keep]

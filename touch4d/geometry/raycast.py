@@ -64,6 +64,9 @@ class RayCaster:
 
     def _intervals(self, p: np.ndarray):
         """Per ray and part: entry bound, exit bound, and whether the parallel cells let the ray through."""
+        if not self._parts:
+            empty = np.zeros((len(p), 0))
+            return empty, empty, empty.astype(bool)
         (ea, xa, pa), (eb, xb, pb), (es, xs, ps) = self._a, self._b, self._starts
         enter = np.maximum.reduceat(eb - p @ ea, es, axis=1)
         leave = np.minimum.reduceat(xb - p @ xa, xs, axis=1)
@@ -80,7 +83,7 @@ class RayCaster:
         """
         p = np.asarray(points3, dtype=np.float64).reshape(-1, 3)
         n = len(p)
-        if self._parts == 0 or n == 0:
+        if not self._parts or not n:
             return np.full(n, np.nan), np.full(n, -1, dtype=np.int64)
         enter, _, ok = self._intervals(p)
         t_part = np.where(ok, enter, np.inf)

@@ -154,12 +154,15 @@ def relations(polys: list[Polytope], eye_distance: float | None = None, units: l
     lo = np.minimum.reduceat(all_v[:, :3], starts, axis=0)
     hi = np.maximum.reduceat(all_v[:, :3], starts, axis=0)
     owner = np.repeat(np.arange(count), sizes)
-    # Probe points: each object's vertices pulled slightly toward its centre, so they are interior
-    # points of its projection (and of the object itself).
+    # Probe points: each object's vertices and edge midpoints pulled slightly toward its centre, so
+    # they are interior points of the object and of its projection.
     centers4 = np.add.reduceat(all_v, starts, axis=0) / sizes[:, None]
-    probes = all_v + 1e-3 * (centers4[owner] - all_v)
-    probes = np.vstack([probes, centers4])
-    probe_owner = np.r_[owner, np.arange(count)]
+    mids = np.vstack([(v[p.edges[:, 0]] + v[p.edges[:, 1]]) / 2 for v, p in zip(verts, polys)])
+    mid_owner = np.repeat(np.arange(count), [len(p.edges) for p in polys])
+    probes = np.vstack([all_v, mids])
+    probe_owner = np.r_[owner, mid_owner]
+    probes = np.vstack([probes + 1e-3 * (centers4[probe_owner] - probes), centers4])
+    probe_owner = np.r_[probe_owner, np.arange(count)]
     # sep4[a, b]: +1/-1 if a cell of a separates b (a in front / behind), 0 if none does.
     sep4 = np.zeros((count, count), dtype=np.int64)
     apart = np.zeros((count, count), dtype=bool)

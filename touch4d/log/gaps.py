@@ -4,10 +4,14 @@ Messages carry no publisher id, so a topic with several publishers (node/heartbe
 interleaved `seq` streams. Each seq continues the stream that expects it; a seq below every
 stream's next one starts a new stream (another publisher, or a restarted one); a seq ahead of a
 stream continues the nearest stream below it, and the skipped numbers are counted as lost.
+A repeated seq (a publisher that does not count) is not a new stream, and at most MAX_STREAMS
+streams are tracked per topic (the least recently continued is forgotten), so cost stays bounded.
 """
 from __future__ import annotations
 
 from collections import defaultdict
+
+MAX_STREAMS = 32
 
 
 class SeqGaps:
@@ -20,16 +24,22 @@ class SeqGaps:
 
     def add(self, topic: str, seq: int) -> int:
         """Account one received `seq` on `topic`; returns how many messages it shows were lost."""
-        streams = self._next[topic]
+        streams = self._next[topic]  # least recently continued first
         if seq in streams:
-            streams[streams.index(seq)] = seq + 1
+            streams.remove(seq)
+            streams.append(seq + 1)
+            return 0
+        if seq + 1 in streams:  # the same seq again: not a new publisher
             return 0
         below = [n for n in streams if n < seq]
         if not below:
             streams.append(seq + 1)
+            if len(streams) > MAX_STREAMS:
+                del streams[0]
             return 0
         nearest = max(below)
-        streams[streams.index(nearest)] = seq + 1
+        streams.remove(nearest)
+        streams.append(seq + 1)
         missing = seq - nearest
         self.lost[topic] += missing
         self.gaps[topic] += 1

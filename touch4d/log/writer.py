@@ -28,10 +28,36 @@ SCHEMA_ENCODING = "jsonschema"
 RECORDING_METADATA = "touch4d.recording"
 
 
-def peek_header(payload: bytes) -> tuple[str, float, int] | None:
-    """(type, stamp, seq) of a payload, without decoding its arrays; None if it is not a message map."""
+_HEADER_KEYS = ("type", "stamp", "seq")
+
+
+def _header_fields(payload: bytes, limit: int | None) -> dict | None:
+    """The header keys of a msgpack map, read from its first `limit` bytes; None if not found there."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
+    unpacker.feed(payload if limit is None else payload[:limit])
+    found: dict = {}
     try:
-        data = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        for _ in range(unpacker.read_map_header()):
+            key = unpacker.unpack()
+            if key in _HEADER_KEYS:
+                found[key] = unpacker.unpack()
+                if len(found) == len(_HEADER_KEYS):
+                    break
+            else:
+                unpacker.skip()
+    except msgpack.OutOfData:
+        return None if limit is not None else found
+    return found
+
+
+def peek_header(payload: bytes) -> tuple[str, float, int] | None:
+    """(type, stamp, seq) of a payload without decoding the rest; None if it is not a message map.
+
+    Our encoder writes the header keys first, so the first bytes usually hold them all."""
+    try:
+        data = _header_fields(payload, 128)
+        if data is None or len(data) < len(_HEADER_KEYS):
+            data = _header_fields(payload, None)
     except Exception:  # noqa: BLE001 - any garbage: recorded as is, counted as malformed
         return None
     if not isinstance(data, dict) or not isinstance(data.get("type"), str):

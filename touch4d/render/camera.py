@@ -53,8 +53,8 @@ class OrbitCamera:
 
     yaw: float = 28.0
     pitch: float = 18.0
-    distance: float = 7.5
-    target: np.ndarray = field(default_factory=lambda: np.array([-0.6, 0.0, 0.0]))
+    distance: float = 6.4
+    target: np.ndarray = field(default_factory=lambda: np.array([-0.55, 0.0, 0.0]))
     fov: float = 40.0
     ortho: bool = False
 

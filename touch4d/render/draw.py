@@ -65,11 +65,11 @@ class Painter:
     def __init__(self, ctx: moderngl.Context, line_width: float = 2.0):
         self.ctx = ctx
         self.line_width = line_width
-        self.flat = ctx.program(vertex_shader=_shader("flat.vert"), fragment_shader=_shader("flat.frag"))
-        self.line = ctx.program(vertex_shader=_shader("flat.vert"), geometry_shader=_shader("line.geom"),
-                                fragment_shader=_shader("line.frag"))
-        self.point = ctx.program(vertex_shader=_shader("point.vert"), fragment_shader=_shader("point.frag"))
-        self.overlay = ctx.program(vertex_shader=_shader("overlay.vert"), fragment_shader=_shader("overlay.frag"))
+        self.flat = ctx.program(vertex_shader=_shader("flat.vert.glsl"), fragment_shader=_shader("flat.frag.glsl"))
+        self.line = ctx.program(vertex_shader=_shader("flat.vert.glsl"), geometry_shader=_shader("line.geom.glsl"),
+                                fragment_shader=_shader("line.frag.glsl"))
+        self.point = ctx.program(vertex_shader=_shader("point.vert.glsl"), fragment_shader=_shader("point.frag.glsl"))
+        self.overlay = ctx.program(vertex_shader=_shader("overlay.vert.glsl"), fragment_shader=_shader("overlay.frag.glsl"))
         self._tris = _Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
         self._lines = _Stream(ctx, self.line, "3f 4f", ("in_position", "in_color"))
         self._points = _Stream(ctx, self.point, "3f 4f 1f", ("in_position", "in_color", "in_size"))

@@ -14,9 +14,10 @@ from PIL import Image, ImageDraw, ImageFont
 FRAME_COLOR = (0.75, 0.75, 0.8, 0.9)
 MOTOR_COLOR = (0.0, 1.0, 1.0, 1.0)        # cyan, as in the paper's Fig. 17
 MISS_COLOR = (0.45, 0.45, 0.5, 0.6)        # samples whose ray misses (l is NaN)
-# The amplitude colour map: h = 0 dark blue-grey, 0.5 yellow, 1 red.
-AMPLITUDE_STOPS = np.array([0.0, 0.5, 1.0])
-AMPLITUDE_RGB = np.array([[0.2, 0.25, 0.45], [1.0, 0.85, 0.15], [1.0, 0.15, 0.05]])
+# The amplitude colour map (h = 0 dark blue, through purple, orange and yellow, to pale yellow at 1).
+AMPLITUDE_STOPS = np.array([0.0, 0.25, 0.5, 0.75, 1.0])
+AMPLITUDE_RGB = np.array([[0.15, 0.2, 0.45], [0.5, 0.2, 0.65], [0.95, 0.4, 0.25], [1.0, 0.75, 0.15],
+                          [1.0, 1.0, 0.7]])
 
 
 def amplitude_colors(h: np.ndarray) -> np.ndarray:
@@ -97,19 +98,31 @@ class TactileCube:
 HAND_COLOR = (0.95, 0.85, 0.75, 0.9)
 
 
+def hand_skeleton(hand) -> np.ndarray:
+    """Segments (S, 2, 3) outlining a glove's hand in its own frame (metres): the palm box's edges
+    and each finger's axis from base to tip."""
+    palm = CUBE_EDGES * np.asarray(hand.palm_half)
+    fingers = np.array([[f.base, f.tip] for f in hand.fingers]).reshape(-1, 2, 3)
+    return np.concatenate([palm, fingers])
+
+
 def hand_geometry(samples_screen: np.ndarray, origin, rotation: np.ndarray, h: np.ndarray | None = None,
-                  axis_length: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-    """(line vertices, point vertices) of the hand: its axes at the origin (x red, y green, z blue)
-    and its sample points, coloured by the stimulus when a field for them is known."""
+                  skeleton_screen: np.ndarray | None = None, axis_length: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """(line vertices, point vertices) of the hand: its outline, its axes at the origin (x red,
+    y green, z blue) and its sample points, coloured by the stimulus when a field for them is known."""
     origin = np.asarray(origin, dtype=float)
     axes = []
     for k, color in enumerate(((1, 0.3, 0.3, 1), (0.3, 1, 0.3, 1), (0.4, 0.5, 1, 1))):
         axes += [[*origin, *color], [*(origin + axis_length * rotation[:, k]), *color]]
+    lines = [np.array(axes, np.float32)]
+    if skeleton_screen is not None and len(skeleton_screen):
+        seg = np.asarray(skeleton_screen, dtype=float).reshape(-1, 3)
+        lines.append(np.c_[seg, np.tile(HAND_COLOR, (len(seg), 1))].astype(np.float32))
     if h is not None and len(h) == len(samples_screen):
         rgba = np.c_[amplitude_colors(h), np.full(len(h), 0.9)]
     else:
         rgba = HAND_COLOR
-    return np.array(axes, np.float32), points(samples_screen, rgba, 4.0)
+    return np.concatenate(lines), points(samples_screen, rgba, 4.0)
 
 
 @lru_cache(maxsize=4)

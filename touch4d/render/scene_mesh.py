@@ -356,8 +356,9 @@ class _Occluders:
 
 def _plane_values(planes: np.ndarray, points: np.ndarray) -> np.ndarray:
     """n.u - d for planes (Q, M, 4) and points (Q, K, >=3): (Q, M, K), positive outside."""
-    n = planes[..., None, :]
-    p = points[:, None]
+    # Plain broadcasting: a stacked matmul goes through BLAS per tiny matrix, slow when threads compete.
+    n = planes[:, :, None, :]
+    p = points[:, None, :, :]
     return n[..., 0] * p[..., 0] + n[..., 1] * p[..., 1] + n[..., 2] * p[..., 2] - n[..., 3]
 
 
@@ -375,11 +376,6 @@ def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occl
     if len(item) == 0:
         return v, count, src
     rank = np.arange(len(item)) - np.searchsorted(item, item)
-    straddle = np.any(s > _TOUCH, axis=2) & np.any(s < -_TOUCH, axis=2)
-    order = np.argsort(~straddle, axis=1, kind="stable")
-    width = max(int(straddle.sum(axis=1).max()), 1)
-    sel = np.take_along_axis(occ.planes[b], order[..., None], axis=1)[:, :width]
-    sel[~np.take_along_axis(straddle, order, axis=1)[:, :width]] = _DUMMY_PLANE
 
     # Only polygons some body may hide take part; the others pass unchanged.
     touched = np.zeros(len(v), bool)
@@ -392,7 +388,7 @@ def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occl
         pair_of_src[item[at]] = np.nonzero(at)[0]
         pair = pair_of_src[work_src]
         act = pair >= 0
-        pv, pc, parent = _subtract(wv[act], wc[act], sel[pair[act]], b[pair[act]], occ)
+        pv, pc, parent = _subtract(wv[act], wc[act], b[pair[act]], occ)
         wv = np.concatenate([_pad_width(wv[~act], pv.shape[1]), _pad_width(pv, wv.shape[1])])
         wc = np.concatenate([wc[~act], pc])
         work_src = np.concatenate([work_src[~act], work_src[act][parent]])
@@ -402,27 +398,33 @@ def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occl
             np.concatenate([count[keep], wc]), np.concatenate([src[keep], work_src]))
 
 
-def _subtract(v, count, planes, body, occ: _Occluders):
-    """Pieces of each polygon outside `body`'s outline (clip units `planes`) if it is behind the body there.
+def _subtract(v, count, body, occ: _Occluders):
+    """Pieces of each polygon outside `body`'s outline if it is behind the body there.
 
-    Returns (pieces, counts, parent index into the inputs)."""
-    rem_v, rem_c = v.copy(), count.copy()
+    Only the clip units that cross a polygon cut it, one after the other: piece j lies inside units
+    1..j-1 and outside unit j; what is left is inside the outline. Returns (pieces, counts, parent
+    index into the inputs)."""
+    planes = occ.planes[body]
+    s_all = _plane_values(planes, v)                                           # (Q, M, K)
+    straddle = np.any(s_all > _TOUCH, axis=2) & np.any(s_all < -_TOUCH, axis=2)
+    order = np.argsort(~straddle, axis=1, kind="stable")
+    apart = np.any(np.all(s_all > _TOUCH, axis=2), axis=1)      # outside one unit: nothing hidden
+    n_cuts = np.where(apart, 0, straddle.sum(axis=1))
+    rem_v, rem_c = v.copy(), np.where(apart, 0, count)
     outs_v, outs_c, outs_p = [], [], []
-    real = np.any(planes != _DUMMY_PLANE, axis=2)
-    for j in range(planes.shape[1]):
-        rows = np.nonzero(real[:, j] & (rem_c >= 3))[0]
+    for j in range(int(n_cuts.max(initial=0))):
+        rows = np.nonzero((n_cuts > j) & (rem_c >= 3))[0]
         if len(rows) == 0:
-            continue
-        n = planes[rows, j]
-        part = rem_v[rows]
-        s = np.einsum("qkj,qj->qk", part[..., :3], n[:, :3]) - n[:, 3:4]
-        in_v, in_c, out_v, out_c = _split(part, rem_c[rows], s)
+            break
+        plane = planes[rows, order[rows, j]]
+        s = s_all[rows, order[rows, j]] if j == 0 else \
+            np.einsum("qkj,qj->qk", rem_v[rows, :, :3], plane[:, :3]) - plane[:, 3:4]
+        in_v, in_c, out_v, out_c = _split(rem_v[rows], rem_c[rows], s)
         outs_v.append(out_v)
         outs_c.append(out_c)
         outs_p.append(rows)
-        width = in_v.shape[1]
-        if width > rem_v.shape[1]:
-            rem_v = _pad_width(rem_v, width)
+        if in_v.shape[1] > rem_v.shape[1]:
+            rem_v = _pad_width(rem_v, in_v.shape[1])
         rem_v[rows] = _pad_width(in_v, rem_v.shape[1])
         rem_c[rows] = in_c
     # Depth test at an interior point of the overlap: the mean of the remainder's vertices.
@@ -453,8 +455,7 @@ def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray):
     s_n = s[rows, nxt]
     inside = s <= 0
     cross = valid & (inside != (s_n <= 0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(cross, s / (s - s_n), 0.0)
+    t = s / np.where(cross, s - s_n, 1.0)       # only used where the edge crosses
     # Each vertex emits itself (if on the kept side) and then the crossing on its edge (if any).
     pts = np.empty((q, k, 2, 4))
     pts[:, :, 0] = v

@@ -13,7 +13,7 @@ from touch4d.tactile.pose import check_pose, place, quaternion_matrix
 from .camera import OrbitCamera
 from .context import OffscreenTarget, create_headless_context
 from .draw import Layers, Painter
-from .hud import TactileCube, hand_geometry, screen_frame, text_image, touched_motors
+from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
 from .scene_mesh import Body, MeshBuilder, SceneMesh, Style
 
 
@@ -41,6 +41,7 @@ class _Hand:
     position: np.ndarray
     rotation: np.ndarray
     samples: np.ndarray | None
+    skeleton: np.ndarray | None
 
 
 class SceneView:
@@ -69,18 +70,20 @@ class SceneView:
         if isinstance(scene, SceneState):
             scene = Scene.from_message(scene)
         bodies = bodies_from_scene(scene)
-        self.builder.build(bodies, scene.projection, scene.eye_distance, self.style)   # fails before adopting
-        self.scene, self.bodies, self._mesh = scene, bodies, None
+        mesh = self.builder.build(bodies, scene.projection, scene.eye_distance, self.style)  # fails before adopting
+        self.scene, self.bodies, self._mesh = scene, bodies, mesh
 
     def set_hand(self, pose: HandPose) -> None:
         if not pose.valid:
             self.hand = None
             return
         position, q = check_pose(pose.position, pose.orientation)
-        samples = None
+        samples = skeleton = None
         if self.glove is not None:
-            samples = place(self.glove.samples, self.glove.units_per_metre, position, q)
-        self.hand = _Hand(position, quaternion_matrix(q), samples)
+            upm = self.glove.units_per_metre
+            samples = place(self.glove.samples, upm, position, q)
+            skeleton = place(hand_skeleton(self.glove.hand).reshape(-1, 3), upm, position, q)
+        self.hand = _Hand(position, quaternion_matrix(q), samples, skeleton)
 
     def set_field(self, msg: TactileField) -> None:
         if len(msg.positions) == 0:
@@ -108,7 +111,7 @@ class SceneView:
         if self.show.hand and self.hand is not None:
             h = self.field.h if self.field is not None else None
             samples = self.hand.samples if self.hand.samples is not None else np.zeros((0, 3))
-            lines, pts = hand_geometry(samples, self.hand.position, self.hand.rotation, h)
+            lines, pts = hand_geometry(samples, self.hand.position, self.hand.rotation, h, self.hand.skeleton)
             out.lines.append(lines)
             out.points.append(pts)
         if self.show.tactile:

@@ -21,6 +21,7 @@ from .calibration import Calibration
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
 ROTATE_TARGETS = ("object", "scene")
+BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,8 @@ class ControlConfig:
         if not 0.0 < threshold <= 1.0:
             raise ConfigError(source, "trigger_threshold", "a number in (0, 1]", got=threshold)
         for button, command in buttons.items():
-            if command not in SCENE_COMMANDS:
-                raise ConfigError(source, f"buttons.{button}", f"one of {', '.join(SCENE_COMMANDS)}", got=command)
+            if command not in BUTTON_COMMANDS:
+                raise ConfigError(source, f"buttons.{button}", f"one of {', '.join(BUTTON_COMMANDS)}", got=command)
         if rotate not in ROTATE_TARGETS:
             raise ConfigError(source, "rotate", "object or scene", got=rotate)
         plane, rate = None, 0.0

@@ -1,0 +1,107 @@
+"""Log benchmarks: recording throughput (messages/s, MB/s) beside the bare mcap writer, same run.
+
+1. file layer: `LogWriter.write` (header peek, seq gaps, channel per topic, zstd chunks) against
+   `mcap.writer.Writer.add_message` writing the same payloads to the same kind of file;
+2. end to end: messages published as fast as one process can through a broker into a `Recorder`
+   (subscriber thread + writer thread), against the same bare mcap writer baseline.
+The mix is the live stack's: hand poses, tactile fields (242 samples), motor commands (30 motors).
+Run: .venv/bin/python bench/bench_log.py
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from touch4d.bus.testing import running_broker
+from touch4d.log.recorder import Recorder
+from touch4d.log.replay import BusSender
+from touch4d.log.writer import LogWriter
+from touch4d.messages import HandPose, MotorCommand, TactileField, encode
+
+N = 50_000
+
+
+def mix(n: int) -> list[tuple[str, bytes]]:
+    """The stack's topics in proportion: per hand pose, one tactile field and one motor command."""
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n // 3):
+        stamp = time.time()
+        out.append(("hand/pose", encode(HandPose(position=rng.uniform(-1, 1, 3), valid=True, stamp=stamp, seq=i,
+                                                 orientation=np.array([0.0, 0.0, 0.0, 1.0]), source_stamp=stamp))))
+        out.append(("tactile/field", encode(TactileField(positions=rng.uniform(-1, 1, (242, 3)), l=rng.uniform(0, 1, 242),
+                                                         s=rng.uniform(0, 1, 242), h=rng.uniform(0, 1, 242), alpha=1.0,
+                                                         beta=0.5, gamma=1.0, stamp=stamp, seq=i, source_stamp=stamp))))
+        out.append(("tactile/motors", encode(MotorCommand(names=[f"m{k}" for k in range(30)], intensity=rng.uniform(0, 1, 30),
+                                                          stamp=stamp, seq=i, source_stamp=stamp))))
+    return out
+
+
+def bare_mcap(path: str, messages: list[tuple[str, bytes]]) -> float:
+    """Baseline: the mcap writer alone, one channel per topic, no header peek; seconds."""
+    t0 = time.perf_counter()
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start()
+        schema = w.register_schema("any", "jsonschema", b"{}")
+        channels: dict[str, int] = {}
+        for k, (topic, payload) in enumerate(messages):
+            channel = channels.get(topic) or channels.setdefault(topic, w.register_channel(topic, "msgpack", schema))
+            now = time.time_ns()
+            w.add_message(channel, log_time=now, publish_time=now, sequence=k, data=payload)
+        w.finish()
+    return time.perf_counter() - t0
+
+
+def log_writer(path: str, messages: list[tuple[str, bytes]]) -> float:
+    t0 = time.perf_counter()
+    w = LogWriter(path)
+    for topic, payload in messages:
+        w.write(topic, payload, time.time_ns())
+    w.close()
+    return time.perf_counter() - t0
+
+
+def recorder_end_to_end(path: str, messages: list[tuple[str, bytes]]) -> float:
+    """Seconds from the first publish until the recorder has written every message and closed the file."""
+    with running_broker() as bus:
+        recorder = Recorder(bus, path)
+        recorder.start()
+        sender = BusSender(bus)
+        t0 = time.perf_counter()
+        for topic, payload in messages:
+            sender(topic, payload)
+        deadline = time.monotonic() + 120
+        while recorder.received < len(messages) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        report = recorder.stop()
+        elapsed = time.perf_counter() - t0
+        sender.close()
+    if report.total != len(messages):
+        sys.exit(f"recorder lost messages: {report.total} of {len(messages)}")
+    return elapsed
+
+
+def main() -> None:
+    messages = mix(N)
+    n = len(messages)
+    mb = sum(len(p) for _, p in messages) / 1e6
+    print(f"{n} messages, {mb:.1f} MB of payload (hand/pose, tactile/field with 242 samples, tactile/motors)")
+    with tempfile.TemporaryDirectory() as tmp:
+        base = min(bare_mcap(os.path.join(tmp, f"bare{i}.mcap"), messages) for i in range(3))
+        ours = min(log_writer(os.path.join(tmp, f"ours{i}.mcap"), messages) for i in range(3))
+        e2e = min(recorder_end_to_end(os.path.join(tmp, f"rec{i}.mcap"), messages) for i in range(2))
+    rows = [("bare mcap Writer.add_message (baseline)", base), ("LogWriter.write", ours),
+            ("Recorder via broker, end to end", e2e)]
+    for name, seconds in rows:
+        print(f"{name:<42} {n / seconds:>9.0f} msg/s  {mb / seconds:>7.1f} MB/s  "
+              f"ratio to baseline {base / seconds:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,84 @@
+"""`touch4d launch` as a user runs it: live prefixed output, respawn, clean stops, nothing left behind."""
+import os
+import signal
+import time
+
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.testing import collect, launch_process, pids_alive, wait_until
+from touch4d.messages import HandPose, Heartbeat
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def heartbeat_pids(run, roles, timeout=30.0):
+    """The pid of each role, from heartbeats heard on the launch's bus."""
+    with Node("probe", bus=run.bus, heartbeat=False) as probe:
+        beats = collect(probe, "node/heartbeat", Heartbeat)
+        pids = {}
+
+        def all_seen():
+            pids.update({b.node: b.pid for b in beats})
+            return set(roles) <= set(pids)
+
+        wait_until(all_seen, timeout=timeout, spin=probe)
+    return pids
+
+
+def test_ctrl_c_stops_every_node_and_exits_0_with_live_prefixed_output():
+    with launch_process(["launch/example.yaml"]) as run:
+        # Output arrives while the nodes run, each line prefixed with the role.
+        run.wait_for_line(r"^\[talker\]\s+INFO talker: publishing HandPose on example/pose", timeout=30)
+        run.wait_for_line(r"^\[listener\]\s+INFO listener: listening on example/pose", timeout=30)
+        with Node("probe", bus=run.bus, heartbeat=False) as probe:
+            relayed = collect(probe, "example/relay", HandPose)
+            wait_until(lambda: len(relayed) >= 5, timeout=30, spin=probe)
+        pids = heartbeat_pids(run, ["talker", "listener"])
+        assert run.proc.poll() is None
+        started = time.monotonic()
+        assert run.stop(signal.SIGINT, timeout=30) == 0
+        elapsed = time.monotonic() - started
+        wait_until(lambda: not pids_alive(pids.values()), timeout=10)
+    assert elapsed < 10  # the launcher's own limit is 1.5 s of grace; this only guards against a hang
+    assert "[launch]   stopping (SIGINT)" in run.text and run.text.rstrip().endswith("stopped")
+    assert "heard" in run.wait_for_line(r"^\[listener\].*heard \d+ message", timeout=1)
+
+
+def test_a_killed_node_with_respawn_comes_back_and_sigterm_stops_all():
+    with launch_process(["launch/example.yaml", "listener.delay:=0.001"]) as run:
+        first = heartbeat_pids(run, ["talker", "listener"])
+        os.kill(first["listener"], signal.SIGKILL)
+        run.wait_for_line(r"\[launch\].*node 'listener' \(example_listener\) was killed by SIGKILL", timeout=30)
+        run.wait_for_line(r"\[launch\].*respawning 'listener'", timeout=5)
+        with Node("probe", bus=run.bus, heartbeat=False) as probe:
+            beats = collect(probe, "node/heartbeat", Heartbeat)
+            back = wait_until(lambda: [b for b in beats if b.node == "listener" and b.pid != first["listener"]],
+                              timeout=30, spin=probe)
+        assert run.stop(signal.SIGTERM, timeout=30) == 0
+        wait_until(lambda: not pids_alive([first["talker"], back[0].pid]), timeout=10)
+    assert "stopping (SIGTERM)" in run.text
+
+
+def test_duration_stops_cleanly_with_exit_0():
+    with launch_process(["launch/example.yaml", "--duration", "2"]) as run:
+        assert run.proc.wait(60) == 0
+        run.join()
+    assert "stopping (--duration 2 s)" in run.text and "[talker]" in run.text
+
+
+def test_a_node_that_fails_to_start_is_named_with_its_cause():
+    with launch_process(["launch/example.yaml", "talker.rate:=fast"]) as run:
+        line = run.wait_for_line(r"\[launch\].*failed to start", timeout=60)
+        run.bus  # the rest keeps running
+        assert run.stop(signal.SIGINT, timeout=30) == 1  # a node failed
+    assert "'talker' (example_talker)" in line and "nodes.talker.params.rate" in line and "'fast'" in line
+    assert "node(s) that failed: talker" in run.text
+
+
+def test_nodes_die_with_a_killed_launcher():
+    with launch_process(["launch/example.yaml"]) as run:
+        pids = heartbeat_pids(run, ["talker", "listener"])
+        os.kill(run.proc.pid, signal.SIGKILL)
+        run.proc.wait(10)
+        wait_until(lambda: not pids_alive(pids.values()), timeout=15)

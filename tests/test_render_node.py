@@ -1,0 +1,105 @@
+"""The renderer node, headless (EGL), in-process on a test bus: it draws what is published and keeps
+the last good scene through one it cannot build."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.testing import running_broker, wait_until
+from touch4d.errors import ConfigError
+from touch4d.geometry.scene import parse_scene
+from touch4d.messages import SceneState, TactileField
+from touch4d.nodes.renderer import RendererNode
+from touch4d.render.camera import parse_camera
+from touch4d.render.hud import TactileCube, amplitude_colors
+from touch4d.tactile.glove import load_glove
+
+SIZE = 320
+BASE = {"headless": True, "width": SIZE, "height": SIZE, "samples": 0, "rate": 30.0, "show_status": False,
+        "show_frame": False}
+
+
+@pytest.fixture
+def bus():
+    with running_broker() as config:
+        yield config
+
+
+@pytest.fixture
+def probe(bus):
+    node = Node("probe", bus=bus, heartbeat=False)
+    yield node
+    node.shutdown()
+
+
+def make_node(bus, **params):
+    return RendererNode(params={**BASE, **params}, bus=bus, heartbeat=False)
+
+
+def spin_until(node, predicate, publish=None, timeout=30.0):
+    def check():
+        if publish:
+            publish()
+        node.spin_once(0.05)
+        return predicate()
+    return wait_until(check, timeout=timeout, interval=0.0)
+
+
+@pytest.mark.timeout(120)
+def test_tactile_cube_follows_a_published_field(bus, probe):
+    glove = load_glove()
+    cube = TactileCube()
+    camera_text = f"yaw=0,pitch=0,distance=3,target={cube.center[0]}:0:0,ortho"
+    node = make_node(bus, camera=camera_text)
+    try:
+        local = glove.samples
+        where = parse_camera(camera_text).to_pixels(cube.layout(local), (SIZE, SIZE)).astype(int)
+        pub = probe.create_publisher("tactile/field", TactileField)
+        for h in (np.where(local[:, 0] > np.median(local[:, 0]), 1.0, 0.0),
+                  np.where(local[:, 1] > 0.03, 0.5, 0.0)):
+            field = TactileField(positions=np.zeros((len(h), 3)), l=np.ones(len(h)), s=h, h=h,
+                                 alpha=3.0, beta=0.5, gamma=1.0)
+            expected = np.round(amplitude_colors(h) * 255)
+
+            def shows_field():
+                seen = node.renderer.read()[where[:, 1], where[:, 0], :3].astype(int)
+                return np.abs(seen - expected).max() <= 2
+
+            spin_until(node, shows_field, lambda: pub.publish(field))
+        assert node.counts["bad_fields"] == 0 and node.counts["frames"] > 0
+    finally:
+        node.shutdown()
+
+
+@pytest.mark.timeout(120)
+def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path):
+    out = tmp_path / "frame.png"
+    node = make_node(bus, camera="yaw=0,pitch=0,distance=4,target=0:0:0,ortho", show_tactile=False,
+                     output=str(out))
+    try:
+        pub = probe.create_publisher("scene/state", SceneState)
+        good = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
+                                         "color": [0, 1, 0, 1]}]}).to_message()
+        green = lambda: (node.renderer.read()[..., 1] > 200).sum() > 100    # noqa: E731 - the outline
+        spin_until(node, green, lambda: pub.publish(good))
+        # Half-spaces that bound nothing: the geometry cannot build it; the node says so and carries on.
+        bad = good.__class__(**{**good.__dict__, "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "revision": 7})
+        bad.objects = [{**good.objects[0], "shape": "custom",
+                        "parts": [np.array([[1.0, 0, 0, 0, 1], [-1, 0, 0, 0, 1], [0, 1, 0, 0, 1], [0, -1, 0, 0, 1],
+                                            [0, 0, 1, 0, 1]])]}]
+        spin_until(node, lambda: node.counts["bad_scenes"] > 0, lambda: pub.publish(bad))
+        frames = node.counts["frames"]
+        spin_until(node, lambda: node.counts["frames"] > frames + 3)
+        assert green()
+        from PIL import Image
+        assert (np.asarray(Image.open(out))[..., 1] > 200).sum() > 100   # the PNG written is that frame
+    finally:
+        node.shutdown()
+
+
+def test_bad_parameters_name_the_parameter(bus):
+    with pytest.raises(ConfigError, match="rate"):
+        make_node(bus, rate=0.0)
+    with pytest.raises(ConfigError, match="--camera"):
+        make_node(bus, camera="zoom=3")

@@ -1,0 +1,67 @@
+"""Live status of a running stack: topic rates, touched motors, pose-to-motor latency, glove boards.
+
+Pure bookkeeping, fed by the monitor node (nodes/monitor.py) and formatted as one line.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from touch4d.messages import MotorCommand, MotorStatus
+
+
+@dataclass
+class StackStatus:
+    """Counts what passes on the bus over a sliding window of `window` seconds."""
+
+    window: float = 2.0
+    arrivals: dict[str, deque] = field(default_factory=dict)
+    latencies: deque = field(default_factory=lambda: deque(maxlen=2000))
+    touched: int = 0
+    motors: int = 0
+    boards_online: int | None = None
+    boards: int | None = None
+    bus_load: float | None = None
+
+    def on_message(self, topic: str, now: float) -> None:
+        times = self.arrivals.setdefault(topic, deque())
+        times.append(now)
+        while times and times[0] < now - self.window:
+            times.popleft()
+
+    def on_motors(self, msg: MotorCommand, now: float) -> None:
+        self.touched = int(np.count_nonzero(msg.intensity > 0))
+        self.motors = len(msg.intensity)
+        if msg.source_stamp > 0:
+            self.latencies.append((now, now - msg.source_stamp))
+
+    def on_motor_status(self, msg: MotorStatus) -> None:
+        self.boards = len(msg.boards)
+        self.boards_online = sum(1 for b in msg.boards if b["online"])
+        self.bus_load = msg.bus_load
+
+    def rate(self, topic: str, now: float) -> float:
+        times = self.arrivals.get(topic)
+        if not times:
+            return 0.0
+        recent = [t for t in times if t >= now - self.window]
+        return len(recent) / self.window
+
+    def latency_ms(self, now: float) -> tuple[float, float] | None:
+        """p50 and p99 of hand/pose -> tactile/motors latency over the window, milliseconds."""
+        recent = [lat for t, lat in self.latencies if t >= now - self.window]
+        if not recent:
+            return None
+        p50, p99 = np.percentile(recent, [50, 99])
+        return 1e3 * float(p50), 1e3 * float(p99)
+
+    def line(self, now: float, topics: tuple[str, ...] = ("hand/pose", "scene/state", "tactile/motors")) -> str:
+        parts = [f"{t} {self.rate(t, now):.0f} Hz" for t in topics]
+        parts.append(f"touched {self.touched}/{self.motors} motors" if self.motors else "no motor command yet")
+        lat = self.latency_ms(now)
+        parts.append(f"pose->motors p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else "pose->motors -")
+        if self.boards is not None:
+            parts.append(f"boards {self.boards_online}/{self.boards} online, CAN load {100 * self.bus_load:.0f}%")
+        return " | ".join(parts)
