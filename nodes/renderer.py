@@ -64,7 +64,7 @@ class RendererNode(Node):
         if self.save_every < 1 or self.max_frames < 0 or samples < 0:
             raise ConfigError(source, "save_every/max_frames/samples", "save_every >= 1, the others >= 0",
                               got=(self.save_every, self.max_frames, samples))
-        self.camera = parse_camera(camera, OrbitCamera())
+        self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
         self.view = SceneView(load_glove(glove_file or None), style, show)
         self.counts = {"frames": 0, "saved": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}

@@ -23,7 +23,7 @@ class SceneNode(Node):
         source = f"parameters of node '{self.name}'"
         scene_file = self.declare_parameter("scene", "config/scenes/hypercube.yaml")
         calibration = self.declare_parameter("calibration", "config/calibration.yaml")
-        rate = self.declare_parameter("rate", 2.0)
+        rate = _positive(self.declare_parameter("rate", 2.0), source, "rate")
         self.min_period = 1.0 / _positive(self.declare_parameter("max_rate", 120.0), source, "max_rate")
         spin_rate = _positive(self.declare_parameter("spin_rate", 30.0), source, "spin_rate")
         config = ControlConfig.from_params(
@@ -35,15 +35,15 @@ class SceneNode(Node):
             source=source,
         )
         self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(resolve(calibration)), config)
+        self.dirty = False
+        self.last_publish = 0.0
         self.pub = self.create_publisher("scene/state", SceneState)
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command)
-        self.create_timer(1.0 / _positive(rate, source, "rate"), self.publish)
+        self.create_timer(1.0 / rate, self.publish)
         self.create_timer(self.min_period, self.flush)
         if config.spin_plane is not None:
             self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
-        self.dirty = False
-        self.last_publish = 0.0
         self.publish()
         self.log.info("scene %s: %d object(s), rotating %s", scene_file, len(self.control.scene.objects),
                       "the whole scene" if self.control.scene.selected < 0 else "the selected object")

@@ -1,15 +1,12 @@
 """`touch4d topic list|echo|hz|pub` and `touch4d node list` against a live bus."""
 import io
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 import yaml
 
 from touch4d.bus import Node
 from touch4d.bus.introspect import build_message, node_list, topic_echo, topic_hz, topic_list, topic_pub
-from touch4d.bus.testing import REPO, bus_env, collect, node_process, running_broker, wait_until
+from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.errors import ConfigError
 from touch4d.messages import HandPose, Stop
 
@@ -81,17 +78,18 @@ def test_topic_pub_reports_bad_input(topic, text, type_name, match):
         build_message(topic, text, type_name)
 
 
-def test_the_cli_commands_reach_the_bus(live_bus):
-    env = bus_env(live_bus)
-    run = subprocess.run([sys.executable, "-m", "touch4d.cli", "node", "list", "--duration", "2.5"],
-                         capture_output=True, text=True, env=env, timeout=60, cwd=REPO)
-    assert run.returncode == 0 and "example_talker" in run.stdout
+def test_the_cli_commands_reach_the_bus(live_bus, monkeypatch, capsys):
+    from touch4d.cli import main
+
+    monkeypatch.setenv("TOUCH4D_BUS", live_bus.to_json())
+    assert main(["node", "list", "--duration", "2.5"]) == 0
+    assert "example_talker" in capsys.readouterr().out
     with Node("probe", bus=live_bus, heartbeat=False) as probe:
         stops = collect(probe, "safety/stop", Stop)
-        run = subprocess.run([sys.executable, "-m", "touch4d.cli", "topic", "pub", "safety/stop", "{reason: r, origin: o}"],
-                             capture_output=True, text=True, env=env, timeout=60, cwd=REPO)
-        assert run.returncode == 0, run.stderr
+        assert main(["topic", "pub", "safety/stop", "{reason: r, origin: o}"]) == 0
         wait_until(lambda: stops, timeout=10, spin=probe)
-    run = subprocess.run([sys.executable, "-m", "touch4d.cli", "topic", "pub", "safety/stop", "{reason: 3}"],
-                         capture_output=True, text=True, env=env, timeout=60, cwd=REPO)
-    assert run.returncode == 2 and "Stop.reason" in run.stderr and "Traceback" not in run.stderr
+    assert main(["topic", "echo", "example/pose", "-n", "1"]) == 0
+    assert "type: HandPose" in capsys.readouterr().out
+    assert main(["topic", "pub", "safety/stop", "{reason: 3}"]) == 2
+    err = capsys.readouterr().err
+    assert "Stop.reason" in err and "Traceback" not in err

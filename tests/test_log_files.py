@@ -5,7 +5,6 @@ import csv
 import io
 import json
 import math
-import os
 
 import numpy as np
 import pytest
@@ -18,7 +17,6 @@ from touch4d.cli import main as touch4d_main
 from touch4d.log.export import export_csv, export_foxglove, export_json, flatten
 from touch4d.log.gaps import SeqGaps
 from touch4d.log.reader import LogFileError, LogReader
-from touch4d.log.recover import recover_log
 from touch4d.log.summary import summarize
 from touch4d.log.writer import LogWriter
 from touch4d.messages import HandPose, MotorCommand, SceneState, TactileField, encode

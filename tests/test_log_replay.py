@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from touch4d.bus import Broker, BusConfig, Node
+from touch4d.cli import main as touch4d_main
 from touch4d.bus.testing import bus_env, collect, launch_process, node_process, running_broker, wait_until
 from touch4d.log.reader import LogReader
 from touch4d.log.realtime import bus_context, raise_thread_priority, reset_thread_priority
@@ -160,21 +161,18 @@ def test_topics_filter_reports_unknown_topics_and_remap_start_rate(procs, tmp_pa
     assert 0.2 < span < 0.4  # 0.48 s of log takes 0.24 s at rate 2 (0.48 s at rate 1)
 
 
-@pytest.mark.timeout(60)
-def test_replay_errors_name_the_file_and_topics(procs, tmp_path):
+def test_replay_errors_name_the_file_and_topics(tmp_path, capsys):
     path = tmp_path / "in.mcap"
     synthetic_log(path, n=5)
-    with running_broker() as bus:
-        replay = procs.start(bus, "replay", str(path), "--topics", "nope")
-        _, err = replay.communicate(timeout=60)
-        assert replay.returncode == 2
-        assert str(path) in err and "nope" in err and "hand/pose" in err and "Traceback" not in err
-        replay = procs.start(bus, "replay", str(tmp_path / "missing.mcap"))
-        _, err = replay.communicate(timeout=60)
-        assert replay.returncode == 2 and "missing.mcap: no such file" in err
-        replay = procs.start(bus, "replay", str(path), "--remap", "hand/pose=x")
-        _, err = replay.communicate(timeout=60)
-        assert replay.returncode == 2 and "FROM:=TO" in err
+    assert touch4d_main(["replay", str(path), "--topics", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "nope" in err and "hand/pose" in err and "Traceback" not in err
+    assert touch4d_main(["replay", str(tmp_path / "missing.mcap")]) == 2
+    assert "missing.mcap: no such file" in capsys.readouterr().err
+    assert touch4d_main(["replay", str(path), "--remap", "hand/pose=x"]) == 2
+    assert "FROM:=TO" in capsys.readouterr().err
+    assert touch4d_main(["replay", str(path), "--start", "5"]) == 2
+    assert "past the end" in capsys.readouterr().err
 
 
 @pytest.mark.timeout(60)

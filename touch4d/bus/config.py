@@ -16,10 +16,14 @@ import yaml
 import zmq
 import zmq.auth
 
-from touch4d.errors import ConfigError
+from touch4d.errors import ConfigError, Touch4dError
 
 ENV_VAR = "TOUCH4D_BUS"  # JSON of a BusConfig, set by the launcher for its node processes
 DEFAULT_PATH = Path(__file__).resolve().parents[2] / "config" / "bus.yaml"
+
+
+class BusUnreachable(Touch4dError):
+    """No broker answered at the configured endpoints."""
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,8 @@ def parse_bus_config(data, path) -> BusConfig:
         curve = _curve(data["curve"], Path(path).parent, path)
     elif not is_loopback(bind):
         raise ConfigError(path, "curve", f"CurveZMQ keys, because broker.bind {bind!r} is not loopback")
+    elif not is_loopback(connect):
+        raise ConfigError(path, "curve", f"CurveZMQ keys, because the broker at {connect!r} is on another machine")
     return BusConfig(bind, connect, pub_port, sub_port, hwm, curve, source=str(path))
 
 

@@ -12,7 +12,7 @@ from collections import defaultdict
 import numpy as np
 import yaml
 
-from touch4d.bus.config import BusConfig
+from touch4d.bus.config import BusConfig, BusUnreachable
 from touch4d.bus.node import HEARTBEAT_TOPIC, Node
 from touch4d.errors import ConfigError
 from touch4d.messages import TOPIC_TYPES, TYPES, Heartbeat, Message, MessageError, decode
@@ -21,7 +21,12 @@ _ARRAY_SHOWN = 24
 
 
 def _tool(bus: BusConfig | None, what: str) -> Node:
-    return Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect")
+    node = Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=3.0)
+    if not node.connected:
+        node.shutdown()
+        raise BusUnreachable(f"no broker at {node.bus.pub_endpoint} (bus config: {node.bus.source}); "
+                             "is `touch4d launch` running?")
+    return node
 
 
 def _spin(node: Node, duration: float | None, done=lambda: False) -> None:
@@ -56,8 +61,9 @@ def message_type(topic: str, type_name: str | None = None) -> type[Message] | No
     return TOPIC_TYPES.get(topic)
 
 
-def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=sys.stdout) -> dict[str, dict]:
+def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None) -> dict[str, dict]:
     """Listen to everything for `duration` s; print each topic with its type, rate and publishers."""
+    out = out or sys.stdout
     seen: dict[str, dict] = defaultdict(lambda: {"count": 0, "type": "?", "publishers": set()})
     node = _tool(bus, "topic_list")
 
@@ -93,8 +99,9 @@ def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=sys.stdo
 
 
 def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = None, duration: float | None = None,
-               type_name: str | None = None, full: bool = False, out=sys.stdout) -> int:
+               type_name: str | None = None, full: bool = False, out=None) -> int:
     """Print each message on `topic` as YAML; returns how many were printed."""
+    out = out or sys.stdout
     cls = message_type(topic, type_name)
     printed = 0
 
@@ -130,8 +137,9 @@ def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = Non
 
 
 def topic_hz(topic: str, bus: BusConfig | None = None, duration: float | None = None, window: float = 1.0,
-             out=sys.stdout) -> float | None:
+             out=None) -> float | None:
     """Print the rate of `topic` every `window` s; returns the overall mean rate (None if silent)."""
+    out = out or sys.stdout
     arrivals: list[float] = []
     node = _tool(bus, "topic_hz")
     node.create_raw_subscription(topic, lambda name, _: arrivals.append(time.monotonic()) if name == topic else None)
@@ -183,8 +191,9 @@ def build_message(topic: str, text: str, type_name: str | None = None) -> Messag
 
 
 def topic_pub(topic: str, text: str, bus: BusConfig | None = None, type_name: str | None = None,
-              rate: float | None = None, count: int | None = None, out=sys.stdout) -> int:
+              rate: float | None = None, count: int | None = None, out=None) -> int:
     """Publish a message built from YAML once, or at `rate` Hz (`count` times, or until Ctrl+C)."""
+    out = out or sys.stdout
     template = build_message(topic, text, type_name)
     node = _tool(bus, "topic_pub")
     pub = node.create_publisher(topic, type(template))
@@ -211,8 +220,9 @@ def topic_pub(topic: str, text: str, bus: BusConfig | None = None, type_name: st
     return sent
 
 
-def node_list(bus: BusConfig | None = None, duration: float = 2.5, out=sys.stdout) -> dict[str, Heartbeat]:
+def node_list(bus: BusConfig | None = None, duration: float = 2.5, out=None) -> dict[str, Heartbeat]:
     """Collect heartbeats for `duration` s; print each live node."""
+    out = out or sys.stdout
     beats: dict[str, Heartbeat] = {}
     node = _tool(bus, "node_list")
     node.create_subscription(HEARTBEAT_TOPIC, Heartbeat, lambda hb: beats.__setitem__(hb.node, hb))

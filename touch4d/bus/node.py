@@ -142,7 +142,14 @@ class Node:
             sock.sndhwm = self.bus.hwm
             sock.rcvhwm = self.bus.hwm
             sock.linger = 0
-            self.bus.client_socket_options(sock)
+            try:
+                self.bus.client_socket_options(sock)
+            except Exception:
+                self._pub.close()
+                self._sub.close()
+                if self._own_context:
+                    self._ctx.term()
+                raise
         self._pub.linger = 1000  # lets on_shutdown's last messages (e.g. a stop) reach the broker
         self._pub.connect(self.bus.pub_endpoint)
         self._sub.connect(self.bus.sub_endpoint)
@@ -150,7 +157,7 @@ class Node:
         self._poller.register(self._sub, zmq.POLLIN)
         self._poller.register(self._pub, zmq.POLLIN)
         self._poller.register(self._wake_r, zmq.POLLIN)
-        self._await_broker()
+        self.connected = self._await_broker()
         self._heartbeat_pub = None
         if heartbeat:
             self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
@@ -325,7 +332,7 @@ class Node:
         self._seq[topic] = seq + 1
         self._pub.send_multipart((topic, msg.encode()))
 
-    def _await_broker(self) -> None:
+    def _await_broker(self) -> bool:
         """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
         deadline = time.monotonic() + self.connect_timeout
         while True:
@@ -333,14 +340,17 @@ class Node:
             if left <= 0 or not self._pub.poll(int(left * 1000)):
                 self.log.warning("broker not reached at %s within %.1f s; messages published before it "
                                  "connects are lost", self.bus.pub_endpoint, self.connect_timeout)
-                return
+                return False
             if self._pub.recv() == b"\x01":
-                return
+                return True
 
     def _drain_subscriptions(self) -> None:
+        """Read the subscriptions the broker forwards; its subscribe-all means it (re)connected."""
         while True:
             try:
-                self._pub.recv(zmq.NOBLOCK)
+                if self._pub.recv(zmq.NOBLOCK) == b"\x01" and not self.connected:
+                    self.connected = True
+                    self.log.info("broker reached at %s", self.bus.pub_endpoint)
             except zmq.Again:
                 return
 
@@ -353,6 +363,8 @@ class Node:
 
     def _sync(self) -> None:
         """Block until the broker has applied this node's subscriptions (see the module doc)."""
+        if not self.connected:
+            return  # nothing to confirm with; ZeroMQ subscribes again once the broker is there
         self._sync_count += 1
         token = b"_bus/sync/%s/%d" % (self._uid.encode(), self._sync_count)
         self._sub.subscribe(token)

@@ -1,8 +1,8 @@
 """`touch4d record`, `touch4d replay` and `touch4d log info|export|recover`."""
 from __future__ import annotations
 
-import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -182,7 +182,12 @@ def cmd_export(args) -> int:
             with open(args.output, "w", newline="") as f:
                 result = fn(reader, args.topic[0], f)
         else:
-            result = fn(reader, args.topic[0], sys.stdout)
+            try:
+                result = fn(reader, args.topic[0], sys.stdout)
+                sys.stdout.flush()
+            except BrokenPipeError:  # e.g. piped into `head`: the reader has what it wanted
+                sys.stdout = open(os.devnull, "w")
+                return 0
         out = args.output or "standard output"
     _err(f"exported {result.written} messages to {out}")
     for topic, n in result.skipped.items():

@@ -100,8 +100,9 @@ class OrbitCamera:
 CAMERA_KEYS = ("yaw", "pitch", "distance", "fov", "target", "ortho")
 
 
-def parse_camera(text: str, base: OrbitCamera | None = None) -> OrbitCamera:
-    """Camera from 'yaw=30,pitch=20,distance=6,fov=40,target=-0.5:0:0,ortho' (any subset)."""
+def parse_camera(text: str, base: OrbitCamera | None = None, source: str = "--camera") -> OrbitCamera:
+    """Camera from 'yaw=30,pitch=20,distance=6,fov=40,target=-0.5:0:0,ortho' (any subset); errors
+    name `source` (the option or parameter the text came from)."""
     camera = replace(base) if base is not None else OrbitCamera()
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, _, value = item.partition("=")
@@ -119,10 +120,10 @@ def parse_camera(text: str, base: OrbitCamera | None = None) -> OrbitCamera:
             elif key in ("yaw", "pitch", "distance", "fov"):
                 setattr(camera, key, float(value))
             else:
-                raise ConfigError("--camera", key, f"one of {', '.join(CAMERA_KEYS)}", got=item)
+                raise ConfigError(source, key, f"one of {', '.join(CAMERA_KEYS)}", got=item)
         except ValueError:
-            raise ConfigError("--camera", key, "a number (target: x:y:z)", got=value) from None
+            raise ConfigError(source, key, "a number (target: x:y:z)", got=value) from None
     if camera.distance <= 0 or not 1 <= camera.fov <= 170:
-        raise ConfigError("--camera", "distance/fov", "distance > 0 and 1 <= fov <= 170",
+        raise ConfigError(source, "distance/fov", "distance > 0 and 1 <= fov <= 170",
                           got=(camera.distance, camera.fov))
     return camera

@@ -471,14 +471,20 @@ def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray):
 def _compact(pts: np.ndarray, emit: np.ndarray):
     """Keep the emitted points (emit (S, Q, L)) of each row of pts (Q, L, 4) in order, padded with
     the row's first kept point; returns (S, Q, width, 4) and counts (S, Q)."""
-    new_count = emit.sum(axis=2)
-    width = max(int(new_count.max()), 1)
-    dest = np.cumsum(emit, axis=2) - 1
-    side, r, c = np.nonzero(emit)
-    out = np.zeros((emit.shape[0], len(pts), width, 4))
-    out[side, r, dest[side, r, c]] = pts[r, c]
-    pad = np.arange(width) >= new_count[..., None]
-    return np.where(pad[..., None], out[:, :, :1], out), new_count
+    n_sides, q, length = emit.shape
+    counts = np.count_nonzero(emit, axis=2)
+    width = max(int(counts.max()), 1)
+    flat = np.flatnonzero(emit)                                  # sorted: row by row, in order
+    src = flat % (q * length)
+    per_row = counts.ravel()
+    starts = np.cumsum(per_row) - per_row
+    dest = np.arange(len(flat)) - np.repeat(starts, per_row)
+    pts_flat = pts.reshape(-1, 4)
+    out = np.zeros((n_sides * q, width, 4))
+    has = per_row > 0
+    out[has] = pts_flat[src[starts[has]]][:, None]
+    out.reshape(-1, 4)[(flat // length) * width + dest] = pts_flat[src]
+    return out.reshape(n_sides, q, width, 4), counts
 
 
 def _cut_segments(v: np.ndarray, body: np.ndarray, occ: _Occluders):
