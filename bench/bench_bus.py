@@ -1,7 +1,8 @@
 """Bus benchmark: HandPose one-way latency (p50, p99) and throughput through the touch4d broker,
 beside raw pyzmq + msgpack PUB/SUB through one zmq.proxy hop, measured in the same run.
 
-Each setup runs the publisher, the proxy/broker and the subscriber as three processes on loopback.
+A middle row runs the touch4d broker and Node runtime with the baseline's own payloads, to
+separate the runtime's cost from the message codec's. Each setup runs the publisher, the proxy/broker and the subscriber as three processes on loopback.
 Latency: 1 kHz for a few seconds, receive time minus the publisher's `time.time()` stamp.
 Throughput: the publisher sends as fast as it can; rate = messages handled by the subscriber per
 second of receiving. Targets: latency within 1.5x of raw, throughput >= 50k messages/s.
@@ -147,6 +148,52 @@ def bus_subscriber(ports, sub_ready, results, count):
     node.shutdown()
 
 
+# ---- touch4d runtime with the raw baseline's payloads: the bus without the message codec ---------
+
+def runtime_publisher(ports, sub_ready, count, rate):
+    import msgpack
+
+    from touch4d.bus import BusConfig, Node
+
+    node = Node("bench_pub", bus=BusConfig(pub_port=ports[0], sub_port=ports[1]), heartbeat=False)
+    pub, end = node.create_raw_publisher("hand/pose"), node.create_raw_publisher("end")
+    pos, quat = np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.0, 0.0, 1.0])
+    sub_ready.wait()
+    _paced(lambda i: pub.publish(raw_pack(msgpack, i, pos, quat)), count, rate)
+    end.publish(b"")
+    time.sleep(0.5)
+    node.shutdown()
+
+
+def runtime_subscriber(ports, sub_ready, results, count):
+    import msgpack
+
+    from touch4d.bus import BusConfig, Node
+
+    node = Node("bench_sub", bus=BusConfig(pub_port=ports[0], sub_port=ports[1]), heartbeat=False)
+    lat, times, done = [], [], []
+
+    def on_any(topic, payload):
+        if topic == "end":
+            done.append(1)
+            return
+        now = time.time()
+        d = msgpack.unpackb(payload)
+        np.frombuffer(d["position"], dtype=np.float64)
+        np.frombuffer(d["orientation"], dtype=np.float64)
+        lat.append(now - d["stamp"])
+        times.append(time.perf_counter())
+
+    node.create_raw_subscription("hand/pose", on_any)
+    node.create_raw_subscription("end", on_any)
+    sub_ready.set()
+    deadline = time.monotonic() + 120
+    while not done and time.monotonic() < deadline:
+        node.spin_once(0.1)
+    results.put((lat, times[0] if times else None, times[-1] if times else None))
+    node.shutdown()
+
+
 # ---- harness --------------------------------------------------------------------------------------
 
 def _paced(send, count, rate):
@@ -168,8 +215,11 @@ def run(kind, count, rate):
     ports = manager.list()
     ready, stop, sub_ready = ctx.Event(), ctx.Event(), ctx.Event()
     results = ctx.Queue()
-    proxy_fn, pub_fn, sub_fn = (raw_proxy, raw_publisher, raw_subscriber) if kind == "raw" else \
-        (bus_broker, bus_publisher, bus_subscriber)
+    proxy_fn, pub_fn, sub_fn = {
+        "raw": (raw_proxy, raw_publisher, raw_subscriber),
+        "runtime": (bus_broker, runtime_publisher, runtime_subscriber),
+        "touch4d": (bus_broker, bus_publisher, bus_subscriber),
+    }[kind]
     proxy = ctx.Process(target=proxy_fn, args=(ports, ready, stop))
     proxy.start()
     ready.wait(30)
@@ -203,12 +253,17 @@ def main():
 
     print(f"HandPose through one proxy hop, 3 processes on loopback; latency at {args.latency_rate:g} Hz x "
           f"{args.latency_count}, throughput {args.throughput_count} as fast as possible")
-    lat = {k: run(k, args.latency_count, args.latency_rate) for k in ("raw", "touch4d")}
-    thr = {k: run(k, args.throughput_count, None) for k in ("raw", "touch4d")}
-    for k in ("raw", "touch4d"):
+    kinds = ("raw", "runtime", "touch4d")
+    lat = {k: run(k, args.latency_count, args.latency_rate) for k in kinds}
+    thr = {k: run(k, args.throughput_count, None) for k in kinds}
+    print("raw: PUB/SUB + zmq.proxy + msgpack; runtime: touch4d broker and Node with the raw payloads "
+          "(no message codec); touch4d: HandPose published and decoded by the Node API")
+    for k in kinds:
         print(f"{k:>8}: latency p50 {lat[k]['p50']:7.1f} us  p99 {lat[k]['p99']:7.1f} us  "
               f"({lat[k]['received']}/{args.latency_count} received)   throughput {thr[k]['rate']:9.0f} msg/s "
               f"({thr[k]['received']}/{args.throughput_count} received)")
+    print(f"   ratio runtime/raw: latency p50 {lat['runtime']['p50'] / lat['raw']['p50']:.2f}x  "
+          f"p99 {lat['runtime']['p99'] / lat['raw']['p99']:.2f}x   throughput {thr['runtime']['rate'] / thr['raw']['rate']:.2f}x")
     print(f"   ratio touch4d/raw: latency p50 {lat['touch4d']['p50'] / lat['raw']['p50']:.2f}x  "
           f"p99 {lat['touch4d']['p99'] / lat['raw']['p99']:.2f}x (target <= 1.5x)   "
           f"throughput {thr['touch4d']['rate'] / thr['raw']['rate']:.2f}x "

@@ -132,10 +132,11 @@ class Map(Kind):
 class Array(Kind):
     """A numpy array of a dtype kind ('f' float, 'i' int, 'b' bool) and a shape; None is any length."""
 
-    def __init__(self, shape: tuple[int | None, ...], dtype: str = "f8", finite: bool = True):
+    def __init__(self, shape: tuple[int | None, ...], dtype: str = "f8", finite: bool = True, default=None):
         self.shape = shape
         self.dtype = np.dtype(dtype)
         self.finite = finite
+        self._default = default
 
     def coerce(self, value):
         arr = np.asarray(value)
@@ -159,6 +160,8 @@ class Array(Kind):
         return value
 
     def default(self):
+        if self._default is not None:
+            return np.array(self._default, dtype=self.dtype)
         return np.zeros([n or 0 for n in self.shape], dtype=self.dtype)
 
 

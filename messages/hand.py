@@ -8,6 +8,9 @@ import numpy as np
 from .base import Array, Bool, Float, Message, StrList, spec
 
 
+IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
+
+
 def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float = 1e-3) -> None:
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > tol:
@@ -20,14 +23,9 @@ class HandPose(Message):
 
     position: np.ndarray = spec(Array((3,)), "hand origin in screen units; the screen spans [-1, 1]^3")
     orientation: np.ndarray = spec(
-        Array((4,)), "unit quaternion (x, y, z, w) rotating the hand's frame into the screen's frame"
+        Array((4,), default=IDENTITY), "unit quaternion (x, y, z, w) rotating the hand's frame into the screen's frame"
     )
     valid: bool = spec(Bool(), "false while tracking is lost: consumers treat the hand as absent")
-
-    def __post_init__(self):
-        if self.orientation is None or np.size(self.orientation) == 0:
-            self.orientation = np.array([0.0, 0.0, 0.0, 1.0])
-        super().__post_init__()
 
     def check(self):
         if self.valid:
@@ -39,15 +37,10 @@ class ControllerState(Message):
     """The motion controller held in the glove hand, in room coordinates (topic controller/state)."""
 
     position: np.ndarray = spec(Array((3,)), "controller position in the room frame, metres")
-    orientation: np.ndarray = spec(Array((4,)), "unit quaternion (x, y, z, w), controller frame -> room frame")
+    orientation: np.ndarray = spec(Array((4,), default=IDENTITY), "unit quaternion (x, y, z, w), controller frame -> room frame")
     trigger: float = spec(Float(), "trigger travel, 0 (released) to 1 (fully pressed)")
     buttons: list = spec(StrList(), "names of the buttons held, e.g. 'menu', 'grip', 'trackpad'")
     valid: bool = spec(Bool(), "false while tracking is lost")
-
-    def __post_init__(self):
-        if self.orientation is None or np.size(self.orientation) == 0:
-            self.orientation = np.array([0.0, 0.0, 0.0, 1.0])
-        super().__post_init__()
 
     def check(self):
         if not 0.0 <= self.trigger <= 1.0:

@@ -77,3 +77,20 @@ def test_the_launchers_environment_wins_over_the_project_file(monkeypatch):
     monkeypatch.setenv("TOUCH4D_BUS", "{not json")
     with pytest.raises(ConfigError, match="TOUCH4D_BUS"):
         resolve_bus_config()
+
+
+def test_a_remote_broker_requires_curve(tmp_path):
+    path = tmp_path / "pi.yaml"
+    path.write_text("connect: 192.0.2.10\n")
+    with pytest.raises(ConfigError, match="another machine") as err:
+        load_bus_config(path)
+    assert err.value.key == "curve"
+
+
+def test_node_processes_get_no_broker_secrets():
+    from touch4d.bus.config import CurveKeys
+
+    cfg = BusConfig(curve=CurveKeys("S" * 40, "s" * 40, "C" * 40, "c" * 40, ("C" * 40,)))
+    client = cfg.for_clients()
+    assert client.curve.server_secret is None and client.curve.authorized == ()
+    assert (client.curve.server_public, client.curve.client_secret) == ("S" * 40, "c" * 40)

@@ -93,3 +93,12 @@ def test_the_cli_commands_reach_the_bus(live_bus, monkeypatch, capsys):
     assert main(["topic", "pub", "safety/stop", "{reason: 3}"]) == 2
     err = capsys.readouterr().err
     assert "Stop.reason" in err and "Traceback" not in err
+
+
+def test_tools_say_when_no_broker_answers():
+    from touch4d.bus.config import BusConfig, BusUnreachable
+    from touch4d.bus.testing import free_port
+
+    bus = BusConfig(pub_port=free_port(), sub_port=free_port(), source="test.yaml")
+    with pytest.raises(BusUnreachable, match="no broker at tcp://127.0.0.1"):
+        node_list(bus, duration=1.0, out=io.StringIO())

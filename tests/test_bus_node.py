@@ -213,3 +213,36 @@ def test_publish_rejects_wrong_type_and_invalid_messages_naming_the_topic():
         msg.position = np.array([np.inf, 0.0, 0.0])
         with pytest.raises(ValueError, match="h/pose.*position"):
             pub.publish(msg)
+
+
+def test_a_node_started_before_the_broker_joins_when_it_comes_up():
+    from touch4d.bus import Broker, BusConfig
+    from touch4d.bus.testing import free_port
+
+    bus = BusConfig(pub_port=free_port(), sub_port=free_port())
+    with Node("early", bus=bus, connect_timeout=0.2) as early:
+        assert not early.connected
+        got = collect(early, "e/pose", HandPose)
+        with Broker(bus) as endpoints, Node("late", bus=endpoints) as late:
+            wait_until(lambda: early.connected, timeout=15, spin=early)
+            pub = late.create_publisher("e/pose", HandPose)
+
+            def heard():
+                pub.publish(pose())
+                return got
+
+            wait_until(heard, timeout=15, interval=0.05, spin=early)
+
+
+def test_raw_publisher_and_raw_subscription_pass_payloads_unchanged():
+    with running_broker() as bus, Node("n", bus=bus, heartbeat=False) as node:
+        seen = []
+        node.create_raw_subscription("log/", lambda topic, payload: seen.append((topic, payload)))
+        typed = collect(node, "log/pose", HandPose)
+        original = pose(2.0, seq=41)
+        original.stamp = original.source_stamp = 123.5
+        payload = encode(original)
+        node.create_raw_publisher("log/pose").publish(payload)
+        wait_until(lambda: seen and typed, timeout=10, spin=node)
+    assert seen == [("log/pose", payload)]
+    assert (typed[0].seq, typed[0].stamp, typed[0].position[0]) == (41, 123.5, 2.0)

@@ -82,3 +82,22 @@ def test_nodes_die_with_a_killed_launcher():
         os.kill(run.proc.pid, signal.SIGKILL)
         run.proc.wait(10)
         wait_until(lambda: not pids_alive(pids.values()), timeout=15)
+
+
+def test_nodes_of_a_launch_with_curve_keys_talk(tmp_path):
+    from touch4d.bus.keys import keygen
+
+    keygen(tmp_path / "keys", "broker")
+    keygen(tmp_path / "keys" / "clients", "pc")
+    config = tmp_path / "bus.yaml"
+    config.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\n"
+                      "curve: {server_public: keys/broker.key, server_secret: keys/broker.key_secret,\n"
+                      "        client_secret: keys/clients/pc.key_secret, authorized: [keys/clients]}\n")
+    with launch_process(["launch/example.yaml"], bus_config=str(config)) as run:
+        bus = run.bus
+        assert bus.curve is not None and bus.curve.server_secret is None
+        with Node("probe", bus=bus, heartbeat=False) as probe:
+            relayed = collect(probe, "example/relay", HandPose)
+            wait_until(lambda: len(relayed) >= 3, timeout=30, spin=probe)
+        assert run.stop(timeout=30) == 0
+    assert "(CURVE)" in run.text

@@ -172,3 +172,9 @@ def test_no_broker_is_a_clear_error(tmp_path):
     dead = BusConfig(pub_port=1, sub_port=1)
     with pytest.raises(Touch4dError, match="no bus broker forwarded messages at tcp://127.0.0.1:1"):
         Recorder(dead, tmp_path / "none.mcap").start(timeout=0.3)
+
+
+def test_unwritable_output_is_a_clear_error(tmp_path):
+    for path in ("/dev/full", str(tmp_path / "no" / "such" / "dir.mcap")):
+        with pytest.raises(Touch4dError, match=f"{path}: cannot write a log here"):
+            Recorder(BusConfig(pub_port=1, sub_port=1), path).start(timeout=0.3)

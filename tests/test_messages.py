@@ -106,3 +106,9 @@ def test_cross_field_rules():
         decode(encode(SceneState(objects=[bad], projection="orthographic", eye_distance=0.0)))
     with pytest.raises(MessageError, match=r"objects\[0\].position: expected shape 4"):
         decode(encode(SceneState(objects=[scene_object(position=np.zeros(3))])))
+
+
+def test_orientations_default_to_the_identity_quaternion():
+    for cls in (HandPose, ControllerState):
+        back = decode(encode(cls(position=[0, 0, 0], valid=True)))
+        np.testing.assert_array_equal(back.orientation, [0, 0, 0, 1])

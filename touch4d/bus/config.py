@@ -66,6 +66,12 @@ class BusConfig:
     def with_ports(self, pub_port: int, sub_port: int) -> "BusConfig":
         return replace(self, pub_port=pub_port, sub_port=sub_port)
 
+    def for_clients(self) -> "BusConfig":
+        """This config without the broker's secrets, to hand to node processes."""
+        if self.curve is None:
+            return self
+        return replace(self, curve=replace(self.curve, server_secret=None, authorized=()))
+
     def to_json(self) -> str:
         data = asdict(self)
         return json.dumps(data)

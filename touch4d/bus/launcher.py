@@ -144,7 +144,7 @@ class Launcher:
     def run(self) -> int:
         broker = Broker(self.bus) if self.start_broker else None
         endpoints = broker.start() if broker else self.bus
-        self._env = {**os.environ, ENV_VAR: endpoints.to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
+        self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
                      "PYTHONUNBUFFERED": "1"}
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_r, False)
@@ -162,7 +162,7 @@ class Launcher:
             self.say(f"started {len(self.children)} node(s): "
                      + ", ".join(f"{c.spec.role} ({c.spec.module})" for c in self.children.values()))
             if self.ready_file:
-                Path(self.ready_file).write_text(endpoints.to_json())
+                Path(self.ready_file).write_text(endpoints.for_clients().to_json())
             self._loop()
             self._stop_all()
         finally:

@@ -57,6 +57,18 @@ class Publisher:
         self.node._send(self._topic, msg)
 
 
+class RawPublisher:
+    """Publishes already-encoded payloads on one topic, as they are (e.g. a log being replayed)."""
+
+    def __init__(self, node: "Node", topic: str):
+        self.node = node
+        self.topic = topic
+        self._topic = topic.encode()
+
+    def publish(self, payload: bytes) -> None:
+        self.node._send_raw(self._topic, payload)
+
+
 @dataclass
 class Subscription:
     """A callback on one topic (typed) or on every topic under a prefix (raw)."""
@@ -195,6 +207,12 @@ class Node:
         self._publishes.add(topic)
         return Publisher(self, topic, msg_type)
 
+    def create_raw_publisher(self, topic: str) -> RawPublisher:
+        """A publisher of encoded payloads, sent unchanged (no header filled, no check)."""
+        _check_topic(topic)
+        self._publishes.add(topic)
+        return RawPublisher(self, topic)
+
     def create_subscription(
         self, topic: str, msg_type: type[Message], callback: Callable[[Message], Any], latest_only: bool = False
     ) -> Subscription:
@@ -248,8 +266,8 @@ class Node:
         """Wait up to `timeout` s for messages or a due timer and handle them; returns how many."""
         handled = self._run_timers()
         if self._pending:
-            handled += self._dispatch(self._pending)
-            self._pending = []
+            pending, self._pending = self._pending, []
+            handled += self._dispatch(pending)
         if handled or self._stopping:
             timeout = 0.0
         due = min((t.next_due for t in self._timers if not t.cancelled), default=None)
@@ -331,6 +349,10 @@ class Node:
         msg.seq = seq
         self._seq[topic] = seq + 1
         self._pub.send_multipart((topic, msg.encode()))
+
+    def _send_raw(self, topic: bytes, payload: bytes) -> None:
+        self._seq[topic] = self._seq.get(topic, 0) + 1
+        self._pub.send_multipart((topic, payload))
 
     def _await_broker(self) -> bool:
         """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""

@@ -76,6 +76,7 @@ class Recorder:
         self.bus = bus
         self.path = os.fspath(path)
         self.topics = list(dict.fromkeys(topics or []))
+        self._wanted = {t.encode() for t in self.topics}
         self.flush_interval = flush_interval
         self.chunk_size = chunk_size
         self.realtime = realtime
@@ -121,7 +122,6 @@ class Recorder:
         self.bus.client_socket_options(pub)
         pub.connect(self.bus.pub_endpoint)
         early: list[tuple[bytes, bytes, int]] = []
-        wanted = {t.encode() for t in self.topics}
         deadline = time.monotonic() + timeout
         interval = 0.002
         try:
@@ -132,7 +132,7 @@ class Recorder:
                     frames = sock.recv_multipart()
                     if frames[0] == token:
                         return early
-                    if _wanted(frames[0], wanted):
+                    if _wanted(frames[0], self._wanted):
                         early.append((frames[0], frames[-1] if len(frames) > 1 else b"", self._clock()))
                 interval = min(interval * 2, 0.1)
         finally:
@@ -148,23 +148,25 @@ class Recorder:
     def _receive(self, sock: zmq.Socket) -> None:
         if self.realtime:
             self.realtime = raise_thread_priority()  # receive stamps stay accurate on a busy machine
-        wanted = {t.encode() for t in self.topics}
-        append, clock = self._queue.append, self._clock
         try:
             while not self._stopping.is_set():
-                if not sock.poll(50):
-                    continue
-                while True:
-                    try:
-                        frames = sock.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    if _wanted(frames[0], wanted):
-                        append((frames[0], frames[-1] if len(frames) > 1 else b"", clock()))
-                        self.received += 1
+                if sock.poll(50):
+                    self._drain(sock)
+            self._drain(sock)  # what had arrived when the stop came
         finally:
             sock.close(linger=0)
             self._received.set()
+
+    def _drain(self, sock: zmq.Socket) -> None:
+        wanted, append, clock = self._wanted, self._queue.append, self._clock
+        while True:
+            try:
+                frames = sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if _wanted(frames[0], wanted):
+                append((frames[0], frames[-1] if len(frames) > 1 else b"", clock()))
+                self.received += 1
 
     def _write(self) -> None:
         writer, queue = self._writer, self._queue
@@ -189,8 +191,8 @@ class Recorder:
                     if done:
                         break
                     time.sleep(0.01)
-        except OSError as exc:
-            self.error = f"writing {self.path}: {exc}"
+        except Exception as exc:  # noqa: BLE001 - disk full, I/O error: stop and say so, never hang
+            self.error = f"writing {self.path}: {type(exc).__name__}: {exc}"
             self._stopping.set()
 
     def report(self) -> RecordingReport:

@@ -20,6 +20,7 @@ from mcap.writer import CompressionType, Writer
 from touch4d.messages.codec import CodecError, unpack
 
 from .gaps import SeqGaps
+from .reader import LogFileError
 from .schema import MSGPACK_NOTE, message_schema
 
 PROFILE = "touch4d"
@@ -87,10 +88,13 @@ class LogWriter:
     def __init__(self, path: str | os.PathLike, *, chunk_size: int = 1 << 20,
                  compression: str = "zstd", output: IO[bytes] | None = None) -> None:
         self.path = os.fspath(path)
-        self._file = output if output is not None else open(self.path, "wb")
-        self._mcap = Writer(self._file, chunk_size=chunk_size, compression=CompressionType[compression.upper()])
-        self._mcap.start(profile=PROFILE, library="touch4d")
-        self._file.flush()
+        try:
+            self._file = output if output is not None else open(self.path, "wb")
+            self._mcap = Writer(self._file, chunk_size=chunk_size, compression=CompressionType[compression.upper()])
+            self._mcap.start(profile=PROFILE, library="touch4d")
+            self._file.flush()
+        except OSError as exc:
+            raise LogFileError(f"{self.path}: cannot write a log here ({exc.strerror or exc})") from None
         self._channels: dict[tuple[str, str], int] = {}
         self._schemas: dict[str, int] = {}
         self.counts: Counter[str] = Counter()
