@@ -28,6 +28,15 @@ class MotorsNode(Node):
 
     def __init__(self, bus_factory=None, **kwargs):
         super().__init__("motors", **kwargs)
+        self.emulator = None
+        self.link = None
+        try:
+            self._setup(bus_factory)
+        except BaseException:
+            self.shutdown()  # a bad config must not leave sockets, threads or a CAN bus open
+            raise
+
+    def _setup(self, bus_factory) -> None:
         glove = self.declare_parameter("glove", "")
         interface = self.declare_parameter("interface", "")
         channel = self.declare_parameter("channel", "")
@@ -131,12 +140,14 @@ class MotorsNode(Node):
 
     def on_shutdown(self) -> None:
         try:
-            self._stop_all(time.monotonic())
-            self.publish_status()
+            if self.link is not None:  # None: setup failed before the CAN side existed
+                self._stop_all(time.monotonic())
+                self.publish_status()
         finally:
             if self.emulator is not None:
                 self.emulator.stop()
-            self.link.close()
+            if self.link is not None:
+                self.link.close()
 
 
 def main(argv=None):

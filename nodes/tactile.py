@@ -22,6 +22,15 @@ class TactileNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("tactile", **kwargs)
+        self.counts = {"poses": 0, "bad_poses": 0, "scenes_built": 0, "bad_scenes": 0}
+        self._logged: set[str] = set()
+        try:
+            self._setup()
+        except BaseException:
+            self.shutdown()    # close the sockets opened by Node before reporting the bad parameter
+            raise
+
+    def _setup(self) -> None:
         glove_file = self.declare_parameter("glove", "")
         alpha = self.declare_parameter("alpha", None)
         beta = self.declare_parameter("beta", None)
@@ -33,8 +42,6 @@ class TactileNode(Node):
         beta = None if beta is None else check_beta(beta, source, "beta")
         glove = load_glove(glove_file or None)
         self.engine = TactileEngine(glove, alpha=alpha, beta=beta, projection=projection)
-        self.counts = {"poses": 0, "bad_poses": 0, "scenes_built": 0, "bad_scenes": 0}
-        self._logged: set[str] = set()
         self.field_pub = self.create_publisher("tactile/field", TactileField)
         self.motor_pub = self.create_publisher("tactile/motors", MotorCommand)
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)

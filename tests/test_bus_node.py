@@ -246,3 +246,34 @@ def test_raw_publisher_and_raw_subscription_pass_payloads_unchanged():
         wait_until(lambda: seen and typed, timeout=10, spin=node)
     assert seen == [("log/pose", payload)]
     assert (typed[0].seq, typed[0].stamp, typed[0].position[0]) == (41, 123.5, 2.0)
+
+
+def test_a_node_whose_init_fails_leaves_nothing_that_blocks_garbage_collection(tmp_path):
+    import subprocess
+    import sys
+
+    script = tmp_path / "gc_node.py"
+    script.write_text(
+        "import gc\n"
+        "from touch4d.bus import Node\n"
+        "from touch4d.bus.testing import running_broker\n"
+        "from touch4d.errors import ConfigError\n"
+        "from touch4d.messages import HandPose\n"
+        "class Bad(Node):\n"
+        "    def __init__(self, **kw):\n"
+        "        super().__init__('bad', **kw)\n"
+        "        self.create_subscription('x', HandPose, self.on)\n"
+        "        self.declare_parameter('rate', 1.0)\n"
+        "    def on(self, msg):\n"
+        "        pass\n"
+        "with running_broker() as bus:\n"
+        "    for _ in range(3):\n"
+        "        try:\n"
+        "            Bad(params={'rate': 'x'}, bus=bus)\n"
+        "        except ConfigError:\n"
+        "            pass\n"
+        "    gc.collect()\n"
+        "print('collected')\n"
+    )
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "collected" in run.stdout, run.stderr

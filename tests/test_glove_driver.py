@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from touch4d.glove.config import load_glove_can
-from touch4d.glove.driver import MotorDriver
+from touch4d.glove.driver import FRAMES_PER_PERIOD, MotorDriver
 from touch4d.glove.duty import duty_to_levels, intensity_to_duty
 from touch4d.glove.protocol import GloveProtocol
 
@@ -67,14 +67,48 @@ def test_only_changed_boards_are_sent_then_refresh_sends_all(driver):
     assert sorted(o.board for o in out) == [1, 2, 3, 4]
 
 
-def test_a_change_within_half_a_period_waits_for_the_tick(driver):
+def test_a_second_change_within_half_a_period_waits_for_the_tick(driver):
     v = np.zeros(30)
     v[0] = 1.0
-    now = T0 + 0.001  # the fixture sent every board at T0; half a period is 2.5 ms
-    driver.command(NAMES, v, now)
-    assert driver.outgoing(now) == []
-    out = driver.outgoing(T0 + 0.003, refresh=True)
-    assert [o.board for o in out] == [1, 2, 3, 4] and out[0].levels[0] > 0
+    t = T0 + 0.005
+    ticked = send_all(driver, driver.outgoing(t, refresh=True), t)
+    assert len(ticked) == 4 and not any(o.change for o in ticked)
+    driver.command(NAMES, v, t + 0.0005)  # a refresh frame 0.5 ms ago does not hold a change back
+    first = send_all(driver, driver.outgoing(t + 0.0005), t + 0.0005)
+    assert [o.board for o in first] == [1] and first[0].change
+    v[1] = 1.0
+    driver.command(NAMES, v, t + 0.0015)
+    assert driver.outgoing(t + 0.0015) == []  # 1 ms after board 1's change frame: wait
+    out = driver.outgoing(t + 0.003, refresh=True)  # the tick, 2.5 ms after the change
+    assert [o.board for o in out if o.change] == [1] and out[0].levels[1] > 0
+
+
+def test_duty_frames_per_board_stay_within_the_counted_worst_case(driver):
+    """Commands far faster than the refresh, ticks every period: frames never exceed busload's count."""
+    rng = np.random.default_rng(3)
+    period = 1 / CFG.refresh_hz
+    now, next_tick, sent = T0, T0 + period, {b: 0 for b in (1, 2, 3, 4)}
+    while now < T0 + 2.0:
+        now += rng.uniform(0.0001, 0.004)
+        refresh = now >= next_tick
+        if refresh:
+            next_tick += period
+        else:
+            driver.command(NAMES, rng.uniform(0.1, 1, 30), now)
+        for o in send_all(driver, driver.outgoing(now, refresh=refresh), now):
+            sent[o.board] += 1
+    for count in sent.values():
+        assert CFG.refresh_hz * 2.0 <= count <= FRAMES_PER_PERIOD * CFG.refresh_hz * 2.0 + 2
+
+
+def test_refresh_without_commands_sends_every_board_every_tick(driver):
+    period = 1 / CFG.refresh_hz
+    counts = {b: 0 for b in (1, 2, 3, 4)}
+    for i in range(1, 201):
+        now = T0 + i * period
+        for o in send_all(driver, driver.outgoing(now, refresh=True), now):
+            counts[o.board] += 1
+    assert counts == {1: 200, 2: 200, 3: 200, 4: 200}
 
 
 def test_counter_rolls_per_frame(driver):
@@ -161,3 +195,24 @@ def test_a_failed_frame_is_retried_on_the_next_tick(driver):
     assert [o.levels for o in retry] == [o.levels for o in out]
     send_all(driver, retry, T0 + 0.011)
     assert "send_failing" not in driver.board_report()[0]["faults"]
+
+
+def test_a_board_that_applies_none_of_the_frames_sent_is_reported(driver):
+    def status(counter, now):
+        msg = PROTO.status(3, "ACTIVE", (), counter, 0, 0)
+        driver.receive(msg, PROTO.decode(msg), now)
+
+    period = 1 / CFG.refresh_hz
+    status(1, T0)
+    for i in range(1, 11):
+        now = T0 + i * period
+        send_all(driver, driver.outgoing(now, refresh=True), now)
+    status(11, T0 + 0.05)  # acknowledged the frames: fine
+    driver.check_boards(T0 + 0.05)
+    assert "commands_not_acked" not in {r["id"]: r for r in driver.board_report()}[3]["faults"]
+    for i in range(11, 21):
+        now = T0 + i * period
+        send_all(driver, driver.outgoing(now, refresh=True), now)
+    status(11, T0 + 0.1)  # ten more frames, the same counter
+    report = {r["id"]: r for r in driver.board_report()}
+    assert "commands_not_acked" in report[3]["faults"] and report[3]["online"]

@@ -95,6 +95,7 @@ def test_frame_bits_with_worst_case_stuffing():
 def test_default_glove_bus_load_is_under_the_limit():
     cfg = load_glove_can()
     load = check_bus_load(cfg)
+    # worst case 2 duty frames per refresh period (changes every half period)
     per_board = 2 * cfg.refresh_hz * 135 + cfg.status_hz * 115 + cfg.heartbeat_hz * 65
     assert load.bits_per_s == pytest.approx(len(cfg.boards) * per_board)
     assert load.fraction == pytest.approx(len(cfg.boards) * per_board / 500_000)

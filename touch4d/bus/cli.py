@@ -22,7 +22,7 @@ def register(subparsers) -> None:
     p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
     p.set_defaults(func=_launch)
 
-    topic = subparsers.add_parser("topic", help="inspect topics").add_subparsers(dest="topic_command", metavar="ACTION")
+    topic = _group(subparsers, "topic", "inspect topics")
     p = topic.add_parser("list", help="topics with their type, rate and publishers")
     p.add_argument("--duration", type=float, default=2.0, help="listen for S seconds (default 2)")
     p.set_defaults(func=_topic_list)
@@ -48,7 +48,7 @@ def register(subparsers) -> None:
     for parser in topic.choices.values():
         parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
 
-    node = subparsers.add_parser("node", help="inspect or run nodes").add_subparsers(dest="node_command", metavar="ACTION")
+    node = _group(subparsers, "node", "inspect or run nodes")
     p = node.add_parser("list", help="live nodes, from their heartbeats")
     p.add_argument("--duration", type=float, default=2.5, help="listen for S seconds (default 2.5)")
     p.add_argument("--bus", help="bus config file")
@@ -58,7 +58,7 @@ def register(subparsers) -> None:
     p.add_argument("args", nargs=argparse.REMAINDER, help="--name N --params JSON --bus FILE --log-level L")
     p.set_defaults(func=_node_run)
 
-    bus = subparsers.add_parser("bus", help="the broker and its keys").add_subparsers(dest="bus_command", metavar="ACTION")
+    bus = _group(subparsers, "bus", "the broker and its keys")
     p = bus.add_parser("broker", help="run the broker alone (the launcher normally runs it)")
     p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
     p.set_defaults(func=_broker)
@@ -66,6 +66,13 @@ def register(subparsers) -> None:
     p.add_argument("name", help="key name, e.g. broker, pc, pi")
     p.add_argument("--dir", default="config/keys", help="folder for the key files (default config/keys)")
     p.set_defaults(func=_keygen)
+
+
+def _group(subparsers, name: str, help: str):
+    """A command with actions; without one it prints its own help."""
+    parser = subparsers.add_parser(name, help=help, description=help)
+    parser.set_defaults(func=lambda args: parser.print_help() or 2)
+    return parser.add_subparsers(dest=f"{name}_command", metavar="ACTION")
 
 
 def _launch(args) -> int:

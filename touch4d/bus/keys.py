@@ -19,9 +19,11 @@ def keygen(folder: str | Path, name: str) -> tuple[Path, Path]:
 
 
 HOWTO = """\
-Wrote {public} (public: copy it where peers need it) and {secret} (secret: keep it on this machine).
-In config/bus.yaml:
-  broker machine:  curve: {{server_public: broker.key, server_secret: broker.key_secret,
-                           client_secret: <this machine>.key_secret, authorized: [<folder of client .key files>]}}
-  other machines:  curve: {{server_public: broker.key, client_secret: <this machine>.key_secret}}
+Wrote {public} (public: copy it where peers need it) and {secret} (secret: keep it on this machine,
+never commit it). Key paths in config/bus.yaml are relative to that file, e.g. on the broker machine:
+  curve: {{server_public: keys/broker.key, server_secret: keys/broker.key_secret,
+          client_secret: keys/pc.key_secret, authorized: [keys/clients]}}
+and on another machine:
+  curve: {{server_public: keys/broker.key, client_secret: keys/pi.key_secret}}
+See docs/bus.md, "Two machines".
 """

@@ -126,8 +126,9 @@ class Node:
         self.connect_timeout = connect_timeout
         self._params_source = params_source
         self._declared: set[str] = set()
-        self._own_context = context is None
-        self._ctx = context or zmq.Context()
+        # One shared context per process: a node left to the garbage collector then only has its
+        # sockets closed, never a context terminated from a finalizer (which can block forever).
+        self._ctx = context or zmq.Context.instance()
         self._seq: dict[bytes, int] = {}  # next seq per published topic = messages published on it
         self._publishes: set[str] = set()
         self._subs: dict[bytes, list[Subscription]] = {}
@@ -159,8 +160,6 @@ class Node:
             except Exception:
                 self._pub.close()
                 self._sub.close()
-                if self._own_context:
-                    self._ctx.term()
                 raise
         self._pub.linger = 1000  # lets on_shutdown's last messages (e.g. a stop) reach the broker
         self._pub.connect(self.bus.pub_endpoint)
@@ -325,8 +324,6 @@ class Node:
         self._pub.close()
         self._wake_r.close()
         self._wake_w.close()
-        if self._own_context:
-            self._ctx.term()
 
     close = shutdown
 

@@ -16,6 +16,8 @@ import os
 import signal
 import sys
 
+import zmq
+
 from touch4d.bus.config import resolve_bus_config
 from touch4d.errors import Touch4dError
 
@@ -89,6 +91,8 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
         node.spin()
     finally:
         node.shutdown()
+        # Wait (up to the publisher's 1 s linger) until what on_shutdown published has left.
+        zmq.Context.instance().destroy(linger=1000)
     return 0
 
 

@@ -6,10 +6,10 @@ Bit stuffing (a complement bit after 5 equal bits) covers SOF..CRC, 34 + 8n bits
 worst floor((34 + 8n - 1) / 4) bits (Davis et al., "CAN schedulability analysis", 2007): an
 8-byte frame is 111 bits nominal, 135 worst case.
 
-Frame rates per board (see driver.py): duty frames at most 2 x refresh_hz (a changed duty is sent
-at once, but never sooner than half a refresh period after the board's previous frame; otherwise
-the refresh at refresh_hz), status at status_hz, heartbeat at heartbeat_hz. NMT frames are sent
-only at start, on stop and to restart a board, and are left out.
+Frame rates per board: duty frames at most `driver.FRAMES_PER_PERIOD` (2) x refresh_hz, the
+long-run worst case of changes sent at once plus the periodic refresh (see driver.py); status at
+status_hz, heartbeat at heartbeat_hz. NMT frames are sent only at start, on a stop and to restart
+a board, and are left out.
 """
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ from dataclasses import dataclass
 from touch4d.errors import ConfigError
 from touch4d.glove.config import GloveCan
 from touch4d.glove.dbc import build_database
+from touch4d.glove.driver import FRAMES_PER_PERIOD
 
 MAX_LOAD = 0.70
-DUTY_RATE_FACTOR = 2.0  # worst-case duty frames per refresh period (changes + refresh)
 
 
 def frame_bits(dlc: int, stuffing: bool = True) -> int:
@@ -50,7 +50,7 @@ def bus_load(cfg: GloveCan) -> BusLoad:
     db = build_database(cfg)
     rows = []
     for b in cfg.boards:
-        for name, rate in ((f"Duty_B{b.id}", DUTY_RATE_FACTOR * cfg.refresh_hz), (f"Status_B{b.id}", cfg.status_hz),
+        for name, rate in ((f"Duty_B{b.id}", FRAMES_PER_PERIOD * cfg.refresh_hz), (f"Status_B{b.id}", cfg.status_hz),
                            (f"Heartbeat_B{b.id}", cfg.heartbeat_hz)):
             rows.append((name, rate, frame_bits(db.get_message_by_name(name).length)))
     bits = sum(rate * n for _, rate, n in rows)

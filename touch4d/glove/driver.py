@@ -2,10 +2,13 @@
 
 No I/O here: the motor node feeds commands, stops, received frames and the time in, and sends
 the frames `outgoing` returns. Rules:
-- a board's duty frame goes out at once when its duties changed, but never sooner than half a
-  refresh period after its previous frame (busload.py counts 2 x refresh_hz per board);
-- every refresh tick, each board whose last frame is half a period old or more is sent again, so
-  the boards' watchdogs stay fed and a lost or failed frame is retried;
+- a board's duty frame goes out at once when its duties changed, but never sooner than
+  `CHANGE_GAP` refresh periods after its previous change frame (later ones wait for the tick);
+- every refresh tick (refresh_hz), each board is sent again unless it got a change frame within
+  the last `REFRESH_AGE` periods, so the boards' watchdogs stay fed and a lost or failed frame is
+  retried. A refresh needs REFRESH_AGE periods without a change, in which 2 x REFRESH_AGE change
+  frames could have gone, so in the long run a board gets at most 1 / CHANGE_GAP frames per
+  period (`FRAMES_PER_PERIOD`, counted by busload.py); a single period can hold 3;
 - no `tactile/motors` within `watchdog_s` -> every duty 0; a stop -> NMT STOP at once, every duty
   0, commands ignored for `stop_hold_s`, then NMT START;
 - a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
@@ -25,14 +28,18 @@ from touch4d.glove.duty import ThermalState, duty_to_levels, intensity_to_duty, 
 from touch4d.glove.protocol import Frame, GloveProtocol
 
 RESTART_PERIOD_S = 0.1
+CHANGE_GAP = 0.5     # periods between two change frames of one board
+REFRESH_AGE = 0.8    # periods since a board's last change frame before a tick refreshes it
+FRAMES_PER_PERIOD = 1 / CHANGE_GAP
 
 
 class Outgoing(NamedTuple):
-    """A frame to send: board id (0 for a broadcast NMT), the message, the duty levels it carries."""
+    """A frame to send: board id (0 for NMT), the message, the duty levels it carries, sent for a change."""
 
     board: int
     msg: can.Message
     levels: tuple = ()
+    change: bool = False
 
 
 @dataclass
@@ -43,8 +50,9 @@ class BoardView:
     channels: int
     motors: np.ndarray          # motor index per used channel
     motor_channels: np.ndarray  # channel of each of those motors
+    slots: tuple = ()           # (motor index, channel) pairs, the same as plain ints
     sent_levels: tuple | None = None
-    last_sent: float = -np.inf
+    last_change_sent: float = -np.inf
     counter: int = 0
     last_heard: float | None = None
     last_frame_stamp: float = 0.0
@@ -52,6 +60,8 @@ class BoardView:
     output_state: str = "UNKNOWN"
     board_faults: list = field(default_factory=list)
     acked_counter: int | None = None
+    frames_since_status: int = 0  # duty frames sent since the board's last status
+    ack_stale: bool = False       # the board's LastCounter did not move although frames went out
     online: bool | None = None  # None until heard or the start grace (board_timeout_s) ends
     last_nmt_at: float = -np.inf
     send_failures: int = 0
@@ -81,7 +91,8 @@ class MotorDriver:
         self.boards = {}
         for b in cfg.boards:
             idx = np.flatnonzero(board_of == b.id)
-            self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx])
+            self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx],
+                                          tuple(zip(idx.tolist(), channel_of[idx].tolist())))
         self._started = now
 
     # -- inputs -------------------------------------------------------------------------------
@@ -132,7 +143,12 @@ class MotorDriver:
         else:
             b.output_state = GloveProtocol.state_name(frame)
             b.board_faults = GloveProtocol.faults(frame)
-            b.acked_counter = frame.signals["LastCounter"]
+            acked = frame.signals["LastCounter"]
+            # Frames went out but the board applied none: it does not receive us (or ignores us).
+            b.ack_stale = (b.frames_since_status >= 3 and acked == b.acked_counter
+                           and b.output_state not in ("STOPPED", "PRE_OPERATIONAL"))
+            b.acked_counter = acked
+            b.frames_since_status = 0
             if b.output_state in ("STOPPED", "PRE_OPERATIONAL"):
                 b.nmt_state = b.output_state
             elif b.nmt_state in ("UNKNOWN", "STOPPED", "PRE_OPERATIONAL", "BOOTUP"):
@@ -151,17 +167,21 @@ class MotorDriver:
         self.duty, self.thermal = thermal_limit(wanted, self.thermal, now, self.cfg.thermal)
         return self.duty
 
-    def board_levels(self, board_id: int) -> tuple:
+    def board_levels(self, board_id: int, motor_levels: np.ndarray | None = None) -> tuple:
+        """The duty levels of one board's channels (from every motor's levels, if already computed)."""
         b = self.boards[board_id]
-        levels = np.zeros(b.channels, dtype=np.int64)
-        levels[b.motor_channels] = duty_to_levels(self.duty[b.motors])
-        return tuple(int(v) for v in levels)
+        if motor_levels is None:
+            motor_levels = duty_to_levels(self.duty)
+        levels = [0] * b.channels
+        for k, c in b.slots:
+            levels[c] = int(motor_levels[k])
+        return tuple(levels)
 
     def outgoing(self, now: float, refresh: bool = False, force: bool = False) -> list[Outgoing]:
         """Frames to send now.
 
         `refresh=False` (on a command): only changed boards; `refresh=True` (the refresh tick):
-        also every board whose last frame is half a period old, and any NMT start/stop due.
+        also every board due for a refresh, and any NMT start/stop due.
         `force` (a stop, shutdown): every board now, whatever its last frame's age.
         """
         self.update(now)
@@ -180,14 +200,14 @@ class MotorDriver:
                     b.last_nmt_at = now
                     self.errors["nmt_restart" if want_start else "nmt_restop"] += 1
                     out.append(Outgoing(0, self.protocol.nmt("STOP" if want_stop else "START", b.id)))
-        half = 0.5 * self.period
+        gap, age = CHANGE_GAP * self.period - 1e-9, REFRESH_AGE * self.period - 1e-9
+        motor_levels = duty_to_levels(self.duty).tolist()
         for b in self.boards.values():
-            levels = self.board_levels(b.id)
-            if now - b.last_sent < half - 1e-9 and not force:
-                continue
-            if levels != b.sent_levels or refresh:
+            levels = self.board_levels(b.id, motor_levels)
+            change = levels != b.sent_levels
+            if force or (change and now - b.last_change_sent >= gap) or (refresh and now - b.last_change_sent >= age):
                 b.counter = (b.counter + 1) & 0xFF
-                out.append(Outgoing(b.id, self.protocol.duty(b.id, levels, b.counter), levels))
+                out.append(Outgoing(b.id, self.protocol.duty(b.id, levels, b.counter), levels, change))
         return out
 
     def sent(self, out: Outgoing, now: float) -> None:
@@ -195,7 +215,9 @@ class MotorDriver:
         if out.board == 0:
             return
         b = self.boards[out.board]
-        b.last_sent = now
+        b.frames_since_status += 1
+        if out.change:
+            b.last_change_sent = now
         b.sent_levels = out.levels
         b.send_failures = 0
 
@@ -239,6 +261,8 @@ class MotorDriver:
             faults += list(b.board_faults) if online else []
             if b.send_failures:
                 faults.append("send_failing")
+            if online and b.ack_stale:
+                faults.append("commands_not_acked")
             state = b.nmt_state.lower() if online else "offline"
             if online and b.nmt_state == "OPERATIONAL" and b.output_state not in ("UNKNOWN",):
                 state = "operational" if b.output_state in ("ACTIVE", "IDLE") else b.output_state.lower()

@@ -99,10 +99,10 @@ class _Template:
         self.face_index = np.array([np.r_[f, np.full(width - len(f), f[0])] for f in faces], np.int64)
         self.face_count = np.array([len(f) for f in faces], np.int64)
         n_cells = len(poly.normals)
-        edge_cells = np.zeros((len(topo.edges), n_cells))
-        for e, fs in enumerate(topo.edge_faces):
-            edge_cells[e, self.face_cells[fs].ravel()] = 1.0
-        self.edge_cells_t = edge_cells.T.copy()
+        cells_of_edge = [np.unique(self.face_cells[fs]) for fs in topo.edge_faces]
+        width = max(len(c) for c in cells_of_edge)
+        # The cells around each edge, padded by repeating one: an edge shows if any of them faces us.
+        self.edge_cells = np.array([np.r_[c, np.full(width - len(c), c[0])] for c in cells_of_edge], np.int64)
         self.edges = np.asarray(topo.edges)
         self.centre_face = np.concatenate([np.asarray(fs) for fs in topo.cell_faces]).astype(np.int64)
         self.centre_cell = np.repeat(np.arange(n_cells), [len(fs) for fs in topo.cell_faces])
@@ -189,7 +189,7 @@ def _place_group(t: _Template, bodies: list[Body], perspective: bool, eye: float
     front = normals[..., 3] < -_EPS                                    # (G, C) back-cell culling
     f0, f1 = t.face_cells[:, 0], t.face_cells[:, 1]
     face_vis = front[:, f0] | front[:, f1]
-    edge_vis = (front.astype(float) @ t.edge_cells_t) > 0
+    edge_vis = front[:, t.edge_cells].any(axis=2)
 
     gi, fi = np.nonzero(face_vis)
     face_v = world_mapped[gi[:, None], t.face_index[fi]]               # (Pf, K, 4)
@@ -339,10 +339,8 @@ class _Occluders:
 
     def candidates(self, lo: np.ndarray, hi: np.ndarray, own: np.ndarray):
         """(item, body, rank) for items (bounding boxes lo, hi (N,3), owner body) that other bodies may hide."""
-        hider, hidden = np.nonzero(self.hides)                      # sorted by hider
-        order = np.argsort(hidden, kind="stable")
-        hider = hider[order]
-        starts = np.searchsorted(hidden[order], np.arange(len(self.hides) + 1))
+        hidden, hider = np.nonzero(self.hides.T)                    # grouped by the hidden body
+        starts = np.searchsorted(hidden, np.arange(len(self.hides) + 1))
         n_hiders = np.diff(starts)[own]
         item = np.repeat(np.arange(len(own)), n_hiders)
         first = np.repeat(starts[own], n_hiders)

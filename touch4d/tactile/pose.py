@@ -1,6 +1,8 @@
 """Hand poses: checking them, and placing the glove's sample points in screen coordinates."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from touch4d.errors import Touch4dError
@@ -16,6 +18,10 @@ def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
     """Return (position (3,), unit quaternion (4,) x,y,z,w) as floats, or raise PoseError."""
     p = np.asarray(position, dtype=float)
     q = np.asarray(orientation, dtype=float)
+    if p.shape == (3,) and q.shape == (4,) and math.isfinite(p.sum() + q.sum()):
+        norm = math.sqrt(float(q @ q))
+        if abs(norm - 1.0) <= UNIT_TOLERANCE:
+            return p, q / norm
     if p.shape != (3,):
         raise PoseError(f"position: expected 3 numbers (x, y, z), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
@@ -24,15 +30,12 @@ def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
         raise PoseError(f"orientation: expected a quaternion of 4 numbers (x, y, z, w), got shape {q.shape}")
     if not np.all(np.isfinite(q)):
         raise PoseError(f"orientation: expected finite numbers, got {q.tolist()}")
-    norm = float(np.sqrt(q @ q))
-    if abs(norm - 1.0) > UNIT_TOLERANCE:
-        raise PoseError(f"orientation: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
-    return p, q / norm
+    raise PoseError(f"orientation: expected a unit quaternion (x, y, z, w), got norm {np.sqrt(q @ q):.6g}")
 
 
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     """The 3 x 3 rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = q
+    x, y, z, w = np.asarray(q, dtype=float).tolist()
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],

@@ -60,7 +60,7 @@ def intensity(h: np.ndarray, gamma: float) -> np.ndarray:
 
 def inside_screen(points: np.ndarray) -> np.ndarray:
     """Which screen points (N, 3) lie in the screen cube [-1, 1]^3 (boundary included)."""
-    return np.all(np.abs(points) <= 1.0, axis=1)
+    return np.abs(points).max(axis=1) <= 1.0
 
 
 def compute_stimulus(glove: Glove, caster, position, orientation, alpha: float | None = None,

@@ -1,0 +1,159 @@
+"""Motor node benchmark: a `tactile/motors` update in -> the CAN duty frames out, p50/p99.
+
+Three figures in one run, on python-can's virtual bus (a listener bus receives the frames):
+- bare: python-can `send` of the same four duty frames, pre-encoded (the baseline);
+- node callback: the motor node's `on_command` for one MotorCommand (name mapping, duty, thermal
+  limit, change detection, cantools encode of every changed board, the four sends);
+- end to end: publish on the topic bus -> broker -> motor node (spinning in its own thread) ->
+  the last of the four frames received by the listener.
+Every update changes every board. The default glove is used with its thermal limit lifted (the
+run keeps every motor on for longer than max_on_s). Run: .venv/bin/python bench/bench_motors.py
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import tempfile
+import threading
+import time
+import uuid
+
+import can
+import numpy as np
+import yaml
+
+from touch4d.bus import Broker, BusConfig, Node
+from touch4d.glove.config import DEFAULT_GLOVE
+from touch4d.glove.duty import duty_to_levels, intensity_to_duty
+from touch4d.messages import MotorCommand
+from touch4d.nodes.motors import MotorsNode
+
+
+def pct(samples_s):
+    a = np.asarray(samples_s) * 1e6
+    return np.percentile(a, 50), np.percentile(a, 99)
+
+
+def patterns(n_motors, count, seed=1):
+    """Intensities where consecutive updates differ on every board."""
+    rng = np.random.default_rng(seed)
+    out = rng.uniform(0.1, 1.0, size=(count, n_motors))
+    out[1::2] = np.clip(out[::2][: len(out[1::2])] * 0.5, 0.1, 1.0)
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--count", type=int, default=2000)
+    args = parser.parse_args()
+    logging.getLogger("motors").setLevel(logging.ERROR)  # no boards on this bus: only frames are timed
+    channel = f"bench-motors-{uuid.uuid4().hex}"
+    glove = yaml.safe_load(DEFAULT_GLOVE.read_text())
+    glove["can"]["thermal"] = {"max_on_s": 1e6, "cool_s": 0.0}
+    glove_file = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
+    yaml.safe_dump(glove, glove_file)
+    glove_file.close()
+
+    with Broker(BusConfig(pub_port=0, sub_port=0)) as endpoints:
+        node = MotorsNode(params={"glove": glove_file.name, "channel": channel, "status_hz": 1.0}, bus=endpoints)
+        cfg = node.cfg
+        names = list(cfg.motor_names)
+        listener = can.Bus(interface="virtual", channel=channel)
+        sender = can.Bus(interface="virtual", channel=channel)
+        try:
+            data = patterns(len(names), args.count)
+            period = 1.0 / cfg.refresh_hz
+            gap = 0.6 * period  # a board is not sent twice within half a refresh period
+
+            # -- node callback: on_command, timed in this thread (the node is not spinning) --------
+            cb = []
+            for v in data:
+                msg = MotorCommand(names=names, intensity=v)
+                t0 = time.perf_counter()
+                node.on_command(msg)
+                cb.append(time.perf_counter() - t0)
+                time.sleep(gap)
+            frames_per_update = len(cfg.boards)
+            while listener.recv(timeout=0) is not None:
+                pass
+
+            # -- bare python-can send of the same frames ------------------------------------------
+            bare = []
+            for i, v in enumerate(data):
+                levels = duty_to_levels(intensity_to_duty(v, cfg.duty))
+                msgs = []
+                for b in cfg.boards:
+                    lv = np.zeros(b.channels, dtype=int)
+                    for k, c in cfg.motors_of(b.id):
+                        lv[c] = levels[k]
+                    msgs.append(node.protocol.duty(b.id, lv.tolist(), i))
+                t0 = time.perf_counter()
+                for m in msgs:
+                    sender.send(m, timeout=cfg.send_timeout_s)
+                bare.append(time.perf_counter() - t0)
+                while listener.recv(timeout=0) is not None:
+                    pass
+
+            # -- end to end through the topic bus, the node spinning in its own thread ------------
+            tester = Node("bench", bus=endpoints, heartbeat=False)
+            pub = tester.create_publisher("tactile/motors", MotorCommand)
+            stop = threading.Event()
+
+            def spin():
+                while not stop.is_set():
+                    node.spin_once(0.01)
+
+            thread = threading.Thread(target=spin, daemon=True)
+            thread.start()
+            time.sleep(0.5)  # subscriptions settled
+            e2e, lost = [], 0
+            for v in data[: max(200, args.count // 4)]:
+                want = {}
+                levels = duty_to_levels(intensity_to_duty(v, cfg.duty))
+                for b in cfg.boards:
+                    lv = [0] * b.channels
+                    for k, c in cfg.motors_of(b.id):
+                        lv[c] = int(levels[k])
+                    want[cfg.ids.duty + b.id] = lv
+                while listener.recv(timeout=0) is not None:
+                    pass
+                t0 = time.perf_counter()
+                pub.publish(MotorCommand(names=names, intensity=v))
+                deadline = t0 + 1.0
+                while want and time.perf_counter() < deadline:
+                    m = listener.recv(timeout=0.05)
+                    if m is None or m.arbitration_id not in want:
+                        continue
+                    f = node.protocol.decode(m)
+                    if node.protocol.levels(f, len(want[m.arbitration_id])) == want[m.arbitration_id]:
+                        del want[m.arbitration_id]
+                if want:
+                    lost += 1
+                else:
+                    e2e.append(time.perf_counter() - t0)
+                time.sleep(gap)
+            stop.set()
+            thread.join()
+            tester.shutdown()
+        finally:
+            node.shutdown()
+            listener.shutdown()
+            sender.shutdown()
+            os.unlink(glove_file.name)
+
+    b50, b99 = pct(bare)
+    c50, c99 = pct(cb)
+    e50, e99 = pct(e2e)
+    print(f"motor node, {len(names)} motors on {len(cfg.boards)} boards, {frames_per_update} frames per update, "
+          f"python-can virtual bus, {len(data)} updates")
+    print(f"  bare python-can send of the frames  p50 {b50:7.1f} us   p99 {b99:7.1f} us   (baseline)")
+    print(f"  node callback (message in -> sent)  p50 {c50:7.1f} us   p99 {c99:7.1f} us   "
+          f"ratio p50 {c50 / b50:.1f}x  p99 {c99 / b99:.1f}x")
+    print(f"  end to end (publish -> last frame)  p50 {e50:7.1f} us   p99 {e99:7.1f} us   "
+          f"ratio p50 {e50 / b50:.1f}x  ({len(e2e)} updates, {lost} not seen within 1 s)")
+    print(f"  bus load of the configuration: {100 * node.load.fraction:.1f} % worst case")
+
+
+if __name__ == "__main__":
+    main()

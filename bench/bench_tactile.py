@@ -1,0 +1,123 @@
+"""Benchmark: hand pose in -> motor intensities out, per call (paper eq. 1-7, default glove).
+
+For a tesseract, a 120-cell and a 20-object scene, times `compute_stimulus` (the library: the
+RayCaster's pre-split half-spaces, then eq. 1-3) beside the same arithmetic written as one plain
+numpy expression over every sample x every half-space, measured in the same run on the same poses.
+Target: under 0.5 ms per pose against the 120-cell (a 1 kHz tactile loop).
+
+    .venv/bin/python bench/bench_tactile.py [--calls 2000]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from touch4d.geometry.rotation import rotation_from_list
+from touch4d.geometry.scene import Scene, SceneObject
+from touch4d.tactile.glove import load_glove
+from touch4d.tactile.pose import quaternion_matrix
+from touch4d.tactile.stimulus import compute_stimulus
+
+TARGET_MS = 0.5
+
+
+def one_object(shape: str) -> Scene:
+    return Scene(objects=[SceneObject(name=shape, shape=shape, size=1.2, position=np.array([0, 0, 0, 1.6]),
+                                      orientation=rotation_from_list([["xw", 20], ["yw", 10]]))])
+
+
+def twenty_objects() -> Scene:
+    shapes = ["tesseract", "5-cell", "16-cell", "24-cell", "prism", "pyramid", "duoprism", "tesseract",
+              "24-cell", "16-cell"] * 2
+    rng = np.random.default_rng(20)
+    objects = []
+    for k, shape in enumerate(shapes):
+        x, y = (k % 5) * 0.4 - 0.8, (k // 5) * 0.45 - 0.7
+        rotation = [[plane, float(a)] for plane, a in zip(("xw", "yw", "zw", "xy"), rng.uniform(-40, 40, 4))]
+        objects.append(SceneObject(name=f"{shape}-{k}", shape=shape, size=0.35,
+                                   position=np.array([x, y, rng.uniform(-0.3, 0.3), 0.8 + 0.1 * k]),
+                                   orientation=rotation_from_list(rotation)))
+    return Scene(objects=objects)
+
+
+def plain_numpy(glove, normals, offsets, starts, position, quaternion):
+    """Eq. 4-7 and 1-3 as one straightforward numpy expression chain: every sample x every half-space."""
+    p = glove.samples @ (quaternion_matrix(quaternion) * glove.units_per_metre).T + position
+    inside = np.all(np.abs(p) <= 1.0, axis=1)
+    nw = normals[:, 3]
+    room = offsets - p @ normals[:, :3].T                       # n3.p + nw t <= c  <=>  nw t <= room
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = room / nw
+    enter = np.maximum.reduceat(np.where(nw < 0, bound, -np.inf), starts, axis=1).clip(min=0.0)
+    leave = np.minimum.reduceat(np.where(nw > 0, bound, np.inf), starts, axis=1)
+    through = np.logical_and.reduceat((nw != 0) | (room >= -1e-9), starts, axis=1)
+    t = np.where((enter <= leave + 1e-9) & through, enter, np.inf).min(axis=1)
+    l = np.where(inside & np.isfinite(t), t, np.nan)
+    depth = np.where(np.isnan(l), np.inf, l)
+    s = np.maximum(glove.alpha * (depth.min() - depth) + 1.0, 0.0) if np.isfinite(depth.min()) else 0 * depth
+    active = np.count_nonzero(s)
+    h = (1.0 - glove.beta * s.sum() / active) * s if active else s
+    return glove.gamma * h[glove.motor_sample]
+
+
+def poses(count: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    positions = np.array([-0.14, -0.18, 0.0]) + rng.uniform(-0.1, 0.1, (count, 3))
+    axes = rng.normal(size=(count, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    half = rng.uniform(0, 0.2, count)
+    return positions, np.c_[axes * np.sin(half)[:, None], np.cos(half)]
+
+
+def per_call_ms(fn, positions, quats, repeats: int = 5) -> float:
+    """Best of `repeats` passes over all poses (the least disturbed by other work), in ms per call."""
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for p, q in zip(positions, quats):
+            fn(p, q)
+        best = min(best, (time.perf_counter() - start) / len(positions))
+    return best * 1e3
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calls", type=int, default=1000, help="poses per timed pass")
+    args = parser.parse_args(argv)
+    glove = load_glove()
+    positions, quats = poses(args.calls, np.random.default_rng(4))
+    print(f"default glove: {len(glove.samples)} samples, {len(glove.motor_names)} motors; "
+          f"{args.calls} poses per pass, best of 5 passes")
+    print(f"{'scene':<12} {'parts':>5} {'half-spaces':>11} {'library ms':>10} {'plain numpy ms':>14} {'speed-up':>8}")
+    result_120 = None
+    for label, scene in (("tesseract", one_object("tesseract")), ("120-cell", one_object("120-cell")),
+                         ("20 objects", twenty_objects())):
+        caster = scene.ray_caster()
+        parts = [poly for _, poly in scene.world_parts()]
+        normals = np.vstack([poly.normals for poly in parts])
+        offsets = np.concatenate([poly.offsets for poly in parts])
+        starts = np.cumsum([0] + [len(poly.offsets) for poly in parts[:-1]])
+
+        def library(p, q):
+            return compute_stimulus(glove, caster, p, q).V
+
+        def plain(p, q):
+            return plain_numpy(glove, normals, offsets, starts, p, q)
+
+        for p, q in zip(positions[:50], quats[:50]):          # same answers before timing anything
+            np.testing.assert_allclose(library(p, q), plain(p, q), atol=1e-9)
+        ms_lib = per_call_ms(library, positions, quats)
+        ms_plain = per_call_ms(plain, positions, quats)
+        print(f"{label:<12} {len(parts):>5} {len(offsets):>11} {ms_lib:>10.4f} {ms_plain:>14.4f} "
+              f"{ms_plain / ms_lib:>7.2f}x")
+        if label == "120-cell":
+            result_120 = ms_lib
+    verdict = "meets" if result_120 < TARGET_MS else "MISSES"
+    print(f"120-cell: {result_120:.4f} ms per pose, {verdict} the {TARGET_MS} ms target "
+          f"({1 / result_120:.0f} poses per ms budget: {TARGET_MS / result_120:.1f}x headroom)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
