@@ -3,7 +3,10 @@
 1. file layer: `LogWriter.write` (header peek, seq gaps, channel per topic, zstd chunks) against
    `mcap.writer.Writer.add_message` writing the same payloads to the same kind of file;
 2. end to end: messages published as fast as one process can through a broker into a `Recorder`
-   (subscriber thread + writer thread), against the same bare mcap writer baseline.
+   (subscriber thread + writer thread), against the same bare mcap writer baseline;
+3. replay timing: a 250 Hz log of 2 s replayed through a broker into a recorder; the error of each
+   inter-message interval (p50, p99; target p99 < 2 ms), beside a plain sleep-then-send loop over
+   the same schedule in the same run.
 The mix is the live stack's: hand poses, tactile fields (242 samples), motor commands (30 motors).
 Run: .venv/bin/python bench/bench_log.py
 """
@@ -19,7 +22,8 @@ from mcap.writer import CompressionType, Writer
 
 from touch4d.bus.testing import running_broker
 from touch4d.log.recorder import Recorder
-from touch4d.log.replay import BusSender
+from touch4d.log.reader import LogReader
+from touch4d.log.replay import BusSender, Plan, Replayer, ReplayOptions
 from touch4d.log.writer import LogWriter
 from touch4d.messages import HandPose, MotorCommand, TactileField, encode
 
@@ -87,6 +91,36 @@ def recorder_end_to_end(path: str, messages: list[tuple[str, bytes]]) -> float:
     return elapsed
 
 
+def replay_timing(tmp: str, plain: bool) -> tuple[float, float]:
+    """(p50, p99) seconds of inter-message timing error, replaying a 250 Hz hand-pose log once."""
+    log, out = os.path.join(tmp, "timing.mcap"), os.path.join(tmp, f"timing-out-{plain}.mcap")
+    times = [1_700_000_000_000_000_000 + i * 4_000_000 for i in range(500)]
+    with LogWriter(log) as w:
+        for i, t in enumerate(times):
+            w.write("hand/pose", encode(HandPose(position=np.array([i * 1e-3, 0.0, 0.5]), valid=True, seq=i)), t)
+    with running_broker() as bus:
+        recorder = Recorder(bus, out)
+        recorder.start()
+        sender = BusSender(bus)
+        if plain:
+            payloads = [m.data for m in LogReader(log).messages()]
+            t0 = time.perf_counter()
+            for t, payload in zip(times, payloads):
+                delay = t0 + (t - times[0]) / 1e9 - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                sender("hand/pose", payload)
+        else:
+            reader, options = LogReader(log), ReplayOptions()
+            Replayer(reader, Plan(reader, options), options, sender).run()
+        time.sleep(0.2)
+        recorder.stop()
+        sender.close()
+    got = np.diff([m.log_time for m in LogReader(out).messages()]) / 1e9
+    error = np.abs(got - 0.004)
+    return tuple(np.percentile(error, [50, 99]))
+
+
 def main() -> None:
     messages = mix(N)
     n = len(messages)
@@ -101,6 +135,12 @@ def main() -> None:
     for name, seconds in rows:
         print(f"{name:<42} {n / seconds:>9.0f} msg/s  {mb / seconds:>7.1f} MB/s  "
               f"ratio to baseline {base / seconds:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = replay_timing(tmp, plain=True)
+        ours = replay_timing(tmp, plain=False)
+    for name, (p50, p99) in (("plain sleep-then-send loop (baseline)", plain), ("Replayer", ours)):
+        print(f"{name:<42} timing error p50 {p50 * 1e3:6.3f} ms  p99 {p99 * 1e3:6.3f} ms  "
+              f"p99 ratio to baseline {p99 / plain[1]:.2f}")
 
 
 if __name__ == "__main__":

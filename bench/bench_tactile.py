@@ -70,15 +70,19 @@ def poses(count: int, rng) -> tuple[np.ndarray, np.ndarray]:
     return positions, np.c_[axes * np.sin(half)[:, None], np.cos(half)]
 
 
-def per_call_ms(fn, positions, quats, repeats: int = 5) -> float:
-    """Best of `repeats` passes over all poses (the least disturbed by other work), in ms per call."""
-    best = np.inf
+def per_call_ms(fn, positions, quats, repeats: int = 5) -> tuple[float, float]:
+    """Best of `repeats` passes over all poses, in ms per call: (CPU time, wall time).
+
+    CPU time (process_time) leaves out the time this process waits for a core on a busy machine.
+    """
+    best_cpu = best_wall = np.inf
     for _ in range(repeats):
-        start = time.perf_counter()
+        wall, cpu = time.perf_counter(), time.process_time()
         for p, q in zip(positions, quats):
             fn(p, q)
-        best = min(best, (time.perf_counter() - start) / len(positions))
-    return best * 1e3
+        best_cpu = min(best_cpu, (time.process_time() - cpu) / len(positions))
+        best_wall = min(best_wall, (time.perf_counter() - wall) / len(positions))
+    return best_cpu * 1e3, best_wall * 1e3
 
 
 def main(argv=None) -> int:
@@ -89,7 +93,8 @@ def main(argv=None) -> int:
     positions, quats = poses(args.calls, np.random.default_rng(4))
     print(f"default glove: {len(glove.samples)} samples, {len(glove.motor_names)} motors; "
           f"{args.calls} poses per pass, best of 5 passes")
-    print(f"{'scene':<12} {'parts':>5} {'half-spaces':>11} {'library ms':>10} {'plain numpy ms':>14} {'speed-up':>8}")
+    print("ms per pose, CPU time (wall time in brackets); speed-up = plain / library CPU time")
+    print(f"{'scene':<12} {'parts':>5} {'half-spaces':>11} {'library ms':>18} {'plain numpy ms':>18} {'speed-up':>8}")
     result_120 = None
     for label, scene in (("tesseract", one_object("tesseract")), ("120-cell", one_object("120-cell")),
                          ("20 objects", twenty_objects())):
@@ -107,15 +112,15 @@ def main(argv=None) -> int:
 
         for p, q in zip(positions[:50], quats[:50]):          # same answers before timing anything
             np.testing.assert_allclose(library(p, q), plain(p, q), atol=1e-9)
-        ms_lib = per_call_ms(library, positions, quats)
-        ms_plain = per_call_ms(plain, positions, quats)
-        print(f"{label:<12} {len(parts):>5} {len(offsets):>11} {ms_lib:>10.4f} {ms_plain:>14.4f} "
-              f"{ms_plain / ms_lib:>7.2f}x")
+        ms_lib, wall_lib = per_call_ms(library, positions, quats)
+        ms_plain, wall_plain = per_call_ms(plain, positions, quats)
+        print(f"{label:<12} {len(parts):>5} {len(offsets):>11} {ms_lib:>8.4f} ({wall_lib:.4f}) "
+              f"{ms_plain:>8.4f} ({wall_plain:.4f}) {ms_plain / ms_lib:>7.2f}x")
         if label == "120-cell":
             result_120 = ms_lib
     verdict = "meets" if result_120 < TARGET_MS else "MISSES"
-    print(f"120-cell: {result_120:.4f} ms per pose, {verdict} the {TARGET_MS} ms target "
-          f"({1 / result_120:.0f} poses per ms budget: {TARGET_MS / result_120:.1f}x headroom)")
+    print(f"120-cell: {result_120:.4f} ms CPU per pose, {verdict} the {TARGET_MS} ms target "
+          f"({TARGET_MS / result_120:.1f}x headroom)")
     return 0
 
 

@@ -39,9 +39,10 @@ class Float(Kind):
         return float(value)
 
     def check(self, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"expected a number, got {type(value).__name__}")
-        value = float(value)
+        if value.__class__ is not float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"expected a number, got {type(value).__name__}")
+            value = float(value)
         if self.finite and not math.isfinite(value):
             raise ValueError(f"expected a finite number, got {value}")
         return value
@@ -55,7 +56,7 @@ class Int(Kind):
         return int(value)
 
     def check(self, value):
-        if isinstance(value, bool) or not isinstance(value, int):
+        if value.__class__ is not int:
             raise ValueError(f"expected an integer, got {type(value).__name__}")
         return value
 
@@ -137,6 +138,8 @@ class Array(Kind):
         self.dtype = np.dtype(dtype)
         self.finite = finite
         self._default = default
+        self._kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
+        self._check_finite = finite and self.dtype.kind == "f"
 
     def coerce(self, value):
         arr = np.asarray(value)
@@ -145,17 +148,18 @@ class Array(Kind):
         return arr
 
     def check(self, value):
-        if not isinstance(value, np.ndarray):
+        if value.__class__ is not np.ndarray and not isinstance(value, np.ndarray):
             raise ValueError(f"expected a numpy array, got {type(value).__name__}")
-        kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
-        if value.dtype.kind not in kinds:
+        if value.dtype.kind not in self._kinds:
             raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
-        if len(value.shape) != len(self.shape) or any(
-            want is not None and want != got for want, got in zip(self.shape, value.shape)
+        shape = value.shape
+        if shape != self.shape and (
+            len(shape) != len(self.shape) or any(w is not None and w != g for w, g in zip(self.shape, shape))
         ):
             want = "x".join("N" if n is None else str(n) for n in self.shape) or "scalar"
-            raise ValueError(f"expected shape {want}, got {'x'.join(map(str, value.shape)) or 'scalar'}")
-        if self.finite and value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise ValueError(f"expected shape {want}, got {'x'.join(map(str, shape)) or 'scalar'}")
+        # A finite sum proves every value finite; only a non-finite sum needs the element-wise look.
+        if self._check_finite and not math.isfinite(value.sum()) and not np.isfinite(value).all():
             raise ValueError("expected finite values, got NaN or infinity")
         return value
 
@@ -277,17 +281,17 @@ class Message:
 
     def to_dict(self) -> dict[str, Any]:
         out = {"type": self.TYPE}
-        for f in self._fields():
-            out[f.name] = getattr(self, f.name)
+        for name, _ in self._checks():
+            out[name] = getattr(self, name)
         return out
 
     def validate(self) -> None:
         """Check every field (types, shapes, finiteness) and the message's own rules."""
-        for f in self._fields():
+        for name, check in self._checks():
             try:
-                f.metadata["kind"].check(getattr(self, f.name))
+                check(getattr(self, name))
             except ValueError as exc:
-                raise MessageError(_where(self.TYPE, f.name, exc)) from None
+                raise MessageError(_where(self.TYPE, name, exc)) from None
         try:
             self.check()
         except ValueError as exc:
@@ -302,25 +306,33 @@ class Message:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Message:
         """Build and fully check a message of this class from a decoded map."""
-        values = {}
-        for f in cls._fields():
-            if f.name not in data:
-                raise MessageError(f"{cls.TYPE}.{f.name}: missing")
-            try:
-                values[f.name] = f.metadata["kind"].check(data[f.name])
-            except ValueError as exc:
-                raise MessageError(_where(cls.TYPE, f.name, exc)) from None
-        unknown = set(data) - {f.name for f in cls._fields()} - {"type"}
-        if unknown:
-            raise MessageError(f"{cls.TYPE}: unknown field(s) {', '.join(sorted(unknown))}")
         msg = cls.__new__(cls)
-        for name, value in values.items():
-            object.__setattr__(msg, name, value)
+        fields = cls._checks()
+        for name, check in fields:
+            try:
+                value = data[name]
+            except KeyError:
+                raise MessageError(f"{cls.TYPE}.{name}: missing") from None
+            try:
+                object.__setattr__(msg, name, check(value))
+            except ValueError as exc:
+                raise MessageError(_where(cls.TYPE, name, exc)) from None
+        if len(data) != len(fields) + ("type" in data):
+            unknown = set(data) - {name for name, _ in fields} - {"type"}
+            raise MessageError(f"{cls.TYPE}: unknown field(s) {', '.join(sorted(map(str, unknown)))}")
         try:
             msg.check()
         except ValueError as exc:
             raise MessageError(f"{cls.TYPE}: {exc}") from None
         return msg
+
+    @classmethod
+    def _checks(cls) -> tuple[tuple[str, Any], ...]:
+        cached = cls.__dict__.get("_CHECKS_CACHE")
+        if cached is None:
+            cached = tuple((f.name, f.metadata["kind"].check) for f in cls._fields())
+            cls._CHECKS_CACHE = cached
+        return cached
 
 
 def _where(type_name: str, field_name: str, exc: Exception) -> str:

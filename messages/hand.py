@@ -1,6 +1,7 @@
 """Tracker messages: the hand in screen coordinates, the controller in the room."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +13,7 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
 
 
 def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float = 1e-3) -> None:
-    norm = float(np.linalg.norm(q))
+    norm = math.sqrt(float(q @ q))
     if abs(norm - 1.0) > tol:
         raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
 

@@ -110,3 +110,15 @@ def test_perspective_map_keeps_half_spaces_and_sight_lines():
     line = np.array([0, 0, 0, -2.5]) + np.outer([0.5, 1, 2, 3], [0.4, -0.2, 0.1, 2.5])
     mapped = perspective_points(line, 2.5)
     assert np.allclose(mapped[:, :3], mapped[0, :3]) and np.all(np.diff(mapped[:, 3]) > 0)
+
+
+def test_renormalize_repairs_small_drift_like_orthonormalize_and_falls_back_when_far():
+    from touch4d.geometry.rotation import renormalize
+    rng = np.random.default_rng(9)
+    r = rotation_from_list([["xw", 40], ["yz", 20], ["zw", -70]])
+    drifted = r + 1e-8 * rng.normal(size=(4, 4))
+    fixed = renormalize(drifted)
+    assert is_rotation(fixed, 1e-14) and np.abs(fixed - orthonormalize(drifted)).max() < 1e-14
+    far = r + 0.05 * rng.normal(size=(4, 4))
+    assert np.allclose(renormalize(far), orthonormalize(far), atol=1e-12)
+    assert is_rotation(renormalize(np.diag([1.0, 1, 1, -1]) @ far))           # handedness kept +1

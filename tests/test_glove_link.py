@@ -105,3 +105,9 @@ def test_touch4d_glove_emulate_runs_standalone_on_a_channel(capsys):
     assert result["rc"] == 0
     out = capsys.readouterr().out
     assert "board 4: operational active levels [10, 10, 10, 10, 10, 10, 10, 10]" in out
+
+
+def test_touch4d_glove_emulate_reports_a_bus_that_does_not_open(capsys):
+    rc = cli_main(["glove", "emulate", "--glove", str(TEST_GLOVE), "--interface", "no-such-interface",
+                   "--channel", "x", "--duration", "0.1"])
+    assert rc == 2 and "no-such-interface" in capsys.readouterr().err

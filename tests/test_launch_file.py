@@ -97,3 +97,12 @@ def test_cli_reports_a_bad_launch_file_without_traceback(tmp_path, capsys):
 def test_the_project_launch_files_are_valid():
     for path in sorted((ROOT / "launch").glob("*.yaml")):
         assert load_launch(path), path
+
+
+def test_node_process_entry_reports_unknown_modules_and_bad_params(capsys):
+    from touch4d.bus.process import main
+
+    assert main(["no_such_node", "--name", "x"]) == 2
+    assert "touch4d.nodes.no_such_node not found" in capsys.readouterr().err
+    assert main(["example_talker", "--name", "t", "--params", "[1, 2]"]) == 2
+    assert "--params: expected a JSON object" in capsys.readouterr().err

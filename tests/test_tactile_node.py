@@ -160,6 +160,14 @@ def test_node_publishes_field_and_motors_for_every_pose_and_survives_bad_input(g
             wait_until(junk, timeout=20, interval=0.05)
             wait_until(unbuildable, timeout=20, interval=0.05)
 
+            # A pose that decodes but cannot be used (built in-process, past the codec's checks).
+            published = len(motors)
+            tactile.on_pose(HandPose(position=np.array([0.0, 0.0, np.nan]), orientation=IDENTITY, valid=True))
+            tactile.on_pose(HandPose(position=np.zeros(3), orientation=np.zeros(4), valid=True))
+            assert tactile.counts["bad_poses"] == 2
+            spin_until(nodes, lambda: True)
+            assert len(motors) == published
+
             # Still serving, with the last good scene: a tilted cell now gives a gradient.
             scene_pub.publish(scene_msg([["xw", -20]], revision=8))
             spin_until(nodes, lambda: tactile.counts["scenes_built"] == 2)

@@ -179,3 +179,9 @@ def test_no_stimulus_is_all_zero(glove):
     st = no_stimulus(glove)
     assert st.l.shape == (len(glove.samples),) and np.isnan(st.l).all()
     assert (st.V == 0).all() and (st.h == 0).all() and not st.inside.any()
+
+
+def test_eq2_never_negative_even_at_beta_one():
+    s = np.array([1.0, 1.0 - 1e-17, 1.0])
+    h = adjusted_strength(s, 1.0)
+    assert (h >= 0).all() and np.allclose(h, 0.0)

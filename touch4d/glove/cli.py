@@ -5,6 +5,7 @@ import sys
 import time
 from pathlib import Path
 
+from touch4d.errors import ConfigError
 from touch4d.glove.busload import bus_load
 from touch4d.glove.config import load_glove_can
 from touch4d.glove.dbc import dbc_text
@@ -49,10 +50,16 @@ def cmd_busload(args) -> int:
 
 
 def cmd_emulate(args) -> int:
+    import can
+
     from touch4d.glove.emulator import GloveEmulator
 
     cfg = load_glove_can(args.glove)
-    emulator = GloveEmulator(cfg, interface=args.interface, channel=args.channel)
+    try:
+        emulator = GloveEmulator(cfg, interface=args.interface, channel=args.channel)
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        raise ConfigError("<command line>", "--interface/--channel", "a python-can bus that opens",
+                          got=f"{args.interface or cfg.interface} {args.channel or cfg.channel}: {exc}") from None
     print(f"emulating boards {[b.id for b in cfg.boards]} on {args.interface or cfg.interface} "
           f"channel {args.channel or cfg.channel}", flush=True)
     end = None if args.duration is None else time.monotonic() + args.duration

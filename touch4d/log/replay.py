@@ -7,6 +7,7 @@ stay meaningful) and a fresh per-topic `seq`: what live nodes downstream of a re
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -60,10 +61,10 @@ class Plan:
     """A checked replay: the log's summary, the topics to send, what the user named that is not there."""
 
     def __init__(self, reader: LogReader, options: ReplayOptions) -> None:
-        if options.rate <= 0:
-            raise LogFileError(f"{reader.path}: --rate must be > 0, got {options.rate}")
-        if options.start < 0:
-            raise LogFileError(f"{reader.path}: --start must be >= 0 seconds, got {options.start}")
+        if not 0 < options.rate < math.inf:
+            raise LogFileError(f"{reader.path}: --rate must be a finite number > 0, got {options.rate}")
+        if not 0 <= options.start < math.inf:
+            raise LogFileError(f"{reader.path}: --start must be a finite number >= 0 seconds, got {options.start}")
         self.summary: LogSummary = summarize(reader.path, recover=reader.recover)
         available = {t.topic for t in self.summary.topics}
         named = list(options.topics) if options.topics is not None else sorted(available)
@@ -75,8 +76,15 @@ class Plan:
                                f"({', '.join(named) or 'none named'}); its topics are: "
                                f"{', '.join(sorted(available)) or '(none)'}")
         self.origin = self.summary.start + int(options.start * 1e9)
-        last = max(t.last for t in self.summary.topics if t.topic in self.topics)
+        chosen = [t for t in self.summary.topics if t.topic in self.topics]
+        last = max(t.last for t in chosen)
         self.duration = max(0.0, (last - self.origin) / 1e9)
+        # A loop starts over one mean message interval after the last message (not at the same
+        # instant), so a looped stream stays evenly paced.
+        first = max(self.origin, min(t.first for t in chosen))
+        count = sum(t.count for t in chosen)
+        gap = (last - min(t.first for t in chosen)) / 1e9 / (count - 1) if count > 1 else 0.0
+        self.loop_period = max(0.0, (last - first) / 1e9) + gap
         if options.start > 0 and last < self.origin:
             raise LogFileError(f"{reader.path}: --start {options.start} s is past the end of the selected "
                                f"messages ({(last - self.summary.start) / 1e9:.3f} s)")
@@ -148,9 +156,10 @@ class Replayer:
     """Sends a planned replay through `send(topic, payload)`, on time; `run` returns when done or stopped."""
 
     def __init__(self, reader: LogReader, plan: Plan, options: ReplayOptions,
-                 send: Callable[[str, bytes], None], *, clock: Callable[[], float] = time.perf_counter) -> None:
+                 send: Callable[[str, bytes], None], *, clock: Callable[[], float] = time.perf_counter,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.reader, self.plan, self.options, self.send = reader, plan, options, send
-        self.clock = clock
+        self.clock, self.sleep = clock, sleep   # injectable: tests replay on a virtual clock
         self.stop_event = threading.Event()
         self.position = 0.0  # seconds into the log (from --start), of the last message sent
         self.stats = ReplayStats()
@@ -165,7 +174,7 @@ class Replayer:
             left = due - self.clock()
             if left <= 0:
                 return True
-            time.sleep(min(left, 0.05))
+            self.sleep(min(left, 0.05))
         return False
 
     def run(self, progress: Callable[[Replayer], None] | None = None, progress_interval: float = 0.1) -> ReplayStats:
@@ -200,7 +209,7 @@ class Replayer:
                     last_rest = due
                 elif now - last_rest > 0.05:
                     # behind schedule for 50 ms (a high --rate): let other threads run a moment
-                    time.sleep(0.001)
+                    self.sleep(0.001)
                     last_rest = self.clock()
                 late = self.clock() - due
                 if late > stats.late_max:
@@ -222,7 +231,7 @@ class Replayer:
                 stats.passes += 1
                 if not opts.loop:
                     break
-                wall0 += plan.duration / opts.rate
+                wall0 += plan.loop_period / opts.rate
                 continue
             break
         stats.stopped = self.stop_event.is_set()

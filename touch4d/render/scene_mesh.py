@@ -327,8 +327,8 @@ class _Occluders:
         """For points (Q, V, 4) and bodies (Q,): which project inside the body's outline (Q, V), and
         whether all lie beyond one of its clip units (Q,), so the two outlines are apart."""
         planes = self.planes[body]
-        s = _plane_values(planes, points)
-        return np.all(s <= _TOUCH, axis=1), np.any(np.all(s > _TOUCH, axis=2), axis=1)
+        s = _plane_values(planes, points)                                      # (M, V, Q)
+        return (s.max(axis=0) <= _TOUCH).T, (s.min(axis=1) > _TOUCH).any(axis=0)
 
     def front_depth(self, body: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Depth v where the sight line through screen point u (Q,3) enters `body` (Q,): its front."""
@@ -346,18 +346,22 @@ class _Occluders:
         first = np.repeat(starts[own], n_hiders)
         b = hider[first + np.arange(len(item)) - np.repeat(np.cumsum(n_hiders) - n_hiders, n_hiders)]
         b_lo, b_hi = self.bounds[b, 0], self.bounds[b, 1]
-        hit = np.all(lo[item] <= b_hi + 1e-9, axis=1) & np.all(hi[item] >= b_lo - 1e-9, axis=1)
+        meets = (lo[item] <= b_hi + 1e-9) & (hi[item] >= b_lo - 1e-9)
+        hit = meets[:, 0] & meets[:, 1] & meets[:, 2]
         item, b = item[hit], b[hit]
         rank = np.arange(len(item)) - np.searchsorted(item, item)   # 0, 1, ... within each item
         return item, b, rank
 
 
 def _plane_values(planes: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """n.u - d for planes (Q, M, 4) and points (Q, K, >=3): (Q, M, K), positive outside."""
-    # Plain broadcasting: a stacked matmul goes through BLAS per tiny matrix, slow when threads compete.
-    n = planes[:, :, None, :]
-    p = points[:, None, :, :]
-    return n[..., 0] * p[..., 0] + n[..., 1] * p[..., 1] + n[..., 2] * p[..., 2] - n[..., 3]
+    """n.u - d for planes (Q, M, 4) and points (Q, K, >=3), as (M, K, Q): positive outside.
+
+    The pair axis Q comes last so that reductions over planes or vertices (short axes) run along
+    long contiguous rows; numpy reduces a short innermost axis an order of magnitude slower. Plain
+    broadcasting, not a stacked matmul, which would call BLAS once per tiny matrix."""
+    n = np.ascontiguousarray(planes.transpose(1, 2, 0))[:, None]              # (M, 1, 4, Q)
+    p = np.ascontiguousarray(points[..., :3].transpose(1, 2, 0))[None]        # (1, K, 3, Q)
+    return n[:, :, 0] * p[:, :, 0] + n[:, :, 1] * p[:, :, 1] + n[:, :, 2] * p[:, :, 2] - n[:, :, 3]
 
 
 def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occluders):
@@ -369,8 +373,8 @@ def _cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: _Occl
     # Drop pairs where the polygon lies outside one clip unit; keep each pair's straddled units.
     # A polygon lying on the outline's boundary counts as inside, so coplanar faces get hidden.
     s = _plane_values(occ.planes[b], v[item])
-    near = ~np.any(np.all(s > _TOUCH, axis=2), axis=1)
-    item, b, s = item[near], b[near], s[near]
+    near = (s.min(axis=1) <= _TOUCH).all(axis=0)
+    item, b = item[near], b[near]
     if len(item) == 0:
         return v, count, src
     rank = np.arange(len(item)) - np.searchsorted(item, item)
@@ -403,19 +407,20 @@ def _subtract(v, count, body, occ: _Occluders):
     1..j-1 and outside unit j; what is left is inside the outline. Returns (pieces, counts, parent
     index into the inputs)."""
     planes = occ.planes[body]
-    s_all = _plane_values(planes, v)                                           # (Q, M, K)
-    straddle = np.any(s_all > _TOUCH, axis=2) & np.any(s_all < -_TOUCH, axis=2)
-    order = np.argsort(~straddle, axis=1, kind="stable")
-    apart = np.any(np.all(s_all > _TOUCH, axis=2), axis=1)      # outside one unit: nothing hidden
-    n_cuts = np.where(apart, 0, straddle.sum(axis=1))
+    s_all = _plane_values(planes, v)                                           # (M, K, Q)
+    low, high = s_all.min(axis=1), s_all.max(axis=1)                           # (M, Q)
+    straddle = (high > _TOUCH) & (low < -_TOUCH)
+    order = np.argsort(~straddle, axis=0, kind="stable")         # per polygon: the units crossing it
+    apart = (low > _TOUCH).any(axis=0)                           # outside one unit: nothing hidden
+    n_cuts = np.where(apart, 0, straddle.sum(axis=0))
     rem_v, rem_c = v.copy(), np.where(apart, 0, count)
     outs_v, outs_c, outs_p = [], [], []
     for j in range(int(n_cuts.max(initial=0))):
         rows = np.nonzero((n_cuts > j) & (rem_c >= 3))[0]
         if len(rows) == 0:
             break
-        plane = planes[rows, order[rows, j]]
-        s = s_all[rows, order[rows, j]] if j == 0 else \
+        plane = planes[rows, order[j, rows]]
+        s = s_all[order[j, rows], :, rows] if j == 0 else \
             np.einsum("qkj,qj->qk", rem_v[rows, :, :3], plane[:, :3]) - plane[:, 3:4]
         in_v, in_c, out_v, out_c = _split(rem_v[rows], rem_c[rows], s)
         outs_v.append(out_v)
@@ -470,11 +475,11 @@ def _compact(pts: np.ndarray, emit: np.ndarray):
     """Keep the emitted points (emit (S, Q, L)) of each row of pts (Q, L, 4) in order, padded with
     the row's first kept point; returns (S, Q, width, 4) and counts (S, Q)."""
     n_sides, q, length = emit.shape
-    counts = np.count_nonzero(emit, axis=2)
-    width = max(int(counts.max()), 1)
     flat = np.flatnonzero(emit)                                  # sorted: row by row, in order
     src = flat % (q * length)
-    per_row = counts.ravel()
+    per_row = np.bincount(flat // length, minlength=n_sides * q)   # not a sum over the short axis: slow
+    counts = per_row.reshape(n_sides, q)
+    width = max(int(per_row.max(initial=0)), 1)
     starts = np.cumsum(per_row) - per_row
     dest = np.arange(len(flat)) - np.repeat(starts, per_row)
     pts_flat = pts.reshape(-1, 4)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from touch4d.errors import ConfigError
-from touch4d.geometry.rotation import PLANES, controller_rotation, orthonormalize, plane_axes, plane_rotation
+from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene
 from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
 
@@ -126,12 +126,12 @@ class SceneControl:
         objects = self.scene.objects
         if self.scene.selected >= 0:
             obj = objects[self.scene.selected]
-            obj.orientation = orthonormalize(r @ obj.orientation)
+            obj.orientation = renormalize(r @ obj.orientation)
         else:
             centre = np.mean([o.position for o in objects], axis=0)
             for obj in objects:
                 obj.position = centre + r @ (obj.position - centre)
-                obj.orientation = orthonormalize(r @ obj.orientation)
+                obj.orientation = renormalize(r @ obj.orientation)
         self.scene.revision += 1
 
     # ---- commands ------------------------------------------------------------------------------
