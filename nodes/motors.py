@@ -12,6 +12,7 @@ import dataclasses
 import time
 
 from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
 from touch4d.glove.busload import check_bus_load
 from touch4d.glove.config import load_glove_can
 from touch4d.glove.driver import MotorDriver, Outgoing
@@ -42,6 +43,9 @@ class MotorsNode(Node):
         channel = self.declare_parameter("channel", "")
         emulate = self.declare_parameter("emulate", False)
         status_hz = self.declare_parameter("status_hz", 10.0)
+        if not status_hz > 0:
+            raise ConfigError(self._params_source or f"parameters of node '{self.name}'", "status_hz",
+                              "a rate > 0 (messages per second)", got=status_hz)
         cfg = load_glove_can(glove or None)
         cfg = dataclasses.replace(cfg, interface=interface or cfg.interface, channel=channel or cfg.channel)
         self.cfg = cfg

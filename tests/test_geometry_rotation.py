@@ -43,8 +43,9 @@ def test_a_million_compositions_stay_orthogonal_with_det_one():
         if step % 100 == 99:
             r = orthonormalize(r)
     r = orthonormalize(r)
-    assert np.abs(r @ np.swapaxes(r, 1, 2) - np.eye(4)).max() < 1e-12
-    assert np.allclose(np.linalg.det(r), 1, atol=1e-12)
+    # Unrepaired, these chains drift to ~4e-13 (det off by ~8e-13); repaired they stay at rounding.
+    assert np.abs(r @ np.swapaxes(r, 1, 2) - np.eye(4)).max() < 1e-14
+    assert np.abs(np.linalg.det(r) - 1).max() < 1e-14
 
 
 def test_orthonormalize_repairs_drift_and_keeps_handedness():

@@ -36,7 +36,18 @@ def test_command_line_swaps_sets_and_drops_nodes(tmp_path):
                               "tracker.flags:=[1, two]", "other:=none"])
     assert list(nodes) == ["tracker"]
     assert nodes["tracker"].module == "example_listener"
-    assert nodes["tracker"].params == {"rate": 90.0, "delay": 0.5, "topic": "hand/pose", "flags": [1, "two"]}
+    assert nodes["tracker"].params == {"delay": 0.5, "topic": "hand/pose", "flags": [1, "two"]}
+
+
+def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path):
+    top = write(tmp_path / "l.yaml", "nodes:\n  tracker:\n    node: example_talker\n    params: {rate: 90.0}\n"
+                                     "    params_for: {example_listener: {delay: 0.25}}\n")
+    assert load_launch(top, ["tracker:=example_talker"])["tracker"].params == {"rate": 90.0}
+    swapped = load_launch(top, ["tracker:=example_listener", "tracker.topic:=t"])["tracker"]
+    assert swapped.module == "example_listener" and swapped.params == {"delay": 0.25, "topic": "t"}
+    bad = write(tmp_path / "b.yaml", "nodes:\n  tracker: {node: example_talker, params_for: {nope: {}}}\n")
+    with pytest.raises(ConfigError, match="nodes.tracker.params_for.nope"):
+        load_launch(bad)
 
 
 @pytest.mark.parametrize("text, key", [

@@ -311,3 +311,8 @@ def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
     glove.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match="slow.yaml.*bus load"):
         MotorsNode(params={"glove": str(glove), "channel": "never"}, bus=bus)
+
+
+def test_a_bad_parameter_is_refused_with_its_name(bus):
+    with pytest.raises(ConfigError, match="status_hz"):
+        MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": 0.0}, bus=bus)

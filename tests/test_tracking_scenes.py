@@ -2,6 +2,7 @@
 look-alikes look alike, and the multi-object scene really hides part of one object behind another."""
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
 
 from touch4d.geometry.raycast import RayCaster
 from touch4d.geometry.scene import load_scene
@@ -34,12 +35,22 @@ def test_scene_loads_sits_behind_the_screen_and_projects_inside_it(path):
 
 
 def test_look_alikes_share_their_silhouette_and_differ_in_depth():
-    fronts = {}
+    fronts, seen = {}, {}
+    points = np.random.default_rng(4).uniform(-0.9, 0.9, (4000, 3))
     for name in ("convex-front", "flat-front", "concave-front"):
         scene = load_scene(CONFIG_DIR / "scenes" / f"{name}.yaml")
-        v = vertices(scene.objects[0])
-        fronts[name] = scene.ray_caster().cast(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]]))[0]
-        assert np.allclose(np.abs(v[:, :3]).max(axis=0), 0.8)
+        caster = scene.ray_caster()
+        fronts[name] = caster.cast(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]]))[0]
+        seen[name] = caster.cast(points)[1] >= 0
+    # Fig. 20(a): seen from the front all three are the same ball, point for point in the whole screen
+    # (away from its boundary, where rounding decides), not just in their extent.
+    flat = load_scene(CONFIG_DIR / "scenes" / "flat-front.yaml").objects[0]
+    ball = ConvexHull(vertices(flat)[:, :3])
+    margin = (points @ ball.equations[:, :3].T + ball.equations[:, 3]).max(axis=1)
+    clear = np.abs(margin) > 1e-9
+    assert 1000 < (margin < 0).sum() < 3000
+    for name, hit in seen.items():
+        assert np.array_equal(hit[clear], (margin < 0)[clear]), name
     # from the front they look the same; along w the cone recedes from its apex at the centre, the
     # flat front stays level and the hollow is deepest at the centre
     convex, flat, concave = fronts["convex-front"], fronts["flat-front"], fronts["concave-front"]

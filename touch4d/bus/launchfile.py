@@ -6,11 +6,15 @@ nodes:
   tracker:                    # the role (node name)
     node: scripted_tracker    # module in touch4d.nodes
     params: {rate: 90}        # merged over the included file's params for this role
+    params_for:               # parameters for other modules swapped into this role
+      replay: {file: session.mcap}
     respawn: false            # restart it when it dies
     respawn_delay: 0.5        # seconds before a restart
 ```
 Overrides on the command line: `ROLE:=MODULE` swaps (or adds) a node, `ROLE:=none` removes it,
-`ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML).
+`ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML). A swap to another module drops the
+role's `params` (they belong to the module it replaces: `rate` is Hz for a tracker but a speed
+factor for replay) and takes that module's `params_for` entry instead.
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ from touch4d.errors import ConfigError
 
 COMMAND_LINE = "command line"
 _FILE_KEYS = {"include", "nodes"}
-_NODE_KEYS = {"node", "params", "respawn", "respawn_delay"}
+_NODE_KEYS = {"node", "params", "params_for", "respawn", "respawn_delay"}
 
 
 @dataclass
@@ -35,6 +39,7 @@ class NodeSpec:
     role: str
     module: str | None = None
     params: dict = field(default_factory=dict)
+    params_for: dict = field(default_factory=dict)  # module -> params, used when swapped in
     respawn: bool = False
     respawn_delay: float = 0.5
     source: str = COMMAND_LINE  # the file that last set this node's module or parameters
@@ -113,6 +118,15 @@ def _merge_node(path: Path, role: str, entry, nodes: dict[str, NodeSpec]) -> Non
             raise ConfigError(path, f"{where}.params", "a mapping of parameter names to values", got=params)
         spec.params = {**spec.params, **params}
         spec.source = str(path)
+    if "params_for" in entry:
+        table = entry["params_for"] or {}
+        if not isinstance(table, dict) or not all(
+            isinstance(k, str) and isinstance(v, dict) for k, v in table.items()
+        ):
+            raise ConfigError(path, f"{where}.params_for", "a mapping of node module -> parameters", got=table)
+        for module in table:
+            _check_module(path, f"{where}.params_for.{module}", module)
+        spec.params_for = {**spec.params_for, **{k: dict(v) for k, v in table.items()}}
     if "respawn" in entry:
         if not isinstance(entry["respawn"], bool):
             raise ConfigError(path, f"{where}.respawn", "true or false", got=entry["respawn"])
@@ -145,6 +159,9 @@ def apply_overrides(nodes: dict[str, NodeSpec], overrides) -> None:
         else:
             _check_module(COMMAND_LINE, arg, text)
             spec = nodes.setdefault(role, NodeSpec(role))
+            if spec.module != text:
+                spec.params = dict(spec.params_for.get(text, {}))
+                spec.source = COMMAND_LINE
             spec.module = text
 
 

@@ -12,6 +12,7 @@ order, so every message the broker forwards after that point reaches this node.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import time
@@ -272,7 +273,8 @@ class Node:
         due = min((t.next_due for t in self._timers if not t.cancelled), default=None)
         if due is not None:
             timeout = max(0.0, min(timeout, due - time.monotonic()))
-        events = dict(self._poller.poll(int(timeout * 1000) if timeout > 0 else 0))
+        # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
+        events = dict(self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0))
         if self._sub in events:
             handled += self._dispatch(self._drain())
         if self._pub in events:
