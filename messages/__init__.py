@@ -5,7 +5,7 @@ See docs/contracts.md for the table of topics and fields.
 from .base import Message, MessageError, TYPES, decode, encode
 from .hand import ControllerState, HandPose
 from .scene import PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
-from .system import Heartbeat, InputEvents, MotorStatus, Stop
+from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
 from .tactile import MotorCommand, TactileField
 
 TOPIC_TYPES: dict[str, type[Message]] = {
@@ -16,6 +16,7 @@ TOPIC_TYPES: dict[str, type[Message]] = {
     "tactile/field": TactileField,
     "tactile/motors": MotorCommand,
     "motors/status": MotorStatus,
+    "motors/trace": MotorTrace,
     "safety/stop": Stop,
     "node/heartbeat": Heartbeat,
     "ui/input": InputEvents,
@@ -24,5 +25,5 @@ TOPIC_TYPES: dict[str, type[Message]] = {
 __all__ = [
     "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode",
     "HandPose", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
-    "MotorStatus", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
+    "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
 ]

@@ -56,3 +56,17 @@ class InputEvents(Message):
     mouse_delta: np.ndarray = spec(Array((2,)), "pointer motion since the previous message, pixels")
     buttons: list = spec(IntList(), "mouse buttons held (1 left, 2 right, 3 middle)")
     scroll: float = spec(Float(), "scroll since the previous message")
+
+
+@dataclass(kw_only=True)
+class MotorTrace(Message):
+    """When each motor command reached the CAN bus (topic motors/trace), for latency measurements.
+
+    Published in batches by the motor node when its `trace` parameter is on."""
+
+    source_stamps: np.ndarray = spec(Array((None,)), "source_stamp (hand/pose stamp) of each command sent")
+    frame_times: np.ndarray = spec(Array((None,)), "wall-clock time its last duty frame was on the bus, s")
+
+    def check(self):
+        if len(self.source_stamps) != len(self.frame_times):
+            raise ValueError("frame_times: expected one per source stamp")

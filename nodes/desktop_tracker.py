@@ -6,35 +6,30 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose, InputEvents
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter, resolve
 from touch4d.tracking.desktop import DesktopConfig, DesktopHand
 from touch4d.tracking.outputs import from_hand
-
-MAX_RATE = 1000.0
 
 
 class DesktopTracker(Node):
     def __init__(self, **kwargs):
         super().__init__("tracker", **kwargs)
         source = f"parameters of node '{self.name}'"
-        self.rate = self.declare_parameter("rate", 90.0)
-        if not 0 < self.rate <= MAX_RATE:
-            raise ConfigError(source, "rate", f"a rate in (0, {MAX_RATE:g}] Hz", got=self.rate)
+        self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
         defaults = DesktopConfig()
         home = self.declare_parameter("home", list(defaults.home))
-        if len(home) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in home):
+        if len(home) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                                     for v in home):
             raise ConfigError(source, "home", "[x, y, z] in screen units", got=home)
-        config = DesktopConfig(
-            move_speed=self.declare_parameter("move_speed", defaults.move_speed),
-            turn_speed_deg=self.declare_parameter("turn_speed_deg", defaults.turn_speed_deg),
-            drag_turn=self.declare_parameter("drag_turn", defaults.drag_turn),
-            drag_move=self.declare_parameter("drag_move", defaults.drag_move),
-            home=tuple(float(v) for v in home),
-        )
+        speeds = {key: positive_parameter(self.declare_parameter(key, getattr(defaults, key)), source, key)
+                  for key in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")}
+        config = DesktopConfig(**speeds, home=tuple(float(v) for v in home))
         self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
         self.hand = DesktopHand(config)
         self.hand_pub = self.create_publisher("hand/pose", HandPose)

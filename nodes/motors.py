@@ -4,12 +4,21 @@ Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The lo
 touch4d.glove (driver: what to send; link: python-can without exceptions); this node wires it to
 topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
-this process), `status_hz` (motors/status rate).
+this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
+
+Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
+its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
+virtual bus has then delivered it). A command rate-limited by the driver waits for the frame (or
+refresh) that carries it; one replaced by a newer command before that is counted in the heartbeat
+stat `trace_superseded`; one whose duties were already on the bus needs no frame and is counted in
+`trace_unchanged` instead of being traced.
 """
 from __future__ import annotations
 
 import dataclasses
 import time
+
+import numpy as np
 
 from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
@@ -19,9 +28,10 @@ from touch4d.glove.driver import MotorDriver, Outgoing
 from touch4d.glove.emulator import GloveEmulator
 from touch4d.glove.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.glove.protocol import FrameError, GloveProtocol
-from touch4d.messages import MotorCommand, MotorStatus, Stop
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
+TRACE_PERIOD_S = 0.05  # motors/trace batches
 
 
 class MotorsNode(Node):
@@ -31,6 +41,11 @@ class MotorsNode(Node):
         super().__init__("motors", **kwargs)
         self.emulator = None
         self.link = None
+        self.tracing = False
+        self._trace_pending: float | None = None   # source_stamp of the command whose duties are not all sent
+        self._trace_stamps: list[float] = []
+        self._trace_times: list[float] = []
+        self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
         try:
             self._setup(bus_factory)
         except BaseException:
@@ -43,6 +58,7 @@ class MotorsNode(Node):
         channel = self.declare_parameter("channel", "")
         emulate = self.declare_parameter("emulate", False)
         status_hz = self.declare_parameter("status_hz", 10.0)
+        trace = self.declare_parameter("trace", False)
         if not status_hz > 0:
             raise ConfigError(self._params_source or f"parameters of node '{self.name}'", "status_hz",
                               "a rate > 0 (messages per second)", got=status_hz)
@@ -66,6 +82,11 @@ class MotorsNode(Node):
         self.create_subscription("safety/stop", Stop, self.on_stop)
         self.create_timer(1.0 / cfg.refresh_hz, self.on_refresh)
         self.create_timer(1.0 / status_hz, self.publish_status)
+        self.tracing = trace
+        if trace:
+            self._counters.update(trace_traced=0, trace_unchanged=0, trace_superseded=0)
+            self.trace_pub = self.create_publisher("motors/trace", MotorTrace)
+            self.create_timer(TRACE_PERIOD_S, self.publish_trace)
         self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
                       len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
                       100 * self.load.fraction, " (emulated boards)" if emulate else "")
@@ -73,11 +94,25 @@ class MotorsNode(Node):
     def on_command(self, msg: MotorCommand) -> None:
         now = time.monotonic()
         self.driver.command(msg.names, msg.intensity, now)
-        self._send_frames(self.driver.outgoing(now), now)
+        if not self.tracing:
+            self._send_frames(self.driver.outgoing(now), now)
+            return
+        if self._trace_pending is not None:
+            self._counters["trace_superseded"] += 1
+        self._trace_pending = None
+        outs = self.driver.outgoing(now)
+        if not outs and self.driver.duties_on_bus():
+            self._counters["trace_unchanged"] += 1
+            return
+        self._trace_pending = msg.source_stamp
+        self._send_frames(outs, now)
 
     def on_stop(self, msg: Stop) -> None:
         now = time.monotonic()
         self.log.warning("stop from %s: %s", msg.origin or "?", msg.reason or "-")
+        if self._trace_pending is not None:
+            self._counters["trace_superseded"] += 1   # a stop replaces it with zero duties
+            self._trace_pending = None
         self._stop_all(now)
         self.publish_status()
 
@@ -119,10 +154,24 @@ class MotorsNode(Node):
         for out in outs:
             fault = self.link.send(out.msg)
             if fault is None:
+                if self.tracing and out.board:
+                    self._last_sent_at = time.time()
                 self.driver.sent(out, now)
             else:
                 self.driver.failed(out, fault)
                 self._can_warn(fault, self.link.last_error)
+        if self._trace_pending is not None and outs and self.driver.duties_on_bus():
+            self._trace_stamps.append(self._trace_pending)
+            self._trace_times.append(self._last_sent_at)
+            self._counters["trace_traced"] += 1
+            self._trace_pending = None
+
+    def publish_trace(self) -> None:
+        """The commands traced since the last batch, on motors/trace."""
+        if self._trace_stamps:
+            self.trace_pub.publish(MotorTrace(source_stamps=np.array(self._trace_stamps),
+                                              frame_times=np.array(self._trace_times)))
+            self._trace_stamps, self._trace_times = [], []
 
     def _can_fault(self, kind: str, detail: str | None = None) -> None:
         self.driver.errors[kind] += 1

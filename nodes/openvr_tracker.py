@@ -15,7 +15,7 @@ from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter, resolve
 from touch4d.tracking.outputs import from_controller
 from touch4d.tracking.vr import MISSING_PACKAGE, NO_STEAMVR, buttons_from_mask, pose_from_matrix
 
@@ -28,9 +28,7 @@ class OpenVRTracker(Node):
         super().__init__("tracker", **kwargs)
         source = f"parameters of node '{self.name}'"
         self.openvr, self.system = openvr, system
-        self.rate = self.declare_parameter("rate", 90.0)
-        if not 0 < self.rate <= 1000.0:
-            raise ConfigError(source, "rate", "a rate in (0, 1000] Hz", got=self.rate)
+        self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
         hand = self.declare_parameter("hand", "right")
         if hand not in HANDS:
             raise ConfigError(source, "hand", "right or left", got=hand)

@@ -9,11 +9,10 @@ from __future__ import annotations
 import time
 
 from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import resolve
+from touch4d.tracking.config import positive_parameter, resolve
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
 
 
@@ -23,9 +22,10 @@ class SceneNode(Node):
         source = f"parameters of node '{self.name}'"
         scene_file = self.declare_parameter("scene", "config/scenes/hypercube.yaml")
         calibration = self.declare_parameter("calibration", "config/calibration.yaml")
-        rate = _positive(self.declare_parameter("rate", 2.0), source, "rate")
-        self.min_period = 1.0 / _positive(self.declare_parameter("max_rate", 120.0), source, "max_rate")
-        spin_rate = _positive(self.declare_parameter("spin_rate", 30.0), source, "spin_rate")
+        rate = positive_parameter(self.declare_parameter("rate", 2.0), source, "rate", 1000.0, "Hz")
+        self.min_period = 1.0 / positive_parameter(self.declare_parameter("max_rate", 120.0), source, "max_rate",
+                                                   1000.0, "Hz")
+        spin_rate = positive_parameter(self.declare_parameter("spin_rate", 30.0), source, "spin_rate", 1000.0, "Hz")
         config = ControlConfig.from_params(
             gains=self.declare_parameter("gains", {}),
             trigger_threshold=self.declare_parameter("trigger_threshold", 0.5),
@@ -76,12 +76,6 @@ class SceneNode(Node):
         self.pub.publish(self.control.message())
         self.dirty = False
         self.last_publish = time.monotonic()
-
-
-def _positive(value: float, source: str, key: str) -> float:
-    if not value > 0:
-        raise ConfigError(source, key, "a number > 0", got=value)
-    return value
 
 
 def main(argv=None):

@@ -60,7 +60,9 @@ class TactileNode(Node):
             return
         if rebuilt:
             self.counts["scenes_built"] += 1
-            self.log.info("scene revision %d: %d object(s), ray caster rebuilt", msg.revision, len(msg.objects))
+            # A turning scene rebuilds at every revision: say so once, not at 30 Hz.
+            log = self.log.info if self.counts["scenes_built"] == 1 else self.log.debug
+            log("scene revision %d: %d object(s), ray caster rebuilt", msg.revision, len(msg.objects))
 
     def on_pose(self, msg: HandPose) -> None:
         try:

@@ -166,3 +166,25 @@ def test_threaded_emulator_on_a_virtual_channel_answers_and_times_out():
         while emu.levels(1) != [0] * 8 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert emu.levels(1) == [0] * 8 and emu.boards[1].watchdog_tripped
+
+
+@pytest.mark.timeout(30)
+def test_an_internal_error_in_the_emulator_loop_turns_every_channel_off_and_keeps_running():
+    channel = f"emu-fault-{uuid.uuid4().hex}"
+    with GloveEmulator(CFG, interface="virtual", channel=channel) as emu, \
+            can.Bus(interface="virtual", channel=channel) as bus:
+        bus.send(PROTO.nmt("START"))
+        deadline = time.monotonic() + 10
+        while emu.levels(1) != [33] * 8 and time.monotonic() < deadline:
+            bus.send(PROTO.duty(1, [33] * 8, 5))
+            time.sleep(0.01)
+        assert emu.levels(1) == [33] * 8
+
+        def broken(now):  # the tick (and with it the board watchdog) fails from now on
+            raise RuntimeError("firmware bug")
+
+        emu.poll = broken
+        while (emu.levels(1) != [0] * 8 or not emu.counters["internal_errors"]) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert emu.levels(1) == [0] * 8 and emu.counters["internal_errors"] >= 1
+        assert emu._thread is not None and emu._thread.is_alive()

@@ -160,12 +160,21 @@ def test_gaps_and_missing_topics_reported_on_sigterm(bus, procs, tmp_path):
 
 
 @pytest.mark.timeout(60)
-def test_record_duration(bus, procs, tmp_path):
+def test_record_duration_stops_by_itself_and_bad_durations_are_rejected(bus, tmp_path, monkeypatch, capsys):
+    from touch4d.cli import main as touch4d_main
+    monkeypatch.setenv(ENV_VAR, bus.to_json())
     path = tmp_path / "short.mcap"
-    rec = Proc(bus, "record", "-o", str(path), "--duration", "0.5")
-    procs.append(rec)
-    assert rec.p.wait(timeout=30) == 0
-    assert LogReader(path).complete
+    switch = sys.getswitchinterval()
+    try:
+        assert touch4d_main(["record", "-o", str(path), "--duration", "0.5"]) == 0
+    finally:
+        sys.setswitchinterval(switch)   # the record command tunes it for its own process
+    reader = LogReader(path)
+    list(reader.records())   # metadata is read along with the records
+    assert reader.complete and float(reader.metadata["touch4d.recording"]["duration"]) >= 0.5
+    for bad in ("0", "-1", "nan", "inf"):
+        assert touch4d_main(["record", "-o", str(tmp_path / "bad.mcap"), "--duration", bad]) == 2
+        assert "--duration must be a finite number of seconds > 0" in capsys.readouterr().err
 
 
 def test_no_broker_is_a_clear_error(tmp_path):

@@ -5,7 +5,7 @@ import pytest
 
 from touch4d.messages import (
     TOPIC_TYPES, TYPES, ControllerState, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
-    MotorStatus, SceneCommand, SceneState, Stop, TactileField, decode, encode,
+    MotorStatus, MotorTrace, SceneCommand, SceneState, Stop, TactileField, decode, encode,
 )
 from touch4d.messages.codec import pack
 
@@ -29,6 +29,7 @@ EXAMPLES = [
     MotorStatus(boards=[dict(id=1, online=True, faults=[], last_frame=1.0, state="operational")],
                 duty=np.zeros(30), bus_load=0.21, errors={"send": 0}),
     Stop(reason="test", origin="pytest"),
+    MotorTrace(source_stamps=[1.0, 2.0], frame_times=[1.001, 2.002]),
     Heartbeat(node="tactile", pid=42, kind="tactile", publishes=["tactile/field"], subscribes=[], stats={"received": 3}),
     InputEvents(keys_down=["w"], pressed=["space"], mouse=[10, 20], mouse_delta=[1, -1], buttons=[1], scroll=0.5),
 ]

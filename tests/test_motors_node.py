@@ -16,7 +16,7 @@ from touch4d.errors import ConfigError
 from touch4d.glove.config import load_glove_can
 from touch4d.glove.duty import duty_to_levels, intensity_to_duty
 from touch4d.glove.protocol import GloveProtocol
-from touch4d.messages import MotorCommand, MotorStatus, Stop
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
 from touch4d.nodes.motors import MotorsNode
 
 pytestmark = pytest.mark.timeout(60)
@@ -316,3 +316,46 @@ def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
 def test_a_bad_parameter_is_refused_with_its_name(bus):
     with pytest.raises(ConfigError, match="status_hz"):
         MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": 0.0}, bus=bus)
+
+
+def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus):
+    r = Rig(bus, trace=True)
+    traces: list[MotorTrace] = []
+    r.tester.create_subscription("motors/trace", MotorTrace, traces.append)
+    try:
+        stats = r.node.stats_flat
+        assert r.spin(WAIT, intensity=np.full(30, 0.1), until=lambda: stats()["trace_traced"] >= 1)  # connected
+        r.spin(0.2)
+        before = stats()
+        traces.clear()
+        sent = []
+        for k in range(20):
+            v = np.full(30, 0.3 + 0.03 * k)    # every command changes every board
+            stamp = time.time()
+            sent.append(stamp)
+            r.cmd.publish(MotorCommand(names=NAMES, intensity=v, source_stamp=stamp))
+            r.spin(0.02)
+        same = time.time()
+        r.cmd.publish(MotorCommand(names=NAMES, intensity=v, source_stamp=same))   # nothing to send
+        assert r.spin(WAIT, until=lambda: stats()["trace_unchanged"] - before["trace_unchanged"] == 1 and traces
+                      and sum(len(t.source_stamps) for t in traces) == stats()["trace_traced"] - before["trace_traced"])
+        assert r.emu.motor_levels() == expected_levels(v)
+        stamps = np.concatenate([t.source_stamps for t in traces])
+        times = np.concatenate([t.frame_times for t in traces])
+        assert set(stamps) <= set(sent) and same not in stamps
+        assert np.all(times >= stamps) and np.all(times <= time.time())
+        after = stats()
+        counted = {k: after[k] - before.get(k, 0) for k in after}
+        # every command published is traced, superseded, unchanged or skipped by the latest-only subscription
+        assert (counted["trace_traced"] + counted["trace_superseded"] + counted["trace_unchanged"]
+                + counted["tactile/motors:dropped"]) == len(sent) + 1
+        assert counted["trace_traced"] >= len(sent) // 2   # spaced 20 ms apart: most go at once
+    finally:
+        r.close()
+
+
+def test_no_trace_without_the_parameter(rig):
+    traces = []
+    rig.tester.create_subscription("motors/trace", MotorTrace, traces.append)
+    assert rig.spin(0.5, intensity=np.full(30, 0.5), until=lambda: False) is False
+    assert traces == [] and "trace_traced" not in rig.node.stats_flat()

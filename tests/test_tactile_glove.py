@@ -129,7 +129,14 @@ _DELETE = object()
     ("motors.4.channel", 0, "motors[4].channel", "palm-center"),
     ("motors.5.name", "palm-center", "motors[5].name", "used once"),
     ("can.boards.1.id", 1, "can.boards[1].id", "used once"),
-    ("can", _DELETE, "can", "present"),
+    ("can", 5, "can", "a mapping"),
+    # typos are named, not silently ignored
+    ("gama", 2.0, "gama", "one of screen_edge_m"),
+    ("grid.m", 9, "grid.m", "one of n"),
+    ("hand.palm.widht", 0.09, "hand.palm.widht", "one of width"),
+    ("hand.fingers.3.lenght", 0.07, "hand.fingers[3].lenght", "one of name"),
+    ("motors.2.chanel", 3, "motors[2].chanel", "one of name"),
+    ("can.bitrat", 250000, "can.bitrat", "one of"),
 ])
 def test_mistakes_name_file_key_and_expectation(data, path, value, key, words):
     _set(data, path, value)

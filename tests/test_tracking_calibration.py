@@ -88,3 +88,14 @@ def test_bad_files_name_the_key(tmp_path, text, key):
 def test_missing_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="no such file"):
         load_calibration(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize("value", [0.0, -90.0, float("nan"), float("inf"), 1500.0, True, "90"])
+def test_node_rates_must_be_finite_and_in_range(value):
+    from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
+    with pytest.raises(ConfigError) as err:
+        positive_parameter(value, "launch.yaml", "rate", MAX_TRACKER_RATE, "Hz")
+    assert err.value.key == "rate" and "(0, 1000] Hz" in str(err.value) and "launch.yaml" in str(err.value)
+    assert positive_parameter(1000, "launch.yaml", "rate", MAX_TRACKER_RATE) == 1000.0
+    with pytest.raises(ConfigError, match="a finite number > 0"):
+        positive_parameter(float("inf"), "launch.yaml", "move_speed")

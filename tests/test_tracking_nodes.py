@@ -208,7 +208,7 @@ def write_tracker_log(path, seconds=3.0, rate=90.0):
             log.write("controller/state", controller.encode(), at)
 
 
-@pytest.mark.parametrize("tracker", ["scripted", "desktop", "replay", "scripted_tracker"])
+@pytest.mark.parametrize("tracker", ["scripted", "desktop", "replay"])
 def test_every_tracker_fits_the_tracker_role_of_one_launch_file(tracker, tmp_path):
     args = [TRACKERS_LAUNCH, f"tracker:={tracker}"]
     if tracker == "replay":

@@ -32,19 +32,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Commands that run until Ctrl+C: for them Ctrl+C is the normal way to stop, so it exits 0.
+RUN_UNTIL_STOPPED = {"launch", "record", "replay", "topic", "node", "bus", "glove"}
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    argv = sys.argv[1:] if argv is None else argv
     try:
+        parser = build_parser()
+        args, extra = parser.parse_known_args(argv)
+        # `touch4d launch FILE --duration 5 ROLE:=X`: positionals after an option come back unknown.
+        if extra and isinstance(getattr(args, "items", None), list) and not any(e.startswith("-") for e in extra):
+            args.items.extend(extra)
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
         return int(args.func(args) or 0)
     except Touch4dError as exc:
-        print(f"touch4d {args.command}: {exc}", file=sys.stderr)
+        print(f"touch4d {argv[0] if argv else ''}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        return 130
+        # Also while still importing, before a command could install its own handler.
+        command = next((a for a in argv if not a.startswith("-")), "")
+        return 0 if command in RUN_UNTIL_STOPPED else 130
 
 
 if __name__ == "__main__":

@@ -8,11 +8,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
+from touch4d.configfile import CONFIG_DIR, read_yaml
 from touch4d.errors import ConfigError
 
-DEFAULT_GLOVE = Path(__file__).resolve().parents[2] / "config" / "glove.yaml"
+DEFAULT_GLOVE = CONFIG_DIR / "glove.yaml"
 
 MAX_CHANNELS = 8  # one duty frame per board: 8 x 7-bit duty + 8-bit counter = 64 bits (see dbc.py)
 
@@ -109,21 +108,13 @@ class GloveCan:
 def load_glove_can(path: str | Path | None = None) -> GloveCan:
     """Read the `can:` section and the motors of a glove file (default config/glove.yaml)."""
     path = Path(path) if path is not None else DEFAULT_GLOVE
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(path, "<file>", "a readable glove file", got=str(exc)) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", "valid YAML", got=str(exc).splitlines()[0]) from None
-    return glove_can_from_mapping(data, path)
+    return glove_can_from_mapping(read_yaml(path, "glove file"), path)
 
 
 def glove_can_from_mapping(data, file="<input>") -> GloveCan:
     """Build and check a `GloveCan` from the parsed glove file (a mapping with `motors` and `can`)."""
     if not isinstance(data, dict):
-        raise ConfigError(file, "<top>", "a mapping with 'motors' and 'can'", got=type(data).__name__)
+        raise ConfigError(file, "(top level)", "a mapping with 'motors' and 'can'", got=type(data).__name__)
     can = data.get("can", {})
     if not isinstance(can, dict):
         raise ConfigError(file, "can", "a mapping", got=can)
@@ -213,7 +204,7 @@ def _boards(file, raw) -> tuple[Board, ...]:
         ch = _typed(file, f"{key}.channels", b["channels"], int, lambda v: 1 <= v <= MAX_CHANNELS,
                     f"1..{MAX_CHANNELS} (one duty frame per board)")
         if bid in seen:
-            raise ConfigError(file, f"{key}.id", "a node id not used by another board", got=bid)
+            raise ConfigError(file, f"{key}.id", "a board id used once", got=bid)
         seen.add(bid)
         boards.append(Board(bid, ch))
     return tuple(boards)
@@ -223,7 +214,7 @@ def _motors(file, raw, boards) -> list[tuple[str, int, int]]:
     if not isinstance(raw, list) or not raw:
         raise ConfigError(file, "motors", "a non-empty list of {name, position, board, channel}", got=raw)
     channels = {b.id: b.channels for b in boards}
-    out, names, slots = [], set(), set()
+    out, names, slots = [], set(), {}
     for i, m in enumerate(raw):
         key = f"motors[{i}]"
         if not isinstance(m, dict):
@@ -237,12 +228,13 @@ def _motors(file, raw, boards) -> list[tuple[str, int, int]]:
         channel = _typed(file, f"{key}.channel", m["channel"], int, lambda v: 0 <= v < channels[board],
                          f"0..{channels[board] - 1} (board {board} has {channels[board]} channels)")
         if name in names:
-            raise ConfigError(file, f"{key}.name", "a name not used by another motor", got=name)
+            raise ConfigError(file, f"{key}.name", "a motor name used once", got=name)
         if (board, channel) in slots:
-            raise ConfigError(file, f"{key}.channel", f"a channel of board {board} not used by another motor",
+            raise ConfigError(file, f"{key}.channel",
+                              f"a channel of board {board} not already driving motor '{slots[board, channel]}'",
                               got=channel)
         names.add(name)
-        slots.add((board, channel))
+        slots[board, channel] = name
         out.append((name, board, channel))
     return out
 

@@ -244,6 +244,11 @@ class MotorDriver:
                 b.online = False
         return events
 
+    def duties_on_bus(self) -> bool:
+        """Whether every board's last sent frame carries the duties to be sent now."""
+        motor_levels = duty_to_levels(self.duty).tolist()
+        return all(b.sent_levels == self.board_levels(b.id, motor_levels) for b in self.boards.values())
+
     def sent_duty(self) -> np.ndarray:
         """The duty last sent to every motor (0..1, glove file order)."""
         out = np.zeros(len(self.names))

@@ -229,6 +229,16 @@ class GloveEmulator:
                 self.counters["bus_errors"] += 1
                 log.warning("emulator bus error: %s", exc)
                 self._stop.wait(0.05)
+            except Exception:  # noqa: BLE001 - fail safe: a dead loop would leave its motors running
+                self.counters["internal_errors"] += 1
+                log.exception("emulator step failed: every channel off")
+                self.all_off()
+                self._stop.wait(0.05)
+
+    def all_off(self) -> None:
+        """Every channel of every board off (what a board's firmware does on an internal fault)."""
+        for b in self.boards.values():
+            b.levels = [0] * b.channels
 
     def stop(self) -> None:
         """Stop the thread and close the bus if this emulator opened it."""

@@ -82,6 +82,8 @@ def cmd_record(args) -> int:
 
     from .recorder import Recorder
 
+    if args.duration is not None and not 0 < args.duration < float("inf"):
+        raise Touch4dError(f"record: --duration must be a finite number of seconds > 0, got {args.duration}")
     sys.setswitchinterval(0.0005)  # the receiving thread must not wait 5 ms for the GIL
     recorder = Recorder(resolve_bus_config(args.bus), args.output, args.topics, realtime=args.realtime)
     done = threading.Event()

@@ -419,16 +419,21 @@ def _subtract(v, count, body, occ: _Occluders):
         rows = np.nonzero((n_cuts > j) & (rem_c >= 3))[0]
         if len(rows) == 0:
             break
-        plane = planes[rows, order[j, rows]]
-        s = s_all[order[j, rows], :, rows] if j == 0 else \
-            np.einsum("qkj,qj->qk", rem_v[rows, :, :3], plane[:, :3]) - plane[:, 3:4]
-        in_v, in_c, out_v, out_c = _split(rem_v[rows], rem_c[rows], s)
+        if j == 0:
+            s = s_all[order[0, rows], :, rows]
+        else:
+            plane = planes[rows, order[j, rows]]
+            s = np.einsum("qkj,qj->qk", rem_v[rows, :, :3], plane[:, :3]) - plane[:, 3:4]
+            need = s.max(axis=1) > _TOUCH             # earlier cuts may have left it inside this unit
+            rows, s = rows[need], s[need]
+            if len(rows) == 0:
+                continue
+        in_v, in_c, out_v, out_c = _split(rem_v[rows], rem_c[rows], s, rem_v.shape[1])
         outs_v.append(out_v)
         outs_c.append(out_c)
         outs_p.append(rows)
-        if in_v.shape[1] > rem_v.shape[1]:
-            rem_v = _pad_width(rem_v, in_v.shape[1])
-        rem_v[rows] = _pad_width(in_v, rem_v.shape[1])
+        rem_v = _pad_width(rem_v, in_v.shape[1])        # grows only when a cut adds a vertex
+        rem_v[rows] = in_v
         rem_c[rows] = in_c
     # Depth test at an interior point of the overlap: the mean of the remainder's vertices.
     overlap = rem_c >= 3
@@ -446,10 +451,11 @@ def _subtract(v, count, body, occ: _Occluders):
     return np.concatenate(keep_v), np.concatenate(keep_c), np.concatenate(keep_p)
 
 
-def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray):
+def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray, width: int = 1):
     """Sutherland-Hodgman for a batch of convex polygons, each against its own plane.
 
-    Returns the pieces with s <= 0 and with s >= 0, as (vertices, counts) each."""
+    Returns the pieces with s <= 0 and with s >= 0, as (vertices, counts) each, at least `width`
+    vertices wide."""
     q, k = s.shape
     rows = np.arange(q)[:, None]
     col = np.arange(k)[None]
@@ -467,19 +473,19 @@ def _split(v: np.ndarray, count: np.ndarray, s: np.ndarray):
     emit[0, :, :, 0] = valid & inside
     emit[1, :, :, 0] = valid & ~inside
     emit[:, :, :, 1] = cross
-    out, new_count = _compact(pts.reshape(q, 2 * k, 4), emit.reshape(2, q, 2 * k))
+    out, new_count = _compact(pts.reshape(q, 2 * k, 4), emit.reshape(2, q, 2 * k), width)
     return out[0], new_count[0], out[1], new_count[1]
 
 
-def _compact(pts: np.ndarray, emit: np.ndarray):
+def _compact(pts: np.ndarray, emit: np.ndarray, min_width: int = 1):
     """Keep the emitted points (emit (S, Q, L)) of each row of pts (Q, L, 4) in order, padded with
-    the row's first kept point; returns (S, Q, width, 4) and counts (S, Q)."""
+    the row's first kept point; returns (S, Q, width >= min_width, 4) and counts (S, Q)."""
     n_sides, q, length = emit.shape
     flat = np.flatnonzero(emit)                                  # sorted: row by row, in order
     src = flat % (q * length)
     per_row = np.bincount(flat // length, minlength=n_sides * q)   # not a sum over the short axis: slow
     counts = per_row.reshape(n_sides, q)
-    width = max(int(per_row.max(initial=0)), 1)
+    width = max(int(per_row.max(initial=0)), min_width)
     starts = np.cumsum(per_row) - per_row
     dest = np.arange(len(flat)) - np.repeat(starts, per_row)
     pts_flat = pts.reshape(-1, 4)

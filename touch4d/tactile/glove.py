@@ -10,13 +10,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from touch4d.configfile import read_yaml
 from touch4d.errors import ConfigError
+from touch4d.glove.config import DEFAULT_GLOVE, glove_can_from_mapping
 
 from .hand import FINGER_NAMES, Hand
 
-DEFAULT_GLOVE = Path(__file__).resolve().parents[2] / "config" / "glove.yaml"
+TOP_KEYS = ("screen_edge_m", "grid", "hand", "alpha", "beta", "gamma", "motors", "can")
 
 
 @dataclass(frozen=True)
@@ -54,34 +55,27 @@ class Glove:
 def load_glove(path: str | Path | None = None) -> Glove:
     """Read a glove file (default: config/glove.yaml) and build its samples and motor bindings."""
     path = Path(path) if path is not None else DEFAULT_GLOVE
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(path, "<file>", "a readable glove file", got=exc.strerror) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", "valid YAML", got=str(exc).splitlines()[0]) from None
-    return glove_from_dict(data, path)
+    return glove_from_dict(read_yaml(path, "glove file"), path)
 
 
 def glove_from_dict(data, path="<input>") -> Glove:
     """Build a `Glove` from the parsed contents of a glove file."""
     r = _Reader(path)
-    root = r.mapping(data, "<top level>")
+    root = r.mapping(data, "(top level)", TOP_KEYS)
     screen_edge_m = r.number(root, "screen_edge_m", positive=True)
-    counts = _grid_counts(r, r.mapping(r.get(root, "grid"), "grid"))
-    hand = _hand(r, r.mapping(r.get(root, "hand"), "hand"))
+    counts = _grid_counts(r, r.mapping(r.get(root, "grid"), "grid", ("n",)))
+    hand = _hand(r, r.mapping(r.get(root, "hand"), "hand", ("palm", "fingers")))
     alpha = check_alpha(r.get(root, "alpha"), path, "alpha")
     beta = check_beta(r.get(root, "beta"), path, "beta")
     gamma = check_gamma(r.get(root, "gamma"), path, "gamma")
-    can = r.mapping(r.get(root, "can"), "can")
-    board_channels = _boards(r, can)
+    # Names, boards and channels are the glove package's: one set of rules for both readers.
+    can_cfg = glove_can_from_mapping(root, path)
 
     samples = hand.grid_samples(counts)
     if len(samples) == 0:
         raise ConfigError(path, "grid.n", "a grid that leaves sample points inside the hand", got=counts)
-    names, positions, boards, channels = _motors(r, r.get(root, "motors"), board_channels)
+    names = list(can_cfg.motor_names)
+    positions = _motor_positions(r, root["motors"])
 
     distance = np.linalg.norm(positions[:, None, :] - samples[None, :, :], axis=2)
     motor_sample = np.argmin(distance, axis=1)
@@ -96,7 +90,8 @@ def glove_from_dict(data, path="<input>") -> Glove:
     return Glove(
         path=str(path), screen_edge_m=screen_edge_m, hand=hand, samples=samples,
         motor_names=names, motor_positions=positions, motor_sample=motor_sample,
-        motor_board=boards, motor_channel=channels, alpha=alpha, beta=beta, gamma=gamma, can=can,
+        motor_board=np.array(can_cfg.motor_board, dtype=int), motor_channel=np.array(can_cfg.motor_channel, dtype=int),
+        alpha=alpha, beta=beta, gamma=gamma, can=dict(root.get("can") or {}),
     )
 
 
@@ -124,7 +119,7 @@ def _grid_counts(r: "_Reader", grid: dict) -> tuple[int, int, int]:
 
 
 def _hand(r: "_Reader", hand: dict) -> Hand:
-    palm = r.mapping(r.get(hand, "palm", "hand.palm"), "hand.palm")
+    palm = r.mapping(r.get(hand, "palm", "hand.palm"), "hand.palm", ("width", "length", "thickness"))
     palm_sizes = {k: r.number(palm, k, positive=True, where="hand.palm") for k in ("width", "length", "thickness")}
     fingers = r.get(hand, "fingers", "hand.fingers")
     if not isinstance(fingers, list) or not fingers:
@@ -132,7 +127,7 @@ def _hand(r: "_Reader", hand: dict) -> Hand:
     made = []
     for i, f in enumerate(fingers):
         where = f"hand.fingers[{i}]"
-        f = r.mapping(f, where)
+        f = r.mapping(f, where, ("name", "base", "angle_deg", "length", "radius"))
         name = r.get(f, "name", f"{where}.name")
         if name not in FINGER_NAMES:
             raise ConfigError(r.path, f"{where}.name", f"one of {', '.join(FINGER_NAMES)}", got=name)
@@ -149,52 +144,14 @@ def _hand(r: "_Reader", hand: dict) -> Hand:
     return Hand.from_sizes(palm_sizes, made)
 
 
-def _boards(r: "_Reader", can: dict) -> dict[int, int]:
-    boards = r.get(can, "boards", "can.boards")
-    if not isinstance(boards, list) or not boards:
-        raise ConfigError(r.path, "can.boards", "a list of {id, channels}", got=boards)
-    found: dict[int, int] = {}
-    for i, b in enumerate(boards):
-        where = f"can.boards[{i}]"
-        b = r.mapping(b, where)
-        board_id = r.integer(b, "id", where, low=1)
-        if board_id in found:
-            raise ConfigError(r.path, f"{where}.id", "a board id used once", got=board_id)
-        found[board_id] = r.integer(b, "channels", where, low=1)
-    return found
-
-
-def _motors(r: "_Reader", motors, board_channels: dict[int, int]):
-    if not isinstance(motors, list) or not motors:
-        raise ConfigError(r.path, "motors", "a list of {name, position, board, channel}", got=motors)
-    names, positions, boards, channels = [], [], [], []
-    used: dict[tuple[int, int], str] = {}
+def _motor_positions(r: "_Reader", motors: list) -> np.ndarray:
+    """Each motor's position on the hand (metres); the list itself was checked by glove_can_from_mapping."""
+    positions = []
     for i, m in enumerate(motors):
         where = f"motors[{i}]"
-        m = r.mapping(m, where)
-        name = r.get(m, "name", f"{where}.name")
-        if not isinstance(name, str) or not name:
-            raise ConfigError(r.path, f"{where}.name", "a non-empty string", got=name)
-        if name in names:
-            raise ConfigError(r.path, f"{where}.name", "a motor name used once", got=name)
-        position = r.vector(r.get(m, "position", f"{where}.position"), f"{where}.position", 3)
-        board = r.integer(m, "board", where)
-        if board not in board_channels:
-            raise ConfigError(r.path, f"{where}.board", f"a board id listed in can.boards {sorted(board_channels)}",
-                              got=board)
-        channel = r.integer(m, "channel", where, low=0)
-        if channel >= board_channels[board]:
-            raise ConfigError(r.path, f"{where}.channel", f"0..{board_channels[board] - 1} (board {board})",
-                              got=channel)
-        if (board, channel) in used:
-            raise ConfigError(r.path, f"{where}.channel",
-                              f"a channel not already driving motor '{used[board, channel]}'", got=[board, channel])
-        used[board, channel] = name
-        names.append(name)
-        positions.append(position)
-        boards.append(board)
-        channels.append(channel)
-    return (names, np.array(positions, dtype=float), np.array(boards, dtype=int), np.array(channels, dtype=int))
+        r.mapping(m, where, ("name", "position", "board", "channel"))
+        positions.append(r.vector(r.get(m, "position", f"{where}.position"), f"{where}.position", 3))
+    return np.array(positions, dtype=float)
 
 
 class _Reader:
@@ -208,9 +165,14 @@ class _Reader:
             raise ConfigError(self.path, where or key, "this key to be present")
         return mapping[key]
 
-    def mapping(self, value, where: str) -> dict:
+    def mapping(self, value, where: str, keys: tuple[str, ...] | None = None) -> dict:
+        """`value` as a mapping; with `keys`, any other key (a typo) is named."""
         if not isinstance(value, dict):
             raise ConfigError(self.path, where, "a mapping", got=value)
+        unknown = [k for k in value if k not in keys] if keys is not None else []
+        if unknown:
+            prefix = "" if where.startswith("(") else f"{where}."
+            raise ConfigError(self.path, f"{prefix}{unknown[0]}", f"one of {', '.join(keys)}", got=unknown[0])
         return value
 
     def scalar(self, value, key: str, positive: bool = False) -> float:

@@ -6,6 +6,7 @@ import math
 import numpy as np
 
 from touch4d.errors import Touch4dError
+from touch4d.tracking.quaternion import to_matrix as quaternion_matrix  # one closed form, shared with tracking
 
 UNIT_TOLERANCE = 1e-3  # as touch4d.messages.hand: a tracker's float32 quaternion passes
 
@@ -31,16 +32,6 @@ def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.isfinite(q)):
         raise PoseError(f"orientation: expected finite numbers, got {q.tolist()}")
     raise PoseError(f"orientation: expected a unit quaternion (x, y, z, w), got norm {np.sqrt(q @ q):.6g}")
-
-
-def quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """The 3 x 3 rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = np.asarray(q, dtype=float).tolist()
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 def place(points_m: np.ndarray, units_per_metre: float, position, orientation) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Reading the tracking config files (calibration, paths) with errors that name file and key."""
+"""Reading the tracking config files (calibration, paths) and checking node parameters, with errors
+that name the file (or node) and the key."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,6 +11,7 @@ import yaml
 from touch4d.errors import ConfigError
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+MAX_TRACKER_RATE = 1000.0   # Hz: the tracker role publishes at up to 1 kHz
 
 
 def read_yaml(path) -> dict:
@@ -34,11 +36,25 @@ def get_map(data: dict, key: str, file, where: str = "", default: Any = None) ->
 
 
 def get_number(data: dict, key: str, file, where: str = "", default: Any = None, positive: bool = False) -> float:
-    value = data.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ConfigError(file, where + key, "a finite number", got=value)
+    value = finite_parameter(data.get(key, default), file, where + key)
     if positive and not value > 0:
         raise ConfigError(file, where + key, "a number > 0", got=value)
+    return value
+
+
+def finite_parameter(value, source, key: str) -> float:
+    """A node parameter that must be a finite number; else a ConfigError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ConfigError(source, key, "a finite number", got=value)
+    return float(value)
+
+
+def positive_parameter(value, source, key: str, maximum: float = np.inf, unit: str = "") -> float:
+    """A node parameter that must be a finite number in (0, maximum]; else a ConfigError naming it."""
+    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value)
+            or not 0 < value <= maximum):
+        bound = f"a number in (0, {maximum:g}]" if np.isfinite(maximum) else "a finite number > 0"
+        raise ConfigError(source, key, bound + (f" {unit}" if unit else ""), got=value)
     return float(value)
 
 

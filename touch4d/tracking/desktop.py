@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from . import quaternion
 from .paths import PathSample
 
 MOVE_KEYS = {"d": (0, 1.0), "a": (0, -1.0), "e": (1, 1.0), "q": (1, -1.0), "s": (2, 1.0), "w": (2, -1.0)}
@@ -85,5 +86,4 @@ class DesktopHand:
             self.rotation = Rotation.from_rotvec(turn) * self.rotation   # about the screen's axes
         trigger = 1.0 if "space" in keys or self._buttons & {LEFT_BUTTON, RIGHT_BUTTON} else 0.0
         buttons = tuple(sorted(BUTTON_KEYS[k] for k in keys & BUTTON_KEYS.keys()))
-        quat = self.rotation.as_quat()
-        return PathSample(self.position.copy(), -quat if quat[3] < 0 else quat, trigger, buttons)
+        return PathSample(self.position.copy(), quaternion.canonical(self.rotation.as_quat()), trigger, buttons)

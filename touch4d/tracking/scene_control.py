@@ -18,6 +18,7 @@ from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
 
 from . import quaternion
 from .calibration import Calibration
+from .config import finite_parameter
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
 ROTATE_TARGETS = ("object", "scene")
@@ -43,9 +44,9 @@ class ControlConfig:
         unknown = set(gains) - {"translation", "rotation"}
         if unknown:
             raise ConfigError(source, f"gains.{sorted(unknown)[0]}", "only 'translation' and 'rotation'")
-        t_gain = _number(gains.get("translation", cls.translation_gain), source, "gains.translation")
-        r_gain = _number(gains.get("rotation", cls.rotation_gain), source, "gains.rotation")
-        threshold = _number(trigger_threshold, source, "trigger_threshold")
+        t_gain = finite_parameter(gains.get("translation", cls.translation_gain), source, "gains.translation")
+        r_gain = finite_parameter(gains.get("rotation", cls.rotation_gain), source, "gains.rotation")
+        threshold = finite_parameter(trigger_threshold, source, "trigger_threshold")
         if not 0.0 < threshold <= 1.0:
             raise ConfigError(source, "trigger_threshold", "a number in (0, 1]", got=threshold)
         for button, command in buttons.items():
@@ -63,14 +64,8 @@ class ControlConfig:
                 plane_axes(plane)
             except ValueError:
                 raise ConfigError(source, "spin.plane", f"a rotation plane ({', '.join(PLANES)})", got=plane) from None
-            rate = _number(spin.get("deg_per_s", 10.0), source, "spin.deg_per_s")
+            rate = finite_parameter(spin.get("deg_per_s", 10.0), source, "spin.deg_per_s")
         return cls(t_gain, r_gain, threshold, dict(buttons), rotate, plane, rate)
-
-
-def _number(value, source, key) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ConfigError(source, key, "a finite number", got=value)
-    return float(value)
 
 
 class SceneControl:

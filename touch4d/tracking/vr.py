@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from . import quaternion
+
 BUTTON_IDS = {"menu": 1, "grip": 2, "trackpad": 32, "trigger": 33}
 
 MISSING_PACKAGE = (
@@ -26,8 +28,7 @@ NO_STEAMVR = (
 def pose_from_matrix(m34) -> tuple[np.ndarray, np.ndarray]:
     """An OpenVR HmdMatrix34_t (device -> tracking space, rows of 4) -> (position m, quaternion x,y,z,w)."""
     m = np.asarray(m34, dtype=float).reshape(3, 4)
-    quat = Rotation.from_matrix(m[:, :3]).as_quat()
-    return m[:, 3].copy(), -quat if quat[3] < 0 else quat
+    return m[:, 3].copy(), quaternion.canonical(Rotation.from_matrix(m[:, :3]).as_quat())
 
 
 def buttons_from_mask(mask: int) -> list[str]:
