@@ -85,7 +85,7 @@ def test_touch4d_glove_emulate_runs_standalone_on_a_channel(capsys):
         result = {}
         thread = threading.Thread(target=lambda: result.setdefault("rc", cli_main([
             "glove", "emulate", "--glove", str(TEST_GLOVE), "--interface", "virtual", "--channel", channel,
-            "--duration", "2.0", "--print-period", "0.5"])))
+            "--duration", "1.0", "--print-period", "0.25"])))
         thread.start()
         try:
             statuses = {}
@@ -111,3 +111,10 @@ def test_touch4d_glove_emulate_reports_a_bus_that_does_not_open(capsys):
     rc = cli_main(["glove", "emulate", "--glove", str(TEST_GLOVE), "--interface", "no-such-interface",
                    "--channel", "x", "--duration", "0.1"])
     assert rc == 2 and "no-such-interface" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("period", ["0", "-1", "nan", "soon"])
+def test_touch4d_glove_emulate_refuses_a_print_period_that_is_not_positive(capsys, period):
+    with pytest.raises(SystemExit) as info:
+        cli_main(["glove", "emulate", "--glove", str(TEST_GLOVE), "--duration", "0.1", "--print-period", period])
+    assert info.value.code == 2 and "--print-period" in capsys.readouterr().err

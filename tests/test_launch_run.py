@@ -61,6 +61,20 @@ def test_a_killed_node_with_respawn_comes_back_and_sigterm_stops_all():
     assert "stopping (SIGTERM)" in run.text
 
 
+def test_a_node_stuck_past_the_grace_is_killed_and_the_launch_still_stops_cleanly():
+    from touch4d.bus.launcher import STOP_GRACE
+    assert STOP_GRACE < 2.0  # the bound on a clean stop
+    with launch_process(["launch/example.yaml", "listener.delay:=120"]) as run:
+        pids = heartbeat_pids(run, ["talker", "listener"])
+        with Node("probe", bus=run.bus, heartbeat=False) as probe:
+            poses = collect(probe, "example/pose", HandPose)
+            wait_until(lambda: len(poses) >= 3, timeout=30, spin=probe)  # the listener is now asleep in a callback
+        assert run.stop(signal.SIGTERM, timeout=30) == 0
+        wait_until(lambda: not pids_alive(pids.values()), timeout=10)
+    assert "node 'listener' did not stop within" in run.text and "killing it" in run.text
+    assert "[talker]" in run.text and run.text.rstrip().endswith("stopped")
+
+
 def test_duration_stops_cleanly_with_exit_0():
     with launch_process(["launch/example.yaml", "--duration", "2"]) as run:
         assert run.proc.wait(60) == 0

@@ -339,3 +339,11 @@ def test_replay_rejects_a_rate_or_start_that_is_not_a_finite_positive_number(tmp
     synthetic_log(path, n=5)
     for args in (["--rate", "nan"], ["--rate", "inf"], ["--rate", "0"], ["--start", "nan"], ["--start", "-1"]):
         assert touch4d_main(["replay", str(path), *args]) == 2, args
+
+
+def test_looping_a_log_of_one_instant_repeats_it_once_a_second_not_as_fast_as_possible(tmp_path):
+    path = tmp_path / "one.mcap"
+    synthetic_log(path, n=1)
+    sent, _ = replay_on_virtual_clock(path, loop=True)
+    wall = np.array([s for s, _, _ in sent])
+    assert len(sent) == 120 and np.allclose(np.diff(wall), 1.0)

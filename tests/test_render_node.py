@@ -84,10 +84,9 @@ def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path):
         green = lambda: (node.renderer.read()[..., 1] > 200).sum() > 100    # noqa: E731 - the outline
         spin_until(node, green, lambda: pub.publish(good))
         # Half-spaces that bound nothing: the geometry cannot build it; the node says so and carries on.
-        bad = good.__class__(**{**good.__dict__, "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "revision": 7})
-        bad.objects = [{**good.objects[0], "shape": "custom",
-                        "parts": [np.array([[1.0, 0, 0, 0, 1], [-1, 0, 0, 0, 1], [0, 1, 0, 0, 1], [0, -1, 0, 0, 1],
-                                            [0, 0, 1, 0, 1]])]}]
+        unbounded = np.array([[1.0, 0, 0, 0, 1], [-1, 0, 0, 0, 1], [0, 1, 0, 0, 1], [0, -1, 0, 0, 1], [0, 0, 1, 0, 1]])
+        bad = SceneState(objects=[{**good.objects[0], "shape": "custom", "parts": [unbounded]}],
+                         projection="orthographic", eye_distance=3.0, selected=0, revision=7)
         spin_until(node, lambda: node.counts["bad_scenes"] > 0, lambda: pub.publish(bad))
         frames = node.counts["frames"]
         spin_until(node, lambda: node.counts["frames"] > frames + 3)

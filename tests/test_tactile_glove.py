@@ -130,6 +130,9 @@ _DELETE = object()
     ("motors.5.name", "palm-center", "motors[5].name", "used once"),
     ("can.boards.1.id", 1, "can.boards[1].id", "used once"),
     ("can", 5, "can", "a mapping"),
+    # the motor node's rules, so a glove the tactile node accepts also drives the boards
+    ("can.boards.0.id", 200, "can.boards[0].id", "1..127"),
+    ("can.boards.0.channels", 9, "can.boards[0].channels", "1..8"),
     # typos are named, not silently ignored
     ("gama", 2.0, "gama", "one of screen_edge_m"),
     ("grid.m", 9, "grid.m", "one of n"),

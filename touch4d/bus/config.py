@@ -12,14 +12,14 @@ import os
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-import yaml
 import zmq
 import zmq.auth
 
+from touch4d.configfile import CONFIG_DIR, read_yaml
 from touch4d.errors import ConfigError, Touch4dError
 
 ENV_VAR = "TOUCH4D_BUS"  # JSON of a BusConfig, set by the launcher for its node processes
-DEFAULT_PATH = Path(__file__).resolve().parents[2] / "config" / "bus.yaml"
+DEFAULT_PATH = CONFIG_DIR / "bus.yaml"
 
 
 class BusUnreachable(Touch4dError):
@@ -120,13 +120,7 @@ def load_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
             return BusConfig()
         path = DEFAULT_PATH
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except OSError as exc:
-        raise ConfigError(path, "(file)", "a readable bus config file", got=str(exc)) from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "(file)", "valid YAML", got=str(exc)) from None
-    return parse_bus_config(data, path)
+    return parse_bus_config(read_yaml(path, "bus config file") or {}, path)
 
 
 def parse_bus_config(data, path) -> BusConfig:

@@ -18,10 +18,11 @@ from touch4d.errors import ConfigError
 from touch4d.messages import TOPIC_TYPES, TYPES, Heartbeat, Message, MessageError, decode
 
 _ARRAY_SHOWN = 24
+CONNECT_TIMEOUT = 3.0  # seconds a tool waits for the broker before saying none answers
 
 
 def _tool(bus: BusConfig | None, what: str) -> Node:
-    node = Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=3.0)
+    node = Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=CONNECT_TIMEOUT)
     if not node.connected:
         node.shutdown()
         raise BusUnreachable(f"no broker at {node.bus.pub_endpoint} (bus config: {node.bus.source}); "

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from touch4d.configfile import read_yaml
 from touch4d.errors import ConfigError
 
 from .polytope import GeometryError, Polytope
@@ -146,15 +146,7 @@ def _custom_polytopes(parts) -> list[Polytope]:
 def load_scene(path) -> Scene:
     """Read and check a YAML scene file; a bad file raises ConfigError naming the file, key and reason."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(path, "(file)", "a readable scene file", got=exc.strerror) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "(yaml)", "valid YAML", got=str(exc).replace("\n", " ")) from None
-    return parse_scene(data, path)
+    return parse_scene(read_yaml(path, "scene file"), path)
 
 
 def parse_scene(data, file=None) -> Scene:

@@ -1,6 +1,7 @@
 """`touch4d glove ...`: write the glove's DBC, show its bus load, run the board emulator."""
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -29,8 +30,18 @@ def register(subparsers) -> None:
     p.add_argument("--interface", help="python-can interface (default: the glove's can.interface)")
     p.add_argument("--channel", help="python-can channel (default: the glove's can.channel)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
+    p.add_argument("--print-period", type=_positive, default=1.0, help="seconds between status lines")
     p.set_defaults(func=cmd_emulate)
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
+    return value
 
 
 def cmd_dbc(args) -> int:

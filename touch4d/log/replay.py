@@ -80,11 +80,11 @@ class Plan:
         last = max(t.last for t in chosen)
         self.duration = max(0.0, (last - self.origin) / 1e9)
         # A loop starts over one mean message interval after the last message (not at the same
-        # instant), so a looped stream stays evenly paced.
+        # instant), so a looped stream stays evenly paced; a log of one instant repeats once a second.
         first = max(self.origin, min(t.first for t in chosen))
         count = sum(t.count for t in chosen)
         gap = (last - min(t.first for t in chosen)) / 1e9 / (count - 1) if count > 1 else 0.0
-        self.loop_period = max(0.0, (last - first) / 1e9) + gap
+        self.loop_period = max(0.0, (last - first) / 1e9) + gap or 1.0
         if options.start > 0 and last < self.origin:
             raise LogFileError(f"{reader.path}: --start {options.start} s is past the end of the selected "
                                f"messages ({(last - self.summary.start) / 1e9:.3f} s)")

@@ -1,7 +1,9 @@
 """The glove model: sample points on a parametric hand, motors bound to samples, stimulus constants.
 
-`load_glove(path)` reads and checks a glove file (config/glove.yaml); every mistake raises
-`ConfigError` naming the file, the key and what was expected.
+`load_glove(path)` reads and checks a glove file (config/glove.yaml); every mistake, an unknown
+key (a typo) included, raises `ConfigError` naming the file, the key and what was expected. The
+`can:` section and the motors' names, boards and channels are checked by `touch4d.glove.config`,
+so the tactile and motor nodes accept exactly the same glove files.
 """
 from __future__ import annotations
 

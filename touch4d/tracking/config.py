@@ -6,23 +6,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from touch4d import configfile
 from touch4d.errors import ConfigError
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+CONFIG_DIR = configfile.CONFIG_DIR
 MAX_TRACKER_RATE = 1000.0   # Hz: the tracker role publishes at up to 1 kHz
 
 
 def read_yaml(path) -> dict:
     """The top-level map of a YAML file; a missing file or bad YAML is a ConfigError naming the file."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(path, "(file)", "an existing YAML file", got="no such file") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "(file)", "valid YAML", got=str(exc).splitlines()[0]) from None
+    data = configfile.read_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError(path, "(top level)", "a map", got=type(data).__name__)
     return data
