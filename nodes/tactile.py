@@ -36,10 +36,12 @@ class TactileNode(Node):
         beta = self.declare_parameter("beta", None)
         projection = self.declare_parameter("projection", "scene")
         source = self._params_source or f"parameters of node '{self.name}'"
+        # The key as declare_parameter names it: the launch file's path to the parameter when known.
+        key = (lambda name: f"nodes.{self.name}.params.{name}") if self._params_source else (lambda name: name)
         if projection not in PROJECTION_CHOICES:
-            raise ConfigError(source, "projection", f"one of {', '.join(PROJECTION_CHOICES)}", got=projection)
-        alpha = None if alpha is None else check_alpha(alpha, source, "alpha")
-        beta = None if beta is None else check_beta(beta, source, "beta")
+            raise ConfigError(source, key("projection"), f"one of {', '.join(PROJECTION_CHOICES)}", got=projection)
+        alpha = None if alpha is None else check_alpha(alpha, source, key("alpha"))
+        beta = None if beta is None else check_beta(beta, source, key("beta"))
         glove = load_glove(glove_file or None)
         self.engine = TactileEngine(glove, alpha=alpha, beta=beta, projection=projection)
         self.field_pub = self.create_publisher("tactile/field", TactileField)

@@ -113,8 +113,7 @@ def test_touch4d_glove_emulate_reports_a_bus_that_does_not_open(capsys):
     assert rc == 2 and "no-such-interface" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("period", ["0", "-1", "nan", "soon"])
+@pytest.mark.parametrize("period", ["0", "-1", "nan", "inf"])
 def test_touch4d_glove_emulate_refuses_a_print_period_that_is_not_positive(capsys, period):
-    with pytest.raises(SystemExit) as info:
-        cli_main(["glove", "emulate", "--glove", str(TEST_GLOVE), "--duration", "0.1", "--print-period", period])
-    assert info.value.code == 2 and "--print-period" in capsys.readouterr().err
+    rc = cli_main(["glove", "emulate", "--glove", str(TEST_GLOVE), "--duration", "0.1", "--print-period", period])
+    assert rc == 2 and "--print-period" in capsys.readouterr().err

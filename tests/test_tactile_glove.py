@@ -118,6 +118,7 @@ _DELETE = object()
     ("grid.n", 1, "grid.n", "integer >= 2"),
     ("grid.n", [9, 9], "grid.n", "list of 3"),
     ("hand.palm.width", _DELETE, "hand.palm.width", "present"),
+    ("hand.palm.thickness", 0.5, "hand.palm.thickness", "<= hand.palm.width"),
     ("hand.fingers.2.radius", -0.01, "hand.fingers[2].radius", "> 0"),
     ("hand.fingers.0.name", "pinky", "hand.fingers[0].name", "thumb"),
     ("hand.fingers.1.base", [0.0], "hand.fingers[1].base", "list of 2"),

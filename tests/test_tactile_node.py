@@ -189,6 +189,9 @@ def test_node_rejects_bad_parameters_with_their_names():
             with pytest.raises(ConfigError) as info:
                 TactileNode(bus=bus, params=params, heartbeat=False)
             assert info.value.key == key
+        with pytest.raises(ConfigError) as info:  # from a launch file: named as there
+            TactileNode(bus=bus, params={"alpha": "steep"}, params_source="launch/demo.yaml", heartbeat=False)
+        assert (info.value.file, info.value.key) == ("launch/demo.yaml", "nodes.tactile.params.alpha")
 
 
 # ---- the node as its own process --------------------------------------------------------------------

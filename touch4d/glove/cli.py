@@ -1,7 +1,7 @@
 """`touch4d glove ...`: write the glove's DBC, show its bus load, run the board emulator."""
 from __future__ import annotations
 
-import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -30,18 +30,8 @@ def register(subparsers) -> None:
     p.add_argument("--interface", help="python-can interface (default: the glove's can.interface)")
     p.add_argument("--channel", help="python-can channel (default: the glove's can.channel)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--print-period", type=_positive, default=1.0, help="seconds between status lines")
+    p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
     p.set_defaults(func=cmd_emulate)
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
-    return value
 
 
 def cmd_dbc(args) -> int:
@@ -65,6 +55,8 @@ def cmd_emulate(args) -> int:
 
     from touch4d.glove.emulator import GloveEmulator
 
+    if not (math.isfinite(args.print_period) and args.print_period > 0):
+        raise ConfigError("<command line>", "--print-period", "a number of seconds > 0", got=args.print_period)
     cfg = load_glove_can(args.glove)
     try:
         emulator = GloveEmulator(cfg, interface=args.interface, channel=args.channel)

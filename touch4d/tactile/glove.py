@@ -123,6 +123,9 @@ def _grid_counts(r: "_Reader", grid: dict) -> tuple[int, int, int]:
 def _hand(r: "_Reader", hand: dict) -> Hand:
     palm = r.mapping(r.get(hand, "palm", "hand.palm"), "hand.palm", ("width", "length", "thickness"))
     palm_sizes = {k: r.number(palm, k, positive=True, where="hand.palm") for k in ("width", "length", "thickness")}
+    if palm_sizes["thickness"] > palm_sizes["width"]:  # the rounded sides need width >= thickness (hand.py)
+        raise ConfigError(r.path, "hand.palm.thickness", f"a number <= hand.palm.width ({palm_sizes['width']:g})",
+                          got=palm_sizes["thickness"])
     fingers = r.get(hand, "fingers", "hand.fingers")
     if not isinstance(fingers, list) or not fingers:
         raise ConfigError(r.path, "hand.fingers", "a list of fingers (thumb .. little)", got=fingers)
