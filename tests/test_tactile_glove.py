@@ -162,3 +162,18 @@ def test_unreadable_and_invalid_files(tmp_path):
     bad.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="a mapping"):
         load_glove(bad)
+
+
+def test_relative_glove_paths_work_from_any_directory(tmp_path, monkeypatch):
+    from touch4d.glove.config import load_glove_can
+
+    monkeypatch.chdir(tmp_path)
+    glove = load_glove("config/gloves/two-motor.yaml")
+    assert Path(glove.path) == ROOT / "config" / "gloves" / "two-motor.yaml" and len(glove.motor_names) == 2
+    assert load_glove_can("config/gloves/two-motor.yaml").motor_names == tuple(glove.motor_names)
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "glove.yaml").write_text(DEFAULT_GLOVE.read_text().replace("alpha: 3.0", "alpha: 2.0"))
+    assert load_glove("config/glove.yaml").alpha == 2.0        # the working directory's file comes first
+    with pytest.raises(ConfigError) as info:
+        load_glove("config/no-such-glove.yaml")
+    assert info.value.file == "config/no-such-glove.yaml" and info.value.key == "(file)"

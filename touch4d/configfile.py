@@ -21,3 +21,13 @@ def read_yaml(path, what: str = "config file"):
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(path, "(file)", "valid YAML", got=" ".join(str(exc).split())) from None
+
+
+def resolve(path) -> Path:
+    """A config path as given, or, when relative and not found from the working directory, from the
+    repository root (so `config/gloves/dense.yaml` works from anywhere)."""
+    path = Path(path)
+    if path.is_absolute() or path.exists():
+        return path
+    from_repo = CONFIG_DIR.parent / path
+    return from_repo if from_repo.exists() else path

@@ -19,6 +19,7 @@ factor for replay) and takes that module's `params_for` entry instead.
 from __future__ import annotations
 
 import importlib.util
+import math
 import pkgutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -133,7 +134,7 @@ def _merge_node(path: Path, role: str, entry, nodes: dict[str, NodeSpec]) -> Non
         spec.respawn = entry["respawn"]
     if "respawn_delay" in entry:
         delay = entry["respawn_delay"]
-        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or delay < 0:
+        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not 0 <= delay < math.inf:
             raise ConfigError(path, f"{where}.respawn_delay", "seconds >= 0", got=delay)
         spec.respawn_delay = float(delay)
     nodes[role] = spec

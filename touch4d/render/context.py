@@ -1,6 +1,7 @@
 """GL contexts and offscreen targets: headless EGL for tests, CLI and display-less nodes."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import moderngl
@@ -63,11 +64,14 @@ class OffscreenTarget:
 
 
 def save_png(image: np.ndarray, path: str | Path) -> Path:
-    """Write a (H, W, 4) uint8 image as PNG, creating the folder."""
+    """Write a (H, W, 4) uint8 image as PNG, creating the folder; the file appears whole (written
+    beside it, then renamed), so a reader never sees half a frame."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
     try:
-        Image.fromarray(image, "RGBA").save(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(image, "RGBA").save(partial, format="PNG")
+        os.replace(partial, path)
     except OSError as exc:
         raise RenderError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return path

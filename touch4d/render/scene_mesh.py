@@ -109,11 +109,24 @@ class _Template:
         self.cell_centroids = np.array([poly.vertices[vs].mean(axis=0) for vs in topo.cell_vertices])
 
 
+@dataclass
+class _Frame:
+    """What the last clipped build cut, kept so that bodies whose pose and hiders stay can reuse it."""
+
+    setting: tuple
+    keys: list
+    hides: np.ndarray
+    polys: tuple          # pieces: vertices, counts, body, index among the body's polygons
+    segs: tuple           # pieces: vertices, body, index among the body's segments
+
+
 class MeshBuilder:
-    """Builds `SceneMesh` frames; keeps the per-shape templates between frames."""
+    """Builds `SceneMesh` frames; keeps the per-shape templates, and the last frame's cut pieces so
+    that a body whose pose did not change (nor that of any body in front of it) is not cut again."""
 
     def __init__(self):
         self._templates: dict[int, _Template] = {}
+        self._frame: _Frame | None = None
 
     def template(self, poly: Polytope) -> _Template:
         key = id(poly.topology)
@@ -148,17 +161,67 @@ class MeshBuilder:
 
         poly_v, poly_c, poly_rgba, poly_body, poly_kind = _concat_polys(polys)
         seg_v, seg_rgba, seg_body = _concat_segs(segs)
+        frame, self._frame = self._frame, None
         if style.clip and len(bodies) > 1:
-            occ = _Occluders(clips, bounds, len(bodies))
-            poly_v, poly_c, src = _cut_polygons(poly_v, poly_c, poly_body, occ)
+            setting = (perspective, float(eye_distance) if perspective else 0.0)
+            # The template object itself (compared by identity) and the exact pose: colours may change freely.
+            keys = [(self.template(b.polytope), np.asarray(b.orientation, float).tobytes(),
+                     np.asarray(b.position, float).tobytes(), float(b.size)) for b in bodies]
+            if frame is None or frame.setting != setting or len(frame.keys) != len(keys):
+                frame, changed = None, np.ones(len(bodies), bool)
+            else:
+                changed = np.array([k != old for k, old in zip(keys, frame.keys)], bool)
+            occ = _Occluders(clips, bounds, len(bodies), None if frame is None else (frame.hides, changed))
+            redo = changed.copy()
+            if frame is not None:         # a body is cut again if it moved or a moved body hid or hides it
+                redo |= (frame.hides[changed] | occ.hides[changed]).any(axis=0)
+            poly_v, poly_c, src, pieces = _cut_reusing(
+                lambda sel: _cut_polygons(poly_v[sel], poly_c[sel], poly_body[sel], occ),
+                poly_body, redo, None if frame is None else frame.polys, (poly_v, poly_c))
             poly_rgba, poly_kind = poly_rgba[src], poly_kind[src]
-            seg_v, src = _cut_segments(seg_v, seg_body, occ)
+            seg_v, src, seg_pieces = _cut_reusing(
+                lambda sel: _cut_segments(seg_v[sel], seg_body[sel], occ),
+                seg_body, redo, None if frame is None else frame.segs, (seg_v,))
             seg_rgba = seg_rgba[src]
+            self._frame = _Frame(setting, keys, occ.hides, pieces, seg_pieces)
         fills = _triangles(poly_v[poly_kind == 0], poly_c[poly_kind == 0], poly_rgba[poly_kind == 0])
         centres = _triangles(poly_v[poly_kind == 1], poly_c[poly_kind == 1], poly_rgba[poly_kind == 1])
         edges = np.concatenate([seg_v[..., :3], np.repeat(seg_rgba[:, None], 2, axis=1)], axis=-1)
         return SceneMesh(fills, centres, edges.reshape(-1, FLOATS_PER_VERTEX).astype(np.float32),
                          visible, bounds)
+
+
+def _cut_reusing(cut, body: np.ndarray, redo: np.ndarray, previous: tuple | None, arrays: tuple):
+    """Cut the items (polygons or segments, owner `body`) of the bodies in `redo` with `cut(selection)`
+    (-> arrays of pieces..., source index into the selection) and take the others' pieces from
+    `previous`. Returns the pieces' arrays, their source indices (ascending; a source's pieces keep
+    the order the cut made them in) and what the next frame may reuse."""
+    n_bodies = len(redo)
+    order = np.argsort(body, kind="stable")
+    starts = np.searchsorted(body[order], np.arange(n_bodies))
+    local = np.empty(len(body), np.int64)
+    local[order] = np.arange(len(body)) - starts[body[order]]
+    if previous is None:
+        *parts, src = cut(slice(None))
+    else:
+        sel = np.nonzero(redo[body])[0]
+        *parts, src = cut(sel)
+        src = sel[src]
+        *old_parts, old_body, old_local = previous
+        keep = ~redo[old_body]
+        parts = [_join_items(new, old[keep]) for new, old in zip(parts, old_parts)]
+        src = np.concatenate([src, order[starts[old_body[keep]] + old_local[keep]]])
+    by_src = np.argsort(src, kind="stable")
+    parts, src = [p[by_src] for p in parts], src[by_src]
+    return (*parts, src, (*parts, body[src], local[src]))
+
+
+def _join_items(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Concatenate item arrays; polygons (P, K, 4) of different widths are padded first."""
+    if a.ndim == 3 and a.shape[1] != b.shape[1]:
+        width = max(a.shape[1], b.shape[1])
+        a, b = _pad_width(a, width), _pad_width(b, width)
+    return np.concatenate([a, b])
 
 
 def _with_body(arrays: dict, ids: np.ndarray) -> dict:
@@ -279,7 +342,7 @@ def _pad_width(v: np.ndarray, width: int) -> np.ndarray:
 class _Occluders:
     """Every body's clip units (padded), front cells (for depth) and screen bounds, indexed by body."""
 
-    def __init__(self, clips: list, bounds: np.ndarray, n_bodies: int):
+    def __init__(self, clips: list, bounds: np.ndarray, n_bodies: int, previous: tuple | None = None):
         m_width = max(c["planes"].shape[1] for _, c in clips)
         c_width = max(c["normals"].shape[1] for _, c in clips)
         self.planes = np.tile(_DUMMY_PLANE, (n_bodies, m_width, 1))
@@ -300,15 +363,22 @@ class _Occluders:
         overlap = np.all(lo[:, None] <= hi[None] + 1e-9, axis=-1) & np.all(hi[:, None] >= lo[None] - 1e-9, axis=-1)
         np.fill_diagonal(overlap, False)
         self.overlap = overlap
-        self.hides = self._order(overlap)
+        self.hides = self._order(overlap, previous)
 
-    def _order(self, overlap: np.ndarray) -> np.ndarray:
+    def _order(self, overlap: np.ndarray, previous: tuple | None) -> np.ndarray:
         """hides[a, b]: body a may hide body b (a is in front of b where they overlap, or unknown).
 
         Two disjoint convex bodies are ordered the same at every screen point they share; such a
-        point is the mean of the vertices of each that project inside the other's outline."""
+        point is the mean of the vertices of each that project inside the other's outline.
+        `previous` (hides, changed): the last frame's order, kept for pairs of bodies that did not move."""
         hides = overlap.copy()
         i, j = np.nonzero(np.triu(overlap))
+        if previous is not None:
+            old, changed = previous
+            moved = changed[i] | changed[j]
+            i_old, j_old = i[~moved], j[~moved]
+            hides[i_old, j_old], hides[j_old, i_old] = old[i_old, j_old], old[j_old, i_old]
+            i, j = i[moved], j[moved]
         if len(i) == 0:
             return hides
         in_j, apart_j = self._inside(self.vertices[i], j)
