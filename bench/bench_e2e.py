@@ -252,20 +252,24 @@ def main():
     parser.add_argument("--seconds", type=float, default=6.0, help="seconds per pose rate")
     parser.add_argument("--rates", type=float, nargs="+", default=[90.0, 1000.0])
     parser.add_argument("--baseline-count", type=int, default=3000)
+    parser.add_argument("--no-realtime", dest="realtime", action="store_false",
+                        help="run tactile and motors at normal priority (the demo gives them SCHED_FIFO)")
     args = parser.parse_args()
     for sig in (signal.SIGINT, signal.SIGTERM):   # also when started with SIGINT ignored (a background job)
         signal.signal(sig, interrupted)
     load0 = os.getloadavg()
     print(f"load average at start: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f} ({os.cpu_count()} cores)")
+    print(f"tactile and motors at {'real-time (SCHED_FIFO, when permitted)' if args.realtime else 'normal'} priority")
     with tempfile.TemporaryDirectory(prefix="bench-e2e-") as tmp:
         glove = bench_glove(Path(tmp))
         base = baseline(glove, args.baseline_count)
         channel = f"bench-e2e-{uuid.uuid4().hex}"
         with running_broker() as bus, \
                 node_process("scene", bus, params={"scene": str(SCENE)}) as scene, \
-                node_process("tactile", bus, params={"glove": str(glove)}) as tactile, \
+                node_process("tactile", bus, params={"glove": str(glove)}, realtime=args.realtime) as tactile, \
                 node_process("motors", bus, params={"glove": str(glove), "channel": channel,
-                                                    "emulate": True, "trace": True}) as motors:
+                                                    "emulate": True, "trace": True},
+                             realtime=args.realtime) as motors:
             pids = {"scene": scene.pid, "tactile": tactile.pid, "motors": motors.pid, "bench+broker": os.getpid()}
             probe = Probe(bus)
             try:

@@ -12,7 +12,8 @@ from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose, InputEvents
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter, resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
+from touch4d.configfile import resolve
 from touch4d.tracking.desktop import DesktopConfig, DesktopHand
 from touch4d.tracking.outputs import from_hand
 

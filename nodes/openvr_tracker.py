@@ -15,7 +15,8 @@ from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter, resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
+from touch4d.configfile import resolve
 from touch4d.tracking.outputs import from_controller
 from touch4d.tracking.vr import MISSING_PACKAGE, NO_STEAMVR, buttons_from_mask, pose_from_matrix
 

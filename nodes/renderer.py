@@ -66,7 +66,7 @@ class RendererNode(Node):
                               got=(self.save_every, self.max_frames, samples))
         self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
         self.view = SceneView(load_glove(glove_file or None), style, show)
-        self.counts = {"frames": 0, "saved": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
+        self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
         self._rates = dict.fromkeys(self._received, 0.0)
         self._fps = 0.0
@@ -106,7 +106,8 @@ class RendererNode(Node):
     def on_scene(self, msg: SceneState) -> None:
         self._received["scene"] += 1
         try:
-            self.view.set_scene(msg)
+            if self.view.set_scene(msg):
+                self.counts["scenes_built"] += 1
         except (ValueError, TypeError, KeyError) as exc:   # MessageError, GeometryError, odd params
             self.counts["bad_scenes"] += 1
             self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "

@@ -12,7 +12,8 @@ from touch4d.bus import Node, run_node
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import positive_parameter, resolve
+from touch4d.tracking.config import positive_parameter
+from touch4d.configfile import resolve
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
 
 

@@ -55,6 +55,7 @@ def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path)
     ("nodes:\n  tracker: {node: example_talker, parms: {rate: 1}}\n", "nodes.tracker.parms"),
     ("nodez:\n  tracker: {node: example_talker}\n", "nodez"),
     ("nodes:\n  tracker: {node: example_talker, respawn: 'yes'}\n", "nodes.tracker.respawn"),
+    ("nodes:\n  tracker: {node: example_talker, realtime: 1}\n", "nodes.tracker.realtime"),
     ("nodes:\n  tracker: {node: example_talker, respawn_delay: .nan}\n", "nodes.tracker.respawn_delay"),
     ("nodes:\n  tracker: {node: example_talker, params: [1]}\n", "nodes.tracker.params"),
     ("nodes:\n  tracker: {node: 3}\n", "nodes.tracker.node"),

@@ -116,3 +116,25 @@ def test_nodes_of_a_launch_with_curve_keys_talk(tmp_path):
             wait_until(lambda: len(relayed) >= 3, timeout=30, spin=probe)
         assert run.stop(timeout=30) == 0
     assert "(CURVE)" in run.text
+
+
+def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
+    from touch4d.bus.realtime import realtime_permitted
+
+    launch = tmp_path / "rt.yaml"
+    launch.write_text("nodes:\n  talker: {node: example_talker, realtime: true}\n"
+                      "  listener: {node: example_listener}\n")
+    with launch_process([str(launch)]) as run:
+        pids = heartbeat_pids(run, ["talker", "listener"])
+        policies = {role: os.sched_getscheduler(pid) for role, pid in pids.items()}
+        threads = os.listdir(f"/proc/{pids['talker']}/task")
+        thread_policies = {os.sched_getscheduler(int(t)) for t in threads}
+        assert run.stop(timeout=30) == 0
+    assert policies["listener"] == os.SCHED_OTHER
+    if realtime_permitted():
+        assert policies["talker"] == os.SCHED_FIFO
+        assert thread_policies == {os.SCHED_FIFO}, "the ZeroMQ I/O threads inherit the priority"
+        assert "real-time priority (SCHED_FIFO" in run.text
+    else:
+        assert policies["talker"] == os.SCHED_OTHER
+        assert "real-time priority not permitted" in run.text

@@ -15,7 +15,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.cli import main as touch4d_main
 from touch4d.bus.testing import bus_env, collect, launch_process, node_process, running_broker, wait_until
 from touch4d.log.reader import LogReader
-from touch4d.log.realtime import bus_context, raise_thread_priority, reset_thread_priority
+from touch4d.bus.realtime import bus_context, raise_thread_priority, reset_thread_priority
 from touch4d.log.writer import LogWriter
 from touch4d.messages import HandPose, Heartbeat, encode
 

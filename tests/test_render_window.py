@@ -51,7 +51,7 @@ def xvfb_display(monkeypatch):
             proc.wait()
 
 
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(240)
 def test_window_draws_the_scene_and_publishes_input(xvfb_display, tmp_path):
     out = tmp_path / "window.png"
     scene = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
@@ -74,9 +74,9 @@ def test_window_draws_the_scene_and_publishes_input(xvfb_display, tmp_path):
                 return image.shape[:2] == (240, 320) and (image[..., 1] > 200).sum() > 100
 
             try:
-                wait_until(drawn, timeout=90, interval=0.0)
+                wait_until(drawn, timeout=150, interval=0.0)
             except TimeoutError:
-                pytest.fail(f"no window frame with the scene after 90 s ({len(inputs)} ui/input messages); "
+                pytest.fail(f"no window frame with the scene after 150 s ({len(inputs)} ui/input messages); "
                             f"renderer output:\n{proc.text}")
         finally:
             probe.shutdown()

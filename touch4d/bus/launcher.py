@@ -101,6 +101,8 @@ class Launcher:
         spec = child.spec
         cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,
                "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
+        if spec.realtime:
+            cmd.append("--realtime")
         child.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, env=self._env, close_fds=True)
         os.set_blocking(child.proc.stdout.fileno(), False)

@@ -10,6 +10,7 @@ nodes:
       replay: {file: session.mcap}
     respawn: false            # restart it when it dies
     respawn_delay: 0.5        # seconds before a restart
+    realtime: false           # SCHED_FIFO priority for the haptic loop, when permitted
 ```
 Overrides on the command line: `ROLE:=MODULE` swaps (or adds) a node, `ROLE:=none` removes it,
 `ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML). A swap to another module drops the
@@ -30,7 +31,7 @@ from touch4d.errors import ConfigError
 
 COMMAND_LINE = "command line"
 _FILE_KEYS = {"include", "nodes"}
-_NODE_KEYS = {"node", "params", "params_for", "respawn", "respawn_delay"}
+_NODE_KEYS = {"node", "params", "params_for", "respawn", "respawn_delay", "realtime"}
 
 
 @dataclass
@@ -43,6 +44,7 @@ class NodeSpec:
     params_for: dict = field(default_factory=dict)  # module -> params, used when swapped in
     respawn: bool = False
     respawn_delay: float = 0.5
+    realtime: bool = False
     source: str = COMMAND_LINE  # the file that last set this node's module or parameters
 
 
@@ -132,6 +134,10 @@ def _merge_node(path: Path, role: str, entry, nodes: dict[str, NodeSpec]) -> Non
         if not isinstance(entry["respawn"], bool):
             raise ConfigError(path, f"{where}.respawn", "true or false", got=entry["respawn"])
         spec.respawn = entry["respawn"]
+    if "realtime" in entry:
+        if not isinstance(entry["realtime"], bool):
+            raise ConfigError(path, f"{where}.realtime", "true or false", got=entry["realtime"])
+        spec.realtime = entry["realtime"]
     if "respawn_delay" in entry:
         delay = entry["respawn_delay"]
         if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not 0 <= delay < math.inf:

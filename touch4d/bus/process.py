@@ -19,6 +19,7 @@ import sys
 import zmq
 
 from touch4d.bus.config import resolve_bus_config
+from touch4d.bus.realtime import PRIORITY, raise_thread_priority
 from touch4d.errors import Touch4dError
 
 LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
@@ -33,6 +34,8 @@ def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> 
     parser.add_argument("--params-source", help="where the parameters came from (for error messages)")
     parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
     parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
+    parser.add_argument("--realtime", action="store_true",
+                        help="run with real-time (SCHED_FIFO) priority when permitted (root or CAP_SYS_NICE)")
     return parser.parse_args(argv)
 
 
@@ -63,6 +66,13 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"node {args.name}: --params: expected a JSON object, got {args.params!r} ({exc})", file=sys.stderr)
         return 2
+    if args.realtime:
+        # Before any thread exists: the ZeroMQ I/O threads and the node's own threads inherit it.
+        if raise_thread_priority():
+            logging.getLogger(args.name or "node").info("real-time priority (SCHED_FIFO %d)", PRIORITY)
+        else:
+            logging.getLogger(args.name or "node").warning(
+                "real-time priority not permitted (needs root or CAP_SYS_NICE): running at normal priority")
     kwargs = {"params": params, "bus": None, "kind": args.kind, "params_source": args.params_source}
     if args.name:
         kwargs["role"] = args.name

@@ -5,6 +5,7 @@ lives in `DEFAULTS` below, so a glove file may give only the keys it changes.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ DEFAULTS = {
     "heartbeat_hz": 2.0,
     "board_timeout_s": 0.3,
     "stop_hold_s": 1.0,
+    "command_max_age_s": None,  # None: watchdog_s
     "send_timeout_s": 0.002,
     "ids": {"stop": 0x000, "status": 0x180, "duty": 0x200, "heartbeat": 0x700},
     "duty": {"gamma": 1.0, "start": 0.3, "max": 0.8, "deadband": 0.02, "full_scale": 1.0},
@@ -85,6 +87,7 @@ class GloveCan:
     heartbeat_hz: float
     board_timeout_s: float
     stop_hold_s: float
+    command_max_age_s: float
     send_timeout_s: float
     ids: CanIds
     duty: DutyConfig
@@ -136,7 +139,7 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
         merged = {**DEFAULTS[key], **value}
         return {k: _typed(file, f"can.{key}.{k}", merged[k], kinds[k], *checks[k]) for k in DEFAULTS[key]}
 
-    positive = (lambda v: v > 0, "> 0")
+    positive = (lambda v: 0 < v < math.inf, "> 0 and finite")
     fraction = (lambda v: 0 <= v <= 1, "in 0..1")
     frame_id = (lambda v: 0 <= v <= 0x7FF, "an 11-bit CAN id 0..0x7FF")
 
@@ -149,6 +152,7 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
                       {"max_on_s": positive, "cool_s": (lambda v: v >= 0, ">= 0")})
     ids = section("ids", {k: int for k in DEFAULTS["ids"]}, {k: frame_id for k in DEFAULTS["ids"]})
 
+    watchdog_s = get("watchdog_s", float, *positive)
     boards = _boards(file, can.get("boards"))
     motors = _motors(file, data.get("motors"), boards)
     cfg = GloveCan(
@@ -157,13 +161,15 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
         channel=str(_typed(file, "can.channel", can.get("channel", DEFAULTS["channel"]), (str, int))),
         bitrate=get("bitrate", int, lambda v: 10_000 <= v <= 1_000_000, "a classic CAN bitrate 10000..1000000"),
         refresh_hz=get("refresh_hz", float, *positive),
-        watchdog_s=get("watchdog_s", float, *positive),
+        watchdog_s=watchdog_s,
         board_watchdog_s=get("board_watchdog_s", float, *positive),
         status_hz=get("status_hz", float, *positive),
         heartbeat_hz=get("heartbeat_hz", float, *positive),
         board_timeout_s=get("board_timeout_s", float, *positive),
-        stop_hold_s=get("stop_hold_s", float, lambda v: v >= 0, ">= 0"),
-        send_timeout_s=get("send_timeout_s", float, lambda v: v >= 0, ">= 0"),
+        stop_hold_s=get("stop_hold_s", float, lambda v: v >= 0, ">= 0 (.inf: a stop latches until restart)"),
+        command_max_age_s=(watchdog_s if can.get("command_max_age_s") is None else
+                           get("command_max_age_s", float, lambda v: v >= 0, ">= 0 (0: no age check)")),
+        send_timeout_s=get("send_timeout_s", float, lambda v: 0 <= v < math.inf, ">= 0 and finite"),
         ids=CanIds(**ids),
         duty=DutyConfig(**duty),
         thermal=ThermalConfig(**thermal),

@@ -9,8 +9,12 @@ the frames `outgoing` returns. Rules:
   retried. A refresh needs REFRESH_AGE periods without a change, in which 2 x REFRESH_AGE change
   frames could have gone, so in the long run a board gets at most 1 / CHANGE_GAP frames per
   period (`FRAMES_PER_PERIOD`, counted by busload.py); a single period can hold 3;
-- no `tactile/motors` within `watchdog_s` -> every duty 0; a stop -> NMT STOP at once, every duty
-  0, commands ignored for `stop_hold_s`, then NMT START;
+- no `tactile/motors` within `watchdog_s` -> every duty 0. A command older than
+  `command_max_age_s` when it arrives (its age from its own stamp, so PC and Pi clocks must be
+  NTP-synchronised; 0 turns the check off) is stale: it turns every motor off, never on, and does
+  not feed the watchdog;
+- a stop -> NMT STOP at once, every duty 0, commands ignored for `stop_hold_s`, then NMT START
+  (a momentary stop); `stop_hold_s` infinite latches the stop until the node restarts;
 - a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
   every `RESTART_PERIOD_S`; a board silent for `board_timeout_s` is reported offline.
 """
@@ -50,7 +54,6 @@ class BoardView:
     channels: int
     motors: np.ndarray          # motor index per used channel
     motor_channels: np.ndarray  # channel of each of those motors
-    slots: tuple = ()           # (motor index, channel) pairs, the same as plain ints
     sent_levels: tuple | None = None
     last_change_sent: float = -np.inf
     counter: int = 0
@@ -91,14 +94,22 @@ class MotorDriver:
         self.boards = {}
         for b in cfg.boards:
             idx = np.flatnonzero(board_of == b.id)
-            self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx],
-                                          tuple(zip(idx.tolist(), channel_of[idx].tolist())))
+            self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx])
         self._started = now
 
     # -- inputs -------------------------------------------------------------------------------
 
-    def command(self, names, intensity, now: float) -> None:
-        """A `tactile/motors` command: intensity per named motor (unnamed motors go to 0)."""
+    def is_stale(self, age: float | None) -> bool:
+        """Whether a command `age` seconds old (from its own stamp; None: unknown) is too old to use."""
+        limit = self.cfg.command_max_age_s
+        return bool(limit) and age is not None and not age <= limit   # NaN age: stale
+
+    def command(self, names, intensity, now: float, age: float | None = None) -> None:
+        """A `tactile/motors` command: intensity per named motor (unnamed motors go to 0).
+
+        `age`: how old the command was when it arrived (see `is_stale`); a stale one only turns
+        every motor off, so a command delayed by a stall cannot buzz the motors after it.
+        """
         key = tuple(names)
         if self._names_cache is None or self._names_cache[0] != key:
             known = [(i, self._index[n]) for i, n in enumerate(key) if n in self._index]
@@ -112,13 +123,18 @@ class MotorDriver:
         if now < self.stop_until:
             self.errors["ignored_during_stop"] += 1
             return
+        if self.is_stale(age):
+            self.errors["stale_command"] += 1
+            self.intensity = np.zeros(len(self.names))
+            return
         values = np.zeros(len(self.names))
         values[dst] = np.asarray(intensity, dtype=np.float64)[src]
         self.intensity = values
         self.last_command_at = now
 
     def stop(self, now: float) -> can.Message:
-        """Safety stop: every duty 0 and commands ignored for stop_hold_s; returns the NMT STOP to send first."""
+        """Safety stop: every duty 0 and commands ignored for stop_hold_s (inf: until restart);
+        returns the NMT STOP to send first."""
         self.stop_until = now + self.cfg.stop_hold_s
         self._restart_pending = True
         self.intensity = np.zeros(len(self.names))
@@ -170,12 +186,10 @@ class MotorDriver:
     def board_levels(self, board_id: int, motor_levels: np.ndarray | None = None) -> tuple:
         """The duty levels of one board's channels (from every motor's levels, if already computed)."""
         b = self.boards[board_id]
-        if motor_levels is None:
-            motor_levels = duty_to_levels(self.duty)
-        levels = [0] * b.channels
-        for k, c in b.slots:
-            levels[c] = int(motor_levels[k])
-        return tuple(levels)
+        motor_levels = duty_to_levels(self.duty) if motor_levels is None else np.asarray(motor_levels)
+        levels = np.zeros(b.channels, dtype=np.int64)
+        levels[b.motor_channels] = motor_levels[b.motors]
+        return tuple(levels.tolist())
 
     def outgoing(self, now: float, refresh: bool = False, force: bool = False) -> list[Outgoing]:
         """Frames to send now.
@@ -201,7 +215,7 @@ class MotorDriver:
                     self.errors["nmt_restart" if want_start else "nmt_restop"] += 1
                     out.append(Outgoing(0, self.protocol.nmt("STOP" if want_stop else "START", b.id)))
         gap, age = CHANGE_GAP * self.period - 1e-9, REFRESH_AGE * self.period - 1e-9
-        motor_levels = duty_to_levels(self.duty).tolist()
+        motor_levels = duty_to_levels(self.duty)
         for b in self.boards.values():
             levels = self.board_levels(b.id, motor_levels)
             change = levels != b.sent_levels
@@ -246,7 +260,7 @@ class MotorDriver:
 
     def duties_on_bus(self) -> bool:
         """Whether every board's last sent frame carries the duties to be sent now."""
-        motor_levels = duty_to_levels(self.duty).tolist()
+        motor_levels = duty_to_levels(self.duty)
         return all(b.sent_levels == self.board_levels(b.id, motor_levels) for b in self.boards.values())
 
     def sent_duty(self) -> np.ndarray:

@@ -20,7 +20,7 @@ from touch4d.bus.config import BusConfig
 from touch4d.bus.node import INTERNAL_PREFIX
 from touch4d.errors import Touch4dError
 
-from .realtime import bus_context, raise_thread_priority
+from touch4d.bus.realtime import bus_context, raise_thread_priority
 from .writer import LogWriter, WallClock
 
 

@@ -21,7 +21,7 @@ from touch4d.errors import Touch4dError
 from touch4d.messages.codec import CodecError, pack, unpack
 
 from .reader import LogFileError, LogMessage, LogReader
-from .realtime import bus_context, raise_thread_priority, reset_thread_priority
+from touch4d.bus.realtime import bus_context, raise_thread_priority, reset_thread_priority
 from .summary import LogSummary, summarize
 
 

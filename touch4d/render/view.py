@@ -1,6 +1,7 @@
 """The renderer's picture of the world (last good scene, hand, tactile field, motors) and offscreen rendering."""
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,29 @@ def bodies_from_scene(scene: Scene) -> list[Body]:
     """Every convex part of every object, with its placement and colour."""
     return [Body(part, obj.orientation, obj.position, obj.size, np.asarray(obj.color, dtype=float), index)
             for index, obj in enumerate(scene.objects) for part in obj.local_parts()]
+
+
+def scene_digest(msg: SceneState) -> bytes:
+    """A digest of everything in a scene message that is drawn (all but `selected` and `revision`)."""
+    digest = hashlib.blake2b(digest_size=16)
+    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}".encode())
+
+    def add(value) -> None:
+        if isinstance(value, dict):
+            for k in sorted(value, key=str):
+                digest.update(f"<{k}>".encode())
+                add(value[k])
+        elif isinstance(value, (list, tuple)):
+            digest.update(f"[{len(value)}".encode())
+            for item in value:
+                add(item)
+        elif isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype}{value.shape}".encode() + np.ascontiguousarray(value).tobytes())
+        else:
+            digest.update(repr(value).encode())
+
+    add(msg.objects)
+    return digest.digest()
 
 
 @dataclass
@@ -64,14 +88,22 @@ class SceneView:
         self.field: TactileField | None = None
         self.motors: MotorCommand | None = None
         self._mesh: SceneMesh | None = None
+        self._scene_key: bytes | None = None
 
     # ---- inputs -------------------------------------------------------------------------------------
-    def set_scene(self, scene: Scene | SceneState) -> None:
+    def set_scene(self, scene: Scene | SceneState) -> bool:
+        """Adopt a scene and build its vertex arrays; True if it was built. A message equal to the
+        last adopted one (the scene node repeats it for late joiners) is not built again."""
+        key = None
         if isinstance(scene, SceneState):
+            key = scene_digest(scene)
+            if key == self._scene_key:
+                return False
             scene = Scene.from_message(scene)
         bodies = bodies_from_scene(scene)
         mesh = self.builder.build(bodies, scene.projection, scene.eye_distance, self.style)  # fails before adopting
-        self.scene, self.bodies, self._mesh = scene, bodies, mesh
+        self.scene, self.bodies, self._mesh, self._scene_key = scene, bodies, mesh, key
+        return True
 
     def set_hand(self, pose: HandPose) -> None:
         if not pose.valid:
@@ -162,7 +194,8 @@ class OffscreenRenderer:
     _painter: Painter = field(init=False, repr=False)
 
     def __post_init__(self):
-        if self.ctx is None:
+        self._own_ctx = self.ctx is None
+        if self._own_ctx:
             self.ctx = create_headless_context()
         self._target = OffscreenTarget(self.ctx, self.size, self.samples)
         self._painter = Painter(self.ctx, self.line_width)
@@ -189,5 +222,9 @@ class OffscreenRenderer:
         return self._painter
 
     def release(self) -> None:
+        """Free the GL objects, and the context if this renderer made it (each EGL context holds
+        llvmpipe's threads until released)."""
         self._painter.release()
         self._target.release()
+        if self._own_ctx:
+            self.ctx.release()

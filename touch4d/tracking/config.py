@@ -61,11 +61,3 @@ def get_vector(data: dict, key: str, file, n: int, where: str = "", default: Any
     if arr is None or arr.shape != (n,) or not np.isfinite(arr).all():
         raise ConfigError(file, where + key, f"a list of {n} finite numbers", got=value)
     return arr
-
-
-def resolve(path: str | Path) -> Path:
-    """A config path as given, or, when relative and not found from here, from the repository root."""
-    path = Path(path)
-    if path.is_absolute() or path.exists():
-        return path
-    return CONFIG_DIR.parent / path
