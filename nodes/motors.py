@@ -6,6 +6,15 @@ topics and timers. Parameters: `glove` (file, default config/glove.yaml), `inter
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
 this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
 
+Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
+`source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
+turns a motor on: older than the glove's `can.command_max_age_s` (default `watchdog_s`) it counts
+as `stale_command` and turns every motor off. This assumes the clocks of the machines in the
+chain (tracking PC, motor Pi) are NTP-synchronised; set `command_max_age_s: 0` when they are not.
+A `safety/stop` is momentary by default: commands resume `can.stop_hold_s` (1 s) after it;
+`stop_hold_s: .inf` latches it until the node restarts. Every refresh tick sends, whatever the
+receive side raised, and shutdown always sends NMT STOP and zero duty.
+
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
 virtual bus has then delivered it). A command rate-limited by the driver waits for the frame (or
@@ -16,6 +25,7 @@ stat `trace_superseded`; one whose duties were already on the bus needs no frame
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -59,9 +69,9 @@ class MotorsNode(Node):
         emulate = self.declare_parameter("emulate", False)
         status_hz = self.declare_parameter("status_hz", 10.0)
         trace = self.declare_parameter("trace", False)
-        if not status_hz > 0:
-            raise ConfigError(self._params_source or f"parameters of node '{self.name}'", "status_hz",
-                              "a rate > 0 (messages per second)", got=status_hz)
+        if not 0 < status_hz < math.inf:
+            raise ConfigError(self._params_source or f"parameters of node '{self.name}'", self._param_key("status_hz"),
+                              "a finite rate > 0 (messages per second)", got=status_hz)
         cfg = load_glove_can(glove or None)
         cfg = dataclasses.replace(cfg, interface=interface or cfg.interface, channel=channel or cfg.channel)
         self.cfg = cfg
@@ -91,9 +101,18 @@ class MotorsNode(Node):
                       len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
                       100 * self.load.fraction, " (emulated boards)" if emulate else "")
 
+    def _param_key(self, name: str) -> str:
+        """A parameter's name as declare_parameter reports it: its path in the launch file when known."""
+        return f"nodes.{self.name}.params.{name}" if self._params_source else name
+
     def on_command(self, msg: MotorCommand) -> None:
         now = time.monotonic()
-        self.driver.command(msg.names, msg.intensity, now)
+        age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
+        stale_before = self.driver.errors["stale_command"]
+        self.driver.command(msg.names, msg.intensity, now, age=age)
+        if self.driver.errors["stale_command"] != stale_before:
+            self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
+                                            f"{self.cfg.command_max_age_s} s): every motor off")
         if not self.tracing:
             self._send_frames(self.driver.outgoing(now), now)
             return
@@ -124,9 +143,12 @@ class MotorsNode(Node):
 
     def on_refresh(self) -> None:
         now = time.monotonic()
-        self._receive_frames(now)
-        for event in self.driver.check_boards(now):
-            self.log.warning("%s", event) if "not answering" in event else self.log.info("%s", event)
+        try:
+            self._receive_frames(now)
+            for event in self.driver.check_boards(now):
+                self.log.warning("%s", event) if "not answering" in event else self.log.info("%s", event)
+        except Exception as exc:  # noqa: BLE001 - fail safe: the tick's frames (and watchdog) must go out
+            self._can_fault("receive_error", f"{type(exc).__name__}: {exc}")
         self._send_frames(self.driver.outgoing(now, refresh=True), now)
 
     def _receive_frames(self, now: float) -> None:

@@ -35,3 +35,15 @@ def test_cli_lists_its_commands_and_rejects_nonsense():
     assert ok.returncode == 0 and "COMMAND" in ok.stdout
     bad = subprocess.run([sys.executable, "-m", "touch4d.cli", "no-such-command"], capture_output=True, text=True)
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
+
+
+def test_each_part_registers_exactly_the_commands_the_cli_lists_for_it():
+    import argparse
+    import importlib
+
+    from touch4d.cli import PARTS
+
+    for module, commands in PARTS.items():
+        sub = argparse.ArgumentParser().add_subparsers()
+        importlib.import_module(module).register(sub)
+        assert set(sub.choices) == set(commands), module

@@ -8,20 +8,24 @@ import sys
 from touch4d.errors import Touch4dError
 
 # Each module has `register(subparsers)`; sub-commands set `func(args) -> int` on their parser.
-PARTS = (
-    "touch4d.bus.cli",        # launch, topic, node
-    "touch4d.geometry.cli",   # shape
-    "touch4d.tactile.cli",    # tactile
-    "touch4d.render.cli",     # render
-    "touch4d.log.cli",        # record, replay, log
-    "touch4d.glove.cli",      # glove
-)
+# The commands each registers are listed so that a command imports only its own part (the
+# launcher need not load the renderer and scipy before it starts the nodes).
+PARTS = {
+    "touch4d.bus.cli": ("launch", "topic", "node", "bus"),
+    "touch4d.geometry.cli": ("shape",),
+    "touch4d.tactile.cli": ("tactile",),
+    "touch4d.render.cli": ("render",),
+    "touch4d.log.cli": ("record", "replay", "log"),
+    "touch4d.glove.cli": ("glove",),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every part's commands, or only the part that owns `command`."""
     parser = argparse.ArgumentParser(prog="touch4d", description="Touch 4D objects with a vibrotactile glove.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in PARTS:
+    owners = [name for name, commands in PARTS.items() if command in commands]
+    for name in owners or PARTS:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -39,7 +43,7 @@ RUN_UNTIL_STOPPED = {"launch", "record", "replay", "topic", "node", "bus", "glov
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     try:
-        parser = build_parser()
+        parser = build_parser(argv[0] if argv else None)
         args, extra = parser.parse_known_args(argv)
         # `touch4d launch FILE --duration 5 ROLE:=X`: positionals after an option come back unknown.
         if extra and isinstance(getattr(args, "items", None), list) and not any(e.startswith("-") for e in extra):

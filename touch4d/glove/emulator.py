@@ -23,6 +23,9 @@ from touch4d.glove.protocol import FAULT_NAMES, Frame, FrameError, GloveProtocol
 log = logging.getLogger("touch4d.glove.emulator")
 
 HARDWARE_FAULTS = ("overtemp", "overcurrent", "undervoltage")
+# The thread blocks on the bus until a frame arrives or a board is due (its watchdog, status or
+# heartbeat), but never longer than this: bounds how long remove/restore/stop wait for it.
+MAX_WAIT_S = 0.05
 
 
 class BoardEmulator:
@@ -101,6 +104,15 @@ class BoardEmulator:
             self.watchdog_tripped = False
             self.last_counter = frame.signals["Counter"]
             self.levels = [0] * self.channels if self.hardware_faults else GloveProtocol.levels(frame, self.channels)
+
+    def next_due(self) -> float:
+        """When `tick` next has something to do if no frame arrives: a pending frame, the watchdog, a status or heartbeat."""
+        if self._pending:
+            return -float("inf")
+        due = min(self._next_status, self._next_heartbeat)
+        if self.nmt_state == "OPERATIONAL" and not self.watchdog_tripped:
+            due = min(due, self.last_duty_at + self.watchdog_s)
+        return due
 
     def tick(self, now: float) -> list[can.Message]:
         """Watchdog, periodic frames and status on change; the frames to send now."""
@@ -201,8 +213,16 @@ class GloveEmulator:
             out.extend(b.tick(now))
         return out
 
-    def step(self, timeout: float = 0.002) -> None:
-        """Receive what arrived (waiting up to `timeout`), tick and send: one round of the thread."""
+    def next_wait(self, now: float) -> float:
+        """How long the thread may block on the bus before a board is due (at most MAX_WAIT_S)."""
+        due = min((b.next_due() for b in self._live()), default=now + MAX_WAIT_S)
+        return min(max(due - now, 0.0), MAX_WAIT_S)
+
+    def step(self, timeout: float | None = None) -> None:
+        """Receive what arrived (waiting up to `timeout`, by default until a board is due), tick and
+        send: one round of the thread."""
+        if timeout is None:
+            timeout = self.next_wait(self.clock())
         msg = self.bus.recv(timeout=timeout)
         while msg is not None:
             self.process(msg, self.clock())
