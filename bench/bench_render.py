@@ -2,10 +2,12 @@
 and 64 tesseracts and a 120-cell, beside the time to upload and draw the same buffers (EGL, llvmpipe here).
 
 The build is timed in process CPU time, upload + draw in wall time (llvmpipe rasterises on
-threads). Baselines from the same run: the same build without clipping (so the ratio is what hidden-hypersurface
-removal costs) and the 90 Hz headset frame budget (11.1 ms). "build" moves every body each frame (nothing
-reused); "one turning" moves one body, so the builder reuses the others' cut pieces. The tesseracts stand in a 4 x 4 x 4 grid
-at several depths, turned at random, so neighbours overlap on the screen and clip each other.
+threads). Baselines from the same run: the same build without clipping (so the ratio is what
+hidden-hypersurface removal costs) and the 90 Hz headset frame budget (11.1 ms). "build" moves every
+body on each call, so nothing of the last frame is reused; "one turning" moves one body (the
+controller's case), so the builder reuses the cut pieces of the bodies it does not touch. The
+tesseracts stand in a 4 x 4 x 4 grid at several depths, turned at random, so neighbours overlap on
+the screen and clip each other.
 Run: .venv/bin/python bench/bench_render.py
 """
 from __future__ import annotations

@@ -130,6 +130,13 @@ class Map(Kind):
         return {}
 
 
+def _all_finite(value: np.ndarray) -> bool:
+    if value.size <= 16:  # poses, quaternions: plain floats are quicker than a numpy reduction
+        return all(map(math.isfinite, value.ravel().tolist()))
+    # A finite sum proves every value finite; only a non-finite sum needs the element-wise look.
+    return math.isfinite(value.sum()) or bool(np.isfinite(value).all())
+
+
 class Array(Kind):
     """A numpy array of a dtype kind ('f' float, 'i' int, 'b' bool) and a shape; None is any length."""
 
@@ -158,8 +165,7 @@ class Array(Kind):
         ):
             want = "x".join("N" if n is None else str(n) for n in self.shape) or "scalar"
             raise ValueError(f"expected shape {want}, got {'x'.join(map(str, shape)) or 'scalar'}")
-        # A finite sum proves every value finite; only a non-finite sum needs the element-wise look.
-        if self._check_finite and not math.isfinite(value.sum()) and not np.isfinite(value).all():
+        if self._check_finite and not _all_finite(value):
             raise ValueError("expected finite values, got NaN or infinity")
         return value
 

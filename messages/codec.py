@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 import struct
+import threading
+from functools import lru_cache
 
 import msgpack
 import numpy as np
@@ -17,14 +19,22 @@ class CodecError(ValueError):
     """The bytes are not a msgpack payload of ours."""
 
 
+@lru_cache(maxsize=256)
+def _header(dtype_str: str, shape: tuple[int, ...]) -> bytes:
+    dt = dtype_str.encode()
+    return struct.pack(f"<B{len(dt)}sB{len(shape)}I", len(dt), dt, len(shape), *shape)
+
+
+@lru_cache(maxsize=16)
+def _shape_struct(ndim: int) -> struct.Struct:
+    return struct.Struct(f"<{ndim}I")
+
+
 def _default(obj):
     if isinstance(obj, np.ndarray):
         if obj.dtype.kind not in _ALLOWED_KINDS:
             raise TypeError(f"cannot send a numpy array of dtype {obj.dtype}")
-        arr = np.ascontiguousarray(obj)
-        dt = arr.dtype.str.encode()
-        header = struct.pack(f"<B{len(dt)}sB{arr.ndim}I", len(dt), dt, arr.ndim, *arr.shape)
-        return msgpack.ExtType(NDARRAY_EXT, header + arr.tobytes())
+        return msgpack.ExtType(NDARRAY_EXT, _header(obj.dtype.str, obj.shape) + obj.tobytes())
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, (tuple, set, frozenset)):
@@ -46,7 +56,7 @@ def _ext_hook(code: int, data: bytes):
             _DTYPES[dt] = dtype
         ndim = data[1 + n]
         offset = 2 + n + 4 * ndim
-        shape = struct.unpack_from(f"<{ndim}I", data, 2 + n)
+        shape = _shape_struct(ndim).unpack_from(data, 2 + n)
     except CodecError:
         raise
     except Exception as exc:  # noqa: BLE001 - any garbage inside the ext is a codec error
@@ -57,9 +67,19 @@ def _ext_hook(code: int, data: bytes):
     return np.frombuffer(data, dtype=dtype, offset=offset).reshape(shape).copy()
 
 
+_local = threading.local()  # a Packer per thread: building one per message costs more than packing
+
+
 def pack(obj) -> bytes:
     """Encode plain data (dicts, lists, numbers, strings, numpy arrays) to msgpack bytes."""
-    return msgpack.packb(obj, default=_default, use_bin_type=True)
+    packer = getattr(_local, "packer", None)
+    if packer is None:
+        packer = _local.packer = msgpack.Packer(default=_default, use_bin_type=True)
+    try:
+        return packer.pack(obj)
+    except BaseException:
+        packer.reset()  # a failed pack may leave partial bytes in the packer's buffer
+        raise
 
 
 def unpack(data: bytes):

@@ -1,12 +1,14 @@
 """The motor-side logic without a bus: what is sent when, watchdog, stop, board liveness, retries."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from touch4d.glove.config import load_glove_can
+from touch4d.errors import ConfigError
+from touch4d.glove.config import glove_can_from_mapping, load_glove_can
 from touch4d.glove.driver import FRAMES_PER_PERIOD, MotorDriver
 from touch4d.glove.duty import duty_to_levels, intensity_to_duty
 from touch4d.glove.protocol import GloveProtocol
@@ -216,3 +218,65 @@ def test_a_board_that_applies_none_of_the_frames_sent_is_reported(driver):
     status(11, T0 + 0.1)  # ten more frames, the same counter
     report = {r["id"]: r for r in driver.board_report()}
     assert "commands_not_acked" in report[3]["faults"] and report[3]["online"]
+
+
+def test_a_stale_command_turns_every_motor_off_and_never_on(driver):
+    stale = CFG.command_max_age_s + 0.05
+    assert CFG.command_max_age_s == CFG.watchdog_s   # the default
+    driver.command(NAMES, np.full(30, 0.8), T0 + 0.01, age=stale)
+    assert all(o.levels == (0,) * 8 for o in driver.outgoing(T0 + 0.01, refresh=True) if o.board)
+    assert driver.errors["stale_command"] == 1 and driver.last_command_at is None  # no watchdog food
+    driver.command(NAMES, np.full(30, 0.8), T0 + 0.02, age=0.01)
+    on = send_all(driver, driver.outgoing(T0 + 0.02, refresh=True), T0 + 0.02)
+    assert all(any(o.levels) for o in on if o.board)
+    driver.command(NAMES, np.full(30, 0.8), T0 + 0.03, age=stale)   # after fresh ones: off at once
+    assert all(o.levels == (0,) * 8 for o in driver.outgoing(T0 + 0.03, refresh=True) if o.board)
+    assert driver.is_stale(float("nan")) and not driver.is_stale(-5.0) and not driver.is_stale(None)
+
+
+def test_the_age_check_is_off_with_a_zero_limit():
+    d = MotorDriver(dataclasses.replace(CFG, command_max_age_s=0.0), PROTO, now=T0)
+    d.command(NAMES, np.full(30, 0.8), T0 + 0.01, age=3600.0)
+    assert all(any(o.levels) for o in d.outgoing(T0 + 0.01, refresh=True) if o.board)
+    assert d.errors["stale_command"] == 0
+
+
+def test_an_infinite_stop_hold_never_releases():
+    d = MotorDriver(dataclasses.replace(CFG, stop_hold_s=float("inf")), PROTO, now=T0)
+    send_all(d, d.outgoing(T0, refresh=True), T0)
+    d.stop(T0 + 0.01)
+    later = T0 + 1e6
+    d.command(NAMES, np.full(30, 0.8), later, age=0.0)
+    out = frames(d.outgoing(later, refresh=True))
+    assert all(f.kind == "duty" and GloveProtocol.levels(f, 8) == [0] * 8 for _, f in out)  # no START
+    assert d.errors["ignored_during_stop"] == 1
+
+
+def test_board_levels_and_sent_duty_agree_on_a_scrambled_mapping():
+    # channels in reverse order on every board: the frame layout and the duty report use one mapping
+    cfg = dataclasses.replace(CFG, motor_channel=tuple(7 - c for c in CFG.motor_channel))
+    d = MotorDriver(cfg, PROTO, now=T0)
+    v = np.linspace(0.1, 1.0, 30)
+    d.command(NAMES, v, T0 + 0.01)
+    out = send_all(d, d.outgoing(T0 + 0.01, refresh=True), T0 + 0.01)
+    want = duty_to_levels(intensity_to_duty(v, CFG.duty))
+    for o in (o for o in out if o.board):
+        expected = [0] * 8
+        for k, c in cfg.motors_of(o.board):
+            expected[c] = int(want[k])
+        assert o.levels == tuple(expected)
+    assert np.allclose(d.sent_duty(), want / 127)
+
+
+def test_config_rejects_an_infinite_watchdog_and_accepts_a_latching_stop(tmp_path):
+    import yaml
+    data = yaml.safe_load((Path(__file__).parent / "data" / "glove_can_test.yaml").read_text())
+    data["can"]["watchdog_s"] = float("inf")
+    with pytest.raises(ConfigError, match="can.watchdog_s.*finite"):
+        glove_can_from_mapping(data, "inf.yaml")
+    data["can"].update(watchdog_s=0.2, stop_hold_s=float("inf"))
+    cfg = glove_can_from_mapping(data, "latch.yaml")
+    assert cfg.stop_hold_s == float("inf") and cfg.command_max_age_s == 0.2   # follows watchdog_s
+    data["can"]["command_max_age_s"] = -1
+    with pytest.raises(ConfigError, match="can.command_max_age_s"):
+        glove_can_from_mapping(data, "neg.yaml")

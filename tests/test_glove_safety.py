@@ -5,6 +5,8 @@ test makes the motors buzz, breaks one link of the chain and waits (generously) 
 """
 from __future__ import annotations
 
+import errno
+import logging
 import os
 import signal
 import time
@@ -19,6 +21,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.testing import node_process
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.glove.config import load_glove_can
+from touch4d.glove.link import CanLink
 from touch4d.glove.protocol import GloveProtocol
 from touch4d.messages import HandPose, MotorCommand, SceneState, Stop
 from touch4d.nodes.motors import MotorsNode
@@ -108,15 +111,47 @@ def test_an_exception_in_the_command_callback_leaves_the_motors_off(chain):
     assert chain.node.driver.errors["watchdog_off"] >= 1
 
 
-def test_an_unexpected_send_exception_is_caught_by_the_boards_watchdog(chain):
+def test_an_unexpected_send_exception_is_counted_and_the_boards_watchdog_turns_off(chain):
     assert chain.spin_until(chain.buzzing, publish=chain.command)
 
     def broken(msg, timeout=None):
-        raise RuntimeError("driver bug")  # not a can.CanError: escapes the link's fault handling
+        raise RuntimeError("driver bug")  # not a can.CanError
 
     chain.node.link.bus.send = broken
     assert chain.spin_until(chain.silent, publish=chain.command)
-    assert all(b.watchdog_tripped for b in chain.emu.boards.values())
+    assert all(b.watchdog_tripped for b in chain.emu.boards.values())   # nothing reaches them
+    assert chain.node.driver.errors["send_error"] >= 1                  # the node kept going
+
+
+class Raising:
+    """A python-can bus whose send and recv raise what a driver should not (but may)."""
+
+    def __init__(self, exc):
+        self.exc = exc
+
+    def send(self, msg, timeout=None):
+        raise self.exc
+
+    def recv(self, timeout=None):
+        raise self.exc
+
+    def shutdown(self):
+        raise self.exc
+
+
+@pytest.mark.parametrize("exc", [OSError(errno.EIO, "Input/output error"), ValueError("bad dlc"),
+                                 AttributeError("'NoneType' object has no attribute 'send'")])
+def test_the_link_turns_any_exception_into_a_counted_fault_logged_once(exc, caplog):
+    proto = GloveProtocol(load_glove_can(TEST_GLOVE))
+    link = CanLink("virtual", "unused", 500000, bus=Raising(exc))
+    with caplog.at_level(logging.WARNING, logger="touch4d.glove.link"):
+        for _ in range(3):
+            assert link.send(proto.nmt("STOP")) == "send_error"
+            assert link.receive() == ([], "receive_error")
+    assert type(exc).__name__ in link.last_error
+    assert [r.getMessage().split(" from ")[1].split(" ")[0] for r in caplog.records] == ["send", "receive"]
+    link.close()   # must not raise either
+    assert link.bus is None
 
 
 class DropFirstStop:

@@ -89,23 +89,99 @@ def test_intensities_arrive_as_duty_on_the_right_board_and_channel(rig):
     assert rig.spin(WAIT, intensity=v, until=lambda: rig.emu.motor_levels() == want)
     for k, level in enumerate(want):
         assert rig.emu.levels(1 + k // 8)[k % 8] == level
-    assert rig.spin(WAIT, intensity=v, until=lambda: rig.status and all(b["online"] for b in rig.status[-1].boards))
-    last = rig.status[-1]
-    assert np.allclose(last.duty, np.array(want) / 127)
-    assert [b["state"] for b in last.boards] == ["operational"] * 4
-    assert 0 < last.bus_load < 0.7
+
+    def reported() -> bool:  # a status published after the boards answered and the duties went out
+        last = rig.status[-1] if rig.status else None
+        return (last is not None and [b["state"] for b in last.boards] == ["operational"] * 4
+                and np.allclose(last.duty, np.array(want) / 127))
+
+    assert rig.spin(WAIT, intensity=v, until=reported)
+    assert all(b["online"] and b["faults"] == [] for b in rig.status[-1].boards)
+    assert 0 < rig.status[-1].bus_load < 0.7
+
+
+def record_sent(node) -> list[tuple[float, int, tuple]]:
+    """(driver time, board, levels) of every duty frame the node sends from now on."""
+    log = []
+    sent = node.driver.sent
+
+    def recording(out, now):
+        if out.board:
+            log.append((now, out.board, out.levels))
+        sent(out, now)
+
+    node.driver.sent = recording
+    return log
 
 
 def test_silence_turns_every_motor_off_within_the_watchdog(rig):
     v = np.full(30, 0.7)
     assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
-    t0 = time.monotonic()
+    frames = record_sent(rig.node)
     assert rig.spin(WAIT, until=lambda: not any(rig.emu.motor_levels()))
-    # node-side watchdog (100 ms) + one refresh period; generous for a loaded machine
-    assert time.monotonic() - t0 < 2.0
+    # Timed on the driver's clock, not the test's: no frame turns a motor on later than the
+    # watchdog after the last command, and every board's first frame after that is all zero.
+    expiry = rig.node.driver.last_command_at + CFG.watchdog_s
+    assert all(t <= expiry for t, _, levels in frames if any(levels))
+    for board in (1, 2, 3, 4):
+        after = [levels for t, b, levels in frames if b == board and t > expiry]
+        assert after and after[0] == (0,) * 8
     assert rig.node.driver.errors["watchdog_off"] >= 1
     # the node keeps refreshing zeros: the boards do not trip their own watchdog
     assert not any(b.watchdog_tripped for b in rig.emu.boards.values())
+
+
+def test_a_receive_failure_does_not_stop_the_refresh_or_the_watchdog(rig):
+    v = np.full(30, 0.7)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
+
+    def broken(msg):
+        raise RuntimeError("decoder bug")  # not a FrameError: escapes the frame handling
+
+    rig.node.protocol.decode = broken
+    assert rig.spin(WAIT, until=lambda: not any(rig.emu.motor_levels()))
+    assert rig.node.driver.errors["receive_error"] >= 1
+    assert rig.node.driver.errors["watchdog_off"] >= 1
+    # the zeros came from the node's refresh, not from the boards' own watchdog
+    assert not any(b.watchdog_tripped for b in rig.emu.boards.values())
+
+
+def test_stale_commands_never_turn_a_motor_on(rig):
+    v = np.full(30, 0.7)
+
+    def publish(age):
+        rig.cmd.publish(MotorCommand(names=NAMES, intensity=v, source_stamp=time.time() - age))
+
+    assert rig.spin(WAIT, until=lambda: all(b["online"] for b in rig.status[-1].boards) if rig.status else False)
+    for _ in range(30):   # delayed by a stall upstream: 0.5 s old on arrival
+        publish(0.5)
+        assert not rig.spin(0.01, until=lambda: any(rig.emu.motor_levels()))
+    assert rig.node.driver.errors["stale_command"] >= 1
+    assert rig.spin(WAIT, until=lambda: (rig.status[-1].errors.get("stale_command", 0) >= 1) if rig.status else False)
+    assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))   # fresh ones do
+    publish(0.5)   # a stale one after fresh ones: off at once, not after the watchdog
+    assert rig.spin(WAIT, until=lambda: not any(rig.emu.motor_levels()))
+
+
+def test_the_age_check_can_be_turned_off_for_unsynchronised_clocks(bus, tmp_path):
+    data = yaml.safe_load(TEST_GLOVE.read_text())
+    data["can"]["command_max_age_s"] = 0
+    glove = tmp_path / "no-ntp.yaml"
+    glove.write_text(yaml.safe_dump(data))
+    r = Rig(bus, glove=glove)
+    try:
+        old = time.time() - 3600.0   # the PC's clock an hour behind the Pi's
+
+        def publish():
+            r.cmd.publish(MotorCommand(names=NAMES, intensity=np.full(30, 0.7), source_stamp=old))
+
+        end = time.monotonic() + WAIT
+        while not all(r.emu.motor_levels()) and time.monotonic() < end:
+            publish()
+            r.spin(0.01)
+        assert all(r.emu.motor_levels()) and r.node.driver.errors["stale_command"] == 0
+    finally:
+        r.close()
 
 
 def test_board_watchdog_turns_off_when_the_node_stops_sending(rig):
@@ -129,6 +205,51 @@ def test_stop_turns_everything_off_and_holds(rig):
     assert all(b.nmt_state == "STOPPED" for b in rig.emu.boards.values())
     assert rig.spin(0.3, intensity=v) and not any(rig.emu.motor_levels())
     assert rig.spin(WAIT, intensity=v, until=lambda: rig.status and rig.status[-1].errors.get("stops") == 1)
+
+
+def glove_with(tmp_path, **can_keys) -> Path:
+    data = yaml.safe_load(TEST_GLOVE.read_text())
+    data["can"].update(can_keys)
+    glove = tmp_path / "glove.yaml"
+    glove.write_text(yaml.safe_dump(data))   # float('inf') is written as YAML .inf
+    return glove
+
+
+def test_a_momentary_stop_releases_after_the_hold(bus, tmp_path):
+    r = Rig(bus, glove=glove_with(tmp_path, stop_hold_s=0.3))
+    try:
+        v = np.full(30, 0.7)
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        r.stop_pub.publish(Stop(reason="test", origin="tester"))
+        assert r.spin(WAIT, intensity=v, until=lambda: not any(r.emu.motor_levels()))
+        # the hold ends, the boards are started again and the commands drive them
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        assert all(b.nmt_state == "OPERATIONAL" for b in r.emu.boards.values())
+    finally:
+        r.close()
+
+
+def test_an_infinite_stop_hold_latches_until_restart(bus, tmp_path):
+    glove = glove_with(tmp_path, stop_hold_s=float("inf"))
+    assert ".inf" in glove.read_text() and load_glove_can(glove).stop_hold_s == float("inf")
+    r = Rig(bus, glove=glove)
+    try:
+        v = np.full(30, 0.7)
+        assert r.spin(WAIT, intensity=v, until=lambda: all(r.emu.motor_levels()))
+        r.stop_pub.publish(Stop(reason="test", origin="tester"))
+        assert r.spin(WAIT, intensity=v, until=lambda: not any(r.emu.motor_levels()))
+        # well past the default hold (1 s), commands still coming: nothing turns on again
+        assert not r.spin(1.5, intensity=v, until=lambda: any(r.emu.motor_levels()))
+        assert all(b.nmt_state == "STOPPED" for b in r.emu.boards.values())
+        assert r.node.driver.errors["ignored_during_stop"] > 10
+    finally:
+        r.close()
+    # a restarted node starts the boards again
+    r = Rig(bus, glove=glove, channel=r.channel)
+    try:
+        assert r.spin(WAIT, intensity=np.full(30, 0.7), until=lambda: all(r.emu.motor_levels()))
+    finally:
+        r.close()
 
 
 def test_stop_reaches_the_boards_within_one_frame(rig):
@@ -269,6 +390,37 @@ def test_send_faults_are_reported_and_retried_without_crashing(bus, error, kind)
         r.close()
 
 
+class RaisingStop(FlakyBus):
+    """A driver that raises something other than can.CanError on the NMT STOP frame."""
+
+    def send(self, msg, timeout=None):
+        if msg.arbitration_id == CFG.ids.stop and msg.data[0] == 2:
+            raise ValueError("driver bug on the stop frame")
+        self.inner.send(msg, timeout)
+
+
+def test_shutdown_sends_zero_duty_even_when_the_stop_frame_raises(bus):
+    channel = f"motors-{uuid.uuid4().hex}"
+    r = Rig(bus, bus_factory=lambda: RaisingStop(channel), channel=channel)
+    with can.Bus(interface="virtual", channel=channel) as spy:
+        try:
+            assert r.spin(WAIT, intensity=np.full(30, 0.5), until=lambda: all(r.emu.motor_levels()))
+            while spy.recv(timeout=0) is not None:
+                pass
+        finally:
+            r.close()    # must not raise
+        proto = GloveProtocol(CFG)
+        zeros = set()
+        m = spy.recv(timeout=1.0)
+        while m is not None:
+            f = proto.decode(m)
+            if f.kind == "duty" and GloveProtocol.levels(f, 8) == [0] * 8:
+                zeros.add(f.board)
+            m = spy.recv(timeout=0.2)
+    assert zeros == {1, 2, 3, 4}
+    assert r.node.driver.errors["send_error"] >= 1
+
+
 def test_a_full_virtual_receive_queue_is_reported_as_a_full_transmit_queue(rig):
     v = np.full(30, 0.5)
     assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
@@ -313,9 +465,13 @@ def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
         MotorsNode(params={"glove": str(glove), "channel": "never"}, bus=bus)
 
 
-def test_a_bad_parameter_is_refused_with_its_name(bus):
+@pytest.mark.parametrize("status_hz", [0.0, -1.0, float("inf"), float("nan")])
+def test_a_bad_parameter_is_refused_with_its_name(bus, status_hz):
+    with pytest.raises(ConfigError, match=r"launch\.yaml.*nodes\.motors\.params\.status_hz.*finite rate > 0"):
+        MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": status_hz}, bus=bus,
+                   params_source="launch.yaml")
     with pytest.raises(ConfigError, match="status_hz"):
-        MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": 0.0}, bus=bus)
+        MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": status_hz}, bus=bus)
 
 
 def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus):

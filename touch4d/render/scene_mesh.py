@@ -175,6 +175,8 @@ class MeshBuilder:
             redo = changed.copy()
             if frame is not None:         # a body is cut again if it moved or a moved body hid or hides it
                 redo |= (frame.hides[changed] | occ.hides[changed]).any(axis=0)
+                if redo.all():
+                    frame = None
             poly_v, poly_c, src, pieces = _cut_reusing(
                 lambda sel: _cut_polygons(poly_v[sel], poly_c[sel], poly_body[sel], occ),
                 poly_body, redo, None if frame is None else frame.polys, (poly_v, poly_c))
@@ -619,9 +621,10 @@ def _triangles(v: np.ndarray, count: np.ndarray, rgba: np.ndarray) -> np.ndarray
     """Fan-triangulate convex polygons into (3T, FLOATS_PER_VERTEX) float32 vertices."""
     if len(v) == 0:
         return empty_vertices()
-    k = v.shape[1]
-    j = np.arange(k - 2)
-    p, jj = np.nonzero(j[None] + 2 < count[:, None])
-    tri = np.stack([v[p, 0, :3], v[p, jj + 1, :3], v[p, jj + 2, :3]], axis=1)      # (T, 3, 3)
-    out = np.concatenate([tri, np.repeat(rgba[p][:, None], 3, axis=1)], axis=-1)
-    return out.reshape(-1, FLOATS_PER_VERTEX).astype(np.float32)
+    p, jj = np.nonzero(np.arange(v.shape[1] - 2)[None] + 2 < count[:, None])
+    out = np.empty((len(p), 3, FLOATS_PER_VERTEX), np.float32)        # written in place: no temporaries
+    out[:, 0, :3] = v[p, 0, :3]
+    out[:, 1, :3] = v[p, jj + 1, :3]
+    out[:, 2, :3] = v[p, jj + 2, :3]
+    out[:, :, 3:] = rgba[p][:, None]
+    return out.reshape(-1, FLOATS_PER_VERTEX)
