@@ -124,25 +124,31 @@ def test_replayed_stack_recorded_again_is_byte_identical_with_timing_kept(procs,
     original = list(LogReader(first).messages())
     assert {"hand/pose", "example/relay", "node/heartbeat"} <= {m.topic for m in original}
     assert len(original) > 400
-    with realtime_broker() as bus:
-        rec = record(procs, bus, second)
-        replay = procs.start(bus, "replay", str(first))
-        _, err = replay.communicate(timeout=60)
-        assert replay.returncode == 0, err
-        assert f"replay done: {len(original)} messages sent" in err
-        time.sleep(0.5)
-        stop(rec)
-    replayed = list(LogReader(second).messages())
-    assert [(m.topic, m.data) for m in replayed] == [(m.topic, m.data) for m in original]
     d1 = np.diff([m.log_time for m in original]) / 1e9
-    d2 = np.diff([m.log_time for m in replayed]) / 1e9
-    error = np.abs(d2 - d1)
-    p50, p99 = np.percentile(error, [50, 99])
-    print(f"replay inter-message timing error: p50 {p50 * 1e3:.3f} ms, p99 {p99 * 1e3:.3f} ms")
-    # The schedule itself is exact (test_replay_schedule_is_the_log_timing_scaled_by_the_rate); live,
-    # other engineers' processes on this 2-core machine can delay a wake-up by several ms, so the
-    # 2 ms p99 target is measured by bench/bench_log.py and here only a broken schedule fails.
-    assert p50 < 0.002 and p99 < 0.025, f"timing error p50 {p50 * 1e3:.2f} ms, p99 {p99 * 1e3:.2f} ms"
+
+    def replay_and_record(path):
+        with realtime_broker() as bus:
+            rec = record(procs, bus, path)
+            replay = procs.start(bus, "replay", str(first))
+            _, err = replay.communicate(timeout=60)
+            assert replay.returncode == 0, err
+            assert f"replay done: {len(original)} messages sent" in err
+            time.sleep(0.5)
+            stop(rec)
+        replayed = list(LogReader(path).messages())
+        assert [(m.topic, m.data) for m in replayed] == [(m.topic, m.data) for m in original]
+        error = np.abs(np.diff([m.log_time for m in replayed]) / 1e9 - d1)
+        p50, p99 = np.percentile(error, [50, 99])
+        print(f"replay inter-message timing error: p50 {p50 * 1e3:.3f} ms, p99 {p99 * 1e3:.3f} ms")
+        return p50, p99
+
+    # The schedule itself is exact (test_replay_schedule_is_the_log_timing_scaled_by_the_rate).
+    # Live, the issue's bound is p99 < 2 ms; a burst of other work on a 2-core machine can delay
+    # wake-ups for a whole run, so a run over the bound is repeated once before it counts.
+    p50, p99 = replay_and_record(second)
+    if p99 >= 0.002:
+        p50, p99 = replay_and_record(tmp_path / "third.mcap")
+    assert p50 < 0.001 and p99 < 0.002, f"timing error p50 {p50 * 1e3:.2f} ms, p99 {p99 * 1e3:.2f} ms"
 
 
 @pytest.mark.timeout(120)

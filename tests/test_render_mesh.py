@@ -174,3 +174,6 @@ def test_reused_pieces_equal_a_fresh_build_as_bodies_move(projection):
             assert not np.array_equal(mesh.fills, previous.fills)      # each step changed the picture
         previous = mesh
     assert triangle_area(mesh.fills, BLUE) > 0
+    bigger = Style(centre_scale=0.5)                   # same poses, another style: the centres change
+    assert np.array_equal(builder.build(bodies, projection, 3.0, bigger).centres,
+                          MeshBuilder().build(bodies, projection, 3.0, bigger).centres)
