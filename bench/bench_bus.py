@@ -15,6 +15,7 @@ import argparse
 import multiprocessing as mp
 import time
 
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 
 TOPIC = b"hand/pose"

@@ -31,6 +31,7 @@ import uuid
 from pathlib import Path
 
 import can
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 import yaml
 

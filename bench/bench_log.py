@@ -17,6 +17,7 @@ import sys
 import tempfile
 import time
 
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 from mcap.writer import CompressionType, Writer
 

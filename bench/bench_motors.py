@@ -20,6 +20,7 @@ import time
 import uuid
 
 import can
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 import yaml
 

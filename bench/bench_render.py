@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 
 from touch4d.geometry.rotation import plane_rotation

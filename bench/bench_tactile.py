@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 
 from touch4d.geometry.rotation import rotation_from_list

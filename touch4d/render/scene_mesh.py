@@ -163,7 +163,7 @@ class MeshBuilder:
         seg_v, seg_rgba, seg_body = _concat_segs(segs)
         frame, self._frame = self._frame, None
         if style.clip and len(bodies) > 1:
-            setting = (perspective, float(eye_distance) if perspective else 0.0)
+            setting = (perspective, float(eye_distance) if perspective else 0.0, style)
             # The template object itself (compared by identity) and the exact pose: colours may change freely.
             keys = [(self.template(b.polytope), np.asarray(b.orientation, float).tobytes(),
                      np.asarray(b.position, float).tobytes(), float(b.size)) for b in bodies]
@@ -188,9 +188,10 @@ class MeshBuilder:
             self._frame = _Frame(setting, keys, occ.hides, pieces, seg_pieces)
         fills = _triangles(poly_v[poly_kind == 0], poly_c[poly_kind == 0], poly_rgba[poly_kind == 0])
         centres = _triangles(poly_v[poly_kind == 1], poly_c[poly_kind == 1], poly_rgba[poly_kind == 1])
-        edges = np.concatenate([seg_v[..., :3], np.repeat(seg_rgba[:, None], 2, axis=1)], axis=-1)
-        return SceneMesh(fills, centres, edges.reshape(-1, FLOATS_PER_VERTEX).astype(np.float32),
-                         visible, bounds)
+        edges = np.empty((len(seg_v), 2, FLOATS_PER_VERTEX), np.float32)
+        edges[..., :3] = seg_v[..., :3]
+        edges[..., 3:] = seg_rgba[:, None]
+        return SceneMesh(fills, centres, edges.reshape(-1, FLOATS_PER_VERTEX), visible, bounds)
 
 
 def _cut_reusing(cut, body: np.ndarray, redo: np.ndarray, previous: tuple | None, arrays: tuple):
