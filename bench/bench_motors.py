@@ -70,7 +70,7 @@ def main():
             # -- node callback: on_command, timed in this thread (the node is not spinning) --------
             cb = []
             for v in data:
-                msg = MotorCommand(names=names, intensity=v)
+                msg = MotorCommand(names=names, intensity=v, source_stamp=time.time())  # fresh: not stale
                 t0 = time.perf_counter()
                 node.on_command(msg)
                 cb.append(time.perf_counter() - t0)

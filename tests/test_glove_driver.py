@@ -280,3 +280,15 @@ def test_config_rejects_an_infinite_watchdog_and_accepts_a_latching_stop(tmp_pat
     data["can"]["command_max_age_s"] = -1
     with pytest.raises(ConfigError, match="can.command_max_age_s"):
         glove_can_from_mapping(data, "neg.yaml")
+
+
+def test_cached_duty_frames_are_the_protocols_encoding(driver):
+    for k in range(600):   # more than one counter cycle of a steady pattern, then a changing one
+        v = np.full(30, 0.5) if k < 300 else np.linspace(0, 1, 30) * (k % 7) / 7
+        driver.command(NAMES, v, T0 + 0.01 + 0.005 * k)
+        for o in send_all(driver, driver.outgoing(T0 + 0.01 + 0.005 * k, refresh=True), T0 + 0.01 + 0.005 * k):
+            if o.board:
+                counter = PROTO.decode(o.msg).signals["Counter"]
+                want = PROTO.duty(o.board, o.levels, counter)
+                assert (o.msg.arbitration_id, bytes(o.msg.data), o.msg.is_extended_id) == \
+                       (want.arbitration_id, bytes(want.data), want.is_extended_id)

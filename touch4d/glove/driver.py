@@ -35,6 +35,7 @@ RESTART_PERIOD_S = 0.1
 CHANGE_GAP = 0.5     # periods between two change frames of one board
 REFRESH_AGE = 0.8    # periods since a board's last change frame before a tick refreshes it
 FRAMES_PER_PERIOD = 1 / CHANGE_GAP
+ENCODED_CACHE = 4096  # duty frame payloads kept (4 boards x 256 counters of one steady pattern fit)
 
 
 class Outgoing(NamedTuple):
@@ -88,6 +89,7 @@ class MotorDriver:
         self._restart_pending = True  # the first refresh tick broadcasts NMT START
         self.watchdog_off = True
         self.errors: Counter = Counter()
+        self._encoded: dict[tuple, tuple[int, bytes]] = {}
         self.period = 1.0 / cfg.refresh_hz
         board_of = np.asarray(cfg.motor_board)
         channel_of = np.asarray(cfg.motor_channel)
@@ -221,8 +223,20 @@ class MotorDriver:
             change = levels != b.sent_levels
             if force or (change and now - b.last_change_sent >= gap) or (refresh and now - b.last_change_sent >= age):
                 b.counter = (b.counter + 1) & 0xFF
-                out.append(Outgoing(b.id, self.protocol.duty(b.id, levels, b.counter), levels, change))
+                out.append(Outgoing(b.id, self._duty_frame(b.id, levels, b.counter), levels, change))
         return out
+
+    def _duty_frame(self, board: int, levels: tuple, counter: int) -> can.Message:
+        """The duty frame, its cantools encoding cached: an idle or steady glove repeats the same
+        256 counter values per board at the refresh rate, and encoding is most of a tick's work."""
+        key = (board, levels, counter)
+        encoded = self._encoded.get(key)
+        if encoded is None:
+            if len(self._encoded) >= ENCODED_CACHE:
+                self._encoded.clear()
+            msg = self.protocol.duty(board, levels, counter)
+            encoded = self._encoded[key] = (msg.arbitration_id, bytes(msg.data))
+        return can.Message(arbitration_id=encoded[0], data=encoded[1], is_extended_id=False)
 
     def sent(self, out: Outgoing, now: float) -> None:
         """A frame from `outgoing` went out."""
