@@ -108,11 +108,15 @@ class MotorsNode(Node):
     def on_command(self, msg: MotorCommand) -> None:
         now = time.monotonic()
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
-        stale_before = self.driver.errors["stale_command"]
+        errors = self.driver.errors
+        stale, future = errors["stale_command"], errors["command_from_future"]
         self.driver.command(msg.names, msg.intensity, now, age=age)
-        if self.driver.errors["stale_command"] != stale_before:
+        if errors["stale_command"] != stale:
             self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
                                             f"{self.cfg.command_max_age_s} s): every motor off")
+        elif errors["command_from_future"] != future:
+            self._can_warn("command_from_future", f"a tactile/motors command stamped {-age:.3f} s in the future: "
+                                                  "are the clocks NTP-synchronised?")
         if not self.tracing:
             self._send_frames(self.driver.outgoing(now), now)
             return

@@ -232,6 +232,9 @@ def test_a_stale_command_turns_every_motor_off_and_never_on(driver):
     driver.command(NAMES, np.full(30, 0.8), T0 + 0.03, age=stale)   # after fresh ones: off at once
     assert all(o.levels == (0,) * 8 for o in driver.outgoing(T0 + 0.03, refresh=True) if o.board)
     assert driver.is_stale(float("nan")) and not driver.is_stale(-5.0) and not driver.is_stale(None)
+    driver.command(NAMES, np.full(30, 0.8), T0 + 0.04, age=-5.0)   # a sender's clock ahead: used, counted
+    assert all(any(o.levels) for o in driver.outgoing(T0 + 0.04, refresh=True) if o.board)
+    assert driver.errors["command_from_future"] == 1
 
 
 def test_the_age_check_is_off_with_a_zero_limit():

@@ -5,6 +5,7 @@ test makes the motors buzz, breaks one link of the chain and waits (generously) 
 """
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -21,6 +22,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.testing import node_process
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.glove.config import load_glove_can
+from touch4d.glove.emulator import MAX_WAIT_S, GloveEmulator
 from touch4d.glove.link import CanLink
 from touch4d.glove.protocol import GloveProtocol
 from touch4d.messages import HandPose, MotorCommand, SceneState, Stop
@@ -229,3 +231,25 @@ def test_a_killed_tactile_node_leaves_every_motor_off():
         assert c.node.driver.errors["watchdog_off"] >= 1
     finally:
         c.close()
+
+
+def test_the_emulator_blocks_only_until_a_board_watchdog_is_due():
+    cfg = dataclasses.replace(load_glove_can(TEST_GLOVE), status_hz=1.0, heartbeat_hz=1.0)
+    clock = {"t": 100.0}
+    emu = GloveEmulator(cfg, interface="virtual", channel=f"safety-{uuid.uuid4().hex}", clock=lambda: clock["t"])
+    try:
+        proto = GloveProtocol(cfg)
+        emu.step(timeout=0)                        # boot-up heartbeats and first status go out
+        assert emu.next_wait(100.0) == MAX_WAIT_S    # nothing due within the cap
+        for msg in [proto.nmt("START")] + [proto.duty(b.id, [50] * 8, 1) for b in cfg.boards]:
+            emu.process(msg, 100.0)
+        emu.step(timeout=0)                        # the status on the change of state
+        clock["t"] = 100.08
+        assert emu.next_wait(100.08) == pytest.approx(cfg.board_watchdog_s - 0.08)   # the watchdog is next
+        assert all(emu.motor_levels())
+        clock["t"] = 100.0 + cfg.board_watchdog_s + 0.001
+        assert emu.next_wait(clock["t"]) == 0.0
+        emu.step()
+        assert not any(emu.motor_levels()) and all(b.watchdog_tripped for b in emu.boards.values())
+    finally:
+        emu.stop()

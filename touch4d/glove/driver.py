@@ -129,6 +129,8 @@ class MotorDriver:
             self.errors["stale_command"] += 1
             self.intensity = np.zeros(len(self.names))
             return
+        if self.cfg.command_max_age_s and age is not None and age < -self.cfg.command_max_age_s:
+            self.errors["command_from_future"] += 1   # the sender's clock is ahead: the age check is blind
         values = np.zeros(len(self.names))
         values[dst] = np.asarray(intensity, dtype=np.float64)[src]
         self.intensity = values

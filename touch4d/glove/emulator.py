@@ -106,7 +106,7 @@ class BoardEmulator:
             self.levels = [0] * self.channels if self.hardware_faults else GloveProtocol.levels(frame, self.channels)
 
     def next_due(self) -> float:
-        """When `tick` next has something to do if no frame arrives: a pending frame, the watchdog, a status or heartbeat."""
+        """When `tick` next has work without a frame arriving: a pending frame, watchdog, status or heartbeat."""
         if self._pending:
             return -float("inf")
         due = min(self._next_status, self._next_heartbeat)

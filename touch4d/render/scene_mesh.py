@@ -384,8 +384,10 @@ class _Occluders:
             i, j = i[moved], j[moved]
         if len(i) == 0:
             return hides
-        in_j, apart_j = self._inside(self.vertices[i], j)
-        in_i, apart_i = self._inside(self.vertices[j], i)
+        # Both directions in one batch: i's vertices against j's outline, then j's against i's.
+        inside, apart = self._inside(self.vertices[np.r_[i, j]], np.r_[j, i])
+        in_j, in_i = inside[:len(i)], inside[len(i):]
+        apart_j, apart_i = apart[:len(i)], apart[len(i):]
         apart = apart_i | apart_j
         hides[i[apart], j[apart]] = hides[j[apart], i[apart]] = False
         total = (self.vertices[i] * in_j[..., None]).sum(axis=1) + (self.vertices[j] * in_i[..., None]).sum(axis=1)
@@ -433,10 +435,14 @@ def _plane_values(planes: np.ndarray, points: np.ndarray) -> np.ndarray:
     """n.u - d for planes (Q, M, 4) and points (Q, K, >=3), as (M, K, Q): positive outside.
 
     The pair axis Q comes last so that reductions over planes or vertices (short axes) run along
-    long contiguous rows; numpy reduces a short innermost axis an order of magnitude slower. A
-    stacked matmul then one transposing copy measured faster than broadcasting in that layout."""
-    s = np.matmul(planes[..., :3], points[..., :3].transpose(0, 2, 1))        # (Q, M, K)
-    s -= planes[..., 3:4]
+    long contiguous rows; numpy reduces a short innermost axis an order of magnitude slower. The
+    points go in homogeneous (u, -1), so one stacked matmul on contiguous operands gives n.u - d
+    (measured ~1.4x faster than a matmul on strided xyz views followed by a subtraction)."""
+    q, k = points.shape[:2]
+    homogeneous = np.empty((q, 4, k))
+    homogeneous[:, :3] = points[..., :3].transpose(0, 2, 1)
+    homogeneous[:, 3] = -1.0
+    s = np.matmul(planes, homogeneous)                                        # (Q, M, K)
     return np.ascontiguousarray(s.transpose(1, 2, 0))
 
 
