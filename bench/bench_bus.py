@@ -23,6 +23,18 @@ TOPIC = b"hand/pose"
 
 # ---- raw baseline: PUB -> zmq.proxy (XSUB/XPUB) -> SUB, msgpack of the same fields ----------------
 
+
+def raw_latency(payload: bytes) -> float:
+    """Decode a raw baseline pose (plain msgpack, arrays as bytes) and return its one-way latency, s."""
+    import msgpack
+
+    now = time.time()
+    d = msgpack.unpackb(payload)
+    np.frombuffer(d["position"], dtype=np.float64)
+    np.frombuffer(d["orientation"], dtype=np.float64)
+    return now - d["stamp"]
+
+
 def raw_proxy(ports, ready, stop):
     import threading
 
@@ -87,11 +99,7 @@ def raw_subscriber(ports, sub_ready, results, count):
         topic, payload = sub.recv_multipart()
         if topic == b"end":
             break
-        now = time.time()
-        d = msgpack.unpackb(payload)
-        np.frombuffer(d["position"], dtype=np.float64)
-        np.frombuffer(d["orientation"], dtype=np.float64)
-        lat.append(now - d["stamp"])
+        lat.append(raw_latency(payload))
         first = first or time.perf_counter()
         last = time.perf_counter()
     results.put((lat, first, last))
@@ -178,11 +186,7 @@ def runtime_subscriber(ports, sub_ready, results, count):
         if topic == "end":
             done.append(1)
             return
-        now = time.time()
-        d = msgpack.unpackb(payload)
-        np.frombuffer(d["position"], dtype=np.float64)
-        np.frombuffer(d["orientation"], dtype=np.float64)
-        lat.append(now - d["stamp"])
+        lat.append(raw_latency(payload))
         times.append(time.perf_counter())
 
     node.create_raw_subscription("hand/pose", on_any)

@@ -144,17 +144,24 @@ def test_a_hardware_fault_turns_the_board_off_and_is_reported(emu):
     assert PROTO.state_name(status) == "FAULT_OFF" and PROTO.faults(status) == ["overtemp"]
 
 
+def drive_board_1(emu, bus) -> float:
+    """Start the boards and send duty 33 to board 1 until the threaded emulator applies it; returns
+    the deadline (10 s from now) the rest of the test keeps to."""
+    bus.send(PROTO.nmt("START"))
+    deadline = time.monotonic() + 10
+    while emu.levels(1) != [33] * 8 and time.monotonic() < deadline:
+        bus.send(PROTO.duty(1, [33] * 8, 5))
+        time.sleep(0.01)
+    assert emu.levels(1) == [33] * 8
+    return deadline
+
+
 @pytest.mark.timeout(30)
 def test_threaded_emulator_on_a_virtual_channel_answers_and_times_out():
     channel = f"emu-thread-{uuid.uuid4().hex}"
     with GloveEmulator(CFG, interface="virtual", channel=channel) as emu, \
             can.Bus(interface="virtual", channel=channel) as bus:
-        bus.send(PROTO.nmt("START"))
-        deadline = time.monotonic() + 10
-        while emu.levels(1) != [33] * 8 and time.monotonic() < deadline:
-            bus.send(PROTO.duty(1, [33] * 8, 5))
-            time.sleep(0.01)
-        assert emu.levels(1) == [33] * 8
+        deadline = drive_board_1(emu, bus)
         seen = {}
         while len(seen) < 4 and time.monotonic() < deadline:
             m = bus.recv(timeout=0.1)
@@ -173,12 +180,7 @@ def test_an_internal_error_in_the_emulator_loop_turns_every_channel_off_and_keep
     channel = f"emu-fault-{uuid.uuid4().hex}"
     with GloveEmulator(CFG, interface="virtual", channel=channel) as emu, \
             can.Bus(interface="virtual", channel=channel) as bus:
-        bus.send(PROTO.nmt("START"))
-        deadline = time.monotonic() + 10
-        while emu.levels(1) != [33] * 8 and time.monotonic() < deadline:
-            bus.send(PROTO.duty(1, [33] * 8, 5))
-            time.sleep(0.01)
-        assert emu.levels(1) == [33] * 8
+        deadline = drive_board_1(emu, bus)
 
         def broken(now):  # the tick (and with it the board watchdog) fails from now on
             raise RuntimeError("firmware bug")
