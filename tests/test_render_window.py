@@ -23,7 +23,7 @@ from touch4d.render.window import InputState, key_name
 def xvfb_display(monkeypatch):
     """A private Xvfb server (its display number chosen by Xvfb), stopped afterwards."""
     if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (Debian package xvfb; ./dev installs it)")
+        pytest.fail("Xvfb is not installed: run the suite with ./dev test, which installs Debian's xvfb")
     read_end, write_end = os.pipe()
     proc = subprocess.Popen(["Xvfb", "-displayfd", str(write_end), "-screen", "0", "800x600x24", "-nolisten", "tcp"],
                             pass_fds=(write_end,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
