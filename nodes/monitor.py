@@ -4,7 +4,7 @@ from __future__ import annotations
 import time
 
 from touch4d.bus import Node, run_node
-from touch4d.messages import MotorCommand, MotorStatus
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace
 from touch4d.status import StackStatus
 
 
@@ -18,6 +18,7 @@ class Monitor(Node):
         self.create_raw_subscription("", self.on_any)
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
         self.create_subscription("motors/status", MotorStatus, self.on_motor_status, latest_only=True)
+        self.create_subscription("motors/trace", MotorTrace, self.on_trace)
         self.create_timer(period, self.on_timer)
 
     def on_any(self, topic: str, payload: bytes) -> None:
@@ -25,6 +26,9 @@ class Monitor(Node):
 
     def on_motors(self, msg: MotorCommand) -> None:
         self.status.on_motors(msg, time.time())
+
+    def on_trace(self, msg: MotorTrace) -> None:
+        self.status.on_trace(msg, time.time())
 
     def on_motor_status(self, msg: MotorStatus) -> None:
         self.status.on_motor_status(msg)

@@ -15,7 +15,6 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.cli import main as touch4d_main
 from touch4d.bus.testing import bus_env, collect, launch_process, node_process, running_broker, wait_until
 from touch4d.log.reader import LogReader
-from touch4d.bus.realtime import bus_context, raise_thread_priority, reset_thread_priority
 from touch4d.log.writer import LogWriter
 from touch4d.messages import HandPose, Heartbeat, encode
 
@@ -24,22 +23,14 @@ T0 = 1_700_000_000_000_000_000
 
 @contextmanager
 def realtime_broker():
-    """A broker whose threads run real-time when permitted (its proxy thread inherits this thread's
-    policy; its I/O threads get it from the context). On a busy 2-core machine a normal broker thread
-    is now and then scheduled several ms late, which would be measured as replay timing error."""
-    context = bus_context()
-    raised = raise_thread_priority()
-    broker = Broker(BusConfig(pub_port=0, sub_port=0), context=context)
-    try:
-        bus = broker.start()
-    finally:
-        if raised:
-            reset_thread_priority()
+    """A broker whose threads run real-time when permitted. On a busy 2-core machine a normal broker
+    thread is now and then scheduled several ms late, which would be measured as replay timing error."""
+    broker = Broker(BusConfig(pub_port=0, sub_port=0), realtime=True)
+    bus = broker.start()
     try:
         yield bus
     finally:
         broker.stop()
-        context.term()
 
 
 def touch4d(bus, *args: str) -> subprocess.Popen:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from touch4d.messages import MotorCommand, MotorStatus
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace
 
 
 @dataclass
@@ -18,7 +18,8 @@ class StackStatus:
 
     window: float = 2.0
     arrivals: dict[str, deque] = field(default_factory=dict)
-    latencies: deque = field(default_factory=lambda: deque(maxlen=2000))
+    latencies: deque = field(default_factory=lambda: deque(maxlen=2000))   # (arrival, pose -> command)
+    frame_latencies: deque = field(default_factory=lambda: deque(maxlen=2000))  # (arrival, pose -> CAN frame)
     touched: int = 0
     motors: int = 0
     boards_online: int | None = None
@@ -35,7 +36,14 @@ class StackStatus:
         self.touched = int(np.count_nonzero(msg.intensity > 0))
         self.motors = len(msg.intensity)
         if msg.source_stamp > 0:
-            self.latencies.append((now, now - msg.source_stamp))
+            # Stamped by the tactile node when it published: the monitor's own wake-up (it runs at
+            # normal priority beside the renderer) does not count.
+            self.latencies.append((now, msg.stamp - msg.source_stamp))
+
+    def on_trace(self, msg: MotorTrace, now: float) -> None:
+        """When the motor node traces commands: pose -> duty frame on the CAN bus, per command."""
+        for lat in (msg.frame_times - msg.source_stamps).tolist():
+            self.frame_latencies.append((now, lat))
 
     def on_motor_status(self, msg: MotorStatus) -> None:
         self.boards = len(msg.boards)
@@ -49,9 +57,11 @@ class StackStatus:
         recent = [t for t in times if t >= now - self.window]
         return len(recent) / self.window
 
-    def latency_ms(self, now: float) -> tuple[float, float] | None:
-        """p50 and p99 of hand/pose -> tactile/motors latency over the window, milliseconds."""
-        recent = [lat for t, lat in self.latencies if t >= now - self.window]
+    def latency_ms(self, now: float, frames: bool = False) -> tuple[float, float] | None:
+        """p50 and p99 over the window, milliseconds, of hand/pose -> tactile/motors published, or
+        (frames) hand/pose -> duty frame on the CAN bus."""
+        source = self.frame_latencies if frames else self.latencies
+        recent = [lat for t, lat in source if t >= now - self.window]
         if not recent:
             return None
         p50, p99 = np.percentile(recent, [50, 99])
@@ -60,8 +70,10 @@ class StackStatus:
     def line(self, now: float, topics: tuple[str, ...] = ("hand/pose", "scene/state", "tactile/motors")) -> str:
         parts = [f"{t} {self.rate(t, now):.0f} Hz" for t in topics]
         parts.append(f"touched {self.touched}/{self.motors} motors" if self.motors else "no motor command yet")
-        lat = self.latency_ms(now)
-        parts.append(f"pose->motors p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else "pose->motors -")
+        frames = self.latency_ms(now, frames=True)
+        lat = frames or self.latency_ms(now)
+        what = "pose->CAN" if frames else "pose->motors"
+        parts.append(f"{what} p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else f"{what} -")
         if self.boards is not None:
             parts.append(f"boards {self.boards_online}/{self.boards} online, CAN load {100 * self.bus_load:.0f}%")
         return " | ".join(parts)

@@ -15,6 +15,7 @@ import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
 from touch4d.bus.config import BusConfig
+from touch4d.bus.realtime import bus_context, raise_thread_priority
 from touch4d.errors import ConfigError
 
 log = logging.getLogger("touch4d.bus.broker")
@@ -37,10 +38,13 @@ class _AllowList:
 class Broker:
     """Runs the proxy in a background thread (`start`/`stop`) or in the caller's thread (`run`)."""
 
-    def __init__(self, config: BusConfig, context: zmq.Context | None = None):
+    def __init__(self, config: BusConfig, context: zmq.Context | None = None, realtime: bool = False):
+        """`realtime`: run the proxy and I/O threads with SCHED_FIFO when permitted, because every
+        message of the haptic loop crosses the broker twice (pose -> tactile -> motors)."""
         self.config = config
+        self.realtime = realtime
         self._own_context = context is None
-        self.context = context or zmq.Context()
+        self.context = context or bus_context(realtime)
         self._thread: threading.Thread | None = None
         self._auth: ThreadAuthenticator | None = None
         self._control_endpoint = f"inproc://touch4d-broker-{id(self)}"
@@ -85,6 +89,8 @@ class Broker:
         return self.endpoints
 
     def _proxy(self) -> None:
+        if self.realtime:
+            raise_thread_priority()
         try:
             zmq.proxy_steerable(self._frontend, self._backend, None, self._control)
         except zmq.ContextTerminated:

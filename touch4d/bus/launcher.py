@@ -144,7 +144,8 @@ class Launcher:
     # ---- main loop ---------------------------------------------------------------------------
 
     def run(self) -> int:
-        broker = Broker(self.bus) if self.start_broker else None
+        realtime = any(c.spec.realtime for c in self.children.values())  # the loop crosses the broker
+        broker = Broker(self.bus, realtime=realtime) if self.start_broker else None
         endpoints = broker.start() if broker else self.bus
         self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
                      "PYTHONUNBUFFERED": "1"}
