@@ -35,6 +35,15 @@ def raw_latency(payload: bytes) -> float:
     return now - d["stamp"]
 
 
+
+def spin_until_end(node, done: list, lat: list, times: list, results) -> None:
+    """Spin a subscriber node until the publisher's end marker (or 120 s), then report and close."""
+    deadline = time.monotonic() + 120
+    while not done and time.monotonic() < deadline:
+        node.spin_once(0.1)
+    results.put((lat, times[0] if times else None, times[-1] if times else None))
+    node.shutdown()
+
 def raw_proxy(ports, ready, stop):
     import threading
 
@@ -150,11 +159,7 @@ def bus_subscriber(ports, sub_ready, results, count):
     node.create_subscription("hand/pose", HandPose, on_pose)
     node.create_subscription("end", HandPose, lambda m: done.append(1))
     sub_ready.set()
-    deadline = time.monotonic() + 120
-    while not done and time.monotonic() < deadline:
-        node.spin_once(0.1)
-    results.put((lat, times[0] if times else None, times[-1] if times else None))
-    node.shutdown()
+    spin_until_end(node, done, lat, times, results)
 
 
 # ---- touch4d runtime with the raw baseline's payloads: the bus without the message codec ---------
@@ -192,11 +197,7 @@ def runtime_subscriber(ports, sub_ready, results, count):
     node.create_raw_subscription("hand/pose", on_any)
     node.create_raw_subscription("end", on_any)
     sub_ready.set()
-    deadline = time.monotonic() + 120
-    while not done and time.monotonic() < deadline:
-        node.spin_once(0.1)
-    results.put((lat, times[0] if times else None, times[-1] if times else None))
-    node.shutdown()
+    spin_until_end(node, done, lat, times, results)
 
 
 # ---- harness --------------------------------------------------------------------------------------
