@@ -252,22 +252,33 @@ def test_an_infinite_stop_hold_latches_until_restart(bus, tmp_path):
         r.close()
 
 
+def node_frames(spy, first_wait: float, then_wait: float, limit: int | None = None) -> list:
+    """The NMT and duty frames (the node's, not the boards') a spy on the CAN bus sees, in order."""
+    proto = GloveProtocol(CFG)
+    frames = []
+    m = spy.recv(timeout=first_wait)
+    while m is not None and (limit is None or len(frames) < limit):
+        f = proto.decode(m)
+        if f.kind in ("nmt", "duty"):
+            frames.append(f)
+        m = spy.recv(timeout=then_wait)
+    return frames
+
+
+def assert_stop_then_zero(frames: list) -> None:
+    """The first frame is the broadcast NMT STOP, and every duty frame after it is all zero."""
+    assert frames and frames[0].kind == "nmt" and frames[0].signals == {"Command": 2, "Node": 0}
+    assert all(GloveProtocol.levels(f, 8) == [0] * 8 for f in frames if f.kind == "duty")
+
+
 def test_stop_reaches_the_boards_within_one_frame(rig):
     v = np.full(30, 0.7)
     assert rig.spin(WAIT, intensity=v, until=lambda: all(rig.emu.motor_levels()))
-    proto = GloveProtocol(CFG)
-    sent = []
     with can.Bus(interface="virtual", channel=rig.channel) as spy:
         rig.node.on_stop(Stop(reason="direct", origin="test"))
-        m = spy.recv(timeout=WAIT)
-        while m is not None and len(sent) < 5:  # the boards keep talking: read the node's first frames only
-            f = proto.decode(m)
-            if f.kind in ("nmt", "duty"):
-                sent.append(f)
-            m = spy.recv(timeout=1.0)
-    # the very first frame on the bus after the stop is the broadcast NMT STOP
-    assert sent[0].kind == "nmt" and sent[0].signals == {"Command": 2, "Node": 0}
-    assert all(GloveProtocol.levels(f, 8) == [0] * 8 for f in sent if f.kind == "duty")
+        # the boards keep talking: read the node's first frames only
+        sent = node_frames(spy, first_wait=WAIT, then_wait=1.0, limit=5)
+    assert_stop_then_zero(sent)
 
 
 def test_a_removed_board_is_reported_while_the_others_keep_working(rig):
@@ -444,16 +455,8 @@ def test_shutdown_sends_stop_before_exit(bus):
                 pass
         finally:
             r.close()
-        proto = GloveProtocol(CFG)
-        frames = []
-        m = spy.recv(timeout=1.0)
-        while m is not None:
-            f = proto.decode(m)
-            if f.kind in ("nmt", "duty"):
-                frames.append(f)
-            m = spy.recv(timeout=0.2)
-    assert frames[0].kind == "nmt" and frames[0].signals == {"Command": 2, "Node": 0}
-    assert all(GloveProtocol.levels(f, 8) == [0] * 8 for f in frames if f.kind == "duty")
+        frames = node_frames(spy, first_wait=1.0, then_wait=0.2)
+    assert_stop_then_zero(frames)
 
 
 def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
