@@ -38,10 +38,10 @@ import yaml
 from touch4d.bus import Node
 from touch4d.bus.testing import node_process, running_broker, wait_until
 from touch4d.geometry.scene import load_scene
-from touch4d.glove.config import DEFAULT_GLOVE, load_glove_can
-from touch4d.glove.driver import MotorDriver
-from touch4d.glove.emulator import GloveEmulator
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import DEFAULT_GLOVE, load_glove_can
+from touch4d.boards.driver import MotorDriver
+from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.protocol import GloveProtocol
 from touch4d.messages import HandPose, Heartbeat, MotorCommand, MotorTrace
 from touch4d.tactile.engine import TactileEngine
 from touch4d.tactile.glove import load_glove

@@ -25,8 +25,8 @@ import numpy as np
 import yaml
 
 from touch4d.bus import Broker, BusConfig, Node
-from touch4d.glove.config import DEFAULT_GLOVE
-from touch4d.glove.duty import duty_to_levels, intensity_to_duty
+from touch4d.boards.config import DEFAULT_GLOVE
+from touch4d.boards.duty import duty_to_levels, intensity_to_duty
 from touch4d.messages import MotorCommand
 from touch4d.nodes.motors import MotorsNode
 

@@ -1,7 +1,7 @@
 """Motor node: `tactile/motors` intensities -> PWM duty frames on the glove's CAN bus.
 
 Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The logic lives in
-touch4d.glove (driver: what to send; link: python-can without exceptions); this node wires it to
+touch4d.boards (driver: what to send; link: python-can without exceptions); this node wires it to
 topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
 this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
@@ -32,12 +32,12 @@ import numpy as np
 
 from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
-from touch4d.glove.busload import check_bus_load
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.driver import MotorDriver, Outgoing
-from touch4d.glove.emulator import GloveEmulator
-from touch4d.glove.link import CAN_ERR_BUSOFF, CanLink
-from touch4d.glove.protocol import FrameError, GloveProtocol
+from touch4d.boards.busload import check_bus_load
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.driver import MotorDriver, Outgoing
+from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
+from touch4d.boards.protocol import FrameError, GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)

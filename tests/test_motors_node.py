@@ -13,9 +13,9 @@ import yaml
 
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.errors import ConfigError
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.duty import duty_to_levels, intensity_to_duty
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.duty import duty_to_levels, intensity_to_duty
+from touch4d.boards.protocol import GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
 from touch4d.nodes.motors import MotorsNode
 

@@ -165,7 +165,7 @@ def test_unreadable_and_invalid_files(tmp_path):
 
 
 def test_relative_glove_paths_work_from_any_directory(tmp_path, monkeypatch):
-    from touch4d.glove.config import load_glove_can
+    from touch4d.boards.config import load_glove_can
 
     monkeypatch.chdir(tmp_path)
     glove = load_glove("config/gloves/two-motor.yaml")

@@ -16,7 +16,7 @@ PARTS = {
     "touch4d.tactile.cli": ("tactile",),
     "touch4d.render.cli": ("render",),
     "touch4d.log.cli": ("record", "replay", "log"),
-    "touch4d.glove.cli": ("glove",),
+    "touch4d.boards.cli": ("glove",),
 }
 
 

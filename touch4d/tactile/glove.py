@@ -2,7 +2,7 @@
 
 `load_glove(path)` reads and checks a glove file (config/glove.yaml); every mistake, an unknown
 key (a typo) included, raises `ConfigError` naming the file, the key and what was expected. The
-`can:` section and the motors' names, boards and channels are checked by `touch4d.glove.config`,
+`can:` section and the motors' names, boards and channels are checked by `touch4d.boards.config`,
 so the tactile and motor nodes accept exactly the same glove files.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 
 from touch4d.configfile import read_yaml, resolve
 from touch4d.errors import ConfigError
-from touch4d.glove.config import DEFAULT_GLOVE, glove_can_from_mapping
+from touch4d.boards.config import DEFAULT_GLOVE, glove_can_from_mapping
 
 from .hand import FINGER_NAMES, Hand
 
@@ -70,7 +70,7 @@ def glove_from_dict(data, path="<input>") -> Glove:
     alpha = check_alpha(r.get(root, "alpha"), path, "alpha")
     beta = check_beta(r.get(root, "beta"), path, "beta")
     gamma = check_gamma(r.get(root, "gamma"), path, "gamma")
-    # Names, boards and channels are the glove package's: one set of rules for both readers.
+    # Names, boards and channels are the boards package's: one set of rules for both readers.
     can_cfg = glove_can_from_mapping(root, path)
 
     samples = hand.grid_samples(counts)

@@ -1,6 +1,6 @@
 """The glove's CAN configuration: the `can:` section and the motor -> board/channel map of glove.yaml.
 
-This is the one place the glove package reads the glove file; every default of the `can:` section
+This is the one place the boards package reads the glove file; every default of the `can:` section
 lives in `DEFAULTS` below, so a glove file may give only the keys it changes.
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ DEFAULTS = {
     "command_max_age_s": None,  # None: watchdog_s
     "send_timeout_s": 0.002,
     "ids": {"stop": 0x000, "status": 0x180, "duty": 0x200, "heartbeat": 0x700},
-    "duty": {"gamma": 1.0, "start": 0.3, "max": 0.8, "deadband": 0.02, "full_scale": 1.0},
+    "duty": {"exponent": 1.0, "start": 0.3, "max": 0.8, "deadband": 0.02, "full_scale": 1.0},
     "thermal": {"max_on_s": 10.0, "cool_s": 3.0},
 }
 
@@ -45,9 +45,11 @@ class Board:
 
 @dataclass(frozen=True)
 class DutyConfig:
-    """Intensity -> PWM duty: duty = start + (max - start) * (V / full_scale) ** gamma, 0 below deadband."""
+    """Intensity -> PWM duty: duty = start + (max - start) * (V / full_scale) ** exponent, 0 below deadband.
 
-    gamma: float
+    `exponent` shapes the duty curve; it is not the paper's gamma (eq. 3's gain, in the tactile model)."""
+
+    exponent: float
     start: float
     max: float
     deadband: float
@@ -74,7 +76,7 @@ class CanIds:
 
 @dataclass(frozen=True)
 class GloveCan:
-    """Everything the glove package needs from a glove file."""
+    """Everything the boards package needs from a glove file."""
 
     file: str
     interface: str
@@ -134,6 +136,10 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
         if not isinstance(value, dict):
             raise ConfigError(file, f"can.{key}", "a mapping", got=value)
         extra = set(value) - set(DEFAULTS[key])
+        if key == "duty" and "gamma" in extra:
+            # The duty curve's exponent was once called gamma, like eq. 3's gain: name the new key.
+            raise ConfigError(file, "can.duty.gamma", "can.duty.exponent (the duty curve's exponent; "
+                              "'gamma' is eq. 3's gain at the top level of the glove file)")
         if extra:
             raise ConfigError(file, f"can.{key}.{sorted(extra)[0]}", f"one of {sorted(DEFAULTS[key])}")
         merged = {**DEFAULTS[key], **value}
@@ -144,7 +150,7 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
     frame_id = (lambda v: 0 <= v <= 0x7FF, "an 11-bit CAN id 0..0x7FF")
 
     duty = section("duty", {k: float for k in DEFAULTS["duty"]},
-                   {"gamma": positive, "start": fraction, "max": fraction, "deadband": fraction,
+                   {"exponent": positive, "start": fraction, "max": fraction, "deadband": fraction,
                     "full_scale": positive})
     if duty["start"] > duty["max"]:
         raise ConfigError(file, "can.duty.start", f"<= can.duty.max ({duty['max']})", got=duty["start"])

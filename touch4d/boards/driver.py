@@ -27,9 +27,9 @@ from typing import NamedTuple
 import can
 import numpy as np
 
-from touch4d.glove.config import GloveCan
-from touch4d.glove.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
-from touch4d.glove.protocol import Frame, GloveProtocol
+from touch4d.boards.config import GloveCan
+from touch4d.boards.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
+from touch4d.boards.protocol import Frame, GloveProtocol
 
 RESTART_PERIOD_S = 0.1
 CHANGE_GAP = 0.5     # periods between two change frames of one board

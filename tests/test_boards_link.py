@@ -11,9 +11,9 @@ import can
 import pytest
 
 from touch4d.cli import main as cli_main
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.link import BUS_OFF_REOPEN_AFTER, CanLink, classify
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.link import BUS_OFF_REOPEN_AFTER, CanLink, classify
+from touch4d.boards.protocol import GloveProtocol
 
 TEST_GLOVE = Path(__file__).parent / "data" / "glove_can_test.yaml"
 PROTO = GloveProtocol(load_glove_can(TEST_GLOVE))

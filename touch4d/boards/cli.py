@@ -7,9 +7,9 @@ import time
 from pathlib import Path
 
 from touch4d.errors import ConfigError
-from touch4d.glove.busload import bus_load
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.dbc import dbc_text
+from touch4d.boards.busload import bus_load
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.dbc import dbc_text
 
 
 def register(subparsers) -> None:
@@ -53,7 +53,7 @@ def cmd_busload(args) -> int:
 def cmd_emulate(args) -> int:
     import can
 
-    from touch4d.glove.emulator import GloveEmulator
+    from touch4d.boards.emulator import GloveEmulator
 
     if not (math.isfinite(args.print_period) and args.print_period > 0):
         raise ConfigError("<command line>", "--print-period", "a number of seconds > 0", got=args.print_period)

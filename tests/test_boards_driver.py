@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from touch4d.errors import ConfigError
-from touch4d.glove.config import glove_can_from_mapping, load_glove_can
-from touch4d.glove.driver import FRAMES_PER_PERIOD, MotorDriver
-from touch4d.glove.duty import duty_to_levels, intensity_to_duty
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import glove_can_from_mapping, load_glove_can
+from touch4d.boards.driver import FRAMES_PER_PERIOD, MotorDriver
+from touch4d.boards.duty import duty_to_levels, intensity_to_duty
+from touch4d.boards.protocol import GloveProtocol
 
 CFG = load_glove_can(Path(__file__).parent / "data" / "glove_can_test.yaml")
 PROTO = GloveProtocol(CFG)

@@ -5,21 +5,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from touch4d.glove.config import DutyConfig, ThermalConfig
-from touch4d.glove.dbc import DUTY_LEVELS
+from touch4d.boards.config import DutyConfig, ThermalConfig
+from touch4d.boards.dbc import DUTY_LEVELS
 
 
 def intensity_to_duty(intensity, cfg: DutyConfig) -> np.ndarray:
     """PWM duty 0..1 per motor from the intensity V_i (paper eq. 3).
 
     x = clip(V / full_scale, 0, 1); below `deadband` the motor is off; above it the duty is
-    `start + (max - start) * x ** gamma`, so the weakest felt stimulus still gets the duty at
+    `start + (max - start) * x ** exponent`, so the weakest felt stimulus still gets the duty at
     which a coin motor starts to spin, and no stimulus exceeds `max`. NaN or inf count as off.
     """
     x = np.asarray(intensity, dtype=np.float64) / cfg.full_scale
     x = np.clip(np.where(np.isfinite(x), x, 0.0), 0.0, 1.0)
     on = (x > 0) & (x >= cfg.deadband)
-    return np.where(on, cfg.start + (cfg.max - cfg.start) * x ** cfg.gamma, 0.0)
+    return np.where(on, cfg.start + (cfg.max - cfg.start) * x ** cfg.exponent, 0.0)
 
 
 def duty_to_levels(duty) -> np.ndarray:

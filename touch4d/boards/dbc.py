@@ -24,7 +24,7 @@ import cantools
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
-from touch4d.glove.config import GloveCan
+from touch4d.boards.config import GloveCan
 
 CONTROLLER = "Controller"
 DUTY_BITS = 7

@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 
 from touch4d.cli import main as cli_main
 from touch4d.errors import ConfigError
-from touch4d.glove.config import DEFAULT_GLOVE, glove_can_from_mapping, load_glove_can
-from touch4d.glove.dbc import build_database, dbc_text, load_dbc
-from touch4d.glove.protocol import FAULT_NAMES, FrameError, GloveProtocol
+from touch4d.boards.config import DEFAULT_GLOVE, glove_can_from_mapping, load_glove_can
+from touch4d.boards.dbc import build_database, dbc_text, load_dbc
+from touch4d.boards.protocol import FAULT_NAMES, FrameError, GloveProtocol
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_GLOVE = ROOT / "tests" / "data" / "glove_can_test.yaml"
@@ -147,6 +147,15 @@ def test_bad_glove_config_names_the_key(change, key):
     with pytest.raises(ConfigError) as err:
         glove_can_from_mapping(data, "bad.yaml")
     assert f"'{key}'" in str(err.value) and "bad.yaml" in str(err.value)
+
+
+def test_the_duty_curves_old_gamma_key_points_to_exponent():
+    data = yaml.safe_load(TEST_GLOVE.read_text())
+    data["can"]["duty"] = {"gamma": 2.0}
+    with pytest.raises(ConfigError) as err:
+        glove_can_from_mapping(data, "old.yaml")
+    text = str(err.value)
+    assert "'can.duty.gamma'" in text and "can.duty.exponent" in text and "old.yaml" in text
 
 
 def test_cli_reports_a_bad_glove_file_without_traceback(tmp_path, capsys):

@@ -17,10 +17,10 @@ from collections import Counter
 
 import can
 
-from touch4d.glove.config import Board, GloveCan
-from touch4d.glove.protocol import FAULT_NAMES, Frame, FrameError, GloveProtocol
+from touch4d.boards.config import Board, GloveCan
+from touch4d.boards.protocol import FAULT_NAMES, Frame, FrameError, GloveProtocol
 
-log = logging.getLogger("touch4d.glove.emulator")
+log = logging.getLogger("touch4d.boards.emulator")
 
 HARDWARE_FAULTS = ("overtemp", "overcurrent", "undervoltage")
 # The thread blocks on the bus until a frame arrives or a board is due (its watchdog, status or

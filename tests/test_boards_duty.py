@@ -1,4 +1,4 @@
-"""Intensity -> duty (gamma, start threshold, maximum, deadband), the thermal limit, and the bus load."""
+"""Intensity -> duty (exponent, start threshold, maximum, deadband), the thermal limit, and the bus load."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from touch4d.errors import ConfigError
-from touch4d.glove.busload import bus_load, check_bus_load, frame_bits
-from touch4d.glove.config import DutyConfig, ThermalConfig, load_glove_can
-from touch4d.glove.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
+from touch4d.boards.busload import bus_load, check_bus_load, frame_bits
+from touch4d.boards.config import DutyConfig, ThermalConfig, load_glove_can
+from touch4d.boards.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
 
-DUTY = DutyConfig(gamma=2.0, start=0.3, max=0.8, deadband=0.05, full_scale=1.0)
+DUTY = DutyConfig(exponent=2.0, start=0.3, max=0.8, deadband=0.05, full_scale=1.0)
 
 
 def test_zero_and_deadband_are_off_and_any_felt_intensity_starts_the_motor():
@@ -28,17 +28,17 @@ def test_full_scale_gives_max_and_more_is_clipped_to_max():
     assert d[2] == 0 and d[3] == 0  # non-finite intensities are off, not full power
 
 
-def test_gamma_shapes_the_curve_and_it_is_monotonic():
+def test_exponent_shapes_the_curve_and_it_is_monotonic():
     x = np.linspace(0.05, 1, 50)
     d = intensity_to_duty(x, DUTY)
     assert np.all(np.diff(d) > 0)
     assert d[len(x) // 2] == pytest.approx(0.3 + 0.5 * x[len(x) // 2] ** 2)
-    linear = intensity_to_duty(0.5, dataclasses.replace(DUTY, gamma=1.0))
+    linear = intensity_to_duty(0.5, dataclasses.replace(DUTY, exponent=1.0))
     assert linear == pytest.approx(0.55)
 
 
 def test_full_scale_scales_the_intensity():
-    d = intensity_to_duty([2.0], dataclasses.replace(DUTY, full_scale=4.0, gamma=1.0))
+    d = intensity_to_duty([2.0], dataclasses.replace(DUTY, full_scale=4.0, exponent=1.0))
     assert d[0] == pytest.approx(0.3 + 0.5 * 0.5)
 
 

@@ -15,7 +15,7 @@ import time
 
 import can
 
-log = logging.getLogger("touch4d.glove.link")
+log = logging.getLogger("touch4d.boards.link")
 
 REOPEN_PERIOD_S = 0.5
 BUS_OFF_REOPEN_AFTER = 20  # consecutive bus-off failures before the bus is closed and reopened

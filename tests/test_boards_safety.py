@@ -21,10 +21,10 @@ import pytest
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.testing import node_process
 from touch4d.geometry.scene import Scene, SceneObject
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.emulator import MAX_WAIT_S, GloveEmulator
-from touch4d.glove.link import CanLink
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.emulator import MAX_WAIT_S, GloveEmulator
+from touch4d.boards.link import CanLink
+from touch4d.boards.protocol import GloveProtocol
 from touch4d.messages import HandPose, MotorCommand, SceneState, Stop
 from touch4d.nodes.motors import MotorsNode
 
@@ -146,7 +146,7 @@ class Raising:
 def test_the_link_turns_any_exception_into_a_counted_fault_logged_once(exc, caplog):
     proto = GloveProtocol(load_glove_can(TEST_GLOVE))
     link = CanLink("virtual", "unused", 500000, bus=Raising(exc))
-    with caplog.at_level(logging.WARNING, logger="touch4d.glove.link"):
+    with caplog.at_level(logging.WARNING, logger="touch4d.boards.link"):
         for _ in range(3):
             assert link.send(proto.nmt("STOP")) == "send_error"
             assert link.receive() == ([], "receive_error")

@@ -8,9 +8,9 @@ from pathlib import Path
 import can
 import pytest
 
-from touch4d.glove.config import load_glove_can
-from touch4d.glove.emulator import GloveEmulator
-from touch4d.glove.protocol import GloveProtocol
+from touch4d.boards.config import load_glove_can
+from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.protocol import GloveProtocol
 
 CFG = load_glove_can(Path(__file__).parent / "data" / "glove_can_test.yaml")
 PROTO = GloveProtocol(CFG)

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import can
 import cantools
 
-from touch4d.glove.config import GloveCan
-from touch4d.glove.dbc import (
+from touch4d.boards.config import GloveCan
+from touch4d.boards.dbc import (
     DUTY_LEVELS, FAULT_FLAGS, NMT_COMMANDS, NMT_STATES, OUTPUT_STATES, build_database,
 )
 

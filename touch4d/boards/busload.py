@@ -16,9 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from touch4d.errors import ConfigError
-from touch4d.glove.config import GloveCan
-from touch4d.glove.dbc import build_database
-from touch4d.glove.driver import FRAMES_PER_PERIOD
+from touch4d.boards.config import GloveCan
+from touch4d.boards.dbc import build_database
+from touch4d.boards.driver import FRAMES_PER_PERIOD
 
 MAX_LOAD = 0.70
 
