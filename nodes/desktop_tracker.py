@@ -13,7 +13,6 @@ from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose, InputEvents
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-from touch4d.configfile import resolve
 from touch4d.tracking.desktop import DesktopConfig, DesktopHand
 from touch4d.tracking.outputs import from_hand
 
@@ -31,7 +30,8 @@ class DesktopTracker(Node):
         speeds = {key: positive_parameter(self.declare_parameter(key, getattr(defaults, key)), source, key)
                   for key in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")}
         config = DesktopConfig(**speeds, home=tuple(float(v) for v in home))
-        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+        self.calibration = load_calibration(self.declare_path_parameter("calibration", "config/calibration.yaml",
+                                                                        "calibration file"))
         self.hand = DesktopHand(config)
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)

@@ -46,7 +46,7 @@ class RendererNode(Node):
         height = self.declare_parameter("height", 640)
         samples = self.declare_parameter("samples", 4)
         camera = self.declare_parameter("camera", "")
-        glove_file = self.declare_parameter("glove", "")
+        glove_file = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
         headless = self.declare_parameter("headless", False)
         self.output = self.declare_parameter("output", "")
         self.save_every = self.declare_parameter("save_every", 1)
@@ -65,7 +65,7 @@ class RendererNode(Node):
             raise ConfigError(source, "save_every/max_frames/samples", "save_every >= 1, the others >= 0",
                               got=(self.save_every, self.max_frames, samples))
         self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
-        self.view = SceneView(load_glove(glove_file or None), style, show)
+        self.view = SceneView(load_glove(glove_file), style, show)
         self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
         self._rates = dict.fromkeys(self._received, 0.0)
