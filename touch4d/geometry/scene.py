@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from touch4d.configfile import read_yaml
+from touch4d.configfile import read_yaml, resolve_path
 from touch4d.errors import ConfigError
 
 from .polytope import GeometryError, Polytope
@@ -144,8 +144,9 @@ def _custom_polytopes(parts) -> list[Polytope]:
 
 
 def load_scene(path) -> Scene:
-    """Read and check a YAML scene file; a bad file raises ConfigError naming the file, key and reason."""
-    path = Path(path)
+    """Read and check a YAML scene file (found by `resolve_path`); a bad file raises ConfigError naming
+    the file, key and reason."""
+    path = resolve_path(path, what="scene file")
     return parse_scene(read_yaml(path, "scene file"), path)
 
 

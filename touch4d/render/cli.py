@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
 from .camera import OrbitCamera, parse_camera
@@ -59,10 +60,11 @@ def _render(args) -> int:
     camera = parse_camera(args.camera, OrbitCamera())
     if args.samples < 0:
         raise ConfigError("--samples", "samples", "0 or more", got=args.samples)
-    scene = load_scene(args.scene)
+    scene_file = resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file")
+    scene = load_scene(scene_file)
     if args.projection:
         scene = replace(scene, projection=args.projection)
-    glove = load_glove(args.glove)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
     show = Show(frame=not args.no_frame, tactile=not args.no_tactile, status=not args.no_status)
     view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)
     view.set_scene(scene)
