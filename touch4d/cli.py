@@ -17,6 +17,7 @@ PARTS = {
     "touch4d.render.cli": ("render",),
     "touch4d.log.cli": ("record", "replay", "log"),
     "touch4d.boards.cli": ("glove",),
+    "touch4d.defaults.cli": ("config",),
 }
 
 
