@@ -14,7 +14,7 @@ from touch4d.errors import Touch4dError
 # launcher need not load the renderer and scipy before it starts the nodes).
 PARTS = {
     "touch4d.bus.cli": ("launch", "topic", "node", "bus"),
-    "touch4d.geometry.cli": ("shape",),
+    "touch4d.geometry.cli": ("shape", "scene"),
     "touch4d.tactile.cli": ("tactile",),
     "touch4d.render.cli": ("render",),
     "touch4d.log.cli": ("record", "replay", "log"),
