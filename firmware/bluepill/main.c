@@ -67,7 +67,7 @@ static void halt(void)
     board_outputs_off_gpio();
     for (uint32_t n = 0;; n++) {
         IWDG_KR = IWDG_KEY_RELOAD;
-        led((n >> 17) & 1u);
+        led((n >> 19) & 1u); /* ~10 Hz at 72 MHz, ~1 Hz on the 8 MHz RC */
     }
 }
 

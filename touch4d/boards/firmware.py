@@ -14,6 +14,7 @@ import fcntl
 import hashlib
 import shutil
 import subprocess
+import sys
 import time
 from collections import Counter
 from pathlib import Path
@@ -42,7 +43,7 @@ def build_dir(cfg: GloveCan) -> Path:
     return BUILD_DIR / f"glove-{hashlib.sha256(dbc_text(cfg).encode()).hexdigest()[:12]}"
 
 
-def build(cfg: GloveCan, target: str = "host", extra: tuple[str, ...] = ()) -> Path:
+def build(cfg: GloveCan, target: str = "host") -> Path:
     """Build the firmware's `target` ('host', 'qemu' or 'bluepill') for this glove; its build folder.
 
     Concurrent callers (the motor node and a test, say) wait for each other on a lock file.
@@ -66,7 +67,8 @@ def build(cfg: GloveCan, target: str = "host", extra: tuple[str, ...] = ()) -> P
         if not dbc.is_file() or dbc.read_text() != text:
             dbc.write_text(text)
         make_target = "all" if target == "bluepill" else target
-        done = subprocess.run(["make", "-C", str(FIRMWARE_DIR), make_target, f"BUILD={out}", f"DBC={dbc}", *extra],
+        done = subprocess.run(["make", "-C", str(FIRMWARE_DIR), make_target, f"BUILD={out}", f"DBC={dbc}",
+                               f"PYTHON={sys.executable}"],  # this interpreter has cantools
                               capture_output=True, text=True)
     if done.returncode != 0:
         raise FirmwareBuildError(f"make -C {FIRMWARE_DIR} {make_target} failed:\n{done.stdout}{done.stderr}")
