@@ -94,6 +94,7 @@ class BoardEmulator:
         self.bad_since_status = True
 
     def all_off(self) -> None:
+        """Every channel off (what the firmware does on an internal fault)."""
         self.levels = [0] * self.channels
 
     def handle(self, frame: Frame, now: float) -> None:
@@ -152,8 +153,7 @@ class BoardEmulator:
         if state != self._last_output or now >= self._next_status:
             active = sum(1 << c for c, v in enumerate(self.levels) if v)
             out.append(self.protocol.status(self.id, state, self.faults(), self.last_counter, active,
-                                            self.counters["malformed"] + self.counters["unknown"]
-                                            + self.counters["bad_counter"]))
+                                            sum(self.counters[r] for r in REJECTED)))
             self.bad_since_status = False
             self._last_output = state
             self._next_status = now + self.status_period
