@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.dbc import DUTY_LEVELS, NMT_COMMANDS, NMT_STATES, OUTPUT_STATES, dbc_text, load_dbc
-from touch4d.boards.emulator import REJECTED
+from touch4d.boards.emulator import COUNTER_WINDOW, REJECTED
 from touch4d.boards.firmware import FIRMWARE_DIR, FirmwareCore, build, build_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,6 +108,7 @@ def test_the_core_counts_every_reason_the_emulator_counts(core):
     assert core.counter_names == ("applied", "nmt", "ignored", "bad_counter", "unknown", "bad_length",
                                   "bad_frame_type", "bad_command", "error_frame", "watchdog_trips")
     assert set(REJECTED) <= set(core.counter_names)
+    assert core.counter_window == COUNTER_WINDOW          # the same counter check
 
 
 @settings(max_examples=60, deadline=None)

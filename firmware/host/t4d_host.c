@@ -76,11 +76,6 @@ EXPORT void t4d_host_counters(const t4d_board_t *b, uint32_t *counters)
     memcpy(counters, b->counters, sizeof b->counters);
 }
 
-EXPORT uint16_t t4d_host_duty_compare(uint8_t level, uint8_t full_scale, uint16_t period)
-{
-    return t4d_duty_compare(level, full_scale, period);
-}
-
 /* The generated protocol table: boards, and per board its frames (values[10], see below). */
 EXPORT size_t t4d_host_board_count(void) { return T4D_BOARD_COUNT; }
 

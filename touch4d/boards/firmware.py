@@ -29,7 +29,9 @@ from touch4d.errors import Touch4dError
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
 BUILD_DIR = FIRMWARE_DIR / "build"
-TARGETS = {"host": ("libt4dboard.so", "t4d_check"), "qemu": ("t4d_check.elf",), "bluepill": ("touch4d-board.bin",)}
+# What `build` makes -> the Makefile's goal: the shared library and self-test for this machine, the
+# self-test for the Cortex-M3 (QEMU), the STM32F103 image.
+TARGETS = {"host": "host", "qemu": "qemu", "bluepill": "all"}
 FLAGS = {"extended": 1, "remote": 2, "error": 4, "fd": 8}  # enum t4d_frame_flags
 MAX_FRAMES = 3                                               # T4D_TICK_MAX_FRAMES
 
@@ -66,7 +68,7 @@ def build(cfg: GloveCan, target: str = "host") -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not dbc.is_file() or dbc.read_text() != text:
             dbc.write_text(text)
-        make_target = "all" if target == "bluepill" else target
+        make_target = TARGETS[target]
         done = subprocess.run(["make", "-C", str(FIRMWARE_DIR), make_target, f"BUILD={out}", f"DBC={dbc}",
                                f"PYTHON={sys.executable}"],  # this interpreter has cantools
                               capture_output=True, text=True)
@@ -109,7 +111,7 @@ class FirmwareCore:
             ("t4d_host_set_hardware_faults", None, [ptr, u8]), ("t4d_host_all_off", None, [ptr]),
             ("t4d_host_output_state", u8, [ptr]), ("t4d_host_nmt_state", u8, [ptr]),
             ("t4d_host_watchdog_tripped", ctypes.c_int, [ptr]), ("t4d_host_outputs", None, [ptr, ptr, ptr]),
-            ("t4d_host_counters", None, [ptr, ptr]), ("t4d_host_duty_compare", u16, [u8, u8, u16]),
+            ("t4d_host_counters", None, [ptr, ptr]),
             ("t4d_host_board_count", size, []), ("t4d_host_board_proto", None, [size, ptr]),
             ("t4d_host_nmt_codes", None, [ptr]),
             ("t4d_host_unpack_duty", ctypes.c_int, [size, ctypes.c_char_p, size, ptr, ptr]),
