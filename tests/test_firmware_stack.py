@@ -23,6 +23,7 @@ from touch4d.nodes.motors import MotorsNode
 ROOT = Path(__file__).resolve().parents[1]
 CFG = load_glove_can(ROOT / "config" / "glove.yaml")
 RECENT = 30  # commands (~330 ms at 90 Hz) an output may lag behind: the refresh and the bus thread
+AHEAD = 5    # commands the motor node may have received before the probe node
 
 
 def board_levels(cmd: MotorCommand) -> dict[int, list[int]]:
@@ -72,13 +73,14 @@ def test_the_full_stack_drives_the_firmware_boards_outputs_to_the_commanded_duti
     for seen, levels, pwm in samples:
         for b, got in levels.items():
             # Every board carries the duties of one of the latest commands (or is off: the node's
-            # watchdog or a command too old to use), on the right channels.
-            options = [want[i][b] for i in range(max(0, seen - RECENT), seen)]
+            # watchdog or a command too old to use), on the right channels. The motor node may
+            # have had a command or two that this probe had not yet when it sampled.
+            options = [want[i][b] for i in range(max(0, seen - RECENT), min(len(want), seen + AHEAD))]
             assert got in options or not any(got), (seen, b, got, options[-1])
             matched += bool(any(got)) and got == want[seen - 1][b]
             # duty -> PWM: the nearest compare value of the Blue Pill's timer (exact fractions)
             assert pwm[b] == [(2 * v * glove.core.pwm_period + 127) // 254 for v in got]
-    assert matched >= 20, f"only {matched} samples carried the latest command's duties"
+    assert matched >= 100, f"only {matched} board samples carried the latest command's duties"
     assert not any(any(v) for v in samples[-1][1].values())
     # The boards answered as boards do: online, operational, every duty frame acknowledged.
     answered = [s for s in status if all(b["online"] and b["state"] == "operational" and not b["faults"]
