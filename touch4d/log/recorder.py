@@ -29,6 +29,13 @@ def _wanted(topic: bytes, wanted: set[bytes]) -> bool:
     return topic in wanted if wanted else not topic.startswith(INTERNAL_PREFIX)
 
 
+def _size(n: int) -> str:
+    """Bytes for people: 512 B, 6.1 kB, 12.17 MB, 1.02 GB."""
+    if n < 1000:
+        return f"{n} B"
+    return f"{n / 1e3:.1f} kB" if n < 1e6 else f"{n / 1e6:.2f} MB" if n < 1e9 else f"{n / 1e9:.2f} GB"
+
+
 @dataclass
 class RecordingReport:
     """What a finished recording holds, for the end-of-recording report (and the file's metadata)."""
@@ -39,7 +46,8 @@ class RecordingReport:
     malformed: dict[str, int]                  # topic -> payloads that were not message maps
     missing: list[str] = field(default_factory=list)   # topics asked for that never arrived
     duration: float = 0.0
-    bytes: int = 0
+    bytes: int = 0                             # the messages' payloads, uncompressed
+    file_bytes: int = 0                        # the log file on disk (compressed, with index and schemas)
     error: str = ""
 
     @property
@@ -52,8 +60,8 @@ class RecordingReport:
                 "duration": f"{self.duration:.3f}"}
 
     def lines(self) -> list[str]:
-        out = [f"recorded {self.total} messages ({self.bytes / 1e6:.2f} MB) on {len(self.counts)} topic(s) "
-               f"in {self.duration:.1f} s to {self.path}"]
+        out = [f"recorded {self.total} messages ({_size(self.file_bytes)} on disk, {_size(self.bytes)} of messages "
+               f"uncompressed) on {len(self.counts)} topic(s) in {self.duration:.1f} s to {self.path}"]
         for topic, n in sorted(self.counts.items()):
             extra = f", {self.lost[topic]} lost (seq gaps)" if self.lost.get(topic) else ""
             extra += f", {self.malformed[topic]} not messages" if self.malformed.get(topic) else ""
@@ -214,6 +222,7 @@ class Recorder:
         if self._writer is not None:
             try:
                 self._writer.close(report.metadata())
+                report.file_bytes = os.path.getsize(self.path)
             except OSError as exc:
                 report.error = report.error or f"closing {self.path}: {exc}"
         return report
