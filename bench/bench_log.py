@@ -6,19 +6,24 @@
    (subscriber thread + writer thread), against the same bare mcap writer baseline;
 3. replay timing: a 250 Hz log of 2 s replayed through a broker into a recorder; the error of each
    inter-message interval (p50, p99; target p99 < 2 ms), beside a plain sleep-then-send loop over
-   the same schedule in the same run.
+   the same schedule in the same run;
+4. replay start-up: a ~1 GB log (smaller when the disk is short) built in a temporary folder; the
+   time from opening it to the first message sent (target < 1 s), for `touch4d replay` and for the
+   replay node (the tracker role), beside the bare mcap reader's first message of the same file.
 The mix is the live stack's: hand poses, tactile fields (242 samples), motor commands (30 motors).
 Run: .venv/bin/python bench/bench_log.py
 """
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import tempfile
 import time
 
 import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from touch4d.bus.testing import running_broker
@@ -122,6 +127,46 @@ def replay_timing(tmp: str, plain: bool) -> tuple[float, float]:
     return tuple(np.percentile(error, [50, 99]))
 
 
+def big_log(path: str, target: int) -> int:
+    """A log of about `target` bytes of the stack's mix at 1 kHz (payloads repeat; they barely compress)."""
+    messages = mix(3000)
+    t = 1_700_000_000_000_000_000
+    with LogWriter(path) as w:
+        while w.bytes < target:
+            for topic, payload in messages:
+                w.write(topic, payload, t)
+                t += 1_000_000
+    return os.path.getsize(path)
+
+
+def first_message(path: str, node: bool) -> float:
+    """Seconds from opening the log to the first message handed to the sender, as `touch4d replay`
+    does it (or the replay node, which also picks the tracker topics the log has)."""
+    box: dict = {}
+
+    def send(topic: str, payload: bytes) -> None:
+        box.setdefault("t", time.perf_counter())
+        replayer.stop()
+
+    t0 = time.perf_counter()
+    reader = LogReader(path)
+    options = ReplayOptions(realtime=False)
+    if node:
+        available = reader.topics()
+        options.topics = [t for t in ("hand/pose", "controller/state") if t in available]
+    replayer = Replayer(reader, Plan(reader, options), options, send)
+    replayer.run()
+    return box["t"] - t0
+
+
+def bare_first_message(path: str) -> float:
+    """Baseline: the mcap library's indexed reader, opening the file and reading its first message."""
+    t0 = time.perf_counter()
+    with open(path, "rb") as f:
+        next(iter(make_reader(f).iter_messages()))
+    return time.perf_counter() - t0
+
+
 def main() -> None:
     messages = mix(N)
     n = len(messages)
@@ -142,6 +187,17 @@ def main() -> None:
     for name, (p50, p99) in (("plain sleep-then-send loop (baseline)", plain), ("Replayer", ours)):
         print(f"{name:<42} timing error p50 {p50 * 1e3:6.3f} ms  p99 {p99 * 1e3:6.3f} ms  "
               f"p99 ratio to baseline {p99 / plain[1]:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        target = min(1 << 30, int(shutil.disk_usage(tmp).free * 0.4))
+        path = os.path.join(tmp, "big.mcap")
+        size = big_log(path, target)
+        base = min(bare_first_message(path) for _ in range(3))
+        rows = [("bare mcap reader, first message (baseline)", base),
+                ("touch4d replay, first message", min(first_message(path, False) for _ in range(2))),
+                ("replay node, first message", min(first_message(path, True) for _ in range(2)))]
+    print(f"replay start-up on a {size / 1e9:.2f} GB log (target: first message < 1 s)")
+    for name, seconds in rows:
+        print(f"{name:<42} {seconds * 1e3:9.1f} ms  ratio to baseline {seconds / base:.1f}")
 
 
 if __name__ == "__main__":
