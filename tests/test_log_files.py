@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
 from mcap.records import Chunk
@@ -420,3 +421,22 @@ def test_reading_from_a_time_starts_at_its_chunk(tmp_path):
     reader = LogReader(path)
     assert [(m.topic, m.log_time, m.data) for m in reader.messages(start=start)] == expected
     assert reader.problems == [] and reader.skipped_chunks == 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(seq=st.integers(0, 2**64 - 1), stamp=st.floats(allow_nan=True, allow_infinity=True),
+       name=st.text(min_size=1, max_size=40), reorder=st.booleans())
+def test_header_peek_reads_what_a_full_decode_reads(seq, stamp, name, reorder):
+    import msgpack
+    from touch4d.log.writer import peek_header
+
+    fields = {"type": name, "stamp": stamp, "seq": seq, "source_stamp": 1.0, "position": b"\x00" * 24}
+    if reorder:
+        fields = dict(reversed(list(fields.items())))
+    payload = msgpack.packb(fields)
+    decoded = msgpack.unpackb(payload)
+    want_stamp = decoded["stamp"] if math.isfinite(decoded["stamp"]) and decoded["stamp"] >= 0 else 0.0
+    assert peek_header(payload) == (decoded["type"], want_stamp, decoded["seq"])
+    for cut in (1, 7, 20, len(payload) // 2):  # cut short: what is there (-1, 0.0: unknown), never an exception
+        got = peek_header(payload[:cut])
+        assert got is None or (got[0] == decoded["type"] and got[1] in (want_stamp, 0.0) and got[2] in (seq, -1))
