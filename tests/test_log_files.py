@@ -185,7 +185,8 @@ def test_json_export_loads_back_with_the_same_values(tmp_path):
     export_json(LogReader(path), "hand/pose", out)
     rows = [json.loads(line) for line in out.getvalue().splitlines()]
     # a live log: every row has the header's recorded_stamp column, 0 (= live)
-    expected = [{**flatten(LogReaderMessage(p)), "recorded_stamp": 0.0} for topic, _, p in written if topic == "hand/pose"]
+    expected = [{**flatten(LogReaderMessage(p)), "recorded_stamp": 0.0}
+                for topic, _, p in written if topic == "hand/pose"]
     assert len(rows) == 300
     for row, fields in zip(rows, expected):
         assert {k: v for k, v in row.items() if k != "log_time"} == fields
@@ -205,7 +206,8 @@ def test_exports_give_the_recorded_stamp_of_replayed_messages(tmp_path):
     out = io.StringIO()
     export_json(LogReader(path), "hand/pose", out)
     rows = [json.loads(line) for line in out.getvalue().splitlines()]
-    assert [(r["stamp"], r["recorded_stamp"]) for r in rows] == [(1800000000.0 + i, 1700000000 + i / 100) for i in range(3)]
+    assert [(r["stamp"], r["recorded_stamp"]) for r in rows] == \
+        [(1800000000.0 + i, 1700000000 + i / 100) for i in range(3)]
     export_foxglove(LogReader(path), str(fox))
     with open(fox, "rb") as f:
         got = [json.loads(m.data)["recorded_stamp"] for _, _, m in make_reader(f).iter_messages()]

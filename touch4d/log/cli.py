@@ -41,7 +41,9 @@ def register(subparsers) -> None:
     stamps.add_argument("--original-stamps", dest="restamp", action="store_false",
                         help="send the recorded bytes unchanged (stamps as recorded: a live motor node "
                              "drops such commands as stale)")
-    p.add_argument("--recover", action="store_true", help="replay what is readable of a damaged log")
+    p.add_argument("--recover", action="store_true",
+                   help="replay an unfinished log (no footer: its recorder was killed) up to where it ends; "
+                        "damaged chunks are skipped with a warning in any case")
     p.add_argument("--bus", metavar="FILE", help="bus config file")
     p.add_argument("--no-realtime", dest="realtime", action="store_false",
                    help="do not try real-time priority for the sending thread (it keeps timing exact)")
@@ -52,7 +54,8 @@ def register(subparsers) -> None:
     q = sub.add_parser("info", help="topics, types, counts, rates, duration, time range, seq gaps")
     q.add_argument("file", metavar="FILE")
     q.add_argument("--json", action="store_true", help="print the summary as JSON")
-    q.add_argument("--recover", action="store_true", help="summarize what is readable of a damaged log")
+    q.add_argument("--recover", action="store_true",
+                   help="summarize an unfinished log up to where it ends (damaged chunks are skipped anyway)")
     q.set_defaults(func=cmd_info)
     q = sub.add_parser("export", help="one topic as CSV / JSON Lines, or a JSON MCAP copy for Foxglove")
     q.add_argument("file", metavar="FILE")
@@ -60,7 +63,8 @@ def register(subparsers) -> None:
     q.add_argument("--topic", action="append", metavar="TOPIC",
                    help="the topic to export (csv/json: exactly one; foxglove: repeatable, default all)")
     q.add_argument("-o", "--output", metavar="OUT", help="output file (csv/json default: standard output)")
-    q.add_argument("--recover", action="store_true", help="export what is readable of a damaged log")
+    q.add_argument("--recover", action="store_true",
+                   help="export an unfinished log up to where it ends (damaged chunks are skipped anyway)")
     q.set_defaults(func=cmd_export)
     q = sub.add_parser("recover", help="copy everything readable of a damaged log into a complete one")
     q.add_argument("file", metavar="FILE")
