@@ -294,18 +294,25 @@ def replay_on_virtual_clock(path, recover=False, **options):
     return sent, stats
 
 
-def jittered_log(path, n=40) -> list[tuple[int, bytes]]:
-    """`n` poses at irregular log times (1..30 ms apart); returns (log_time, payload) in order."""
-    rng = np.random.default_rng(11)
+def irregular_log(path, topic: str, message, n: int, seed: int) -> list[tuple[int, bytes]]:
+    """`n` messages `message(i)` on `topic` at irregular log times (1..30 ms apart); returns
+    (log_time, payload) in order."""
+    rng = np.random.default_rng(seed)
     times = T0 + np.cumsum(rng.integers(1_000_000, 30_000_000, n))
     out = []
     with LogWriter(path) as w:
         for i, t in enumerate(times):
-            payload = encode(HandPose(position=np.array([i * 0.01, 0.0, 0.5]), valid=True, seq=i,
-                                      stamp=1700000000.0 + i * 0.01, source_stamp=1700000000.0 + i * 0.01))
-            w.write("hand/pose", payload, int(t))
+            payload = encode(message(i))
+            w.write(topic, payload, int(t))
             out.append((int(t), payload))
     return out
+
+
+def jittered_log(path, n=40) -> list[tuple[int, bytes]]:
+    """`n` poses at irregular log times."""
+    return irregular_log(path, "hand/pose", lambda i: HandPose(
+        position=np.array([i * 0.01, 0.0, 0.5]), valid=True, seq=i, stamp=1700000000.0 + i * 0.01,
+        source_stamp=1700000000.0 + i * 0.01), n, seed=11)
 
 
 @pytest.mark.parametrize("rate, start", [(1.0, 0.0), (2.0, 0.0), (0.5, 0.2)])
@@ -354,17 +361,9 @@ def test_looping_a_log_of_one_instant_repeats_it_once_a_second_not_as_fast_as_po
 
 def derived_log(path, n=40) -> list[tuple[int, bytes]]:
     """`n` motor commands at irregular times, each derived from a pose 2-6 ms older (source_stamp)."""
-    rng = np.random.default_rng(5)
-    times = T0 + np.cumsum(rng.integers(1_000_000, 30_000_000, n))
-    out = []
-    with LogWriter(path) as w:
-        for i, t in enumerate(times):
-            stamp = 1700000000.0 + i * 0.01
-            payload = encode(MotorCommand(names=["thumb", "index"], intensity=np.array([0.1 * (i % 10), 0.5]),
-                                          stamp=stamp, seq=100 + i, source_stamp=stamp - 0.002 - 0.0001 * i))
-            w.write("tactile/motors", payload, int(t))
-            out.append((int(t), payload))
-    return out
+    return irregular_log(path, "tactile/motors", lambda i: MotorCommand(
+        names=["thumb", "index"], intensity=np.array([0.1 * (i % 10), 0.5]), stamp=1700000000.0 + i * 0.01,
+        seq=100 + i, source_stamp=1700000000.0 + i * 0.01 - 0.002 - 0.0001 * i), n, seed=5)
 
 
 def test_replay_restamps_by_default_keeping_the_recorded_stamp_and_every_other_byte(tmp_path):
