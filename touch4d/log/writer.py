@@ -11,9 +11,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from collections import Counter
-from typing import IO, Iterable
+from typing import IO, Annotated, Iterable
 
 import msgpack
 import msgspec
@@ -35,31 +36,15 @@ _HEADER_KEYS = ("type", "stamp", "seq")
 
 
 class _Header(msgspec.Struct):
-    """The header keys of a message map; msgspec steps over every other field without decoding it."""
+    """The header keys of a message map as the recorder reads them (a finite stamp >= 0, a seq >= 0);
+    msgspec steps over every other field without decoding it."""
 
     type: str
-    stamp: float = 0.0
-    seq: int = -1
+    stamp: Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)] = 0.0
+    seq: Annotated[int, msgspec.Meta(ge=0)] = -1
 
 
 _decode_header = msgspec.msgpack.Decoder(_Header).decode
-
-
-def _header_fields(payload: bytes) -> dict:
-    """The header keys found in a msgpack map, in whatever form they are; raises on a non-map."""
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
-    unpacker.feed(payload)
-    found: dict = {}
-    try:
-        for _ in range(unpacker.read_map_header()):
-            key = unpacker.unpack()
-            if isinstance(key, str) and key in _HEADER_KEYS:
-                found[key] = unpacker.unpack()
-            else:
-                unpacker.skip()
-    except msgpack.OutOfData:
-        pass  # cut short: the keys before the cut
-    return found
 
 
 def peek_header(payload: bytes) -> tuple[str, float, int] | None:
@@ -68,13 +53,25 @@ def peek_header(payload: bytes) -> tuple[str, float, int] | None:
     A stamp that is not a finite number >= 0 reads 0.0, a seq that is not an integer >= 0 reads -1."""
     try:
         header = _decode_header(payload)  # the recorder's hot path: one C call
-    except msgspec.DecodeError:  # odd types, cut short, trailing bytes: looked at key by key
-        pass
-    else:
-        stamp, seq = header.stamp, header.seq
-        return header.type, stamp if 0.0 <= stamp < math.inf else 0.0, seq if seq >= 0 else -1
+    except msgspec.DecodeError:  # odd values, cut short, bytes after the map: looked at key by key
+        return _peek_any(payload)
+    return header.type, header.stamp, header.seq
+
+
+def _peek_any(payload: bytes) -> tuple[str, float, int] | None:
+    """`peek_header` for payloads of any shape, with msgpack's streaming unpacker."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
+    unpacker.feed(payload)
+    data: dict = {}
     try:
-        data = _header_fields(payload)
+        for _ in range(unpacker.read_map_header()):
+            key = unpacker.unpack()
+            if isinstance(key, str) and key in _HEADER_KEYS:
+                data[key] = unpacker.unpack()
+            else:
+                unpacker.skip()
+    except msgpack.OutOfData:
+        pass  # cut short: the keys before the cut
     except Exception:  # noqa: BLE001 - any garbage: recorded as is, counted as malformed
         return None
     if not isinstance(data.get("type"), str):
@@ -136,16 +133,20 @@ class LogWriter:
     def write_many(self, messages: Iterable[tuple[str, bytes, int]]) -> None:
         """Record (topic, payload, log_time) messages in order: the recorder's hot path, kept lean so
         that recording costs little beyond the mcap writer's own work."""
-        peek, channels, counts, gaps_add = peek_header, self._channels, self._counts, self.gaps.add
+        decode, channels, counts, gaps_add = _decode_header, self._channels, self._counts, self.gaps.add
         add_message = self._mcap.add_message
         size, last = 0, self.last_time
         try:
             for topic, payload, log_time in messages:
-                header = peek(payload)
-                if header is None:
-                    self.malformed[topic] += 1
-                    header = ("", 0.0, -1)
-                type_name, stamp, seq = header
+                try:  # peek_header, inlined: this loop runs once per recorded message
+                    header = decode(payload)
+                    type_name, stamp, seq = header.type, header.stamp, header.seq
+                except msgspec.DecodeError:
+                    header = _peek_any(payload)
+                    if header is None:
+                        self.malformed[topic] += 1
+                        header = ("", 0.0, -1)
+                    type_name, stamp, seq = header
                 channel = channels.get((topic, type_name))
                 if channel is None:
                     channel = self._add_channel(topic, type_name, payload)
