@@ -44,20 +44,23 @@ class OffscreenRenderer:
         """The last drawn frame as (height, width, 4) uint8, row 0 at the top."""
         return self._target.read_rgba()
 
-    def identities(self, frame: Frame, camera: OrbitCamera, what: str = "faces") -> np.ndarray:
-        """(height, width, 4) float32, row 0 at the top: per pixel the 3D screen point of the nearest
-        visible 2-face ("faces") or edge ("edges") and its object index + 1; 0 where nothing is."""
+    def identities(self, frame: Frame, camera: OrbitCamera, what: str = "faces") -> tuple[np.ndarray, np.ndarray]:
+        """What is seen where: (height, width, 4) float32, row 0 at the top, per pixel the 3D screen
+        point of the nearest visible 2-face ("faces") or edge ("edges") and its object index + 1 (0
+        where nothing is); and (height, width) the 4D depth w of that point, NaN where nothing is or
+        the backend does not know it (clip)."""
         if self._ids is None:
-            color = self.ctx.texture(self.size, 4, dtype="f4")
+            targets = [self.ctx.texture(self.size, 4, dtype="f4") for _ in range(2)]
             depth = self.ctx.depth_renderbuffer(self.size)
-            self._ids = (self.ctx.framebuffer([color], depth), color, depth)
+            self._ids = (self.ctx.framebuffer(targets, depth), *targets, depth)
         fbo = self._ids[0]
         fbo.use()
         self.ctx.viewport = (0, 0, *self.size)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         self.backend.draw_identities(frame, camera.matrix(self.size), self.size, what)
-        raw = fbo.read(components=4, dtype="f4", alignment=1)
-        return np.frombuffer(raw, np.float32).reshape(self.size[1], self.size[0], 4)[::-1].copy()
+        ids, w = (np.frombuffer(fbo.read(components=4, attachment=k, dtype="f4", alignment=1), np.float32)
+                  .reshape(self.size[1], self.size[0], 4)[::-1].copy() for k in (0, 1))
+        return ids, np.where(w[..., 3] > 0, w[..., 0], np.nan)
 
     def release(self) -> None:
         """Free the GL objects, and the context if this renderer made it (each EGL context holds

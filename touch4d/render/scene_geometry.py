@@ -35,7 +35,8 @@ class SceneGeometry:
     vertices: np.ndarray         # (V, 4) float32: every body's local vertices, body after body
     halfspaces: np.ndarray       # (H, 4) float32: h with h.(x - m) <= 1 inside, m the body's centre
     bodies: np.ndarray           # (B, 3, 4) float32: the body table (BODY_TEXELS texels per body)
-    fills: np.ndarray            # (3T, 5) float32: triangles of the 2-faces, rows [x, y, z, w, body]
+    fills: np.ndarray            # (3T, 7) float32: triangles of the 2-faces, rows [x, y, z, w, body, a, b],
+                                 #   a and b the two cells the face lies on (local indices)
     edges: np.ndarray            # (E, 9) float32: [ax, ay, az, aw, bx, by, bz, bw, body]
     centres: np.ndarray          # (3C, 10) float32: triangles of each cell's faces,
                                  #   [x, y, z, w, cx, cy, cz, cw, body, cell] with c the cell's centroid
@@ -76,7 +77,7 @@ class SceneGeometry:
             table.append([[h_start, len(t.halfspaces), v_start, len(t.vertices)], [*t.centre], [obj, 0, 0, 0]])
             verts.append(t.vertices)
             hs.append(t.halfspaces)
-            fills.append(_with_column(t.fills, b))
+            fills.append(np.insert(t.fills, 4, b, axis=1))
             edges.append(_with_column(t.edges, b))
             centres.append(np.insert(t.centres, 8, b, axis=1))
             v_start += len(t.vertices)
@@ -90,7 +91,7 @@ class SceneGeometry:
                    object_color=np.ascontiguousarray(object_color, dtype=np.float32).reshape(-1, 4),
                    vertices=stack(verts, 4), halfspaces=stack(hs, 4),
                    bodies=np.array(table, dtype=np.float32).reshape(n, BODY_TEXELS, 4),
-                   fills=stack(fills, 5), edges=stack(edges, 9), centres=stack(centres, 10),
+                   fills=stack(fills, 7), edges=stack(edges, 9), centres=stack(centres, 10),
                    grid_size=grid_size(n), key=key if key is not None else ("parts", tuple(map(id, parts))))
 
     def fits(self, scene) -> bool:
@@ -150,8 +151,11 @@ class _Template:
         self.centre = v.mean(axis=0)
         slack = poly.offsets - poly.normals @ self.centre          # > 0: the centre is interior
         self.halfspaces = poly.normals / slack[:, None]
-        tris = [(f[0], f[i], f[i + 1]) for f in topo.faces for i in range(1, len(f) - 1)]
-        self.fills = v[np.array(tris, dtype=np.int64).reshape(-1)]
+        tris = [(k, f[0], f[i], f[i + 1]) for k, f in enumerate(topo.faces) for i in range(1, len(f) - 1)]
+        tris = np.array(tris, dtype=np.int64).reshape(-1, 4)
+        corners = tris[:, 1:].reshape(-1)
+        cells = np.repeat(np.asarray(topo.face_cells)[tris[:, 0]], 3, axis=0)
+        self.fills = np.concatenate([v[corners], cells], axis=1)
         self.edges = v[topo.edges].reshape(-1, 8)
         rows = []
         for cell, faces in enumerate(topo.cell_faces):

@@ -78,7 +78,7 @@ class GpuBackend(Backend):
         gpu["centres"] = ctx.buffer(g.centres.tobytes()) if len(g.centres) else None
         gpu["edges"] = ctx.buffer(g.edges.tobytes()) if len(g.edges) else None
         gpu["vao_fills"] = gpu["fills"] and ctx.vertex_array(
-            self.faces_prog, [(gpu["fills"], "4f 1f", "in_local", "in_body")])
+            self.faces_prog, [(gpu["fills"], "4f 1f 2f", "in_local", "in_body", "in_cells")])
         gpu["vao_centres"] = gpu["centres"] and ctx.vertex_array(
             self.centres_prog, [(gpu["centres"], "4f 4f 1f 1f", "in_local", "in_centroid", "in_body", "in_cell")])
         gpu["vao_edges"] = gpu["edges"] and ctx.vertex_array(

@@ -6,7 +6,6 @@
 // grid built each frame (grid.frag), or, for a cell listing more than fit, all whose bounds do.
 #include "scene.glsl"
 
-uniform sampler2D t_halfspaces;   // per body: h with h.(x - m) <= 1 inside, local coordinates
 uniform sampler2D t_lo;           // per body: screen bounds, from bounds.frag
 uniform sampler2D t_hi;
 uniform sampler2D t_cells0;       // per grid cell: (count, body, body, body)

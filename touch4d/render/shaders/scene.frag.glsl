@@ -1,6 +1,6 @@
 // Every fragment of the scene (fills, centre copies, edges) passes the ray test of halfspace.glsl,
 // then is written as a colour (u_mode 0, alpha-blended), into the order-independent transparency
-// targets (1: weighted blended, see oit.frag), or as its screen point and object (2, identities).
+// targets (1: weighted blended, see oit.frag), or as its screen point and object (2, identities: the screen point and object, and the 4D depth w).
 #include "halfspace.glsl"
 
 uniform int u_mode;
@@ -17,7 +17,7 @@ void main() {
     if (u_clip != 0 ? hidden(v_screen, v_depth) : hides(int(v_body + 0.5), v_screen, world_depth(v_depth))) discard;
     if (u_mode == 2) {
         out0 = vec4(v_screen, v_object + 1.0);
-        out1 = vec4(0.0);
+        out1 = vec4(world_depth(v_depth), 0.0, 0.0, 1.0);
     } else if (u_mode == 1) {
         // Weighted blended OIT (McGuire and Bavoil 2013): nearer fragments weigh more. out0: rgb
         // summed, alpha multiplied (revealage); out1: weights summed.

@@ -4,6 +4,7 @@
 uniform sampler2D t_objects;   // per frame, 6 texels per object: orientation columns 0-3, position, (size)
 uniform sampler2D t_bodies;    // 3 texels per body: (half-spaces start, count, vertices start, count),
                                // centre m, (object, 0, 0, 0)
+uniform sampler2D t_halfspaces; // per body: h with h.(x - m) <= 1 inside, local coordinates
 uniform float u_eye;           // perspective: the eye at w = -u_eye; orthographic: 0
 
 struct Pose {
@@ -41,3 +42,20 @@ vec4 to_view(vec4 x) {
 float world_depth(float v) {
     return u_eye > 0.0 ? v * u_eye / (1.0 - v) : v;
 }
+
+// Whether local cell `cell` of body b, placed by q, surely faces away from the viewer: the eye lies
+// inside its half-space (perspective), or the sight lines run into it (orthographic), by a margin.
+// A face whose two cells both do is culled before rasterising; the ray test of halfspace.glsl
+// would discard each of its fragments anyway (bodies are convex), so this only saves work.
+bool faces_away(int b, int cell, Pose q) {
+    vec4 span = fetch(t_bodies, 3 * b);
+    vec4 m = fetch(t_bodies, 3 * b + 1);
+    vec4 h = fetch(t_halfspaces, int(span.x + 0.5) + cell);
+    mat4 inv = transpose(q.r) / q.s;
+    if (u_eye > 0.0) return dot(h, inv * (vec4(0.0, 0.0, 0.0, -u_eye) - q.p) - m) < 1.0 - 1e-5;
+    vec4 d = inv * vec4(0.0, 0.0, 0.0, 1.0);
+    return dot(h, d) > 1e-5 * length(h) * length(d);
+}
+
+// Where a vertex goes to be culled: outside the clip volume, so its triangle is dropped.
+const vec4 CULLED = vec4(2.0, 2.0, 2.0, 1.0);

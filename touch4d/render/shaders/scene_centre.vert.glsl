@@ -1,5 +1,6 @@
 // The cells' centre copies (paper §4.3): each cell's faces scaled about the cell's centroid, in the
-// cell's colour (by local cell index, so a cell keeps its colour as it turns) or the object's.
+// cell's colour (by local cell index, so a cell keeps its colour as it turns) or the object's; copies
+// of cells that face away from the viewer are culled here.
 #include "scene.glsl"
 
 uniform mat4 u_mvp;
@@ -19,9 +20,11 @@ flat out float v_object;
 flat out float v_body;
 
 void main() {
-    int o = body_object(int(in_body + 0.5));
+    int b = int(in_body + 0.5);
+    int o = body_object(b);
+    Pose q = object_pose(o);
     vec4 local = mix(in_centroid, in_local, u_centre_scale);
-    vec4 view = to_view(to_world(object_pose(o), local));
+    vec4 view = to_view(to_world(q, local));
     vec4 c = fetch(t_colors, o);
     vec3 rgb = u_cell_colors != 0 ? u_palette[int(in_cell + 0.5) % 12] : c.rgb;
     v_screen = view.xyz;
@@ -30,4 +33,5 @@ void main() {
     v_object = float(o);
     v_body = in_body;
     gl_Position = u_mvp * vec4(view.xyz, 1.0);
+    if (faces_away(b, int(in_cell + 0.5), q)) gl_Position = CULLED;     // a back cell's copy
 }
