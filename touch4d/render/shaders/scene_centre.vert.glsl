@@ -35,5 +35,5 @@ void main() {
     v_body = in_body;
     v_own = 0.0;
     gl_Position = u_mvp * vec4(view.xyz, 1.0);
-    if (!facing(b, int(in_cell + 0.5), q)) gl_Position = CULLED;     // a back cell's copy
+    if (!facing(b, int(in_cell + 0.5))) gl_Position = CULLED;     // a back cell's copy
 }

@@ -38,7 +38,7 @@ void main() {
     bool listed = cells[0] > -1.5;
     bool shown = !listed;
     for (int k = 0; k < 8; ++k) {
-        if (cells[k] > -0.5 && facing(int(in_body + 0.5), int(cells[k] + 0.5), q)) shown = true;
+        if (cells[k] > -0.5 && facing(int(in_body + 0.5), int(cells[k] + 0.5))) shown = true;
     }
     v_own = listed ? 0.0 : 1.0;
     gl_Position = shown ? wide_line_corner(u_mvp * vec4(a.xyz, 1.0), u_mvp * vec4(b.xyz, 1.0), in_corner) : CULLED;

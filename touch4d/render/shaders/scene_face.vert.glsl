@@ -28,5 +28,5 @@ void main() {
     v_body = in_body;
     v_own = 0.0;
     gl_Position = u_mvp * vec4(view.xyz, 1.0);
-    if (!facing(b, int(in_cells.x + 0.5), q) && !facing(b, int(in_cells.y + 0.5), q)) gl_Position = CULLED;
+    if (!facing(b, int(in_cells.x + 0.5)) && !facing(b, int(in_cells.y + 0.5))) gl_Position = CULLED;
 }
