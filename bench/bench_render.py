@@ -134,6 +134,8 @@ def frame_rows(ctx, cases, max_seconds: float) -> None:
     for name, scene in cases:
         for backend in ("gpu", "clip"):
             loop = Loop(ctx, backend, scene, "orthographic")
+            loop.draw(targets["mono"], cameras["mono"][0])        # shaders compile on first use
+            ctx.finish()
             with query:
                 loop.draw(targets["mono"], cameras["mono"][0])
             ctx.finish()

@@ -21,6 +21,7 @@ from touch4d.geometry.polytope import Polytope
 from touch4d.geometry.raycast import RayCaster
 from touch4d.geometry.rotation import plane_rotation, rotation_from_list
 from touch4d.geometry.scene import load_scene, parse_scene
+from touch4d.geometry.visibility import Relation, relations
 from touch4d.render.camera import parse_camera
 from touch4d.render.context import create_headless_context
 from touch4d.render.frame import Style
@@ -99,11 +100,21 @@ def test_auto_backend_and_fallback(renderers, monkeypatch, caplog):
 def test_gpu_and_clip_draw_the_same_layers_and_outlines_on_the_catalog(renderers, projection):
     """Per pixel and object, the number of visible face layers is the same on at least 97% of the
     pixels (and of those the scene covers); every object's outline in one picture lies within 2
-    pixels of its outline in the other; edges too (99%)."""
+    pixels of its outline in the other; edges too (99%). Objects that pass through each other have no
+    front/behind order, which clip units need: there the GPU picture is checked against touch."""
     report = []
     for path in CATALOG:
         scene = replace(load_scene(path), projection=projection)
         frame = frame_of(scene)
+        world = [p for _, p in scene.world_parts()]
+        objects = np.array([i for i, _ in scene.world_parts()])
+        meet = relations(world, scene.perspective_eye) == Relation.INTERSECTING
+        if (meet & (objects[:, None] != objects[None, :])).any():
+            obj, w, hit, entry, gap = seen_versus_touched(renderers["gpu"], scene, Style(), OBLIQUE)
+            agree = ((obj == hit) & (np.abs(w - entry) < 2e-3))[gap > 2e-3]
+            report.append(f"{path.stem} intersecting: seen = touched {agree.mean():.4f}")
+            assert len(agree) > 3000 and agree.mean() >= 0.999, report[-1]
+            continue
         faces = {n: r.layer_counts(frame, OBLIQUE) for n, r in renderers.items()}
         edges = {n: r.layer_counts(frame, OBLIQUE, "edges") for n, r in renderers.items()}
         same = np.all(faces["gpu"] == faces["clip"], axis=-1)
