@@ -15,7 +15,7 @@ from touch4d.render.draw import program, set_uniforms
 from touch4d.render.frame import CELL_PALETTE, Frame, SceneLayer
 from touch4d.render.scene_geometry import SceneGeometry, data_rows, data_texture
 
-from . import Backend, BackendUnavailable
+from . import Backend, BackendUnavailable, identity_state
 
 GRID_LO, GRID_HI = -1.0, 1.0          # the body grid spans the 3D screen; outside, border cells take over
 UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo": 4, "t_hi": 5,
@@ -23,7 +23,6 @@ UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo"
          "t_accum": 11, "t_weight": 12, "t_centres": 13, "t_view": 14, "t_halfspace_body": 15}
 OIT_DTYPE = "f2"
 MODE_BLEND, MODE_OIT, MODE_IDS, MODE_LAYERS = 0, 1, 2, 3
-NO_SECTION = (0.0, 0.0, 0.0, 1.0)     # every screen point: 0.u <= 1
 
 
 class GpuBackend(Backend):
@@ -190,15 +189,9 @@ class GpuBackend(Backend):
         self._per_frame_passes()
         self._bind()
         self._scene_uniforms(mvp, viewport, self.layer)
+        plane = identity_state(self.ctx, layers, section)
         for prog in (self.faces_prog, self.edges_prog):
-            set_uniforms(prog, u_section=tuple(map(float, section if section is not None else NO_SECTION)))
-        if layers:
-            self.ctx.disable(moderngl.DEPTH_TEST)
-            self.ctx.enable(moderngl.BLEND)
-            self.ctx.blend_func = moderngl.ONE, moderngl.ONE
-        else:
-            self.ctx.disable(moderngl.BLEND)
-            self.ctx.enable(moderngl.DEPTH_TEST)
+            set_uniforms(prog, u_section=plane)
         self._draw("fills" if what == "faces" else "edges", MODE_LAYERS if layers else MODE_IDS)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
 
