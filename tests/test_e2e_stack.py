@@ -149,11 +149,11 @@ def test_ctrl_c_at_any_moment_leaves_no_process_and_every_motor_off(moment):
 def test_replay_of_a_recorded_demo_gives_the_same_motor_commands(tmp_path):
     live = tmp_path / "live.mcap"
     again = tmp_path / "replayed.mcap"
-    with launch_process(["--duration", "16", "renderer:=none", "monitor:=none", "recorder:=recorder",
+    with launch_process(["--duration", "16", "renderer:=none", "monitor:=none", "+recorder:=recorder",
                          f"recorder.file:={live}"]) as run:
         assert run.proc.wait(60) == 0, run.text
     with launch_process([str(REPO / "launch/replay.yaml"), "--duration", "18", "renderer:=none", "monitor:=none",
-                         f"tracker.file:={live}", "tracker.restamp:=false", "recorder:=recorder",
+                         f"tracker.file:={live}", "tracker.restamp:=false", "+recorder:=recorder",
                          f"recorder.file:={again}", "recorder.topics:=[tactile/motors]"]) as run:
         assert run.proc.wait(60) == 0, run.text
 
