@@ -68,6 +68,8 @@ class Param:
         elif kind is list and (self.items or self.length):
             what = _PLURAL[self.items] if self.items else "values"
             text = f"a list of {self.length} {what}" if self.length else f"a list of {what}"
+        elif self.path:
+            text = "a file path"
         else:
             text = _TYPE_TEXT[kind]
             if kind is float and self.finite:
