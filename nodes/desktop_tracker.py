@@ -1,9 +1,12 @@
 """Desktop tracker: the hand and the controller's trigger steered from the renderer window's `ui/input`.
 
 Keys and mouse as in touch4d.tracking.desktop; publishes `hand/pose` and `controller/state` at `rate` Hz.
+Without a window nothing steers it: it says so at start when there is no display, and once when no
+`ui/input` has come within `input_timeout` seconds (a headless or missing renderer).
 """
 from __future__ import annotations
 
+import os
 import time
 
 from touch4d.bus import Node, Param
@@ -28,7 +31,8 @@ class DesktopTracker(Node):
         "drag_turn": Param(_DEFAULTS.drag_turn, "turn per pixel of a left-button drag", unit="rad/pixel", above=0),
         "drag_move": Param(_DEFAULTS.drag_move, "move per pixel of a right-button drag", unit="screen units/pixel",
                            above=0),
-        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path=True),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+        "input_timeout": Param(5.0, "warn when no ui/input came within this time", unit="s", above=0),
     }
 
     def setup(self) -> None:
@@ -37,18 +41,33 @@ class DesktopTracker(Node):
         config = DesktopConfig(**{k: p[k] for k in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")},
                                home=tuple(p["home"]))
         self.calibration = load_calibration(p["calibration"])
+        self.input_timeout = p["input_timeout"]
         self.hand = DesktopHand(config)
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
         self.create_subscription("ui/input", InputEvents, self.on_input)
         self.create_timer(1.0 / self.rate, self.tick)
-        self.log.info("steer the hand from the renderer window: a/d q/e w/s move, arrows z/c turn, space "
-                      "or a mouse drag holds the trigger, n/r/p next/reset/projection, h home")
+        self.started = time.monotonic()
+        self.heard_input = self.warned = False
+        if not os.environ.get("DISPLAY"):
+            self.warned = True
+            self.log.warning("no window to steer the hand from: there is no display (DISPLAY is not set), so the "
+                             "renderer draws offscreen. Run on a machine with a display, or give it one with "
+                             "xvfb-run -a touch4d launch tracker:=desktop (a virtual display)")
+        else:
+            self.log.info("steer the hand from the renderer window: a/d q/e w/s move, arrows z/c turn, space "
+                          "or a mouse drag holds the trigger, n/r/p next/reset/projection, h home")
 
     def on_input(self, msg: InputEvents) -> None:
+        self.heard_input = True
         self.hand.on_input(msg.keys_down, msg.pressed, msg.mouse_delta, msg.buttons, time.monotonic())
 
     def tick(self) -> None:
+        if not (self.heard_input or self.warned) and time.monotonic() - self.started > self.input_timeout:
+            self.warned = True
+            self.log.warning("no ui/input from a renderer window after %g s: is the renderer headless "
+                             "(renderer.headless:=true, or no display) or not running? Nothing steers the hand",
+                             self.input_timeout)
         sample = self.hand.step(1.0 / self.rate, time.monotonic())
         hand, controller = from_hand(sample, self.calibration)
         self.hand_pub.publish(hand)

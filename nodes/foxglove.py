@@ -48,7 +48,7 @@ class FoxgloveNode(Node):
         "topics": Param([], "the topics to serve ([] = every topic)", items=str),
         "max_rate": Param(100.0, "at most this many messages per second per topic (0 = every one)", unit="Hz",
                           min=0),
-        "glove": Param("", "the glove file, for the hand's sample points ('' = the default glove)", path=True),
+        "glove": Param("config/glove.yaml", "the glove file, for the hand's sample points", path="glove file"),
     }
 
     def setup(self) -> None:

@@ -48,7 +48,7 @@ class MotorsNode(Node):
 
     default_name = "motors"
     PARAMS = {
-        "glove": Param("", "the glove file ('' = the default glove)", path=True),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "interface": Param("", "python-can interface, overriding the glove's can.interface"),
         "channel": Param("", "CAN channel, overriding the glove's can.channel"),
         "emulate": Param(False, "run the board emulator on the same bus, in this process"),

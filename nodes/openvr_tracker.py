@@ -27,7 +27,7 @@ class OpenVRTracker(Node):
     PARAMS = {
         "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE),
         "hand": Param("right", "the hand that holds the controller", choices=("right", "left")),
-        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path=True),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
     }
 
     def setup(self) -> None:

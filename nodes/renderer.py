@@ -2,9 +2,10 @@
 
 With a display it opens a window (moderngl-window, glfw) with an orbit camera and publishes the
 window's keyboard and mouse as `ui/input` for the desktop tracker. Without one (no DISPLAY, or
-`headless: true`) it renders offscreen through EGL and can write frames to PNG (`output`, with
-`{frame}` for numbered files). A message it cannot use is logged once per cause and counted; the
-last good state keeps being drawn.
+`headless: true`) it renders offscreen through EGL, where nobody sees it unless `output` saves the
+frames: numbered PNGs, never one file written over (`frames/` -> frames/frame-000000.png, ...;
+`shot.png` -> shot-000000.png, ...; or a pattern with `{frame}`), every `save_every`-th frame. A
+message it cannot use is logged once per cause and counted; the last good state keeps being drawn.
 
 Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
 glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
@@ -21,7 +22,7 @@ import numpy as np
 from touch4d.bus import Node, Param
 from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
 from touch4d.render.camera import OrbitCamera, parse_camera
-from touch4d.render.context import RenderError, save_png
+from touch4d.render.context import RenderError, frame_files, save_png
 from touch4d.render.scene_mesh import Style
 from touch4d.render.view import BACKGROUND, OffscreenRenderer, SceneView, Show
 from touch4d.tactile.glove import load_glove
@@ -37,9 +38,9 @@ class RendererNode(Node):
         "height": Param(640, "frame height", unit="pixels", min=16, max=8192),
         "samples": Param(4, "MSAA samples (0 = none)", min=0),
         "camera": Param("", "orbit camera, e.g. 'yaw=30,pitch=20,distance=5'"),
-        "glove": Param("", "the glove file ('' = the default glove)", path=True),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "headless": Param(False, "render offscreen even with a display"),
-        "output": Param("", "write frames to this PNG ('{frame}' numbers them)"),
+        "output": Param("", "save frames as numbered PNGs: a folder/, a file.png or a pattern with {frame}"),
         "save_every": Param(1, "write every n-th frame", min=1),
         "max_frames": Param(0, "stop after this many frames (0 = run on)", min=0),
         "fill_alpha": Param(Style.fill_alpha, "opacity of the front cells' faces", min=0, max=1),
@@ -53,7 +54,8 @@ class RendererNode(Node):
     def setup(self) -> None:
         p = self.params
         rate, width, height, samples = p["rate"], p["width"], p["height"], p["samples"]
-        self.output, self.save_every, self.max_frames = p["output"], p["save_every"], p["max_frames"]
+        self.output = frame_files(p["output"]) if p["output"] else ""
+        self.save_every, self.max_frames = p["save_every"], p["max_frames"]
         style = Style(fill_alpha=p["fill_alpha"], centre_alpha=p["centre_alpha"], clip=p["clip"])
         show = Show(frame=p["show_frame"], tactile=p["show_tactile"], status=p["show_status"])
         source, key = self.param_where("camera")
@@ -73,8 +75,15 @@ class RendererNode(Node):
         if self.headless:
             self.renderer = OffscreenRenderer((width, height), samples=samples)
             self.add_cleanup(self.renderer.release)
-            self.log.info("headless: rendering offscreen through EGL at %g Hz%s", rate,
-                          f", frames to {self.output}" if self.output else "")
+            why = "headless: true" if p["headless"] else "no DISPLAY"
+            if self.output:
+                self.log.info("headless (%s): rendering offscreen through EGL at %g Hz, every %sframe to %s, ...",
+                              why, rate, _nth(self.save_every), Path(self.output.format(frame=0)).absolute())
+            else:
+                self.log.warning(
+                    "headless (%s): rendering offscreen, nothing is shown. To see the frames save them with "
+                    "renderer.output:=frames/ (numbered PNGs; renderer.save_every:=%d keeps one a second), or "
+                    "open a window: run with a display (or under xvfb-run -a)", why, max(1, round(rate)))
         else:
             from touch4d.render.draw import Painter
             from touch4d.render.window import InputState, open_window
@@ -158,9 +167,9 @@ class RendererNode(Node):
         return np.frombuffer(raw, dtype=np.uint8).reshape(size[1], size[0], 4)[::-1].copy()
 
     def _save(self, image) -> None:
-        path = self.output.format(frame=self.counts["frames"]) if "{" in self.output else self.output
+        path = self.output.format(frame=self.counts["frames"])
         try:
-            save_png(image, Path(path))
+            self._last_saved = save_png(image, Path(path)).absolute()
             self.counts["saved"] += 1
         except RenderError as exc:
             self.warn_once(f"save:{exc}", f"cannot write frame to {path}: {exc}")
@@ -175,4 +184,9 @@ class RendererNode(Node):
 
     def on_shutdown(self) -> None:
         self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
+        if self.counts["saved"]:
+            self.log.info("saved %d frame(s), the last %s", self.counts["saved"], self._last_saved)
 
+
+def _nth(n: int) -> str:
+    return "" if n == 1 else f"{n}th "

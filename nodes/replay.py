@@ -23,7 +23,7 @@ class ReplayNode(Node):
 
     default_name = "replay"
     PARAMS = {
-        "file": Param("", "the .mcap log to replay (required)", path=True),
+        "file": Param("", "the .mcap log to replay (required)", path="log file"),
         "topics": Param(list(TRACKER_TOPICS), "the topics to replay ([] = every topic of the log)", items=str),
         "remap": Param({}, "topic renames, {from: to}"),
         "rate": Param(1.0, "speed factor (2 = twice as fast)", above=0),

@@ -20,8 +20,8 @@ class SceneNode(Node):
 
     default_name = "scene"
     PARAMS = {
-        "scene": Param("config/scenes/hypercube.yaml", "the scene file", path=True),
-        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path=True),
+        "scene": Param("config/scenes/hypercube.yaml", "the scene file", path="scene file"),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
         "rate": Param(2.0, "scene/state repeats for late joiners", unit="Hz", above=0, max=1000),
         "max_rate": Param(120.0, "scene/state at most this often while it changes", unit="Hz", above=0, max=1000),
         "spin_rate": Param(30.0, "steps of the spin", unit="Hz", above=0, max=1000),

@@ -22,10 +22,10 @@ class ScriptedTracker(Node):
     PARAMS = {
         "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE),
         "path": Param("demo", "the name of a path in the paths file"),
-        "paths": Param("config/paths.yaml", "the paths file", path=True),
+        "paths": Param("config/paths.yaml", "the paths file", path="paths file"),
         "loop": Param(True, "start over at the end of the path (else stop publishing)"),
         "start_s": Param(0.0, "where on the path to start", unit="s", min=0),
-        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path=True),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
     }
 
     def setup(self) -> None:

@@ -21,7 +21,7 @@ class TactileNode(Node):
 
     default_name = "tactile"
     PARAMS = {
-        "glove": Param("", "the glove file ('' = the default glove)", path=True),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "alpha": Param(None, "override the glove's alpha (eq. 2)", type=float),
         "beta": Param(None, "override the glove's beta (eq. 2)", type=float),
         "projection": Param("scene", "follow the scene's projection, or force one", choices=PROJECTION_CHOICES),

@@ -185,7 +185,7 @@ def test_node_publishes_field_and_motors_for_every_pose_and_survives_bad_input(g
 def test_node_rejects_bad_parameters_with_their_names():
     with running_broker() as bus:
         for params, key in (({"projection": "fisheye"}, "projection"), ({"beta": 3.0}, "beta"),
-                            ({"glove": "/no/such/glove.yaml"}, "(file)")):
+                            ({"glove": "/no/such/glove.yaml"}, "glove")):
             with pytest.raises(ConfigError) as info:
                 TactileNode(bus=bus, params=params, heartbeat=False)
             assert info.value.key == key

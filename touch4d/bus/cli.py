@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
-from touch4d.bus.config import load_bus_config, resolve_bus_config
+from touch4d.bus.config import resolve_bus_config, user_bus_config
 from touch4d.errors import ConfigError
 
-DEFAULT_LAUNCH = Path(__file__).resolve().parents[2] / "launch" / "demo.yaml"
+DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
+BUS_HELP = "bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)"
 
 
 def register(subparsers) -> None:
@@ -17,9 +17,9 @@ def register(subparsers) -> None:
                               "ROLE:=NODE swaps a node, +ROLE:=NODE adds one, ROLE:=none drops one, "
                               "ROLE.PARAM:=VALUE sets a parameter.")
     p.add_argument("items", nargs="*", metavar="FILE|OVERRIDE",
-                   help=f"launch file (default {DEFAULT_LAUNCH.relative_to(DEFAULT_LAUNCH.parents[1])}) and overrides")
+                   help=f"launch file (default {DEFAULT_LAUNCH}) and overrides")
     p.add_argument("--duration", type=float, help="stop after S seconds")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.add_argument("--no-broker", action="store_true", help="use a broker that already runs (e.g. on another machine)")
     p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
     p.set_defaults(func=_launch)
@@ -48,14 +48,14 @@ def register(subparsers) -> None:
     p.add_argument("-n", "--count", type=int, help="publish N times")
     p.set_defaults(func=_topic_pub)
     for parser in topic.choices.values():
-        parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+        parser.add_argument("--bus", help=BUS_HELP)
 
     node = _group(subparsers, "node", "inspect or run nodes")
     p = node.add_parser("list", help="the nodes that can be launched and where each comes from (--live: the "
                                      "running ones, from their heartbeats)")
     p.add_argument("--live", action="store_true", help="list the nodes running on the bus instead")
     p.add_argument("--duration", type=float, default=2.5, help="with --live: listen for S seconds (default 2.5)")
-    p.add_argument("--bus", help="with --live: bus config file")
+    p.add_argument("--bus", help="with --live: " + BUS_HELP)
     p.set_defaults(func=_node_list)
     p = node.add_parser("info", help="a node's parameters: type, default, what is valid")
     p.add_argument("node", help="a node name (see `touch4d node list`) or a module path")
@@ -67,7 +67,7 @@ def register(subparsers) -> None:
 
     bus = _group(subparsers, "bus", "the broker and its keys")
     p = bus.add_parser("broker", help="run the broker alone (the launcher normally runs it)")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.set_defaults(func=_broker)
     p = bus.add_parser("keygen", help="make a CurveZMQ key pair for a machine or the broker")
     p.add_argument("name", help="key name, e.g. broker, pc, pi")
@@ -91,7 +91,7 @@ def _launch(args) -> int:
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     nodes = load_launch(files[0] if files else DEFAULT_LAUNCH, overrides)
-    bus = load_bus_config(args.bus)
+    bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
                     ready_file=args.ready_file).run()
 
@@ -183,7 +183,7 @@ def _node_run(args) -> int:
 def _broker(args) -> int:
     from touch4d.bus.broker import Broker
 
-    Broker(load_bus_config(args.bus)).run()
+    Broker(user_bus_config(args.bus)).run()
     return 0
 
 

@@ -63,6 +63,7 @@ class Launcher:
             self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
         self._stop_reason: str | None = None
         self._start_failure: tuple[str, int] | None = None  # (what to say last, exit code)
+        self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
 
@@ -73,8 +74,18 @@ class Launcher:
 
     def _emit(self, role: str, lines: list[bytes]) -> None:
         prefix = self._prefix[role]
-        self.out.write(b"".join(prefix + line + b"\n" for line in lines))
-        self.out.flush()
+        try:
+            self.out.write(b"".join(prefix + line + b"\n" for line in lines))
+            self.out.flush()
+        except BrokenPipeError:
+            # Whoever read the output is gone (`touch4d launch | head`): stop every node cleanly.
+            from touch4d.cli import silence_stdout
+
+            silence_stdout()
+            self.out = open(os.devnull, "wb")
+            self._output_closed = True
+            if self._stop_reason is None:
+                self._stop_reason = "its output was closed"
 
     def _read(self, child: _Child) -> bool:
         """Pass on the complete lines a child has written; False at end of file."""
@@ -224,6 +235,10 @@ class Launcher:
             if broker:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
+        if self._output_closed:
+            from touch4d.cli import EXIT_PIPE_CLOSED
+
+            return EXIT_PIPE_CLOSED
         if self._start_failure is not None:
             line, code = self._start_failure
             self.say(f"stopped: {line}")   # the cause, last, where the user looks

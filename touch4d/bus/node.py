@@ -28,7 +28,7 @@ import zmq
 
 from touch4d.bus.config import BusConfig, resolve_bus_config
 from touch4d.bus.params import Param, check_params
-from touch4d.configfile import resolve
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, Message, MessageError, decode
 
@@ -140,8 +140,9 @@ class Node:
         self.given: frozenset[str] = frozenset(given)  # the parameters set explicitly (not defaults)
         self.params: dict[str, Any] = check_params(self.PARAMS, given, self.param_error, f"node {self.kind}")
         for pname, param in self.PARAMS.items():
-            if param.path and self.params[pname]:
-                self.params[pname] = str(resolve(self.params[pname]))
+            if param.path and self.params[pname]:  # "" or null: no file (the node's default, if any)
+                source, key = self.param_where(pname)
+                self.params[pname] = resolve_path(self.params[pname], source, key=key, what=param.path_what)
         self.bus = bus if bus is not None else resolve_bus_config()
         self.log = logging.getLogger(self.name)
         self.pid = os.getpid()

@@ -29,8 +29,10 @@ class Param:
     """One parameter: its default (whose type is the parameter's unless `type` says otherwise) and checks.
 
     `above`/`min`/`max` bound numbers (exclusive/inclusive/inclusive), `choices` lists the allowed
-    values, `items` and `length` constrain lists, `path` marks a file (resolved like every config
-    path when the node starts). A default of None makes the parameter optional (null allowed).
+    values, `items` and `length` constrain lists, `path` marks a file and says what it is ("glove
+    file"): the node gets it found by touch4d.configfile.resolve_path (the current directory, the
+    launch file's folder, the packaged defaults) as a Path. A default of None makes the parameter
+    optional (null allowed).
     """
 
     default: Any
@@ -43,7 +45,7 @@ class Param:
     max: float | None = None
     items: type | None = None
     length: int | None = None
-    path: bool = False
+    path: bool | str = False
     finite: bool = True
 
     def __post_init__(self):
@@ -60,6 +62,11 @@ class Param:
             raise TypeError("a Param whose default is None needs type=")
         return type(self.default)
 
+    @property
+    def path_what(self) -> str:
+        """What the file is, for messages ("glove file")."""
+        return self.path if isinstance(self.path, str) else "file"
+
     def describe(self) -> str:
         """What a valid value is, in words (used in error messages and `touch4d node info`)."""
         kind = self.kind
@@ -69,7 +76,7 @@ class Param:
             what = _PLURAL[self.items] if self.items else "values"
             text = f"a list of {self.length} {what}" if self.length else f"a list of {what}"
         elif self.path:
-            text = "a file path"
+            text = f"a {self.path_what} path"
         else:
             text = _TYPE_TEXT[kind]
             if kind is float and self.finite:
