@@ -131,20 +131,26 @@ def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
         assert "real-time priority not permitted" in run.text
 
 
-def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_error_last(tmp_path):
+@pytest.mark.parametrize("role, entry, expected", [
+    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a positive number"]),
+    ("tactile", "{node: tactile, params: {glove: no-such-glove.yaml}}",
+     ["nodes.tactile.params.glove", "an existing glove file", "no-such-glove.yaml", "looked in"]),
+])
+def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_error_last(tmp_path, role, entry,
+                                                                                          expected):
     scene = tmp_path / "bad-scene.yaml"
     scene.write_text("objects:\n  - {shape: tesseract, size: -1}\n")
     launch = tmp_path / "stack.yaml"
-    launch.write_text(f"nodes:\n  talker: {{node: example_talker}}\n  scene: {{node: scene, params: {{scene: '{scene}'}}}}\n")
+    launch.write_text(f"nodes:\n  talker: {{node: example_talker}}\n  {role}: {entry.replace('BAD', str(scene))}\n")
     with launch_process([str(launch)]) as run:
         code = run.proc.wait(60)
         run.join()
-    assert code != 0
+    assert code == 2  # a config error
     last = run.text.rstrip().splitlines()[-1]
-    # The cause, named as the scene file names it, is what the user reads last.
-    assert last.startswith("[launch]") and "'scene'" in last
-    assert "bad-scene.yaml" in last and "objects[0].size" in last and "a positive number" in last
-    assert "[talker]" in run.text  # the others were started, then stopped with it
+    # The cause, named as the file at fault names it, is what the user reads last.
+    assert last.startswith("[launch]") and f"node '{role}' ({role}) failed to start" in last
+    assert all(text in last for text in expected), last
+    assert "[talker]" in run.text and "stopping (node" in run.text  # the others were started, then stopped
 
 
 def test_a_failing_node_with_respawn_keeps_the_launch_and_the_monitor_names_the_topic_without_publisher(tmp_path):
