@@ -12,7 +12,6 @@ to anyone who reaches that address. Needs `pip install 'touch4d[foxglove]'`.
 """
 from __future__ import annotations
 
-import ipaddress
 import json
 import time
 from dataclasses import dataclass
@@ -20,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from touch4d.bus import Node, Param
+from touch4d.bus.config import is_loopback
 from touch4d.errors import Unavailable
 from touch4d.log.schema import message_schema, to_jsonable
 from touch4d.messages.codec import CodecError, unpack
@@ -73,7 +73,7 @@ class FoxgloveNode(Node):
         self.field: tuple[float, np.ndarray] | None = None  # (when, s per sample) of the latest tactile/field
         for topic in p["topics"] or [""]:
             self.create_raw_subscription(topic, self.on_message)
-        if not _loopback(p["host"]):
+        if not is_loopback(p["host"]):
             self.log.warning("serving on %s: anyone who reaches this address sees every topic (the Foxglove "
                              "protocol has no authentication)", p["host"])
         self.log.info("Foxglove: open ws://%s:%d (Open connection > Foxglove WebSocket)",
@@ -149,12 +149,3 @@ class FoxgloveNode(Node):
                    for (x, y, z), f in zip(points.tolist(), felt.tolist())]
         hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres)
         return m.SceneUpdate(entities=[screen, hand])
-
-
-def _loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
