@@ -4,7 +4,9 @@ Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The lo
 touch4d.boards (driver: what to send; link: python-can without exceptions); this node wires it to
 topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
-this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
+this process), `board_emulator` (which: `python`, the reference, or `firmware`, the boards' C
+core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
+below).
 
 Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
@@ -34,7 +36,7 @@ from touch4d.bus import Node, Param
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
-from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
@@ -52,6 +54,7 @@ class MotorsNode(Node):
         "interface": Param("", "python-can interface, overriding the glove's can.interface"),
         "channel": Param("", "CAN channel, overriding the glove's can.channel"),
         "emulate": Param(False, "run the board emulator on the same bus, in this process"),
+        "board_emulator": Param("python", "which board emulator runs with emulate", choices=tuple(sorted(EMULATORS))),
         "status_hz": Param(10.0, "motors/status messages per second", unit="Hz", above=0),
         "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
     }
@@ -75,7 +78,7 @@ class MotorsNode(Node):
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
         if p["emulate"]:
-            self.emulator = GloveEmulator(cfg).start()
+            self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
             self.add_cleanup(self.emulator.stop)
         self.link = CanLink(cfg.interface, cfg.channel, cfg.bitrate, cfg.send_timeout_s,
                             bus=self._bus_factory() if self._bus_factory else None)
@@ -97,7 +100,7 @@ class MotorsNode(Node):
             self.create_timer(TRACE_PERIOD_S, self.publish_trace)
         self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
                       len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
-                      100 * self.load.fraction, " (emulated boards)" if self.emulator else "")
+                      100 * self.load.fraction, f" ({p['board_emulator']} emulated boards)" if self.emulator else "")
 
     def on_command(self, msg: MotorCommand) -> None:
         now = time.monotonic()

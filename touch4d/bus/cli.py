@@ -5,6 +5,7 @@ import argparse
 import json
 
 from touch4d.bus.config import resolve_bus_config, user_bus_config
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
 DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
@@ -90,10 +91,11 @@ def _launch(args) -> int:
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
-    nodes = load_launch(files[0] if files else DEFAULT_LAUNCH, overrides)
+    path = resolve_path(files[0] if files else DEFAULT_LAUNCH, COMMAND_LINE, key="launch file", what="launch file")
+    nodes = load_launch(path, overrides)
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
-                    ready_file=args.ready_file).run()
+                    ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
 
 
 def _topic_list(args) -> int:

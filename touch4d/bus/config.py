@@ -10,7 +10,6 @@ import ipaddress
 import json
 import os
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 
 import zmq
 import zmq.auth

@@ -48,11 +48,13 @@ class Launcher:
     """Runs one launch: `run()` returns the exit code (0 after a clean stop)."""
 
     def __init__(self, nodes: dict[str, NodeSpec], bus: BusConfig, *, start_broker: bool = True,
-                 duration: float | None = None, ready_file: str | None = None, out=None):
+                 duration: float | None = None, ready_file: str | None = None, out=None,
+                 launch_file: str | None = None, bus_file: str | None = None):
         self.bus = bus
         self.start_broker = start_broker
         self.duration = duration
         self.ready_file = ready_file
+        self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
         self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
         width = max([len(r) for r in nodes] + [6])
@@ -208,6 +210,8 @@ class Launcher:
         old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
         self._selector.register(wake_r, selectors.EVENT_READ, None)
         try:
+            if self.files[0]:
+                self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}")
             if broker:
                 self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")

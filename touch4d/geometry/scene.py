@@ -19,7 +19,6 @@ Every mistake is a ConfigError naming the file and the key (`objects[0].color`),
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 from PIL import ImageColor

@@ -8,7 +8,6 @@ holds (`hand_in_controller`). Quaternions are (x, y, z, w), as on the wire.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
