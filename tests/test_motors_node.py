@@ -487,7 +487,7 @@ def test_a_configuration_over_the_bus_load_limit_is_refused(bus, tmp_path):
 
 @pytest.mark.parametrize("status_hz", [0.0, -1.0, float("inf"), float("nan")])
 def test_a_bad_parameter_is_refused_with_its_name(bus, status_hz):
-    with pytest.raises(ConfigError, match=r"launch\.yaml.*nodes\.motors\.params\.status_hz.*finite rate > 0"):
+    with pytest.raises(ConfigError, match=r"launch\.yaml.*nodes\.motors\.params\.status_hz.*finite number > 0"):
         MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": status_hz}, bus=bus,
                    params_source="launch.yaml")
     with pytest.raises(ConfigError, match="status_hz"):
