@@ -221,3 +221,18 @@ def test_a_node_checks_its_parameters_itself_too():
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "parameters of node 'talker'" in done.stderr and "did you mean 'rate'?" in done.stderr
     assert main  # the same entry point the launcher uses
+
+
+def test_a_bare_launch_name_is_a_file_of_launch(tmp_path, monkeypatch):
+    from touch4d.bus.cli import launch_file_path
+
+    monkeypatch.chdir(tmp_path)
+    assert launch_file_path("pi").name == "pi.yaml" and launch_file_path("pi").parent.name == "launch"
+    (tmp_path / "launch").mkdir()
+    (tmp_path / "launch" / "pi.yaml").write_text("nodes: {}\n")
+    assert launch_file_path("pi") == tmp_path / "launch" / "pi.yaml"      # yours first
+    (tmp_path / "pi").write_text("nodes: {}\n")
+    assert launch_file_path("pi") == tmp_path / "pi"                       # a file of that name wins
+    with pytest.raises(ConfigError) as err:
+        launch_file_path("nosuch")
+    assert "launch/nosuch.yaml" in str(err.value)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from touch4d.bus.config import resolve_bus_config, user_bus_config
 from touch4d.configfile import COMMAND_LINE, resolve_path
@@ -83,6 +84,15 @@ def _group(subparsers, name: str, help: str):
     return parser.add_subparsers(dest=f"{name}_command", metavar="ACTION")
 
 
+def launch_file_path(name: str):
+    """The launch file a user named: a path, or a bare name such as `pi` for `launch/pi.yaml` (a path
+    wins when it exists; the name is then found like any path, yours first, else the packaged one)."""
+    given = Path(name)
+    if len(given.parts) == 1 and not given.suffix and not given.exists():
+        name = f"launch/{name}.yaml"
+    return resolve_path(name, COMMAND_LINE, key="launch file", what="launch file")
+
+
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
     from touch4d.bus.launchfile import load_launch
@@ -91,7 +101,7 @@ def _launch(args) -> int:
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
-    path = resolve_path(files[0] if files else DEFAULT_LAUNCH, COMMAND_LINE, key="launch file", what="launch file")
+    path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
     nodes = load_launch(path, overrides)
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
