@@ -2,13 +2,16 @@
 
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
 skipping a backlog loses no rotation) and `scene/command`. Publishes `scene/state` on every change,
-at most `max_rate` times a second, and every 1/`rate` s for late joiners.
+at most `max_rate` times a second, and every 1/`rate` s for late joiners. The calibration file is
+read again when it changes (a headset re-centring the screen turns the controller's axes with it).
 """
 from __future__ import annotations
 
+import os
 import time
 
 from touch4d.bus import Node, run_node
+from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
@@ -35,7 +38,9 @@ class SceneNode(Node):
             spin=self.declare_parameter("spin", {}),
             source=source,
         )
-        self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(resolve(calibration)), config)
+        self.calibration_file = resolve(calibration)
+        self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(self.calibration_file), config)
+        self.calibration_mtime = os.stat(self.calibration_file).st_mtime_ns
         self.dirty = False
         self.last_publish = 0.0
         self.pub = self.create_publisher("scene/state", SceneState)
@@ -45,9 +50,21 @@ class SceneNode(Node):
         self.create_timer(self.min_period, self.flush)
         if config.spin_plane is not None:
             self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
+        self.create_timer(1.0, self.reload_calibration)
         self.publish()
         self.log.info("scene %s: %d object(s), rotating %s", scene_file, len(self.control.scene.objects),
                       "the whole scene" if self.control.scene.selected < 0 else "the selected object")
+
+    def reload_calibration(self) -> None:
+        try:
+            mtime = os.stat(self.calibration_file).st_mtime_ns
+            if mtime != self.calibration_mtime:
+                self.calibration_mtime = mtime
+                self.control.calibration = load_calibration(self.calibration_file)
+                self.log.info("calibration %s read again", self.calibration_file)
+        except (OSError, ConfigError) as exc:
+            self.log.warning("calibration %s changed but cannot be read, keeping the last one: %s",
+                             self.calibration_file, exc)
 
     def on_controller(self, msg: ControllerState) -> None:
         self.changed(self.control.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid))
