@@ -32,8 +32,10 @@ export class InputReader {
   }
 
   // The input message for this frame; `tracking` is false when the headset's own pose is lost.
+  // A pose the runtime can no longer give is null; WebXR's emulatedPosition is not used (emulators
+  // set it on every pose, and a headset that loses tracking hides or blurs the session instead).
   read(frame, space, session, viewerPose, time) {
-    const tracking = viewerPose !== null && !viewerPose.emulatedPosition;
+    const tracking = viewerPose !== null;
     const sources = [];
     for (const source of session.inputSources) {
       if (!['right', 'left', 'none'].includes(source.handedness) || sources.length >= 4) continue;
@@ -42,7 +44,7 @@ export class InputReader {
         out.joints = this.joints(frame, source.hand, space);
       } else if (source.gripSpace) {
         const grip = frame.getPose(source.gripSpace, space);
-        if (grip && !grip.emulatedPosition) out.grip = pose7(grip.transform);
+        if (grip) out.grip = pose7(grip.transform);
       }
       const pad = source.gamepad;
       if (pad) {

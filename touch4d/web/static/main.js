@@ -18,7 +18,7 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 // What tests and benchmarks read (window.touch4d); nothing here steers the page.
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
-  session: null, sent: 0, error: null,
+  session: null, sent: 0, input: null, leaving: false, error: null,
 });
 
 let hud = null, scene = null, orbit = null;
@@ -143,8 +143,9 @@ async function enterVR() {
     session.requestAnimationFrame(onFrame);
     const viewer = frame.getViewerPose(space);
     // Input first: the pose leaves before this frame's drawing.
-    if (state.setup && state.setup.tracker && session.visibilityState === 'visible') {
-      link.send(reader.read(frame, space, session, viewer || null, time));
+    if (state.setup && state.setup.tracker && session.visibilityState === 'visible' && !state.leaving) {
+      state.input = reader.read(frame, space, session, viewer || null, time);
+      link.send(state.input);
       state.sent++;
     }
     if (!viewer) return;
@@ -168,7 +169,8 @@ async function enterVR() {
 }
 
 document.addEventListener('visibilitychange', () => { if (document.visibilityState !== 'visible') handGone(); });
-window.addEventListener('pagehide', handGone);
+// Leaving the page: the hand is gone now, and no frame that may still run sends it back.
+window.addEventListener('pagehide', () => { handGone(); state.leaving = true; link.close(); });
 
 if (navigator.xr && gl) {
   navigator.xr.isSessionSupported('immersive-vr').then((ok) => {

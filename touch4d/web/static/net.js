@@ -23,6 +23,7 @@ export class Link {
     this.ws = null;
     this.retry = 250;
     this.received = 0;
+    this.closed = false;
     this.connect();
   }
 
@@ -40,9 +41,16 @@ export class Link {
     };
     ws.onclose = () => {
       this.onState(false);
+      if (this.closed) return;
       setTimeout(() => this.connect(), this.retry);
       this.retry = Math.min(this.retry * 2, 4000);
     };
+  }
+
+  // For good (the page is going away): no reconnection.
+  close() {
+    this.closed = true;
+    if (this.ws) this.ws.close();
   }
 
   get open() { return this.ws !== null && this.ws.readyState === WebSocket.OPEN; }
