@@ -8,7 +8,9 @@ last good state keeps being drawn.
 
 Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
 glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
-fill_alpha, centre_alpha, clip, show_frame, show_tactile, show_status.
+backend ("gpu": per-pixel ray test in shaders, or "clip": the paper's clip units on the CPU; gpu
+falls back to clip on a GL context that cannot run it), fill_alpha, centre_alpha, clip,
+show_frame, show_tactile, show_status.
 """
 from __future__ import annotations
 
@@ -21,10 +23,11 @@ import numpy as np
 from touch4d.bus import Node, run_node
 from touch4d.errors import ConfigError
 from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
+from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
 from touch4d.render.context import RenderError, save_png
-from touch4d.render.scene_mesh import Style
-from touch4d.render.view import BACKGROUND, OffscreenRenderer, SceneView, Show
+from touch4d.render.frame import Style
+from touch4d.render.view import BACKGROUND, SceneView, Show
 from touch4d.tactile.glove import load_glove
 
 
@@ -48,6 +51,7 @@ class RendererNode(Node):
         camera = self.declare_parameter("camera", "")
         glove_file = self.declare_parameter("glove", "")
         headless = self.declare_parameter("headless", False)
+        backend = self.declare_parameter("backend", DEFAULT_BACKEND)
         self.output = self.declare_parameter("output", "")
         self.save_every = self.declare_parameter("save_every", 1)
         self.max_frames = self.declare_parameter("max_frames", 0)
@@ -64,6 +68,8 @@ class RendererNode(Node):
         if self.save_every < 1 or self.max_frames < 0 or samples < 0:
             raise ConfigError(source, "save_every/max_frames/samples", "save_every >= 1, the others >= 0",
                               got=(self.save_every, self.max_frames, samples))
+        if backend not in backend_names():
+            raise ConfigError(source, "backend", f"one of {', '.join(backend_names())}", got=backend)
         self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
         self.view = SceneView(load_glove(glove_file or None), style, show)
         self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
@@ -79,11 +85,14 @@ class RendererNode(Node):
         self.input = None
         self.input_pub = None
         if self.headless:
-            self.renderer = OffscreenRenderer((width, height), samples=samples)
-            self.log.info("headless: rendering offscreen through EGL at %g Hz%s", rate,
-                          f", frames to {self.output}" if self.output else "")
+            from touch4d.render.offscreen import OffscreenRenderer
+
+            self.renderer = OffscreenRenderer((width, height), samples=samples, backend=backend, log=self.log)
+            self.backend = self.renderer.backend
+            self.log.info("headless: rendering offscreen through EGL at %g Hz with the %s backend%s", rate,
+                          self.backend.name, f", frames to {self.output}" if self.output else "")
         else:
-            from touch4d.render.draw import Painter
+            from touch4d.render.backends import open_backend
             from touch4d.render.window import InputState, open_window
 
             self.input = InputState()
@@ -92,9 +101,10 @@ class RendererNode(Node):
             except (ValueError, RuntimeError) as exc:   # glfw: no display, no GL 3.3
                 raise RenderError(f"cannot open a window on display {os.environ.get('DISPLAY')!r}: {exc}; "
                                   "set the parameter headless: true to render offscreen") from exc
-            self.painter = Painter(self.window.ctx)
+            self.backend = open_backend(backend, self.window.ctx, log=self.log)
             self.input_pub = self.create_publisher("ui/input", InputEvents)
-            self.log.info("window %dx%d at %g Hz; publishing ui/input", width, height, rate)
+            self.log.info("window %dx%d at %g Hz with the %s backend; publishing ui/input", width, height, rate,
+                          self.backend.name)
 
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
@@ -138,20 +148,20 @@ class RendererNode(Node):
         self._update_rates()
         status = [f"renderer {self._fps:.0f} fps | scene {self._rates['scene']:.1f} Hz, "
                   f"pose {self._rates['pose']:.0f} Hz, field {self._rates['field']:.0f} Hz"]
-        layers = self.view.layers(status)
+        frame = self.view.frame(status)
         if self.window is not None:
             if self.window.is_closing:
                 self.request_shutdown()
                 return
             self.window.use()
             size = self.window.buffer_size
-            self.painter.paint(layers, self.camera.matrix(size), size, BACKGROUND)
+            self.backend.paint(frame, self.camera.matrix(size), size, BACKGROUND)
             if self.output and self.counts["frames"] % self.save_every == 0:
                 self._save(self._read_window(size))
             self.window.swap_buffers()          # also polls the window's events
             self.input_pub.publish(self.input.take())
         else:
-            self.renderer.draw_layers(layers, self.camera)
+            self.renderer.draw_frame(frame, self.camera)
             if self.output and self.counts["frames"] % self.save_every == 0:
                 self._save(self.renderer.read())
         self.counts["frames"] += 1
@@ -188,7 +198,7 @@ class RendererNode(Node):
             return                              # stopped before it was set up
         self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
         if self.window is not None:
-            self.painter.release()
+            self.backend.release()
             self.window.destroy()
         elif self.renderer is not None:
             self.renderer.release()

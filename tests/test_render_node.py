@@ -106,23 +106,22 @@ def test_bad_parameters_name_the_parameter(bus):
         make_node(bus, camera="zoom=3")
 
 
-def test_view_builds_a_scene_once_until_it_changes():
-    """The scene node repeats `scene/state` for late joiners and the camera moves at the frame rate:
-    neither rebuilds the vertex arrays; a changed pose or colour does."""
+def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change():
+    """The scene node repeats `scene/state` for late joiners and turns objects at the controller's rate:
+    a repeat changes nothing, a new pose only the transforms, a new colour (or shape) the geometry."""
     from touch4d.render.view import SceneView, Show
 
     msg = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
                                     "color": [0, 1, 0, 1]}]}).to_message()
     view = SceneView(None, show=Show(frame=False, hand=False, tactile=False, status=False))
-    builds = []
-    build = view.builder.build
-    view.builder.build = lambda *a, **k: builds.append(1) or build(*a, **k)
     assert view.set_scene(msg)
-    mesh = view.mesh()
+    layer = view.frame().scene
     assert not view.set_scene(SceneState(**{**msg.__dict__, "revision": msg.revision + 1}))
-    assert view.layers().triangles[0] is mesh.fills and len(builds) == 1
-    for change in ({"position": np.array([0.1, 0, 0, 1.5])}, {"color": np.array([1.0, 0, 0, 1])}):
-        moved = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], **change}]})
-        assert view.set_scene(moved) and view.mesh() is not mesh
-        mesh = view.mesh()
-    assert len(builds) == 3
+    assert view.frame().scene is layer and view.geometry_builds == 1
+    moved = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "position": np.array([0.1, 0, 0, 1.5])}]})
+    assert view.set_scene(moved)
+    assert view.frame().scene is not layer and view.frame().scene.geometry is layer.geometry
+    assert view.frame().scene.transforms[0, 4].tolist() == pytest.approx([0.1, 0, 0, 1.5])
+    recoloured = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "color": np.array([1.0, 0, 0, 1])}]})
+    assert view.set_scene(recoloured) and view.frame().scene.geometry is not layer.geometry
+    assert view.geometry_builds == 2

@@ -1,4 +1,5 @@
-"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] -o out.png`: one frame, offline."""
+"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] [--backend gpu|clip] -o out.png`:
+one frame, offline."""
 from __future__ import annotations
 
 import argparse
@@ -9,7 +10,7 @@ import numpy as np
 from touch4d.errors import ConfigError
 
 from .camera import OrbitCamera, parse_camera
-from .scene_mesh import Style
+from .frame import Style
 
 
 def register(subparsers) -> None:
@@ -31,7 +32,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube")
     p.add_argument("--no-status", action="store_true", help="leave out the status line")
     p.add_argument("--no-centres", action="store_true", help="leave out the cells' centre copies")
-    p.add_argument("--no-clip", action="store_true", help="draw hidden parts too (no clip units)")
+    p.add_argument("--no-clip", action="store_true", help="draw what other objects hide too")
+    p.add_argument("--backend", choices=("gpu", "clip"), default="gpu",
+                   help="gpu: per-pixel ray test in shaders; clip: the paper's clip units on the CPU")
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
     p.set_defaults(func=_render)
 
@@ -53,7 +56,8 @@ def _render(args) -> int:
     from touch4d.tactile.glove import load_glove
 
     from .context import save_png
-    from .view import OffscreenRenderer, SceneView, Show
+    from .offscreen import OffscreenRenderer
+    from .view import SceneView, Show
 
     size = parse_size(args.size)
     camera = parse_camera(args.camera, OrbitCamera())
@@ -80,7 +84,7 @@ def _render(args) -> int:
         if field is not None:
             view.set_field(field)
         view.set_motors(motors)
-    renderer = OffscreenRenderer(size, samples=args.samples)
+    renderer = OffscreenRenderer(size, samples=args.samples, backend=args.backend)
     try:
         image = renderer.render(view, camera)
     finally:

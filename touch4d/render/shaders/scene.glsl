@@ -1,0 +1,61 @@
+// The 4D scene: bodies, their objects' poses, and the projection to the 3D screen (paper §4.2).
+#include "data.glsl"
+
+uniform sampler2D t_objects;   // per frame, 6 texels per object: orientation columns 0-3, position, (size)
+uniform sampler2D t_bodies;    // 3 texels per body: (half-spaces start, count, vertices start, count),
+                               // centre m, (object, 0, 0, 0)
+uniform sampler2D t_halfspaces; // per body: h with h.(x - m) <= 1 inside, local coordinates
+uniform float u_eye;           // perspective: the eye at w = -u_eye; orthographic: 0
+
+struct Pose {
+    mat4 r;
+    vec4 p;
+    float s;
+};
+
+Pose object_pose(int o) {
+    int i = 6 * o;
+    Pose q;
+    q.r = mat4(fetch(t_objects, i), fetch(t_objects, i + 1), fetch(t_objects, i + 2), fetch(t_objects, i + 3));
+    q.p = fetch(t_objects, i + 4);
+    q.s = fetch(t_objects, i + 5).x;
+    return q;
+}
+
+int body_object(int b) {
+    return int(fetch(t_bodies, 3 * b + 2).x + 0.5);
+}
+
+vec4 to_world(Pose q, vec4 local) {
+    return q.r * (q.s * local) + q.p;
+}
+
+// View space (touch4d.geometry.projection.perspective_points): (u, v) with u the point on the 3D
+// screen and v a depth that grows along the sight line and is affine across a flat face, so the
+// rasteriser interpolates it exactly; orthographic: v = w.
+vec4 to_view(vec4 x) {
+    if (u_eye > 0.0) return vec4(x.xyz * u_eye, x.w) / (x.w + u_eye);
+    return x;
+}
+
+// The world depth w of view depth v (inverse of to_view along a sight line).
+float world_depth(float v) {
+    return u_eye > 0.0 ? v * u_eye / (1.0 - v) : v;
+}
+
+// Whether local cell `cell` of body b, placed by q, surely faces away from the viewer: the eye lies
+// inside its half-space (perspective), or the sight lines run into it (orthographic), by a margin.
+// A face whose two cells both do is culled before rasterising; the ray test of halfspace.glsl
+// would discard each of its fragments anyway (bodies are convex), so this only saves work.
+bool faces_away(int b, int cell, Pose q) {
+    vec4 span = fetch(t_bodies, 3 * b);
+    vec4 m = fetch(t_bodies, 3 * b + 1);
+    vec4 h = fetch(t_halfspaces, int(span.x + 0.5) + cell);
+    mat4 inv = transpose(q.r) / q.s;
+    if (u_eye > 0.0) return dot(h, inv * (vec4(0.0, 0.0, 0.0, -u_eye) - q.p) - m) < 1.0 - 1e-5;
+    vec4 d = inv * vec4(0.0, 0.0, 0.0, 1.0);
+    return dot(h, d) > 1e-5 * length(h) * length(d);
+}
+
+// Where a vertex goes to be culled: outside the clip volume, so its triangle is dropped.
+const vec4 CULLED = vec4(2.0, 2.0, 2.0, 1.0);
