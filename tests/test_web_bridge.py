@@ -68,25 +68,41 @@ def test_a_page_gets_setup_geometry_and_the_latest_frame_on_connect():
 
 def test_geometry_is_sent_once_per_change_of_shape_and_frames_carry_only_transforms():
     rig = Rig(tracker=False)
-    msg = SCENE.to_message()
-    rig.bridge.on_scene(msg)
+    rig.bridge.on_scene(SCENE.to_message())
     turned = SCENE.copy()
-    turned.objects[0].orientation = Rotation.from_euler("z", 30, degrees=True).as_matrix().round(12)
-    turned.objects[0].orientation = np.pad(turned.objects[0].orientation, ((0, 1), (0, 1)))
-    turned.objects[0].orientation[3, 3] = 1.0
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    turned.objects[0].orientation = turn
     turned.revision = 5
     rig.bridge.on_scene(turned.to_message())
-    geometry = [f for f, latest in rig.broadcasts if f[0]["kind"] == "geometry"]
-    assert len(geometry) == 1 and not any(latest for f, latest in rig.broadcasts if f[0]["kind"] == "geometry")
+    geometry = [(f, latest) for f, latest in rig.broadcasts if f[0]["kind"] == "geometry"]
+    assert len(geometry) == 1 and geometry[0][1] is False          # sent once, never dropped
+    (header, arrays), _ = geometry[0]
+    # a tesseract: 16 vertices, 8 cells, 24 square 2-faces (48 triangles), 32 edges
+    assert header["bodies"] == 1 and header["objects"] == 1
+    assert arrays["t_vertices"].reshape(-1, 4)[:16].shape == (16, 4) and arrays["fills"].shape == (144, 7)
+    assert arrays["edges"].shape == (32, 9) and arrays["t_halfspaces"].reshape(-1, 4).shape[0] >= 8
     header, arrays = unpack_frame(rig.bridge.frame())
-    assert header["revision"] == 5
-    np.testing.assert_allclose(arrays["orientation"][0], turned.objects[0].orientation, atol=1e-7)
-    assert "vertices" not in arrays and sum(a.nbytes for k, a in arrays.items()
-                                            if k in ("orientation", "position", "size", "color")) == 100
+    assert header["revision"] == 5 and header["geometry"] == geometry[0][0][0]["key"]
+    # per frame the scene is 6 texels per object: the orientation's columns, the position, the size
+    texels = arrays["t_objects"].reshape(-1, 4)
+    obj = turned.objects[0]
+    np.testing.assert_allclose(texels[:4], turn.T, atol=1e-7)
+    np.testing.assert_allclose(texels[4], obj.position)
+    assert texels[5][0] == pytest.approx(obj.size)
+    assert not {"fills", "edges", "centres", "t_vertices"} & arrays.keys()
     other = SCENE.copy()
     other.objects[0].shape = "16-cell"
     rig.bridge.on_scene(other.to_message())
     assert len([f for f, _ in rig.broadcasts if f[0]["kind"] == "geometry"]) == 2
+
+
+def test_the_page_gets_the_renderers_shaders_as_glsl_es():
+    header, _ = unpack_frame(Rig().bridge.setup_frame())
+    shaders = header["shaders"]
+    assert {"scene_face.vert", "scene.frag", "oit.frag", "line.vert"} <= shaders.keys()
+    assert all(src.startswith("#version 300 es\n") for src in shaders.values())
+    assert "#include" not in shaders["scene.frag"] and "bool hidden(" in shaders["scene.frag"]
 
 
 def test_frames_only_when_something_changed_and_carry_the_tactile_values():

@@ -23,7 +23,7 @@ from touch4d.boards.protocol import GloveProtocol
 from touch4d.bus import Node
 from touch4d.bus.realtime import bus_context, raise_thread_priority
 from touch4d.bus.testing import collect, free_port, launch_process, node_process, running_broker, wait_until
-from touch4d.messages import ControllerState, Heartbeat, MotorCommand, SceneState
+from touch4d.messages import ControllerState, HandJoints, HandPose, Heartbeat, MotorCommand, SceneState
 from touch4d.nodes.motors import MotorsNode
 from touch4d.web.testing import chromium, context_options, enter_vr, headset_page, wait_connected
 
@@ -127,6 +127,15 @@ def stack():
             glove.close()
 
 
+def tracker_page(browser, url):
+    """A small page whose headset stands 1.3 m from the screen, so that SwiftShader draws it fast
+    enough (the hand is tracked only while the page keeps up, see stale_s)."""
+    page = headset_page(browser, url, 320, 180)
+    enter_vr(page)
+    page.evaluate("xr.position.set(0, 1.5, 0.8)")
+    return page
+
+
 def spin_until(node, predicate, timeout=15.0):
     return wait_until(predicate, timeout=timeout, spin=node)
 
@@ -157,7 +166,7 @@ def horizontal_shift(left: np.ndarray, right: np.ndarray, max_shift: int = 120) 
 
 
 def test_immersive_session_shows_the_scene_in_both_eyes_with_disparity(browser, stack):
-    page = headset_page(browser, stack["url"])
+    page = headset_page(browser, stack["url"], 480, 270)
     try:
         enter_vr(page)
         page.wait_for_function("touch4d.geometry !== null && touch4d.frame !== null && touch4d.xrFrames > 10")
@@ -184,9 +193,8 @@ def test_the_controller_arrives_on_controller_state_and_turns_the_object(browser
     watcher = stack["watcher"]
     states = collect(watcher, "controller/state", ControllerState, latest_only=True)
     scenes = collect(watcher, "scene/state", SceneState, latest_only=True)
-    page = headset_page(browser, stack["url"])
+    page = tracker_page(browser, stack["url"])
     try:
-        enter_vr(page)
         set_controller(page, AWAY, trigger=0)
         first = spin_until(watcher, lambda: next((s for s in reversed(states) if s.valid and s.trigger == 0
                                                  and abs(s.position[0] - AWAY[0]) < 0.1), None))
@@ -220,10 +228,8 @@ def test_the_controller_arrives_on_controller_state_and_turns_the_object(browser
 def test_a_hand_in_the_object_drives_the_glove_and_closing_the_page_stops_it_within_100_ms(browser, stack):
     watcher, glove = stack["watcher"], stack["glove"]
     commands = collect(watcher, "tactile/motors", MotorCommand, latest_only=True)
-    page = headset_page(browser, stack["url"])
-    closed = False
+    page = tracker_page(browser, stack["url"])
     try:
-        enter_vr(page)
         set_controller(page, AWAY)
         watcher.spin(0.3)
         start = time.time()
@@ -233,20 +239,17 @@ def test_a_hand_in_the_object_drives_the_glove_and_closing_the_page_stops_it_wit
         # the page is closed while the hand touches
         wait_until(lambda: glove.on_since(time.time() - 0.05), timeout=10)
         t0 = time.time()
-        page.context.close()
-        closed = True
+        page.close(run_before_unload=True)      # as a user closing the tab: the page's pagehide runs
         off = wait_until(lambda: glove.all_off_at(t0), timeout=5)
         assert off - t0 < 0.1, f"motors off {1000 * (off - t0):.0f} ms after the page closed"
     finally:
-        if not closed:
-            page.context.close()
+        page.context.close()
 
 
 def test_a_hidden_page_turns_the_motors_off(browser, stack):
     glove = stack["glove"]
-    page = headset_page(browser, stack["url"])
+    page = tracker_page(browser, stack["url"])
     try:
-        enter_vr(page)
         set_controller(page, CENTER)
         wait_until(lambda: glove.on_since(time.time() - 0.05), timeout=15)
         t0 = time.time()
@@ -264,9 +267,8 @@ def test_garbage_on_the_socket_is_counted_and_survived(browser, stack):
     watcher = stack["watcher"]
     beats = collect(watcher, "node/heartbeat", Heartbeat)
     commands = collect(watcher, "tactile/motors", MotorCommand, latest_only=True)
-    page = headset_page(browser, stack["url"])
+    page = tracker_page(browser, stack["url"])
     try:
-        enter_vr(page)
         set_controller(page, CENTER)
         spin_until(watcher, lambda: [b for b in beats if b.node == "tracker"])
         base = [b for b in beats if b.node == "tracker"][-1].stats
@@ -343,3 +345,41 @@ def test_beyond_loopback_a_page_without_the_token_is_refused(browser, tmp_path):
             wait_connected(page)
         finally:
             context.close()
+
+
+def test_hand_tracking_drives_the_hand_its_pinch_and_the_joints_are_recorded(browser, tmp_path):
+    port = free_port()
+    log = tmp_path / "hands.mcap"
+    with running_broker() as bus, \
+            node_process("webxr", bus, params={"port": port, "tracker": True, "hand_source": "hand",
+                                               "save_calibration": False}) as proc, \
+            node_process("recorder", bus, params={"file": str(log), "topics": ["hand/joints", "hand/pose"]}) as rec:
+        proc.wait_for_line("WebXR page", timeout=30)
+        rec.wait_for_line("recording", timeout=30)
+        probe = Node("hands-test", bus=bus, heartbeat=False)
+        joints = collect(probe, "hand/joints", HandJoints, latest_only=True)
+        poses = collect(probe, "hand/pose", HandPose, latest_only=True)
+        states = collect(probe, "controller/state", ControllerState, latest_only=True)
+        page = headset_page(browser, f"http://127.0.0.1:{port}/", 320, 180)
+        try:
+            page.evaluate("xr.primaryInputMode = 'hand'")
+            enter_vr(page)
+            page.evaluate("xr.position.set(0, 1.5, 0.8)")
+            page.evaluate(f"xr.hands.right.position.set{CENTER}")
+            # the hand, put at the screen's centre, arrives there (screen units: 4 per metre)
+            spin_until(probe, lambda: poses and poses[-1].valid and np.linalg.norm(poses[-1].position) < 0.5)
+            probe.spin(0.3)
+            msg = next(j for j in reversed(joints) if j.handedness == "right")
+            assert msg.valid and len(msg.names) == 25 and msg.names[0] == "wrist"
+            # the glove hand sits halfway between the wrist and the middle finger's knuckle
+            knuckle = msg.names.index("middle-finger-phalanx-proximal")
+            palm = 0.5 * (msg.positions[0] + msg.positions[knuckle])
+            assert np.allclose(poses[-1].position, palm, atol=1e-6)
+            page.evaluate("xr.hands.right.updatePinchValue(1)")  # a pinch is the trigger
+            spin_until(probe, lambda: states and states[-1].valid and states[-1].trigger == 1.0)
+        finally:
+            page.context.close()
+            probe.shutdown()
+    from touch4d.log.reader import LogReader
+    topics = LogReader(log).topics()
+    assert topics.get("hand/joints") == "HandJoints"

@@ -21,19 +21,24 @@ from typing import Callable
 
 import numpy as np
 
-from touch4d.geometry.scene import Scene
-from touch4d.messages import ControllerState, HandPose, MessageError, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.messages import ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
 from touch4d.render.camera import OrbitCamera
+from touch4d.render.frame import CELL_PALETTE, Style
+from touch4d.render.glsl import shader_source
 from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
+from touch4d.render.scene_geometry import SceneGeometry, data_texture
+from touch4d.render.view import SceneView
 from touch4d.tactile.glove import Glove
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
-from . import scene_frames
 from .protocol import PageError, pack_frame, parse_page_message
 
 log = logging.getLogger(__name__)
 
+# The GPU renderer's shaders the page compiles (as GLSL ES 3.00), by the names of touch4d.render.glsl.
+PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
+                "bounds.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
                  "page_connections", "recentred")
 
@@ -104,8 +109,10 @@ class WebBridge:
         self._logged: set[str] = set()
         self._invalid_at = -np.inf          # when invalid poses were last published (node clock)
         self._was_live = False
-        # latest bus state, as page arrays
-        self._geometry_key: str | None = None
+        # latest bus state, as page arrays; the scene as the desktop renderer models it (render.view)
+        self.view = SceneView(style=Style())
+        self._geometry: SceneGeometry | None = None
+        self._geometries = 0
         self._geometry_frame: bytes | None = None
         self._scene: SceneState | None = None
         self._hand = np.array([0, 0, 0, 0, 0, 0, 1], np.float32)
@@ -134,6 +141,8 @@ class WebBridge:
             "motor_names": list(g.motor_names), "cube_center": list(cube.center), "cube_half": cube.half,
             "camera": {"yaw": camera.yaw, "pitch": camera.pitch, "distance": camera.distance,
                        "target": [float(v) for v in camera.target], "fov": camera.fov},
+            "style": dataclasses.asdict(self.view.style),
+            "shaders": {name: shader_source(name, "es300") for name in PAGE_SHADERS},
             **self._calibration_fields(),
         }
         arrays = {
@@ -143,6 +152,7 @@ class WebBridge:
             "cube_points": cube.layout(g.samples).astype(np.float32),
             "amplitude_stops": AMPLITUDE_STOPS.astype(np.float32),
             "amplitude_rgb": AMPLITUDE_RGB.astype(np.float32),
+            "cell_palette": CELL_PALETTE.astype(np.float32),
         }
         return pack_frame("setup", fields, arrays)
 
@@ -153,19 +163,30 @@ class WebBridge:
                 "screen_edge": float(c.edge_m)}
 
     def on_scene(self, msg: SceneState) -> None:
-        key = scene_frames.geometry_key(msg)
-        if key != self._geometry_key:
-            try:
-                scene = Scene.from_message(msg)
-                arrays = scene_frames.geometry_arrays(scene)
-            except (MessageError, ValueError, TypeError, KeyError) as exc:
-                self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn: {exc}")
+        """Adopt a scene; its geometry (the GPU renderer's arrays) goes to the pages only when what the
+        scene is made of changed, its transforms with the next frame."""
+        try:
+            if not self.view.set_scene(msg):
                 return
-            self._geometry_key = key
-            self._geometry_frame = pack_frame("geometry", {"key": key}, arrays)
+        except (ValueError, TypeError, KeyError) as exc:     # MessageError, GeometryError, odd parameters
+            self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn: {exc}")
+            return
+        geometry = self.view.layer.geometry
+        if geometry is not self._geometry:
+            self._geometry = geometry
+            self._geometries += 1
+            self._geometry_frame = self.geometry_frame(geometry, f"g{self._geometries}")
             self.broadcast(self._geometry_frame, False)
         self._scene = msg
         self._dirty = True
+
+    @staticmethod
+    def geometry_frame(g: SceneGeometry, key: str) -> bytes:
+        """The scene's geometry for the page: the GPU backend's data textures and vertex arrays."""
+        arrays = {name: texture for name, texture in g.textures().items()}
+        arrays.update(fills=g.fills, centres=g.centres, edges=g.edges)
+        return pack_frame("geometry", {"key": key, "bodies": g.n_bodies, "objects": g.n_objects,
+                                       "grid_size": g.grid_size}, arrays)
 
     def on_hand_pose(self, msg: HandPose) -> None:
         self._hand = np.r_[msg.position, msg.orientation].astype(np.float32)
@@ -196,12 +217,15 @@ class WebBridge:
         self._dirty = False
         self._frame_count += 1
         fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards,
-                  "geometry": self._geometry_key, "time": self.now()}
+                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
-        if self._scene is not None:
-            fields.update(scene_frames.scene_fields(self._scene))
-            arrays.update(scene_frames.transform_arrays(self._scene))
+        layer = self.view.layer
+        if layer is not None:
+            # the same bytes the GPU backend writes into its t_objects texture
+            arrays["t_objects"] = data_texture(layer.transforms)
+            fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
+                          selected=int(self._scene.selected), revision=int(self._scene.revision))
         self._last_frame = pack_frame("frame", fields, arrays)
         return self._last_frame
 

@@ -56,3 +56,44 @@ export class Vertices {
     this.gl.drawArrays(mode, 0, this.count);
   }
 }
+
+// Wide lines for the renderer's line.vert: one instance per segment, a quad of 4 corners.
+export class Lines {
+  constructor(gl, prog) {
+    this.gl = gl;
+    this.vao = gl.createVertexArray();
+    this.buffer = gl.createBuffer();
+    this.count = 0;
+    gl.bindVertexArray(this.vao);
+    const corners = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, corners);
+    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([0, 1, 2, 3]), gl.STATIC_DRAW);
+    const corner = gl.getAttribLocation(prog, 'in_corner');
+    gl.enableVertexAttribArray(corner);
+    gl.vertexAttribPointer(corner, 1, gl.FLOAT, false, 4, 0);
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.buffer);
+    let offset = 0;
+    for (const [name, size] of [['in_a', 3], ['in_color_a', 4], ['in_b', 3], ['in_color_b', 4]]) {
+      const loc = gl.getAttribLocation(prog, name);
+      gl.enableVertexAttribArray(loc);
+      gl.vertexAttribPointer(loc, size, gl.FLOAT, false, 14 * 4, offset * 4);
+      gl.vertexAttribDivisor(loc, 1);
+      offset += size;
+    }
+    gl.bindVertexArray(null);
+  }
+
+  upload(data) {
+    const gl = this.gl;
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.buffer);
+    gl.bufferData(gl.ARRAY_BUFFER, data, gl.DYNAMIC_DRAW);
+    this.count = data.length / 14;
+  }
+
+  draw() {
+    if (!this.count) return;
+    this.gl.bindVertexArray(this.vao);
+    this.gl.drawArraysInstanced(this.gl.TRIANGLE_STRIP, 0, 4, this.count);
+    this.gl.bindVertexArray(null);
+  }
+}

@@ -1,21 +1,11 @@
 // What is drawn around the 4D scene, in screen units: the screen's frame, the hand with its sample
 // points coloured by the stimulus, and the tactile cube beside the screen (the paper's Fig. 17).
-// Layout and colours come from the node's setup frame (touch4d/render/hud.py), not from here.
+// Layout and colours come from the node's setup frame (touch4d/render/hud.py), not from here. Lines
+// are the renderer's wide lines (line.vert + flat.frag); points are sized in screen units here, not
+// in pixels as on the desktop, so that they keep their size in the room.
 
-import { program, Vertices } from './gl.js';
-
-const LINE_VS = `#version 300 es
-layout(location = 0) in vec3 a_position;
-layout(location = 1) in vec4 a_color;
-uniform mat4 u_mvp;
-out vec4 v_color;
-void main() { v_color = a_color; gl_Position = u_mvp * vec4(a_position, 1.0); }`;
-
-const LINE_FS = `#version 300 es
-precision mediump float;
-in vec4 v_color;
-out vec4 color;
-void main() { color = v_color; }`;
+import { Lines, program, Vertices } from './gl.js';
+import { fromPose } from './mat.js';
 
 // Points sized in screen units (a sample's diameter), so they keep their size in the room.
 const POINT_VS = `#version 300 es
@@ -59,18 +49,23 @@ const CUBE_EDGES = (() => {
   return out.map(([i, j]) => [i, j].map((k) => [k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1]));
 })();
 
+// A segment is one instance of line.vert: [a (3), colour at a (4), b (3), colour at b (4)].
+function segment(out, a, b, color) {
+  out.push(a[0], a[1], a[2], ...color, b[0], b[1], b[2], ...color);
+}
+
 function wireCube(out, center, half, color) {
-  for (const [a, b] of CUBE_EDGES) {
-    for (const p of [a, b]) out.push(center[0] + half * p[0], center[1] + half * p[1], center[2] + half * p[2], ...color);
-  }
+  const at = (p) => [center[0] + half * p[0], center[1] + half * p[1], center[2] + half * p[2]];
+  for (const [a, b] of CUBE_EDGES) segment(out, at(a), at(b), color);
 }
 
 export class Hud {
-  constructor(gl) {
+  // shaders: the renderer's GLSL ES sources from the node's setup frame.
+  constructor(gl, shaders) {
     this.gl = gl;
-    this.lines = program(gl, LINE_VS, LINE_FS, 'hud lines');
+    this.lines = program(gl, shaders['line.vert'], shaders['flat.frag'], 'hud lines');
     this.points = program(gl, POINT_VS, POINT_FS, 'hud points');
-    this.lineVerts = new Vertices(gl, [[0, 3], [1, 4]]);
+    this.lineVerts = new Lines(gl, this.lines.program);
     this.pointVerts = new Vertices(gl, [[0, 3], [1, 4], [2, 1]]);
     this.setup = null;
   }
@@ -78,6 +73,7 @@ export class Hud {
   // From the node's setup frame: the glove's samples, outline and motors, the cube, the colours.
   configure(setup) {
     this.setup = setup;
+    this.update(null);
   }
 
   amplitude(h) {
@@ -114,7 +110,9 @@ export class Hud {
     if (frame && frame.header.hand_valid) {
       const place = handTransform(frame.arrays.hand);
       const sk = a.skeleton;
-      for (let i = 0; i < sk.length; i += 3) lines.push(...place(sk[i], sk[i + 1], sk[i + 2]), ...HAND_COLOR);
+      for (let i = 0; i < sk.length; i += 6) {
+        segment(lines, place(sk[i], sk[i + 1], sk[i + 2]), place(sk[i + 3], sk[i + 4], sk[i + 5]), HAND_COLOR);
+      }
       for (let k = 0; k < n; k++) {
         const color = touched[k] ? [...this.amplitude(h[k]), 0.95] : HAND_COLOR;
         points.push(...place(a.samples[3 * k], a.samples[3 * k + 1], a.samples[3 * k + 2]), ...color, SAMPLE_SIZE);
@@ -124,11 +122,13 @@ export class Hud {
     this.pointVerts.upload(new Float32Array(points));
   }
 
-  draw(mvp, pixels) {
+  draw(mvp, pixels, viewport) {
     const gl = this.gl;
     gl.useProgram(this.lines.program);
     gl.uniformMatrix4fv(this.lines.uniforms.u_mvp, false, mvp);
-    this.lineVerts.draw(gl.LINES);
+    gl.uniform2f(this.lines.uniforms.u_viewport, viewport[2], viewport[3]);
+    gl.uniform1f(this.lines.uniforms.u_width, 2.0);
+    this.lineVerts.draw();
     gl.useProgram(this.points.program);
     gl.uniformMatrix4fv(this.points.uniforms.u_mvp, false, mvp);
     gl.uniform1f(this.points.uniforms.u_pixels, pixels);
@@ -138,15 +138,7 @@ export class Hud {
 
 // The hand frame -> screen map of a pose [x, y, z, qx, qy, qz, qw] (hand samples are in screen units).
 function handTransform(pose) {
-  const [tx, ty, tz, x, y, z, w] = pose;
-  const r = [
-    1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-    2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-    2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
-  ];
-  return (px, py, pz) => [
-    tx + r[0] * px + r[1] * py + r[2] * pz,
-    ty + r[3] * px + r[4] * py + r[5] * pz,
-    tz + r[6] * px + r[7] * py + r[8] * pz,
-  ];
+  const m = fromPose([pose[0], pose[1], pose[2]], [pose[3], pose[4], pose[5], pose[6]]);
+  return (x, y, z) => [m[0] * x + m[4] * y + m[8] * z + m[12], m[1] * x + m[5] * y + m[9] * z + m[13],
+                       m[2] * x + m[6] * y + m[10] * z + m[14]];
 }

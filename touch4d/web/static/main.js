@@ -5,7 +5,7 @@
 import { Link } from './net.js';
 import { InputReader } from './input.js';
 import { Hud } from './hud.js';
-import { SceneView } from './scene.js';
+import { SceneRenderer } from './scene.js';
 import { Orbit } from './orbit.js';
 import { fromPose, multiply, perspective } from './mat.js';
 
@@ -18,18 +18,18 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 // What tests and benchmarks read (window.touch4d); nothing here steers the page.
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
-  session: null, sent: 0, input: null, leaving: false, error: null,
+  session: null, sent: 0, input: null, leaving: false, error: null, gpu: null,
 });
 
-let hud = null, scene = null, orbit = null;
+let hud = null, scene = null, orbit = null;   // made when the node's setup frame (with the shaders) arrives
 let screenModel = fromPose([0, 1.2, -0.45], [0, 0, 0, 1], 0.25);   // replaced by the setup frame
 
 if (!gl) {
   statusLine.textContent = 'This browser has no WebGL2: touch4d cannot draw here.';
   state.error = 'no WebGL2';
 } else {
-  hud = new Hud(gl);
-  scene = new SceneView(gl);
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  state.gpu = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
 }
 
 function place(header) {
@@ -41,38 +41,53 @@ const link = new Link((message) => {
   const { header } = message;
   if (header.kind === 'setup') {
     state.setup = header;
-    hud.configure(message);
     place(header);
     if (!orbit) orbit = new Orbit(canvas, header.camera);
+    if (gl && !scene) {
+      try {
+        // the GPU renderer's shaders, compiled here as GLSL ES 3.00
+        scene = new SceneRenderer(gl, header.shaders, header.style, message.arrays.cell_palette);
+        hud = new Hud(gl, header.shaders);
+      } catch (error) {
+        state.error = String(error);
+        statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
+      }
+    }
+    if (hud) hud.configure(message);
   } else if (header.kind === 'calibration') {
     place(header);
   } else if (header.kind === 'geometry') {
     state.geometry = header.key;
-    scene.setGeometry(message);
+    if (scene) scene.setGeometry(message);
   } else if (header.kind === 'frame') {
     state.frame = header;
-    scene.update(message);
-    hud.update(message);
+    if (scene) scene.setFrame(message);
+    if (hud) hud.update(message);
   }
 }, (connected) => { state.connected = connected; });
 
 // ---- drawing --------------------------------------------------------------------------------------
 
-function drawWorld(projection, view, model, height) {
+// One view of the world: the scene, then the flat layers over it, alpha-blended without a depth
+// test (as every touch4d renderer draws a frame).
+function drawWorld(framebuffer, size, viewport, projection, view, model) {
+  if (!scene || !hud) return;
   const mvp = multiply(projection, multiply(view, model));
   const scale = Math.hypot(model[0], model[1], model[2]);   // room metres per screen unit
-  scene.draw(mvp);
-  hud.draw(mvp, (scale * projection[5] * height) / 2);
+  scene.draw(framebuffer, size, viewport, mvp);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
+  gl.viewport(...viewport);
+  gl.disable(gl.DEPTH_TEST);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
+  hud.draw(mvp, (scale * projection[5] * viewport[3]) / 2, viewport);
 }
 
-function beginFrame(framebuffer, width, height) {
+function clear(framebuffer, width, height) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
   gl.viewport(0, 0, width, height);
   gl.clearColor(...BACKGROUND);
   gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-  gl.enable(gl.DEPTH_TEST);
-  gl.enable(gl.BLEND);
-  gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
 }
 
 // Frame rate over the last second, whichever loop runs.
@@ -103,9 +118,9 @@ function inlineLoop(now) {
   if (state.session || !gl || !orbit) return;
   const width = (canvas.width = canvas.clientWidth * devicePixelRatio);
   const height = (canvas.height = canvas.clientHeight * devicePixelRatio);
-  beginFrame(null, width, height);
+  clear(null, width, height);
   const projection = perspective(orbit.fov, width / height, 0.05, orbit.distance + 20);
-  drawWorld(projection, orbit.view(), fromPose([0, 0, 0], [0, 0, 0, 1], 1), height);
+  drawWorld(null, [width, height], [0, 0, width, height], projection, orbit.view(), fromPose([0, 0, 0], [0, 0, 0, 1], 1));
   countFrame(now);
 }
 requestAnimationFrame(inlineLoop);
@@ -150,16 +165,12 @@ async function enterVR() {
     }
     if (!viewer) return;
     const base = session.renderState.baseLayer;
-    gl.bindFramebuffer(gl.FRAMEBUFFER, base.framebuffer);
-    gl.clearColor(...BACKGROUND);
-    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-    gl.enable(gl.DEPTH_TEST);
-    gl.enable(gl.BLEND);
-    gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
+    const size = [base.framebufferWidth, base.framebufferHeight];
+    clear(base.framebuffer, size[0], size[1]);
     for (const view of viewer.views) {
       const vp = base.getViewport(view);
-      gl.viewport(vp.x, vp.y, vp.width, vp.height);
-      drawWorld(view.projectionMatrix, view.transform.inverse.matrix, screenModel, vp.height);
+      drawWorld(base.framebuffer, size, [vp.x, vp.y, vp.width, vp.height], view.projectionMatrix,
+                view.transform.inverse.matrix, screenModel);
     }
     state.xrFrames++;
     countFrame(performance.now());
