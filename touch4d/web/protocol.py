@@ -8,9 +8,14 @@ Node -> page: binary frames, one per WebSocket message, that the page reads with
     padding            to a multiple of 8 bytes
     arrays             raw little-endian data, each at its `offset` from the frame's start (8-aligned)
 
-dtype is one of ARRAY_DTYPES ("f4", "u4", "i4", "u2", "u1"). Kinds: "setup" (once per connection:
-glove, calibration, colours), "geometry" (once per change of what the scene is made of), "frame"
-(per tick: object transforms, hand pose, tactile values, motors), "calibration" (after a re-centre).
+dtype is one of ARRAY_DTYPES ("f4", "u4", "i4", "u2", "u1"). Kinds:
+- "setup", once per connection: the glove (samples, outline, motors), the screen's placement, the
+  tactile cube's layout and colours, the renderer's style and its shaders as GLSL ES 3.00;
+- "geometry", once per change of what the scene is made of: `SceneGeometry`'s data textures and
+  vertex arrays (touch4d.render.scene_geometry, the GPU backend's bytes);
+- "frame", at most once per tick: the objects' transforms texture (96 bytes per object), the
+  projection, the hand's pose, h and "touched" per sample, the motors' intensities and duties;
+- "calibration", after a re-centre: the screen's new placement in the room.
 
 Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinity (rejected here):
 
