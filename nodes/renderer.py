@@ -8,8 +8,9 @@ last good state keeps being drawn.
 
 Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
 glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
-backend ("gpu": per-pixel ray test in shaders, or "clip": the paper's clip units on the CPU; gpu
-falls back to clip on a GL context that cannot run it), fill_alpha, centre_alpha, clip,
+backend ("gpu": per-pixel ray test in shaders; "clip": the paper's clip units on the CPU; "auto":
+gpu, or clip on a software rasteriser such as llvmpipe; gpu falls back to clip on a GL context that
+cannot run it), fill_alpha, centre_alpha, clip,
 show_frame, show_tactile, show_status.
 """
 from __future__ import annotations

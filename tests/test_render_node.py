@@ -73,11 +73,13 @@ def test_tactile_cube_follows_a_published_field(bus, probe):
 
 
 @pytest.mark.timeout(300)
-def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path):
+@pytest.mark.parametrize("backend", ["gpu", "clip"])
+def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path, backend):
     out = tmp_path / "frame.png"
     node = make_node(bus, camera="yaw=0,pitch=0,distance=4,target=0:0:0,ortho", show_tactile=False,
-                     output=str(out))
+                     output=str(out), backend=backend)
     try:
+        assert node.backend.name == backend
         pub = probe.create_publisher("scene/state", SceneState)
         good = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
                                          "color": [0, 1, 0, 1]}]}).to_message()
@@ -104,6 +106,8 @@ def test_bad_parameters_name_the_parameter(bus):
         make_node(bus, rate=0.0)
     with pytest.raises(ConfigError, match="camera.*zoom"):
         make_node(bus, camera="zoom=3")
+    with pytest.raises(ConfigError, match="backend.*vulkan"):
+        make_node(bus, backend="vulkan")
 
 
 def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change():

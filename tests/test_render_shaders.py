@@ -53,3 +53,4 @@ def test_unknown_profile_and_shader_are_named():
         shader_source("scene.frag", "es100")
     with pytest.raises(ValueError, match="nope.frag"):
         shader_source("nope.frag")
+

@@ -33,8 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-status", action="store_true", help="leave out the status line")
     p.add_argument("--no-centres", action="store_true", help="leave out the cells' centre copies")
     p.add_argument("--no-clip", action="store_true", help="draw what other objects hide too")
-    p.add_argument("--backend", choices=("gpu", "clip"), default="gpu",
-                   help="gpu: per-pixel ray test in shaders; clip: the paper's clip units on the CPU")
+    p.add_argument("--backend", choices=("gpu", "clip", "auto"), default="auto",
+                   help="gpu: per-pixel ray test in shaders; clip: the paper's clip units on the CPU; "
+                        "auto: gpu, or clip on a software rasteriser (llvmpipe)")
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
     p.set_defaults(func=_render)
 

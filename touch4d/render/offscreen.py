@@ -13,7 +13,7 @@ from .view import BACKGROUND, SceneView
 
 
 class OffscreenRenderer:
-    """Renders frames of `size` (width, height) pixels with the backend `backend` ("gpu" or "clip")."""
+    """Renders frames of `size` (width, height) pixels with the backend `backend` ("gpu", "clip", "auto")."""
 
     def __init__(self, size: tuple[int, int], samples: int = 0, background: tuple = BACKGROUND,
                  line_width: float = 2.0, ctx: moderngl.Context | None = None, backend: str = DEFAULT_BACKEND,
@@ -44,11 +44,22 @@ class OffscreenRenderer:
         """The last drawn frame as (height, width, 4) uint8, row 0 at the top."""
         return self._target.read_rgba()
 
-    def identities(self, frame: Frame, camera: OrbitCamera, what: str = "faces") -> tuple[np.ndarray, np.ndarray]:
+    def identities(self, frame: Frame, camera: OrbitCamera, what: str = "faces",
+                   section=None) -> tuple[np.ndarray, np.ndarray]:
         """What is seen where: (height, width, 4) float32, row 0 at the top, per pixel the 3D screen
         point of the nearest visible 2-face ("faces") or edge ("edges") and its object index + 1 (0
         where nothing is); and (height, width) the 4D depth w of that point, NaN where nothing is or
-        the backend does not know it (clip)."""
+        the backend does not know it (clip). `section` (a, b, c, d) keeps only the screen points u
+        with (a, b, c).u <= d, so that faces inside the picture come to the front."""
+        ids, w = self._identity_targets(frame, camera, what, False, section)
+        return ids, np.where(w[..., 3] > 0, w[..., 0], np.nan)
+
+    def layer_counts(self, frame: Frame, camera: OrbitCamera, what: str = "faces") -> np.ndarray:
+        """(height, width, 4) float32, row 0 at the top: per pixel how many visible layers of 2-faces
+        ("faces") or edges ("edges") of object k it shows, in channel k mod 4."""
+        return self._identity_targets(frame, camera, what, True)[0]
+
+    def _identity_targets(self, frame: Frame, camera: OrbitCamera, what: str, layers: bool, section=None):
         if self._ids is None:
             targets = [self.ctx.texture(self.size, 4, dtype="f4") for _ in range(2)]
             depth = self.ctx.depth_renderbuffer(self.size)
@@ -57,10 +68,9 @@ class OffscreenRenderer:
         fbo.use()
         self.ctx.viewport = (0, 0, *self.size)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self.backend.draw_identities(frame, camera.matrix(self.size), self.size, what)
-        ids, w = (np.frombuffer(fbo.read(components=4, attachment=k, dtype="f4", alignment=1), np.float32)
-                  .reshape(self.size[1], self.size[0], 4)[::-1].copy() for k in (0, 1))
-        return ids, np.where(w[..., 3] > 0, w[..., 0], np.nan)
+        self.backend.draw_identities(frame, camera.matrix(self.size), self.size, what, layers, section)
+        return [np.frombuffer(fbo.read(components=4, attachment=k, dtype="f4", alignment=1), np.float32)
+                .reshape(self.size[1], self.size[0], 4)[::-1].copy() for k in (0, 1)]
 
     def release(self) -> None:
         """Free the GL objects, and the context if this renderer made it (each EGL context holds

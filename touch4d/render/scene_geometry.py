@@ -17,11 +17,12 @@ import numpy as np
 
 from touch4d.geometry.polytope import Polytope
 
-DATA_WIDTH = 1024           # texels per row of a data texture
+DATA_WIDTH = 1024           # texels per row of a data texture (the shaders mask and shift by it)
 OBJECT_TEXELS = 6           # per object: orientation columns 0-3, position, (size, 0, 0, 0)
-BODY_TEXELS = 3             # per body: (half-space start, count, vertex start, count), centre, (object, 0, 0, 0)
+BODY_TEXELS = 3             # per body: (half-space start, count, object, 0), centre, (vertex start, count, 0, 0)
 GRID_SLOTS = 15             # bodies listed per grid cell; a fuller cell falls back to all bodies
 GRID_MAX = 24               # grid cells per axis at most
+EDGE_CELLS = 8              # cells listed around an edge (a 600-cell has 5)
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,7 +38,8 @@ class SceneGeometry:
     bodies: np.ndarray           # (B, 3, 4) float32: the body table (BODY_TEXELS texels per body)
     fills: np.ndarray            # (3T, 7) float32: triangles of the 2-faces, rows [x, y, z, w, body, a, b],
                                  #   a and b the two cells the face lies on (local indices)
-    edges: np.ndarray            # (E, 9) float32: [ax, ay, az, aw, bx, by, bz, bw, body]
+    edges: np.ndarray            # (E, 17) float32: [ax, ay, az, aw, bx, by, bz, bw, body, c0 .. c7], c the
+                                 #   cells around the edge (-1 pads; all -2: more than EDGE_CELLS)
     centres: np.ndarray          # (3C, 10) float32: triangles of each cell's faces,
                                  #   [x, y, z, w, cx, cy, cz, cw, body, cell] with c the cell's centroid
     grid_size: int               # cells per axis of the per-frame body grid over the screen
@@ -67,18 +69,15 @@ class SceneGeometry:
     def from_parts(cls, parts: list[Polytope], body_object, object_color, key=None) -> "SceneGeometry":
         """The geometry of bodies given as local polytopes, their objects and the objects' colours."""
         body_object = np.asarray(body_object, dtype=np.int32).reshape(-1)
-        templates = {}
         verts, hs, table, fills, edges, centres = [], [], [], [], [], []
         v_start = h_start = 0
         for b, (part, obj) in enumerate(zip(parts, body_object)):
-            t = templates.get(id(part))
-            if t is None:
-                t = templates[id(part)] = _Template(part)
-            table.append([[h_start, len(t.halfspaces), v_start, len(t.vertices)], [*t.centre], [obj, 0, 0, 0]])
+            t = _template(part)
+            table.append([[h_start, len(t.halfspaces), obj, 0], [*t.centre], [v_start, len(t.vertices), 0, 0]])
             verts.append(t.vertices)
             hs.append(t.halfspaces)
             fills.append(np.insert(t.fills, 4, b, axis=1))
-            edges.append(_with_column(t.edges, b))
+            edges.append(np.insert(t.edges, 8, b, axis=1))
             centres.append(np.insert(t.centres, 8, b, axis=1))
             v_start += len(t.vertices)
             h_start += len(t.halfspaces)
@@ -91,7 +90,7 @@ class SceneGeometry:
                    object_color=np.ascontiguousarray(object_color, dtype=np.float32).reshape(-1, 4),
                    vertices=stack(verts, 4), halfspaces=stack(hs, 4),
                    bodies=np.array(table, dtype=np.float32).reshape(n, BODY_TEXELS, 4),
-                   fills=stack(fills, 7), edges=stack(edges, 9), centres=stack(centres, 10),
+                   fills=stack(fills, 7), edges=stack(edges, 8 + 1 + EDGE_CELLS), centres=stack(centres, 10),
                    grid_size=grid_size(n), key=key if key is not None else ("parts", tuple(map(id, parts))))
 
     def fits(self, scene) -> bool:
@@ -124,15 +123,22 @@ def object_transforms(scene) -> np.ndarray:
 
 
 def data_texture(records: np.ndarray) -> np.ndarray:
-    """Records of whole texels (N, k, 4) or (N, 4) as an RGBA32F data texture (rows, width, 4): texel i
-    lies at column i % width, row i // width, width = min(DATA_WIDTH, texels); zero padded."""
+    """Records of whole texels (N, k, 4) or (N, 4) as an RGBA32F data texture (rows, DATA_WIDTH, 4):
+    texel i lies at column i % DATA_WIDTH, row i // DATA_WIDTH; zero padded."""
     texels = np.ascontiguousarray(records, dtype=np.float32).reshape(-1, 4)
-    n = max(len(texels), 1)
-    width = min(DATA_WIDTH, n)
-    rows = -(-n // width)
-    out = np.zeros((rows * width, 4), np.float32)
+    rows = max(1, -(-len(texels) // DATA_WIDTH))
+    out = np.zeros((rows * DATA_WIDTH, 4), np.float32)
     out[:len(texels)] = texels
-    return out.reshape(rows, width, 4)
+    return out.reshape(rows, DATA_WIDTH, 4)
+
+
+def data_rows(records: np.ndarray) -> tuple[np.ndarray, int]:
+    """The texels of `records` that a data texture's update must write: the whole rows they fill and
+    the part of the last one (as (rows, width, 4) with width < DATA_WIDTH for a single row)."""
+    texels = np.ascontiguousarray(records, dtype=np.float32).reshape(-1, 4)
+    if len(texels) <= DATA_WIDTH:
+        return texels.reshape(1, -1, 4), len(texels)
+    return data_texture(texels), DATA_WIDTH
 
 
 def grid_size(n_bodies: int) -> int:
@@ -141,10 +147,25 @@ def grid_size(n_bodies: int) -> int:
     return int(min(GRID_MAX, max(1, math.ceil(2 * n_bodies ** (1 / 3)))))
 
 
+_TEMPLATES: dict[int, "_Template"] = {}
+
+
+def _template(part: Polytope) -> "_Template":
+    """The arrays of a local polytope, kept across scene revisions (shapes are cached, so a scene that
+    changes its colours or adds an object reuses them)."""
+    t = _TEMPLATES.get(id(part))
+    if t is None or t.polytope is not part:
+        if len(_TEMPLATES) > 256:
+            _TEMPLATES.clear()
+        t = _TEMPLATES[id(part)] = _Template(part)
+    return t
+
+
 class _Template:
     """One local polytope's arrays, without the body column (shared by the bodies of one shape)."""
 
     def __init__(self, poly: Polytope):
+        self.polytope = poly            # keeps the id in the cache from being reused
         topo = poly.topology
         v = poly.vertices
         self.vertices = v
@@ -156,7 +177,15 @@ class _Template:
         corners = tris[:, 1:].reshape(-1)
         cells = np.repeat(np.asarray(topo.face_cells)[tris[:, 0]], 3, axis=0)
         self.fills = np.concatenate([v[corners], cells], axis=1)
-        self.edges = v[topo.edges].reshape(-1, 8)
+        cells = np.full((len(topo.edges), EDGE_CELLS), -1.0)
+        face_cells = np.asarray(topo.face_cells)
+        for e, faces in enumerate(topo.edge_faces):
+            around = np.unique(face_cells[faces])
+            if len(around) > EDGE_CELLS:
+                cells[e] = -2.0                       # too many to list: the shader asks the body
+            else:
+                cells[e, :len(around)] = around
+        self.edges = np.concatenate([v[topo.edges].reshape(-1, 8), cells], axis=1)
         rows = []
         for cell, faces in enumerate(topo.cell_faces):
             centroid = v[topo.cell_vertices[cell]].mean(axis=0)
@@ -166,7 +195,3 @@ class _Template:
                     for k in (face[0], face[i], face[i + 1]):
                         rows.append([*v[k], *centroid, cell])
         self.centres = np.array(rows, dtype=np.float64).reshape(-1, 9)
-
-
-def _with_column(a: np.ndarray, value) -> np.ndarray:
-    return np.concatenate([a, np.full((len(a), 1), value)], axis=1)

@@ -5,6 +5,8 @@ registry by name (as python-can does for bus interfaces).
   hypersurfaces removed per fragment by the tactile ray test (`shaders/halfspace.glsl`).
 - `clip`: the paper's reference (§4.3): back-cell culling and clip units on the CPU, vertex arrays
   uploaded every time the scene moves; also the fallback for GL contexts without float targets.
+- `auto` (the default): `gpu` on a GPU, `clip` on a software rasteriser (Mesa's llvmpipe, SwiftShader),
+  where per-fragment ray tests cost 10-50x the clip-unit build (bench/bench_render.py).
 """
 from __future__ import annotations
 
@@ -22,7 +24,8 @@ BACKENDS = {
     "gpu": ("touch4d.render.backends.gpu", "GpuBackend"),
     "clip": ("touch4d.render.backends.clip", "ClipBackend"),
 }
-DEFAULT_BACKEND = "gpu"
+DEFAULT_BACKEND = "auto"
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "swiftshader")
 
 
 class BackendUnavailable(RenderError):
@@ -48,9 +51,13 @@ class Backend(ABC):
         """Draw the prepared scene, blended over what the framebuffer holds."""
 
     @abstractmethod
-    def draw_identities(self, frame: Frame, mvp: np.ndarray, viewport: tuple[int, int], what: str = "faces") -> None:
-        """Draw the scene's visible "faces" (2-faces) or "edges" into the bound float framebuffer, depth
-        tested: per pixel the 3D screen point and the object index + 1 (0 is the background)."""
+    def draw_identities(self, frame: Frame, mvp: np.ndarray, viewport: tuple[int, int], what: str = "faces",
+                        layers: bool = False, section=None) -> None:
+        """Draw the scene's visible "faces" (2-faces) or "edges" into the bound float framebuffer: depth
+        tested, per pixel the 3D screen point and the object index + 1 (0 is the background); or, with
+        `layers`, blended additively without a depth test, per pixel how many layers of object k are
+        seen, in channel k mod 4. `section` (a, b, c, d): only screen points with (a, b, c).u <= d,
+        to look inside the picture."""
 
     def draw(self, mvp: np.ndarray, viewport: tuple[int, int], background=(0.0, 0.0, 0.0, 1.0)) -> None:
         """Clear, then draw the prepared frame seen through `mvp` (3D screen -> clip, row-major)."""
@@ -67,21 +74,29 @@ class Backend(ABC):
 
 
 def backend_names() -> list[str]:
-    return list(BACKENDS)
+    return [*BACKENDS, "auto"]
+
+
+def software_renderer(ctx: moderngl.Context) -> bool:
+    """Whether the context rasterises on the CPU."""
+    renderer = str(ctx.info.get("GL_RENDERER", "")).lower()
+    return any(name in renderer for name in SOFTWARE_RENDERERS)
 
 
 def create_backend(name: str, ctx: moderngl.Context, line_width: float = 2.0) -> Backend:
-    """The backend `name` on `ctx`; raises ValueError for an unknown name and BackendUnavailable
-    when the context cannot run it."""
+    """The backend `name` ("auto" resolved for this context) on `ctx`; raises ValueError for an unknown
+    name and BackendUnavailable when the context cannot run it."""
+    if name == "auto":
+        name = "clip" if software_renderer(ctx) else "gpu"
     if name not in BACKENDS:
-        raise ValueError(f"backend: expected one of {', '.join(BACKENDS)}, got {name!r}")
+        raise ValueError(f"backend: expected one of {', '.join(backend_names())}, got {name!r}")
     module, cls = BACKENDS[name]
     return getattr(import_module(module), cls)(ctx, line_width)
 
 
 def open_backend(name: str, ctx: moderngl.Context, line_width: float = 2.0, log=None) -> Backend:
     """`create_backend`, falling back to the clip-unit backend (with a warning on `log`) when the
-    context cannot run the one asked for."""
+    context cannot run the one asked for (or chosen by "auto")."""
     try:
         return create_backend(name, ctx, line_width)
     except BackendUnavailable as exc:

@@ -49,7 +49,8 @@ class ClipBackend(Backend):
     def draw_scene(self, mvp, viewport) -> None:
         pass                                        # the scene's pieces are drawn with the flat layers
 
-    def draw_identities(self, frame: Frame, mvp, viewport, what: str = "faces") -> None:
+    def draw_identities(self, frame: Frame, mvp, viewport, what: str = "faces", layers: bool = False,
+                        section=None) -> None:
         layer = frame.scene
         if layer is None:
             return
@@ -69,12 +70,21 @@ class ClipBackend(Backend):
             n = stream.upload(data)
             if n:
                 set_uniforms(prog, u_mvp=mvp, u_viewport=tuple(float(v) for v in viewport),
-                             u_width=float(self.painter.line_width))
+                             u_width=float(self.painter.line_width), u_mode=3 if layers else 2,
+                             u_section=tuple(map(float, section if section is not None else (0, 0, 0, 1))))
+                if layers:
+                    self.ctx.disable(moderngl.DEPTH_TEST)
+                    self.ctx.enable(moderngl.BLEND)
+                    self.ctx.blend_func = moderngl.ONE, moderngl.ONE
+                else:
+                    self.ctx.disable(moderngl.BLEND)
+                    self.ctx.enable(moderngl.DEPTH_TEST)
                 if what == "faces":
                     stream.vao.render(mode, vertices=n)
                 else:
                     stream.vao.render(mode, vertices=4, instances=n)
         finally:
+            self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
             stream.release()
 
     def release(self) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 
 from touch4d.render.draw import program, set_uniforms
 from touch4d.render.frame import CELL_PALETTE, Frame, SceneLayer
-from touch4d.render.scene_geometry import SceneGeometry, data_texture
+from touch4d.render.scene_geometry import SceneGeometry, data_rows, data_texture
 
 from . import Backend, BackendUnavailable
 
@@ -21,7 +21,9 @@ GRID_LO, GRID_HI = -1.0, 1.0          # the body grid spans the 3D screen; outsi
 UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo": 4, "t_hi": 5,
          "t_cells0": 6, "t_cells1": 7, "t_cells2": 8, "t_cells3": 9, "t_vertices": 10,
          "t_accum": 11, "t_weight": 12}
-MODE_BLEND, MODE_OIT, MODE_IDS = 0, 1, 2
+OIT_DTYPE = "f2"
+MODE_BLEND, MODE_OIT, MODE_IDS, MODE_LAYERS = 0, 1, 2, 3
+NO_SECTION = (0.0, 0.0, 0.0, 1.0)     # every screen point: 0.u <= 1
 
 
 class GpuBackend(Backend):
@@ -58,7 +60,8 @@ class GpuBackend(Backend):
         if layer is not None and layer.geometry is not self.geometry:
             self._upload_geometry(layer.geometry)
         if layer is not None and layer is not self.layer:
-            self._gpu["t_objects"].write(data_texture(layer.transforms).tobytes())
+            rows, width = data_rows(layer.transforms)          # only the texels in use
+            self._gpu["t_objects"].write(rows.tobytes(), viewport=(0, 0, width, rows.shape[0]))
             self._dirty = True
         self.layer = layer
         self.painter.upload(frame)
@@ -83,7 +86,8 @@ class GpuBackend(Backend):
             self.centres_prog, [(gpu["centres"], "4f 4f 1f 1f", "in_local", "in_centroid", "in_body", "in_cell")])
         gpu["vao_edges"] = gpu["edges"] and ctx.vertex_array(
             self.edges_prog, [(self.painter.corners, "1f", "in_corner"),
-                              (gpu["edges"], "4f 4f 1f/i", "in_a", "in_b", "in_body")])
+                              (gpu["edges"], "4f 4f 1f 4f 4f/i", "in_a", "in_b", "in_body",
+                               "in_cells0", "in_cells1")])
         self._gpu = gpu
         self.geometry = g
         self.layer = None
@@ -173,25 +177,33 @@ class GpuBackend(Backend):
         else:
             vao.render(moderngl.TRIANGLES)
 
-    def draw_identities(self, frame: Frame, mvp, viewport, what: str = "faces") -> None:
+    def draw_identities(self, frame: Frame, mvp, viewport, what: str = "faces", layers: bool = False,
+                        section=None) -> None:
         self.prepare(frame)
         if self.layer is None or self.geometry.n_bodies == 0:
             return
         self._per_frame_passes()
         self._bind()
         self._scene_uniforms(mvp, viewport, self.layer)
-        self.ctx.disable(moderngl.BLEND)
-        self.ctx.enable(moderngl.DEPTH_TEST)
-        self._draw("fills" if what == "faces" else "edges", MODE_IDS)
-        self.ctx.disable(moderngl.DEPTH_TEST)
+        for prog in (self.faces_prog, self.edges_prog):
+            set_uniforms(prog, u_section=tuple(map(float, section if section is not None else NO_SECTION)))
+        if layers:
+            self.ctx.disable(moderngl.DEPTH_TEST)
+            self.ctx.enable(moderngl.BLEND)
+            self.ctx.blend_func = moderngl.ONE, moderngl.ONE
+        else:
+            self.ctx.disable(moderngl.BLEND)
+            self.ctx.enable(moderngl.DEPTH_TEST)
+        self._draw("fills" if what == "faces" else "edges", MODE_LAYERS if layers else MODE_IDS)
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
 
     def _oit_targets(self, size: tuple[int, int]):
         if self._oit is None or self._oit[0] != size:
             if self._oit is not None:
                 for obj in self._oit[1:]:
                     obj.release()
-            accum = self.ctx.texture(size, 4, dtype="f2")
-            weight = self.ctx.texture(size, 4, dtype="f2")
+            accum = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
+            weight = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
             for t in (accum, weight):
                 t.filter = moderngl.NEAREST, moderngl.NEAREST
             self._oit = (size, self.ctx.framebuffer(color_attachments=[accum, weight]), accum, weight)

@@ -13,12 +13,12 @@ void main() {
     out_lo = vec4(0.0);
     out_hi = vec4(0.0);
     if (b >= u_bodies) return;
-    vec4 span = fetch(t_bodies, 3 * b);
+    vec4 span = fetch(t_bodies, 3 * b + 2);
     Pose q = object_pose(body_object(b));
     vec3 lo = vec3(3.0e38);
     vec3 hi = vec3(-3.0e38);
-    int start = int(span.z + 0.5);
-    int count = int(span.w + 0.5);
+    int start = int(span.x + 0.5);
+    int count = int(span.y + 0.5);
     for (int k = 0; k < count; ++k) {
         vec3 u = to_view(to_world(q, fetch(t_vertices, start + k))).xyz;
         lo = min(lo, u);

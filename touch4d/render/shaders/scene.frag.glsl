@@ -1,21 +1,32 @@
 // Every fragment of the scene (fills, centre copies, edges) passes the ray test of halfspace.glsl,
 // then is written as a colour (u_mode 0, alpha-blended), into the order-independent transparency
-// targets (1: weighted blended, see oit.frag), or as its screen point and object (2, identities: the screen point and object, and the 4D depth w).
+// targets (1: weighted blended, see oit.frag), as its screen point, object and 4D depth w (2,
+// identities), or as one layer of its object in channel (object mod 4) (3, layer counts).
 #include "halfspace.glsl"
 
 uniform int u_mode;
 uniform int u_clip;             // 0: draw what other bodies hide too (back cells stay culled)
+uniform vec4 u_section;         // identities and layers: only screen points with u_section.xyz . u <= u_section.w
 in vec3 v_screen;
 in float v_depth;
 in vec4 v_color;
 flat in float v_object;
 flat in float v_body;
+flat in float v_own;
 layout(location = 0) out vec4 out0;
 layout(location = 1) out vec4 out1;
 
 void main() {
-    if (u_clip != 0 ? hidden(v_screen, v_depth) : hides(int(v_body + 0.5), v_screen, world_depth(v_depth))) discard;
-    if (u_mode == 2) {
+    int own = int(v_body + 0.5);
+    bool ask_own = v_own > 0.5;
+    Ray ray = Ray(-1, vec4(0.0), vec4(0.0));
+    if (u_clip != 0 ? hidden(v_screen, v_depth, ask_own ? -1 : own)
+                    : ask_own && hides(own, v_screen, world_depth(v_depth), ray)) discard;
+    if (u_mode >= 2 && dot(u_section.xyz, v_screen) > u_section.w) discard;
+    if (u_mode == 3) {
+        out0 = vec4(equal(ivec4(int(v_object + 0.5) % 4), ivec4(0, 1, 2, 3)));
+        out1 = vec4(0.0);
+    } else if (u_mode == 2) {
         out0 = vec4(v_screen, v_object + 1.0);
         out1 = vec4(world_depth(v_depth), 0.0, 0.0, 1.0);
     } else if (u_mode == 1) {

@@ -2,10 +2,14 @@
 #include "data.glsl"
 
 uniform sampler2D t_objects;   // per frame, 6 texels per object: orientation columns 0-3, position, (size)
-uniform sampler2D t_bodies;    // 3 texels per body: (half-spaces start, count, vertices start, count),
-                               // centre m, (object, 0, 0, 0)
+uniform sampler2D t_bodies;    // 3 texels per body: (half-spaces start, count, object, 0), centre m,
+                               // (vertices start, count, 0, 0)
 uniform sampler2D t_halfspaces; // per body: h with h.(x - m) <= 1 inside, local coordinates
 uniform float u_eye;           // perspective: the eye at w = -u_eye; orthographic: 0
+
+// float32: a cell whose normal is within this (cosine, or relative eye distance in perspective) of
+// orthogonal to the sight lines is edge-on (touch4d.geometry.halfspace.FACING, float64: 1e-9).
+const float FACING = 1e-5;
 
 struct Pose {
     mat4 r;
@@ -23,7 +27,7 @@ Pose object_pose(int o) {
 }
 
 int body_object(int b) {
-    return int(fetch(t_bodies, 3 * b + 2).x + 0.5);
+    return int(fetch(t_bodies, 3 * b).z + 0.5);
 }
 
 vec4 to_world(Pose q, vec4 local) {
@@ -43,18 +47,20 @@ float world_depth(float v) {
     return u_eye > 0.0 ? v * u_eye / (1.0 - v) : v;
 }
 
-// Whether local cell `cell` of body b, placed by q, surely faces away from the viewer: the eye lies
-// inside its half-space (perspective), or the sight lines run into it (orthographic), by a margin.
-// A face whose two cells both do is culled before rasterising; the ray test of halfspace.glsl
-// would discard each of its fragments anyway (bodies are convex), so this only saves work.
-bool faces_away(int b, int cell, Pose q) {
+// Whether local cell `cell` of body b, placed by q, faces the viewer: the eye lies outside its
+// half-space (perspective) or the sight lines enter the body through it (orthographic), by a margin
+// (edge-on cells do not face the viewer). Back-cell culling, in the vertex shaders: a face on no
+// facing cell, or the centre copy of a cell that does not face, is dropped before rasterising. For
+// a convex body that is what the ray test would decide at every fragment, so the fragments of the
+// faces that remain skip their own body's test (halfspace.glsl) and ask only the others.
+bool facing(int b, int cell, Pose q) {
     vec4 span = fetch(t_bodies, 3 * b);
     vec4 m = fetch(t_bodies, 3 * b + 1);
     vec4 h = fetch(t_halfspaces, int(span.x + 0.5) + cell);
     mat4 inv = transpose(q.r) / q.s;
-    if (u_eye > 0.0) return dot(h, inv * (vec4(0.0, 0.0, 0.0, -u_eye) - q.p) - m) < 1.0 - 1e-5;
+    if (u_eye > 0.0) return dot(h, inv * (vec4(0.0, 0.0, 0.0, -u_eye) - q.p) - m) > 1.0 + FACING;
     vec4 d = inv * vec4(0.0, 0.0, 0.0, 1.0);
-    return dot(h, d) > 1e-5 * length(h) * length(d);
+    return dot(h, d) < -FACING * length(h) * length(d);
 }
 
 // Where a vertex goes to be culled: outside the clip volume, so its triangle is dropped.

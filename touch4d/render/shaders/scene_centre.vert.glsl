@@ -18,6 +18,7 @@ out float v_depth;
 out vec4 v_color;
 flat out float v_object;
 flat out float v_body;
+flat out float v_own;
 
 void main() {
     int b = int(in_body + 0.5);
@@ -32,6 +33,7 @@ void main() {
     v_color = vec4(rgb, c.a * u_alpha);
     v_object = float(o);
     v_body = in_body;
+    v_own = 0.0;
     gl_Position = u_mvp * vec4(view.xyz, 1.0);
-    if (faces_away(b, int(in_cell + 0.5), q)) gl_Position = CULLED;     // a back cell's copy
+    if (!facing(b, int(in_cell + 0.5), q)) gl_Position = CULLED;     // a back cell's copy
 }

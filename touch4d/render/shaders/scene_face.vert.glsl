@@ -1,5 +1,5 @@
 // The bodies' 2-faces (fills): local 4D vertex -> world -> 3D screen, in the object's colour; a face
-// between two cells that face away from the viewer is culled here.
+// on no cell that faces the viewer is culled here.
 #include "scene.glsl"
 
 uniform mat4 u_mvp;
@@ -13,6 +13,7 @@ out float v_depth;
 out vec4 v_color;
 flat out float v_object;
 flat out float v_body;
+flat out float v_own;           // 1: the fragment asks its own body too (edges)
 
 void main() {
     int b = int(in_body + 0.5);
@@ -25,6 +26,7 @@ void main() {
     v_color = vec4(c.rgb, c.a * u_alpha);
     v_object = float(o);
     v_body = in_body;
+    v_own = 0.0;
     gl_Position = u_mvp * vec4(view.xyz, 1.0);
-    if (faces_away(b, int(in_cells.x + 0.5), q) && faces_away(b, int(in_cells.y + 0.5), q)) gl_Position = CULLED;
+    if (!facing(b, int(in_cells.x + 0.5), q) && !facing(b, int(in_cells.y + 0.5), q)) gl_Position = CULLED;
 }
