@@ -81,10 +81,11 @@ def test_geometry_is_sent_once_per_change_of_shape_and_frames_carry_only_transfo
     # a tesseract: 16 vertices, 8 cells, 24 square 2-faces (48 triangles), 32 edges
     assert header["bodies"] == 1 and header["objects"] == 1
     assert arrays["t_vertices"].reshape(-1, 4)[:16].shape == (16, 4) and arrays["fills"].shape == (144, 7)
-    assert arrays["edges"].shape == (32, 9) and arrays["t_halfspaces"].reshape(-1, 4).shape[0] >= 8
+    assert arrays["edges"].shape == (32, 17) and arrays["t_halfspaces"].reshape(-1, 4).shape[0] >= 8
     header, arrays = unpack_frame(rig.bridge.frame())
     assert header["revision"] == 5 and header["geometry"] == geometry[0][0][0]["key"]
     # per frame the scene is 6 texels per object: the orientation's columns, the position, the size
+    assert arrays["t_objects"].nbytes == 96
     texels = arrays["t_objects"].reshape(-1, 4)
     obj = turned.objects[0]
     np.testing.assert_allclose(texels[:4], turn.T, atol=1e-7)

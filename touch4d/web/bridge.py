@@ -26,7 +26,7 @@ from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.glsl import shader_source
 from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
-from touch4d.render.scene_geometry import SceneGeometry, data_texture
+from touch4d.render.scene_geometry import SceneGeometry, data_rows
 from touch4d.render.view import SceneView
 from touch4d.tactile.glove import Glove
 from touch4d.tracking import webxr
@@ -222,8 +222,8 @@ class WebBridge:
                   "intensity": self._intensity, "duty": self._duty}
         layer = self.view.layer
         if layer is not None:
-            # the same bytes the GPU backend writes into its t_objects texture
-            arrays["t_objects"] = data_texture(layer.transforms)
+            # the same texels the GPU backend writes into its t_objects texture
+            arrays["t_objects"] = data_rows(layer.transforms)[0]
             fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
                           selected=int(self._scene.selected), revision=int(self._scene.revision))
         self._last_frame = pack_frame("frame", fields, arrays)

@@ -13,11 +13,10 @@ const UNITS = {
 const MODE_BLEND = 0, MODE_OIT = 1;
 const DATA_WIDTH = 1024;
 
-// A data texture's size for `texels` texels (touch4d.render.scene_geometry.data_texture).
+// A data texture's size for `texels` texels (touch4d.render.scene_geometry.data_texture): always
+// DATA_WIDTH wide, as the shaders address it.
 function dataSize(texels) {
-  const n = Math.max(texels, 1);
-  const width = Math.min(DATA_WIDTH, n);
-  return [width, Math.ceil(n / width)];
+  return [DATA_WIDTH, Math.ceil(Math.max(texels, 1) / DATA_WIDTH)];
 }
 
 export class SceneRenderer {
@@ -94,7 +93,6 @@ export class SceneRenderer {
     }
     const [ow, oh] = dataSize(6 * header.objects);
     res.t_objects = this.texture(ow, oh, null);
-    res.objectsSize = [ow, oh];
     const lo = this.target(header.bodies), hi = this.target(header.bodies);
     const cells = [0, 1, 2, 3].map(() => this.target(header.grid_size ** 3));
     res.t_lo = lo.texture; res.t_hi = hi.texture;
@@ -107,8 +105,9 @@ export class SceneRenderer {
     res.fills = this.vertexArray(this.faces, arrays.fills, 7, [['in_local', 4], ['in_body', 1], ['in_cells', 2]]);
     res.centres = this.vertexArray(this.centres, arrays.centres, 10,
                                    [['in_local', 4], ['in_centroid', 4], ['in_body', 1], ['in_cell', 1]]);
-    res.edges = this.vertexArray(this.edges, arrays.edges, 9, [['in_a', 4], ['in_b', 4], ['in_body', 1]], true);
-    res.counts = { fills: arrays.fills.length / 7, centres: arrays.centres.length / 10, edges: arrays.edges.length / 9 };
+    res.edges = this.vertexArray(this.edges, arrays.edges, 17,
+                                 [['in_a', 4], ['in_b', 4], ['in_body', 1], ['in_cells0', 4], ['in_cells1', 4]], true);
+    res.counts = { fills: arrays.fills.length / 7, centres: arrays.centres.length / 10, edges: arrays.edges.length / 17 };
     this.res = res;
     this.geometry = header;
     this.dirty = true;
@@ -141,14 +140,15 @@ export class SceneRenderer {
     return { vao, buffer };
   }
 
-  // The node's per-tick frame: the objects' transforms (t_objects, the GPU backend's bytes), projection.
+  // The node's per-tick frame: the objects' transforms (the texels of t_objects in use, the GPU
+  // backend's bytes: scene_geometry.data_rows), the projection.
   setFrame(frame) {
     const { header, arrays } = frame;
     if (!this.geometry || header.geometry !== this.geometry.key || !arrays.t_objects) return;
     const gl = this.gl;
-    const [w, h] = this.res.objectsSize;
+    const [rows, width] = header.arrays.t_objects[1];
     gl.bindTexture(gl.TEXTURE_2D, this.res.t_objects);
-    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RGBA, gl.FLOAT, arrays.t_objects);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, width, rows, gl.RGBA, gl.FLOAT, arrays.t_objects);
     this.frame = header;
     this.dirty = true;
   }
