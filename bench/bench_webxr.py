@@ -147,10 +147,16 @@ def stereo_screenshot(browser, url: str, path: str) -> None:
         page.evaluate("xr.position.set(-0.25, 1.55, 0.3)")
         page.evaluate("xr.quaternion.set(-0.1730, -0.0858, -0.0152, 0.9811)")     # 20 degrees down, 10 left
         page.evaluate(f"xr.controllers.right.position.set{INSIDE}")
-        page.wait_for_function("touch4d.frame !== null && touch4d.frame.hand_valid", timeout=60000)
-        n = page.evaluate("touch4d.xrFrames")
-        page.wait_for_function(f"touch4d.xrFrames > {n} + 3", timeout=120000)
-        page.screenshot(path=path)
+        # A slow emulated headset lets the hand lapse between poses (stale_s): keep a picture taken
+        # while the hand was drawn on both sides of it.
+        for _ in range(20):
+            page.wait_for_function("touch4d.frame !== null && touch4d.frame.hand_valid", timeout=60000)
+            n = page.evaluate("touch4d.xrFrames")
+            page.wait_for_function(f"touch4d.xrFrames > {n} + 1 && touch4d.frame.hand_valid", timeout=120000)
+            first = page.evaluate("touch4d.frame.n")
+            page.screenshot(path=path)
+            if page.evaluate(f"touch4d.frame.hand_valid && touch4d.frame.n - {first} < 3"):
+                break
     finally:
         page.context.close()
 
