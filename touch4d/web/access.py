@@ -18,18 +18,10 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
+from touch4d.bus.config import is_loopback  # noqa: F401  (the bus's rule: 127.0.0.0/8, ::1, localhost)
+
 CERT_DAYS = 365
 DEFAULT_CERT_DIR = Path(os.environ.get("XDG_CONFIG_HOME", Path.home() / ".config")) / "touch4d" / "webxr-tls"
-
-
-def is_loopback(host: str) -> bool:
-    """True for addresses only this machine can reach (127.0.0.0/8, ::1, localhost)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def new_token() -> str:

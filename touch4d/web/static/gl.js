@@ -24,6 +24,20 @@ export function program(gl, vertexSource, fragmentSource, name) {
   return { program: p, uniforms };
 }
 
+// Interleaved float attributes [[location, components], ...] of the bound buffer (-1: unused, skipped).
+export function attributes(gl, layout, divisor) {
+  const stride = layout.reduce((n, [, c]) => n + c, 0);
+  let offset = 0;
+  for (const [location, components] of layout) {
+    if (location >= 0) {
+      gl.enableVertexAttribArray(location);
+      gl.vertexAttribPointer(location, components, gl.FLOAT, false, stride * 4, offset * 4);
+      gl.vertexAttribDivisor(location, divisor);
+    }
+    offset += components;
+  }
+}
+
 // A vertex array with one interleaved float buffer: layout = [[location, components], ...].
 export class Vertices {
   constructor(gl, layout) {
@@ -34,12 +48,7 @@ export class Vertices {
     this.count = 0;
     gl.bindVertexArray(this.vao);
     gl.bindBuffer(gl.ARRAY_BUFFER, this.buffer);
-    let offset = 0;
-    for (const [location, components] of layout) {
-      gl.enableVertexAttribArray(location);
-      gl.vertexAttribPointer(location, components, gl.FLOAT, false, this.stride * 4, offset * 4);
-      offset += components;
-    }
+    attributes(gl, layout, 0);
     gl.bindVertexArray(null);
   }
 
@@ -72,14 +81,8 @@ export class Lines {
     gl.enableVertexAttribArray(corner);
     gl.vertexAttribPointer(corner, 1, gl.FLOAT, false, 4, 0);
     gl.bindBuffer(gl.ARRAY_BUFFER, this.buffer);
-    let offset = 0;
-    for (const [name, size] of [['in_a', 3], ['in_color_a', 4], ['in_b', 3], ['in_color_b', 4]]) {
-      const loc = gl.getAttribLocation(prog, name);
-      gl.enableVertexAttribArray(loc);
-      gl.vertexAttribPointer(loc, size, gl.FLOAT, false, 14 * 4, offset * 4);
-      gl.vertexAttribDivisor(loc, 1);
-      offset += size;
-    }
+    attributes(gl, [['in_a', 3], ['in_color_a', 4], ['in_b', 3], ['in_color_b', 4]]
+      .map(([name, size]) => [gl.getAttribLocation(prog, name), size]), 1);
     gl.bindVertexArray(null);
   }
 

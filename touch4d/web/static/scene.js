@@ -4,7 +4,7 @@
 // transforms texture. The passes, textures and uniforms are those of docs/contracts.md; nothing of
 // the 4D mathematics (projection, visibility) lives here.
 
-import { program } from './gl.js';
+import { attributes, program } from './gl.js';
 
 const UNITS = {
   t_objects: 0, t_bodies: 1, t_halfspaces: 2, t_colors: 3, t_lo: 4, t_hi: 5,
@@ -102,10 +102,10 @@ export class SceneRenderer {
     res.gridFbo = this.framebuffer([...cells]);
     res.gridSize = [cells[0].width, cells[0].height];
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-    res.fills = this.vertexArray(this.faces, arrays.fills, 7, [['in_local', 4], ['in_body', 1], ['in_cells', 2]]);
-    res.centres = this.vertexArray(this.centres, arrays.centres, 10,
+    res.fills = this.vertexArray(this.faces, arrays.fills, [['in_local', 4], ['in_body', 1], ['in_cells', 2]]);
+    res.centres = this.vertexArray(this.centres, arrays.centres,
                                    [['in_local', 4], ['in_centroid', 4], ['in_body', 1], ['in_cell', 1]]);
-    res.edges = this.vertexArray(this.edges, arrays.edges, 17,
+    res.edges = this.vertexArray(this.edges, arrays.edges,
                                  [['in_a', 4], ['in_b', 4], ['in_body', 1], ['in_cells0', 4], ['in_cells1', 4]], true);
     res.counts = { fills: arrays.fills.length / 7, centres: arrays.centres.length / 10, edges: arrays.edges.length / 17 };
     this.res = res;
@@ -113,7 +113,7 @@ export class SceneRenderer {
     this.dirty = true;
   }
 
-  vertexArray(prog, data, stride, layout, instanced = false) {
+  vertexArray(prog, data, layout, instanced = false) {
     const gl = this.gl;
     const vao = gl.createVertexArray();
     gl.bindVertexArray(vao);
@@ -126,16 +126,7 @@ export class SceneRenderer {
     const buffer = gl.createBuffer();
     gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
     gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
-    let offset = 0;
-    for (const [name, size] of layout) {
-      const loc = gl.getAttribLocation(prog.program, name);
-      if (loc >= 0) {
-        gl.enableVertexAttribArray(loc);
-        gl.vertexAttribPointer(loc, size, gl.FLOAT, false, stride * 4, offset * 4);
-        if (instanced) gl.vertexAttribDivisor(loc, 1);
-      }
-      offset += size;
-    }
+    attributes(gl, layout.map(([name, size]) => [gl.getAttribLocation(prog.program, name), size]), instanced ? 1 : 0);
     gl.bindVertexArray(null);
     return { vao, buffer };
   }
