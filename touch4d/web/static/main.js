@@ -18,11 +18,11 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 // What tests and benchmarks read (window.touch4d); nothing here steers the page.
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
-  session: null, sent: 0, input: null, leaving: false, error: null, gpu: null,
+  session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
 });
 
 let hud = null, scene = null, orbit = null;   // made when the node's setup frame (with the shaders) arrives
-let screenModel = fromPose([0, 1.2, -0.45], [0, 0, 0, 1], 0.25);   // replaced by the setup frame
+let screenModel = null;   // screen units -> the room, from the setup frame
 
 if (!gl) {
   statusLine.textContent = 'This browser has no WebGL2: touch4d cannot draw here.';
@@ -61,6 +61,7 @@ const link = new Link((message) => {
     if (scene) scene.setGeometry(message);
   } else if (header.kind === 'frame') {
     state.frame = header;
+    state.motorsOn = message.arrays.intensity.filter((v) => v > 0.05).length;
     if (scene) scene.setFrame(message);
     if (hud) hud.update(message);
   }
@@ -105,12 +106,12 @@ function countFrame(now) {
 }
 
 function showStatus() {
+  if (state.error) return;
   const f = state.frame;
-  const touched = f ? 'touching' : '';
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
-  statusLine.textContent = state.connected
-    ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${f && f.hand_valid ? ' · hand tracked' : ''} ${touched ? '' : ''}`
-    : 'touch4d: connecting to the node…';
+  const hand = f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
+  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
+                                           : 'touch4d: connecting to the node…';
 }
 
 function inlineLoop(now) {
