@@ -4,7 +4,9 @@ Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The lo
 touch4d.boards (driver: what to send; link: python-can without exceptions); this node wires it to
 topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
-this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
+this process), `board_emulator` (which: `python`, the reference, or `firmware`, the boards' C
+core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
+below).
 
 Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
@@ -35,7 +37,7 @@ from touch4d.errors import ConfigError
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
-from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
@@ -67,6 +69,10 @@ class MotorsNode(Node):
         interface = self.declare_parameter("interface", "")
         channel = self.declare_parameter("channel", "")
         emulate = self.declare_parameter("emulate", False)
+        board_emulator = self.declare_parameter("board_emulator", "python")
+        if board_emulator not in EMULATORS:
+            raise ConfigError(self._params_source or f"parameters of node '{self.name}'",
+                              self._param_key("board_emulator"), f"one of {sorted(EMULATORS)}", got=board_emulator)
         status_hz = self.declare_parameter("status_hz", 10.0)
         trace = self.declare_parameter("trace", False)
         if not 0 < status_hz < math.inf:
@@ -78,7 +84,7 @@ class MotorsNode(Node):
         self.load = check_bus_load(cfg)
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
-        self.emulator = GloveEmulator(cfg).start() if emulate else None
+        self.emulator = make_glove_emulator(board_emulator, cfg).start() if emulate else None
         self.link = CanLink(cfg.interface, cfg.channel, cfg.bitrate, cfg.send_timeout_s,
                             bus=bus_factory() if bus_factory else None)
         fault = self.link.ensure_open()
@@ -99,7 +105,7 @@ class MotorsNode(Node):
             self.create_timer(TRACE_PERIOD_S, self.publish_trace)
         self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
                       len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
-                      100 * self.load.fraction, " (emulated boards)" if emulate else "")
+                      100 * self.load.fraction, f" ({board_emulator} emulated boards)" if emulate else "")
 
     def _param_key(self, name: str) -> str:
         """A parameter's name as declare_parameter reports it: its path in the launch file when known."""

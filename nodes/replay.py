@@ -4,7 +4,8 @@
 and motor nodes with a recorded hand. Parameters: `file` (required), `topics` (default the
 tracker's: hand/pose, controller/state; [] = every topic in the log), `rate`, `loop`, `start`
 (seconds), `remap` ({from: to}) and `restamp` (default true: live nodes downstream see fresh
-stamps and seq, as from a live tracker; false sends the recorded bytes unchanged).
+stamps and seq, as from a live tracker, and the recorded stamp in `recorded_stamp`; false sends
+the recorded bytes unchanged, which a live motor node drops as stale).
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ class ReplayNode(Node):
             topics = [t for t in topics if t in available] or topics
         options.topics = topics or None
         plan = Plan(reader, options)
-        for warning in plan.warnings() + reader.problems:
+        for warning in plan.warnings():
             self.log.warning("%s: %s", path, warning)
         sys.setswitchinterval(0.0005)
         self.sender = BusSender(self.bus)
@@ -56,6 +57,12 @@ class ReplayNode(Node):
         stats = self.replayer.run()
         if not stats.stopped:
             self.log.info("replay finished: %d messages sent", stats.sent)
+        reader = self.replayer.reader
+        for problem in reader.problems:
+            self.log.warning("%s: %s", reader.path, problem)
+        if reader.skipped_chunks:
+            self.log.warning("%s: %d damaged chunk(s) skipped, %d message(s) lost", reader.path,
+                             reader.skipped_chunks, reader.skipped_messages)
 
     def on_shutdown(self) -> None:
         self.replayer.stop()
