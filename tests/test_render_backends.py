@@ -19,8 +19,9 @@ from scipy import ndimage
 
 from touch4d.geometry.polytope import Polytope
 from touch4d.geometry.raycast import RayCaster
-from touch4d.geometry.rotation import plane_rotation
+from touch4d.geometry.rotation import plane_rotation, rotation_from_list
 from touch4d.geometry.scene import load_scene, parse_scene
+from touch4d.geometry.visibility import Relation, relations
 from touch4d.render.camera import parse_camera
 from touch4d.render.context import create_headless_context
 from touch4d.render.frame import Style
@@ -99,11 +100,21 @@ def test_auto_backend_and_fallback(renderers, monkeypatch, caplog):
 def test_gpu_and_clip_draw_the_same_layers_and_outlines_on_the_catalog(renderers, projection):
     """Per pixel and object, the number of visible face layers is the same on at least 97% of the
     pixels (and of those the scene covers); every object's outline in one picture lies within 2
-    pixels of its outline in the other; edges too (99%)."""
+    pixels of its outline in the other; edges too (99%). Objects that pass through each other have no
+    front/behind order, which clip units need: there the GPU picture is checked against touch."""
     report = []
     for path in CATALOG:
         scene = replace(load_scene(path), projection=projection)
         frame = frame_of(scene)
+        world = [p for _, p in scene.world_parts()]
+        objects = np.array([i for i, _ in scene.world_parts()])
+        meet = relations(world, scene.perspective_eye) == Relation.INTERSECTING
+        if (meet & (objects[:, None] != objects[None, :])).any():
+            obj, w, hit, entry, gap = seen_versus_touched(renderers["gpu"], scene, Style(), OBLIQUE)
+            agree = ((obj == hit) & (np.abs(w - entry) < 2e-3))[gap > 2e-3]
+            report.append(f"{path.stem} intersecting: seen = touched {agree.mean():.4f}")
+            assert len(agree) > 3000 and agree.mean() >= 0.999, report[-1]
+            continue
         faces = {n: r.layer_counts(frame, OBLIQUE) for n, r in renderers.items()}
         edges = {n: r.layer_counts(frame, OBLIQUE, "edges") for n, r in renderers.items()}
         same = np.all(faces["gpu"] == faces["clip"], axis=-1)
@@ -137,31 +148,49 @@ def tesseract(position, size, rotation, color):
 
 INTERPENETRATING = [tesseract([-0.15, 0.05, 0.0, 1.5], 1.0, [["xw", 25], ["yz", 20], ["yw", 10]], [0.3, 0.6, 1, 1]),
                     tesseract([0.25, -0.1, 0.1, 1.7], 0.9, [["zw", 30], ["xy", 35], ["xw", -20]], [1, 0.5, 0.2, 1])]
+def crowd(n: int) -> list:
+    """n tesseracts turned at random around one spot, at depths 1.2 to 2.5: every grid cell there
+    lists many bodies (more than a cell holds for n = 20, so that all bodies are asked). No cell is
+    nearly edge-on (|n_w| > 0.02): across such a cell the depth changes thousands of times faster
+    than the screen point, so a float32 point would say nothing about which body is first."""
+    rng = np.random.default_rng(n)
+    planes = ["xy", "xz", "xw", "yz", "yw", "zw"]
+    out = []
+    while len(out) < n:
+        rotation = [[p, float(rng.uniform(-40, 40))] for p in planes]
+        if np.abs(rotation_from_list(rotation)[3]).min() > 0.02:   # n_w of the cells +-e_i
+            out.append(tesseract([*rng.uniform(-0.3, 0.3, 3), 1.2 + 1.3 * len(out) / n], 0.7, rotation,
+                                 [*rng.uniform(0.2, 1, 3), 1]))
+    return out
+
+
 CROSSING = [tesseract([0.1, 0.0, 0.0, 0.15], 1.0, [["xw", 35], ["zw", 20], ["xz", 15]], [0.3, 0.6, 1, 1]),
             {"shape": "24-cell", "size": 0.8, "position": [-0.45, 0.25, 0.0, 1.4], "rotation": [["yw", 25]],
              "color": [1, 0.5, 0.2, 1]}]
 
 
 def first_hits(scene, points: np.ndarray):
-    """The tactile ray cast (touch4d.geometry.raycast) through screen points: the object hit first and
-    its entry depth w, and the gap to the next object's entry (inf if none). The bodies are grown by
+    """The tactile ray cast (touch4d.geometry.raycast) through screen points: the object hit first,
+    its entry depth w and the gap to the next object's entry (inf if none). The bodies are grown by
     1e-5 so that points on their surfaces, rounded to float32 by the GPU, count as on them."""
     eye = scene.perspective_eye
     parts = [(i, Polytope(p.vertices, p.normals, p.offsets + 1e-5, p.topology)) for i, p in scene.world_parts()]
-    caster = RayCaster(parts, eye)
-    enter, _ = caster.intervals(points)
-    if eye is not None:
-        enter = enter * eye / (1.0 - enter)               # the projective depth back to w
-    enter = np.where(np.isnan(enter), np.inf, enter)
-    objects = caster.part_object
-    per_object = np.full((len(points), objects.max() + 1), np.inf)
-    for k in range(objects.max() + 1):
-        per_object[:, k] = enter[:, objects == k].min(axis=1)
+    per_object = object_entries(RayCaster(parts, eye), points, eye)
     order = np.sort(per_object, axis=1)
     hit = np.where(np.isfinite(order[:, 0]), per_object.argmin(axis=1), -1)
     with np.errstate(invalid="ignore"):
         gap = np.where(np.isfinite(order[:, 0]), order[:, 1] - order[:, 0], np.inf)
     return hit, order[:, 0], gap
+
+
+def object_entries(caster, points, eye):
+    """(N, objects): where the ray through each point enters each object, w (inf: a miss)."""
+    enter, _ = caster.intervals(points)
+    if eye is not None:
+        enter = enter * eye / (1.0 - enter)               # the projective depth back to w
+    enter = np.where(np.isnan(enter), np.inf, enter)
+    objects = caster.part_object
+    return np.stack([enter[:, objects == k].min(axis=1) for k in range(objects.max() + 1)], axis=1)
 
 
 def seen_versus_touched(renderer, scene, style, camera):
@@ -182,7 +211,8 @@ def seen_versus_touched(renderer, scene, style, camera):
 
 
 @pytest.mark.parametrize("projection", ["orthographic", "perspective"])
-@pytest.mark.parametrize("objects", [INTERPENETRATING, CROSSING], ids=["interpenetrating", "crossing-w0"])
+@pytest.mark.parametrize("objects", [INTERPENETRATING, CROSSING, crowd(10), crowd(20)],
+                         ids=["interpenetrating", "crossing-w0", "crowd-10", "crowd-20"])
 def test_the_object_seen_is_the_object_the_tactile_ray_hits_first(renderers, objects, projection):
     scene = parse_scene({"projection": projection, "eye_distance": 3.0, "objects": objects})
     if objects is CROSSING:
@@ -190,9 +220,10 @@ def test_the_object_seen_is_the_object_the_tactile_ray_hits_first(renderers, obj
         assert w.min() < -0.3 and w.max() > 0.3             # the screen cuts the first object
     for camera in (OBLIQUE, FACE_ON):
         obj, w, hit, entry, gap = seen_versus_touched(renderers["gpu"], scene, Style(), camera)
-        contested = np.isfinite(gap)                # rays that meet both objects
-        assert len(obj) > 3000 and contested.sum() > 150 and set(obj) == {0, 1}
-        clear = gap > 2e-3                          # both entries at one depth: either may show
+        contested = np.isfinite(gap)                # rays that meet two objects
+        assert len(obj) > 3000 and contested.sum() > 150 and len(set(obj)) >= min(len(objects), 6)
+        clear = gap > 2e-3                          # two entries at one depth: either may show
+        assert clear.mean() > 0.97
         agree = (obj == hit) & (np.abs(w - entry) < 2e-3)
         assert agree[clear].mean() >= 0.999, (camera, np.unique(obj[clear & ~agree], return_counts=True))
         assert (w > -1e-3).all()                    # nothing before the screen, where the ray starts

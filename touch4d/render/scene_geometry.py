@@ -35,6 +35,7 @@ class SceneGeometry:
     object_color: np.ndarray     # (O, 4) float32 RGBA 0..1
     vertices: np.ndarray         # (V, 4) float32: every body's local vertices, body after body
     halfspaces: np.ndarray       # (H, 4) float32: h with h.(x - m) <= 1 inside, m the body's centre
+    halfspace_body: np.ndarray   # (H,) int32: the body of each half-space
     bodies: np.ndarray           # (B, 3, 4) float32: the body table (BODY_TEXELS texels per body)
     fills: np.ndarray            # (3T, 7) float32: triangles of the 2-faces, rows [x, y, z, w, body, a, b],
                                  #   a and b the two cells the face lies on (local indices)
@@ -48,6 +49,10 @@ class SceneGeometry:
     @property
     def n_bodies(self) -> int:
         return len(self.body_object)
+
+    @property
+    def n_halfspaces(self) -> int:
+        return len(self.halfspaces)
 
     @property
     def n_objects(self) -> int:
@@ -69,13 +74,14 @@ class SceneGeometry:
     def from_parts(cls, parts: list[Polytope], body_object, object_color, key=None) -> "SceneGeometry":
         """The geometry of bodies given as local polytopes, their objects and the objects' colours."""
         body_object = np.asarray(body_object, dtype=np.int32).reshape(-1)
-        verts, hs, table, fills, edges, centres = [], [], [], [], [], []
+        verts, hs, hs_body, table, fills, edges, centres = [], [], [], [], [], [], []
         v_start = h_start = 0
         for b, (part, obj) in enumerate(zip(parts, body_object)):
             t = _template(part)
             table.append([[h_start, len(t.halfspaces), obj, 0], [*t.centre], [v_start, len(t.vertices), 0, 0]])
             verts.append(t.vertices)
             hs.append(t.halfspaces)
+            hs_body.append(np.full(len(t.halfspaces), b, np.int32))
             fills.append(np.insert(t.fills, 4, b, axis=1))
             edges.append(np.insert(t.edges, 8, b, axis=1))
             centres.append(np.insert(t.centres, 8, b, axis=1))
@@ -89,6 +95,7 @@ class SceneGeometry:
         return cls(parts=tuple(parts), body_object=body_object,
                    object_color=np.ascontiguousarray(object_color, dtype=np.float32).reshape(-1, 4),
                    vertices=stack(verts, 4), halfspaces=stack(hs, 4),
+                   halfspace_body=np.concatenate(hs_body) if hs_body else np.zeros(0, np.int32),
                    bodies=np.array(table, dtype=np.float32).reshape(n, BODY_TEXELS, 4),
                    fills=stack(fills, 7), edges=stack(edges, 8 + 1 + EDGE_CELLS), centres=stack(centres, 10),
                    grid_size=grid_size(n), key=key if key is not None else ("parts", tuple(map(id, parts))))
@@ -99,8 +106,11 @@ class SceneGeometry:
 
     def textures(self) -> dict[str, np.ndarray]:
         """The per-revision data textures, (rows, width, 4) float32 each, by the names the shaders use."""
+        body = np.zeros((len(self.halfspace_body), 4), np.float32)
+        body[:, 0] = self.halfspace_body
         return {"t_vertices": data_texture(self.vertices), "t_halfspaces": data_texture(self.halfspaces),
-                "t_bodies": data_texture(self.bodies), "t_colors": data_texture(self.object_color)}
+                "t_halfspace_body": data_texture(body), "t_bodies": data_texture(self.bodies),
+                "t_colors": data_texture(self.object_color)}
 
 
 def scene_key(scene) -> tuple:

@@ -73,6 +73,22 @@ class Backend(ABC):
         self.painter.release()
 
 
+NO_SECTION = (0.0, 0.0, 0.0, 1.0)     # every screen point u: 0.u <= 1
+
+
+def identity_state(ctx: moderngl.Context, layers: bool, section) -> tuple[float, ...]:
+    """GL state for `Backend.draw_identities`: additive blending for layer counts, a depth test for
+    the nearest; returns the section plane as the uniform u_section takes it."""
+    if layers:
+        ctx.disable(moderngl.DEPTH_TEST)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.ONE, moderngl.ONE
+    else:
+        ctx.disable(moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+    return tuple(float(v) for v in (NO_SECTION if section is None else section))
+
+
 def backend_names() -> list[str]:
     return [*BACKENDS, "auto"]
 

@@ -11,7 +11,7 @@ from touch4d.render.clip import Body, MeshBuilder, SceneMesh
 from touch4d.render.draw import Stream, program, set_uniforms
 from touch4d.render.frame import Frame, SceneLayer
 
-from . import Backend
+from . import Backend, identity_state
 
 
 def layer_bodies(layer: SceneLayer, colors: np.ndarray | None = None) -> list[Body]:
@@ -71,14 +71,7 @@ class ClipBackend(Backend):
             if n:
                 set_uniforms(prog, u_mvp=mvp, u_viewport=tuple(float(v) for v in viewport),
                              u_width=float(self.painter.line_width), u_mode=3 if layers else 2,
-                             u_section=tuple(map(float, section if section is not None else (0, 0, 0, 1))))
-                if layers:
-                    self.ctx.disable(moderngl.DEPTH_TEST)
-                    self.ctx.enable(moderngl.BLEND)
-                    self.ctx.blend_func = moderngl.ONE, moderngl.ONE
-                else:
-                    self.ctx.disable(moderngl.BLEND)
-                    self.ctx.enable(moderngl.DEPTH_TEST)
+                             u_section=identity_state(self.ctx, layers, section))
                 if what == "faces":
                     stream.vao.render(mode, vertices=n)
                 else:

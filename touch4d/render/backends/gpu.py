@@ -1,10 +1,10 @@
 """The GPU backend: the scene's geometry lives in GPU buffers and data textures, uploaded once per scene
 revision; per frame only the object transforms (a texture of 6 texels per object) and uniforms change.
 
-Per frame, on the GPU: every body's screen bounds (bounds.frag), a grid of the bodies each screen cell
-can hold (grid.frag), then the fills and centre copies into order-independent transparency targets,
-resolved over the picture (oit.frag), then the edges. Every scene fragment passes the tactile ray
-test of halfspace.glsl. docs/contracts.md lists the passes, textures and uniforms, for WebGL2 too.
+Per frame, on the GPU: every body's screen bounds and view-space centre (bounds.frag), every cell in
+view space (view.frag), a grid of the bodies each screen cell can hold (grid.frag), then the fills
+and centre copies into order-independent transparency targets, resolved over the picture
+(oit.frag), then the edges. Every scene fragment passes the tactile ray test of halfspace.glsl. docs/contracts.md lists the passes, textures and uniforms, for WebGL2 too.
 """
 from __future__ import annotations
 
@@ -15,15 +15,14 @@ from touch4d.render.draw import program, set_uniforms
 from touch4d.render.frame import CELL_PALETTE, Frame, SceneLayer
 from touch4d.render.scene_geometry import SceneGeometry, data_rows, data_texture
 
-from . import Backend, BackendUnavailable
+from . import Backend, BackendUnavailable, identity_state
 
 GRID_LO, GRID_HI = -1.0, 1.0          # the body grid spans the 3D screen; outside, border cells take over
 UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo": 4, "t_hi": 5,
          "t_cells0": 6, "t_cells1": 7, "t_cells2": 8, "t_cells3": 9, "t_vertices": 10,
-         "t_accum": 11, "t_weight": 12}
+         "t_accum": 11, "t_weight": 12, "t_centres": 13, "t_view": 14, "t_halfspace_body": 15}
 OIT_DTYPE = "f2"
 MODE_BLEND, MODE_OIT, MODE_IDS, MODE_LAYERS = 0, 1, 2, 3
-NO_SECTION = (0.0, 0.0, 0.0, 1.0)     # every screen point: 0.u <= 1
 
 
 class GpuBackend(Backend):
@@ -38,15 +37,17 @@ class GpuBackend(Backend):
             self.centres_prog = program(ctx, "scene_centre.vert", "scene.frag")
             self.edges_prog = program(ctx, "scene_edge.vert", "scene.frag")
             self.bounds_prog = program(ctx, "fullscreen.vert", "bounds.frag")
+            self.view_prog = program(ctx, "fullscreen.vert", "view.frag")
             self.grid_prog = program(ctx, "fullscreen.vert", "grid.frag")
             self.oit_prog = program(ctx, "fullscreen.vert", "oit.frag")
         except moderngl.Error as exc:
             raise BackendUnavailable(f"shaders do not build: {exc}") from exc
-        self.programs = [self.faces_prog, self.centres_prog, self.edges_prog, self.bounds_prog, self.grid_prog,
-                         self.oit_prog]
+        self.programs = [self.faces_prog, self.centres_prog, self.edges_prog, self.bounds_prog, self.view_prog,
+                         self.grid_prog, self.oit_prog]
         for prog in self.programs:
             set_uniforms(prog, **{name: unit for name, unit in UNITS.items()})
-        self._fullscreen = {id(p): ctx.vertex_array(p, []) for p in (self.bounds_prog, self.grid_prog, self.oit_prog)}
+        self._fullscreen = {id(p): ctx.vertex_array(p, [])
+                            for p in (self.bounds_prog, self.view_prog, self.grid_prog, self.oit_prog)}
         self.geometry: SceneGeometry | None = None
         self.layer: SceneLayer | None = None
         self._gpu: dict = {}                # per geometry: buffers, vertex arrays, textures, targets
@@ -71,11 +72,13 @@ class GpuBackend(Backend):
         ctx = self.ctx
         gpu = {name: _data_texture(ctx, array) for name, array in g.textures().items()}
         gpu["t_objects"] = _data_texture(ctx, np.zeros((g.n_objects, 6, 4), np.float32))
-        bounds = [_target(ctx, g.n_bodies) for _ in range(2)]
+        bounds = [_target(ctx, g.n_bodies) for _ in range(3)]
         cells = [_target(ctx, g.grid_size ** 3) for _ in range(4)]
-        gpu["t_lo"], gpu["t_hi"] = bounds
+        gpu["t_lo"], gpu["t_hi"], gpu["t_centres"] = bounds
+        gpu["t_view"] = _target(ctx, g.n_halfspaces)
         gpu.update({f"t_cells{k}": t for k, t in enumerate(cells)})
         gpu["bounds_fbo"] = ctx.framebuffer(color_attachments=bounds)
+        gpu["view_fbo"] = ctx.framebuffer(color_attachments=[gpu["t_view"]])
         gpu["grid_fbo"] = ctx.framebuffer(color_attachments=cells)
         gpu["fills"] = ctx.buffer(g.fills.tobytes()) if len(g.fills) else None
         gpu["centres"] = ctx.buffer(g.centres.tobytes()) if len(g.centres) else None
@@ -112,7 +115,8 @@ class GpuBackend(Backend):
         set_uniforms(self.edges_prog, **common, u_alpha=float(style.edge_alpha))
 
     def _per_frame_passes(self) -> None:
-        """Bodies' screen bounds, then the body grid (only after the transforms changed)."""
+        """Bodies' screen bounds and centres, their cells in view space, the body grid (only after the
+        transforms changed)."""
         if not self._dirty:
             return
         ctx, g, gpu = self.ctx, self.geometry, self._gpu
@@ -121,12 +125,12 @@ class GpuBackend(Backend):
         self._bind()
         eye = float(self.layer.perspective_eye or 0.0)
         n = g.grid_size
-        for fbo, prog, extra in ((gpu["bounds_fbo"], self.bounds_prog, {}),
-                                 (gpu["grid_fbo"], self.grid_prog,
-                                  {"u_grid": (GRID_LO, (GRID_HI - GRID_LO) / n, float(n), 0.0)})):
+        for fbo, prog in ((gpu["bounds_fbo"], self.bounds_prog), (gpu["view_fbo"], self.view_prog),
+                          (gpu["grid_fbo"], self.grid_prog)):
             fbo.use()
             ctx.viewport = (0, 0, *fbo.size)
-            set_uniforms(prog, u_bodies=g.n_bodies, u_target_width=fbo.size[0], u_eye=eye, **extra)
+            set_uniforms(prog, u_bodies=g.n_bodies, u_halfspaces=g.n_halfspaces, u_eye=eye,
+                         u_grid=(GRID_LO, (GRID_HI - GRID_LO) / n, float(n), 0.0))
             self._fullscreen[id(prog)].render(moderngl.TRIANGLES, vertices=3)
         previous.use()
         ctx.viewport = viewport
@@ -185,15 +189,9 @@ class GpuBackend(Backend):
         self._per_frame_passes()
         self._bind()
         self._scene_uniforms(mvp, viewport, self.layer)
+        plane = identity_state(self.ctx, layers, section)
         for prog in (self.faces_prog, self.edges_prog):
-            set_uniforms(prog, u_section=tuple(map(float, section if section is not None else NO_SECTION)))
-        if layers:
-            self.ctx.disable(moderngl.DEPTH_TEST)
-            self.ctx.enable(moderngl.BLEND)
-            self.ctx.blend_func = moderngl.ONE, moderngl.ONE
-        else:
-            self.ctx.disable(moderngl.BLEND)
-            self.ctx.enable(moderngl.DEPTH_TEST)
+            set_uniforms(prog, u_section=plane)
         self._draw("fills" if what == "faces" else "edges", MODE_LAYERS if layers else MODE_IDS)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
 

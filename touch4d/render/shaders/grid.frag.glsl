@@ -7,7 +7,6 @@ uniform sampler2D t_lo;
 uniform sampler2D t_hi;
 uniform vec4 u_grid;            // (lowest corner, cell size, cells per axis, 0)
 uniform int u_bodies;
-uniform int u_target_width;
 layout(location = 0) out vec4 out0;
 layout(location = 1) out vec4 out1;
 layout(location = 2) out vec4 out2;
@@ -15,7 +14,7 @@ layout(location = 3) out vec4 out3;
 
 void main() {
     int n = int(u_grid.z + 0.5);
-    int cell = int(gl_FragCoord.y) * u_target_width + int(gl_FragCoord.x);
+    int cell = (int(gl_FragCoord.y) << 10) + int(gl_FragCoord.x);
     float slots[15] = float[15](0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     int count = 0;
     if (cell < n * n * n) {

@@ -19,16 +19,16 @@ layout(location = 1) out vec4 out1;
 void main() {
     int own = int(v_body + 0.5);
     bool ask_own = v_own > 0.5;
-    Ray ray = Ray(-1, vec4(0.0), vec4(0.0));
     if (u_clip != 0 ? hidden(v_screen, v_depth, ask_own ? -1 : own)
-                    : ask_own && hides(own, v_screen, world_depth(v_depth), ray)) discard;
+                    : ask_own && hides(own, v_screen, v_depth, 1e-4)) discard;
     if (u_mode >= 2 && dot(u_section.xyz, v_screen) > u_section.w) discard;
     if (u_mode == 3) {
         out0 = vec4(equal(ivec4(int(v_object + 0.5) % 4), ivec4(0, 1, 2, 3)));
         out1 = vec4(0.0);
     } else if (u_mode == 2) {
         out0 = vec4(v_screen, v_object + 1.0);
-        out1 = vec4(world_depth(v_depth), 0.0, 0.0, 1.0);
+        float w = u_eye > 0.0 ? v_depth * u_eye / (1.0 - v_depth) : v_depth;
+        out1 = vec4(w, 0.0, 0.0, 1.0);
     } else if (u_mode == 1) {
         // Weighted blended OIT (McGuire and Bavoil 2013): nearer fragments weigh more. out0: rgb
         // summed, alpha multiplied (revealage); out1: weights summed.

@@ -4,11 +4,11 @@
 uniform sampler2D t_objects;   // per frame, 6 texels per object: orientation columns 0-3, position, (size)
 uniform sampler2D t_bodies;    // 3 texels per body: (half-spaces start, count, object, 0), centre m,
                                // (vertices start, count, 0, 0)
-uniform sampler2D t_halfspaces; // per body: h with h.(x - m) <= 1 inside, local coordinates
+uniform sampler2D t_view;      // per frame, per half-space: the cell in view space (view.frag)
 uniform float u_eye;           // perspective: the eye at w = -u_eye; orthographic: 0
 
-// float32: a cell whose normal is within this (cosine, or relative eye distance in perspective) of
-// orthogonal to the sight lines is edge-on (touch4d.geometry.halfspace.FACING, float64: 1e-9).
+// float32: a cell whose view normal is within this (cosine) of orthogonal to the sight lines is
+// edge-on (touch4d.geometry.halfspace.FACING, float64: 1e-9).
 const float FACING = 1e-5;
 
 struct Pose {
@@ -36,31 +36,25 @@ vec4 to_world(Pose q, vec4 local) {
 
 // View space (touch4d.geometry.projection.perspective_points): (u, v) with u the point on the 3D
 // screen and v a depth that grows along the sight line and is affine across a flat face, so the
-// rasteriser interpolates it exactly; orthographic: v = w.
+// rasteriser interpolates it exactly; every sight line runs along v. Orthographic: v = w.
 vec4 to_view(vec4 x) {
     if (u_eye > 0.0) return vec4(x.xyz * u_eye, x.w) / (x.w + u_eye);
     return x;
 }
 
-// The world depth w of view depth v (inverse of to_view along a sight line).
-float world_depth(float v) {
-    return u_eye > 0.0 ? v * u_eye / (1.0 - v) : v;
+// The cell `cell` of body b in view space: h with h.(x - c) <= 1 inside, c the body's view centre.
+vec4 view_cell(int b, int cell) {
+    return fetch(t_view, int(fetch(t_bodies, 3 * b).x + 0.5) + cell);
 }
 
-// Whether local cell `cell` of body b, placed by q, faces the viewer: the eye lies outside its
-// half-space (perspective) or the sight lines enter the body through it (orthographic), by a margin
-// (edge-on cells do not face the viewer). Back-cell culling, in the vertex shaders: a face on no
-// facing cell, or the centre copy of a cell that does not face, is dropped before rasterising. For
-// a convex body that is what the ray test would decide at every fragment, so the fragments of the
-// faces that remain skip their own body's test (halfspace.glsl) and ask only the others.
-bool facing(int b, int cell, Pose q) {
-    vec4 span = fetch(t_bodies, 3 * b);
-    vec4 m = fetch(t_bodies, 3 * b + 1);
-    vec4 h = fetch(t_halfspaces, int(span.x + 0.5) + cell);
-    mat4 inv = transpose(q.r) / q.s;
-    if (u_eye > 0.0) return dot(h, inv * (vec4(0.0, 0.0, 0.0, -u_eye) - q.p) - m) > 1.0 + FACING;
-    vec4 d = inv * vec4(0.0, 0.0, 0.0, 1.0);
-    return dot(h, d) < -FACING * length(h) * length(d);
+// Whether a cell faces the viewer: sight lines enter the body through it (h_v < 0), by a margin;
+// edge-on cells do not (touch4d.geometry.halfspace.facing). Back-cell culling, in the vertex
+// shaders: a face on no facing cell, or the centre copy of a cell that does not face, is dropped
+// before rasterising. For a convex body that is what the ray test would decide at every fragment,
+// so the fragments of the faces that remain skip their own body's test (halfspace.glsl).
+bool facing(int b, int cell) {
+    vec4 h = view_cell(b, cell);
+    return h.w < -FACING * length(h);
 }
 
 // Where a vertex goes to be culled: outside the clip volume, so its triangle is dropped.
