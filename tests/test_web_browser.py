@@ -255,7 +255,7 @@ def test_a_hidden_page_turns_the_motors_off(browser, stack):
         t0 = time.time()
         page.evaluate("xr.updateVisibilityState('hidden')")   # e.g. the headset taken off
         off = wait_until(lambda: glove.all_off_at(t0), timeout=5)
-        assert off - t0 < 0.1
+        assert off - t0 < 0.1, f"motors off {1000 * (off - t0):.0f} ms after the page was hidden"
         page.evaluate("xr.updateVisibilityState('visible')")   # back on: touch again
         t1 = time.time()
         wait_until(lambda: glove.on_since(t1), timeout=10)

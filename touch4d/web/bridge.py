@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 
 # The GPU renderer's shaders the page compiles (as GLSL ES 3.00), by the names of touch4d.render.glsl.
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
-                "bounds.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
+                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
                  "page_connections", "recentred")
 
@@ -186,7 +186,7 @@ class WebBridge:
         arrays = {name: texture for name, texture in g.textures().items()}
         arrays.update(fills=g.fills, centres=g.centres, edges=g.edges)
         return pack_frame("geometry", {"key": key, "bodies": g.n_bodies, "objects": g.n_objects,
-                                       "grid_size": g.grid_size}, arrays)
+                                       "halfspaces": g.n_halfspaces, "grid_size": g.grid_size}, arrays)
 
     def on_hand_pose(self, msg: HandPose) -> None:
         self._hand = np.r_[msg.position, msg.orientation].astype(np.float32)

@@ -9,6 +9,7 @@ import { attributes, program } from './gl.js';
 const UNITS = {
   t_objects: 0, t_bodies: 1, t_halfspaces: 2, t_colors: 3, t_lo: 4, t_hi: 5,
   t_cells0: 6, t_cells1: 7, t_cells2: 8, t_cells3: 9, t_vertices: 10, t_accum: 11, t_weight: 12,
+  t_centres: 13, t_view: 14, t_halfspace_body: 15,
 };
 const MODE_BLEND = 0, MODE_OIT = 1;
 const DATA_WIDTH = 1024;
@@ -33,9 +34,10 @@ export class SceneRenderer {
     this.centres = make('scene_centre.vert', 'scene.frag');
     this.edges = make('scene_edge.vert', 'scene.frag');
     this.bounds = make('fullscreen.vert', 'bounds.frag');
+    this.view = make('fullscreen.vert', 'view.frag');
     this.grid = make('fullscreen.vert', 'grid.frag');
     this.oit = make('fullscreen.vert', 'oit.frag');
-    this.programs = [this.faces, this.centres, this.edges, this.bounds, this.grid, this.oit];
+    this.programs = [this.faces, this.centres, this.edges, this.bounds, this.view, this.grid, this.oit];
     for (const p of this.programs) {
       gl.useProgram(p.program);
       for (const [name, unit] of Object.entries(UNITS)) if (p.uniforms[name]) gl.uniform1i(p.uniforms[name], unit);
@@ -88,19 +90,19 @@ export class SceneRenderer {
     this.release();
     const shapes = Object.fromEntries(Object.entries(header.arrays).map(([name, [, shape]]) => [name, shape]));
     const res = {};
-    for (const name of ['t_vertices', 't_halfspaces', 't_bodies', 't_colors']) {
-      res[name] = this.dataTexture(arrays[name], shapes[name]);
+    for (const name of Object.keys(arrays).filter((n) => n.startsWith('t_'))) {
+      res[name] = this.dataTexture(arrays[name], shapes[name]);     // the geometry's data textures
     }
     const [ow, oh] = dataSize(6 * header.objects);
     res.t_objects = this.texture(ow, oh, null);
-    const lo = this.target(header.bodies), hi = this.target(header.bodies);
+    const bounds = [0, 1, 2].map(() => this.target(header.bodies));     // t_lo, t_hi, t_centres
+    const view = this.target(header.halfspaces);
     const cells = [0, 1, 2, 3].map(() => this.target(header.grid_size ** 3));
-    res.t_lo = lo.texture; res.t_hi = hi.texture;
+    [res.t_lo, res.t_hi, res.t_centres] = bounds.map((t) => t.texture);
+    res.t_view = view.texture;
     cells.forEach((c, k) => { res[`t_cells${k}`] = c.texture; });
-    res.boundsFbo = this.framebuffer([lo, hi]);
-    res.boundsSize = [lo.width, lo.height];
-    res.gridFbo = this.framebuffer([...cells]);
-    res.gridSize = [cells[0].width, cells[0].height];
+    res.passes = [[this.framebuffer(bounds), bounds[0], this.bounds], [this.framebuffer([view]), view, this.view],
+                  [this.framebuffer(cells), cells[0], this.grid]];
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     res.fills = this.vertexArray(this.faces, arrays.fills, [['in_local', 4], ['in_body', 1], ['in_cells', 2]]);
     res.centres = this.vertexArray(this.centres, arrays.centres,
@@ -152,22 +154,23 @@ export class SceneRenderer {
     }
   }
 
-  // Bodies' screen bounds and the body grid, once per change of the transforms (not per eye).
+  // Bodies' bounds and centres, their cells in view space, the body grid: once per change of the
+  // transforms (not per eye). Each pass's targets are bound as framebuffer, not as textures.
   perFramePasses() {
     if (!this.dirty) return;
     const gl = this.gl, g = this.geometry, n = g.grid_size;
     gl.disable(gl.BLEND);
-    this.bind();
     gl.bindVertexArray(this.vao);
-    for (const [fbo, size, prog, extra] of [[this.res.boundsFbo, this.res.boundsSize, this.bounds, false],
-                                            [this.res.gridFbo, this.res.gridSize, this.grid, true]]) {
+    for (const [fbo, target, prog] of this.res.passes) {
+      this.bind();
       gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
-      gl.viewport(0, 0, size[0], size[1]);
+      gl.viewport(0, 0, target.width, target.height);
       gl.useProgram(prog.program);
-      gl.uniform1i(prog.uniforms.u_bodies, g.bodies);
-      gl.uniform1i(prog.uniforms.u_target_width, size[0]);
-      if (prog.uniforms.u_eye) gl.uniform1f(prog.uniforms.u_eye, this.frame.eye);
-      if (extra) gl.uniform4f(prog.uniforms.u_grid, -1, 2 / n, n, 0);
+      const u = prog.uniforms;
+      if (u.u_bodies) gl.uniform1i(u.u_bodies, g.bodies);
+      if (u.u_halfspaces) gl.uniform1i(u.u_halfspaces, g.halfspaces);
+      if (u.u_eye) gl.uniform1f(u.u_eye, this.frame.eye);
+      if (u.u_grid) gl.uniform4f(u.u_grid, -1, 2 / n, n, 0);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
     }
     this.dirty = false;
@@ -266,6 +269,7 @@ export class SceneRenderer {
 
   release() {
     const gl = this.gl;
+    for (const [fbo] of this.res.passes || []) gl.deleteFramebuffer(fbo);
     for (const value of Object.values(this.res)) {
       if (value instanceof WebGLTexture) gl.deleteTexture(value);
       else if (value instanceof WebGLFramebuffer) gl.deleteFramebuffer(value);
