@@ -139,26 +139,28 @@ def frame_rate(page, seconds: float = 4.0) -> float:
     return float(np.median(rates))
 
 
-def stereo_screenshot(browser, url: str, path: str) -> None:
-    """Both eyes with the hand on the tesseract's front vertex, standing a little back from the screen."""
-    page = headset_page(browser, url, 1280, 640)
-    try:
-        enter_vr(page)
-        page.evaluate("xr.position.set(-0.25, 1.55, 0.3)")
-        page.evaluate("xr.quaternion.set(-0.1730, -0.0858, -0.0152, 0.9811)")     # 20 degrees down, 10 left
-        page.evaluate(f"xr.controllers.right.position.set{INSIDE}")
-        # A slow emulated headset lets the hand lapse between poses (stale_s): keep a picture taken
-        # while the hand was drawn on both sides of it.
-        for _ in range(20):
-            page.wait_for_function("touch4d.frame !== null && touch4d.frame.hand_valid", timeout=60000)
+def stereo_screenshot(browser, path: str) -> None:
+    """Both eyes, standing a little back from the screen, while the scripted hand presses the
+    tesseract's front vertex (the demo with `renderer:=webxr`: the page only shows; a page as slow
+    as SwiftShader's would let a tracked hand lapse between its poses)."""
+    port = free_port()
+    launch = ["renderer:=webxr", f"renderer.port:={port}", "monitor:=none", "tracker.path:=vertex-press",
+              "scene.scene:=config/scenes/hypercube-vertex.yaml", "scene.spin:={}"]
+    with launch_process(launch) as run:
+        run.wait_ready(60)
+        run.wait_for_line("WebXR page", timeout=60)
+        page = headset_page(browser, f"http://127.0.0.1:{port}/", 1280, 640)
+        try:
+            enter_vr(page)
+            page.evaluate("xr.position.set(-0.25, 1.55, 0.3)")
+            page.evaluate("xr.quaternion.set(-0.1730, -0.0858, -0.0152, 0.9811)")     # 20 degrees down, 10 left
+            touching = "touch4d.frame !== null && touch4d.frame.hand_valid && touch4d.motorsOn > 3"
+            page.wait_for_function(touching, timeout=120000)
             n = page.evaluate("touch4d.xrFrames")
-            page.wait_for_function(f"touch4d.xrFrames > {n} + 1 && touch4d.frame.hand_valid", timeout=120000)
-            first = page.evaluate("touch4d.frame.n")
+            page.wait_for_function(f"touch4d.xrFrames > {n} + 2 && {touching}", timeout=120000)
             page.screenshot(path=path)
-            if page.evaluate(f"touch4d.frame.hand_valid && touch4d.frame.n - {first} < 3"):
-                break
-    finally:
-        page.context.close()
+        finally:
+            page.context.close()
 
 
 def serve_empty_page() -> tuple[ThreadingHTTPServer, int]:
@@ -242,7 +244,7 @@ def main() -> None:
             finally:
                 server.shutdown()
             if args.screenshot:
-                stereo_screenshot(browser, f"http://127.0.0.1:{port}/", args.screenshot)
+                stereo_screenshot(browser, args.screenshot)
                 print(f"\nstereo view saved to {args.screenshot}")
         finally:
             probe.node.shutdown()
