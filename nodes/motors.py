@@ -65,7 +65,7 @@ class MotorsNode(Node):
             raise
 
     def _setup(self, bus_factory) -> None:
-        glove = self.declare_parameter("glove", "")
+        glove = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
         interface = self.declare_parameter("interface", "")
         channel = self.declare_parameter("channel", "")
         emulate = self.declare_parameter("emulate", False)
@@ -78,7 +78,7 @@ class MotorsNode(Node):
         if not 0 < status_hz < math.inf:
             raise ConfigError(self._params_source or f"parameters of node '{self.name}'", self._param_key("status_hz"),
                               "a finite rate > 0 (messages per second)", got=status_hz)
-        cfg = load_glove_can(glove or None)
+        cfg = load_glove_can(glove)
         cfg = dataclasses.replace(cfg, interface=interface or cfg.interface, channel=channel or cfg.channel)
         self.cfg = cfg
         self.load = check_bus_load(cfg)

@@ -16,7 +16,6 @@ from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-from touch4d.configfile import resolve
 from touch4d.tracking.outputs import from_controller
 from touch4d.tracking.vr import MISSING_PACKAGE, NO_STEAMVR, buttons_from_mask, pose_from_matrix
 
@@ -34,7 +33,8 @@ class OpenVRTracker(Node):
         if hand not in HANDS:
             raise ConfigError(source, "hand", "right or left", got=hand)
         self.role = openvr.TrackedControllerRole_RightHand if hand == "right" else openvr.TrackedControllerRole_LeftHand
-        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+        self.calibration = load_calibration(self.declare_path_parameter("calibration", "config/calibration.yaml",
+                                                                        "calibration file"))
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
         self.create_timer(1.0 / self.rate, self.tick)

@@ -2,9 +2,10 @@
 
 With a display it opens a window (moderngl-window, glfw) with an orbit camera and publishes the
 window's keyboard and mouse as `ui/input` for the desktop tracker. Without one (no DISPLAY, or
-`headless: true`) it renders offscreen through EGL and can write frames to PNG (`output`, with
-`{frame}` for numbered files). A message it cannot use is logged once per cause and counted; the
-last good state keeps being drawn.
+`headless: true`) it renders offscreen through EGL, where nobody sees it unless `output` saves the
+frames: numbered PNGs, never one file written over (`frames/` -> frames/frame-000000.png, ...;
+`shot.png` -> shot-000000.png, ...; or a pattern with `{frame}`), every `save_every`-th frame. A
+message it cannot use is logged once per cause and counted; the last good state keeps being drawn.
 
 Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
 glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
@@ -26,7 +27,7 @@ from touch4d.errors import ConfigError
 from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
 from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
-from touch4d.render.context import RenderError, save_png
+from touch4d.render.context import RenderError, frame_files, save_png
 from touch4d.render.frame import Style
 from touch4d.render.view import BACKGROUND, SceneView, Show
 from touch4d.tactile.glove import load_glove
@@ -50,10 +51,11 @@ class RendererNode(Node):
         height = self.declare_parameter("height", 640)
         samples = self.declare_parameter("samples", 4)
         camera = self.declare_parameter("camera", "")
-        glove_file = self.declare_parameter("glove", "")
+        glove_file = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
         headless = self.declare_parameter("headless", False)
         backend = self.declare_parameter("backend", DEFAULT_BACKEND)
-        self.output = self.declare_parameter("output", "")
+        output = self.declare_parameter("output", "")
+        self.output = frame_files(output) if output else ""
         self.save_every = self.declare_parameter("save_every", 1)
         self.max_frames = self.declare_parameter("max_frames", 0)
         style = Style(fill_alpha=self.declare_parameter("fill_alpha", Style.fill_alpha),
@@ -72,7 +74,7 @@ class RendererNode(Node):
         if backend not in backend_names():
             raise ConfigError(source, "backend", f"one of {', '.join(backend_names())}", got=backend)
         self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
-        self.view = SceneView(load_glove(glove_file or None), style, show)
+        self.view = SceneView(load_glove(glove_file), style, show)
         self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
         self._rates = dict.fromkeys(self._received, 0.0)
@@ -90,8 +92,17 @@ class RendererNode(Node):
 
             self.renderer = OffscreenRenderer((width, height), samples=samples, backend=backend, log=self.log)
             self.backend = self.renderer.backend
-            self.log.info("headless: rendering offscreen through EGL at %g Hz with the %s backend%s", rate,
-                          self.backend.name, f", frames to {self.output}" if self.output else "")
+            why = "headless: true" if headless else "no DISPLAY"
+            if self.output:
+                self.log.info("headless (%s): rendering offscreen through EGL at %g Hz with the %s backend, every "
+                              "%sframe to %s, ...", why, rate, self.backend.name, _nth(self.save_every),
+                              Path(self.output.format(frame=0)).absolute())
+            else:
+                self.log.warning(
+                    "headless (%s): rendering offscreen with the %s backend, nothing is shown. To see the frames "
+                    "save them with renderer.output:=frames/ (numbered PNGs; renderer.save_every:=%d keeps one a "
+                    "second), or open a window: run with a display (or under xvfb-run -a)", why, self.backend.name,
+                    max(1, round(rate)))
         else:
             from touch4d.render.backends import open_backend
             from touch4d.render.window import InputState, open_window
@@ -174,9 +185,9 @@ class RendererNode(Node):
         return np.frombuffer(raw, dtype=np.uint8).reshape(size[1], size[0], 4)[::-1].copy()
 
     def _save(self, image) -> None:
-        path = self.output.format(frame=self.counts["frames"]) if "{" in self.output else self.output
+        path = self.output.format(frame=self.counts["frames"])
         try:
-            save_png(image, Path(path))
+            self._last_saved = save_png(image, Path(path)).absolute()
             self.counts["saved"] += 1
         except RenderError as exc:
             self._warn_once(f"save:{exc}", f"cannot write frame to {path}: {exc}")
@@ -198,11 +209,17 @@ class RendererNode(Node):
         if not hasattr(self, "counts"):
             return                              # stopped before it was set up
         self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
+        if self.counts["saved"]:
+            self.log.info("saved %d frame(s), the last %s", self.counts["saved"], self._last_saved)
         if self.window is not None:
             self.backend.release()
             self.window.destroy()
         elif self.renderer is not None:
             self.renderer.release()
+
+
+def _nth(n: int) -> str:
+    return "" if n == 1 else f"{n}th "
 
 
 def main(argv=None):

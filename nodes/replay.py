@@ -24,7 +24,7 @@ class ReplayNode(Node):
     def __init__(self, **kwargs):
         super().__init__("replay", **kwargs)
         source = self._params_source or "parameters"
-        path = self.declare_parameter("file", "")
+        path = self.declare_path_parameter("file", "", "log file")
         if not path:
             raise ConfigError(source, f"nodes.{self.name}.params.file", "the .mcap log to replay")
         explicit = "topics" in self.params

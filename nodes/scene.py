@@ -16,7 +16,6 @@ from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.config import positive_parameter
-from touch4d.configfile import resolve
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
 
 
@@ -24,8 +23,8 @@ class SceneNode(Node):
     def __init__(self, **kwargs):
         super().__init__("scene", **kwargs)
         source = f"parameters of node '{self.name}'"
-        scene_file = self.declare_parameter("scene", "config/scenes/hypercube.yaml")
-        calibration = self.declare_parameter("calibration", "config/calibration.yaml")
+        scene_file = self.declare_path_parameter("scene", "config/scenes/hypercube.yaml", "scene file")
+        calibration = self.declare_path_parameter("calibration", "config/calibration.yaml", "calibration file")
         rate = positive_parameter(self.declare_parameter("rate", 2.0), source, "rate", 1000.0, "Hz")
         self.min_period = 1.0 / positive_parameter(self.declare_parameter("max_rate", 120.0), source, "max_rate",
                                                    1000.0, "Hz")
@@ -38,8 +37,8 @@ class SceneNode(Node):
             spin=self.declare_parameter("spin", {}),
             source=source,
         )
-        self.calibration_file = resolve(calibration)
-        self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(self.calibration_file), config)
+        self.calibration_file = calibration
+        self.control = SceneControl(load_scene(scene_file), load_calibration(calibration), config)
         self.calibration_mtime = os.stat(self.calibration_file).st_mtime_ns
         self.dirty = False
         self.last_publish = 0.0

@@ -12,7 +12,6 @@ from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-from touch4d.configfile import resolve
 from touch4d.tracking.outputs import from_hand
 from touch4d.tracking.paths import load_path, looped
 
@@ -23,13 +22,14 @@ class ScriptedTracker(Node):
         source = f"parameters of node '{self.name}'"
         self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
         name = self.declare_parameter("path", "demo")
-        paths_file = self.declare_parameter("paths", "config/paths.yaml")
+        paths_file = self.declare_path_parameter("paths", "config/paths.yaml", "paths file")
         self.loop = self.declare_parameter("loop", True)
         self.start_s = self.declare_parameter("start_s", 0.0)
         if not 0 <= self.start_s < float("inf"):
             raise ConfigError(source, "start_s", "a finite number of seconds >= 0", got=self.start_s)
-        self.path = load_path(name, resolve(paths_file))
-        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+        self.path = load_path(name, paths_file)
+        self.calibration = load_calibration(self.declare_path_parameter("calibration", "config/calibration.yaml",
+                                                                        "calibration file"))
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
         self.tick_count = 0

@@ -31,7 +31,7 @@ class TactileNode(Node):
             raise
 
     def _setup(self) -> None:
-        glove_file = self.declare_parameter("glove", "")
+        glove_file = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
         alpha = self.declare_parameter("alpha", None)
         beta = self.declare_parameter("beta", None)
         projection = self.declare_parameter("projection", "scene")
@@ -42,7 +42,7 @@ class TactileNode(Node):
             raise ConfigError(source, key("projection"), f"one of {', '.join(PROJECTION_CHOICES)}", got=projection)
         alpha = None if alpha is None else check_alpha(alpha, source, key("alpha"))
         beta = None if beta is None else check_beta(beta, source, key("beta"))
-        glove = load_glove(glove_file or None)
+        glove = load_glove(glove_file)
         self.engine = TactileEngine(glove, alpha=alpha, beta=beta, projection=projection)
         self.field_pub = self.create_publisher("tactile/field", TactileField)
         self.motor_pub = self.create_publisher("tactile/motors", MotorCommand)

@@ -18,7 +18,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from touch4d.bus import Node, run_node
-from touch4d.configfile import resolve
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
 from touch4d.tactile.glove import load_glove
@@ -57,9 +56,9 @@ class WebXRNode(Node):
         hand_source = self.declare_parameter("hand_source", "controller")
         controller_hand = self.declare_parameter("controller_hand", "") or hand
         recenter_button = self.declare_parameter("recenter_button", "a")
-        calibration_file = resolve(self.declare_parameter("calibration", "config/calibration.yaml"))
+        calibration_file = self.declare_path_parameter("calibration", "config/calibration.yaml", "calibration file")
         self.save_calibration = self.declare_parameter("save_calibration", True)
-        glove = self.declare_parameter("glove", "")
+        glove = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
         rate = positive_parameter(self.declare_parameter("rate", 90.0), source, key("rate"), 240.0, "Hz")
         stale_s = positive_parameter(self.declare_parameter("stale_s", 0.06), source, key("stale_s"), 0.09, "s")
         for name, value, choices in (("hand", hand, HANDS), ("controller_hand", controller_hand, HANDS),
@@ -93,7 +92,7 @@ class WebXRNode(Node):
                                  on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
                                      self.bridge.page_message, conn, data, arrival),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
-        self.bridge = WebBridge(config, load_glove(glove or None), load_calibration(calibration_file, "hand_in_grip"),
+        self.bridge = WebBridge(config, load_glove(glove), load_calibration(calibration_file, "hand_in_grip"),
                                 load_placement(calibration_file), publish=self._publish,
                                 broadcast=self.server.broadcast, send=self.server.send,
                                 save_calibration=self._save_calibration)

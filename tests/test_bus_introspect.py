@@ -5,6 +5,7 @@ import pytest
 import yaml
 
 from touch4d.bus import Node
+from touch4d.bus.config import ENV_VAR
 from touch4d.bus.introspect import build_message, node_list, topic_echo, topic_hz, topic_list, topic_pub
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.errors import ConfigError
@@ -81,7 +82,7 @@ def test_topic_pub_reports_bad_input(topic, text, type_name, match):
 def test_the_cli_commands_reach_the_bus(live_bus, monkeypatch, capsys):
     from touch4d.cli import main
 
-    monkeypatch.setenv("TOUCH4D_BUS", live_bus.to_json())
+    monkeypatch.setenv(ENV_VAR, live_bus.to_json())   # as in a process the launcher started
     assert main(["node", "list", "--duration", "2.0"]) == 0
     assert "example_talker" in capsys.readouterr().out
     with Node("probe", bus=live_bus, heartbeat=False) as probe:

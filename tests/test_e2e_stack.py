@@ -1,4 +1,4 @@
-"""The whole system from one command (issue 9): the demo stack, Ctrl+C at any moment, replay.
+"""The whole system from one command: the demo stack, Ctrl+C at any moment, replay.
 
 Each test runs `touch4d launch` as a process group on free loopback ports, watches the bus from
 this process, and checks what the glove got: duties while the hand touched, zero after it left,

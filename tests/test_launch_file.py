@@ -61,7 +61,7 @@ def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path)
     ("nodes:\n  tracker: {node: 3}\n", "nodes.tracker.node"),
     ("nodes:\n  tracker: {params: {rate: 1}}\n", "nodes.tracker.node"),
     ("nodes:\n  tracker: example_talker\n", "nodes.tracker"),
-    ("include: [missing.yaml]\n", "include"),
+    ("include: [missing.yaml]\n", "include[0]"),
     ("nodes: [talker]\n", "nodes"),
 ])
 def test_bad_launch_files_name_the_file_and_the_key(tmp_path, text, key):

@@ -96,7 +96,8 @@ def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path, backe
         spin_until(node, lambda: node.counts["frames"] > frames + 3)
         assert green()
         from PIL import Image
-        assert (np.asarray(Image.open(out))[..., 1] > 200).sum() > 100   # the PNG written is that frame
+        last = sorted(tmp_path.glob("frame-*.png"))[-1]                   # numbered: frame-000042.png
+        assert (np.asarray(Image.open(last))[..., 1] > 200).sum() > 100  # the PNG written is that frame
     finally:
         node.shutdown()
 
@@ -129,3 +130,25 @@ def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change()
     recoloured = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "color": np.array([1.0, 0, 0, 1])}]})
     assert view.set_scene(recoloured) and view.frame().scene.geometry is not layer.geometry
     assert view.geometry_builds == 2
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("output, first", [("shot.png", "shot-000000.png"), ("frames/", "frames/frame-000000.png"),
+                                          ("f/{frame:03d}.png", "f/000.png")])
+def test_headless_frames_are_numbered_files_not_one_overwritten(bus, tmp_path, output, first, caplog):
+    caplog.set_level("INFO")
+    node = make_node(bus, output=str(tmp_path / output) + ("/" if output.endswith("/") else ""), max_frames=3)
+    try:
+        spin_until(node, lambda: node.counts["frames"] >= 3)
+    finally:
+        node.shutdown()
+    files = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*.png"))
+    assert len(files) == 3 and files[0] == first
+    assert str(tmp_path / first) in caplog.text       # the node says where its frames go
+
+
+def test_headless_without_output_says_where_to_look(bus, caplog):
+    with caplog.at_level("INFO"):
+        node = make_node(bus)
+        node.shutdown()
+    assert "nothing is shown" in caplog.text and "renderer.output:=" in caplog.text and "xvfb-run" in caplog.text

@@ -6,6 +6,7 @@ import sys
 import time
 from pathlib import Path
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.boards.busload import bus_load
 from touch4d.boards.config import load_glove_can
@@ -36,8 +37,14 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_emulate)
 
 
+def _glove(args):
+    """The `--glove` file's CAN configuration (default config/glove.yaml)."""
+    path = resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None
+    return load_glove_can(path)
+
+
 def cmd_dbc(args) -> int:
-    text = dbc_text(load_glove_can(args.glove))
+    text = dbc_text(_glove(args))
     if args.output:
         Path(args.output).write_bytes(text.encode())
     else:
@@ -46,7 +53,7 @@ def cmd_dbc(args) -> int:
 
 
 def cmd_busload(args) -> int:
-    cfg = load_glove_can(args.glove)
+    cfg = _glove(args)
     print(f"{cfg.file}: {len(cfg.boards)} boards at {cfg.bitrate} bit/s, refresh {cfg.refresh_hz:g} Hz")
     print(bus_load(cfg).describe())
     return 0
@@ -59,7 +66,7 @@ def cmd_emulate(args) -> int:
 
     if not (math.isfinite(args.print_period) and args.print_period > 0):
         raise ConfigError("<command line>", "--print-period", "a number of seconds > 0", got=args.print_period)
-    cfg = load_glove_can(args.glove)
+    cfg = _glove(args)
     kind = "firmware" if args.firmware else "python"
     try:
         emulator = make_glove_emulator(kind, cfg, interface=args.interface, channel=args.channel)  # may build

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from touch4d.bus.config import load_bus_config, resolve_bus_config
+from touch4d.bus.config import resolve_bus_config, user_bus_config
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-DEFAULT_LAUNCH = Path(__file__).resolve().parents[2] / "launch" / "demo.yaml"
+DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
+BUS_HELP = "bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)"
 
 
 def register(subparsers) -> None:
@@ -15,9 +16,9 @@ def register(subparsers) -> None:
                               description="Start the broker and every node of a launch file. Overrides: "
                               "ROLE:=MODULE swaps a node (ROLE:=none drops it), ROLE.PARAM:=VALUE sets a parameter.")
     p.add_argument("items", nargs="*", metavar="FILE|OVERRIDE",
-                   help=f"launch file (default {DEFAULT_LAUNCH.relative_to(DEFAULT_LAUNCH.parents[1])}) and overrides")
+                   help=f"launch file (default {DEFAULT_LAUNCH}) and overrides")
     p.add_argument("--duration", type=float, help="stop after S seconds")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.add_argument("--no-broker", action="store_true", help="use a broker that already runs (e.g. on another machine)")
     p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
     p.set_defaults(func=_launch)
@@ -46,12 +47,12 @@ def register(subparsers) -> None:
     p.add_argument("-n", "--count", type=int, help="publish N times")
     p.set_defaults(func=_topic_pub)
     for parser in topic.choices.values():
-        parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+        parser.add_argument("--bus", help=BUS_HELP)
 
     node = _group(subparsers, "node", "inspect or run nodes")
     p = node.add_parser("list", help="live nodes, from their heartbeats")
     p.add_argument("--duration", type=float, default=2.5, help="listen for S seconds (default 2.5)")
-    p.add_argument("--bus", help="bus config file")
+    p.add_argument("--bus", help=BUS_HELP)
     p.set_defaults(func=_node_list)
     p = node.add_parser("run", help="run one node in this process: MODULE [--name N] [--params JSON]")
     p.add_argument("module", help="module in touch4d.nodes")
@@ -60,7 +61,7 @@ def register(subparsers) -> None:
 
     bus = _group(subparsers, "bus", "the broker and its keys")
     p = bus.add_parser("broker", help="run the broker alone (the launcher normally runs it)")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.set_defaults(func=_broker)
     p = bus.add_parser("keygen", help="make a CurveZMQ key pair for a machine or the broker")
     p.add_argument("name", help="key name, e.g. broker, pc, pi")
@@ -83,10 +84,11 @@ def _launch(args) -> int:
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
-    nodes = load_launch(files[0] if files else DEFAULT_LAUNCH, overrides)
-    bus = load_bus_config(args.bus)
+    path = resolve_path(files[0] if files else DEFAULT_LAUNCH, COMMAND_LINE, key="launch file", what="launch file")
+    nodes = load_launch(path, overrides)
+    bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
-                    ready_file=args.ready_file).run()
+                    ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
 
 
 def _topic_list(args) -> int:
@@ -133,7 +135,7 @@ def _node_run(args) -> int:
 def _broker(args) -> int:
     from touch4d.bus.broker import Broker
 
-    Broker(load_bus_config(args.bus)).run()
+    Broker(user_bus_config(args.bus)).run()
     return 0
 
 

@@ -43,11 +43,13 @@ class Launcher:
     """Runs one launch: `run()` returns the exit code (0 after a clean stop)."""
 
     def __init__(self, nodes: dict[str, NodeSpec], bus: BusConfig, *, start_broker: bool = True,
-                 duration: float | None = None, ready_file: str | None = None, out=None):
+                 duration: float | None = None, ready_file: str | None = None, out=None,
+                 launch_file: str | None = None, bus_file: str | None = None):
         self.bus = bus
         self.start_broker = start_broker
         self.duration = duration
         self.ready_file = ready_file
+        self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
         self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
         width = max([len(r) for r in nodes] + [6])
@@ -57,6 +59,7 @@ class Launcher:
             text = f"[{role}]".ljust(width + 2) + " "
             self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
         self._stop_reason: str | None = None
+        self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
 
@@ -67,8 +70,18 @@ class Launcher:
 
     def _emit(self, role: str, lines: list[bytes]) -> None:
         prefix = self._prefix[role]
-        self.out.write(b"".join(prefix + line + b"\n" for line in lines))
-        self.out.flush()
+        try:
+            self.out.write(b"".join(prefix + line + b"\n" for line in lines))
+            self.out.flush()
+        except BrokenPipeError:
+            # Whoever read the output is gone (`touch4d launch | head`): stop every node cleanly.
+            from touch4d.cli import silence_stdout
+
+            silence_stdout()
+            self.out = open(os.devnull, "wb")
+            self._output_closed = True
+            if self._stop_reason is None:
+                self._stop_reason = "its output was closed"
 
     def _read(self, child: _Child) -> bool:
         """Pass on the complete lines a child has written; False at end of file."""
@@ -157,6 +170,8 @@ class Launcher:
         old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
         self._selector.register(wake_r, selectors.EVENT_READ, None)
         try:
+            if self.files[0]:
+                self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}")
             if broker:
                 self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
@@ -182,6 +197,10 @@ class Launcher:
             if broker:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
+        if self._output_closed:
+            from touch4d.cli import EXIT_PIPE_CLOSED
+
+            return EXIT_PIPE_CLOSED
         if failed:
             self.say(f"stopped; node(s) that failed: {', '.join(failed)}")
             return 1

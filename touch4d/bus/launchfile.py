@@ -1,7 +1,7 @@
 """Launch files: which nodes to run, with which parameters; includes and command-line overrides.
 
 ```yaml
-include: [base.yaml]          # merged first (paths relative to this file); may nest
+include: [base.yaml]          # merged first (found by touch4d.configfile.resolve_path); may nest
 nodes:
   tracker:                    # the role (node name)
     node: scripted_tracker    # module in touch4d.nodes
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import yaml
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-COMMAND_LINE = "command line"
 _FILE_KEYS = {"include", "nodes"}
 _NODE_KEYS = {"node", "params", "params_for", "respawn", "respawn_delay", "realtime"}
 
@@ -56,9 +56,11 @@ def node_modules() -> list[str]:
 
 
 def load_launch(path: str | Path, overrides: list[str] = ()) -> dict[str, NodeSpec]:
-    """Read a launch file with its includes, apply command-line overrides and check the result."""
+    """Read a launch file with its includes, apply command-line overrides and check the result.
+    `path` and the includes are found by `resolve_path` (an include relative to its including file
+    after the current directory)."""
     nodes: dict[str, NodeSpec] = {}
-    _merge_file(Path(path), nodes, stack=())
+    _merge_file(resolve_path(path, COMMAND_LINE, key="launch file", what="launch file"), nodes, stack=())
     apply_overrides(nodes, overrides)
     for role, spec in nodes.items():
         if spec.module is None:
@@ -68,14 +70,14 @@ def load_launch(path: str | Path, overrides: list[str] = ()) -> dict[str, NodeSp
 
 
 def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...]) -> None:
-    path = path.resolve() if path.exists() else path
+    path = path.resolve()
     if path in stack:
         raise ConfigError(stack[-1], "include", "no include cycle", got=str(path))
     try:
         data = yaml.safe_load(path.read_text())
     except OSError as exc:
         where = stack[-1] if stack else COMMAND_LINE
-        raise ConfigError(where, "include" if stack else "launch file", "an existing launch file", got=f"{path} ({exc.strerror})") from None
+        raise ConfigError(where, "include" if stack else "launch file", "a readable launch file", got=f"{path} ({exc.strerror})") from None
     except yaml.YAMLError as exc:
         raise ConfigError(path, "(file)", "valid YAML", got=str(exc)) from None
     data = {} if data is None else data
@@ -91,8 +93,8 @@ def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...])
         raise ConfigError(path, "include", "a list of launch file paths", got=includes)
     for i, inc in enumerate(includes):
         if not isinstance(inc, str):
-            raise ConfigError(path, f"include[{i}]", "a launch file path (relative to this file)", got=inc)
-        _merge_file(path.parent / inc, nodes, (*stack, path))
+            raise ConfigError(path, f"include[{i}]", "a launch file path", got=inc)
+        _merge_file(resolve_path(inc, path, key=f"include[{i}]", what="launch file"), nodes, (*stack, path))
     entries = data.get("nodes") or {}
     if not isinstance(entries, dict):
         raise ConfigError(path, "nodes", "a mapping of role -> node", got=entries)

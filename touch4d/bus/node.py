@@ -19,11 +19,13 @@ import time
 import uuid
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import zmq
 
 from touch4d.bus.config import BusConfig, resolve_bus_config
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, Message, MessageError, decode
 
@@ -198,6 +200,16 @@ class Node:
             key = f"nodes.{self.name}.params.{name}" if self._params_source else name
             raise ConfigError(source, key, expected, got=value)
         return float(value) if isinstance(default, float) else value
+
+    def declare_path_parameter(self, name: str, default: str, what: str = "file") -> Path | None:
+        """A file parameter (None when ""), found by `touch4d.configfile.resolve_path`: the current
+        directory, then the folder of the launch file that set it, then the packaged defaults."""
+        value = self.declare_parameter(name, default)
+        if not value:
+            return None
+        source = self._params_source or f"parameters of node '{self.name}'"
+        key = f"nodes.{self.name}.params.{name}" if self._params_source else name
+        return resolve_path(value, source, key=key, what=what)
 
     def undeclared_parameters(self) -> list[str]:
         """Parameters given to the node that it never declared (likely typos in a launch file)."""

@@ -193,9 +193,10 @@ class LaunchRun(ProcessOutput):
 
 
 @contextmanager
-def launch_process(args: list[str], bus_config: str | None = None, grace: float = 5.0) -> Iterator[LaunchRun]:
-    """Run `touch4d launch ARGS` with a broker on free loopback ports (unless `bus_config` names a
-    file); on exit Ctrl+C it, then kill its whole process group."""
+def launch_process(args: list[str], bus_config: str | None = None, grace: float = 5.0,
+                   cwd: str | Path | None = None) -> Iterator[LaunchRun]:
+    """Run `touch4d launch ARGS` (in `cwd`, default the repository) with a broker on free loopback
+    ports (unless `bus_config` names a file); on exit Ctrl+C it, then kill its whole process group."""
     with tempfile.TemporaryDirectory(prefix="touch4d-launch-") as tmp:
         ready = Path(tmp) / "bus.json"
         if bus_config is None:
@@ -206,7 +207,7 @@ def launch_process(args: list[str], bus_config: str | None = None, grace: float 
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR}
         env["PYTHONUNBUFFERED"] = "1"
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                env=env, cwd=REPO, start_new_session=True)
+                                env=env, cwd=cwd or REPO, start_new_session=True)
         run = LaunchRun(proc, ready)
         try:
             yield run

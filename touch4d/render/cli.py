@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
 from .camera import OrbitCamera, parse_camera
@@ -29,7 +30,7 @@ def register(subparsers) -> None:
     p.add_argument("--size", default="1280x800", help="image size WIDTHxHEIGHT in pixels")
     p.add_argument("--samples", type=int, default=4, help="multisampling (0 for exact pixel colours)")
     p.add_argument("--no-frame", action="store_true", help="leave out the screen's frame")
-    p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube")
+    p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube (always out without --hand)")
     p.add_argument("--no-status", action="store_true", help="leave out the status line")
     p.add_argument("--no-centres", action="store_true", help="leave out the cells' centre copies")
     p.add_argument("--no-clip", action="store_true", help="draw what other objects hide too")
@@ -64,11 +65,12 @@ def _render(args) -> int:
     camera = parse_camera(args.camera, OrbitCamera())
     if args.samples < 0:
         raise ConfigError("--samples", "samples", "0 or more", got=args.samples)
-    scene = load_scene(args.scene)
+    scene_file = resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file")
+    scene = load_scene(scene_file)
     if args.projection:
         scene = replace(scene, projection=args.projection)
-    glove = load_glove(args.glove)
-    show = Show(frame=not args.no_frame, tactile=not args.no_tactile, status=not args.no_status)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    show = Show(frame=not args.no_frame, tactile=bool(args.hand) and not args.no_tactile, status=not args.no_status)
     view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)
     view.set_scene(scene)
     if args.hand:
@@ -87,9 +89,9 @@ def _render(args) -> int:
         view.set_motors(motors)
     renderer = OffscreenRenderer(size, samples=args.samples, backend=args.backend)
     try:
-        image = renderer.render(view, camera)
+        image = renderer.render(view, camera, [f"scene file {args.scene}"])
     finally:
         renderer.release()
     path = save_png(image, args.output)
-    print(f"wrote {path} ({size[0]}x{size[1]})")
+    print(f"wrote {path} ({size[0]}x{size[1]}) of {scene_file}")
     return 0

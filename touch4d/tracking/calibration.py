@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
 from . import quaternion
@@ -124,7 +125,7 @@ HAND_KEYS = ("hand_in_controller", "hand_in_grip")
 def load_calibration(path=None, hand: str = "hand_in_controller") -> Calibration:
     """Read config/calibration.yaml (or `path`); a bad file stops with the file, key and what was expected.
     `hand` names the section placing the glove hand on the tracked device (one of HAND_KEYS)."""
-    path = Path(path) if path is not None else DEFAULT_CALIBRATION
+    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
     data = read_yaml(path)
     screen = get_map(data, "screen", path)
     hand_map = get_map(data, hand, path, default={})
@@ -147,7 +148,7 @@ class Placement:
 
 def load_placement(path=None) -> Placement:
     """The `placement:` section of a calibration file (defaults when absent)."""
-    path = Path(path) if path is not None else DEFAULT_CALIBRATION
+    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
     section = get_map(read_yaml(path), "placement", path, default={})
     default = Placement()
     return Placement(
