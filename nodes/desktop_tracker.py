@@ -9,33 +9,39 @@ from __future__ import annotations
 import os
 import time
 
-import numpy as np
-
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.messages import ControllerState, HandPose, InputEvents
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
+from touch4d.tracking.config import MAX_TRACKER_RATE
 from touch4d.tracking.desktop import DesktopConfig, DesktopHand
 from touch4d.tracking.outputs import from_hand
 
+_DEFAULTS = DesktopConfig()
+
 
 class DesktopTracker(Node):
-    def __init__(self, **kwargs):
-        super().__init__("tracker", **kwargs)
-        source = f"parameters of node '{self.name}'"
-        self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
-        defaults = DesktopConfig()
-        home = self.declare_parameter("home", list(defaults.home))
-        if len(home) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-                                     for v in home):
-            raise ConfigError(source, "home", "[x, y, z] in screen units", got=home)
-        speeds = {key: positive_parameter(self.declare_parameter(key, getattr(defaults, key)), source, key)
-                  for key in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")}
-        config = DesktopConfig(**speeds, home=tuple(float(v) for v in home))
-        self.calibration = load_calibration(self.declare_path_parameter("calibration", "config/calibration.yaml",
-                                                                        "calibration file"))
-        self.input_timeout = positive_parameter(self.declare_parameter("input_timeout", 5.0), source, "input_timeout")
+    """The hand steered with keyboard and mouse in the renderer window."""
+
+    default_name = "tracker"
+    PARAMS = {
+        "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE),
+        "home": Param(list(_DEFAULTS.home), "where the hand starts ([x, y, z], screen units)", items=float, length=3),
+        "move_speed": Param(_DEFAULTS.move_speed, "while a move key is held", unit="screen units/s", above=0),
+        "turn_speed_deg": Param(_DEFAULTS.turn_speed_deg, "while a turn key is held", unit="degrees/s", above=0),
+        "drag_turn": Param(_DEFAULTS.drag_turn, "turn per pixel of a left-button drag", unit="rad/pixel", above=0),
+        "drag_move": Param(_DEFAULTS.drag_move, "move per pixel of a right-button drag", unit="screen units/pixel",
+                           above=0),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+        "input_timeout": Param(5.0, "warn when no ui/input came within this time", unit="s", above=0),
+    }
+
+    def setup(self) -> None:
+        p = self.params
+        self.rate = p["rate"]
+        config = DesktopConfig(**{k: p[k] for k in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")},
+                               home=tuple(p["home"]))
+        self.calibration = load_calibration(p["calibration"])
+        self.input_timeout = p["input_timeout"]
         self.hand = DesktopHand(config)
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
@@ -66,11 +72,3 @@ class DesktopTracker(Node):
         hand, controller = from_hand(sample, self.calibration)
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
-
-
-def main(argv=None):
-    return run_node(DesktopTracker, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

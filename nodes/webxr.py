@@ -9,109 +9,101 @@ grip or from hand tracking: `hand_source`), `controller/state` and `hand/joints`
 Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
 reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a
 QR code) and serves https with a self-signed certificate made in `cert_dir` (`tls: auto`).
-Parameters: host, port, token ("auto" or a fixed one), tls ("auto", "on", "off"), cert_dir,
-tracker, hand, hand_source, controller_hand, recenter_button, calibration, save_calibration,
-glove, rate (page frames per second), stale_s (a silent tracker page's hand turns invalid).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from touch4d.bus import Node, run_node
+from touch4d.bus import Node, Param
 from touch4d.errors import ConfigError
 from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
-from touch4d.tracking.config import positive_parameter
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
 from touch4d.web import access
 from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.server import PageServer
 
-TLS_CHOICES = ("auto", "on", "off")
-
 
 class WebXRNode(Node):
-    """Bridges topics and WebXR pages; see the module doc for the parameters."""
+    """Bridges topics and WebXR pages."""
 
-    def __init__(self, **kwargs):
-        super().__init__("webxr", **kwargs)
-        self.server = None
-        try:
-            self._setup()
-        except BaseException:
-            self.shutdown()   # no socket, thread or port left behind by a bad parameter
-            raise
+    default_name = "webxr"
+    PARAMS = {
+        "host": Param("127.0.0.1", "address to serve on; beyond loopback: https and a token"),
+        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535),
+        "token": Param("auto", "'auto' (random, only beyond loopback) or a token of your own"),
+        "tls": Param("auto", "https: auto (beyond loopback), on, off", choices=("auto", "on", "off")),
+        "cert_dir": Param("", "where the self-signed certificate is kept ('' = ~/.config/touch4d/webxr-tls)"),
+        "tracker": Param(False, "publish what the page tracks (hand/pose, controller/state, hand/joints)"),
+        "hand": Param("right", "the hand that wears the glove", choices=HANDS),
+        "hand_source": Param("controller", "the glove hand's pose from the controller's grip or hand tracking",
+                             choices=HAND_SOURCES),
+        "controller_hand": Param("", "the controller (or tracked hand) that turns the object ('' = hand)",
+                                 choices=("", *HANDS)),
+        "recenter_button": Param("a", "the controller button that re-centres the screen",
+                                 choices=tuple(b for b in XR_STANDARD_BUTTONS if b)),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration (re-centring writes it)",
+                             path="calibration file"),
+        "save_calibration": Param(True, "store a re-centred screen in the calibration file"),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
+        "rate": Param(90.0, "frames sent to the pages per second, at most", unit="Hz", above=0, max=240),
+        "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
+                         above=0, max=0.09),
+    }
 
-    def _setup(self) -> None:
-        source = self._params_source or f"parameters of node '{self.name}'"
-        key = (lambda name: f"nodes.{self.name}.params.{name}") if self._params_source else (lambda name: name)
-        host = self.declare_parameter("host", "127.0.0.1")
-        port = self.declare_parameter("port", 8090)
-        token = self.declare_parameter("token", "auto")
-        tls = self.declare_parameter("tls", "auto")
-        cert_dir = self.declare_parameter("cert_dir", "")
-        tracker = self.declare_parameter("tracker", False)
-        hand = self.declare_parameter("hand", "right")
-        hand_source = self.declare_parameter("hand_source", "controller")
-        controller_hand = self.declare_parameter("controller_hand", "") or hand
-        recenter_button = self.declare_parameter("recenter_button", "a")
-        calibration_file = self.declare_path_parameter("calibration", "config/calibration.yaml", "calibration file")
-        self.save_calibration = self.declare_parameter("save_calibration", True)
-        glove = self.declare_path_parameter("glove", "config/glove.yaml", "glove file")
-        rate = positive_parameter(self.declare_parameter("rate", 90.0), source, key("rate"), 240.0, "Hz")
-        stale_s = positive_parameter(self.declare_parameter("stale_s", 0.06), source, key("stale_s"), 0.09, "s")
-        for name, value, choices in (("hand", hand, HANDS), ("controller_hand", controller_hand, HANDS),
-                                     ("hand_source", hand_source, HAND_SOURCES), ("tls", tls, TLS_CHOICES),
-                                     ("recenter_button", recenter_button, tuple(b for b in XR_STANDARD_BUTTONS if b))):
-            if value not in choices:
-                raise ConfigError(source, key(name), f"one of {', '.join(choices)}", got=value)
-        if not 0 <= port <= 65535:
-            raise ConfigError(source, key("port"), "a TCP port 0..65535 (0: any free one)", got=port)
-        if not token:
-            raise ConfigError(source, key("token"), "'auto' or a token of your own", got=token)
-
+    def setup(self) -> None:
+        p = self.params
+        if not p["token"]:
+            raise self.param_error("token", "'auto' or a token of your own")
+        host = p["host"]
         loopback = access.is_loopback(host)
-        self.token = None if token == "auto" and loopback else (access.new_token() if token == "auto" else token)
+        self.token = None if p["token"] == "auto" and loopback else (
+            access.new_token() if p["token"] == "auto" else p["token"])
         ssl_context, fingerprint = None, None
-        if tls == "on" or (tls == "auto" and not loopback):
-            cert, key_file, fingerprint = access.ensure_certificate(
-                Path(cert_dir) if cert_dir else access.DEFAULT_CERT_DIR, access.lan_addresses(host))
-            ssl_context = access.server_ssl_context(cert, key_file)
+        if p["tls"] == "on" or (p["tls"] == "auto" and not loopback):
+            cert, key, fingerprint = access.ensure_certificate(
+                Path(p["cert_dir"]) if p["cert_dir"] else access.DEFAULT_CERT_DIR, access.lan_addresses(host))
+            ssl_context = access.server_ssl_context(cert, key)
 
-        self.calibration_file = calibration_file
-        config = BridgeConfig(tracker=tracker, hand=hand, hand_source=hand_source, controller_hand=controller_hand,
-                              recenter_button=recenter_button, stale_s=stale_s)
+        config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
+                              controller_hand=p["controller_hand"] or p["hand"],
+                              recenter_button=p["recenter_button"], stale_s=p["stale_s"])
         self.publishers = {}
-        if tracker:
+        if p["tracker"]:
             self.publishers = {"hand/pose": self.create_publisher("hand/pose", HandPose),
                                "controller/state": self.create_publisher("controller/state", ControllerState),
                                "hand/joints": self.create_publisher("hand/joints", HandJoints)}
-        self.server = PageServer(host, port, self.token, ssl_context,
+        self.bridge = WebBridge(config, load_glove(p["glove"]), load_calibration(p["calibration"], "hand_in_grip"),
+                                load_placement(p["calibration"]), publish=self._publish,
+                                broadcast=lambda data, latest: self.server.broadcast(data, latest),
+                                send=lambda conn, data: self.server.send(conn, data),
+                                save_calibration=self._save_calibration)
+        # The server's thread hands every event to this node's thread (one thread runs the bridge).
+        self.server = PageServer(host, p["port"], self.token, ssl_context,
                                  on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn),
                                  on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
                                      self.bridge.page_message, conn, data, arrival),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
-        self.bridge = WebBridge(config, load_glove(glove), load_calibration(calibration_file, "hand_in_grip"),
-                                load_placement(calibration_file), publish=self._publish,
-                                broadcast=self.server.broadcast, send=self.server.send,
-                                save_calibration=self._save_calibration)
         self.create_subscription("scene/state", SceneState, self.bridge.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.bridge.on_hand_pose, latest_only=True)
         self.create_subscription("tactile/field", TactileField, self.bridge.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.bridge.on_motors, latest_only=True)
         self.create_subscription("motors/status", MotorStatus, self.bridge.on_status, latest_only=True)
-        self.create_timer(1.0 / rate, self.bridge.tick)
+        self.create_timer(1.0 / p["rate"], self.bridge.tick)
         try:
             bound = self.server.start()
         except OSError as exc:
-            raise ConfigError(source, key("port"), f"a port free on {host}", got=f"{port} ({exc.strerror or exc})") from None
+            raise self.param_error("port", f"a port free on {host}", got=f"{p['port']} ({exc.strerror or exc})") \
+                from None
+        self.add_cleanup(self.server.stop)
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
-        role = "tracker and view" if tracker else "view"
+        role = "tracker and view" if p["tracker"] else "view"
         for url in urls:
-            self.log.info("WebXR page (%s, %s source): %s", role, hand_source if tracker else "scripted", url)
+            self.log.info("WebXR page (%s, %s source): %s", role, p["hand_source"] if p["tracker"] else "scripted",
+                          url)
         if fingerprint:
             self.log.info("TLS: self-signed certificate, SHA-256 %s (accept it once in the headset's browser)",
                           fingerprint)
@@ -125,34 +117,24 @@ class WebXRNode(Node):
         self.publishers[topic].publish(msg)
 
     def _save_calibration(self, calibration) -> None:
-        if not self.save_calibration:
+        path = self.params["calibration"]
+        if not self.params["save_calibration"]:
             return
         try:
-            save_screen_placement(self.calibration_file, calibration)
-            self.log.info("screen re-centred at %s m, stored in %s",
-                          ", ".join(f"{v:.2f}" for v in calibration.center_m), self.calibration_file)
+            save_screen_placement(path, calibration)
+            self.log.info("screen re-centred at %s m, stored in %s", ", ".join(f"{v:.2f}" for v in calibration.center_m),
+                          path)
         except (OSError, ConfigError) as exc:
-            self.log.warning("screen re-centred but not stored in %s: %s", self.calibration_file, exc)
+            self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
 
     def stats_flat(self) -> dict:
         out = super().stats_flat()
-        if self.server is not None:
+        if hasattr(self, "server"):
             out.update(self.bridge.counts, page_refused=self.server.refused, pages=len(self.bridge.pages),
                        page_fps=round(self.bridge.page_fps(), 1))
         return out
 
     def on_shutdown(self) -> None:
-        if self.server is None or not hasattr(self, "bridge"):
-            return
         if self.publishers:
             self.bridge.owner = None
             self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go
-        self.server.stop()
-
-
-def main(argv=None):
-    return run_node(WebXRNode, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

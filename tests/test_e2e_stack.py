@@ -150,13 +150,13 @@ def test_ctrl_c_at_any_moment_leaves_no_process_and_every_motor_off(moment):
 def test_replay_of_a_recorded_demo_drives_the_motors_with_the_same_commands_and_true_latency(tmp_path):
     live = tmp_path / "live.mcap"
     again = tmp_path / "replayed.mcap"
-    with launch_process(["--duration", "16", "renderer:=none", "monitor:=none", "recorder:=recorder",
+    with launch_process(["--duration", "16", "renderer:=none", "monitor:=none", "+recorder:=recorder",
                          f"recorder.file:={live}"]) as run:
         assert run.proc.wait(60) == 0, run.text
     # The replay's defaults: fresh stamps (the recorded ones kept in recorded_stamp), so the motor
     # node's stale-command guard lets the glove buzz and the monitor measures this run's latency.
     with launch_process([str(REPO / "launch/replay.yaml"), "--duration", "18", "renderer:=none",
-                         f"tracker.file:={live}", "recorder:=recorder", f"recorder.file:={again}",
+                         f"tracker.file:={live}", "+recorder:=recorder", f"recorder.file:={again}",
                          "recorder.topics:=[tactile/motors,hand/pose,motors/status,motors/trace]"]) as run:
         assert run.proc.wait(60) == 0, run.text
 

@@ -90,7 +90,7 @@ def test_the_full_stack_drives_the_firmware_boards_outputs_to_the_commanded_duti
 
 def test_the_motor_node_names_the_board_emulators_it_knows():
     with running_broker() as bus:
-        with pytest.raises(ConfigError, match="board_emulator.*'firmware', 'python'.*'c-core'"):
+        with pytest.raises(ConfigError, match="board_emulator.*one of firmware, python.*'c-core'"):
             MotorsNode(params={"emulate": True, "board_emulator": "c-core"}, bus=bus)
 
 

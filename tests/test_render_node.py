@@ -132,6 +132,7 @@ def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change()
     assert view.geometry_builds == 2
 
 
+
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("output, first", [("shot.png", "shot-000000.png"), ("frames/", "frames/frame-000000.png"),
                                           ("f/{frame:03d}.png", "f/000.png")])

@@ -157,7 +157,8 @@ def _finish(out: ProcessOutput, stop_signal: int, grace: float) -> None:
 @contextmanager
 def node_process(module: str, bus: BusConfig, name: str | None = None, params: dict | None = None,
                  grace: float = 5.0, realtime: bool = False) -> Iterator[ProcessOutput]:
-    """Run `touch4d.nodes.<module>` as its own process on `bus`; SIGTERM then kill on exit."""
+    """Run node `module` (a name as in launch files, or a module path) as its own process on `bus`;
+    SIGTERM then kill on exit."""
     cmd = [sys.executable, "-u", "-m", "touch4d.bus", module, "--name", name or module,
            "--params", json.dumps(params or {}), *(["--realtime"] if realtime else [])]
     out = _start(cmd, bus_env(bus))
