@@ -39,8 +39,8 @@ class WebXRNode(Node):
         "hand": Param("right", "the hand that wears the glove", choices=HANDS),
         "hand_source": Param("controller", "the glove hand's pose from the controller's grip or hand tracking",
                              choices=HAND_SOURCES),
-        "controller_hand": Param("", "the controller (or tracked hand) that turns the object ('' = hand)",
-                                 choices=("", *HANDS)),
+        "controller_hand": Param("same", "the controller (or tracked hand) that turns the object: the glove's "
+                                 "hand (same) or a side", choices=("same", *HANDS)),
         "recenter_button": Param("a", "the controller button that re-centres the screen",
                                  choices=tuple(b for b in XR_STANDARD_BUTTONS if b)),
         "calibration": Param("config/calibration.yaml", "room -> screen calibration (re-centring writes it)",
@@ -67,7 +67,7 @@ class WebXRNode(Node):
             ssl_context = access.server_ssl_context(cert, key)
 
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
-                              controller_hand=p["controller_hand"] or p["hand"],
+                              controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
                               recenter_button=p["recenter_button"], stale_s=p["stale_s"])
         self.publishers = {}
         if p["tracker"]:
