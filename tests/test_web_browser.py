@@ -254,8 +254,9 @@ def test_a_hidden_page_turns_the_motors_off(browser, stack):
     try:
         set_controller(page, CENTER)
         wait_until(lambda: glove.on_since(time.time() - 0.05), timeout=15)
-        t0 = time.time()
-        page.evaluate("xr.updateVisibilityState('hidden')")   # e.g. the headset taken off
+        # e.g. the headset taken off; timed from the page's own clock (this machine's), when it happens
+        t0 = page.evaluate("() => { const t = performance.timeOrigin + performance.now(); "
+                           "xr.updateVisibilityState('hidden'); return t / 1000; }")
         off = wait_until(lambda: glove.all_off_at(t0), timeout=5)
         assert off - t0 < 0.1, f"motors off {1000 * (off - t0):.0f} ms after the page was hidden"
         page.evaluate("xr.updateVisibilityState('visible')")   # back on: touch again
@@ -374,10 +375,12 @@ def test_hand_tracking_drives_the_hand_its_pinch_and_the_joints_are_recorded(bro
             probe.spin(0.3)
             msg = next(j for j in reversed(joints) if j.handedness == "right")
             assert msg.valid and len(msg.names) == 25 and msg.names[0] == "wrist"
-            # the glove hand sits halfway between the wrist and the middle finger's knuckle
+            # the glove hand sits halfway between the wrist and the middle finger's knuckle (the hand
+            # stands still: the last valid pose goes with the last joints)
             knuckle = msg.names.index("middle-finger-phalanx-proximal")
             palm = 0.5 * (msg.positions[0] + msg.positions[knuckle])
-            assert np.allclose(poses[-1].position, palm, atol=1e-6)
+            pose = next(p for p in reversed(poses) if p.valid)
+            assert np.allclose(pose.position, palm, atol=1e-6)
             page.evaluate("xr.hands.right.updatePinchValue(1)")  # a pinch is the trigger
             spin_until(probe, lambda: states and states[-1].valid and states[-1].trigger == 1.0)
         finally:

@@ -7,8 +7,9 @@ made of changes, and at most one "frame" per tick with the latest transforms and
 Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state` and `hand/joints`
 from the page that holds the tracker role (the last to start an immersive session, else the first
 to send input). Fail safe: when that page closes, hides, loses tracking or falls silent for
-`stale_s`, the hand and controller are published invalid at once and then every `invalid_period_s`,
-so the tactile node commands zero and the motor node turns every motor off (within 100 ms).
+`stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
+node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
+except while its page is only silent.
 """
 from __future__ import annotations
 
@@ -315,19 +316,21 @@ class WebBridge:
     # ---- safety ----------------------------------------------------------------------------------
 
     def check_tracking(self, now: float) -> None:
-        """Publish the hand and controller invalid when no page tracks: at once when tracking ends,
-        then every `invalid_period_s` (tracker mode only)."""
+        """Publish the hand invalid when no page tracks: at once when tracking ends, then every
+        `invalid_period_s` (tracker mode only). The controller too, unless its page only fell silent
+        for a moment: a silent controller moves nothing, and a grab (§4.4) survives the hiccup."""
         if not self.config.tracker:
             return
         page = self.pages.get(self.owner) if self.owner is not None else None
-        live = page is not None and page.tracking and now - page.last_input <= self.config.stale_s
-        if live:
+        tracking = page is not None and page.tracking
+        if tracking and now - page.last_input <= self.config.stale_s:
             return
         if self._was_live or now - self._invalid_at >= self.config.invalid_period_s:
             self._was_live = False
             self._invalid_at = now
             self.publish("hand/pose", HandPose(position=np.zeros(3), valid=False))
-            self.publish("controller/state", ControllerState(position=np.zeros(3), valid=False))
+            if not tracking:
+                self.publish("controller/state", ControllerState(position=np.zeros(3), valid=False))
 
     # ---- calibration -----------------------------------------------------------------------------
 
