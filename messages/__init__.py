@@ -3,13 +3,14 @@
 See docs/contracts.md for the table of topics and fields.
 """
 from .base import Message, MessageError, TYPES, decode, encode
-from .hand import ControllerState, HandPose
+from .hand import ControllerState, HandJoints, HandPose
 from .scene import PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
 from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
 from .tactile import MotorCommand, TactileField
 
 TOPIC_TYPES: dict[str, type[Message]] = {
     "hand/pose": HandPose,
+    "hand/joints": HandJoints,
     "controller/state": ControllerState,
     "scene/state": SceneState,
     "scene/command": SceneCommand,
@@ -24,6 +25,6 @@ TOPIC_TYPES: dict[str, type[Message]] = {
 
 __all__ = [
     "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode",
-    "HandPose", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
+    "HandPose", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
     "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
 ]

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Array, Bool, Float, Message, StrList, spec
+from .base import Array, Bool, Float, Message, Str, StrList, spec
 
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
@@ -48,3 +48,30 @@ class ControllerState(Message):
             raise ValueError(f"trigger: expected 0..1, got {self.trigger}")
         if self.valid:
             check_unit_quaternion(self.orientation)
+
+
+HANDEDNESS = ("right", "left")
+
+
+@dataclass(kw_only=True)
+class HandJoints(Message):
+    """Every tracked joint of a hand, in the 3D screen's coordinates (topic hand/joints), so that a
+    session's articulated hand is recorded (and can later carry samples on the fingers)."""
+
+    handedness: str = spec(Str(HANDEDNESS), "which hand")
+    names: list = spec(StrList(), "joint names, in the order of the arrays (WebXR's: wrist, thumb-metacarpal ... pinky-finger-tip)")
+    positions: np.ndarray = spec(Array((None, 3)), "joint centres in screen units")
+    orientations: np.ndarray = spec(
+        Array((None, 4)), "unit quaternions (x, y, z, w), joint frame -> screen frame; WebXR joint axes: "
+                          "-z along the bone toward the finger tip, +y out of the back of the hand")
+    radii: np.ndarray = spec(Array((None,)), "joint radii (centre to skin) in screen units")
+    valid: bool = spec(Bool(), "false while the hand is not tracked: the arrays are then empty or stale")
+
+    def check(self):
+        n = len(self.names)
+        if not (len(self.positions) == len(self.orientations) == len(self.radii) == n):
+            raise ValueError(f"names, positions, orientations and radii: expected equal lengths, got {n}, "
+                             f"{len(self.positions)}, {len(self.orientations)}, {len(self.radii)}")
+        if self.valid:
+            for i, q in enumerate(self.orientations):
+                check_unit_quaternion(q, f"orientations[{i}]")

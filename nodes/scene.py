@@ -2,13 +2,16 @@
 
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
 skipping a backlog loses no rotation) and `scene/command`. Publishes `scene/state` on every change,
-at most `max_rate` times a second, and every 1/`rate` s for late joiners.
+at most `max_rate` times a second, and every 1/`rate` s for late joiners. The calibration file is
+read again when it changes (a headset re-centring the screen turns the controller's axes with it).
 """
 from __future__ import annotations
 
+import os
 import time
 
 from touch4d.bus import Node, Param
+from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
@@ -39,6 +42,8 @@ class SceneNode(Node):
                                            buttons=p["buttons"], rotate=p["rotate"], spin=p["spin"],
                                            source=self.param_where("spin")[0])
         self.control = SceneControl(load_scene(p["scene"]), load_calibration(p["calibration"]), config)
+        self.calibration_mtime = os.stat(p["calibration"]).st_mtime_ns
+        self.create_timer(1.0, self.reload_calibration)
         self.dirty = False
         self.last_publish = 0.0
         self.pub = self.create_publisher("scene/state", SceneState)
@@ -52,6 +57,19 @@ class SceneNode(Node):
         self.publish()
         self.log.info("scene %s: %d object(s), rotating %s", p["scene"], len(self.control.scene.objects),
                       "the whole scene" if self.control.scene.selected < 0 else "the selected object")
+
+    def reload_calibration(self) -> None:
+        """Read the calibration again when its file changed (a headset re-centred the screen)."""
+        path = self.params["calibration"]
+        try:
+            mtime = os.stat(path).st_mtime_ns
+            if mtime != self.calibration_mtime:
+                self.calibration_mtime = mtime
+                self.control.calibration = load_calibration(path)
+                self.log.info("calibration %s read again", path)
+        except (OSError, ConfigError) as exc:
+            self.warn_once(("calibration", str(exc)), f"calibration {path} changed but cannot be read, keeping "
+                                                      f"the last one: {exc}")
 
     def on_controller(self, msg: ControllerState) -> None:
         self.changed(self.control.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid))

@@ -343,3 +343,19 @@ def test_a_node_whose_init_fails_leaves_nothing_that_blocks_garbage_collection(t
     )
     run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and "collected" in run.stdout, run.stderr
+
+
+def test_call_soon_threadsafe_runs_on_the_nodes_thread_and_wakes_its_poll():
+    import threading
+
+    with running_broker() as bus, Node("caller", bus=bus, heartbeat=False) as node:
+        ran = []
+        caller = threading.Thread(target=lambda: (time.sleep(0.2), node.call_soon_threadsafe(
+            lambda x: ran.append((x, threading.get_ident(), time.monotonic())), 7)))
+        start = time.monotonic()
+        caller.start()
+        while not ran and time.monotonic() - start < 5:
+            node.spin_once(2.0)                      # a long poll: only the wake-up ends it early
+        caller.join()
+        assert ran and ran[0][0] == 7 and ran[0][1] == threading.get_ident()
+        assert ran[0][2] - start < 1.0

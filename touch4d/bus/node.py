@@ -21,6 +21,7 @@ import os
 import socket
 import time
 import uuid
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar
 
@@ -169,6 +170,7 @@ class Node:
         self._stopping = False
         self._closed = False
         self._shutdown_called = False
+        self._calls: deque = deque()  # (callback, args) handed over by other threads
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -314,7 +316,7 @@ class Node:
 
     def spin_once(self, timeout: float = 0.1) -> int:
         """Wait up to `timeout` s for messages or a due timer and handle them; returns how many."""
-        handled = self._run_timers()
+        handled = self._run_timers() + self._run_calls()
         if self._pending:
             pending, self._pending = self._pending, []
             handled += self._dispatch(pending)
@@ -334,7 +336,7 @@ class Node:
                 self._wake_r.recv(4096)
             except BlockingIOError:
                 pass
-        return handled + self._run_timers()
+        return handled + self._run_calls() + self._run_timers()
 
     def spin(self, duration: float | None = None) -> None:
         """Handle messages and timers until `request_shutdown()` (or for `duration` seconds)."""
@@ -344,6 +346,15 @@ class Node:
             if left <= 0:
                 break
             self.spin_once(min(left, 0.1))
+
+    def call_soon_threadsafe(self, callback: Callable, *args) -> None:
+        """Run `callback(*args)` on the node's thread at its next spin; safe from any thread (e.g. a
+        server's event loop handing over what a client sent). The poll wakes at once."""
+        self._calls.append((callback, args))
+        try:
+            self._wake_w.send(b"c")
+        except OSError:
+            pass
 
     def request_shutdown(self) -> None:
         """Ask `spin` to return; safe from signal handlers and other threads."""
@@ -542,6 +553,14 @@ class Node:
         if key not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
             self._logged.add(key)
             self.log.warning("dropped a malformed message on %s: %s", topic.decode(errors="replace"), cause)
+
+    def _run_calls(self) -> int:
+        ran = 0
+        while self._calls:
+            callback, args = self._calls.popleft()
+            self._call(callback, args, getattr(callback, "__name__", "call_soon_threadsafe"))
+            ran += 1
+        return ran
 
     def _run_timers(self) -> int:
         ran = 0

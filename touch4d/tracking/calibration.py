@@ -3,11 +3,16 @@
 The 3D screen is the cube [-1, 1]^3 of the 4D world's hyperplane w = 0 (paper §4.2, Fig. 16).
 In the room it is a cube `edge_m` metres wide, centred at `center_m`, its axes turned by
 `rotation_deg` from the room's. The glove hand sits at a fixed offset from the controller it
-holds (`hand_in_controller`). Quaternions are (x, y, z, w), as on the wire.
+holds (`hand_in_controller` for an OpenVR controller, `hand_in_grip` for a WebXR grip space).
+A headset places the screen in front of its user (`placed_in_front`) and stores the placement
+back in the file (`save_screen_placement`). Quaternions are (x, y, z, w), as on the wire.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -96,16 +101,79 @@ class Calibration:
         return position_m, controller
 
 
-def load_calibration(path=None) -> Calibration:
-    """Read config/calibration.yaml (or `path`); a bad file stops with the file, key and what was expected."""
+    def placed_in_front(self, head_position_m, head_quat, distance_m: float, below_eye_m: float) -> "Calibration":
+        """This calibration with the screen moved in front of a head: its centre `distance_m` ahead
+        of the eyes along the horizontal gaze and `below_eye_m` below them, turned about the room's
+        vertical (+y) to face the user (room frame: +y up, the user looking along -z at yaw 0)."""
+        yaw = yaw_of(head_quat)
+        forward = np.array([-math.sin(yaw), 0.0, -math.cos(yaw)])
+        center = np.asarray(head_position_m, dtype=float) + distance_m * forward - np.array([0.0, below_eye_m, 0.0])
+        return replace(self, center_m=center, screen_rotation=Rotation.from_euler("y", yaw))
+
+
+def yaw_of(quat) -> float:
+    """The heading (radians about +y, 0 = looking along -z) of an orientation, ignoring pitch and roll."""
+    forward = Rotation.from_quat(np.asarray(quat, dtype=float)).apply([0.0, 0.0, -1.0])
+    if math.hypot(forward[0], forward[2]) < 1e-6:  # looking straight up or down: use the head's up axis
+        forward = -Rotation.from_quat(np.asarray(quat, dtype=float)).apply([0.0, 1.0, 0.0]) * np.sign(forward[1])
+    return math.atan2(-forward[0], -forward[2])
+
+
+HAND_KEYS = ("hand_in_controller", "hand_in_grip")
+
+
+def load_calibration(path=None, hand: str = "hand_in_controller") -> Calibration:
+    """Read config/calibration.yaml (or `path`); a bad file stops with the file, key and what was expected.
+    `hand` names the section placing the glove hand on the tracked device (one of HAND_KEYS)."""
     path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
     data = read_yaml(path)
     screen = get_map(data, "screen", path)
-    hand = get_map(data, "hand_in_controller", path, default={})
+    hand_map = get_map(data, hand, path, default={})
     return Calibration(
         center_m=get_vector(screen, "center_m", path, 3, "screen."),
         screen_rotation=rotation_from_steps(screen.get("rotation_deg", []), path, "screen.rotation_deg"),
         edge_m=get_number(screen, "edge_m", path, "screen.", positive=True),
-        hand_offset_m=get_vector(hand, "position_m", path, 3, "hand_in_controller.", default=[0, 0, 0]),
-        hand_rotation=rotation_from_steps(hand.get("rotation_deg", []), path, "hand_in_controller.rotation_deg"),
+        hand_offset_m=get_vector(hand_map, "position_m", path, 3, f"{hand}.", default=[0, 0, 0]),
+        hand_rotation=rotation_from_steps(hand_map.get("rotation_deg", []), path, f"{hand}.rotation_deg"),
     )
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a headset's re-centre puts the screen: ahead of the eyes and below them, metres."""
+
+    distance_m: float = 0.45
+    below_eye_m: float = 0.35
+
+
+def load_placement(path=None) -> Placement:
+    """The `placement:` section of a calibration file (defaults when absent)."""
+    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
+    section = get_map(read_yaml(path), "placement", path, default={})
+    default = Placement()
+    return Placement(
+        distance_m=get_number(section, "distance_m", path, "placement.", default=default.distance_m, positive=True),
+        below_eye_m=get_number(section, "below_eye_m", path, "placement.", default=default.below_eye_m),
+    )
+
+
+def save_screen_placement(path, calibration: Calibration) -> None:
+    """Write the screen's centre and rotation into a calibration file, keeping everything else in it
+    (comments included). The rotation is stored as its yaw about +y when it is one, else as x-y-z steps."""
+    path = Path(path)
+    text = path.read_text()
+    center = "[" + ", ".join(f"{v:.4f}" for v in calibration.center_m) + "]"
+    rotvec = calibration.screen_rotation.as_rotvec()
+    if abs(rotvec[0]) < 1e-9 and abs(rotvec[2]) < 1e-9:
+        steps = [["y", math.degrees(rotvec[1])]] if abs(rotvec[1]) > 1e-9 else []
+    else:
+        steps = [[axis, float(a)] for axis, a in zip("xyz", calibration.screen_rotation.as_euler("xyz", degrees=True))]
+    rotation = "[" + ", ".join(f"[{axis}, {deg:.3f}]" for axis, deg in steps) + "]"
+    for key, value in (("center_m", center), ("rotation_deg", rotation)):
+        # The key's line inside the `screen:` block (indented), its value replaced, its comment kept.
+        pattern = re.compile(rf"(^screen:\s*\n(?:[ \t]+.*\n|\s*\n)*?[ \t]+{key}:[ \t]*)(\[[^#\n]*\]|[^#\n]*?)([ \t]*(#.*)?)$",
+                             re.MULTILINE)
+        text, n = pattern.subn(lambda m: m.group(1) + value + m.group(3), text, count=1)
+        if n != 1:
+            raise ConfigError(path, f"screen.{key}", "a one-line value under `screen:` to update")
+    path.write_text(text)

@@ -1,0 +1,140 @@
+"""WebXR node: the 4D scene in a headset's browser (or a desktop browser), and the headset as the tracker.
+
+Serves the page (touch4d/web/static) and a WebSocket to it; sends the page `scene/state`,
+`hand/pose`, `tactile/field`, `tactile/motors` and `motors/status` (geometry once per change of
+what the scene is made of, then per tick only transforms and tactile values). With `tracker:
+true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
+grip or from hand tracking: `hand_source`), `controller/state` and `hand/joints`.
+
+Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
+reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a
+QR code) and serves https with a self-signed certificate made in `cert_dir` (`tls: auto`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from touch4d.bus import Node, Param
+from touch4d.errors import ConfigError
+from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.tactile.glove import load_glove
+from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
+from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
+from touch4d.web import access
+from touch4d.web.bridge import BridgeConfig, WebBridge
+from touch4d.web.server import PageServer
+
+
+class WebXRNode(Node):
+    """Bridges topics and WebXR pages."""
+
+    default_name = "webxr"
+    PARAMS = {
+        "host": Param("127.0.0.1", "address to serve on; beyond loopback: https and a token"),
+        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535),
+        "token": Param("auto", "'auto' (random, only beyond loopback) or a token of your own"),
+        "tls": Param("auto", "https: auto (beyond loopback), on, off", choices=("auto", "on", "off")),
+        "cert_dir": Param("", "where the self-signed certificate is kept ('' = ~/.config/touch4d/webxr-tls)"),
+        "tracker": Param(False, "publish what the page tracks (hand/pose, controller/state, hand/joints)"),
+        "hand": Param("right", "the hand that wears the glove", choices=HANDS),
+        "hand_source": Param("controller", "the glove hand's pose from the controller's grip or hand tracking",
+                             choices=HAND_SOURCES),
+        "controller_hand": Param("same", "the controller (or tracked hand) that turns the object: the glove's "
+                                 "hand (same) or a side", choices=("same", *HANDS)),
+        "recenter_button": Param("a", "the controller button that re-centres the screen",
+                                 choices=tuple(b for b in XR_STANDARD_BUTTONS if b)),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration (re-centring writes it)",
+                             path="calibration file"),
+        "save_calibration": Param(True, "store a re-centred screen in the calibration file"),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
+        "rate": Param(90.0, "frames sent to the pages per second, at most", unit="Hz", above=0, max=240),
+        "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
+                         above=0, max=0.09),
+    }
+
+    def setup(self) -> None:
+        p = self.params
+        if not p["token"]:
+            raise self.param_error("token", "'auto' or a token of your own")
+        host = p["host"]
+        loopback = access.is_loopback(host)
+        self.token = None if p["token"] == "auto" and loopback else (
+            access.new_token() if p["token"] == "auto" else p["token"])
+        ssl_context, fingerprint = None, None
+        if p["tls"] == "on" or (p["tls"] == "auto" and not loopback):
+            cert, key, fingerprint = access.ensure_certificate(
+                Path(p["cert_dir"]) if p["cert_dir"] else access.DEFAULT_CERT_DIR, access.lan_addresses(host))
+            ssl_context = access.server_ssl_context(cert, key)
+
+        config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
+                              controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
+                              recenter_button=p["recenter_button"], stale_s=p["stale_s"])
+        self.publishers = {}
+        if p["tracker"]:
+            self.publishers = {"hand/pose": self.create_publisher("hand/pose", HandPose),
+                               "controller/state": self.create_publisher("controller/state", ControllerState),
+                               "hand/joints": self.create_publisher("hand/joints", HandJoints)}
+        self.bridge = WebBridge(config, load_glove(p["glove"]), load_calibration(p["calibration"], "hand_in_grip"),
+                                load_placement(p["calibration"]), publish=self._publish,
+                                broadcast=lambda data, latest: self.server.broadcast(data, latest),
+                                send=lambda conn, data: self.server.send(conn, data),
+                                save_calibration=self._save_calibration)
+        # The server's thread hands every event to this node's thread (one thread runs the bridge).
+        self.server = PageServer(host, p["port"], self.token, ssl_context,
+                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn),
+                                 on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
+                                     self.bridge.page_message, conn, data, arrival),
+                                 on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
+        self.create_subscription("scene/state", SceneState, self.bridge.on_scene, latest_only=True)
+        self.create_subscription("hand/pose", HandPose, self.bridge.on_hand_pose, latest_only=True)
+        self.create_subscription("tactile/field", TactileField, self.bridge.on_field, latest_only=True)
+        self.create_subscription("tactile/motors", MotorCommand, self.bridge.on_motors, latest_only=True)
+        self.create_subscription("motors/status", MotorStatus, self.bridge.on_status, latest_only=True)
+        self.create_timer(1.0 / p["rate"], self.bridge.tick)
+        try:
+            bound = self.server.start()
+        except OSError as exc:
+            raise self.param_error("port", f"a port free on {host}", got=f"{p['port']} ({exc.strerror or exc})") \
+                from None
+        self.add_cleanup(self.server.stop)
+        scheme = "https" if ssl_context else "http"
+        urls = [access.page_url(scheme, a, bound, self.token)
+                for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
+        role = "tracker and view" if p["tracker"] else "view"
+        for url in urls:
+            self.log.info("WebXR page (%s, %s source): %s", role, p["hand_source"] if p["tracker"] else "scripted",
+                          url)
+        if fingerprint:
+            self.log.info("TLS: self-signed certificate, SHA-256 %s (accept it once in the headset's browser)",
+                          fingerprint)
+        if not loopback:
+            print(f"Open {urls[0]} in the headset's browser, or scan:\n{access.qr_text(urls[0])}", flush=True)
+        else:
+            self.log.info("Quest over USB: adb reverse tcp:%d tcp:%d, then open http://localhost:%d/ in its browser",
+                          bound, bound, bound)
+
+    def _publish(self, topic: str, msg) -> None:
+        self.publishers[topic].publish(msg)
+
+    def _save_calibration(self, calibration) -> None:
+        path = self.params["calibration"]
+        if not self.params["save_calibration"]:
+            return
+        try:
+            save_screen_placement(path, calibration)
+            self.log.info("screen re-centred at %s m, stored in %s", ", ".join(f"{v:.2f}" for v in calibration.center_m),
+                          path)
+        except (OSError, ConfigError) as exc:
+            self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
+
+    def stats_flat(self) -> dict:
+        out = super().stats_flat()
+        if hasattr(self, "server"):
+            out.update(self.bridge.counts, page_refused=self.server.refused, pages=len(self.bridge.pages),
+                       page_fps=round(self.bridge.page_fps(), 1))
+        return out
+
+    def on_shutdown(self) -> None:
+        if self.publishers:
+            self.bridge.owner = None
+            self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go

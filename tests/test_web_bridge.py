@@ -1,0 +1,246 @@
+"""The WebXR node's logic without a bus or a browser: what pages receive, what they publish, and the
+fail-safe (a page that closes, hides, loses tracking or falls silent makes the hand invalid)."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from touch4d.geometry.scene import load_scene
+from touch4d.messages import HandPose, MotorCommand, MotorStatus, TactileField
+from touch4d.tactile.glove import load_glove
+from touch4d.tracking.calibration import Placement, load_calibration
+from touch4d.web.bridge import BridgeConfig, ClockMap, WebBridge
+from touch4d.web.protocol import unpack_frame
+
+REPO = Path(__file__).resolve().parents[1]
+GLOVE = load_glove()
+SCENE = load_scene(REPO / "config/scenes/hypercube.yaml")
+
+
+class Clock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+class Rig:
+    def __init__(self, tracker=True, **config):
+        self.published, self.broadcasts, self.sent, self.saved = [], [], [], []
+        self.clock = Clock()
+        self.bridge = WebBridge(BridgeConfig(tracker=tracker, **config), GLOVE,
+                                load_calibration(REPO / "config/calibration.yaml", "hand_in_grip"), Placement(0.5, 0.3),
+                                publish=lambda topic, msg: self.published.append((topic, msg)),
+                                broadcast=lambda data, latest: self.broadcasts.append((unpack_frame(data), latest)),
+                                send=lambda conn, data: self.sent.append((conn, unpack_frame(data))),
+                                save_calibration=self.saved.append, now=self.clock)
+
+    def input(self, conn, grip=(0.0, 1.2, -0.45, 0, 0, 0, 1), tracking=True, buttons=(), page_time=None, head=None,
+              sources=None):
+        if sources is None:
+            sources = [{"handedness": "right", "grip": list(grip) if grip is not None else None, "trigger": 0.0,
+                        "buttons": list(buttons), "joints": None}]
+        text = json.dumps({"type": "input", "time": 1000.0 * (page_time if page_time is not None else self.clock.t),
+                           "tracking": tracking, "head": head, "sources": sources})
+        self.bridge.page_message(conn, text, self.clock.t)
+
+    def topic(self, name):
+        return [msg for topic, msg in self.published if topic == name]
+
+
+def test_a_page_gets_setup_geometry_and_the_latest_frame_on_connect():
+    rig = Rig(tracker=False)
+    rig.bridge.on_scene(SCENE.to_message())
+    assert rig.bridge.frame() is not None
+    rig.bridge.connected(7)
+    kinds = [frame[0]["kind"] for conn, frame in rig.sent if conn == 7]
+    assert kinds == ["setup", "geometry", "frame"]
+    header, arrays = rig.sent[0][1]
+    assert header["tracker"] is False and len(header["motor_names"]) == 30
+    assert arrays["samples"].shape == (len(GLOVE.samples), 3)
+    np.testing.assert_allclose(arrays["samples"], GLOVE.samples * 4.0, rtol=1e-6)   # 0.5 m screen: 4 units per m
+    assert header["screen_edge"] == 0.5 and header["screen_center"] == [0.0, 1.2, -0.45]
+
+
+def test_geometry_is_sent_once_per_change_of_shape_and_frames_carry_only_transforms():
+    rig = Rig(tracker=False)
+    rig.bridge.on_scene(SCENE.to_message())
+    turned = SCENE.copy()
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    turned.objects[0].orientation = turn
+    turned.revision = 5
+    rig.bridge.on_scene(turned.to_message())
+    geometry = [(f, latest) for f, latest in rig.broadcasts if f[0]["kind"] == "geometry"]
+    assert len(geometry) == 1 and geometry[0][1] is False          # sent once, never dropped
+    (header, arrays), _ = geometry[0]
+    # a tesseract: 16 vertices, 8 cells, 24 square 2-faces (48 triangles), 32 edges
+    assert header["bodies"] == 1 and header["objects"] == 1
+    assert arrays["t_vertices"].reshape(-1, 4)[:16].shape == (16, 4) and arrays["fills"].shape == (144, 7)
+    assert arrays["edges"].shape == (32, 17) and arrays["t_halfspaces"].reshape(-1, 4).shape[0] >= 8
+    header, arrays = unpack_frame(rig.bridge.frame())
+    assert header["revision"] == 5 and header["geometry"] == geometry[0][0][0]["key"]
+    # per frame the scene is 6 texels per object: the orientation's columns, the position, the size
+    assert arrays["t_objects"].nbytes == 96
+    texels = arrays["t_objects"].reshape(-1, 4)
+    obj = turned.objects[0]
+    np.testing.assert_allclose(texels[:4], turn.T, atol=1e-7)
+    np.testing.assert_allclose(texels[4], obj.position)
+    assert texels[5][0] == pytest.approx(obj.size)
+    assert not {"fills", "edges", "centres", "t_vertices"} & arrays.keys()
+    other = SCENE.copy()
+    other.objects[0].shape = "16-cell"
+    rig.bridge.on_scene(other.to_message())
+    assert len([f for f, _ in rig.broadcasts if f[0]["kind"] == "geometry"]) == 2
+
+
+def test_the_page_gets_the_renderers_shaders_as_glsl_es():
+    header, _ = unpack_frame(Rig().bridge.setup_frame())
+    shaders = header["shaders"]
+    assert {"scene_face.vert", "scene.frag", "oit.frag", "line.vert"} <= shaders.keys()
+    assert all(src.startswith("#version 300 es\n") for src in shaders.values())
+    assert "#include" not in shaders["scene.frag"] and "bool hidden(" in shaders["scene.frag"]
+
+
+def test_frames_only_when_something_changed_and_carry_the_tactile_values():
+    rig = Rig(tracker=False)
+    assert rig.bridge.frame() is None
+    n, m = len(GLOVE.samples), len(GLOVE.motor_names)
+    l = np.full(n, np.nan)
+    l[:10] = 0.2
+    h = np.zeros(n)
+    h[:10] = 0.7
+    rig.bridge.on_field(TactileField(positions=np.zeros((n, 3)), l=l, s=h, h=h))
+    rig.bridge.on_motors(MotorCommand(names=list(GLOVE.motor_names), intensity=np.full(m, 0.3)))
+    rig.bridge.on_hand_pose(HandPose(position=[0.1, 0.2, 0.3], valid=True))
+    rig.bridge.on_status(MotorStatus(boards=[dict(id=1, online=True, faults=[], last_frame=1.0, state="operational")],
+                                     duty=np.full(m, 0.5), bus_load=0.4, errors={}))
+    header, arrays = unpack_frame(rig.bridge.frame())
+    assert header["hand_valid"] and header["boards"] == [{"id": 1, "online": True, "state": "operational"}]
+    np.testing.assert_allclose(arrays["h"][:10], 0.7, rtol=1e-6)
+    assert arrays["touched"].tolist() == [1] * 10 + [0] * (n - 10)
+    np.testing.assert_allclose(arrays["hand"], [0.1, 0.2, 0.3, 0, 0, 0, 1], rtol=1e-6)
+    np.testing.assert_allclose(arrays["duty"], 0.5)
+    assert rig.bridge.frame() is None
+
+
+def test_the_tracker_page_publishes_the_hand_in_screen_coordinates():
+    rig = Rig()
+    rig.bridge.connected(1)
+    rig.input(1, grip=(0.05, 1.2, -0.45, 0, 0, 0, 1))
+    (pose,) = rig.topic("hand/pose")
+    assert pose.valid and np.allclose(pose.position, [0.2, 0.0, 0.0])
+    (state,) = rig.topic("controller/state")
+    assert state.valid and np.allclose(state.position, [0.05, 1.2, -0.45])
+
+
+def test_a_tracked_hand_publishes_its_joints():
+    rig = Rig(hand_source="hand")
+    rig.bridge.connected(1)
+    joints = [[0.0, 1.2, -0.45 + 0.01 * k, 0, 0, 0, 1, 0.01] for k in range(25)]
+    rig.input(1, sources=[{"handedness": "right", "grip": None, "trigger": 0.0, "buttons": [], "joints": joints}])
+    (msg,) = rig.topic("hand/joints")
+    assert msg.valid and msg.positions.shape == (25, 3) and np.allclose(msg.positions[3], [0, 0, 0.12])
+    assert rig.topic("hand/pose")[0].valid
+
+
+def test_view_only_pages_publish_nothing():
+    rig = Rig(tracker=False)
+    rig.bridge.connected(1)
+    rig.input(1)
+    rig.clock.t += 1.0
+    rig.bridge.tick()
+    assert rig.published == [] and rig.bridge.counts["page_ignored"] == 1
+
+
+def test_only_the_tracker_page_drives_the_hand_and_the_last_immersive_session_takes_over():
+    rig = Rig()
+    for conn in (1, 2):
+        rig.bridge.connected(conn)
+    rig.input(1)
+    rig.input(2)
+    assert len(rig.topic("hand/pose")) == 1 and rig.bridge.counts["page_ignored"] == 1
+    rig.bridge.page_message(2, '{"type": "session", "mode": "immersive", "active": true}', rig.clock.t)
+    rig.input(2)
+    assert rig.bridge.owner == 2 and len(rig.topic("hand/pose")) == 2
+
+
+@pytest.mark.parametrize("how", ["close", "hide", "tracking lost", "silent", "session end"])
+def test_the_hand_turns_invalid_at_once_when_the_page_stops_tracking(how):
+    rig = Rig()
+    rig.bridge.connected(1)
+    rig.input(1)
+    assert rig.topic("hand/pose")[-1].valid
+    rig.clock.t += 0.01
+    if how == "close":
+        rig.bridge.closed(1)
+    elif how == "hide":
+        rig.input(1, tracking=False, sources=[])     # what the page sends when hidden
+    elif how == "tracking lost":
+        rig.input(1, grip=None)                      # the controller's grip pose is gone
+    elif how == "silent":
+        rig.clock.t += 0.07            # over stale_s (0.05 s)
+        rig.bridge.tick()
+    else:
+        rig.bridge.page_message(1, '{"type": "session", "mode": "immersive", "active": false}', rig.clock.t)
+    poses, states = rig.topic("hand/pose"), rig.topic("controller/state")
+    assert not poses[-1].valid
+    # a controller that only fell silent moved nothing: its grab survives; otherwise it is gone too
+    assert states[-1].valid == (how == "silent")
+    # and again while nobody tracks, so the motors stay off
+    count = len(poses)
+    rig.clock.t += 0.11
+    rig.bridge.tick()
+    assert len(rig.topic("hand/pose")) == count + 1 and not rig.topic("hand/pose")[-1].valid
+
+
+def test_no_invalid_pose_while_the_page_tracks():
+    rig = Rig()
+    rig.bridge.connected(1)
+    for _ in range(10):
+        rig.clock.t += 0.03
+        rig.input(1)
+        rig.bridge.tick()
+    assert all(p.valid for p in rig.topic("hand/pose"))
+
+
+def test_bad_messages_are_counted_by_cause_and_the_page_keeps_working():
+    rig = Rig()
+    rig.bridge.connected(1)
+    for text in ("{oops", '{"type": "input", "time": NaN}', "x" * 20000, b"\x00"):
+        rig.bridge.page_message(1, text, rig.clock.t)
+    c = rig.bridge.counts
+    assert (c["page_malformed"], c["page_non_finite"], c["page_oversized"]) == (2, 1, 1)
+    rig.input(1)
+    assert rig.topic("hand/pose")[-1].valid and c["page_messages"] == 5
+
+
+def test_recentre_button_moves_the_screen_stores_it_and_tells_every_page():
+    rig = Rig()
+    rig.bridge.connected(1)
+    head = [0.0, 1.7, 0.0, 0.0, 0.0, 0.0, 1.0]
+    rig.input(1, buttons=("a",), head=head)
+    rig.input(1, buttons=("a",), head=head)        # held: one re-centre, not one per frame
+    assert rig.bridge.counts["recentred"] == 1 and len(rig.saved) == 1
+    assert np.allclose(rig.saved[0].center_m, [0.0, 1.4, -0.5])
+    (frame,) = [f for f, _ in rig.broadcasts if f[0]["kind"] == "calibration"]
+    assert frame[0]["screen_center"] == pytest.approx([0.0, 1.4, -0.5])
+    # the hand is now placed against the new screen
+    rig.input(1, grip=(0.0, 1.4, -0.5, 0, 0, 0, 1))
+    assert np.allclose(rig.topic("hand/pose")[-1].position, 0.0, atol=1e-9)
+
+
+def test_clock_map_removes_the_offset_and_keeps_the_delay_above_the_best():
+    clock = ClockMap(window=50)
+    offset = 123.456                          # page clock behind by this much
+    kept = []
+    for k, delay in enumerate([0.004, 0.002, 0.010, 0.003]):
+        page = 10.0 + k
+        arrival = page + offset + delay
+        kept.append(arrival - clock.stamp(page, arrival))
+    # what the stamp keeps of each delay: all of it above the best one seen so far (4 ms, then 2 ms)
+    assert kept == pytest.approx([0.0, 0.0, 0.008, 0.001], abs=1e-9)

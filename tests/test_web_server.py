@@ -1,0 +1,156 @@
+"""The page server without a browser: token and origin checks, files from the package, TLS with
+the node's own certificate, and the node surviving garbage on its WebSocket."""
+import asyncio
+import json
+import os
+import ssl
+import time
+
+import aiohttp
+import numpy as np
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.testing import collect, free_port, node_process, running_broker, wait_until
+from touch4d.messages import ControllerState, HandPose, Heartbeat
+from touch4d.web.access import ensure_certificate, is_loopback, page_url, qr_text, server_ssl_context
+from touch4d.web.protocol import unpack_frame
+from touch4d.web.server import PageServer
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def fetch(url, ssl_context=None, headers=None):
+    async def go():
+        async with aiohttp.ClientSession() as session:
+            async with session.get(url, ssl=ssl_context, headers=headers or {}) as r:
+                return r.status, dict(r.headers), await r.text()
+    return asyncio.run(go())
+
+
+@pytest.fixture
+def lan_server():
+    """A server bound beyond loopback (all interfaces) with a token; the test reaches it on 127.0.0.1."""
+    server = PageServer("0.0.0.0", 0, token="s3cret")
+    port = server.start()
+    try:
+        yield server, port
+    finally:
+        server.stop()
+
+
+def test_without_the_token_the_page_and_the_socket_are_refused(lan_server):
+    server, port = lan_server
+    status, _, text = fetch(f"http://127.0.0.1:{port}/")
+    assert status == 403 and "token" in text
+    assert fetch(f"http://127.0.0.1:{port}/?token=wrong")[0] == 403
+    assert fetch(f"http://127.0.0.1:{port}/ws")[0] == 403
+    status, headers, text = fetch(f"http://127.0.0.1:{port}/?token=s3cret")
+    assert status == 200 and '<script type="module" src="/static/main.js">' in text
+    assert "default-src 'self'" in headers["Content-Security-Policy"]
+    assert headers["Referrer-Policy"] == "no-referrer"
+    assert server.refused == 3
+
+
+def test_the_page_files_come_from_the_package(lan_server):
+    _, port = lan_server
+    status, headers, text = fetch(f"http://127.0.0.1:{port}/static/main.js")
+    assert status == 200 and "javascript" in headers["Content-Type"] and "WebXR" in text
+    assert fetch(f"http://127.0.0.1:{port}/static/../bridge.py")[0] == 404
+    assert fetch(f"http://127.0.0.1:{port}/static/nothing.js")[0] == 404
+
+
+def test_a_websocket_from_another_site_is_refused():
+    server = PageServer("127.0.0.1", 0, token=None)
+    port = server.start()
+
+    async def go(origin):
+        async with aiohttp.ClientSession() as session:
+            try:
+                async with session.ws_connect(f"http://127.0.0.1:{port}/ws", headers={"Origin": origin}):
+                    return "open"
+            except aiohttp.WSServerHandshakeError as exc:
+                return exc.status
+    try:
+        assert asyncio.run(go("https://evil.example")) == 403
+        assert asyncio.run(go(f"http://127.0.0.1:{port}")) == "open"
+    finally:
+        server.stop()
+
+
+def test_tls_with_the_nodes_own_certificate(tmp_path):
+    cert, key, fingerprint = ensure_certificate(tmp_path, ["127.0.0.1"])
+    assert os.stat(key).st_mode & 0o777 == 0o600
+    assert ensure_certificate(tmp_path, ["127.0.0.1"])[2] == fingerprint      # made once, then reused
+    server = PageServer("127.0.0.1", 0, token="t", ssl_context=server_ssl_context(cert, key))
+    port = server.start()
+    try:
+        client = ssl.create_default_context(cafile=str(cert))                  # trust exactly this certificate
+        status, _, _ = fetch(f"https://127.0.0.1:{port}/?token=t", ssl_context=client)
+        assert status == 200
+        with pytest.raises(aiohttp.ClientConnectorCertificateError):
+            fetch(f"https://127.0.0.1:{port}/?token=t", ssl_context=ssl.create_default_context())
+    finally:
+        server.stop()
+    # a new address needs a new certificate
+    assert ensure_certificate(tmp_path, ["192.0.2.7"])[2] != fingerprint
+
+
+def test_access_helpers():
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
+    assert page_url("https", "192.168.1.5", 8090, "abc") == "https://192.168.1.5:8090/?token=abc"
+    assert page_url("http", "::1", 8090, None) == "http://[::1]:8090/"
+    qr = qr_text("https://192.168.1.5:8090/?token=abc")
+    assert len(qr.splitlines()) > 10 and "█" in qr or "▀" in qr
+
+
+def test_the_node_counts_garbage_and_keeps_serving():
+    port = free_port()
+    with running_broker() as bus, node_process("webxr", bus, params={"port": port, "tracker": True,
+                                                                     "save_calibration": False}) as proc:
+        proc.wait_for_line("WebXR page", timeout=30)
+        probe = Node("probe", bus=bus, heartbeat=False)
+        beats = collect(probe, "node/heartbeat", Heartbeat)
+        poses = collect(probe, "hand/pose", HandPose)
+        try:
+            url = f"http://127.0.0.1:{port}/ws"
+            grip = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]
+
+            def good(t):
+                return json.dumps({"type": "input", "time": t * 1000, "tracking": True, "head": None, "sources": [
+                    {"handedness": "right", "grip": grip, "trigger": 0, "buttons": [], "joints": None}]})
+
+            async def attack():
+                async with aiohttp.ClientSession() as session:
+                    async with session.ws_connect(url) as ws:
+                        setup, _ = unpack_frame(await ws.receive_bytes())
+                        assert setup["kind"] == "setup" and setup["tracker"] is True
+                        await ws.send_str("{garbage")
+                        await ws.send_str('{"type": "input", "time": 1, "tracking": true, "head": [NaN, 0, 0, 0, 0, 0, 1], "sources": []}')
+                        await ws.send_str(json.dumps({"type": "input", "pad": "x" * 50000}))
+                        await ws.send_bytes(b"\x00\xff" * 10)
+                        await ws.send_str(good(time.time()))
+                    async with session.ws_connect(url) as ws:   # a message over 1 MiB ends its connection
+                        await ws.receive_bytes()
+                        await ws.send_str("y" * (2 << 20))
+                        while (msg := await ws.receive()).type == aiohttp.WSMsgType.BINARY:
+                            pass                                # frames sent before the close
+                        assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+                    async with session.ws_connect(url) as ws:   # and the node still serves
+                        assert unpack_frame(await ws.receive_bytes())[0]["kind"] == "setup"
+                        await ws.send_str(good(time.time()))
+                        await asyncio.sleep(0.2)
+
+            asyncio.run(attack())
+
+            def counted():
+                stats = [b.stats for b in beats if b.node == "webxr"]
+                return stats and stats[-1].get("page_non_finite") == 1 and stats[-1].get("page_oversized") == 2 \
+                    and stats[-1].get("page_malformed") == 2 and stats[-1]
+            stats = wait_until(counted, timeout=10, spin=probe)
+            assert stats["page_connections"] == 3
+            assert any(p.valid and np.allclose(p.position, 0.0) for p in poses)
+            assert proc.returncode is None
+        finally:
+            probe.shutdown()

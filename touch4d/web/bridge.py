@@ -1,0 +1,354 @@
+"""Topics <-> pages, without a bus or a network: what the WebXR node sends its pages and publishes
+for them. The node wires it to its subscriptions, its timer and its server (one thread).
+
+Bus -> pages: a "setup" frame when a page connects, a "geometry" frame when what the scene is
+made of changes, and at most one "frame" per tick with the latest transforms and tactile values.
+
+Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state` and `hand/joints`
+from the page that holds the tracker role (the last to start an immersive session, else the first
+to send input). Fail safe: when that page closes, hides, loses tracking or falls silent for
+`stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
+node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
+except while its page is only silent.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from touch4d.messages import ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.render.camera import OrbitCamera
+from touch4d.render.frame import CELL_PALETTE, Style
+from touch4d.render.glsl import shader_source
+from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
+from touch4d.render.scene_geometry import SceneGeometry, data_rows
+from touch4d.render.view import SceneView
+from touch4d.tactile.glove import Glove
+from touch4d.tracking import webxr
+from touch4d.tracking.calibration import Calibration, Placement
+
+from .protocol import PageError, pack_frame, parse_page_message
+
+log = logging.getLogger(__name__)
+
+# The GPU renderer's shaders the page compiles (as GLSL ES 3.00), by the names of touch4d.render.glsl.
+PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
+                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
+PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
+                 "page_connections", "recentred")
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """What the node's parameters say about the pages; see nodes/webxr.py."""
+
+    tracker: bool = False               # the page is the tracker: publish what it tracks
+    hand: str = "right"                 # the glove hand
+    hand_source: str = "controller"     # "controller" (grip pose) or "hand" (hand-tracking joints)
+    controller_hand: str = "right"      # the controller (or tracked hand) that turns the object
+    recenter_button: str = "a"          # on the controller: re-centre the screen in front of the user
+    stale_s: float = 0.05               # tracker page silent this long -> invalid poses
+    invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
+
+
+class ClockMap:
+    """Page clock -> this machine's clock: the page's time plus the smallest (arrival - page time)
+    seen over the last `window` inputs, so a stamp keeps the delay above the best case (a few
+    milliseconds' underestimate on Wi-Fi) whatever the two clocks' offset."""
+
+    def __init__(self, window: int = 256):
+        self.window = window
+        self._deltas: collections.deque = collections.deque()   # (index, delta), increasing deltas
+        self._count = 0
+
+    def stamp(self, page_time_s: float, arrival: float) -> float:
+        delta = arrival - page_time_s
+        d = self._deltas
+        while d and d[-1][1] >= delta:
+            d.pop()
+        d.append((self._count, delta))
+        while d[0][0] <= self._count - self.window:
+            d.popleft()
+        self._count += 1
+        return min(page_time_s + d[0][1], arrival)
+
+
+@dataclass
+class _Page:
+    conn: int
+    clock: ClockMap = dataclasses.field(default_factory=ClockMap)
+    mode: str = "inline"
+    last_input: float = 0.0          # arrival of its last input (node clock)
+    tracking: bool = False
+    buttons: frozenset = frozenset()
+    fps: float = 0.0
+
+
+class WebBridge:
+    """The node's logic. `publish(topic, msg)`, `broadcast(frame, latest)` and `send(conn, frame)`
+    are the node's; `latest` frames may replace an unsent one (per-tick frames), the others never."""
+
+    def __init__(self, config: BridgeConfig, glove: Glove, calibration: Calibration, placement: Placement,
+                 publish: Callable, broadcast: Callable, send: Callable,
+                 save_calibration: Callable[[Calibration], None] | None = None, now: Callable[[], float] = time.time):
+        self.config = config
+        self.glove = glove
+        self.calibration = calibration
+        self.placement = placement
+        self.publish, self.broadcast, self.send = publish, broadcast, send
+        self.save_calibration = save_calibration
+        self.now = now
+        self.counts = {name: 0 for name in PAGE_COUNTERS}
+        self.pages: dict[int, _Page] = {}
+        self.owner: int | None = None
+        self._logged: set[str] = set()
+        self._invalid_at = -np.inf          # when invalid poses were last published (node clock)
+        self._was_live = False
+        # latest bus state, as page arrays; the scene as the desktop renderer models it (render.view)
+        self.view = SceneView(style=Style())
+        self._geometry: SceneGeometry | None = None
+        self._geometries = 0
+        self._geometry_frame: bytes | None = None
+        self._scene: SceneState | None = None
+        self._hand = np.array([0, 0, 0, 0, 0, 0, 1], np.float32)
+        self._hand_valid = False
+        n, m = len(glove.samples), len(glove.motor_names)
+        self._h = np.zeros(n, np.float32)
+        self._touched = np.zeros(n, np.uint8)
+        self._intensity = np.zeros(m, np.float32)
+        self._duty = np.zeros(m, np.float32)
+        self._boards: list = []
+        self._dirty = False
+        self._last_frame: bytes | None = None
+        self._frame_count = 0
+
+    # ---- bus -> pages ----------------------------------------------------------------------------
+
+    def setup_frame(self) -> bytes:
+        """Everything a page needs once: the glove (samples, outline, motors), the calibration, the
+        tactile cube's layout and colours, the desktop camera, and whether it is the tracker."""
+        g = self.glove
+        units = g.units_per_metre
+        cube = TactileCube()
+        camera = OrbitCamera()
+        fields = {
+            "tracker": self.config.tracker, "hand": self.config.hand, "hand_source": self.config.hand_source,
+            "motor_names": list(g.motor_names), "cube_center": list(cube.center), "cube_half": cube.half,
+            "camera": {"yaw": camera.yaw, "pitch": camera.pitch, "distance": camera.distance,
+                       "target": [float(v) for v in camera.target], "fov": camera.fov},
+            "style": dataclasses.asdict(self.view.style),
+            "shaders": {name: shader_source(name, "es300") for name in PAGE_SHADERS},
+            **self._calibration_fields(),
+        }
+        arrays = {
+            "samples": (g.samples * units).astype(np.float32),
+            "skeleton": (hand_skeleton(g.hand) * units).astype(np.float32),
+            "motor_sample": np.asarray(g.motor_sample, np.uint32),
+            "cube_points": cube.layout(g.samples).astype(np.float32),
+            "amplitude_stops": AMPLITUDE_STOPS.astype(np.float32),
+            "amplitude_rgb": AMPLITUDE_RGB.astype(np.float32),
+            "cell_palette": CELL_PALETTE.astype(np.float32),
+        }
+        return pack_frame("setup", fields, arrays)
+
+    def _calibration_fields(self) -> dict:
+        c = self.calibration
+        return {"screen_center": [float(v) for v in c.center_m],
+                "screen_rotation": [float(v) for v in c.screen_rotation.as_quat()],
+                "screen_edge": float(c.edge_m)}
+
+    def on_scene(self, msg: SceneState) -> None:
+        """Adopt a scene; its geometry (the GPU renderer's arrays) goes to the pages only when what the
+        scene is made of changed, its transforms with the next frame."""
+        try:
+            if not self.view.set_scene(msg):
+                return
+        except (ValueError, TypeError, KeyError) as exc:     # MessageError, GeometryError, odd parameters
+            self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn: {exc}")
+            return
+        geometry = self.view.layer.geometry
+        if geometry is not self._geometry:
+            self._geometry = geometry
+            self._geometries += 1
+            self._geometry_frame = self.geometry_frame(geometry, f"g{self._geometries}")
+            self.broadcast(self._geometry_frame, False)
+        self._scene = msg
+        self._dirty = True
+
+    @staticmethod
+    def geometry_frame(g: SceneGeometry, key: str) -> bytes:
+        """The scene's geometry for the page: the GPU backend's data textures and vertex arrays."""
+        arrays = {name: texture for name, texture in g.textures().items()}
+        arrays.update(fills=g.fills, centres=g.centres, edges=g.edges)
+        return pack_frame("geometry", {"key": key, "bodies": g.n_bodies, "objects": g.n_objects,
+                                       "halfspaces": g.n_halfspaces, "grid_size": g.grid_size}, arrays)
+
+    def on_hand_pose(self, msg: HandPose) -> None:
+        self._hand = np.r_[msg.position, msg.orientation].astype(np.float32)
+        self._hand_valid = bool(msg.valid)
+        self._dirty = True
+
+    def on_field(self, msg: TactileField) -> None:
+        if len(msg.h) == len(self._h):
+            self._h = np.nan_to_num(msg.h).astype(np.float32)
+            self._touched = np.isfinite(msg.l).astype(np.uint8)
+            self._dirty = True
+
+    def on_motors(self, msg: MotorCommand) -> None:
+        if len(msg.intensity) == len(self._intensity):
+            self._intensity = msg.intensity.astype(np.float32)
+            self._dirty = True
+
+    def on_status(self, msg: MotorStatus) -> None:
+        if len(msg.duty) == len(self._duty):
+            self._duty = msg.duty.astype(np.float32)
+        self._boards = [{"id": b["id"], "online": b["online"], "state": b["state"]} for b in msg.boards]
+        self._dirty = True
+
+    def frame(self) -> bytes | None:
+        """The per-tick frame when something changed since the last one (else None)."""
+        if not self._dirty:
+            return None
+        self._dirty = False
+        self._frame_count += 1
+        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards,
+                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now()}
+        arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
+                  "intensity": self._intensity, "duty": self._duty}
+        layer = self.view.layer
+        if layer is not None:
+            # the same texels the GPU backend writes into its t_objects texture
+            arrays["t_objects"] = data_rows(layer.transforms)[0]
+            fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
+                          selected=int(self._scene.selected), revision=int(self._scene.revision))
+        self._last_frame = pack_frame("frame", fields, arrays)
+        return self._last_frame
+
+    def tick(self) -> None:
+        """The node's timer: send the frame, and keep the hand invalid while no page tracks."""
+        frame = self.frame()
+        if frame is not None:
+            self.broadcast(frame, True)
+        self.check_tracking(self.now())
+
+    # ---- connections -----------------------------------------------------------------------------
+
+    def connected(self, conn: int) -> None:
+        self.pages[conn] = _Page(conn)
+        self.counts["page_connections"] += 1
+        self.send(conn, self.setup_frame())
+        if self._geometry_frame is not None:
+            self.send(conn, self._geometry_frame)
+        if self._last_frame is not None:
+            self.send(conn, self._last_frame)
+
+    def closed(self, conn: int) -> None:
+        self.pages.pop(conn, None)
+        if conn == self.owner:
+            self.owner = None
+            self.check_tracking(self.now())
+
+    def page_message(self, conn: int, data, arrival: float) -> None:
+        """One message from a page: parsed, checked, acted on; a bad one is counted and dropped."""
+        page = self.pages.get(conn)
+        if page is None:
+            return
+        self.counts["page_messages"] += 1
+        try:
+            msg = parse_page_message(data)
+        except PageError as exc:
+            self.counts[f"page_{exc.cause}"] += 1
+            self._warn_once(f"page:{exc.cause}:{exc}", f"dropped a {exc.cause.replace('_', '-')} message from page "
+                                                       f"{conn}: {exc}")
+            return
+        kind = msg["type"]
+        if kind == "session":
+            page.mode = msg["mode"] if msg["active"] else "inline"
+            if msg["mode"] == "immersive" and msg["active"] and self.config.tracker:
+                self.owner = conn
+            elif not msg["active"] and conn == self.owner:
+                self.owner = None
+                page.tracking = False
+                self.check_tracking(arrival)
+        elif kind == "stats":
+            page.fps = msg["fps"]
+        elif kind == "recenter":
+            self.recenter(msg["head"])
+        elif kind == "input":
+            self._input(page, msg, arrival)
+
+    def _input(self, page: _Page, msg: dict, arrival: float) -> None:
+        if not self.config.tracker:
+            self.counts["page_ignored"] += 1
+            return
+        if self.owner is None:
+            self.owner = page.conn
+        if page.conn != self.owner:
+            self.counts["page_ignored"] += 1
+            return
+        stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
+        page.last_input = arrival
+        page.tracking = msg["tracking"]
+        by_side = {s.handedness: s for s in msg["sources"]}
+        glove_side = by_side.get(self.config.hand) if page.tracking else None
+        control_side = by_side.get(self.config.controller_hand) if page.tracking else None
+        pose = webxr.hand_pose(glove_side, self.config.hand_source, self.calibration, stamp)
+        controller = webxr.controller_state(control_side, self.calibration, stamp)
+        self.publish("hand/pose", pose)
+        self.publish("controller/state", controller)
+        for source in msg["sources"]:
+            if page.tracking and source.joints is not None and source.handedness in webxr.HANDS:
+                self.publish("hand/joints", webxr.hand_joints(source, self.calibration, stamp))
+        self._was_live = pose.valid
+        if not pose.valid:
+            self._invalid_at = arrival
+        held = frozenset(control_side.buttons) if control_side is not None else frozenset()
+        if self.config.recenter_button in held - page.buttons and msg["head"] is not None:
+            self.recenter(msg["head"])
+        page.buttons = held
+
+    # ---- safety ----------------------------------------------------------------------------------
+
+    def check_tracking(self, now: float) -> None:
+        """Publish the hand invalid when no page tracks: at once when tracking ends, then every
+        `invalid_period_s` (tracker mode only). The controller too, unless its page only fell silent
+        for a moment: a silent controller moves nothing, and a grab (§4.4) survives the hiccup."""
+        if not self.config.tracker:
+            return
+        page = self.pages.get(self.owner) if self.owner is not None else None
+        tracking = page is not None and page.tracking
+        if tracking and now - page.last_input <= self.config.stale_s:
+            return
+        if self._was_live or now - self._invalid_at >= self.config.invalid_period_s:
+            self._was_live = False
+            self._invalid_at = now
+            self.publish("hand/pose", HandPose(position=np.zeros(3), valid=False))
+            if not tracking:
+                self.publish("controller/state", ControllerState(position=np.zeros(3), valid=False))
+
+    # ---- calibration -----------------------------------------------------------------------------
+
+    def recenter(self, head: np.ndarray) -> None:
+        """Put the screen in front of the head, store it, and tell every page."""
+        p = self.placement
+        self.calibration = self.calibration.placed_in_front(head[:3], head[3:7], p.distance_m, p.below_eye_m)
+        self.counts["recentred"] += 1
+        if self.save_calibration is not None:
+            self.save_calibration(self.calibration)
+        self.broadcast(pack_frame("calibration", self._calibration_fields()), False)
+
+    def _warn_once(self, cause: str, text: str) -> None:
+        if cause not in self._logged and len(self._logged) < 100:
+            self._logged.add(cause)
+            log.warning("%s (further identical problems are only counted)", text)
+
+    def page_fps(self) -> float:
+        """The frame rate the tracker page (else any page) reports."""
+        pages = [self.pages[self.owner]] if self.owner in self.pages else list(self.pages.values())
+        return max((p.fps for p in pages), default=0.0)

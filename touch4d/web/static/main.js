@@ -1,0 +1,195 @@
+// touch4d's WebXR page: the 4D scene, the hand and its tactile field, in a headset (stereo, the
+// screen placed in the room) or inline in a desktop browser (mouse orbit). In a headset it is also
+// the tracker when the node says so: each XR frame first sends what is tracked, then draws.
+
+import { Link } from './net.js';
+import { InputReader } from './input.js';
+import { Hud } from './hud.js';
+import { SceneRenderer } from './scene.js';
+import { Orbit } from './orbit.js';
+import { fromPose, multiply, perspective } from './mat.js';
+
+const BACKGROUND = [0.04, 0.04, 0.06, 1];
+const canvas = document.getElementById('view');
+const statusLine = document.getElementById('status');
+const enterButton = document.getElementById('enter-vr');
+const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
+
+// What tests and benchmarks read (window.touch4d); nothing here steers the page.
+const state = (window.touch4d = {
+  connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
+  session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
+});
+
+let hud = null, scene = null, orbit = null;   // made when the node's setup frame (with the shaders) arrives
+let screenModel = null;   // screen units -> the room, from the setup frame
+
+if (!gl) {
+  statusLine.textContent = 'This browser has no WebGL2: touch4d cannot draw here.';
+  state.error = 'no WebGL2';
+} else {
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  state.gpu = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+}
+
+function place(header) {
+  // screen units -> room metres: the screen cube [-1, 1]^3 is edge metres wide
+  screenModel = fromPose(header.screen_center, header.screen_rotation, header.screen_edge / 2);
+}
+
+const link = new Link((message) => {
+  const { header } = message;
+  if (header.kind === 'setup') {
+    state.setup = header;
+    place(header);
+    if (!orbit) orbit = new Orbit(canvas, header.camera);
+    if (gl && !scene) {
+      try {
+        // the GPU renderer's shaders, compiled here as GLSL ES 3.00
+        scene = new SceneRenderer(gl, header.shaders, header.style, message.arrays.cell_palette);
+        hud = new Hud(gl, header.shaders);
+      } catch (error) {
+        state.error = String(error);
+        statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
+      }
+    }
+    if (hud) hud.configure(message);
+  } else if (header.kind === 'calibration') {
+    place(header);
+  } else if (header.kind === 'geometry') {
+    state.geometry = header.key;
+    if (scene) scene.setGeometry(message);
+  } else if (header.kind === 'frame') {
+    state.frame = header;
+    state.motorsOn = message.arrays.intensity.filter((v) => v > 0.05).length;
+    if (scene) scene.setFrame(message);
+    if (hud) hud.update(message);
+  }
+}, (connected) => { state.connected = connected; });
+
+// ---- drawing --------------------------------------------------------------------------------------
+
+// One view of the world: the scene, then the flat layers over it, alpha-blended without a depth
+// test (as every touch4d renderer draws a frame).
+function drawWorld(framebuffer, size, viewport, projection, view, model) {
+  if (!scene || !hud) return;
+  const mvp = multiply(projection, multiply(view, model));
+  const scale = Math.hypot(model[0], model[1], model[2]);   // room metres per screen unit
+  scene.draw(framebuffer, size, viewport, mvp);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
+  gl.viewport(...viewport);
+  gl.disable(gl.DEPTH_TEST);
+  gl.enable(gl.BLEND);
+  gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
+  hud.draw(mvp, (scale * projection[5] * viewport[3]) / 2, viewport);
+}
+
+function clear(framebuffer, width, height) {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
+  gl.viewport(0, 0, width, height);
+  gl.clearColor(...BACKGROUND);
+  gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+}
+
+// Frame rate over the last second, whichever loop runs.
+let counted = 0, since = performance.now();
+function countFrame(now) {
+  state.frames++;
+  counted++;
+  if (now - since >= 1000) {
+    state.fps = (1000 * counted) / (now - since);
+    counted = 0;
+    since = now;
+    link.send({ type: 'stats', fps: Math.min(state.fps, 1000) });
+    showStatus();
+  }
+}
+
+function showStatus() {
+  if (state.error) return;
+  const f = state.frame;
+  const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
+  const hand = f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
+  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
+                                           : 'touch4d: connecting to the node…';
+}
+
+function inlineLoop(now) {
+  requestAnimationFrame(inlineLoop);
+  if (state.session || !gl || !orbit) return;
+  const width = (canvas.width = canvas.clientWidth * devicePixelRatio);
+  const height = (canvas.height = canvas.clientHeight * devicePixelRatio);
+  clear(null, width, height);
+  const projection = perspective(orbit.fov, width / height, 0.05, orbit.distance + 20);
+  drawWorld(null, [width, height], [0, 0, width, height], projection, orbit.view(), fromPose([0, 0, 0], [0, 0, 0, 1], 1));
+  countFrame(now);
+}
+requestAnimationFrame(inlineLoop);
+
+// ---- the headset ----------------------------------------------------------------------------------
+
+// The hand is absent from now on (hidden page, lost session): the node publishes it invalid.
+function handGone() {
+  if (state.setup && state.setup.tracker) {
+    link.send({ type: 'input', time: performance.timeOrigin + performance.now(), tracking: false, head: null, sources: [] });
+  }
+}
+
+async function enterVR() {
+  const session = await navigator.xr.requestSession('immersive-vr', {
+    requiredFeatures: ['local-floor'], optionalFeatures: ['hand-tracking'],
+  });
+  await gl.makeXRCompatible();
+  const layer = new XRWebGLLayer(session, gl);
+  session.updateRenderState({ baseLayer: layer, depthNear: 0.05, depthFar: 50 });
+  const space = await session.requestReferenceSpace('local-floor');
+  const reader = new InputReader(session);
+  state.session = session;
+  link.send({ type: 'session', mode: 'immersive', active: true });
+  session.addEventListener('visibilitychange', () => { if (session.visibilityState !== 'visible') handGone(); });
+  session.addEventListener('end', () => {
+    state.session = null;
+    handGone();
+    link.send({ type: 'session', mode: 'immersive', active: false });
+    enterButton.hidden = false;
+  });
+  enterButton.hidden = true;
+
+  const onFrame = (time, frame) => {
+    session.requestAnimationFrame(onFrame);
+    const viewer = frame.getViewerPose(space);
+    // Input first: the pose leaves before this frame's drawing.
+    if (state.setup && state.setup.tracker && session.visibilityState === 'visible' && !state.leaving) {
+      state.input = reader.read(frame, space, session, viewer || null, time);
+      link.send(state.input);
+      state.sent++;
+    }
+    if (!viewer) return;
+    const base = session.renderState.baseLayer;
+    const size = [base.framebufferWidth, base.framebufferHeight];
+    clear(base.framebuffer, size[0], size[1]);
+    for (const view of viewer.views) {
+      const vp = base.getViewport(view);
+      drawWorld(base.framebuffer, size, [vp.x, vp.y, vp.width, vp.height], view.projectionMatrix,
+                view.transform.inverse.matrix, screenModel);
+    }
+    state.xrFrames++;
+    countFrame(performance.now());
+  };
+  session.requestAnimationFrame(onFrame);
+  return session;
+}
+
+document.addEventListener('visibilitychange', () => { if (document.visibilityState !== 'visible') handGone(); });
+// Leaving the page: the hand is gone now, and no frame that may still run sends it back.
+window.addEventListener('pagehide', () => { handGone(); state.leaving = true; link.close(); });
+
+if (navigator.xr && gl) {
+  navigator.xr.isSessionSupported('immersive-vr').then((ok) => {
+    enterButton.hidden = !ok;
+  }).catch(() => {});
+  enterButton.addEventListener('click', () => {
+    enterVR().catch((error) => { state.error = String(error); statusLine.textContent = `WebXR: ${error}`; });
+  });
+}
+showStatus();

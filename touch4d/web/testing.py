@@ -1,0 +1,82 @@
+"""The WebXR page in a real browser, for tests and benchmarks: Debian's chromium driven by the
+playwright package (no browser download), WebGL2 through SwiftShader without a GPU, and a Quest 3
+emulated by iwer (npm, installed by `./dev test`) in place of a headset.
+
+    with chromium() as browser:
+        page = headset_page(browser, url)        # iwer installed before the page's own scripts
+        enter_vr(page)                           # clicks "Enter VR" (a user gesture), waits for frames
+        page.evaluate("xr.controllers.right.position.set(0, 1.2, -0.45)")
+"""
+from __future__ import annotations
+
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+REPO = Path(__file__).resolve().parents[2]
+IWER = REPO / "node_modules" / "iwer" / "build" / "iwer.min.js"
+CHROMIUM_ARGS = [
+    # WebGL2 without a GPU
+    "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+    # root in a container; and no connection of the browser's own (the network is closed)
+    "--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--no-first-run", "--disable-default-apps", "--mute-audio",
+]
+INSTALL_HINT = "`./dev test` installs it (Debian package chromium; npm package iwer from package-lock.json)"
+
+
+def chromium_path() -> str:
+    for name in ("chromium", "chromium-browser"):
+        found = shutil.which(name)
+        if found:
+            return found
+    raise RuntimeError(f"no chromium on this machine: {INSTALL_HINT}")
+
+
+def iwer_script(device: str = "metaQuest3", stereo: bool = True) -> str:
+    """iwer's runtime and a device installed over the browser's own navigator.xr (`window.xr`)."""
+    if not IWER.exists():
+        raise RuntimeError(f"{IWER} is missing: {INSTALL_HINT}")
+    return (IWER.read_text() + f"\n;window.xr = new IWER.XRDevice(IWER.{device});"
+            f"xr.stereoEnabled = {'true' if stereo else 'false'};xr.installRuntime({{forceInstall: true}});")
+
+
+@contextmanager
+def chromium(headless: bool = True) -> Iterator:
+    """A playwright Browser on Debian's chromium."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_ARGS, headless=headless)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+def context_options(width: int = 640, height: int = 360, ignore_https_errors: bool = False) -> dict:
+    """Browser context options for the page: its size, and leave to playwright's waiting helpers the
+    string evaluation that the page's Content-Security-Policy forbids (the page never evaluates strings)."""
+    return {"viewport": {"width": width, "height": height}, "ignore_https_errors": ignore_https_errors,
+            "bypass_csp": True}
+
+
+def headset_page(browser, url: str, width: int = 640, height: int = 360, ignore_https_errors: bool = False):
+    """A new page with an emulated Quest 3 (its two eyes side by side), opened at `url`."""
+    context = browser.new_context(**context_options(width, height, ignore_https_errors))
+    context.add_init_script(iwer_script())
+    page = context.new_page()
+    page.goto(url)
+    return page
+
+
+def wait_connected(page, timeout_s: float = 20.0) -> None:
+    page.wait_for_function("window.touch4d && touch4d.connected && touch4d.setup !== null", timeout=timeout_s * 1000)
+
+
+def enter_vr(page, frames: int = 3, timeout_s: float = 30.0) -> None:
+    """Click "Enter VR" as a user would, and wait until the session has drawn `frames` frames."""
+    wait_connected(page, timeout_s)
+    page.click("#enter-vr", timeout=timeout_s * 1000)
+    page.wait_for_function(f"touch4d.session !== null && touch4d.xrFrames >= {frames}", timeout=timeout_s * 1000)
