@@ -140,6 +140,7 @@ class Node:
         self._zmq_topics: set[bytes] = set()
         self._topics: dict[bytes, _TopicState] = {}
         self._timers: list[Timer] = []
+        self._next_due = -math.inf   # when the next timer is due (kept by _run_timers)
         self._pending: list[list[bytes]] = []
         self._logged: set = set()
         self._counters = {"errors": 0}
@@ -244,6 +245,7 @@ class Node:
             raise ValueError(f"timer period must be > 0 s, got {period}")
         timer = Timer(float(period), callback, time.monotonic() + period)
         self._timers.append(timer)
+        self._next_due = min(self._next_due, timer.next_due)
         return timer
 
     @property
@@ -272,20 +274,20 @@ class Node:
             handled += self._dispatch(pending)
         if handled or self._stopping:
             timeout = 0.0
-        due = min((t.next_due for t in self._timers if not t.cancelled), default=None)
-        if due is not None:
-            timeout = max(0.0, min(timeout, due - time.monotonic()))
+        elif self._next_due - time.monotonic() < timeout:
+            timeout = max(0.0, self._next_due - time.monotonic())
         # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
-        events = dict(self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0))
-        if self._sub in events:
-            handled += self._dispatch(self._drain())
-        if self._pub in events:
-            self._drain_subscriptions()
-        if self._wake_r.fileno() in events:
-            try:
-                self._wake_r.recv(4096)
-            except BlockingIOError:
-                pass
+        events = self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0)
+        for sock, _ in events:
+            if sock is self._sub:
+                handled += self._dispatch(self._drain())
+            elif sock is self._pub:
+                self._drain_subscriptions()
+            else:
+                try:
+                    self._wake_r.recv(4096)
+                except BlockingIOError:
+                    pass
         return handled + self._run_timers()
 
     def spin(self, duration: float | None = None) -> None:
@@ -491,10 +493,12 @@ class Node:
         state.last_seq = seq
         state.stale_since_last = 0
 
-    def _call(self, callback: Callable, args: tuple, where: str) -> None:
+    def _call(self, callback: Callable, args: tuple, where) -> None:
         try:
             callback(*args)
         except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the node
+            if isinstance(where, Timer):
+                where = f"timer {where.period:g} s"
             self._counters["errors"] += 1
             cause = (where, type(exc).__name__, str(exc)[:120])
             if cause not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
@@ -508,8 +512,11 @@ class Node:
             self.log.warning("dropped a malformed message on %s: %s", topic.decode(errors="replace"), cause)
 
     def _run_timers(self) -> int:
+        """Run the due timers; keeps `_next_due`, when the next one is due, for `spin_once`'s wait."""
         ran = 0
         now = time.monotonic()
+        if now < self._next_due or self._stopping:
+            return 0   # the common case of a spin woken by a message: nothing due
         for timer in list(self._timers):
             if timer.cancelled or timer.next_due > now or self._stopping:
                 continue
@@ -519,10 +526,11 @@ class Node:
             timer.next_due += timer.period
             if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
                 timer.next_due = now + timer.period
-            self._call(timer.callback, (), f"timer {timer.period:g} s")
+            self._call(timer.callback, (), timer)
             ran += 1
         if any(t.cancelled for t in self._timers):
             self._timers = [t for t in self._timers if not t.cancelled]
+        self._next_due = min((t.next_due for t in self._timers), default=math.inf)
         return ran
 
     def _send_heartbeat(self) -> None:
