@@ -175,6 +175,26 @@ def test_timers_run_on_the_spin_thread_at_their_period():
     assert all(t >= created + (k + 1) * 0.05 - 1e-6 for k, t in enumerate(ticks))
 
 
+def test_a_timer_created_or_cancelled_by_a_timer_callback_takes_effect():
+    with running_broker() as bus, Node("timed", bus=bus, heartbeat=False) as node:
+        fast, slow = [], []
+        later: list = []
+
+        def start():
+            if not later:
+                later.append(node.create_timer(0.02, lambda: fast.append(time.monotonic())))
+
+        starter = node.create_timer(0.3, start)
+        node.spin(0.05)   # the slow timer is what the node waits for when `start` runs
+        node.create_timer(1.0, lambda: slow.append(1))
+        node.spin(0.5)
+        starter.cancel()
+        later[0].cancel()
+        count = len(fast)
+        node.spin(0.1)
+    assert 6 <= count <= 13 and len(fast) == count   # 12 at 20 ms from 0.32 s to 0.55 s, then none
+
+
 def test_a_1_khz_timer_keeps_its_average_rate_despite_millisecond_polling():
     with running_broker() as bus, Node("fast", bus=bus, heartbeat=False) as node:
         ticks = []

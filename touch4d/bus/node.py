@@ -517,20 +517,28 @@ class Node:
         now = time.monotonic()
         if now < self._next_due or self._stopping:
             return 0   # the common case of a spin woken by a message: nothing due
-        for timer in list(self._timers):
-            if timer.cancelled or timer.next_due > now or self._stopping:
+        next_due, cancelled = math.inf, False
+        timers = list(self._timers)   # a copy: a callback may create timers
+        for timer in timers:
+            if timer.cancelled:
+                cancelled = True
                 continue
-            # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the next
-            # spins, so a 1 kHz timer averages 1 kHz; after a stall of more than MAX_CATCH_UP the
-            # missed ticks are skipped rather than fired in a burst.
-            timer.next_due += timer.period
-            if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
-                timer.next_due = now + timer.period
-            self._call(timer.callback, (), timer)
-            ran += 1
-        if any(t.cancelled for t in self._timers):
+            if timer.next_due <= now and not self._stopping:
+                # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the
+                # next spins, so a 1 kHz timer averages 1 kHz; after a stall of more than
+                # MAX_CATCH_UP the missed ticks are skipped rather than fired in a burst.
+                timer.next_due += timer.period
+                if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
+                    timer.next_due = now + timer.period
+                self._call(timer.callback, (), timer)
+                ran += 1
+            if timer.next_due < next_due:   # cancelled by its own callback: a wake for nothing
+                next_due = timer.next_due
+        if len(self._timers) != len(timers):   # created by a callback
+            next_due = min([next_due] + [t.next_due for t in self._timers[len(timers):]])
+        if cancelled:
             self._timers = [t for t in self._timers if not t.cancelled]
-        self._next_due = min((t.next_due for t in self._timers), default=math.inf)
+        self._next_due = next_due
         return ran
 
     def _send_heartbeat(self) -> None:
