@@ -76,6 +76,29 @@ def test_latest_only_slow_subscriber_handles_newest_never_a_backlog():
     assert stats["gaps"] == 0 and stats["malformed"] == 0
 
 
+def test_a_latest_only_message_replaced_while_other_callbacks_ran_is_skipped():
+    with running_broker() as bus, Node("busy", bus=bus) as node, Node("pub", bus=bus) as pub_node:
+        poses = pub_node.create_publisher("test/pose", HandPose)
+        slow = pub_node.create_publisher("test/scene", Stop)
+        handled = []
+
+        def busy(msg):   # while this runs, a newer pose arrives
+            handled.append("scene")
+            poses.publish(pose(2.0))
+            assert node._sub.poll(10000), "the newer pose did not arrive"
+
+        node.create_subscription("test/scene", Stop, busy)
+        node.create_subscription("test/pose", HandPose, lambda m: handled.append(m.position[0]), latest_only=True)
+        slow.publish(Stop(reason="build", origin="test"))
+        poses.publish(pose(1.0))
+        assert node._sub.poll(10000)
+        time.sleep(0.3)   # both queued: one batch, the scene first
+        wait_until(lambda: len(handled) >= 2, timeout=10, spin=node)
+        node.spin(0.2)
+    assert handled == ["scene", 2.0]   # pose 1 was stale before its callback could start
+    assert node.stats["test/pose"]["dropped"] == 1 and node.stats["test/pose"]["gaps"] == 0
+
+
 def test_first_message_after_subscribe_returns_is_never_lost():
     with running_broker() as bus, Node("pub", bus=bus) as pub_node:
         publishers = [pub_node.create_publisher(f"join/{i}", HandPose) for i in range(25)]

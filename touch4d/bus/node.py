@@ -434,16 +434,27 @@ class Node:
 
     def _dispatch(self, batch: list[list[bytes]]) -> int:
         last: dict[bytes, int] = {}
-        if self._latest_only_topics and len(batch) > 1:
+        latest_only = self._latest_only_topics
+        if latest_only and len(batch) > 1:
             for i, frames in enumerate(batch):
                 last[frames[0]] = i
         handled = 0
-        for i, frames in enumerate(batch):
+        i = -1
+        while (i := i + 1) < len(batch):   # the batch may grow: see below
+            frames = batch[i]
             topic = frames[0]
             if topic.startswith(INTERNAL_PREFIX):
                 continue
             subs = self._subs.get(topic)
             if subs is not None:
+                if handled and topic in latest_only and last.get(topic, i) == i:
+                    # Callbacks ran since the drain: a newer message may have come meanwhile, and
+                    # then this one is stale before its callback even starts (a pose replaced while
+                    # a scene was being built): read what came, in order, after this batch.
+                    start = len(batch)
+                    batch.extend(self._drain())
+                    for j in range(start, len(batch)):
+                        last[batch[j][0]] = j
                 handled += self._deliver(topic, frames, subs, last.get(topic, i) == i)
             if self._raw_subs and len(frames) == 2:
                 for prefix, sub in self._raw_subs:
