@@ -17,7 +17,7 @@ driver held back a board's change frame (a board gets a change frame at most eve
 period), "no frame needed" (its duties were already on the bus), and lost (the rest).
 
 Backlog: the p50 latency of the last window of a rate's run over that of the first (`--window`,
-60 s; a sixth of the run when shorter). Target at 1 kHz over 5 minutes (`--seconds 300 --rates
+60 s; a fifth of the run when shorter). Target at 1 kHz over 5 minutes (`--seconds 300 --rates
 1000`): within 1.1x.
 
     .venv/bin/python bench/bench_e2e.py [--seconds 6] [--rates 90 1000] [--window 60]
@@ -211,7 +211,7 @@ def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, windo
     second = np.floor(src - published[0]).astype(int)
     per_second = [lat[second == k] for k in range(int(math.ceil(published[-1] - published[0])))]
     span = published[-1] - published[0]
-    w = min(window, span / 6)
+    w = min(window, span / 5)
     windows = (lat[src - published[0] < w], lat[src - published[0] >= span - w])
     return {"rate": rate, "published": len(published), "actual_rate": len(published) / wall,
             "traced": len(src), "lat": lat, "causes": causes, "cpu": cpu, "window": w, "windows": windows,
