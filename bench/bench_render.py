@@ -1,33 +1,40 @@
-"""Renderer benchmark: CPU time to build one frame (culling, clip units, clipping, vertex arrays) for 1, 8
-and 64 tesseracts and a 120-cell, beside the time to upload and draw the same buffers (EGL, llvmpipe here).
+"""Renderer benchmark: the GPU backend beside the clip-unit backend, in the same run, on the same frames.
 
-The build is timed in process CPU time, upload + draw in wall time (llvmpipe rasterises on
-threads). Baselines from the same run: the same build without clipping (so the ratio is what
-hidden-hypersurface removal costs) and the 90 Hz headset frame budget (11.1 ms). "build" moves every
-body on each call, so nothing of the last frame is reused; "one turning" moves one body (the
-controller's case), so the builder reuses the cut pieces of the bodies it does not touch. The
-tesseracts stand in a 4 x 4 x 4 grid at several depths, turned at random, so neighbours overlap on
-the screen and clip each other.
-Run: .venv/bin/python bench/bench_render.py
+1. CPU time per frame: all work before the draw calls, for a scene whose every object moved (a new
+   `scene/state`): adopting the scene (SceneView.set_scene) and the backend's prepare (GPU: the
+   transforms texture; clip: culling, clip units, cutting and the vertex upload). Main-thread CPU
+   time, so llvmpipe's rasteriser threads and other processes count as little as possible.
+   Baseline: the clip-unit backend (the ratio is clip / gpu) and the 90 Hz frame budget (11.1 ms).
+2. GPU time per frame of the draw calls, from GL timer queries (on llvmpipe the "GPU" is the CPU's
+   rasteriser threads), and frames per second of the whole loop (prepare, draw, finish) at
+   1280x800 and at 2 x 2064x2208 (one Quest 3 stereo frame: the scene drawn twice).
+
+Scenes: 1, 8, 64, 256 and 1024 tesseracts in a grid over the screen at several depths, turned at
+random, so that neighbours overlap on the screen and hide each other; a 120-cell.
+Run: .venv/bin/python bench/bench_render.py [--quick]
 """
 from __future__ import annotations
 
+import math
+import sys
 import time
 
 import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 
 from touch4d.geometry.rotation import plane_rotation
-from touch4d.geometry.shapes import get_shape
+from touch4d.geometry.scene import Scene, SceneObject
+from touch4d.render.backends import create_backend
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.context import OffscreenTarget, create_headless_context
-from touch4d.render.draw import Layers, Painter
-from touch4d.render.scene_mesh import Body, MeshBuilder, Style
+from touch4d.render.view import SceneView, Show
 
 BUDGET = 1 / 90
+QUEST3 = (2064, 2208)
+BARE = Show(frame=False, hand=False, tactile=False, status=False)
 
 
-def best_of(fn, repeat=7, number=None, clock=time.perf_counter) -> float:
+def best_of(fn, repeat=5, number=None, clock=time.thread_time) -> float:
     """Seconds per call: the best of `repeat` timings of `number` calls, on `clock`."""
     if number is None:
         t0 = clock()
@@ -49,83 +56,116 @@ def random_rotation(rng, spread=0.5):
     return r
 
 
-def tesseracts(n: int) -> list[Body]:
+def tesseracts(n: int) -> Scene:
+    """n tesseracts on a k x k x k grid over the screen (k >= 4), at five depths."""
     rng = np.random.default_rng(1)
-    cube = get_shape("tesseract").parts[0]
-    grid = np.linspace(-0.75, 0.75, 4)
+    k = max(4, math.ceil(n ** (1 / 3) - 1e-9))
+    grid = np.linspace(-0.75, 0.75, k)
     spots = [(x, y, z) for x in grid for y in grid for z in grid]
-    return [Body(cube, random_rotation(rng), np.array([*spots[i], 1.0 + 0.6 * ((7 * i) % 5)]), 0.34,
-                 np.r_[rng.uniform(0.2, 1, 3), 1.0]) for i in range(n)]
+    objects = [SceneObject(name=f"t{i}", shape="tesseract", size=1.36 / k, orientation=random_rotation(rng),
+                           position=np.array([*spots[i], 1.0 + 0.6 * ((7 * i) % 5)]),
+                           color=np.r_[rng.uniform(0.2, 1, 3), 1.0]) for i in range(n)]
+    return Scene(objects=objects)
 
 
-def nudged(bodies: list[Body], which) -> list[Body]:
-    """The bodies with those in `which` turned by 0.01 rad in the xw plane."""
-    turn = plane_rotation("xw", 0.01)
-    out = list(bodies)
-    for i in which:
-        b = bodies[i]
-        out[i] = Body(b.polytope, turn @ b.orientation, b.position, b.size, b.color, b.object_index)
+def cell120() -> Scene:
+    rng = np.random.default_rng(2)
+    return Scene(objects=[SceneObject(name="c", shape="120-cell", size=1.5, orientation=random_rotation(rng, 1.0),
+                                      position=np.array([0, 0, 0, 2.0]), color=np.array([0.3, 0.6, 1.0, 1.0]))])
+
+
+def turned(scene: Scene, angle: float) -> Scene:
+    """The scene with every object turned by `angle` in the xw plane (a new scene/state)."""
+    out = scene.copy()
+    turn = plane_rotation("xw", angle)
+    for obj in out.objects:
+        obj.orientation = turn @ obj.orientation
     return out
 
 
-def alternate(builder: MeshBuilder, a: list[Body], b: list[Body], projection: str):
-    """A build call that switches between two poses of the scene each time, as a moving scene would."""
-    scenes = [a, b]
+class Loop:
+    """One backend drawing a scene that moves between two poses every frame."""
 
-    def build():
-        scenes.reverse()
-        builder.build(scenes[0], projection, 3.0)
-    return build
+    def __init__(self, ctx, backend: str, scene: Scene, projection: str):
+        self.ctx = ctx
+        self.backend = create_backend(backend, ctx)
+        self.view = SceneView(None, show=BARE)
+        a = Scene(objects=scene.objects, projection=projection)
+        self.poses = [a, turned(a, 0.01)]
+        self.step = 0
+        self.prepare()
+
+    def prepare(self) -> None:
+        """All CPU work of a frame before its draw calls."""
+        self.step += 1
+        self.view.set_scene(self.poses[self.step % 2])
+        self.backend.prepare(self.view.frame())
+
+    def draw(self, target, camera, background=(0, 0, 0, 1)) -> None:
+        target.use()
+        self.backend.draw(camera.matrix(target.size), target.size, background)
+
+    def release(self) -> None:
+        self.backend.release()
 
 
-def cell120() -> list[Body]:
-    rng = np.random.default_rng(2)
-    return [Body(get_shape("120-cell").parts[0], random_rotation(rng, 1.0), np.array([0, 0, 0, 2.0]), 1.5,
-                 np.array([0.3, 0.6, 1.0, 1.0]))]
+def cpu_rows(ctx, cases, projections) -> None:
+    print(f"CPU per frame, every object moved (main-thread CPU time; budget {BUDGET * 1e3:.1f} ms at 90 Hz)")
+    print(f"  {'scene':<16}{'projection':<14}{'gpu ms':>9}{'clip ms':>10}{'clip/gpu':>10}{'gpu/budget':>12}")
+    for name, scene in cases:
+        for projection in projections:
+            t = {}
+            for backend in ("gpu", "clip"):
+                loop = Loop(ctx, backend, scene, projection)
+                ctx.finish()
+                t[backend] = best_of(loop.prepare, repeat=5 if len(scene.objects) < 256 else 2)
+                loop.release()
+            print(f"  {name:<16}{projection:<14}{t['gpu'] * 1e3:>9.3f}{t['clip'] * 1e3:>10.2f}"
+                  f"{t['clip'] / t['gpu']:>9.0f}x{t['gpu'] / BUDGET:>12.3f}")
+
+
+def frame_rows(ctx, cases, max_seconds: float) -> None:
+    cameras = {"mono": [OrbitCamera()], "stereo": [OrbitCamera(yaw=27.0), OrbitCamera(yaw=29.0)]}
+    targets = {"mono": OffscreenTarget(ctx, (1280, 800)), "stereo": OffscreenTarget(ctx, QUEST3)}
+    print("GPU time per frame (GL timer query, draw calls only) and frames per second of the whole loop "
+          "(prepare + draw + finish), orthographic")
+    print(f"  {'scene':<16}{'backend':<9}{'GPU ms 1280x800':>17}{'fps 1280x800':>14}{'fps 2x2064x2208':>17}")
+    query = ctx.query(time=True)
+    for name, scene in cases:
+        for backend in ("gpu", "clip"):
+            loop = Loop(ctx, backend, scene, "orthographic")
+            loop.draw(targets["mono"], cameras["mono"][0])        # shaders compile on first use
+            ctx.finish()
+            with query:
+                loop.draw(targets["mono"], cameras["mono"][0])
+            ctx.finish()
+            gpu_ms = query.elapsed / 1e6
+            fps = {}
+            for kind in ("mono", "stereo"):
+                frames, t0 = 0, time.perf_counter()
+                while frames < 1 or (time.perf_counter() - t0 < max_seconds and frames < 30):
+                    loop.prepare()
+                    for camera in cameras[kind]:
+                        loop.draw(targets[kind], camera)
+                    ctx.finish()
+                    frames += 1
+                fps[kind] = frames / (time.perf_counter() - t0)
+            print(f"  {name:<16}{backend:<9}{gpu_ms:>17.1f}{fps['mono']:>14.1f}{fps['stereo']:>17.2f}")
+            loop.release()
+    for t in targets.values():
+        t.release()
 
 
 def main() -> None:
+    quick = "--quick" in sys.argv
     ctx = create_headless_context()
-    size = (1280, 800)
-    target = OffscreenTarget(ctx, size)
-    painter = Painter(ctx)
-    camera = OrbitCamera()
-    print(f"GL: {ctx.info['GL_RENDERER']}; frame {size[0]}x{size[1]}; budget {BUDGET * 1e3:.1f} ms (90 Hz)")
-    print(f"{'scene':<16}{'projection':<13}{'tris':>6}{'lines':>6}  {'build ms':>9}{'no-clip ms':>11}"
-          f"{'ratio':>7}{'/budget':>8}  {'upload+draw ms':>15}")
-    print(f"{'':<41}{'(CPU)':>9}{'(CPU)':>11}{'':>15}  {'(wall)':>15}")
-    builder = MeshBuilder()
-    cases = [("1 tesseract", tesseracts(1)), ("8 tesseracts", tesseracts(8)), ("64 tesseracts", tesseracts(64)),
-             ("120-cell", cell120())]
-    for name, bodies in cases:
-        for projection in ("orthographic", "perspective"):
-            # The build is single-threaded numpy: its CPU time, which other processes on a busy
-            # machine inflate less than wall time. Drawing runs on llvmpipe's threads: wall time.
-            # Every body moves between two poses on each call, so nothing of the last frame is reused.
-            build = best_of(alternate(builder, bodies, nudged(bodies, range(len(bodies))), projection),
-                            clock=time.process_time)
-            plain = best_of(lambda: builder.build(bodies, projection, 3.0, Style(clip=False)), clock=time.process_time)
-            mesh = builder.build(bodies, projection, 3.0)
-            layers = Layers(triangles=[mesh.fills, mesh.centres], lines=[mesh.edges])
-            target.use()
-            mvp = camera.matrix(size)
-
-            def upload_draw():
-                painter.draw(painter.upload(layers), mvp, size)
-                ctx.finish()
-
-            gpu = best_of(upload_draw, repeat=5)
-            c = mesh.counts
-            print(f"{name:<16}{projection:<13}{c['fill_triangles'] + c['centre_triangles']:>6}{c['edge_segments']:>6}  "
-                  f"{build * 1e3:>9.2f}{plain * 1e3:>11.2f}{build / plain:>7.2f}{build / BUDGET:>8.2f}  "
-                  f"{gpu * 1e3:>15.2f}")
-            if len(bodies) > 1:
-                # One object turning (the controller's case): the others' cut pieces are reused.
-                one = best_of(alternate(builder, bodies, nudged(bodies, [0]), projection), clock=time.process_time)
-                print(f"{'  one turning':<16}{projection:<13}{'':>12}  {one * 1e3:>9.2f}{plain * 1e3:>11.2f}"
-                      f"{one / plain:>7.2f}{one / BUDGET:>8.2f}")
-    painter.release()
-    target.release()
+    import platform
+    print(f"GL: {ctx.info['GL_RENDERER']} ({ctx.info['GL_VERSION']}); CPU: {platform.processor() or platform.machine()}")
+    counts = (1, 8, 64) if quick else (1, 8, 64, 256, 1024)
+    cases = [(f"{n} tesseract{'s' if n > 1 else ''}", tesseracts(n)) for n in counts] + [("120-cell", cell120())]
+    cpu_rows(ctx, cases, ("orthographic", "perspective"))
+    frame_rows(ctx, cases, 0.5 if quick else 2.0)
+    ctx.release()
 
 
 if __name__ == "__main__":

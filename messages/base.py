@@ -236,9 +236,12 @@ class ArrayList(Kind):
         return []
 
 
-def spec(kind: Kind, doc: str):
-    """Declare a message field: its kind (checked on decode) and what it means (units, frame)."""
-    return field(default_factory=kind.default, metadata={"kind": kind, "doc": doc})
+def spec(kind: Kind, doc: str, *, optional: bool = False):
+    """Declare a message field: its kind (checked on decode) and what it means (units, frame).
+
+    An `optional` (scalar) field may be absent from a payload, meaning its default, and is left out
+    of the payload while it holds its default: payloads without it stay valid and byte-identical."""
+    return field(default_factory=kind.default, metadata={"kind": kind, "doc": doc, "optional": optional})
 
 
 # ---- the message base class ------------------------------------------------------------------------
@@ -256,6 +259,10 @@ class Message:
     seq: int = spec(Int(), "per-topic, per-publisher sequence number from 0; a gap means a drop; set on publish")
     source_stamp: float = spec(
         Float(), "stamp of the hand/pose this message was derived from (= stamp for originating messages)"
+    )
+    recorded_stamp: float = spec(
+        Float(), "stamp this message had when it was recorded, kept when a replay re-stamps it; 0 = live",
+        optional=True,
     )
 
     def __init_subclass__(cls, **kwargs):
@@ -284,6 +291,9 @@ class Message:
         out = {"type": self.TYPE}
         for name, _ in self._checks():
             out[name] = getattr(self, name)
+        for name, default in self._optional():
+            if out[name] == default:
+                del out[name]
         return out
 
     def validate(self) -> None:
@@ -315,16 +325,22 @@ class Message:
         """Build and fully check a message of this class from a decoded map."""
         msg = cls.__new__(cls)
         fields = cls._checks()
+        absent = 0
         for name, check in fields:
             try:
                 value = data[name]
             except KeyError:
-                raise MessageError(f"{cls.TYPE}.{name}: missing") from None
+                default = dict(cls._optional()).get(name, _REQUIRED)
+                if default is _REQUIRED:
+                    raise MessageError(f"{cls.TYPE}.{name}: missing") from None
+                object.__setattr__(msg, name, default)
+                absent += 1
+                continue
             try:
                 object.__setattr__(msg, name, check(value))
             except ValueError as exc:
                 raise MessageError(_where(cls.TYPE, name, exc)) from None
-        if len(data) != len(fields) + ("type" in data):
+        if len(data) != len(fields) - absent + ("type" in data):
             unknown = set(data) - {name for name, _ in fields} - {"type"}
             raise MessageError(f"{cls.TYPE}: unknown field(s) {', '.join(sorted(map(str, unknown)))}")
         try:
@@ -334,12 +350,24 @@ class Message:
         return msg
 
     @classmethod
+    def _optional(cls) -> tuple[tuple[str, Any], ...]:
+        """(name, default) of the optional fields, which payloads may leave out."""
+        cached = cls.__dict__.get("_OPTIONAL_CACHE")
+        if cached is None:
+            cached = tuple((f.name, f.metadata["kind"].default()) for f in cls._fields() if f.metadata.get("optional"))
+            cls._OPTIONAL_CACHE = cached
+        return cached
+
+    @classmethod
     def _checks(cls) -> tuple[tuple[str, Any], ...]:
         cached = cls.__dict__.get("_CHECKS_CACHE")
         if cached is None:
             cached = tuple((f.name, f.metadata["kind"].check) for f in cls._fields())
             cls._CHECKS_CACHE = cached
         return cached
+
+
+_REQUIRED = object()
 
 
 def _fast_paths(cls):

@@ -177,40 +177,43 @@ def _gen_coerce(cls, fields, src: _Source) -> list[str]:
     return lines
 
 
-def _gen_validate(fields, src: _Source) -> list[str]:
-    lines = ["def validate(msg):", "    d = msg.__dict__"]
+def _gen_checks(fields, src: _Source, fail: str, store: bool) -> list[str]:
+    """Each field of `d` checked: inline where the kind has a test (`fail` when it is false), else
+    by its `check` (raising), whose result is stored back when `store`."""
+    lines = []
     for f in fields:
         kind = f.metadata["kind"]
         test = check_test(kind, src)
         lines.append(f"    v = d[{f.name!r}]")
-        if test is None:
-            lines.append(f"    {src.const(kind.check)}(v)")
+        if test is not None:
+            lines.append(f"    if not ({test}): {fail}")
         else:
-            lines.append(f"    if not ({test}): return False")
-    lines += ["    msg.check()", "    return True"]
+            lines.append(f"    {f'd[{f.name!r}] = ' if store else ''}{src.const(kind.check)}(v)")
     return lines
+
+
+def _gen_validate(fields, src: _Source) -> list[str]:
+    return (["def validate(msg):", "    d = msg.__dict__"] + _gen_checks(fields, src, "return False", store=False)
+            + ["    msg.check()", "    return True"])
 
 
 def _gen_from_dict(cls, fields, src: _Source) -> list[str]:
-    lines = ["def from_dict(d):", f"    if len(d) != {len(fields)}: return None"]
-    for f in fields:
-        kind = f.metadata["kind"]
-        test = check_test(kind, src)
-        lines.append(f"    v = d[{f.name!r}]")
-        if test is None:
-            lines.append(f"    d[{f.name!r}] = {src.const(kind.check)}(v)")
-        else:
-            lines.append(f"    if not ({test}): return None")
-    lines += [f"    msg = {src.const(object.__new__)}({src.const(cls)})", "    msg.__dict__ = d",
-              "    msg.check()", "    return msg"]
-    return lines
+    absent = [f"    if {f.name!r} not in d: d[{f.name!r}] = {src.const(f.metadata['kind'].default)}()"
+              for f in fields if f.metadata.get("optional")]   # an optional field left out: its default
+    return (["def from_dict(d):"] + absent + [f"    if len(d) != {len(fields)}: return None"]
+            + _gen_checks(fields, src, "return None", store=True)
+            + [f"    msg = {src.const(object.__new__)}({src.const(cls)})", "    msg.__dict__ = d",
+               "    msg.check()", "    return msg"])
 
 
 def _gen_decode(cls, fields, src: _Source) -> list[str]:
     """msgspec decodes the payload into a struct made from the declarations, checking the plain
     fields; arrays (raw) become views into the payload; the other kinds run their `check`."""
-    wire = msgspec.defstruct(f"{cls.__name__}Wire", [(f.name, wire_type(f.metadata["kind"])) for f in fields],
-                             tag_field="type", tag=cls.TYPE, forbid_unknown_fields=True)
+    wire = msgspec.defstruct(
+        f"{cls.__name__}Wire",
+        [(f.name, wire_type(f.metadata["kind"]), f.metadata["kind"].default()) if f.metadata.get("optional")
+         else (f.name, wire_type(f.metadata["kind"])) for f in fields],
+        tag_field="type", tag=cls.TYPE, forbid_unknown_fields=True, kw_only=True)
     decoder = msgspec.msgpack.Decoder(wire, ext_hook=_ext_hook)
     lines = ["def decode(payload):", f"    d = {src.const(msgspec.structs.asdict)}({src.const(decoder.decode)}(payload))"]
     for f in fields:
@@ -247,10 +250,17 @@ def _gen_encode(cls, fields, src: _Source) -> list[str]:
     are copied once, into the payload (the map's header then counts both)."""
     arrays = [f for f in fields if type(f.metadata["kind"]) is base.Array]
     plain = [f for f in fields if f not in arrays]
-    items = ", ".join([f"'type': {cls.TYPE!r}"] + [f"{f.name!r}: d[{f.name!r}]" for f in plain])
-    lines = ["def encode(msg):", "    d = msg.__dict__"]
+    lead = next((i for i, f in enumerate(plain) if f.metadata.get("optional")), len(plain))
+    items = ", ".join([f"'type': {cls.TYPE!r}"] + [f"{f.name!r}: d[{f.name!r}]" for f in plain[:lead]])
+    lines = ["def encode(msg):", "    d = msg.__dict__", f"    h = {{{items}}}"]
+    for f in plain[lead:]:   # in declaration order; an optional field left out at its default (to_dict's rule)
+        if f.metadata.get("optional"):
+            lines.append(f"    if d[{f.name!r}] != {src.const(f.metadata['kind'].default())}: "
+                         f"h[{f.name!r}] = d[{f.name!r}]")
+        else:
+            lines.append(f"    h[{f.name!r}] = d[{f.name!r}]")
     if not arrays:
-        return lines + [f"    return {src.const(encode_plain)}({{{items}}})"]
+        return lines + [f"    return {src.const(encode_plain)}(h)"]
     nd = src.const(np.ndarray)
     for i, f in enumerate(arrays):
         lines.append(f"    a{i} = d[{f.name!r}]")
@@ -263,9 +273,10 @@ def _gen_encode(cls, fields, src: _Source) -> list[str]:
         else:
             lines.append(f"    if a{i}.__class__ is {nd}: p{i}, r{i} = {src.const(array_parts)}(a{i})")
         lines.append("    else: return None")
-    lines.append(f"    head = {src.const(encode_plain)}({{{items}}})")
-    skip = len(_map_header(1 + len(plain)))
-    pieces = [src.const(_map_header(1 + len(fields))), f"head[{skip}:]"]
+    lines.append(f"    head = {src.const(encode_plain)}(h)")
+    header = src.const(_map_header)
+    # the map's header counts the arrays too: msgspec's (1 byte up to 15 entries, else 3) replaced
+    pieces = [f"{header}(len(h) + {len(arrays)})", "head[1 if len(h) <= 15 else 3:]"]
     for i, f in enumerate(arrays):
         pieces += [src.const(encode_plain(f.name)), f"p{i}", f"r{i}"]
     lines.append(f"    return b''.join(({', '.join(pieces)}))")

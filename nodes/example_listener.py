@@ -7,20 +7,28 @@ from __future__ import annotations
 
 import time
 
-from touch4d.bus import Node, run_node
+from touch4d.bus import Node, Param
 from touch4d.messages import HandPose, Stop
 
 
 class ExampleListener(Node):
-    def __init__(self, **kwargs):
-        super().__init__("listener", **kwargs)
-        topic = self.declare_parameter("topic", "example/pose")
-        self.delay = self.declare_parameter("delay", 0.0)  # seconds spent in each callback
-        latest_only = self.declare_parameter("latest_only", False)
-        relay_topic = self.declare_parameter("relay_topic", "")
-        self.stop_on_shutdown = self.declare_parameter("stop_on_shutdown", False)
+    """Listens to HandPose messages and relays them."""
+
+    default_name = "listener"
+    PARAMS = {
+        "topic": Param("example/pose", "the topic to listen to"),
+        "delay": Param(0.0, "time spent in each callback", unit="s", min=0),
+        "latest_only": Param(False, "handle only the newest message of a backlog"),
+        "relay_topic": Param("", "publish each handled message again here ('' = do not)"),
+        "stop_on_shutdown": Param(False, "publish a Stop on safety/stop when shutting down"),
+    }
+
+    def setup(self) -> None:
+        topic, latest_only = self.params["topic"], self.params["latest_only"]
+        self.delay = self.params["delay"]
+        relay_topic = self.params["relay_topic"]
         self.relay = self.create_publisher(relay_topic, HandPose) if relay_topic else None
-        self.stop_pub = self.create_publisher("safety/stop", Stop) if self.stop_on_shutdown else None
+        self.stop_pub = self.create_publisher("safety/stop", Stop) if self.params["stop_on_shutdown"] else None
         self.heard = 0
         self.create_subscription(topic, HandPose, self.on_pose, latest_only=latest_only)
         self.log.info("listening on %s%s", topic, " (latest only)" if latest_only else "")
@@ -37,7 +45,3 @@ class ExampleListener(Node):
         self.log.info("heard %d message(s)", self.heard)
         if self.stop_pub is not None:
             self.stop_pub.publish(Stop(reason="listener shutting down", origin=self.name))
-
-
-def main(argv=None):
-    return run_node(ExampleListener, argv)

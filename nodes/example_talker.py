@@ -8,19 +8,22 @@ import math
 
 import numpy as np
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.messages import HandPose
 
 
 class ExampleTalker(Node):
-    def __init__(self, **kwargs):
-        super().__init__("talker", **kwargs)
-        self.topic = self.declare_parameter("topic", "example/pose")
-        self.rate = self.declare_parameter("rate", 10.0)
-        self.count = self.declare_parameter("count", 0)  # stop publishing after this many; 0 = never
-        if not self.rate > 0:
-            raise ConfigError(f"parameters of node '{self.name}'", "rate", "a rate > 0 Hz", got=self.rate)
+    """Publishes a HandPose moving on a circle."""
+
+    default_name = "talker"
+    PARAMS = {
+        "topic": Param("example/pose", "the topic to publish on"),
+        "rate": Param(10.0, "messages per second", unit="Hz", above=0),
+        "count": Param(0, "stop publishing after this many; 0 = never", min=0),
+    }
+
+    def setup(self) -> None:
+        self.topic, self.rate, self.count = self.params["topic"], self.params["rate"], self.params["count"]
         self.pub = self.create_publisher(self.topic, HandPose)
         self.sent = 0
         self.create_timer(1.0 / self.rate, self.tick)
@@ -36,7 +39,3 @@ class ExampleTalker(Node):
             valid=True,
         ))
         self.sent += 1
-
-
-def main(argv=None):
-    return run_node(ExampleTalker, argv)

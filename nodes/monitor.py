@@ -1,24 +1,30 @@
-"""The monitor node: prints one status line per period (topic rates, touched motors, latency)."""
+"""The monitor node: prints one status line per period (topic rates, touched motors, latency, and
+the topics some node waits for that nobody publishes)."""
 from __future__ import annotations
 
 import time
 
-from touch4d.bus import Node, run_node
-from touch4d.messages import MotorCommand, MotorStatus, MotorTrace
+from touch4d.bus import Node, Param
+from touch4d.bus.node import HEARTBEAT_TOPIC
+from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 from touch4d.status import StackStatus
 
 
 class Monitor(Node):
     """Watches the whole bus and prints what a user wants to see while the demo runs."""
 
-    def __init__(self, name: str = "monitor", **kwargs):
-        super().__init__(name, **kwargs)
-        period = self.declare_parameter("period", 1.0)
+    default_name = "monitor"
+    PARAMS = {"period": Param(1.0, "seconds between status lines", unit="s", above=0)}
+
+    def setup(self) -> None:
+        period = self.params["period"]
         self.status = StackStatus(window=max(2.0, 2 * period))
         self.create_raw_subscription("", self.on_any)
-        self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
-        self.create_subscription("motors/status", MotorStatus, self.on_motor_status, latest_only=True)
-        self.create_subscription("motors/trace", MotorTrace, self.on_trace)
+        # What it watches is optional: a stack without motors is no fault of the monitor's.
+        self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True, optional=True)
+        self.create_subscription("motors/status", MotorStatus, self.on_motor_status, latest_only=True, optional=True)
+        self.create_subscription("motors/trace", MotorTrace, self.on_trace, optional=True)
+        self.create_subscription(HEARTBEAT_TOPIC, Heartbeat, self.on_heartbeat, optional=True)
         self.create_timer(period, self.on_timer)
 
     def on_any(self, topic: str, payload: bytes) -> None:
@@ -33,13 +39,8 @@ class Monitor(Node):
     def on_motor_status(self, msg: MotorStatus) -> None:
         self.status.on_motor_status(msg)
 
+    def on_heartbeat(self, msg: Heartbeat) -> None:
+        self.status.on_heartbeat(msg, time.time())
+
     def on_timer(self) -> None:
         print(self.status.line(time.time()), flush=True)
-
-
-def main(argv=None):
-    return run_node(Monitor, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

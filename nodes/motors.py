@@ -4,7 +4,9 @@ Subscribes `tactile/motors` and `safety/stop`, publishes `motors/status`. The lo
 touch4d.boards (driver: what to send; link: python-can without exceptions); this node wires it to
 topics and timers. Parameters: `glove` (file, default config/glove.yaml), `interface` and
 `channel` (override the glove's `can:`), `emulate` (run the board emulator on the same bus in
-this process), `status_hz` (motors/status rate), `trace` (publish `motors/trace`, below).
+this process), `board_emulator` (which: `python`, the reference, or `firmware`, the boards' C
+core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
+below).
 
 Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
@@ -30,12 +32,11 @@ import time
 
 import numpy as np
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
-from touch4d.boards.emulator import GloveEmulator
+from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
@@ -47,63 +48,59 @@ TRACE_PERIOD_S = 0.05  # motors/trace batches
 class MotorsNode(Node):
     """Drives the glove's motor boards over CAN."""
 
+    default_name = "motors"
+    PARAMS = {
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
+        "interface": Param("", "python-can interface, overriding the glove's can.interface"),
+        "channel": Param("", "CAN channel, overriding the glove's can.channel"),
+        "emulate": Param(False, "run the board emulator on the same bus, in this process"),
+        "board_emulator": Param("python", "which board emulator runs with emulate", choices=tuple(sorted(EMULATORS))),
+        "status_hz": Param(10.0, "motors/status messages per second", unit="Hz", above=0),
+        "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
+    }
+
     def __init__(self, bus_factory=None, **kwargs):
-        super().__init__("motors", **kwargs)
+        self._bus_factory = bus_factory   # tests: a python-can bus to use instead of opening one
         self.emulator = None
-        self.link = None
         self.tracing = False
         self._trace_pending: float | None = None   # source_stamp of the command whose duties are not all sent
         self._trace_stamps: list[float] = []
         self._trace_times: list[float] = []
         self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
-        try:
-            self._setup(bus_factory)
-        except BaseException:
-            self.shutdown()  # a bad config must not leave sockets, threads or a CAN bus open
-            raise
+        super().__init__(**kwargs)
 
-    def _setup(self, bus_factory) -> None:
-        glove = self.declare_parameter("glove", "")
-        interface = self.declare_parameter("interface", "")
-        channel = self.declare_parameter("channel", "")
-        emulate = self.declare_parameter("emulate", False)
-        status_hz = self.declare_parameter("status_hz", 10.0)
-        trace = self.declare_parameter("trace", False)
-        if not 0 < status_hz < math.inf:
-            raise ConfigError(self._params_source or f"parameters of node '{self.name}'", self._param_key("status_hz"),
-                              "a finite rate > 0 (messages per second)", got=status_hz)
-        cfg = load_glove_can(glove or None)
-        cfg = dataclasses.replace(cfg, interface=interface or cfg.interface, channel=channel or cfg.channel)
+    def setup(self) -> None:
+        p = self.params
+        cfg = load_glove_can(p["glove"] or None)
+        cfg = dataclasses.replace(cfg, interface=p["interface"] or cfg.interface, channel=p["channel"] or cfg.channel)
         self.cfg = cfg
         self.load = check_bus_load(cfg)
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
-        self.emulator = GloveEmulator(cfg).start() if emulate else None
+        if p["emulate"]:
+            self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
+            self.add_cleanup(self.emulator.stop)
         self.link = CanLink(cfg.interface, cfg.channel, cfg.bitrate, cfg.send_timeout_s,
-                            bus=bus_factory() if bus_factory else None)
+                            bus=self._bus_factory() if self._bus_factory else None)
+        self.add_cleanup(self.link.close)
         fault = self.link.ensure_open()
         if fault:
             self.driver.errors[fault] += 1
             self.log.error("CAN: %s; retrying", self.link.last_error)
-        self._can_warned: dict[str, float] = {}
         self._can_bus_off = False
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
-        self.create_subscription("safety/stop", Stop, self.on_stop)
+        self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
         self.create_timer(1.0 / cfg.refresh_hz, self.on_refresh)
-        self.create_timer(1.0 / status_hz, self.publish_status)
-        self.tracing = trace
-        if trace:
+        self.create_timer(1.0 / p["status_hz"], self.publish_status)
+        self.tracing = p["trace"]
+        if self.tracing:
             self._counters.update(trace_traced=0, trace_unchanged=0, trace_superseded=0)
             self.trace_pub = self.create_publisher("motors/trace", MotorTrace)
             self.create_timer(TRACE_PERIOD_S, self.publish_trace)
         self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
                       len(cfg.motor_names), len(cfg.boards), cfg.interface, cfg.channel, cfg.bitrate,
-                      100 * self.load.fraction, " (emulated boards)" if emulate else "")
-
-    def _param_key(self, name: str) -> str:
-        """A parameter's name as declare_parameter reports it: its path in the launch file when known."""
-        return f"nodes.{self.name}.params.{name}" if self._params_source else name
+                      100 * self.load.fraction, f" ({p['board_emulator']} emulated boards)" if self.emulator else "")
 
     def on_command(self, msg: MotorCommand) -> None:
         now = time.monotonic()
@@ -206,10 +203,8 @@ class MotorsNode(Node):
         self._can_warn(kind, detail)
 
     def _can_warn(self, kind: str, detail: str | None) -> None:
-        now = time.monotonic()
-        if now - self._can_warned.get(kind, -WARN_PERIOD_S) >= WARN_PERIOD_S:
-            self._can_warned[kind] = now
-            self.log.warning("CAN %s (%d so far): %s", kind, self.driver.errors[kind], detail or "-")
+        self.warn_once(("can", kind), f"CAN {kind} ({self.driver.errors[kind]} so far): {detail or '-'}",
+                       every=WARN_PERIOD_S)
 
     def status(self) -> MotorStatus:
         errors = {k: int(v) for k, v in self.driver.errors.items()}
@@ -220,20 +215,7 @@ class MotorsNode(Node):
         self.status_pub.publish(self.status())
 
     def on_shutdown(self) -> None:
-        try:
-            if self.link is not None:  # None: setup failed before the CAN side existed
-                self._stop_all(time.monotonic())
-                self.publish_status()
-        finally:
-            if self.emulator is not None:
-                self.emulator.stop()
-            if self.link is not None:
-                self.link.close()
+        """NMT STOP and zero duty before the link closes (the cleanups close it, then the emulator)."""
+        self._stop_all(time.monotonic())
+        self.publish_status()
 
-
-def main(argv=None):
-    return run_node(MotorsNode, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

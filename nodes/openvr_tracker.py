@@ -7,40 +7,41 @@ with code 1 and says what is missing.
 """
 from __future__ import annotations
 
-import functools
 import logging
-import sys
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
+from touch4d.errors import Unavailable
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-from touch4d.configfile import resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE
 from touch4d.tracking.outputs import from_controller
 from touch4d.tracking.vr import MISSING_PACKAGE, NO_STEAMVR, buttons_from_mask, pose_from_matrix
 
-HANDS = ("right", "left")
 TRIGGER_AXIS = 1  # rAxis[1].x is the trigger on Vive and Index controllers
 
 
 class OpenVRTracker(Node):
-    def __init__(self, openvr=None, system=None, **kwargs):
-        super().__init__("tracker", **kwargs)
-        source = f"parameters of node '{self.name}'"
-        self.openvr, self.system = openvr, system
-        self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
-        hand = self.declare_parameter("hand", "right")
-        if hand not in HANDS:
-            raise ConfigError(source, "hand", "right or left", got=hand)
-        self.role = openvr.TrackedControllerRole_RightHand if hand == "right" else openvr.TrackedControllerRole_LeftHand
-        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+    """A SteamVR controller held in the gloved hand."""
+
+    default_name = "tracker"
+    PARAMS = {
+        "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE),
+        "hand": Param("right", "the hand that holds the controller", choices=("right", "left")),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+    }
+
+    def setup(self) -> None:
+        self.openvr, self.system = connect()
+        self.add_cleanup(self.openvr.shutdown)
+        self.rate, hand = self.params["rate"], self.params["hand"]
+        vr = self.openvr
+        self.role = vr.TrackedControllerRole_RightHand if hand == "right" else vr.TrackedControllerRole_LeftHand
+        self.calibration = load_calibration(self.params["calibration"])
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
         self.create_timer(1.0 / self.rate, self.tick)
         self.was_found = None
         self.log.info("reading the %s-hand controller at %g Hz", hand, self.rate)
-
     def tick(self) -> None:
         vr, system = self.openvr, self.system
         index = system.getTrackedDeviceIndexForControllerRole(self.role)
@@ -63,32 +64,16 @@ class OpenVRTracker(Node):
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
 
-    def on_shutdown(self) -> None:
-        self.openvr.shutdown()
-
 
 def connect():
-    """(openvr module, IVRSystem), or a message saying what is missing."""
+    """(openvr module, IVRSystem); Unavailable saying what is missing otherwise."""
     try:
         import openvr
     except ImportError:
-        return None, MISSING_PACKAGE
+        raise Unavailable(MISSING_PACKAGE) from None
     try:
         # Background: use a running SteamVR, never start one (so this fails at once without it).
         system = openvr.init(openvr.VRApplication_Background)
     except Exception as exc:  # noqa: BLE001 - openvr raises its own error classes per init failure
-        return None, NO_STEAMVR.format(error=str(exc) or type(exc).__name__)
-    return (openvr, system), None
-
-
-def main(argv=None):
-    found, problem = connect()
-    if problem:
-        print(problem, file=sys.stderr)
-        return 1
-    openvr, system = found
-    return run_node(functools.partial(OpenVRTracker, openvr=openvr, system=system), argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+        raise Unavailable(NO_STEAMVR.format(error=str(exc) or type(exc).__name__)) from None
+    return openvr, system

@@ -9,19 +9,24 @@ from __future__ import annotations
 
 import time
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.log.recorder import Recorder
 
 
 class RecorderNode(Node):
-    def __init__(self, **kwargs):
-        super().__init__("recorder", **kwargs)
-        path = self.declare_parameter("file", time.strftime("touch4d-%Y%m%d-%H%M%S.mcap"))
-        topics = self.declare_parameter("topics", [])
-        if not all(isinstance(t, str) and t for t in topics):
-            raise ConfigError(self._params_source or "parameters", f"nodes.{self.name}.params.topics",
-                              "a list of topic names", got=topics)
+    """Records topics into an MCAP log."""
+
+    default_name = "recorder"
+    PARAMS = {
+        "file": Param("", "the .mcap to write ('' = touch4d-DATE-TIME.mcap)"),
+        "topics": Param([], "exact topic names to record ([] = every topic)", items=str),
+    }
+
+    def setup(self) -> None:
+        path = self.params["file"] or time.strftime("touch4d-%Y%m%d-%H%M%S.mcap")
+        topics = self.params["topics"]
+        if not all(topics):
+            raise self.param_error("topics", "a list of topic names")
         self.recorder = Recorder(self.bus, path, topics)
         self.recorder.start()
         self.create_timer(10.0, self.on_timer)
@@ -35,7 +40,3 @@ class RecorderNode(Node):
     def on_shutdown(self) -> None:
         for line in self.recorder.stop().lines():
             self.log.info(line)
-
-
-def main(argv=None):
-    return run_node(RecorderNode, argv)

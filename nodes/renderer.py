@@ -2,13 +2,17 @@
 
 With a display it opens a window (moderngl-window, glfw) with an orbit camera and publishes the
 window's keyboard and mouse as `ui/input` for the desktop tracker. Without one (no DISPLAY, or
-`headless: true`) it renders offscreen through EGL and can write frames to PNG (`output`, with
-`{frame}` for numbered files). A message it cannot use is logged once per cause and counted; the
-last good state keeps being drawn.
+`headless: true`) it renders offscreen through EGL, where nobody sees it unless `output` saves the
+frames: numbered PNGs, never one file written over (`frames/` -> frames/frame-000000.png, ...;
+`shot.png` -> shot-000000.png, ...; or a pattern with `{frame}`), every `save_every`-th frame. A
+message it cannot use is logged once per cause and counted; the last good state keeps being drawn.
 
 Parameters: rate (frames/s), width, height, samples (MSAA), camera ("yaw=30,pitch=20,..."),
 glove (file), headless, output, save_every (frames), max_frames (stop after; 0 = run on),
-fill_alpha, centre_alpha, clip, show_frame, show_tactile, show_status.
+backend ("gpu": per-pixel ray test in shaders; "clip": the paper's clip units on the CPU; "auto":
+gpu, or clip on a software rasteriser such as llvmpipe; gpu falls back to clip on a GL context that
+cannot run it), fill_alpha, centre_alpha, clip,
+show_frame, show_tactile, show_status.
 """
 from __future__ import annotations
 
@@ -18,72 +22,82 @@ from pathlib import Path
 
 import numpy as np
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
+from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
-from touch4d.render.context import RenderError, save_png
-from touch4d.render.scene_mesh import Style
-from touch4d.render.view import BACKGROUND, OffscreenRenderer, SceneView, Show
+from touch4d.render.context import RenderError, frame_files, save_png
+from touch4d.render.frame import Style
+from touch4d.render.view import BACKGROUND, SceneView, Show
 from touch4d.tactile.glove import load_glove
 
 
 class RendererNode(Node):
     """Keeps the last good state of every input and draws it at `rate`."""
 
-    def __init__(self, **kwargs):
-        super().__init__("renderer", **kwargs)
-        try:
-            self._setup()
-        except Exception:
-            self.shutdown()                     # close the sockets of a node that cannot start
-            raise
+    default_name = "renderer"
+    PARAMS = {
+        "rate": Param(60.0, "frames per second", unit="Hz", above=0),
+        "width": Param(1024, "frame width", unit="pixels", min=16, max=8192),
+        "height": Param(640, "frame height", unit="pixels", min=16, max=8192),
+        "samples": Param(4, "MSAA samples (0 = none)", min=0),
+        "camera": Param("", "orbit camera, e.g. 'yaw=30,pitch=20,distance=5'"),
+        "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
+        "headless": Param(False, "render offscreen even with a display"),
+        "backend": Param(DEFAULT_BACKEND, "how the 4D scene is drawn: gpu (per-pixel ray visibility in shaders), "
+                         "clip (the paper's clip units, on the CPU), auto (gpu on a hardware GPU, else clip)",
+                         choices=tuple(backend_names())),
+        "output": Param("", "save frames as numbered PNGs: a folder/, a file.png or a pattern with {frame}"),
+        "save_every": Param(1, "write every n-th frame", min=1),
+        "max_frames": Param(0, "stop after this many frames (0 = run on)", min=0),
+        "fill_alpha": Param(Style.fill_alpha, "opacity of the front cells' faces", min=0, max=1),
+        "centre_alpha": Param(Style.centre_alpha, "opacity of the cell-centre copies", min=0, max=1),
+        "clip": Param(True, "clip units (cells hidden behind others)"),
+        "show_frame": Param(True, "draw the screen's frame"),
+        "show_tactile": Param(True, "draw the hand's tactile field"),
+        "show_status": Param(True, "draw the status text"),
+    }
 
-    def _setup(self) -> None:
-        source = self._params_source or f"parameters of node '{self.name}'"
-        rate = self.declare_parameter("rate", 60.0)
-        width = self.declare_parameter("width", 1024)
-        height = self.declare_parameter("height", 640)
-        samples = self.declare_parameter("samples", 4)
-        camera = self.declare_parameter("camera", "")
-        glove_file = self.declare_parameter("glove", "")
-        headless = self.declare_parameter("headless", False)
-        self.output = self.declare_parameter("output", "")
-        self.save_every = self.declare_parameter("save_every", 1)
-        self.max_frames = self.declare_parameter("max_frames", 0)
-        style = Style(fill_alpha=self.declare_parameter("fill_alpha", Style.fill_alpha),
-                      centre_alpha=self.declare_parameter("centre_alpha", Style.centre_alpha),
-                      clip=self.declare_parameter("clip", True))
-        show = Show(frame=self.declare_parameter("show_frame", True),
-                    tactile=self.declare_parameter("show_tactile", True),
-                    status=self.declare_parameter("show_status", True))
-        if not rate > 0:
-            raise ConfigError(source, "rate", "frames per second > 0", got=rate)
-        if not (16 <= width <= 8192 and 16 <= height <= 8192):
-            raise ConfigError(source, "width/height", "16..8192 pixels", got=(width, height))
-        if self.save_every < 1 or self.max_frames < 0 or samples < 0:
-            raise ConfigError(source, "save_every/max_frames/samples", "save_every >= 1, the others >= 0",
-                              got=(self.save_every, self.max_frames, samples))
-        self.camera = parse_camera(camera, OrbitCamera(), f"{source}: camera")
-        self.view = SceneView(load_glove(glove_file or None), style, show)
+    def setup(self) -> None:
+        p = self.params
+        rate, width, height, samples = p["rate"], p["width"], p["height"], p["samples"]
+        backend = p["backend"]
+        self.output = frame_files(p["output"]) if p["output"] else ""
+        self.save_every, self.max_frames = p["save_every"], p["max_frames"]
+        style = Style(fill_alpha=p["fill_alpha"], centre_alpha=p["centre_alpha"], clip=p["clip"])
+        show = Show(frame=p["show_frame"], tactile=p["show_tactile"], status=p["show_status"])
+        source, key = self.param_where("camera")
+        self.camera = parse_camera(p["camera"], OrbitCamera(), f"{source}: {key}")
+        self.view = SceneView(load_glove(p["glove"] or None), style, show)
         self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
         self._rates = dict.fromkeys(self._received, 0.0)
         self._fps = 0.0
         self._rate_mark = (time.monotonic(), 0, dict(self._received))
-        self._logged: set[str] = set()
 
-        self.headless = headless or not os.environ.get("DISPLAY")
+        self.headless = p["headless"] or not os.environ.get("DISPLAY")
         self.window = None
         self.renderer = None
         self.input = None
         self.input_pub = None
         if self.headless:
-            self.renderer = OffscreenRenderer((width, height), samples=samples)
-            self.log.info("headless: rendering offscreen through EGL at %g Hz%s", rate,
-                          f", frames to {self.output}" if self.output else "")
+            from touch4d.render.offscreen import OffscreenRenderer
+
+            self.renderer = OffscreenRenderer((width, height), samples=samples, backend=backend, log=self.log)
+            self.add_cleanup(self.renderer.release)
+            self.backend = self.renderer.backend
+            why = "headless: true" if p["headless"] else "no DISPLAY"
+            if self.output:
+                self.log.info("headless (%s): rendering offscreen through EGL at %g Hz with the %s backend, "
+                              "every %sframe to %s, ...", why, rate, self.backend.name, _nth(self.save_every),
+                              Path(self.output.format(frame=0)).absolute())
+            else:
+                self.log.warning(
+                    "headless (%s): rendering offscreen, nothing is shown. To see the frames save them with "
+                    "renderer.output:=frames/ (numbered PNGs; renderer.save_every:=%d keeps one a second), or "
+                    "open a window: run with a display (or under xvfb-run -a)", why, max(1, round(rate)))
         else:
-            from touch4d.render.draw import Painter
+            from touch4d.render.backends import open_backend
             from touch4d.render.window import InputState, open_window
 
             self.input = InputState()
@@ -92,9 +106,12 @@ class RendererNode(Node):
             except (ValueError, RuntimeError) as exc:   # glfw: no display, no GL 3.3
                 raise RenderError(f"cannot open a window on display {os.environ.get('DISPLAY')!r}: {exc}; "
                                   "set the parameter headless: true to render offscreen") from exc
-            self.painter = Painter(self.window.ctx)
+            self.add_cleanup(self.window.destroy)
+            self.backend = open_backend(backend, self.window.ctx, log=self.log)
+            self.add_cleanup(self.backend.release)
             self.input_pub = self.create_publisher("ui/input", InputEvents)
-            self.log.info("window %dx%d at %g Hz; publishing ui/input", width, height, rate)
+            self.log.info("window %dx%d at %g Hz with the %s backend; publishing ui/input", width, height, rate,
+                          self.backend.name)
 
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
@@ -110,7 +127,7 @@ class RendererNode(Node):
                 self.counts["scenes_built"] += 1
         except (ValueError, TypeError, KeyError) as exc:   # MessageError, GeometryError, odd params
             self.counts["bad_scenes"] += 1
-            self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "
+            self.warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "
                                             f"keeping the last good scene: {exc}")
 
     def on_pose(self, msg: HandPose) -> None:
@@ -119,7 +136,7 @@ class RendererNode(Node):
             self.view.set_hand(msg)
         except ValueError as exc:
             self.counts["bad_poses"] += 1
-            self._warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
+            self.warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
 
     def on_field(self, msg: TactileField) -> None:
         self._received["field"] += 1
@@ -127,7 +144,7 @@ class RendererNode(Node):
             self.view.set_field(msg)
         except ValueError as exc:
             self.counts["bad_fields"] += 1
-            self._warn_once(f"field:{exc}", f"tactile/field ignored: {exc}")
+            self.warn_once(f"field:{exc}", f"tactile/field ignored: {exc}")
 
     def on_motors(self, msg: MotorCommand) -> None:
         self._received["motors"] += 1
@@ -138,20 +155,20 @@ class RendererNode(Node):
         self._update_rates()
         status = [f"renderer {self._fps:.0f} fps | scene {self._rates['scene']:.1f} Hz, "
                   f"pose {self._rates['pose']:.0f} Hz, field {self._rates['field']:.0f} Hz"]
-        layers = self.view.layers(status)
+        frame = self.view.frame(status)
         if self.window is not None:
             if self.window.is_closing:
                 self.request_shutdown()
                 return
             self.window.use()
             size = self.window.buffer_size
-            self.painter.paint(layers, self.camera.matrix(size), size, BACKGROUND)
+            self.backend.paint(frame, self.camera.matrix(size), size, BACKGROUND)
             if self.output and self.counts["frames"] % self.save_every == 0:
                 self._save(self._read_window(size))
             self.window.swap_buffers()          # also polls the window's events
             self.input_pub.publish(self.input.take())
         else:
-            self.renderer.draw_layers(layers, self.camera)
+            self.renderer.draw_frame(frame, self.camera)
             if self.output and self.counts["frames"] % self.save_every == 0:
                 self._save(self.renderer.read())
         self.counts["frames"] += 1
@@ -163,12 +180,12 @@ class RendererNode(Node):
         return np.frombuffer(raw, dtype=np.uint8).reshape(size[1], size[0], 4)[::-1].copy()
 
     def _save(self, image) -> None:
-        path = self.output.format(frame=self.counts["frames"]) if "{" in self.output else self.output
+        path = self.output.format(frame=self.counts["frames"])
         try:
-            save_png(image, Path(path))
+            self._last_saved = save_png(image, Path(path)).absolute()
             self.counts["saved"] += 1
         except RenderError as exc:
-            self._warn_once(f"save:{exc}", f"cannot write frame to {path}: {exc}")
+            self.warn_once(f"save:{exc}", f"cannot write frame to {path}: {exc}")
 
     def _update_rates(self) -> None:
         now = time.monotonic()
@@ -178,21 +195,11 @@ class RendererNode(Node):
             self._rates = {k: (self._received[k] - received0[k]) / (now - t0) for k in self._received}
             self._rate_mark = (now, self.counts["frames"], dict(self._received))
 
-    def _warn_once(self, cause: str, text: str) -> None:
-        if cause not in self._logged and len(self._logged) < 100:
-            self._logged.add(cause)
-            self.log.warning("%s (further identical problems are only counted)", text)
-
     def on_shutdown(self) -> None:
-        if not hasattr(self, "counts"):
-            return                              # stopped before it was set up
         self.log.info("drew %d frame(s): %s", self.counts["frames"], self.counts)
-        if self.window is not None:
-            self.painter.release()
-            self.window.destroy()
-        elif self.renderer is not None:
-            self.renderer.release()
+        if self.counts["saved"]:
+            self.log.info("saved %d frame(s), the last %s", self.counts["saved"], self._last_saved)
 
 
-def main(argv=None):
-    return run_node(RendererNode, argv)
+def _nth(n: int) -> str:
+    return "" if n == 1 else f"{n}th "

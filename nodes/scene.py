@@ -8,45 +8,49 @@ from __future__ import annotations
 
 import time
 
-from touch4d.bus import Node, run_node
+from touch4d.bus import Node, Param
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import positive_parameter
-from touch4d.configfile import resolve
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
 
 
 class SceneNode(Node):
-    def __init__(self, **kwargs):
-        super().__init__("scene", **kwargs)
-        source = f"parameters of node '{self.name}'"
-        scene_file = self.declare_parameter("scene", "config/scenes/hypercube.yaml")
-        calibration = self.declare_parameter("calibration", "config/calibration.yaml")
-        rate = positive_parameter(self.declare_parameter("rate", 2.0), source, "rate", 1000.0, "Hz")
-        self.min_period = 1.0 / positive_parameter(self.declare_parameter("max_rate", 120.0), source, "max_rate",
-                                                   1000.0, "Hz")
-        spin_rate = positive_parameter(self.declare_parameter("spin_rate", 30.0), source, "spin_rate", 1000.0, "Hz")
-        config = ControlConfig.from_params(
-            gains=self.declare_parameter("gains", {}),
-            trigger_threshold=self.declare_parameter("trigger_threshold", 0.5),
-            buttons=self.declare_parameter("buttons", dict(DEFAULT_BUTTONS)),
-            rotate=self.declare_parameter("rotate", "object"),
-            spin=self.declare_parameter("spin", {}),
-            source=source,
-        )
-        self.control = SceneControl(load_scene(resolve(scene_file)), load_calibration(resolve(calibration)), config)
+    """Holds the 4D scene and turns it with the controller."""
+
+    default_name = "scene"
+    PARAMS = {
+        "scene": Param("config/scenes/hypercube.yaml", "the scene file", path="scene file"),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+        "rate": Param(2.0, "scene/state repeats for late joiners", unit="Hz", above=0, max=1000),
+        "max_rate": Param(120.0, "scene/state at most this often while it changes", unit="Hz", above=0, max=1000),
+        "spin_rate": Param(30.0, "steps of the spin", unit="Hz", above=0, max=1000),
+        "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
+        "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
+        "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> scene command"),
+        "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
+        "spin": Param({}, "turn by itself: {plane: xw, deg_per_s: 6}"),
+    }
+
+    def setup(self) -> None:
+        p = self.params
+        self.min_period = 1.0 / p["max_rate"]
+        config = ControlConfig.from_params(gains=p["gains"], trigger_threshold=p["trigger_threshold"],
+                                           buttons=p["buttons"], rotate=p["rotate"], spin=p["spin"],
+                                           source=self.param_where("spin")[0])
+        self.control = SceneControl(load_scene(p["scene"]), load_calibration(p["calibration"]), config)
         self.dirty = False
         self.last_publish = 0.0
         self.pub = self.create_publisher("scene/state", SceneState)
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
-        self.create_subscription("scene/command", SceneCommand, self.on_command)
-        self.create_timer(1.0 / rate, self.publish)
+        self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
+        self.create_timer(1.0 / p["rate"], self.publish)
         self.create_timer(self.min_period, self.flush)
         if config.spin_plane is not None:
+            spin_rate = p["spin_rate"]
             self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
         self.publish()
-        self.log.info("scene %s: %d object(s), rotating %s", scene_file, len(self.control.scene.objects),
+        self.log.info("scene %s: %d object(s), rotating %s", p["scene"], len(self.control.scene.objects),
                       "the whole scene" if self.control.scene.selected < 0 else "the selected object")
 
     def on_controller(self, msg: ControllerState) -> None:
@@ -78,10 +82,3 @@ class SceneNode(Node):
         self.dirty = False
         self.last_publish = time.monotonic()
 
-
-def main(argv=None):
-    return run_node(SceneNode, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -7,35 +7,38 @@ it starts over (`loop: true`) or stops publishing.
 """
 from __future__ import annotations
 
-from touch4d.bus import Node, run_node
-from touch4d.errors import ConfigError
+from touch4d.bus import Node, Param
 from touch4d.messages import ControllerState, HandPose
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-from touch4d.configfile import resolve
+from touch4d.tracking.config import MAX_TRACKER_RATE
 from touch4d.tracking.outputs import from_hand
 from touch4d.tracking.paths import load_path, looped
 
 
 class ScriptedTracker(Node):
-    def __init__(self, **kwargs):
-        super().__init__("tracker", **kwargs)
-        source = f"parameters of node '{self.name}'"
-        self.rate = positive_parameter(self.declare_parameter("rate", 90.0), source, "rate", MAX_TRACKER_RATE, "Hz")
-        name = self.declare_parameter("path", "demo")
-        paths_file = self.declare_parameter("paths", "config/paths.yaml")
-        self.loop = self.declare_parameter("loop", True)
-        self.start_s = self.declare_parameter("start_s", 0.0)
-        if not 0 <= self.start_s < float("inf"):
-            raise ConfigError(source, "start_s", "a finite number of seconds >= 0", got=self.start_s)
-        self.path = load_path(name, resolve(paths_file))
-        self.calibration = load_calibration(resolve(self.declare_parameter("calibration", "config/calibration.yaml")))
+    """A hand following a named path, at a fixed rate."""
+
+    default_name = "tracker"
+    PARAMS = {
+        "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE),
+        "path": Param("demo", "the name of a path in the paths file"),
+        "paths": Param("config/paths.yaml", "the paths file", path="paths file"),
+        "loop": Param(True, "start over at the end of the path (else stop publishing)"),
+        "start_s": Param(0.0, "where on the path to start", unit="s", min=0),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+    }
+
+    def setup(self) -> None:
+        p = self.params
+        self.rate, self.loop, self.start_s = p["rate"], p["loop"], p["start_s"]
+        self.path = load_path(p["path"], p["paths"])
+        self.calibration = load_calibration(p["calibration"])
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
         self.tick_count = 0
         self.finished = False
         self.create_timer(1.0 / self.rate, self.tick)
-        self.log.info("path %s (%.1f s%s) at %g Hz", name, self.path.duration, ", looping" if self.loop else "",
+        self.log.info("path %s (%.1f s%s) at %g Hz", p["path"], self.path.duration, ", looping" if self.loop else "",
                       self.rate)
 
     def tick(self) -> None:
@@ -51,11 +54,3 @@ class ScriptedTracker(Node):
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
         self.tick_count += 1
-
-
-def main(argv=None):
-    return run_node(ScriptedTracker, argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -70,13 +70,55 @@ def test_curve_errors_name_the_key(tmp_path):
     assert err.value.key == "curve.client_secret" and "secret" in str(err.value)
 
 
-def test_the_launchers_environment_wins_over_the_project_file(monkeypatch):
+def test_the_launchers_handover_wins_over_the_users_file(monkeypatch, tmp_path):
+    from touch4d.bus.config import ENV_VAR
+
+    assert ENV_VAR != "TOUCH4D_BUS"     # the launcher's JSON never shares the user's variable
+    user = tmp_path / "bus.yaml"
+    user.write_text("broker: {pub_port: 7000, sub_port: 7001}\n")
+    monkeypatch.setenv("TOUCH4D_BUS", str(user))
     cfg = BusConfig(pub_port=1234, sub_port=1235)
-    monkeypatch.setenv("TOUCH4D_BUS", cfg.to_json())
+    monkeypatch.setenv(ENV_VAR, cfg.to_json())
     assert resolve_bus_config() == cfg
-    monkeypatch.setenv("TOUCH4D_BUS", "{not json")
-    with pytest.raises(ConfigError, match="TOUCH4D_BUS"):
+    monkeypatch.setenv(ENV_VAR, "{not json")
+    with pytest.raises(ConfigError, match=ENV_VAR):
         resolve_bus_config()
+
+
+def test_touch4d_bus_names_a_bus_config_file(monkeypatch, tmp_path):
+    from touch4d.bus.config import ENV_VAR
+
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    (tmp_path / "lab").mkdir()
+    path = tmp_path / "lab" / "bus.yaml"
+    path.write_text("broker: {pub_port: 7100, sub_port: 7101}\n")
+    monkeypatch.setenv("TOUCH4D_BUS", str(path))
+    assert (resolve_bus_config().pub_port, resolve_bus_config().sub_port) == (7100, 7101)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TOUCH4D_BUS", "lab/bus.yaml")                 # relative: from the current directory
+    assert resolve_bus_config().source == str(path)
+    monkeypatch.setenv("TOUCH4D_BUS", "lab/nope.yaml")
+    with pytest.raises(ConfigError) as err:
+        resolve_bus_config()
+    assert err.value.file == "$TOUCH4D_BUS" and str(tmp_path / "lab" / "nope.yaml") in str(err.value)
+
+
+def test_a_relative_bus_path_finds_the_keys_of_an_authorized_folder(monkeypatch, tmp_path):
+    # The PC of the README's two-machine set-up, run from the folder that holds config/.
+    keys = tmp_path / "config" / "keys"
+    for name in ("broker", "pc", "pi"):
+        keygen(keys, name)
+    (keys / "clients").mkdir()
+    for name in ("pc", "pi"):
+        (keys / "clients" / f"{name}.key").write_bytes((keys / f"{name}.key").read_bytes())
+    (tmp_path / "config" / "bus-pc.yaml").write_text(
+        "broker: {bind: 127.0.0.1}\n"
+        "curve: {server_public: keys/broker.key, server_secret: keys/broker.key_secret,\n"
+        "        client_secret: keys/pc.key_secret, authorized: [keys/clients]}\n")
+    monkeypatch.chdir(tmp_path)
+    relative = load_bus_config("config/bus-pc.yaml")
+    absolute = load_bus_config(tmp_path / "config" / "bus-pc.yaml")
+    assert len(relative.curve.authorized) == 2 and relative.curve == absolute.curve
 
 
 def test_a_remote_broker_requires_curve(tmp_path):

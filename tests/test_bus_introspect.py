@@ -5,6 +5,7 @@ import pytest
 import yaml
 
 from touch4d.bus import Node
+from touch4d.bus.config import ENV_VAR
 from touch4d.bus.introspect import build_message, node_list, topic_echo, topic_hz, topic_list, topic_pub
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.errors import ConfigError
@@ -81,8 +82,8 @@ def test_topic_pub_reports_bad_input(topic, text, type_name, match):
 def test_the_cli_commands_reach_the_bus(live_bus, monkeypatch, capsys):
     from touch4d.cli import main
 
-    monkeypatch.setenv("TOUCH4D_BUS", live_bus.to_json())
-    assert main(["node", "list", "--duration", "2.0"]) == 0
+    monkeypatch.setenv(ENV_VAR, live_bus.to_json())   # as in a process the launcher started
+    assert main(["node", "list", "--live", "--duration", "2.0"]) == 0
     assert "example_talker" in capsys.readouterr().out
     with Node("probe", bus=live_bus, heartbeat=False) as probe:
         stops = collect(probe, "safety/stop", Stop)
@@ -105,3 +106,22 @@ def test_tools_say_when_no_broker_answers(monkeypatch):
     bus = BusConfig(pub_port=free_port(), sub_port=free_port(), source="test.yaml")
     with pytest.raises(BusUnreachable, match="no broker at tcp://127.0.0.1"):
         node_list(bus, duration=1.0, out=io.StringIO())
+
+
+def test_echo_on_a_topic_nobody_publishes_says_so_within_two_seconds_and_lists_the_live_topics(live_bus):
+    out, err = io.StringIO(), io.StringIO()
+    assert topic_echo("example/pos", live_bus, duration=2.0, out=out, err=err) == 0
+    assert out.getvalue() == ""
+    text = err.getvalue()
+    assert "# nobody publishes example/pos (did you mean 'example/pose'?)" in text
+    assert "live topics: example/pose, node/heartbeat;" in text
+    err = io.StringIO()
+    assert topic_hz("tactile/motors", live_bus, duration=2.0, out=io.StringIO(), err=err) is None
+    assert "# nobody publishes tactile/motors; live topics: example/pose, node/heartbeat" in err.getvalue()
+
+
+def test_echo_on_a_published_topic_says_nothing_of_the_kind(live_bus):
+    err = io.StringIO()
+    assert topic_echo("example/pose", live_bus, count=1, duration=30, out=io.StringIO(), err=err) == 1
+    assert topic_hz("example/pose", live_bus, duration=2.0, out=io.StringIO(), err=err) > 10
+    assert err.getvalue() == ""

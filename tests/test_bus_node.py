@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import zmq
 
-from touch4d.bus import Node
+from touch4d.bus import Node, Param
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, HandPose, Stop, TactileField, encode
@@ -247,19 +247,71 @@ def test_callback_errors_are_counted_and_the_node_keeps_serving():
     assert node.stats_flat()["errors"] == 1
 
 
-def test_parameters_come_from_params_and_are_type_checked():
+class Declared(Node):
+    default_name = "tracker"
+    PARAMS = {"rate": Param(90.0, unit="Hz", above=0), "name": Param("y"), "on": Param(False),
+              "alpha": Param(None, type=float), "home": Param([0.0, 0.0, 0.0], items=float, length=3)}
+
+
+def test_parameters_come_from_the_class_declaration_checked_and_converted():
     with running_broker() as bus:
-        with Node("p", params={"rate": 30, "name": "x", "on": True}, bus=bus, heartbeat=False) as node:
-            assert node.declare_parameter("rate", 90.0) == 30.0 and isinstance(node.declare_parameter("rate", 1.0), float)
-            assert node.declare_parameter("name", "y") == "x"
-            assert node.declare_parameter("missing", [1, 2]) == [1, 2]
-            assert node.undeclared_parameters() == ["on"]
-        with Node("tracker", params={"rate": "fast"}, bus=bus, heartbeat=False,
-                  params_source="launch/x.yaml") as node:
+        with Declared(params={"rate": 30, "on": True, "home": [1, 2, 3]}, bus=bus, heartbeat=False) as node:
+            assert node.params == {"rate": 30.0, "name": "y", "on": True, "alpha": None, "home": [1.0, 2.0, 3.0]}
+            assert isinstance(node.params["rate"], float) and node.given == {"rate", "on", "home"}
+            assert node.name == "tracker"
+        for params, key, expected in (({"rate": "fast"}, "nodes.tracker.params.rate", "a finite number > 0 (Hz)"),
+                                      ({"rate": 0}, "nodes.tracker.params.rate", "a finite number > 0 (Hz)"),
+                                      ({"on": 1}, "nodes.tracker.params.on", "true or false"),
+                                      ({"home": [1, 2]}, "nodes.tracker.params.home", "a list of 3 finite numbers"),
+                                      ({"rat": 1}, "nodes.tracker.params.rat", "did you mean 'rate'?")):
             with pytest.raises(ConfigError) as err:
-                node.declare_parameter("rate", 90.0)
-    assert "launch/x.yaml" in str(err.value) and "nodes.tracker.params.rate" in str(err.value)
-    assert "'fast'" in str(err.value)
+                Declared(params=params, bus=bus, heartbeat=False, params_source="launch/x.yaml")
+            assert err.value.file == "launch/x.yaml" and err.value.key == key and expected in str(err.value)
+        with pytest.raises(ConfigError, match="parameters of node 'n'.*expected a parameter of node"):
+            Node("n", params={"anything": 1}, bus=bus, heartbeat=False)  # a bare Node declares none
+
+
+class Lifecycle(Node):
+    PARAMS = {"fail": Param(False)}
+    instances: list = []
+
+    def setup(self):
+        self.instances.append(self)
+        self.events = []
+        self.create_subscription("life/in", HandPose, lambda m: None)
+        self.add_cleanup(lambda: self.events.append("first cleanup"))
+        self.add_cleanup(lambda: self.events.append("second cleanup"))
+        if self.params["fail"]:
+            raise self.param_error("fail", "false")
+
+    def on_shutdown(self):
+        self.events.append("on_shutdown")
+
+
+def test_setup_failure_runs_the_cleanups_and_closes_the_sockets_but_not_on_shutdown():
+    with running_broker() as bus:
+        with pytest.raises(ConfigError, match="key 'fail': expected false, got True"):
+            Lifecycle(params={"fail": True}, bus=bus, heartbeat=False)
+        failed = Lifecycle.instances[-1]
+        assert failed.events == ["second cleanup", "first cleanup"]
+        assert failed._pub.closed and failed._sub.closed
+        ok = Lifecycle(bus=bus, heartbeat=False)
+        ok.shutdown()
+        ok.shutdown()
+        assert ok.events == ["on_shutdown", "second cleanup", "first cleanup"]
+
+
+def test_warn_once_logs_a_cause_once_or_again_after_its_period(caplog):
+    with running_broker() as bus, Node("w", bus=bus, heartbeat=False) as node:
+        with caplog.at_level("WARNING", logger="w"):
+            assert node.warn_once("a", "problem a") and not node.warn_once("a", "problem a again")
+            assert node.warn_once("b", "problem b")
+            assert node.warn_once("c", "periodic", every=0.05) and not node.warn_once("c", "periodic", every=0.05)
+            time.sleep(0.06)
+            assert node.warn_once("c", "periodic", every=0.05)
+    texts = [r.getMessage() for r in caplog.records]
+    assert texts == ["problem a (further identical problems are only counted)",
+                     "problem b (further identical problems are only counted)", "periodic", "periodic"]
 
 
 def test_publish_rejects_wrong_type_and_invalid_messages_naming_the_topic():
@@ -318,16 +370,15 @@ def test_a_node_whose_init_fails_leaves_nothing_that_blocks_garbage_collection(t
         "from touch4d.errors import ConfigError\n"
         "from touch4d.messages import HandPose\n"
         "class Bad(Node):\n"
-        "    def __init__(self, **kw):\n"
-        "        super().__init__('bad', **kw)\n"
+        "    def setup(self):\n"
         "        self.create_subscription('x', HandPose, self.on)\n"
-        "        self.declare_parameter('rate', 1.0)\n"
+        "        raise ConfigError('x.yaml', 'rate', 'a number')\n"
         "    def on(self, msg):\n"
         "        pass\n"
         "with running_broker() as bus:\n"
         "    for _ in range(3):\n"
         "        try:\n"
-        "            Bad(params={'rate': 'x'}, bus=bus)\n"
+        "            Bad(bus=bus)\n"
         "        except ConfigError:\n"
         "            pass\n"
         "    gc.collect()\n"

@@ -124,7 +124,7 @@ def test_bad_scene_files_name_file_key_and_reason(tmp_path, label, data, key, re
 
 
 def test_unreadable_and_malformed_files(tmp_path):
-    with pytest.raises(ConfigError, match="readable"):
+    with pytest.raises(ConfigError, match="existing scene file"):
         load_scene(tmp_path / "missing.yaml")
     path = tmp_path / "broken.yaml"
     path.write_text("objects: [\n")

@@ -33,10 +33,11 @@ def test_command_line_swaps_sets_and_drops_nodes(tmp_path):
     top = write(tmp_path / "l.yaml", "nodes:\n  tracker: {node: example_talker, params: {rate: 90.0}}\n"
                                      "  other: {node: example_listener}\n")
     nodes = load_launch(top, ["tracker:=example_listener", "tracker.delay:=0.5", "tracker.topic:=hand/pose",
-                              "tracker.flags:=[1, two]", "other:=none"])
-    assert list(nodes) == ["tracker"]
+                              "other:=none", "+extra:=example_talker", "extra.rate:=3"])
+    assert list(nodes) == ["tracker", "extra"]
     assert nodes["tracker"].module == "example_listener"
-    assert nodes["tracker"].params == {"delay": 0.5, "topic": "hand/pose", "flags": [1, "two"]}
+    assert nodes["tracker"].params == {"delay": 0.5, "topic": "hand/pose"}
+    assert nodes["extra"].module == "example_talker" and nodes["extra"].params == {"rate": 3}
 
 
 def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path):
@@ -61,7 +62,7 @@ def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path)
     ("nodes:\n  tracker: {node: 3}\n", "nodes.tracker.node"),
     ("nodes:\n  tracker: {params: {rate: 1}}\n", "nodes.tracker.node"),
     ("nodes:\n  tracker: example_talker\n", "nodes.tracker"),
-    ("include: [missing.yaml]\n", "include"),
+    ("include: [missing.yaml]\n", "include[0]"),
     ("nodes: [talker]\n", "nodes"),
 ])
 def test_bad_launch_files_name_the_file_and_the_key(tmp_path, text, key):
@@ -116,6 +117,107 @@ def test_node_process_entry_reports_unknown_modules_and_bad_params(capsys):
     from touch4d.bus.process import main
 
     assert main(["no_such_node", "--name", "x"]) == 2
-    assert "touch4d.nodes.no_such_node not found" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "'no_such_node'" in err and "example_talker" in err and "module path" in err
     assert main(["example_talker", "--name", "t", "--params", "[1, 2]"]) == 2
     assert "--params: expected a JSON object" in capsys.readouterr().err
+
+
+# ---- checked before anything starts: roles, parameters and their types ----------------------------
+
+
+DEMO = str(ROOT / "launch" / "demo.yaml")
+
+
+def launch_error(overrides, path=DEMO) -> ConfigError:
+    with pytest.raises(ConfigError) as err:
+        load_launch(path, overrides)
+    return err.value
+
+
+def test_an_unknown_role_names_the_file_the_roles_and_the_closest():
+    err = launch_error(["rendrer:=none"])
+    text = str(err)
+    assert err.file == "command line" and err.key == "rendrer:=none" and err.got == "rendrer"
+    assert DEMO in text and "did you mean 'renderer'?" in text
+    assert "tracker, scene, tactile, motors, renderer, monitor" in text
+    assert "+ROLE:=NODE adds a node" in text
+    assert "did you mean 'tracker'?" in str(launch_error(["trackr.rate:=5"]))
+    assert "did you mean 'scene'?" in str(launch_error(["scen:=scripted"]))
+
+
+def test_an_undeclared_parameter_names_the_role_the_node_and_its_parameters():
+    err = launch_error(["tracker.rat:=5"])
+    text = str(err)
+    assert err.file == "command line" and err.key == "tracker.rat:=5" and err.got == "rat"
+    assert "node scripted (role 'tracker' of " + DEMO + ")" in text
+    assert "one of: calibration, loop, path, paths, rate, start_s" in text and "did you mean 'rate'?" in text
+
+
+def test_an_undeclared_parameter_in_a_file_names_the_file_and_key(tmp_path):
+    path = write(tmp_path / "l.yaml", "nodes:\n  tracker: {node: example_talker, params: {rat: 5.0}}\n")
+    err = launch_error([], path)
+    assert (err.file, err.key, err.got) == (str(path), "nodes.tracker.params.rat", "rat")
+    assert "one of: count, rate, topic" in str(err) and "did you mean 'rate'?" in str(err)
+    bad = write(tmp_path / "b.yaml", "nodes:\n  tracker: {node: example_talker, params_for: {replay: {fil: x}}}\n")
+    err = launch_error([], bad)
+    assert err.key == "nodes.tracker.params_for.replay.fil" and "did you mean 'file'?" in str(err)
+
+
+@pytest.mark.parametrize("override, expected", [
+    ("tracker.rate:=fast", "a finite number > 0 and <= 1000 (Hz) for parameter 'rate'"),
+    ("tracker.rate:=-5", "a finite number > 0 and <= 1000 (Hz) for parameter 'rate'"),
+    ("tracker.rate:=.nan", "a finite number > 0"),
+    ("tracker.loop:=maybe", "true or false for parameter 'loop'"),
+    ("tactile.projection:=fisheye", "one of scene, orthographic, perspective for parameter 'projection'"),
+    ("renderer.width:=8.5", "an integer >= 16 and <= 8192 (pixels)"),
+    ("scene.spin:=[1, 2]", "a mapping for parameter 'spin'"),
+    ("tactile.alpha:=steep", "a finite number, or null for parameter 'alpha'"),
+])
+def test_a_wrong_parameter_type_or_value_names_the_role_the_file_and_what_is_valid(override, expected):
+    err = launch_error([override])
+    assert err.file == "command line" and err.key == override
+    assert expected in str(err) and f"(role '{override.split('.')[0]}' of {DEMO})" in str(err)
+
+
+def test_a_wrong_type_in_a_file_is_named_there(tmp_path):
+    path = write(tmp_path / "l.yaml", "nodes:\n  renderer: {node: renderer, params: {headless: 'yes'}}\n")
+    err = launch_error([], path)
+    assert (err.file, err.key, err.got) == (str(path), "nodes.renderer.params.headless", "yes")
+    assert "true or false" in str(err)
+
+
+def test_a_node_name_with_a_typo_gets_a_suggestion():
+    err = launch_error(["tracker:=scriptd"])
+    assert err.key == "tracker:=scriptd" and "did you mean 'scripted'?" in str(err)
+    err = launch_error(["tracker:=mylab.no_such_module"])
+    assert "no importable module mylab.no_such_module" in str(err)
+
+
+def test_adding_a_node_needs_a_new_role():
+    assert "+ROLE:=NODE with a new role" in str(launch_error(["+tracker:=scripted"]))
+    assert load_launch(DEMO, ["+recorder:=recorder", "recorder.topics:=[hand/pose]"])["recorder"].params == {
+        "topics": ["hand/pose"]}
+
+
+def test_the_launch_command_refuses_a_bad_override_before_starting_anything(capsys):
+    from touch4d.cli import main
+
+    assert main(["launch", "rendrer:=none"]) == 2
+    captured = capsys.readouterr()
+    assert "rendrer" in captured.err and "did you mean 'renderer'?" in captured.err and "Traceback" not in captured.err
+    assert "broker" not in captured.out and "started" not in captured.out
+
+
+def test_a_node_checks_its_parameters_itself_too():
+    """Run without the launcher (`touch4d node run`), the node says the same."""
+    from touch4d.bus.process import main
+
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "touch4d.bus", "example_talker", "--name", "talker",
+                           "--params", '{"rat": 5}'], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "parameters of node 'talker'" in done.stderr and "did you mean 'rate'?" in done.stderr
+    assert main  # the same entry point the launcher uses

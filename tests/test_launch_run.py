@@ -82,15 +82,6 @@ def test_duration_stops_cleanly_with_exit_0():
     assert "stopping (--duration 2 s)" in run.text and "[talker]" in run.text
 
 
-def test_a_node_that_fails_to_start_is_named_with_its_cause():
-    with launch_process(["launch/example.yaml", "talker.rate:=fast"]) as run:
-        line = run.wait_for_line(r"\[launch\].*failed to start", timeout=60)
-        run.bus  # the rest keeps running
-        assert run.stop(signal.SIGINT, timeout=30) == 1  # a node failed
-    assert "'talker' (example_talker)" in line and "nodes.talker.params.rate" in line and "'fast'" in line
-    assert "node(s) that failed: talker" in run.text
-
-
 def test_nodes_die_with_a_killed_launcher():
     with launch_process(["launch/example.yaml"]) as run:
         pids = heartbeat_pids(run, ["talker", "listener"])
@@ -138,3 +129,41 @@ def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
     else:
         assert policies["talker"] == os.SCHED_OTHER
         assert "real-time priority not permitted" in run.text
+
+
+@pytest.mark.parametrize("role, entry, expected", [
+    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a positive number"]),
+    ("tactile", "{node: tactile, params: {glove: no-such-glove.yaml}}",
+     ["nodes.tactile.params.glove", "an existing glove file", "no-such-glove.yaml", "looked in"]),
+])
+def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_error_last(tmp_path, role, entry,
+                                                                                          expected):
+    scene = tmp_path / "bad-scene.yaml"
+    scene.write_text("objects:\n  - {shape: tesseract, size: -1}\n")
+    launch = tmp_path / "stack.yaml"
+    launch.write_text(f"nodes:\n  talker: {{node: example_talker}}\n  {role}: {entry.replace('BAD', str(scene))}\n")
+    with launch_process([str(launch)]) as run:
+        code = run.proc.wait(60)
+        run.join()
+    assert code == 2  # a config error
+    last = run.text.rstrip().splitlines()[-1]
+    # The cause, named as the file at fault names it, is what the user reads last.
+    assert last.startswith("[launch]") and f"node '{role}' ({role}) failed to start" in last
+    assert all(text in last for text in expected), last
+    assert "[talker]" in run.text and "stopping (node" in run.text  # the others were started, then stopped
+
+
+def test_a_failing_node_with_respawn_keeps_the_launch_and_the_monitor_names_the_topic_without_publisher(tmp_path):
+    scene = tmp_path / "bad-scene.yaml"
+    scene.write_text("objects:\n  - {shape: tesseract, size: -1}\n")
+    launch = tmp_path / "stack.yaml"
+    launch.write_text("nodes:\n"
+                      f"  scene: {{node: scene, params: {{scene: '{scene}'}}, respawn: true}}\n"
+                      "  listener: {node: example_listener, params: {topic: scene/state}}\n"
+                      "  monitor: {node: monitor, params: {period: 0.5}}\n")
+    with launch_process([str(launch)]) as run:
+        line = run.wait_for_line(r"^\[monitor\].*no publisher", timeout=60)
+        run.wait_for_line(r"\[launch\].*respawning 'scene'", timeout=10)
+        assert run.proc.poll() is None
+        run.stop(timeout=30)
+    assert "scene/state" in line and "listener" in line

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
 from mcap.records import Chunk
@@ -183,13 +184,34 @@ def test_json_export_loads_back_with_the_same_values(tmp_path):
     out = io.StringIO()
     export_json(LogReader(path), "hand/pose", out)
     rows = [json.loads(line) for line in out.getvalue().splitlines()]
-    expected = [flatten(LogReaderMessage(p)) for topic, _, p in written if topic == "hand/pose"]
+    # a live log: every row has the header's recorded_stamp column, 0 (= live)
+    expected = [{**flatten(LogReaderMessage(p)), "recorded_stamp": 0.0}
+                for topic, _, p in written if topic == "hand/pose"]
     assert len(rows) == 300
     for row, fields in zip(rows, expected):
         assert {k: v for k, v in row.items() if k != "log_time"} == fields
+    assert list(rows[0])[:6] == ["log_time", "type", "stamp", "seq", "source_stamp", "recorded_stamp"]
     out = io.StringIO()
     export_json(LogReader(path), "tactile/field", out)
     assert json.loads(out.getvalue().splitlines()[0])["l.1"] is None  # NaN: JSON has none
+
+
+def test_exports_give_the_recorded_stamp_of_replayed_messages(tmp_path):
+    from touch4d.log.restamp import restamp
+
+    path, fox = tmp_path / "replayed.mcap", tmp_path / "fox.mcap"
+    with LogWriter(path) as w:
+        for i in range(3):
+            w.write("hand/pose", restamp(hand(i), 1800000000.0 + i, i), T0 + i)
+    out = io.StringIO()
+    export_json(LogReader(path), "hand/pose", out)
+    rows = [json.loads(line) for line in out.getvalue().splitlines()]
+    assert [(r["stamp"], r["recorded_stamp"]) for r in rows] == \
+        [(1800000000.0 + i, 1700000000 + i / 100) for i in range(3)]
+    export_foxglove(LogReader(path), str(fox))
+    with open(fox, "rb") as f:
+        got = [json.loads(m.data)["recorded_stamp"] for _, _, m in make_reader(f).iter_messages()]
+    assert got == [1700000000 + i / 100 for i in range(3)]
 
 
 def test_foxglove_export_is_json_mcap_with_the_same_values(tmp_path):
@@ -272,9 +294,8 @@ def test_truncated_file_gives_a_clear_error_and_recovers_flushed_chunks(tmp_path
     assert [m.data for m in LogReader(out).messages()] == [p for _, _, p in written[:complete_chunks]]
 
 
-def test_corrupt_chunk_in_the_middle_is_skipped_and_named(tmp_path):
-    path = tmp_path / "bad.mcap"
-    written = write_log(path, flush_every=100)  # 4 chunks of 100 messages
+def corrupt_second_chunk(path) -> int:
+    """Zero 16 bytes in the middle of the second chunk of a complete log; returns the chunk's offset."""
     data = bytearray(path.read_bytes())
     with open(path, "rb") as f:
         chunks = make_reader(f).get_summary().chunk_indexes
@@ -282,14 +303,37 @@ def test_corrupt_chunk_in_the_middle_is_skipped_and_named(tmp_path):
     middle = second.chunk_start_offset + second.chunk_length // 2
     data[middle:middle + 16] = b"\x00" * 16
     path.write_bytes(bytes(data))
-    reader = LogReader(path)  # the file ends properly: the damage shows while reading
-    with pytest.raises(LogFileError) as exc:
-        list(reader.messages())
-    assert str(path) in str(exc.value) and f"damaged chunk at byte {second.chunk_start_offset}" in str(exc.value)
-    reader = LogReader(path, recover=True)
-    got = [m.data for m in reader.messages()]
-    assert got == [p for _, _, p in written[:100] + written[200:]]
-    assert len(reader.problems) == 1
+    return second.chunk_start_offset
+
+
+def test_corrupt_chunk_in_the_middle_is_skipped_counted_and_named(tmp_path):
+    path = tmp_path / "bad.mcap"
+    written = write_log(path, flush_every=100)  # 4 chunks of 100 messages
+    offset = corrupt_second_chunk(path)
+    for recover in (False, True):  # a damaged chunk never stops the reading: it is skipped and counted
+        reader = LogReader(path, recover=recover)
+        got = [m.data for m in reader.messages()]
+        assert got == [p for _, _, p in written[:100] + written[200:]]
+        assert (reader.skipped_chunks, reader.skipped_messages) == (1, 100)
+        assert len(reader.problems) == 1
+        assert f"damaged chunk at byte {offset}" in reader.problems[0]
+        assert "skipped, 100 message(s) lost" in reader.problems[0]
+
+
+def test_damaged_chunk_cli_goes_on_warns_and_exits_0(tmp_path, capsys):
+    path = tmp_path / "bad.mcap"
+    written = write_log(path, flush_every=100)
+    offset = corrupt_second_chunk(path)
+    assert touch4d_main(["log", "info", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["count"] == 300
+    assert f"warning: {path}: damaged chunk at byte {offset}" in captured.err
+    assert "1 damaged chunk skipped, 100 message(s) lost" in captured.err
+    out = tmp_path / "h.csv"
+    assert touch4d_main(["log", "export", str(path), "--format", "csv", "--topic", "hand/pose", "-o", str(out)]) == 0
+    rows = list(csv.DictReader(open(out)))
+    assert len(rows) == sum(1 for topic, _, _ in written[:100] + written[200:] if topic == "hand/pose")
+    assert "1 damaged chunk skipped, 100 message(s) lost" in capsys.readouterr().err
 
 
 def test_not_an_mcap_file_and_missing_file(tmp_path):
@@ -342,3 +386,59 @@ def test_seq_gaps_stay_bounded_for_publishers_that_do_not_count():
     for seq in range(1000, 0, -1):  # counting down: each one looks like a new publisher
         g.add("u", seq)
     assert g.streams("u") == 32 and g.total_lost() == 0
+
+
+def test_the_index_gives_topics_counts_and_times_without_reading_messages(tmp_path):
+    from touch4d.log.summary import indexed_summary
+
+    path = tmp_path / "a.mcap"
+    written = write_log(path, skip={0, 299}, flush_every=60)
+    reader = LogReader(path)
+    quick = indexed_summary(reader)
+    assert reader.channels == {}  # nothing read but the summary section
+    assert reader.metadata["touch4d.recording"] == {"note": "test"}
+    for topic in ("hand/pose", "tactile/field"):
+        times = [t for tp, t, _ in written if tp == topic]
+        t = next(t for t in quick.topics if t.topic == topic)
+        assert (t.count, t.first, t.last) == (len(times), times[0], times[-1])
+    assert quick.start == written[0][1]
+    assert reader.topics() == {"hand/pose": "HandPose", "tactile/field": "TactileField"}
+    assert reader.channels == {}
+    # an unfinished file has no index: read through instead
+    cut = tmp_path / "cut.mcap"
+    write_log(cut, close=False, flush_every=60)
+    assert indexed_summary(LogReader(cut, recover=True)) is None
+
+
+def test_reading_from_a_time_starts_at_its_chunk(tmp_path):
+    path = tmp_path / "a.mcap"
+    written = write_log(path, flush_every=100)  # 4 chunks of 100 messages
+    start = written[250][1]
+    expected = [(topic, t, p) for topic, t, p in written if t >= start]
+    assert [(m.topic, m.log_time, m.data) for m in LogReader(path).messages(start=start)] == expected
+    assert [m.data for m in LogReader(path).messages({"tactile/field"}, start=start)] == \
+        [p for topic, _, p in expected if topic == "tactile/field"]
+    # the chunks before the start are not read at all: damage there goes unnoticed
+    corrupt_second_chunk(path)
+    reader = LogReader(path)
+    assert [(m.topic, m.log_time, m.data) for m in reader.messages(start=start)] == expected
+    assert reader.problems == [] and reader.skipped_chunks == 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(seq=st.integers(0, 2**64 - 1), stamp=st.floats(allow_nan=True, allow_infinity=True),
+       name=st.text(min_size=1, max_size=40), reorder=st.booleans())
+def test_header_peek_reads_what_a_full_decode_reads(seq, stamp, name, reorder):
+    import msgpack
+    from touch4d.log.writer import peek_header
+
+    fields = {"type": name, "stamp": stamp, "seq": seq, "source_stamp": 1.0, "position": b"\x00" * 24}
+    if reorder:
+        fields = dict(reversed(list(fields.items())))
+    payload = msgpack.packb(fields)
+    decoded = msgpack.unpackb(payload)
+    want_stamp = decoded["stamp"] if math.isfinite(decoded["stamp"]) and decoded["stamp"] >= 0 else 0.0
+    assert peek_header(payload) == (decoded["type"], want_stamp, decoded["seq"])
+    for cut in (1, 7, 20, len(payload) // 2):  # cut short: what is there (-1, 0.0: unknown), never an exception
+        got = peek_header(payload[:cut])
+        assert got is None or (got[0] == decoded["type"] and got[1] in (want_stamp, 0.0) and got[2] in (seq, -1))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import select
 import signal
 import subprocess
@@ -90,20 +91,25 @@ def paced_send(send, payloads: list[bytes], rate: float, topic: str = "hand/pose
     return sent_at
 
 
-@pytest.mark.timeout(120)
-def test_10k_messages_per_second_for_5_s_recorded_without_loss(bus, procs, tmp_path):
-    path = tmp_path / "fast.mcap"
+def record_while_sending(bus, procs, path, payloads: list[bytes], rate: float) -> tuple[int, str, str]:
+    """`touch4d record -o PATH hand/pose` while `payloads` go out at `rate`; stopped with Ctrl+C."""
     rec = Proc(bus, "record", "-o", str(path), "hand/pose")
     procs.append(rec)
     rec.wait_for_stderr("recording hand/pose")
-    payloads = poses(50_000)
     sender = BusSender(bus)
     try:
-        paced_send(sender, payloads, 10_000)
+        paced_send(sender, payloads, rate)
     finally:
         sender.close()
     time.sleep(1.0)
-    code, out, err = rec.finish(signal.SIGINT)
+    return rec.finish(signal.SIGINT)
+
+
+@pytest.mark.timeout(120)
+def test_10k_messages_per_second_for_5_s_recorded_without_loss(bus, procs, tmp_path):
+    path = tmp_path / "fast.mcap"
+    payloads = poses(50_000)
+    code, out, err = record_while_sending(bus, procs, path, payloads, 10_000)
     assert code == 0, err
     assert "recorded 50000 messages" in out and "seq gaps: none" in out
     got = list(LogReader(path).messages())
@@ -175,6 +181,29 @@ def test_record_duration_stops_by_itself_and_bad_durations_are_rejected(bus, tmp
     for bad in ("0", "-1", "nan", "inf"):
         assert touch4d_main(["record", "-o", str(tmp_path / "bad.mcap"), "--duration", bad]) == 2
         assert "--duration must be a finite number of seconds > 0" in capsys.readouterr().err
+
+
+def reported_bytes(text: str, what: str) -> float:
+    """The size printed before `what` (e.g. "on disk"), in bytes: "512 B", "6.1 kB", "0.51 MB", "1.02 GB"."""
+    match = re.search(rf"([0-9.]+) (B|kB|MB|GB) {what}", text)
+    assert match, f"no size {what!r} in {text!r}"
+    return float(match.group(1)) * {"B": 1, "kB": 1e3, "MB": 1e6, "GB": 1e9}[match.group(2)]
+
+
+@pytest.mark.timeout(60)
+def test_report_gives_the_bytes_on_disk_and_the_uncompressed_payload_separately(bus, procs, tmp_path):
+    path = tmp_path / "size.mcap"
+    # Poses of a hand at rest compress well: the file is much smaller than the messages in it.
+    payloads = [encode(HandPose(position=np.array([0.1, 0.0, 0.5]), orientation=np.array([0.0, 0.0, 0.0, 1.0]),
+                                valid=True, stamp=1700000000.0, seq=i, source_stamp=1700000000.0))
+                for i in range(3000)]
+    code, out, err = record_while_sending(bus, procs, path, payloads, 5000)
+    assert code == 0, err
+    assert "recorded 3000 messages" in out
+    on_disk, payload = os.path.getsize(path), sum(map(len, payloads))
+    assert on_disk < payload / 3
+    assert reported_bytes(out, "on disk") == pytest.approx(on_disk, rel=0.01)
+    assert reported_bytes(out, "of messages") == pytest.approx(payload, rel=0.01)
 
 
 def test_no_broker_is_a_clear_error(tmp_path):

@@ -16,7 +16,8 @@ from touch4d.cli import main as touch4d_main
 from touch4d.bus.testing import bus_env, collect, launch_process, node_process, running_broker, wait_until
 from touch4d.log.reader import LogReader
 from touch4d.log.writer import LogWriter
-from touch4d.messages import HandPose, Heartbeat, encode
+from touch4d.messages import HandPose, Heartbeat, MotorCommand, decode, encode
+from touch4d.messages.codec import pack, unpack
 
 T0 = 1_700_000_000_000_000_000
 
@@ -120,7 +121,7 @@ def test_replayed_stack_recorded_again_is_byte_identical_with_timing_kept(procs,
     def replay_and_record(path):
         with realtime_broker() as bus:
             rec = record(procs, bus, path)
-            replay = procs.start(bus, "replay", str(first))
+            replay = procs.start(bus, "replay", str(first), "--original-stamps")
             _, err = replay.communicate(timeout=60)
             assert replay.returncode == 0, err
             assert f"replay done: {len(original)} messages sent" in err
@@ -158,7 +159,10 @@ def test_topics_filter_reports_unknown_topics_and_remap_start_rate(procs, tmp_pa
     got = list(LogReader(out).messages())
     # 0.5 s skipped = the first 25 poses; only hand/pose, under its new name
     assert [m.topic for m in got] == ["hand/pose_replayed"] * 25
-    assert [m.data for m in got] == payloads[50::2]
+    replayed, recorded = [HandPoseOf(m.data) for m in got], [HandPoseOf(p) for p in payloads[50::2]]
+    assert [m.recorded_stamp for m in replayed] == [m.stamp for m in recorded]  # restamped by default
+    assert all(np.array_equal(a.position, b.position) for a, b in zip(replayed, recorded))
+    assert all(abs(m.stamp - time.time()) < 30 for m in replayed)
     span = (got[-1].log_time - got[0].log_time) / 1e9
     assert span < 0.36  # --rate reached the replay: 0.48 s of log takes 0.12 s at rate 4 (0.48 s at rate 1)
 
@@ -185,7 +189,7 @@ def test_replay_loop_stops_cleanly_on_ctrl_c(procs, tmp_path):
         probe = Node("probe", bus=bus, heartbeat=False)
         try:
             got = collect(probe, "hand/pose", HandPose)
-            replay = procs.start(bus, "replay", str(path), "--loop")
+            replay = procs.start(bus, "replay", str(path), "--loop", "--original-stamps")
             wait_until(lambda: len(got) >= 35, timeout=30, spin=probe)  # several passes of 10
             replay.send_signal(signal.SIGINT)
             _, err = replay.communicate(timeout=30)
@@ -194,6 +198,7 @@ def test_replay_loop_stops_cleanly_on_ctrl_c(procs, tmp_path):
     assert replay.returncode == 0
     assert "replay stopped" in err and "full pass(es)" in err
     assert [m.seq for m in got[:30]] == list(range(10)) * 3  # recorded bytes: seq as recorded
+    assert {m.recorded_stamp for m in got} == {0.0}
 
 
 @pytest.mark.timeout(120)
@@ -220,6 +225,7 @@ def test_replay_node_drives_the_tracker_role_with_fresh_stamps(tmp_path):
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # gapless, also across loops
     assert max(seqs) >= 100  # looped at least once
     assert all(abs(m.stamp - now) < 30 for m in poses)  # fresh stamps, not the log's (2023)
+    assert all(m.recorded_stamp == recorded[m.seq % 100].stamp for m in poses)  # the log's, kept
 
 
 def HandPoseOf(payload: bytes) -> HandPose:
@@ -273,12 +279,12 @@ class VirtualClock:
         self.now += seconds
 
 
-def replay_on_virtual_clock(path, **options):
+def replay_on_virtual_clock(path, recover=False, **options):
     from touch4d.log.replay import Plan, Replayer, ReplayOptions
 
     clock, sent = VirtualClock(), []
     opts = ReplayOptions(realtime=False, **options)
-    reader = LogReader(path)
+    reader = LogReader(path, recover=recover)
     replayer = Replayer(reader, Plan(reader, opts), opts, lambda topic, data: sent.append((clock(), topic, data)),
                         clock=clock, sleep=clock.sleep)
     if opts.loop:
@@ -288,25 +294,32 @@ def replay_on_virtual_clock(path, **options):
     return sent, stats
 
 
-def jittered_log(path, n=40) -> list[tuple[int, bytes]]:
-    """`n` poses at irregular log times (1..30 ms apart); returns (log_time, payload) in order."""
-    rng = np.random.default_rng(11)
+def irregular_log(path, topic: str, message, n: int, seed: int) -> list[tuple[int, bytes]]:
+    """`n` messages `message(i)` on `topic` at irregular log times (1..30 ms apart); returns
+    (log_time, payload) in order."""
+    rng = np.random.default_rng(seed)
     times = T0 + np.cumsum(rng.integers(1_000_000, 30_000_000, n))
     out = []
     with LogWriter(path) as w:
         for i, t in enumerate(times):
-            payload = encode(HandPose(position=np.array([i * 0.01, 0.0, 0.5]), valid=True, seq=i,
-                                      stamp=1700000000.0 + i * 0.01, source_stamp=1700000000.0 + i * 0.01))
-            w.write("hand/pose", payload, int(t))
+            payload = encode(message(i))
+            w.write(topic, payload, int(t))
             out.append((int(t), payload))
     return out
+
+
+def jittered_log(path, n=40) -> list[tuple[int, bytes]]:
+    """`n` poses at irregular log times."""
+    return irregular_log(path, "hand/pose", lambda i: HandPose(
+        position=np.array([i * 0.01, 0.0, 0.5]), valid=True, seq=i, stamp=1700000000.0 + i * 0.01,
+        source_stamp=1700000000.0 + i * 0.01), n, seed=11)
 
 
 @pytest.mark.parametrize("rate, start", [(1.0, 0.0), (2.0, 0.0), (0.5, 0.2)])
 def test_replay_schedule_is_the_log_timing_scaled_by_the_rate(tmp_path, rate, start):
     path = tmp_path / "jitter.mcap"
     log = jittered_log(path)
-    sent, stats = replay_on_virtual_clock(path, rate=rate, start=start)
+    sent, stats = replay_on_virtual_clock(path, rate=rate, start=start, restamp=False)
     origin = log[0][0] + int(start * 1e9)
     expected = [(t, p) for t, p in log if t >= origin]
     assert [d for _, _, d in sent] == [p for _, p in expected]            # bytes as recorded, in order
@@ -320,7 +333,7 @@ def test_replay_schedule_is_the_log_timing_scaled_by_the_rate(tmp_path, rate, st
 def test_looped_replay_repeats_the_log_back_to_back(tmp_path):
     path = tmp_path / "jitter.mcap"
     log = jittered_log(path)
-    sent, stats = replay_on_virtual_clock(path, loop=True)
+    sent, stats = replay_on_virtual_clock(path, loop=True, restamp=False)
     span = (log[-1][0] - log[0][0]) / 1e9
     wall = np.array([s for s, _, _ in sent]).reshape(3, 40)
     assert [d for _, _, d in sent] == [p for _, p in log] * 3
@@ -344,3 +357,104 @@ def test_looping_a_log_of_one_instant_repeats_it_once_a_second_not_as_fast_as_po
     sent, _ = replay_on_virtual_clock(path, loop=True)
     wall = np.array([s for s, _, _ in sent])
     assert len(sent) == 120 and np.allclose(np.diff(wall), 1.0)
+
+
+def derived_log(path, n=40) -> list[tuple[int, bytes]]:
+    """`n` motor commands at irregular times, each derived from a pose 2-6 ms older (source_stamp)."""
+    return irregular_log(path, "tactile/motors", lambda i: MotorCommand(
+        names=["thumb", "index"], intensity=np.array([0.1 * (i % 10), 0.5]), stamp=1700000000.0 + i * 0.01,
+        seq=100 + i, source_stamp=1700000000.0 + i * 0.01 - 0.002 - 0.0001 * i), n, seed=5)
+
+
+def test_replay_restamps_by_default_keeping_the_recorded_stamp_and_every_other_byte(tmp_path):
+    path = tmp_path / "derived.mcap"
+    log = derived_log(path)
+    before = time.time()
+    sent, stats = replay_on_virtual_clock(path)
+    after = time.time()
+    assert stats.restamp_failed == 0 and len(sent) == len(log)
+    for seq, ((_, topic, data), (_, original)) in enumerate(zip(sent, log)):
+        msg, orig = decode(data, MotorCommand), decode(original, MotorCommand)
+        assert topic == "tactile/motors"
+        assert before <= msg.stamp <= after                      # stamped now
+        assert msg.recorded_stamp == orig.stamp                  # the recorded stamp, kept for analysis
+        assert msg.stamp - msg.source_stamp == pytest.approx(orig.stamp - orig.source_stamp, abs=1e-6)
+        assert msg.seq == seq                                    # a fresh sequence, as from a live publisher
+        # Every other byte as recorded: the recorded map with its header values set, packed again.
+        expected = {}
+        for key, value in unpack(original).items():
+            expected[key] = value
+            if key == "source_stamp":
+                expected["recorded_stamp"] = orig.stamp
+        expected.update(stamp=msg.stamp, seq=seq, source_stamp=msg.source_stamp)
+        assert data == pack(expected)
+
+
+def test_restamping_patches_any_message_map_and_keeps_the_first_recorded_stamp():
+    import msgpack
+
+    from touch4d.log.restamp import restamp
+
+    # keys in another order, an int stamp, a message replayed before (recorded_stamp already set)
+    foreign = {"seq": 7, "data": b"\x00" * 300, "source_stamp": 9.5, "type": "Foreign", "stamp": 10,
+               "recorded_stamp": 3.0, "extra": [1, 2]}
+    out = msgpack.unpackb(restamp(msgpack.packb(foreign), 100.0, 0))
+    assert list(out.items()) == list({**foreign, "seq": 0, "source_stamp": 99.5, "stamp": 100.0}.items())
+    # 15 keys: with recorded_stamp the map needs a 16-bit length
+    wide = {"type": "W", "stamp": 1.0, "seq": 0, **{f"k{i}": i for i in range(12)}}
+    out = msgpack.unpackb(restamp(msgpack.packb(wide), 2.0, 5))
+    assert list(out.items()) == list({"type": "W", "stamp": 2.0, "seq": 5, "recorded_stamp": 1.0,
+                                      **{f"k{i}": i for i in range(12)}}.items())
+    good = encode(HandPose(position=np.array([1.0, 2.0, 3.0]), valid=True, stamp=5.0, seq=1, source_stamp=5.0))
+    for bad in (b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"type": "X"}), msgpack.packb({"stamp": "x"}),
+                msgpack.packb({"stamp": float("nan")}), msgpack.packb({"stamp": 0.0}), good[:30]):
+        assert restamp(bad, 1.0, 0) is None, bad
+
+
+def test_a_log_recorded_from_a_replay_replays_with_the_first_recorded_stamp(tmp_path):
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    log = derived_log(first, n=10)
+    sent, _ = replay_on_virtual_clock(first)
+    with LogWriter(second) as w:
+        for (t, _), (_, topic, data) in zip(log, sent):
+            w.write(topic, data, t)
+    again, _ = replay_on_virtual_clock(second)
+    assert [decode(d).recorded_stamp for _, _, d in again] == [decode(p).stamp for _, p in log]
+
+
+def test_a_looped_topic_repeats_with_its_own_span_from_the_index(tmp_path):
+    from touch4d.log.replay import Plan, Replayer, ReplayOptions
+
+    path = tmp_path / "two.mcap"
+    with LogWriter(path, chunk_size=2000) as w:  # many small chunks
+        for i in range(50):
+            w.write("hand/pose", encode(HandPose(position=np.array([i, 0.0, 0.0]), stamp=1.0 + i, seq=i)),
+                    T0 + i * 20_000_000)
+            if 10 <= i < 20:  # the controller: 10 messages 20 ms apart, from 0.2 s to 0.38 s
+                w.write("controller/state", encode(HandPose(position=np.array([i, 1.0, 0.0]), stamp=1.0 + i, seq=i)),
+                        T0 + i * 20_000_000 + 1)
+    clock, sent = VirtualClock(), []
+    opts = ReplayOptions(realtime=False, loop=True, topics=["controller/state"])
+    reader = LogReader(path)
+    replayer = Replayer(reader, Plan(reader, opts), opts, lambda topic, data: (
+        sent.append((clock(), topic)), len(sent) >= 30 and replayer.stop()), clock=clock, sleep=clock.sleep)
+    replayer.run()
+    assert {topic for _, topic in sent} == {"controller/state"}
+    wall = np.array([t for t, _ in sent]).reshape(3, 10)
+    # each pass: 10 messages over 0.18 s, the next one 20 ms (the mean interval) after the last
+    assert np.allclose(wall[:, -1] - wall[:, 0], 0.18) and np.allclose(wall[1:, 0] - wall[:-1, 0], 0.2)
+
+
+def test_replay_of_an_unfinished_log_with_recover_sends_what_was_flushed(tmp_path):
+    path = tmp_path / "cut.mcap"
+    payloads = []
+    w = LogWriter(path)
+    for i in range(30):
+        payload = encode(HandPose(position=np.array([i, 0.0, 0.0]), stamp=1.0 + i, seq=i))
+        w.write("hand/pose", payload, T0 + i * 1_000_000)
+        payloads.append(payload)
+        if i == 19:
+            w.flush()  # the recorder was killed after this: the last 10 never reached the disk
+    sent, stats = replay_on_virtual_clock(path, recover=True, restamp=False)
+    assert [data for _, _, data in sent] == payloads[:20] and stats.passes == 1
+

@@ -113,3 +113,22 @@ def test_orientations_default_to_the_identity_quaternion():
     for cls in (HandPose, ControllerState):
         back = decode(encode(cls(position=[0, 0, 0], valid=True)))
         np.testing.assert_array_equal(back.orientation, [0, 0, 0, 1])
+
+
+def test_recorded_stamp_is_an_optional_header_field_left_out_of_live_messages():
+    live = HandPose(position=[0.1, 0.2, 0.3], valid=True, stamp=5.0, seq=2, source_stamp=4.5)
+    payload = encode(live)
+    plain = msgpack.unpackb(payload)
+    assert "recorded_stamp" not in plain  # a live message's bytes are as they were before the field
+    assert decode(payload).recorded_stamp == 0.0
+    replayed = HandPose(position=[0.1, 0.2, 0.3], valid=True, stamp=105.0, seq=0, source_stamp=104.5,
+                        recorded_stamp=5.0)
+    plain = msgpack.unpackb(encode(replayed))
+    assert list(plain)[:5] == ["type", "stamp", "seq", "source_stamp", "recorded_stamp"]
+    assert plain["recorded_stamp"] == 5.0
+    assert decode(encode(replayed)).recorded_stamp == 5.0
+    assert "recorded_stamp" in HandPose.field_docs()
+    with pytest.raises(MessageError, match="HandPose.recorded_stamp: expected a number"):
+        decode(msgpack.packb({**plain, "recorded_stamp": "x"}))
+    with pytest.raises(MessageError, match="HandPose.valid: missing"):  # required fields stay required
+        decode(msgpack.packb({k: v for k, v in plain.items() if k != "valid"}))

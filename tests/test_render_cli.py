@@ -1,6 +1,8 @@
 """`touch4d render`: one frame of a scene file to a PNG, with the hand and its tactile field."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -10,6 +12,7 @@ from touch4d.render.camera import OrbitCamera, parse_camera
 from touch4d.render.hud import amplitude_colors
 
 SCENE = "config/scenes/hypercube.yaml"     # a tesseract coloured (0.30, 0.65, 1.00)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.timeout(120)
@@ -45,3 +48,25 @@ def test_camera_spec_sets_only_what_it_names():
     assert cam.target.tolist() == [1, 2, 3] and cam.distance == OrbitCamera().distance
     # A point at the target lands in the middle of the frame.
     assert np.allclose(cam.to_pixels(np.array([[1.0, 2, 3]]), (200, 100)), [[100, 50]])
+
+
+def render(tmp_path, scene, *extra, name="frame.png"):
+    out = tmp_path / name
+    assert main(["render", "--scene", str(scene), "--size", "240x150", "--samples", "0", *extra, "-o", str(out)]) == 0
+    return np.asarray(Image.open(out))
+
+
+def test_without_a_hand_there_is_no_tactile_cube(tmp_path):
+    plain = render(tmp_path, SCENE)
+    assert np.array_equal(plain, render(tmp_path, SCENE, "--no-tactile", name="no-cube.png"))
+
+
+def test_the_status_line_names_the_scene_file(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name in ("a.yaml", "a-much-longer-scene-file-name.yaml"):      # the same scene in both
+        (tmp_path / name).write_bytes((ROOT / SCENE).read_bytes())
+    short = render(tmp_path, "a.yaml", "--no-frame", name="short.png")
+    long = render(tmp_path, "a-much-longer-scene-file-name.yaml", "--no-frame", name="long.png")
+    rows = np.nonzero(np.any(short != long, axis=(1, 2)))[0]
+    assert len(rows) > 0 and rows.max() < 60       # the status box at the top differs, nothing else
+    assert "a-much-longer-scene-file-name.yaml" in capsys.readouterr().out

@@ -9,7 +9,8 @@ from touch4d.geometry import visibility
 from touch4d.geometry.projection import project
 from touch4d.geometry.rotation import plane_rotation
 from touch4d.geometry.shapes import get_shape
-from touch4d.render.scene_mesh import FLOATS_PER_VERTEX, Body, MeshBuilder, Style
+from touch4d.render.clip import Body, MeshBuilder
+from touch4d.render.frame import FLOATS_PER_VERTEX, Style
 
 TESSERACT = get_shape("tesseract").parts[0]
 RED, GREEN, BLUE = np.array([1.0, 0, 0, 1]), np.array([0, 1.0, 0, 1]), np.array([0, 0, 1.0, 1])

@@ -73,11 +73,13 @@ def test_tactile_cube_follows_a_published_field(bus, probe):
 
 
 @pytest.mark.timeout(300)
-def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path):
+@pytest.mark.parametrize("backend", ["gpu", "clip"])
+def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path, backend):
     out = tmp_path / "frame.png"
     node = make_node(bus, camera="yaw=0,pitch=0,distance=4,target=0:0:0,ortho", show_tactile=False,
-                     output=str(out))
+                     output=str(out), backend=backend)
     try:
+        assert node.backend.name == backend
         pub = probe.create_publisher("scene/state", SceneState)
         good = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
                                          "color": [0, 1, 0, 1]}]}).to_message()
@@ -94,7 +96,8 @@ def test_keeps_the_last_good_scene_through_a_bad_one(bus, probe, tmp_path):
         spin_until(node, lambda: node.counts["frames"] > frames + 3)
         assert green()
         from PIL import Image
-        assert (np.asarray(Image.open(out))[..., 1] > 200).sum() > 100   # the PNG written is that frame
+        last = sorted(tmp_path.glob("frame-*.png"))[-1]                   # numbered: frame-000042.png
+        assert (np.asarray(Image.open(last))[..., 1] > 200).sum() > 100  # the PNG written is that frame
     finally:
         node.shutdown()
 
@@ -104,25 +107,49 @@ def test_bad_parameters_name_the_parameter(bus):
         make_node(bus, rate=0.0)
     with pytest.raises(ConfigError, match="camera.*zoom"):
         make_node(bus, camera="zoom=3")
+    with pytest.raises(ConfigError, match="backend.*vulkan"):
+        make_node(bus, backend="vulkan")
 
 
-def test_view_builds_a_scene_once_until_it_changes():
-    """The scene node repeats `scene/state` for late joiners and the camera moves at the frame rate:
-    neither rebuilds the vertex arrays; a changed pose or colour does."""
+def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change():
+    """The scene node repeats `scene/state` for late joiners and turns objects at the controller's rate:
+    a repeat changes nothing, a new pose only the transforms, a new colour (or shape) the geometry."""
     from touch4d.render.view import SceneView, Show
 
     msg = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
                                     "color": [0, 1, 0, 1]}]}).to_message()
     view = SceneView(None, show=Show(frame=False, hand=False, tactile=False, status=False))
-    builds = []
-    build = view.builder.build
-    view.builder.build = lambda *a, **k: builds.append(1) or build(*a, **k)
     assert view.set_scene(msg)
-    mesh = view.mesh()
+    layer = view.frame().scene
     assert not view.set_scene(SceneState(**{**msg.__dict__, "revision": msg.revision + 1}))
-    assert view.layers().triangles[0] is mesh.fills and len(builds) == 1
-    for change in ({"position": np.array([0.1, 0, 0, 1.5])}, {"color": np.array([1.0, 0, 0, 1])}):
-        moved = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], **change}]})
-        assert view.set_scene(moved) and view.mesh() is not mesh
-        mesh = view.mesh()
-    assert len(builds) == 3
+    assert view.frame().scene is layer and view.geometry_builds == 1
+    moved = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "position": np.array([0.1, 0, 0, 1.5])}]})
+    assert view.set_scene(moved)
+    assert view.frame().scene is not layer and view.frame().scene.geometry is layer.geometry
+    assert view.frame().scene.transforms[0, 4].tolist() == pytest.approx([0.1, 0, 0, 1.5])
+    recoloured = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "color": np.array([1.0, 0, 0, 1])}]})
+    assert view.set_scene(recoloured) and view.frame().scene.geometry is not layer.geometry
+    assert view.geometry_builds == 2
+
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("output, first", [("shot.png", "shot-000000.png"), ("frames/", "frames/frame-000000.png"),
+                                          ("f/{frame:03d}.png", "f/000.png")])
+def test_headless_frames_are_numbered_files_not_one_overwritten(bus, tmp_path, output, first, caplog):
+    caplog.set_level("INFO")
+    node = make_node(bus, output=str(tmp_path / output) + ("/" if output.endswith("/") else ""), max_frames=3)
+    try:
+        spin_until(node, lambda: node.counts["frames"] >= 3)
+    finally:
+        node.shutdown()
+    files = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*.png"))
+    assert len(files) == 3 and files[0] == first
+    assert str(tmp_path / first) in caplog.text       # the node says where its frames go
+
+
+def test_headless_without_output_says_where_to_look(bus, caplog):
+    with caplog.at_level("INFO"):
+        node = make_node(bus)
+        node.shutdown()
+    assert "nothing is shown" in caplog.text and "renderer.output:=" in caplog.text and "xvfb-run" in caplog.text

@@ -1,4 +1,4 @@
-"""Screenshots on a headless EGL context (Mesa llvmpipe), checked pixel by pixel.
+"""Screenshots on a headless EGL context (Mesa llvmpipe), checked pixel by pixel, for both backends.
 
 Flat, distinct colours on a black background, no multisampling, so colours are exact."""
 from __future__ import annotations
@@ -6,12 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from touch4d.geometry.projection import project
 from touch4d.geometry.scene import parse_scene
+from touch4d.geometry.visibility import facing_cells
 from touch4d.messages import TactileField
 from touch4d.render.camera import OrbitCamera
+from touch4d.render.frame import Style, cell_color
 from touch4d.render.hud import MOTOR_COLOR, TactileCube, amplitude_colors
-from touch4d.render.scene_mesh import Style, cell_color
-from touch4d.render.view import OffscreenRenderer, SceneView, Show
+from touch4d.render.offscreen import OffscreenRenderer
+from touch4d.render.view import SceneView, Show
 from touch4d.tactile.glove import load_glove
 
 SIZE = (320, 320)
@@ -19,9 +22,10 @@ FRONT = Show(frame=False, hand=False, tactile=False, status=False)
 FACE_ON = OrbitCamera(yaw=0.0, pitch=0.0, distance=4.0, target=np.zeros(3), ortho=True)
 
 
-@pytest.fixture(scope="module")
-def renderer():
-    r = OffscreenRenderer(SIZE, samples=0, background=(0.0, 0.0, 0.0, 1.0))
+@pytest.fixture(scope="module", params=["gpu", "clip"])
+def renderer(request):
+    r = OffscreenRenderer(SIZE, samples=0, background=(0.0, 0.0, 0.0, 1.0), backend=request.param)
+    assert r.backend.name == request.param
     yield r
     r.release()
 
@@ -43,6 +47,13 @@ def draw(renderer, objects, style, projection="orthographic", camera=FACE_ON):
     return view, renderer.render(view, camera)
 
 
+def front_cells(view, index=0):
+    """The local indices of the cells of object `index` that face the viewer (reference culling)."""
+    scene = view.scene
+    world = scene.objects[index].world_parts()[0]
+    return np.nonzero(facing_cells(world, scene.perspective_eye))[0]
+
+
 def pixel(image, camera, point):
     x, y = camera.to_pixels(np.array([point]), SIZE)[0]
     return image[int(y), int(x), :3].astype(int)
@@ -55,7 +66,7 @@ def count_color(image, rgb, tol=2):
 def test_face_on_tesseract_is_a_square_outline_with_the_centre_copy_inside(renderer):
     style = Style(fill_alpha=0.25, centre_alpha=1.0)
     view, image = draw(renderer, [tesseract([0, 0, 0, 1.5], 1.0, [0, 1, 0, 1])], style)
-    cells = view.mesh().visible_cells[0]
+    cells = front_cells(view)
     assert len(cells) == 1                                   # only the front cell faces the viewer
     centre_rgb = np.round(cell_color(cells[0]) * 255)
     # The centre copy: the cell scaled 0.3 about its centre, |x|, |y| <= 0.15, in the cell's colour.
@@ -79,8 +90,8 @@ def test_turning_in_xw_shows_more_cells(renderer):
     style = Style(fill_alpha=0.25, centre_alpha=1.0)
     view0, face_on = draw(renderer, [tesseract([0, 0, 0, 1.5], 1.0, [0, 1, 0, 1])], style)
     view1, turned = draw(renderer, [tesseract([0, 0, 0, 1.5], 1.0, [0, 1, 0, 1], [["xw", 30]])], style)
-    front = view0.mesh().visible_cells[0]
-    cells = view1.mesh().visible_cells[0]
+    front = front_cells(view0)
+    cells = front_cells(view1)
     assert len(cells) == 2 and set(front) < set(cells)
     for c in cells:                                          # each visible cell's centre copy shows
         assert count_color(turned, cell_color(c)) > 50
@@ -93,7 +104,8 @@ def test_object_behind_is_clipped_where_covered(renderer, projection):
     objects = [tesseract([-0.2, 0, 0, 1.5], 0.6, [0, 1, 0, 1]), tesseract([0.2, 0.1, 0, 2.5], 0.6, [1, 0, 0, 1])]
     style = Style(centres=False, fill_alpha=0.3)
     view, image = draw(renderer, objects, style, projection)
-    lo, hi = view.mesh().bounds[0]                           # the front object's outline, face-on: a box
+    outline = project(view.scene.objects[0].world_parts()[0].vertices, projection, 3.0)
+    lo, hi = outline.min(axis=0), outline.max(axis=0)       # the front object's outline, face-on: a box
     (x0, y1), (x1, y0) = FACE_ON.to_pixels(np.array([lo, hi]), SIZE)
     inside = np.zeros(image.shape[:2], bool)
     inside[int(y0) + 2:int(y1) - 1, int(x0) + 2:int(x1) - 1] = True

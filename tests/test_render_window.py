@@ -53,7 +53,7 @@ def xvfb_display(monkeypatch):
 
 @pytest.mark.timeout(240)
 def test_window_draws_the_scene_and_publishes_input(xvfb_display, tmp_path):
-    out = tmp_path / "window.png"
+    out = tmp_path / "window.png"                 # numbered: window-000000.png, window-000001.png, ...
     scene = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
                                       "color": [0, 1, 0, 1]}]}).to_message()
     params = {"rate": 20.0, "width": 320, "height": 240, "samples": 0, "output": str(out),
@@ -68,9 +68,10 @@ def test_window_draws_the_scene_and_publishes_input(xvfb_display, tmp_path):
             def drawn():
                 pub.publish(scene)
                 probe.spin_once(0.2)
-                if not out.exists() or len(inputs) < 3:
+                frames = sorted(tmp_path.glob("window-*.png"))
+                if not frames or len(inputs) < 3:
                     return False
-                image = np.asarray(Image.open(out))      # written whole: renamed into place
+                image = np.asarray(Image.open(frames[-1]))   # written whole: renamed into place
                 return image.shape[:2] == (240, 320) and (image[..., 1] > 200).sum() > 100
 
             try:

@@ -38,3 +38,30 @@ def test_traced_frames_replace_the_command_latency_when_the_motor_node_traces():
     st.on_trace(MotorTrace(source_stamps=np.array([10.0, 10.1]), frame_times=np.array([10.003, 10.105])), 10.6)
     line = st.line(now=10.7)
     assert "pose->CAN p50 4.0 ms" in line and "pose->motors" not in line
+
+
+def beat(node, publishes=(), subscribes=()):
+    from touch4d.messages import Heartbeat
+
+    return Heartbeat(node=node, pid=1, kind=node, publishes=list(publishes), subscribes=list(subscribes), stats={})
+
+
+def test_topics_that_nodes_wait_for_and_nobody_publishes_are_named_with_the_waiting_nodes():
+    st = StackStatus(window=2.0)
+    st.on_heartbeat(beat("tactile", ["tactile/motors"], ["hand/pose", "scene/state"]), 10.0)
+    st.on_heartbeat(beat("motors", ["motors/status"], ["tactile/motors", "safety/stop?"]), 10.0)
+    st.on_heartbeat(beat("renderer", [], ["hand/pose", "scene/state", "tactile/motors"]), 10.0)
+    st.on_heartbeat(beat("monitor", [], ["*", "motors/status?"]), 10.0)
+    assert "no publisher" not in st.line(now=11.0)  # not before every live node has had time to beat
+    st.on_message("hand/pose", 12.5)  # published by something without a heartbeat (a replayed log)
+    line = st.line(now=13.0)
+    assert line.endswith("no publisher: scene/state (renderer, tactile)")
+    st.on_heartbeat(beat("scene", ["scene/state"], ["controller/state"]), 13.5)
+    assert st.unpublished(14.0) == {"controller/state": ["scene"]}
+    # A node that stopped beating no longer publishes (nor waits for) anything.
+    for t in (15.0, 16.0, 17.0, 18.0):
+        for name, pubs, subs in (("tactile", ["tactile/motors"], ["hand/pose", "scene/state"]),
+                                 ("motors", [], ["tactile/motors"]), ("renderer", [], ["scene/state"])):
+            st.on_heartbeat(beat(name, pubs, subs), t)
+    # (and the replayed hand/pose has left the window)
+    assert st.unpublished(18.0) == {"hand/pose": ["tactile"], "scene/state": ["renderer", "tactile"]}

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import zmq
 
+import tilted_tesseract
 from touch4d.bus import Node
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.errors import ConfigError
@@ -14,7 +15,6 @@ from touch4d.messages import HandPose, MotorCommand, SceneState, TactileField, e
 from touch4d.nodes.tactile import TactileNode
 from touch4d.tactile.engine import TactileEngine
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.stimulus import compute_stimulus
 
 HAND = np.array([-0.14, -0.18, 0.0])
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -43,10 +43,12 @@ def test_engine_messages_carry_the_stimulus_and_the_pose_stamp(glove):
     engine = TactileEngine(glove)
     engine.set_scene(scene_msg([["xw", -20]]))
     field, motors = engine.messages(pose(stamp=1234.5))
-    expected = compute_stimulus(glove, Scene.from_message(scene_msg([["xw", -20]])).ray_caster(), HAND, IDENTITY)
-    np.testing.assert_allclose(field.positions, expected.positions)
-    np.testing.assert_allclose(field.h, expected.h)
-    np.testing.assert_allclose(motors.intensity, expected.V)
+    positions, l, s, h, v = tilted_tesseract.stimulus(glove.samples, HAND, 3.0, 0.5, 1.0, glove.motor_sample)
+    np.testing.assert_allclose(field.positions, positions, atol=1e-12)
+    np.testing.assert_allclose(field.l, l, atol=1e-9)
+    np.testing.assert_allclose(field.h, h, atol=1e-9)
+    np.testing.assert_allclose(motors.intensity, v, atol=1e-9)
+    assert np.ptp(v) > 0.1                 # a gradient across the hand, not a constant
     assert motors.names == glove.motor_names
     assert field.source_stamp == motors.source_stamp == 1234.5
     assert (field.alpha, field.beta, field.gamma) == (3.0, 0.5, 1.0)
@@ -215,7 +217,7 @@ def test_a_pose_replaced_while_the_scene_was_built_is_never_computed():
 def test_node_rejects_bad_parameters_with_their_names():
     with running_broker() as bus:
         for params, key in (({"projection": "fisheye"}, "projection"), ({"beta": 3.0}, "beta"),
-                            ({"glove": "/no/such/glove.yaml"}, "(file)")):
+                            ({"glove": "/no/such/glove.yaml"}, "glove")):
             with pytest.raises(ConfigError) as info:
                 TactileNode(bus=bus, params=params, heartbeat=False)
             assert info.value.key == key

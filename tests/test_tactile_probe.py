@@ -7,22 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import tilted_tesseract
 from touch4d.cli import main
-from touch4d.geometry.scene import load_scene
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.stimulus import compute_stimulus
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SCENE = """
-projection: orthographic
-objects:
-  - name: cube
-    shape: tesseract
-    size: 1.2
-    position: [0, 0, 0, 1.6]
-    rotation: [[xw, -20]]
-"""
+SCENE = tilted_tesseract.SCENE_YAML
 
 
 @pytest.fixture
@@ -37,21 +28,22 @@ def probe_json(capsys, *args):
     return json.loads(capsys.readouterr().out)
 
 
-def test_probe_json_matches_the_library(capsys, scene_file):
+def test_probe_json_gives_the_stimulus_worked_by_hand(capsys, scene_file):
     out = probe_json(capsys, "--scene", str(scene_file), "--position", "-0.34", "-0.18", "0")
     glove = load_glove()
-    st = compute_stimulus(glove, load_scene(scene_file).ray_caster(), [-0.34, -0.18, 0], [0, 0, 0, 1])
-    assert (out["alpha"], out["beta"], out["gamma"]) == (3.0, 0.5, 1.0)
+    positions, l, s, h, v = tilted_tesseract.stimulus(glove.samples, [-0.34, -0.18, 0], 3.0, 0.5, 1.0,
+                                                      glove.motor_sample)
+    assert (out["alpha"], out["beta"], out["gamma"]) == (3.0, 0.5, 1.0)       # config/glove.yaml's
     assert len(out["samples"]) == len(glove.samples)
-    np.testing.assert_allclose([s["position"] for s in out["samples"]], st.positions)
-    np.testing.assert_allclose([s["l"] for s in out["samples"]], st.l)
-    np.testing.assert_allclose([s["h"] for s in out["samples"]], st.h)
-    np.testing.assert_allclose([s["s"] for s in out["samples"]], st.s)
+    np.testing.assert_allclose([x["position"] for x in out["samples"]], positions, atol=1e-12)
+    np.testing.assert_allclose([x["l"] for x in out["samples"]], l, atol=1e-9)
+    np.testing.assert_allclose([x["s"] for x in out["samples"]], s, atol=1e-9)
+    np.testing.assert_allclose([x["h"] for x in out["samples"]], h, atol=1e-9)
     assert [m["name"] for m in out["motors"]] == glove.motor_names
     assert [m["sample"] for m in out["motors"]] == glove.motor_sample.tolist()
-    np.testing.assert_allclose([m["V"] for m in out["motors"]], st.V)
-    np.testing.assert_allclose([m["h"] for m in out["motors"]], st.motor_h)
-    assert np.ptp(st.V) > 0.1
+    np.testing.assert_allclose([m["V"] for m in out["motors"]], v, atol=1e-9)
+    np.testing.assert_allclose([m["h"] for m in out["motors"]], h[glove.motor_sample], atol=1e-9)
+    assert np.ptp(v) > 0.1
 
 
 def test_probe_json_has_null_l_where_nothing_is_touched_and_takes_overrides(capsys, scene_file):

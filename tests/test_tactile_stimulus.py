@@ -1,6 +1,10 @@
 """The stimulus model (paper eq. 1-3) on small cases worked by hand, and poses placing the samples."""
+from fractions import Fraction
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hs
 
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import PoseError, check_pose, place, quaternion_matrix
@@ -181,7 +185,22 @@ def test_no_stimulus_is_all_zero(glove):
     assert (st.V == 0).all() and (st.h == 0).all() and not st.inside.any()
 
 
-def test_eq2_never_negative_even_at_beta_one():
-    s = np.array([1.0, 1.0 - 1e-17, 1.0])
-    h = adjusted_strength(s, 1.0)
-    assert (h >= 0).all() and np.allclose(h, 0.0)
+# s from eq. 1 lies in [0, 1], beta in [0, 1]: the edges, the values next to them, and the rest.
+_S = hs.one_of(hs.sampled_from([0.0, 1.0, float(np.nextafter(1.0, 0.0)), 5e-324]), hs.floats(0.0, 1.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(s=hs.lists(_S, min_size=1, max_size=40), beta=hs.one_of(hs.just(1.0), hs.floats(0.0, 1.0)))
+def test_eq2_is_exact_and_never_negative_even_at_beta_one(s, beta):
+    """h_i = (1 - beta sum_k s_k / N) s_i over the N samples with s > 0, checked against exact
+    rational arithmetic: never negative, and no factor clipped or mis-counted."""
+    h = adjusted_strength(np.array(s), beta)
+    active = [Fraction(x) for x in s if x > 0]
+    factor = 1 - Fraction(beta) * sum(active) / len(active) if active else Fraction(0)
+    assert (h >= 0).all()
+    np.testing.assert_allclose(h, [float(factor * Fraction(x)) for x in s], rtol=1e-12, atol=1e-15)
+
+
+def test_eq2_at_beta_one_with_every_sample_at_full_strength_is_zero():
+    s = np.array([1.0, 1.0, 1.0, 0.0])       # the mean over the active samples is exactly 1
+    assert adjusted_strength(s, 1.0).tolist() == [0.0, 0.0, 0.0, 0.0]

@@ -114,6 +114,31 @@ def test_desktop_tracker_moves_the_hand_with_keys_and_holds_the_trigger_with_spa
             probe.shutdown()
 
 
+def test_desktop_tracker_without_a_display_says_there_is_no_window_and_how_to_get_one(monkeypatch, caplog):
+    from touch4d.nodes.desktop_tracker import DesktopTracker
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    with running_broker() as bus:
+        DesktopTracker(bus=bus, heartbeat=False).shutdown()
+    text = caplog.text
+    assert "no window" in text and "xvfb-run" in text and "display" in text
+    assert "steer the hand from the renderer window" not in text
+
+
+def test_desktop_tracker_warns_once_when_no_window_sends_input(monkeypatch, caplog):
+    from touch4d.nodes.desktop_tracker import DesktopTracker
+
+    monkeypatch.setenv("DISPLAY", ":99")     # a display, but no renderer window publishing ui/input
+    with running_broker() as bus:
+        node = DesktopTracker(bus=bus, params={"input_timeout": 0.2}, heartbeat=False)
+        try:
+            node.spin(0.6)
+        finally:
+            node.shutdown()
+    warnings = [r for r in caplog.records if "no ui/input" in r.getMessage()]
+    assert len(warnings) == 1 and "headless" in warnings[0].getMessage()
+
+
 def run_openvr_tracker(extra_path=None):
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     if extra_path:

@@ -50,7 +50,7 @@ def test_translation_with_trigger_turns_only_the_matching_w_plane(axis, plane):
     planes, d = turned_planes(before, ctl.scene.objects[0].orientation)
     assert planes == {plane}
     a, b = AXIS[plane[0]], AXIS[plane[1]]
-    assert np.arctan2(d[b, a], d[a, a]) == pytest.approx(5.0 * 0.1)   # gain x distance, sign of design.md
+    assert np.arctan2(d[b, a], d[a, a]) == pytest.approx(5.0 * 0.1)   # gain x distance, turning a toward b
     assert ctl.scene.revision == 10
 
 

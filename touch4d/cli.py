@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 
 from touch4d.errors import Touch4dError
@@ -12,11 +14,12 @@ from touch4d.errors import Touch4dError
 # launcher need not load the renderer and scipy before it starts the nodes).
 PARTS = {
     "touch4d.bus.cli": ("launch", "topic", "node", "bus"),
-    "touch4d.geometry.cli": ("shape",),
+    "touch4d.geometry.cli": ("shape", "scene"),
     "touch4d.tactile.cli": ("tactile",),
     "touch4d.render.cli": ("render",),
     "touch4d.log.cli": ("record", "replay", "log"),
     "touch4d.boards.cli": ("glove",),
+    "touch4d.defaults.cli": ("config",),
 }
 
 
@@ -41,6 +44,32 @@ RUN_UNTIL_STOPPED = {"launch", "record", "replay", "topic", "node", "bus", "glov
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        try:
+            code = _main(argv)
+        finally:
+            sys.stdout.flush()      # argparse's --help exits with its text still buffered
+        return code
+    except BrokenPipeError:
+        silence_stdout()
+        return EXIT_PIPE_CLOSED
+
+
+# The reader of our output went away (`touch4d shape list | head`): stop quietly, with the status a
+# Unix tool killed by SIGPIPE has, and no traceback.
+EXIT_PIPE_CLOSED = 128 + signal.SIGPIPE
+
+
+def silence_stdout() -> None:
+    """Point standard output at /dev/null after its reader left, so no later write or flush fails."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    finally:
+        os.close(devnull)
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     try:
         parser = build_parser(argv[0] if argv else None)

@@ -1,13 +1,75 @@
-"""Reading a YAML config file, with the ConfigError every part reports for a missing or broken one."""
+"""Finding and reading the files a user names: one resolver for every path, and YAML with the
+ConfigError every part reports for a missing or broken file.
+
+Every path a user gives — a command-line flag (`--scene`, `--glove`, `--bus`, a launch file), an
+`include:` of a launch file, a node parameter, a key file of a bus config — is found by
+`resolve_path`, in this order (the first that exists wins):
+
+1. the path itself, when it is absolute (`~` is expanded);
+2. relative to the current directory;
+3. relative to the folder of the file that names it (the launch file, the including file, the
+   bus config), when there is one;
+4. the defaults packaged with touch4d (`touch4d.defaults`), for paths that start with `config/`
+   or `launch/`: `config/scenes/hypercube.yaml` works from any directory, and a copy made with
+   `touch4d config copy .` shadows the packaged file from that directory on.
+
+A path found nowhere is a `PathNotFound` (a ConfigError) that names every place it looked.
+"""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import yaml
 
+from touch4d.defaults import FOLDERS, ROOT as DEFAULTS
 from touch4d.errors import ConfigError
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+CONFIG_DIR = (DEFAULTS / "config").resolve()   # the packaged config/ (the repository's, in a checkout)
+COMMAND_LINE = "command line"
+
+
+class PathNotFound(ConfigError):
+    """A path that is in none of the places `resolve_path` looks; `places` lists them in order."""
+
+    def __init__(self, source, key: str, what: str, path, places: list[Path]):
+        super().__init__(source, key, f"an existing {what}", got=str(path))
+        self.places = places
+        self.args = (f"{self.args[0]}; looked in: " + ", ".join(str(p) for p in places),)
+
+
+def resolve_path(path, named_in=None, *, key: str = "(file)", what: str = "file") -> Path:
+    """The absolute path of the file or folder `path` that a user gave, found in the order of this
+    module's docstring. `named_in`: the file that names it (its folder is searched third), or a
+    label such as "command line" for the error; `key`: where in it (e.g. `--scene`,
+    `include[0]`, `nodes.scene.params.scene`). Not found: PathNotFound naming every place."""
+    if isinstance(path, str) and not path.strip():
+        raise ConfigError(named_in if named_in is not None else COMMAND_LINE, key, f"a {what} path", got=path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ConfigError(named_in if named_in is not None else COMMAND_LINE, key, f"a {what} path", got=path)
+    given = Path(path).expanduser()
+    places: list[Path] = []
+    if given.is_absolute():
+        places.append(given)
+    else:
+        places.append(Path.cwd() / given)
+        base = _folder_of(named_in)
+        if base is not None and base / given not in places:
+            places.append(base / given)
+        if given.parts and given.parts[0] in FOLDERS and ".." not in given.parts:
+            places.append((DEFAULTS / given).resolve())
+    for place in places:
+        if place.exists():
+            return place
+    raise PathNotFound(named_in if named_in is not None else path, key, what, path, places)
+
+
+def _folder_of(named_in) -> Path | None:
+    """The absolute folder of the file `named_in` (a Path, or a string naming an existing file), or
+    None when it is a label such as "command line"."""
+    if isinstance(named_in, os.PathLike) or (isinstance(named_in, str) and Path(named_in).expanduser().is_file()):
+        return Path(named_in).expanduser().absolute().parent
+    return None
 
 
 def read_yaml(path, what: str = "config file"):
@@ -21,13 +83,3 @@ def read_yaml(path, what: str = "config file"):
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(path, "(file)", "valid YAML", got=" ".join(str(exc).split())) from None
-
-
-def resolve(path) -> Path:
-    """A config path as given, or, when relative and not found from the working directory, from the
-    repository root (so `config/gloves/dense.yaml` works from anywhere)."""
-    path = Path(path)
-    if path.is_absolute() or path.exists():
-        return path
-    from_repo = CONFIG_DIR.parent / path
-    return from_repo if from_repo.exists() else path

@@ -19,3 +19,7 @@ class ConfigError(Touch4dError, ValueError):
             shown = repr(got)
             text += f", got {shown[:80] + '...' if len(shown) > 80 else shown}"
         super().__init__(text)
+
+
+class Unavailable(Touch4dError):
+    """Something a node needs is not there: a package, a device, a service (says which)."""

@@ -9,7 +9,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from touch4d.messages import MotorCommand, MotorStatus, MotorTrace
+from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
+
+NODE_TIMEOUT = 3.5  # s without a heartbeat after which a node counts as gone (they beat every second)
+SETTLE = 2.5        # s of heartbeats heard before a topic is called unpublished (every live node has beaten)
 
 
 @dataclass
@@ -25,6 +28,8 @@ class StackStatus:
     boards_online: int | None = None
     boards: int | None = None
     bus_load: float | None = None
+    nodes: dict[str, tuple[float, Heartbeat]] = field(default_factory=dict)  # name -> (heard at, last beat)
+    first_beat: float | None = None
 
     def on_message(self, topic: str, now: float) -> None:
         times = self.arrivals.setdefault(topic, deque())
@@ -49,6 +54,26 @@ class StackStatus:
         self.boards = len(msg.boards)
         self.boards_online = sum(1 for b in msg.boards if b["online"])
         self.bus_load = msg.bus_load
+
+    def on_heartbeat(self, msg: Heartbeat, now: float) -> None:
+        self.nodes[msg.node] = (now, msg)
+        if self.first_beat is None:
+            self.first_beat = now
+
+    def unpublished(self, now: float) -> dict[str, list[str]]:
+        """Topics some live node subscribes to (not optionally) that no live node publishes and on
+        which nothing arrived within the window: topic -> the nodes waiting for it."""
+        if self.first_beat is None or now - self.first_beat < SETTLE:
+            return {}
+        live = [hb for heard, hb in self.nodes.values() if now - heard <= NODE_TIMEOUT]
+        published = {t for hb in live for t in hb.publishes}
+        waiting: dict[str, list[str]] = {}
+        for hb in live:
+            for topic in hb.subscribes:
+                if topic.endswith(("*", "?")) or topic in published or self.rate(topic, now) > 0:
+                    continue
+                waiting.setdefault(topic, []).append(hb.node)
+        return {t: sorted(names) for t, names in sorted(waiting.items())}
 
     def rate(self, topic: str, now: float) -> float:
         times = self.arrivals.get(topic)
@@ -76,4 +101,7 @@ class StackStatus:
         parts.append(f"{what} p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else f"{what} -")
         if self.boards is not None:
             parts.append(f"boards {self.boards_online}/{self.boards} online, CAN load {100 * self.bus_load:.0f}%")
+        missing = self.unpublished(now)
+        if missing:
+            parts.append("no publisher: " + ", ".join(f"{t} ({', '.join(n)})" for t, n in missing.items()))
         return " | ".join(parts)

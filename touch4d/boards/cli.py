@@ -6,6 +6,7 @@ import sys
 import time
 from pathlib import Path
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.boards.busload import bus_load
 from touch4d.boards.config import load_glove_can
@@ -30,12 +31,20 @@ def register(subparsers) -> None:
     p.add_argument("--interface", help="python-can interface (default: the glove's can.interface)")
     p.add_argument("--channel", help="python-can channel (default: the glove's can.channel)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--firmware", action="store_true",
+                   help="run the boards' firmware core (firmware/, built for this machine) instead of the Python emulator")
     p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
     p.set_defaults(func=cmd_emulate)
 
 
+def _glove(args):
+    """The `--glove` file's CAN configuration (default config/glove.yaml)."""
+    path = resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None
+    return load_glove_can(path)
+
+
 def cmd_dbc(args) -> int:
-    text = dbc_text(load_glove_can(args.glove))
+    text = dbc_text(_glove(args))
     if args.output:
         Path(args.output).write_bytes(text.encode())
     else:
@@ -44,7 +53,7 @@ def cmd_dbc(args) -> int:
 
 
 def cmd_busload(args) -> int:
-    cfg = load_glove_can(args.glove)
+    cfg = _glove(args)
     print(f"{cfg.file}: {len(cfg.boards)} boards at {cfg.bitrate} bit/s, refresh {cfg.refresh_hz:g} Hz")
     print(bus_load(cfg).describe())
     return 0
@@ -53,17 +62,18 @@ def cmd_busload(args) -> int:
 def cmd_emulate(args) -> int:
     import can
 
-    from touch4d.boards.emulator import GloveEmulator
+    from touch4d.boards.emulator import make_glove_emulator
 
     if not (math.isfinite(args.print_period) and args.print_period > 0):
         raise ConfigError("<command line>", "--print-period", "a number of seconds > 0", got=args.print_period)
-    cfg = load_glove_can(args.glove)
+    cfg = _glove(args)
+    kind = "firmware" if args.firmware else "python"
     try:
-        emulator = GloveEmulator(cfg, interface=args.interface, channel=args.channel)
+        emulator = make_glove_emulator(kind, cfg, interface=args.interface, channel=args.channel)  # may build
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         raise ConfigError("<command line>", "--interface/--channel", "a python-can bus that opens",
                           got=f"{args.interface or cfg.interface} {args.channel or cfg.channel}: {exc}") from None
-    print(f"emulating boards {[b.id for b in cfg.boards]} on {args.interface or cfg.interface} "
+    print(f"emulating boards {[b.id for b in cfg.boards]} ({kind}) on {args.interface or cfg.interface} "
           f"channel {args.channel or cfg.channel}", flush=True)
     end = None if args.duration is None else time.monotonic() + args.duration
     emulator.start()
@@ -72,8 +82,9 @@ def cmd_emulate(args) -> int:
             time.sleep(args.print_period if end is None else max(0.0, min(args.print_period, end - time.monotonic())))
             for bid, board in emulator.boards.items():
                 gone = " (removed)" if bid in emulator.removed else ""
+                pwm = f" pwm {board.pwm}/{board.pwm_period}" if args.firmware else ""
                 print(f"board {bid}: {board.nmt_state.lower()} {board.output_state().lower()} "
-                      f"levels {board.levels}{gone}", flush=True)
+                      f"levels {board.levels}{pwm}{gone}", flush=True)
             print(f"frames: {dict(emulator.counters)}", flush=True)
     except KeyboardInterrupt:
         pass

@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from touch4d.configfile import CONFIG_DIR, read_yaml, resolve
+from touch4d.configfile import CONFIG_DIR, read_yaml, resolve_path
 from touch4d.errors import ConfigError
 
 DEFAULT_GLOVE = CONFIG_DIR / "glove.yaml"
@@ -112,7 +112,7 @@ class GloveCan:
 
 def load_glove_can(path: str | Path | None = None) -> GloveCan:
     """Read the `can:` section and the motors of a glove file (default config/glove.yaml)."""
-    path = resolve(path) if path is not None else DEFAULT_GLOVE
+    path = resolve_path(path if path is not None else "config/glove.yaml", what="glove file")
     return glove_can_from_mapping(read_yaml(path, "glove file"), path)
 
 

@@ -10,11 +10,12 @@ N (CANopen-style id bases, configurable in `can.ids`):
 - `Duty_BN` at `ids.duty + N` (RPDO1 style), controller -> board, every `1/refresh_hz`:
   `Counter` (8 bit, rolling) then one 7-bit `Duty_ChK` per channel (0..127 = 0..100 % PWM).
   8 channels x 7 bit + 8 bit = 64 bit: a whole board's update fits one classic 8-byte frame, so
-  a board never applies half an update, and the counter lets the board's status acknowledge it.
+  a board never applies half an update, and the counter lets the board's status acknowledge it
+  (a board applies a frame only if its counter is newer than the last applied: emulator.py).
   128 levels are finer than a coin motor's felt resolution.
 - `Status_BN` at `ids.status + N` (TPDO1 style), board -> controller, every `1/status_hz` and on
   a change of state: `State`, fault flags, `LastCounter` (counter of the last duty frame applied),
-  `ActiveMask` (channels on), `BadFrames` (malformed or unknown frames received, saturating).
+  `ActiveMask` (channels on), `BadFrames` (malformed, unknown or out-of-sequence frames received, saturating).
 - `Heartbeat_BN` at `ids.heartbeat + N` (0x700 + N), board -> controller, every `1/heartbeat_hz`:
   the CANopen NMT state byte (0 boot-up, 4 stopped, 5 operational, 127 pre-operational).
 """
@@ -81,7 +82,7 @@ def build_database(cfg: GloveCan) -> Database:
         status += [
             _signal("LastCounter", 16, 8, "Counter of the last duty frame applied", [CONTROLLER]),
             _signal("ActiveMask", 24, 8, "bit K set: channel K is on", [CONTROLLER]),
-            _signal("BadFrames", 32, 16, "malformed or unknown frames received, saturating", [CONTROLLER]),
+            _signal("BadFrames", 32, 16, "malformed, unknown or out-of-sequence frames received, saturating", [CONTROLLER]),
         ]
         messages.append(Message(
             cfg.ids.status + b.id, f"Status_B{b.id}", 6, status, senders=[node],

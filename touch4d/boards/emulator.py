@@ -1,12 +1,17 @@
 """The motor-board emulator: the reference behaviour for the boards' firmware.
 
 A board boots (heartbeat BOOTUP) into PRE_OPERATIONAL, where duty frames are ignored; NMT START
-makes it OPERATIONAL, where each duty frame sets its channels. No duty frame within the
-watchdog time turns every channel off (WATCHDOG_OFF) until the next one; NMT STOP turns every
-channel off and ignores duty frames until START. It sends its status every status period and at
-once on a change of state, and its heartbeat every heartbeat period. Malformed and unknown frames
-are ignored and counted. `BoardEmulator` is the pure state machine (frames in, frames out);
-`GloveEmulator` runs every board of a glove on one python-can bus, in a thread.
+makes it OPERATIONAL, where each duty frame sets its channels if its Counter is newer than the
+last applied one (1..COUNTER_WINDOW ahead, modulo 256: a repeated or old frame must not keep the
+watchdog fed; after boot, START or a watchdog trip any Counter is taken, so a restarted controller
+is followed). No duty frame applied for more than the watchdog time turns every channel off
+(WATCHDOG_OFF) until the next one; NMT STOP turns every channel off and ignores duty frames until
+START. It sends its status every status period and at once on a change of state, and its
+heartbeat every heartbeat period (the DBC's cycle times). Malformed, unknown and out-of-sequence
+frames are ignored and counted by reason (REJECTED). `BoardEmulator` is the pure state machine
+(frames in, frames out); `GloveEmulator` runs every board of a glove on one python-can bus, in a
+thread. The firmware's core (firmware/core) behaves the same, frame for frame
+(tests/test_boards_conformance.py); `make_glove_emulator` picks either by name.
 """
 from __future__ import annotations
 
@@ -23,6 +28,11 @@ from touch4d.boards.protocol import FAULT_NAMES, Frame, FrameError, GloveProtoco
 log = logging.getLogger("touch4d.boards.emulator")
 
 HARDWARE_FAULTS = ("overtemp", "overcurrent", "undervoltage")
+COUNTER_WINDOW = 127  # a duty frame's Counter may be 1..127 ahead of the last applied one
+# Why a board rejects a frame (its counters); the first four are "malformed". A status frame's
+# BadFrames counts them all.
+MALFORMED = ("bad_length", "bad_frame_type", "bad_command", "error_frame")
+REJECTED = MALFORMED + ("unknown", "bad_counter")
 # The thread blocks on the bus until a frame arrives or a board is due (its watchdog, status or
 # heartbeat), but never longer than this: bounds how long remove/restore/stop wait for it.
 MAX_WAIT_S = 0.05
@@ -36,8 +46,8 @@ class BoardEmulator:
         self.id = board.id
         self.channels = board.channels
         self.watchdog_s = cfg.board_watchdog_s
-        self.status_period = 1.0 / cfg.status_hz
-        self.heartbeat_period = 1.0 / cfg.heartbeat_hz
+        self.status_period = protocol.period_s("status", board.id)
+        self.heartbeat_period = protocol.period_s("heartbeat", board.id)
         self.counters: Counter = Counter()
         self.hardware_faults: set[str] = set()
         self._pending: list[can.Message] = []
@@ -49,9 +59,10 @@ class BoardEmulator:
         self.nmt_state = "PRE_OPERATIONAL"
         self.watchdog_tripped = False
         self.last_counter = 0
+        self.counter_sync = True  # the next duty frame may carry any Counter
         self.last_duty_at = now
         self.bad_since_status = False
-        self._pending.append(self.protocol.heartbeat(self.id, "BOOTUP"))
+        self._pending = [self.protocol.heartbeat(self.id, "BOOTUP")]
         self._last_output = self.output_state()
         self._next_status = now
         self._next_heartbeat = now + self.heartbeat_period
@@ -75,9 +86,16 @@ class BoardEmulator:
             out.add("bad_frame")
         return out
 
-    def bad_frame(self, kind: str) -> None:
-        self.counters[kind] += 1
+    def bad_frame(self, reason: str) -> None:
+        """Count a rejected frame (`reason` one of REJECTED); the next status flags it."""
+        self.counters[reason] += 1
+        if reason in MALFORMED:
+            self.counters["malformed"] += 1
         self.bad_since_status = True
+
+    def all_off(self) -> None:
+        """Every channel off (what the firmware does on an internal fault)."""
+        self.levels = [0] * self.channels
 
     def handle(self, frame: Frame, now: float) -> None:
         """Apply one decoded frame addressed to this board (or broadcast)."""
@@ -87,6 +105,7 @@ class BoardEmulator:
             if command == 1:
                 self.nmt_state = "OPERATIONAL"
                 self.last_duty_at = now
+                self.counter_sync = True
             elif command == 2:
                 self.nmt_state = "STOPPED"
                 self.levels = [0] * self.channels
@@ -99,10 +118,15 @@ class BoardEmulator:
             if self.nmt_state != "OPERATIONAL":
                 self.counters["ignored"] += 1
                 return
+            counter = frame.signals["Counter"]
+            if not self.counter_sync and not 1 <= (counter - self.last_counter) % 256 <= COUNTER_WINDOW:
+                self.bad_frame("bad_counter")
+                return
             self.counters["applied"] += 1
             self.last_duty_at = now
             self.watchdog_tripped = False
-            self.last_counter = frame.signals["Counter"]
+            self.counter_sync = False
+            self.last_counter = counter
             self.levels = [0] * self.channels if self.hardware_faults else GloveProtocol.levels(frame, self.channels)
 
     def next_due(self) -> float:
@@ -120,6 +144,7 @@ class BoardEmulator:
             # Safety: no command within the watchdog time -> every channel off.
             self.levels = [0] * self.channels
             self.watchdog_tripped = True
+            self.counter_sync = True
             self.counters["watchdog_trips"] += 1
         if self.hardware_faults and any(self.levels):
             self.levels = [0] * self.channels
@@ -128,7 +153,7 @@ class BoardEmulator:
         if state != self._last_output or now >= self._next_status:
             active = sum(1 << c for c, v in enumerate(self.levels) if v)
             out.append(self.protocol.status(self.id, state, self.faults(), self.last_counter, active,
-                                            self.counters["malformed"] + self.counters["unknown"]))
+                                            sum(self.counters[r] for r in REJECTED)))
             self.bad_since_status = False
             self._last_output = state
             self._next_status = now + self.status_period
@@ -150,11 +175,15 @@ class GloveEmulator:
         self.bus = bus if bus is not None else can.Bus(interface=interface or cfg.interface,
                                                        channel=channel or cfg.channel, bitrate=cfg.bitrate)
         now = clock()
-        self.boards = {b.id: BoardEmulator(self.protocol, b, cfg, now) for b in cfg.boards}
+        self.boards = {b.id: self._make_board(b, now) for b in cfg.boards}
         self.removed: set[int] = set()
         self.counters: Counter = Counter()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    def _make_board(self, board: Board, now: float):
+        """One board of the glove (a subclass may run another implementation of it)."""
+        return BoardEmulator(self.protocol, board, self.cfg, now)
 
     def levels(self, board_id: int) -> list[int]:
         """Current duty levels of a board's channels."""
@@ -192,7 +221,7 @@ class GloveEmulator:
                 elif kind is not None and kind[0] != "nmt":
                     targets = []
             for b in targets:
-                b.bad_frame("malformed")
+                b.bad_frame(exc.reason)
             return
         if frame is None:
             self.counters["unknown"] += 1
@@ -258,7 +287,7 @@ class GloveEmulator:
     def all_off(self) -> None:
         """Every channel of every board off (what a board's firmware does on an internal fault)."""
         for b in self.boards.values():
-            b.levels = [0] * b.channels
+            b.all_off()
 
     def stop(self) -> None:
         """Stop the thread and close the bus if this emulator opened it."""
@@ -276,4 +305,22 @@ class GloveEmulator:
         self.stop()
 
 
-__all__ = ["BoardEmulator", "GloveEmulator", "HARDWARE_FAULTS", "FAULT_NAMES"]
+# Board emulators by name: the motor node's `board_emulator` parameter and `touch4d glove emulate`.
+EMULATORS = {
+    "python": ("touch4d.boards.emulator", "GloveEmulator"),
+    "firmware": ("touch4d.boards.firmware", "FirmwareGloveEmulator"),  # the C core, built for the host
+}
+
+
+def make_glove_emulator(kind: str, cfg: GloveCan, **kwargs) -> GloveEmulator:
+    """The glove emulator named `kind` (a key of EMULATORS); kwargs go to its constructor."""
+    import importlib
+
+    if kind not in EMULATORS:
+        raise ValueError(f"board emulator {kind!r}: expected one of {sorted(EMULATORS)}")
+    module, name = EMULATORS[kind]
+    return getattr(importlib.import_module(module), name)(cfg, **kwargs)
+
+
+__all__ = ["BoardEmulator", "GloveEmulator", "HARDWARE_FAULTS", "FAULT_NAMES", "COUNTER_WINDOW", "MALFORMED",
+           "REJECTED", "EMULATORS", "make_glove_emulator"]

@@ -33,7 +33,14 @@ DECODED_KEPT = 4096  # decoded frames kept: a steady board repeats its 256 duty 
 
 
 class FrameError(ValueError):
-    """A frame with a known id that does not follow the protocol (length, flags, values)."""
+    """A frame with a known id that does not follow the protocol (length, flags, values).
+
+    `reason` names the fault as the boards count it: 'error_frame', 'bad_frame_type' (remote or
+    FD), 'bad_length', 'bad_command' (an unknown NMT command) or 'bad_value' (an unknown state)."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,10 @@ class GloveProtocol:
         """A board's CANopen heartbeat with its NMT state."""
         return self._frame("heartbeat", board, {"State": NMT_STATE_CODES[state]})
 
+    def period_s(self, kind: str, board: int) -> float:
+        """The DBC's cycle time of one board's frame ('duty', 'status', 'heartbeat'), in seconds."""
+        return self._messages[(kind, board)].cycle_time / 1000.0
+
     def decode_kind(self, frame_id: int) -> tuple[str, int] | None:
         """(kind, board) of a standard frame id of this glove, None if the glove does not use it."""
         known = self._ids.get(frame_id)
@@ -102,13 +113,13 @@ class GloveProtocol:
         Raises FrameError for a glove id with the wrong length, flags or values.
         """
         if msg.is_error_frame:
-            raise FrameError("error frame")
+            raise FrameError("error frame", "error_frame")
         known = self._ids.get(msg.arbitration_id)
         if known is None or msg.is_extended_id:
             return None
         kind, board, message = known
         if msg.is_remote_frame or msg.is_fd:
-            raise FrameError(f"{message.name}: remote or FD frame")
+            raise FrameError(f"{message.name}: remote or FD frame", "bad_frame_type")
         key = (msg.arbitration_id, bytes(msg.data))
         frame = self._decoded.get(key)
         if frame is None:
@@ -121,19 +132,19 @@ class GloveProtocol:
     @staticmethod
     def _decode(kind: str, board: int, message, data: bytes) -> Frame:
         if len(data) != message.length:
-            raise FrameError(f"{message.name}: expected {message.length} data bytes, got {len(data)}")
+            raise FrameError(f"{message.name}: expected {message.length} data bytes, got {len(data)}", "bad_length")
         try:
             signals = MappingProxyType(message.decode(data, decode_choices=False, scaling=False))
         except (cantools.database.DecodeError, ValueError) as exc:
-            raise FrameError(f"{message.name}: {exc}") from None
+            raise FrameError(f"{message.name}: {exc}", "bad_length") from None
         if kind == "nmt":
             if signals["Command"] not in NMT_COMMANDS:
-                raise FrameError(f"NMT: unknown command {signals['Command']}")
+                raise FrameError(f"NMT: unknown command {signals['Command']}", "bad_command")
             return Frame(kind, signals["Node"], signals)
         if kind == "heartbeat" and signals["State"] not in NMT_STATES:
-            raise FrameError(f"{message.name}: unknown NMT state {signals['State']}")
+            raise FrameError(f"{message.name}: unknown NMT state {signals['State']}", "bad_value")
         if kind == "status" and signals["State"] not in OUTPUT_STATES:
-            raise FrameError(f"{message.name}: unknown state {signals['State']}")
+            raise FrameError(f"{message.name}: unknown state {signals['State']}", "bad_value")
         return Frame(kind, board, signals)
 
     @staticmethod

@@ -2,9 +2,10 @@
 from touch4d.bus.broker import Broker
 from touch4d.bus.config import BusConfig, CurveKeys, load_bus_config, resolve_bus_config
 from touch4d.bus.node import Node, Publisher, RawPublisher, Subscription, Timer
+from touch4d.bus.params import Param
 from touch4d.bus.process import run_node
 
 __all__ = [
-    "Broker", "BusConfig", "CurveKeys", "Node", "Publisher", "RawPublisher", "Subscription", "Timer",
+    "Broker", "BusConfig", "CurveKeys", "Node", "Param", "Publisher", "RawPublisher", "Subscription", "Timer",
     "load_bus_config", "resolve_bus_config", "run_node",
 ]

@@ -1,4 +1,4 @@
-"""`python -m touch4d.bus MODULE [--name N] [--params JSON]`: one node process (what the launcher runs)."""
+"""`python -m touch4d.bus NODE [--name N] [--params JSON]`: one node process (what the launcher runs)."""
 import sys
 
 from touch4d.bus.process import main

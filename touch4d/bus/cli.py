@@ -2,22 +2,25 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import json
 
-from touch4d.bus.config import load_bus_config, resolve_bus_config
+from touch4d.bus.config import resolve_bus_config, user_bus_config
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-DEFAULT_LAUNCH = Path(__file__).resolve().parents[2] / "launch" / "demo.yaml"
+DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
+BUS_HELP = "bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)"
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("launch", help="start the broker and the nodes of a launch file",
                               description="Start the broker and every node of a launch file. Overrides: "
-                              "ROLE:=MODULE swaps a node (ROLE:=none drops it), ROLE.PARAM:=VALUE sets a parameter.")
+                              "ROLE:=NODE swaps a node, +ROLE:=NODE adds one, ROLE:=none drops one, "
+                              "ROLE.PARAM:=VALUE sets a parameter.")
     p.add_argument("items", nargs="*", metavar="FILE|OVERRIDE",
-                   help=f"launch file (default {DEFAULT_LAUNCH.relative_to(DEFAULT_LAUNCH.parents[1])}) and overrides")
+                   help=f"launch file (default {DEFAULT_LAUNCH}) and overrides")
     p.add_argument("--duration", type=float, help="stop after S seconds")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.add_argument("--no-broker", action="store_true", help="use a broker that already runs (e.g. on another machine)")
     p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
     p.set_defaults(func=_launch)
@@ -46,21 +49,26 @@ def register(subparsers) -> None:
     p.add_argument("-n", "--count", type=int, help="publish N times")
     p.set_defaults(func=_topic_pub)
     for parser in topic.choices.values():
-        parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+        parser.add_argument("--bus", help=BUS_HELP)
 
     node = _group(subparsers, "node", "inspect or run nodes")
-    p = node.add_parser("list", help="live nodes, from their heartbeats")
-    p.add_argument("--duration", type=float, default=2.5, help="listen for S seconds (default 2.5)")
-    p.add_argument("--bus", help="bus config file")
+    p = node.add_parser("list", help="the nodes that can be launched and where each comes from (--live: the "
+                                     "running ones, from their heartbeats)")
+    p.add_argument("--live", action="store_true", help="list the nodes running on the bus instead")
+    p.add_argument("--duration", type=float, default=2.5, help="with --live: listen for S seconds (default 2.5)")
+    p.add_argument("--bus", help="with --live: " + BUS_HELP)
     p.set_defaults(func=_node_list)
-    p = node.add_parser("run", help="run one node in this process: MODULE [--name N] [--params JSON]")
-    p.add_argument("module", help="module in touch4d.nodes")
+    p = node.add_parser("info", help="a node's parameters: type, default, what is valid")
+    p.add_argument("node", help="a node name (see `touch4d node list`) or a module path")
+    p.set_defaults(func=_node_info)
+    p = node.add_parser("run", help="run one node in this process: NODE [--name N] [--params JSON]")
+    p.add_argument("module", metavar="node", help="a node name (see `touch4d node list`) or a module path")
     p.add_argument("args", nargs=argparse.REMAINDER, help="--name N --params JSON --bus FILE --log-level L")
     p.set_defaults(func=_node_run)
 
     bus = _group(subparsers, "bus", "the broker and its keys")
     p = bus.add_parser("broker", help="run the broker alone (the launcher normally runs it)")
-    p.add_argument("--bus", help="bus config file (default config/bus.yaml)")
+    p.add_argument("--bus", help=BUS_HELP)
     p.set_defaults(func=_broker)
     p = bus.add_parser("keygen", help="make a CurveZMQ key pair for a machine or the broker")
     p.add_argument("name", help="key name, e.g. broker, pc, pi")
@@ -83,10 +91,11 @@ def _launch(args) -> int:
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
-    nodes = load_launch(files[0] if files else DEFAULT_LAUNCH, overrides)
-    bus = load_bus_config(args.bus)
+    path = resolve_path(files[0] if files else DEFAULT_LAUNCH, COMMAND_LINE, key="launch file", what="launch file")
+    nodes = load_launch(path, overrides)
+    bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
-                    ready_file=args.ready_file).run()
+                    ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
 
 
 def _topic_list(args) -> int:
@@ -118,9 +127,52 @@ def _topic_pub(args) -> int:
 
 
 def _node_list(args) -> int:
-    from touch4d.bus.introspect import node_list
+    if args.live:
+        from touch4d.bus.introspect import node_list
 
-    node_list(resolve_bus_config(args.bus), args.duration)
+        node_list(resolve_bus_config(args.bus), args.duration)
+        return 0
+    from touch4d.bus.registry import available, entry_points
+
+    kinds = available()
+    shadowed = [k for name, k in entry_points().items() if kinds[name] is not k]
+    width = max(len(name) for name in kinds)
+    rows = []
+    for name, kind in sorted(kinds.items()):
+        origin = "touch4d" if kind.origin == "touch4d" else f"{kind.origin} ({kind.target})"
+        try:
+            doc = (kind.load().__doc__ or "").strip().splitlines()[:1]
+        except Exception as exc:  # noqa: BLE001 - another package's node may fail to import: say so, go on
+            doc = [f"cannot be imported: {type(exc).__name__}: {exc}"]
+        rows.append((name, origin, doc[0] if doc else ""))
+    owidth = max(len(r[1]) for r in rows)
+    print(f"{'node'.ljust(width)}  {'from'.ljust(owidth)}  what")
+    for name, origin, doc in rows:
+        print(f"{name.ljust(width)}  {origin.ljust(owidth)}  {doc}")
+    for kind in shadowed:
+        print(f"(not listed: '{kind.name}' of the {kind.origin} ({kind.target}): a built-in node has that name; "
+              f"launch it as node: {kind.target})")
+    print("Any importable module holding a Node class also launches by its path, e.g. node: mylab.nodes.my_tracker.")
+    return 0
+
+
+def _node_info(args) -> int:
+    from touch4d.bus.registry import NodeNotFound, find
+
+    try:
+        kind = find(args.node)
+        node_class = kind.load()
+    except NodeNotFound as exc:
+        raise ConfigError("command line", "node", exc.expected, got=exc.got) from None
+    doc = (node_class.__doc__ or "").strip().splitlines()
+    print(f"{kind.name}: {node_class.__module__}.{node_class.__qualname__} ({kind.origin})")
+    if doc:
+        print(f"  {doc[0]}")
+    if not node_class.PARAMS:
+        print("  no parameters")
+    for name, param in node_class.PARAMS.items():
+        default = json.dumps(param.default)
+        print(f"  {name}: {param.describe()}; default {default}" + (f" - {param.doc}" if param.doc else ""))
     return 0
 
 
@@ -133,7 +185,7 @@ def _node_run(args) -> int:
 def _broker(args) -> int:
     from touch4d.bus.broker import Broker
 
-    Broker(load_bus_config(args.bus)).run()
+    Broker(user_bus_config(args.bus)).run()
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Bus endpoints and CurveZMQ keys, read from `config/bus.yaml`.
+"""Bus endpoints and CurveZMQ keys, read from a bus config file (default `config/bus.yaml`).
 
 The broker binds two ports: publishers connect to its XSUB port (`pub_port`), subscribers to its
 XPUB port (`sub_port`). Binding is loopback-only unless the file names another address; then a
@@ -10,16 +10,18 @@ import ipaddress
 import json
 import os
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 
 import zmq
 import zmq.auth
 
-from touch4d.configfile import CONFIG_DIR, read_yaml
+from touch4d.configfile import COMMAND_LINE, PathNotFound, read_yaml, resolve_path
 from touch4d.errors import ConfigError, Touch4dError
 
-ENV_VAR = "TOUCH4D_BUS"  # JSON of a BusConfig, set by the launcher for its node processes
-DEFAULT_PATH = CONFIG_DIR / "bus.yaml"
+# The launcher hands its node processes the bus (endpoints, client keys) as JSON in ENV_VAR; a user
+# names a bus config file in USER_ENV_VAR. Two variables, so neither is mistaken for the other.
+ENV_VAR = "TOUCH4D_LAUNCH_BUS"
+USER_ENV_VAR = "TOUCH4D_BUS"
+DEFAULT_NAME = "config/bus.yaml"
 
 
 class BusUnreachable(Touch4dError):
@@ -113,18 +115,22 @@ _BROKER_KEYS = {"bind", "pub_port", "sub_port"}
 _CURVE_KEYS = {"server_public", "server_secret", "client_secret", "authorized"}
 
 
-def load_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
-    """Read a bus config file (defaults when `path` is None and config/bus.yaml is missing)."""
+def load_bus_config(path: str | os.PathLike | None = None, named_in=COMMAND_LINE, key: str = "--bus") -> BusConfig:
+    """Read a bus config file, found by `resolve_path` (`named_in` and `key` say where it was named);
+    without one, config/bus.yaml (yours, else the packaged one), else the loopback defaults."""
     if path is None:
-        if not DEFAULT_PATH.exists():
+        try:
+            path = resolve_path(DEFAULT_NAME, what="bus config file")
+        except PathNotFound:
             return BusConfig()
-        path = DEFAULT_PATH
-    path = Path(path)
+    else:
+        path = resolve_path(path, named_in, key=key, what="bus config file")
     return parse_bus_config(read_yaml(path, "bus config file") or {}, path)
 
 
 def parse_bus_config(data, path) -> BusConfig:
-    """Check and convert the mapping of a bus config file; key files are relative to it."""
+    """Check and convert the mapping of a bus config file; its key files are found by `resolve_path`
+    (the current directory first, then the folder of `path`)."""
     _mapping(data, path, "(top level)", _TOP_KEYS)
     broker = data.get("broker") or {}
     _mapping(broker, path, "broker", _BROKER_KEYS)
@@ -137,7 +143,7 @@ def parse_bus_config(data, path) -> BusConfig:
         raise ConfigError(path, "hwm", "a positive int", got=hwm)
     curve = None
     if data.get("curve") is not None:
-        curve = _curve(data["curve"], Path(path).parent, path)
+        curve = _curve(data["curve"], path)
     elif not is_loopback(bind):
         raise ConfigError(path, "curve", f"CurveZMQ keys, because broker.bind {bind!r} is not loopback")
     elif not is_loopback(connect):
@@ -145,18 +151,18 @@ def parse_bus_config(data, path) -> BusConfig:
     return BusConfig(bind, connect, pub_port, sub_port, hwm, curve, source=str(path))
 
 
-def _curve(data, base: Path, path) -> CurveKeys:
+def _curve(data, path) -> CurveKeys:
     _mapping(data, path, "curve", _CURVE_KEYS)
     if not zmq.has("curve"):
         raise ConfigError(path, "curve", "a libzmq built with CURVE support")
     if "server_public" not in data:
         raise ConfigError(path, "curve.server_public", "the broker's public key file")
-    server_public, _ = _read_cert(base, data["server_public"], path, "curve.server_public", secret=False)
+    server_public, _ = _read_cert(data["server_public"], path, "curve.server_public", secret=False)
     server_secret = client_public = client_secret = None
     if data.get("server_secret") is not None:
-        _, server_secret = _read_cert(base, data["server_secret"], path, "curve.server_secret", secret=True)
+        _, server_secret = _read_cert(data["server_secret"], path, "curve.server_secret", secret=True)
     if data.get("client_secret") is not None:
-        client_public, client_secret = _read_cert(base, data["client_secret"], path, "curve.client_secret", secret=True)
+        client_public, client_secret = _read_cert(data["client_secret"], path, "curve.client_secret", secret=True)
     authorized: list[str] = []
     entries = data.get("authorized") or []
     if isinstance(entries, str):
@@ -165,17 +171,18 @@ def _curve(data, base: Path, path) -> CurveKeys:
         raise ConfigError(path, "curve.authorized", "a list of public key files or folders", got=entries)
     for i, entry in enumerate(entries):
         key = f"curve.authorized[{i}]"
-        target = base / _typed(entry, str, path, key, "a key file or folder")
+        target = resolve_path(_typed(entry, str, path, key, "a key file or folder"), path, key=key,
+                              what="public key file or folder")
         files = sorted(target.glob("*.key")) if target.is_dir() else [target]
         for file in files:
-            authorized.append(_read_cert(base, str(file), path, key, secret=False)[0])
+            authorized.append(_read_cert(str(file), path, key, secret=False)[0])
     if server_secret is not None and not authorized:
         raise ConfigError(path, "curve.authorized", "at least one client public key allowed to connect")
     return CurveKeys(server_public, server_secret, client_public, client_secret, tuple(authorized))
 
 
-def _read_cert(base: Path, name, path, key: str, secret: bool) -> tuple[str, str | None]:
-    file = base / _typed(name, str, path, key, "a key file path")
+def _read_cert(name, path, key: str, secret: bool) -> tuple[str, str | None]:
+    file = resolve_path(_typed(name, str, path, key, "a key file path"), path, key=key, what="key file")
     try:
         public, private = zmq.auth.load_certificate(file)
     except (OSError, ValueError) as exc:
@@ -207,15 +214,25 @@ def _port(value, path, key: str) -> int:
     return value
 
 
-def resolve_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
-    """The bus a process should use: an explicit file, else the launcher's $TOUCH4D_BUS, else the
-    project's config/bus.yaml, else the loopback defaults."""
+def user_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
+    """The bus a user means: an explicit file (`--bus`), else the file named by $TOUCH4D_BUS, else
+    config/bus.yaml, else the loopback defaults. What the launcher and a lone broker bind."""
     if path is not None:
         return load_bus_config(path)
-    text = os.environ.get(ENV_VAR)
+    user = os.environ.get(USER_ENV_VAR)
+    if user:
+        return load_bus_config(user, f"${USER_ENV_VAR}", "(value)")
+    return load_bus_config(None)
+
+
+def resolve_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
+    """The bus a process should use: an explicit file, else the launcher's handover (in a node it
+    started), else `user_bus_config`."""
+    text = os.environ.get(ENV_VAR) if path is None else None
     if text:
         try:
             return BusConfig.from_json(text)
         except (ValueError, TypeError) as exc:
-            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON", got=str(exc)) from None
-    return load_bus_config(None)
+            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
+                              got=str(exc)) from None
+    return user_bus_config(path)

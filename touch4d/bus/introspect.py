@@ -14,11 +14,13 @@ import yaml
 
 from touch4d.bus.config import BusConfig, BusUnreachable
 from touch4d.bus.node import HEARTBEAT_TOPIC, Node
+from touch4d.bus.params import suggest
 from touch4d.errors import ConfigError
 from touch4d.messages import TOPIC_TYPES, TYPES, Heartbeat, Message, MessageError, decode
 
 _ARRAY_SHOWN = 24
 CONNECT_TIMEOUT = 3.0  # seconds a tool waits for the broker before saying none answers
+SILENCE_NOTICE = 1.5   # seconds of silence on a topic after which echo/hz say whether anyone publishes it
 
 
 def _tool(bus: BusConfig | None, what: str) -> Node:
@@ -30,13 +32,51 @@ def _tool(bus: BusConfig | None, what: str) -> Node:
     return node
 
 
-def _spin(node: Node, duration: float | None, done=lambda: False) -> None:
+def _spin(node: Node, duration: float | None, done=lambda: False, each=lambda: None) -> None:
     end = None if duration is None else time.monotonic() + duration
     try:
         while not done() and (end is None or time.monotonic() < end):
             node.spin_once(0.05 if end is None else max(0.0, min(0.05, end - time.monotonic())))
+            each()
     except KeyboardInterrupt:
         pass
+
+
+class PublisherWatch:
+    """Which topics are live (messages seen, or published by a node, from heartbeats), so a tool
+    waiting on a silent topic can say, after SILENCE_NOTICE s, that nobody publishes it."""
+
+    def __init__(self, node: Node, topic: str, err=None):
+        self.topic = topic
+        self.err = err or sys.stderr
+        self.seen: set[str] = set()
+        self.declared: dict[str, set[str]] = defaultdict(set)  # topic -> nodes that publish it
+        self.start = time.monotonic()
+        self.done = False
+        node.create_raw_subscription("", self._on_any)
+
+    def _on_any(self, topic: str, payload: bytes) -> None:
+        self.seen.add(topic)
+        if topic == HEARTBEAT_TOPIC:
+            try:
+                hb = decode(payload, Heartbeat)
+            except MessageError:
+                return
+            for name in hb.publishes:
+                self.declared[name].add(hb.node)
+
+    def check(self) -> None:
+        """Say once, after SILENCE_NOTICE s without a message on the topic, who (if anyone) publishes it."""
+        if self.done or self.topic in self.seen or time.monotonic() - self.start < SILENCE_NOTICE:
+            return
+        self.done = True
+        if self.declared.get(self.topic):
+            print(f"# no message on {self.topic} yet; published by {', '.join(sorted(self.declared[self.topic]))}; "
+                  "waiting (Ctrl+C to stop)", file=self.err, flush=True)
+            return
+        live = sorted((self.seen | set(self.declared)) - {self.topic})
+        print(f"# nobody publishes {self.topic}{suggest(self.topic, live)}; live topics: "
+              f"{', '.join(live) or 'none'}; waiting (Ctrl+C to stop)", file=self.err, flush=True)
 
 
 def plain(value, full: bool = False):
@@ -100,8 +140,9 @@ def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None) ->
 
 
 def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = None, duration: float | None = None,
-               type_name: str | None = None, full: bool = False, out=None) -> int:
-    """Print each message on `topic` as YAML; returns how many were printed."""
+               type_name: str | None = None, full: bool = False, out=None, err=None) -> int:
+    """Print each message on `topic` as YAML; returns how many were printed. When nothing comes,
+    says on `err` (stderr) whether anyone publishes the topic, and which topics are live."""
     out = out or sys.stdout
     cls = message_type(topic, type_name)
     printed = 0
@@ -124,11 +165,12 @@ def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = Non
 
     node = _tool(bus, "topic_echo")
     try:
+        watch = PublisherWatch(node, topic, err)
         if cls is None:
             node.create_raw_subscription(topic, on_raw)
         else:
             node.create_subscription(topic, cls, show)
-        _spin(node, duration, lambda: count is not None and printed >= count)
+        _spin(node, duration, lambda: count is not None and printed >= count, watch.check)
     finally:
         malformed = sum(s["malformed"] for s in node.stats.values())
         node.shutdown()
@@ -138,11 +180,12 @@ def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = Non
 
 
 def topic_hz(topic: str, bus: BusConfig | None = None, duration: float | None = None, window: float = 1.0,
-             out=None) -> float | None:
+             out=None, err=None) -> float | None:
     """Print the rate of `topic` every `window` s; returns the overall mean rate (None if silent)."""
     out = out or sys.stdout
     arrivals: list[float] = []
     node = _tool(bus, "topic_hz")
+    watch = PublisherWatch(node, topic, err)
     node.create_raw_subscription(topic, lambda name, _: arrivals.append(time.monotonic()) if name == topic else None)
     shown = 0
 
@@ -161,7 +204,7 @@ def topic_hz(topic: str, bus: BusConfig | None = None, duration: float | None = 
 
     node.create_timer(window, report)
     try:
-        _spin(node, duration)
+        _spin(node, duration, each=watch.check)
     finally:
         node.shutdown()
     if len(arrivals) < 2:

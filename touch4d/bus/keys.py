@@ -20,7 +20,8 @@ def keygen(folder: str | Path, name: str) -> tuple[Path, Path]:
 
 HOWTO = """\
 Wrote {public} (public: copy it where peers need it) and {secret} (secret: keep it on this machine,
-never commit it). Key paths in config/bus.yaml are relative to that file, e.g. on the broker machine:
+never commit it). Key paths in a bus file are found beside it (after the current directory), e.g.
+in config/bus.yaml on the broker machine:
   curve: {{server_public: keys/broker.key, server_secret: keys/broker.key_secret,
           client_secret: keys/pc.key_secret, authorized: [keys/clients]}}
 and on another machine:

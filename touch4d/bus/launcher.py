@@ -3,6 +3,10 @@
 Children stay in the launcher's process group (Ctrl+C in a terminal reaches them all at once) and
 are told to die with the launcher. On Ctrl+C, SIGTERM or the end of `--duration`, every node gets
 SIGTERM, has STOP_GRACE seconds to run `on_shutdown` and exit, and is then killed.
+
+Each node tells the launcher when it is built (a byte on a pipe, see touch4d.bus.process). A node
+that exits before that failed to start (a bad scene, a missing glove file...): unless its launch
+entry says `respawn`, the whole launch stops and exits non-zero, the node's error the last line.
 """
 from __future__ import annotations
 
@@ -19,10 +23,9 @@ from pathlib import Path
 from touch4d.bus.broker import Broker
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
-from touch4d.bus.process import LAUNCHER_PID_ENV
+from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
 
 STOP_GRACE = 1.5
-START_WINDOW = 2.0  # a node that dies within this time of starting "failed to start"
 _MAX_RESPAWN_DELAY = 5.0
 _COLORS = ("36", "33", "35", "32", "34", "31", "96", "93", "95", "92")
 
@@ -37,17 +40,21 @@ class _Child:
     restart_at: float | None = None
     delay: float = 0.0
     failed: bool = False
+    ready: bool = False       # the node said it is built
+    ready_fd: int | None = None
 
 
 class Launcher:
     """Runs one launch: `run()` returns the exit code (0 after a clean stop)."""
 
     def __init__(self, nodes: dict[str, NodeSpec], bus: BusConfig, *, start_broker: bool = True,
-                 duration: float | None = None, ready_file: str | None = None, out=None):
+                 duration: float | None = None, ready_file: str | None = None, out=None,
+                 launch_file: str | None = None, bus_file: str | None = None):
         self.bus = bus
         self.start_broker = start_broker
         self.duration = duration
         self.ready_file = ready_file
+        self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
         self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
         width = max([len(r) for r in nodes] + [6])
@@ -57,6 +64,8 @@ class Launcher:
             text = f"[{role}]".ljust(width + 2) + " "
             self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
         self._stop_reason: str | None = None
+        self._start_failure: tuple[str, int] | None = None  # (what to say last, exit code)
+        self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
 
@@ -67,8 +76,18 @@ class Launcher:
 
     def _emit(self, role: str, lines: list[bytes]) -> None:
         prefix = self._prefix[role]
-        self.out.write(b"".join(prefix + line + b"\n" for line in lines))
-        self.out.flush()
+        try:
+            self.out.write(b"".join(prefix + line + b"\n" for line in lines))
+            self.out.flush()
+        except BrokenPipeError:
+            # Whoever read the output is gone (`touch4d launch | head`): stop every node cleanly.
+            from touch4d.cli import silence_stdout
+
+            silence_stdout()
+            self.out = open(os.devnull, "wb")
+            self._output_closed = True
+            if self._stop_reason is None:
+                self._stop_reason = "its output was closed"
 
     def _read(self, child: _Child) -> bool:
         """Pass on the complete lines a child has written; False at end of file."""
@@ -103,32 +122,62 @@ class Launcher:
                "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
         if spec.realtime:
             cmd.append("--realtime")
-        child.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, env=self._env, close_fds=True)
+        ready_r, ready_w = os.pipe()
+        try:
+            child.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                          stderr=subprocess.STDOUT, env={**self._env, READY_FD_ENV: str(ready_w)},
+                                          close_fds=True, pass_fds=(ready_w,))
+        except BaseException:
+            os.close(ready_r)
+            raise
+        finally:
+            os.close(ready_w)
         os.set_blocking(child.proc.stdout.fileno(), False)
         self._selector.register(child.proc.stdout, selectors.EVENT_READ, child)
+        child.ready, child.ready_fd = False, ready_r
+        self._selector.register(ready_r, selectors.EVENT_READ, ("ready", child))
         child.started = time.monotonic()
         child.restart_at = None
         child.last_lines = []
+
+    def _read_ready(self, child: _Child) -> None:
+        """The node wrote its ready byte, or closed the pipe (exited, ready or not)."""
+        try:
+            data = os.read(child.ready_fd, 16)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        child.ready = child.ready or bool(data)
+        self._close_ready(child)
+
+    def _close_ready(self, child: _Child) -> None:
+        if child.ready_fd is not None:
+            self._selector.unregister(child.ready_fd)
+            os.close(child.ready_fd)
+            child.ready_fd = None
 
     def _reap(self, child: _Child) -> None:
         """Handle a child that exited: report it and plan a restart if its spec asks for one."""
         proc = child.proc
         while self._read(child):
             pass
+        if child.ready_fd is not None:
+            self._read_ready(child)
         self._selector.unregister(proc.stdout)
         proc.stdout.close()
         child.proc = None
         code = proc.returncode
         if self._stop_reason is not None:
             return
-        lived = time.monotonic() - child.started
         role, module = child.spec.role, child.spec.module
         what = f"exited with code {code}" if code >= 0 else f"was killed by {signal.Signals(-code).name}"
-        failed_start = lived < START_WINDOW and code > 0
+        failed_start = not child.ready and code != 0
         if failed_start:
             cause = child.last_lines[-1] if child.last_lines else "no output"
-            self.say(f"node '{role}' ({module}) failed to start: {what}: {cause}")
+            cause = cause.removeprefix(f"node {role}: ")
+            line = f"node '{role}' ({module}) failed to start: {what}: {cause}"
+            self.say(line)
         else:
             self.say(f"node '{role}' ({module}) {what}")
         if child.spec.respawn:
@@ -137,6 +186,10 @@ class Launcher:
             self.say(f"respawning '{role}' in {child.delay:.1f} s")
         elif code != 0:
             child.failed = True
+            if failed_start and self._start_failure is None:
+                # A stack without one of its nodes is not the stack the user asked for: stop it.
+                self._start_failure = (line, code if code > 0 else 1)
+                self._stop_reason = f"node '{role}' failed to start"
 
     def _running(self) -> list[_Child]:
         return [c for c in self.children.values() if c.proc is not None]
@@ -157,6 +210,8 @@ class Launcher:
         old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
         self._selector.register(wake_r, selectors.EVENT_READ, None)
         try:
+            if self.files[0]:
+                self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}")
             if broker:
                 self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
@@ -172,6 +227,8 @@ class Launcher:
             for child in self._running():
                 child.proc.kill()
                 child.proc.wait()
+            for child in self.children.values():
+                self._close_ready(child)
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
             signal.signal(signal.SIGCHLD, old_chld)
@@ -182,6 +239,14 @@ class Launcher:
             if broker:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
+        if self._output_closed:
+            from touch4d.cli import EXIT_PIPE_CLOSED
+
+            return EXIT_PIPE_CLOSED
+        if self._start_failure is not None:
+            line, code = self._start_failure
+            self.say(f"stopped: {line}")   # the cause, last, where the user looks
+            return code
         if failed:
             self.say(f"stopped; node(s) that failed: {', '.join(failed)}")
             return 1
@@ -216,6 +281,8 @@ class Launcher:
                     os.read(key.fd, 4096)
                 except BlockingIOError:
                     pass
+            elif isinstance(key.data, tuple):
+                self._read_ready(key.data[1])
             elif key.data.proc is not None:
                 self._read(key.data)
 

@@ -1,5 +1,9 @@
 """The node runtime: publishers, subscriptions, timers, parameters, heartbeats, clean shutdown.
 
+A node class declares its parameters (`PARAMS`, see touch4d.bus.params) and builds itself in
+`setup()`; the base class checks the parameters, opens the sockets, calls `setup` and, whatever
+happens, closes everything again in `shutdown` (also when `setup` raises).
+
 One thread runs everything (callbacks, timers, `on_shutdown`), so node code needs no locks.
 Each node has one publishing socket (an XPUB connected to the broker's XSUB, which tells it when
 the broker has subscribed, i.e. when publishing starts to reach the broker) and one SUB socket.
@@ -18,11 +22,13 @@ import socket
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import zmq
 
 from touch4d.bus.config import BusConfig, resolve_bus_config
+from touch4d.bus.params import Param, check_params
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, Message, MessageError, decode
 
@@ -82,6 +88,7 @@ class Subscription:
     latest_only: bool = False
     raw: bool = False
     active: bool = True
+    optional: bool = False  # the node works without a publisher (commands, stops): never reported missing
 
 
 @dataclass
@@ -105,11 +112,18 @@ class _TopicState:
 
 
 class Node:
-    """Base class of every node; see docs/contracts.md for the API."""
+    """Base class of every node; see docs/contracts.md for the API.
+
+    Subclasses set `PARAMS` (name -> Param) and `default_name`, and override `setup()` (subscribe,
+    publish, open devices) and `on_shutdown()`; they need no `__init__` of their own.
+    """
+
+    PARAMS: ClassVar[dict[str, Param]] = {}
+    default_name: ClassVar[str] = "node"
 
     def __init__(
         self,
-        name: str,
+        name: str | None = None,
         params: dict | None = None,
         bus: BusConfig | None = None,
         *,
@@ -120,15 +134,23 @@ class Node:
         connect_timeout: float = 5.0,
         context: zmq.Context | None = None,
     ):
-        self.name = role or name
+        self.name = role or name or self.default_name
         self.kind = kind or type(self).__module__.rsplit(".", 1)[-1]
-        self.params = dict(params or {})
+        self._params_source = params_source
+        given = dict(params or {})
+        self.given: frozenset[str] = frozenset(given)  # the parameters set explicitly (not defaults)
+        self.params: dict[str, Any] = check_params(self.PARAMS, given, self.param_error, f"node {self.kind}")
+        for pname, param in self.PARAMS.items():
+            if param.path and self.params[pname]:  # "" or null: no file (the node's default, if any)
+                source, key = self.param_where(pname)
+                self.params[pname] = resolve_path(self.params[pname], source, key=key, what=param.path_what)
         self.bus = bus if bus is not None else resolve_bus_config()
         self.log = logging.getLogger(self.name)
         self.pid = os.getpid()
         self.connect_timeout = connect_timeout
-        self._params_source = params_source
-        self._declared: set[str] = set()
+        self._warned: dict = {}
+        self._cleanups: list[Callable[[], Any]] = []
+        self._set_up = False
         # One shared context per process: a node left to the garbage collector then only has its
         # sockets closed, never a context terminated from a finalizer (which can block forever).
         self._ctx = context or zmq.Context.instance()
@@ -177,31 +199,56 @@ class Node:
         if heartbeat:
             self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
             self._timers.append(Timer(HEARTBEAT_PERIOD, self._send_heartbeat, time.monotonic()))
+        try:
+            self.setup()
+        except BaseException:
+            self.shutdown()  # a node that cannot start leaves no socket, thread or device open
+            raise
+        self._set_up = True
 
-    # ---- parameters --------------------------------------------------------------------------
+    # ---- what subclasses write -----------------------------------------------------------------
 
-    def declare_parameter(self, name: str, default):
-        """The launch file's value of parameter `name`, else `default`; its type must match the default's."""
-        self._declared.add(name)
-        if name not in self.params:
-            return default
-        value = self.params[name]
-        expected = _type_name(default)
-        ok = default is None or (
-            isinstance(value, bool) if isinstance(default, bool)
-            else (isinstance(value, int) and not isinstance(value, bool)) if isinstance(default, int)
-            else (isinstance(value, (int, float)) and not isinstance(value, bool)) if isinstance(default, float)
-            else isinstance(value, type(default))
-        )
-        if not ok:
-            source = self._params_source or f"parameters of node '{self.name}'"
-            key = f"nodes.{self.name}.params.{name}" if self._params_source else name
-            raise ConfigError(source, key, expected, got=value)
-        return float(value) if isinstance(default, float) else value
+    def setup(self) -> None:
+        """Override: build the node (publishers, subscriptions, timers, devices) from `self.params`.
+        If it raises, `shutdown` runs the cleanups added so far and closes the sockets."""
 
-    def undeclared_parameters(self) -> list[str]:
-        """Parameters given to the node that it never declared (likely typos in a launch file)."""
-        return sorted(set(self.params) - self._declared)
+    def on_shutdown(self) -> None:
+        """Override to act on shutdown (e.g. send a stop); runs once, while sockets are still open,
+        and only for a node whose `setup` finished."""
+
+    # ---- parameters, errors, warnings, cleanups -------------------------------------------------
+
+    def param_where(self, name: str) -> tuple[str, str]:
+        """(source, key) of parameter `name` for a ConfigError: the launch file and
+        `nodes.ROLE.params.NAME` when the parameters came from one, else the node and NAME."""
+        if self._params_source:
+            return self._params_source, f"nodes.{self.name}.params.{name}"
+        return f"parameters of node '{self.name}'", name
+
+    def param_error(self, name: str, expected: str, got: Any = ...) -> ConfigError:
+        """A ConfigError for parameter `name` (see `param_where`); `got` defaults to the value given."""
+        source, key = self.param_where(name)
+        if got is ...:
+            got = self.params.get(name) if hasattr(self, "params") else None
+        return ConfigError(source, key, expected, got=got)
+
+    def warn_once(self, cause, text: str, *, every: float | None = None) -> bool:
+        """Log `text` as a warning the first time `cause` occurs (again after `every` seconds, if
+        given); returns whether it was logged. Repeats in between are the caller's to count."""
+        now = time.monotonic()
+        last = self._warned.get(cause)
+        if last is not None and (every is None or now - last < every):
+            return False
+        if last is None and len(self._warned) >= _MAX_LOGGED_CAUSES:
+            return False
+        self._warned[cause] = now
+        self.log.warning("%s%s", text, "" if every is not None else " (further identical problems are only counted)")
+        return True
+
+    def add_cleanup(self, callback: Callable[[], Any]) -> None:
+        """Call `callback()` at shutdown, after `on_shutdown`, also when `setup` failed later on;
+        the last added runs first (like contextlib.ExitStack)."""
+        self._cleanups.append(callback)
 
     # ---- topics and timers -------------------------------------------------------------------
 
@@ -217,12 +264,14 @@ class Node:
         return RawPublisher(self, topic)
 
     def create_subscription(
-        self, topic: str, msg_type: type[Message], callback: Callable[[Message], Any], latest_only: bool = False
+        self, topic: str, msg_type: type[Message], callback: Callable[[Message], Any], latest_only: bool = False,
+        optional: bool = False,
     ) -> Subscription:
         """Call `callback(msg)` for each `msg_type` message on exactly `topic`. With `latest_only`, a
-        backlog is skipped: only the newest queued message is handled (the rest count as dropped)."""
+        backlog is skipped: only the newest queued message is handled (the rest count as dropped).
+        `optional`: the node does not expect a publisher (commands, stops; see the monitor)."""
         _check_topic(topic)
-        sub = Subscription(topic, msg_type, callback, latest_only)
+        sub = Subscription(topic, msg_type, callback, latest_only, optional=optional)
         key = topic.encode()
         self._subs.setdefault(key, []).append(sub)
         if latest_only:
@@ -311,20 +360,21 @@ class Node:
     def stopping(self) -> bool:
         return self._stopping
 
-    def on_shutdown(self) -> None:
-        """Override to act on shutdown (e.g. send a stop); runs once, while sockets are still open."""
-
     def shutdown(self) -> None:
-        """Call `on_shutdown` once, then close the sockets (flushing what it published)."""
+        """Call `on_shutdown` once (if set up), then the cleanups, then close the sockets (flushing
+        what was published)."""
         if self._closed:
             return
         self._stopping = True
         if not self._shutdown_called:
             self._shutdown_called = True
-            try:
-                self.on_shutdown()
-            except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
-                self.log.exception("on_shutdown failed")
+            steps = ([self.on_shutdown] if self._set_up else []) + self._cleanups[::-1]
+            self._cleanups = []
+            for step in steps:
+                try:
+                    step()
+                except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
+                    self.log.exception("%s failed during shutdown", getattr(step, "__qualname__", step))
         self._closed = True
         self._sub.close(linger=0)
         self._pub.close()
@@ -558,7 +608,8 @@ class Node:
             pid=self.pid,
             kind=self.kind,
             publishes=sorted(t for t in self._publishes if t != HEARTBEAT_TOPIC),
-            subscribes=sorted({k.decode() for k in self._subs} | {k.decode() + "*" for k, _ in self._raw_subs}),
+            subscribes=sorted({k.decode() + ("?" if all(s.optional for s in subs) else "") for k, subs in self._subs.items()}
+                              | {k.decode() + "*" for k, _ in self._raw_subs}),
             stats=self.stats_flat(),
         ))
 
@@ -567,18 +618,3 @@ def _check_topic(topic: str) -> None:
     if not isinstance(topic, str) or not topic or topic.encode().startswith(INTERNAL_PREFIX):
         raise ValueError(f"topic must be a non-empty string not starting with '_bus/', got {topic!r}")
 
-
-def _type_name(default) -> str:
-    if isinstance(default, bool):
-        return "true or false"
-    if isinstance(default, int):
-        return "an integer"
-    if isinstance(default, float):
-        return "a number"
-    if isinstance(default, str):
-        return "a string"
-    if isinstance(default, list):
-        return "a list"
-    if isinstance(default, dict):
-        return "a mapping"
-    return f"a {type(default).__name__}"

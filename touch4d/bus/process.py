@@ -1,15 +1,15 @@
 """One node process: `run_node` builds a node from its command line and spins it until a signal.
 
-The launcher starts each node as `python -u -m touch4d.bus MODULE --name ROLE --params JSON`;
-that imports `touch4d.nodes.MODULE` and calls its `main(argv)`, which calls `run_node`.
-SIGINT/SIGTERM make `spin` return, then `on_shutdown` runs before the sockets close and the
-process exits 0.
+The launcher starts each node as `python -u -m touch4d.bus NODE --name ROLE --params JSON`, NODE
+as its launch file names it (touch4d.bus.registry finds the class). Once the node is built the
+process tells the launcher it is ready (a byte on the pipe `$TOUCH4D_READY_FD`); one that exits
+before that failed to start. SIGINT/SIGTERM make `spin` return, then `on_shutdown` runs before the
+sockets close and the process exits 0; a bad parameter or config exits 2.
 """
 from __future__ import annotations
 
 import argparse
 import ctypes
-import importlib
 import json
 import logging
 import os
@@ -20,16 +20,17 @@ import zmq
 
 from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.realtime import PRIORITY, raise_thread_priority
-from touch4d.errors import Touch4dError
+from touch4d.errors import Touch4dError, Unavailable
 
 LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
+READY_FD_ENV = "TOUCH4D_READY_FD"
 _PR_SET_PDEATHSIG = 1
 
 
 def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=default_name or "node", description="Run one touch4d node.")
     parser.add_argument("--name", help="node name (its role in the launch file)")
-    parser.add_argument("--kind", help="node module name, for heartbeats")
+    parser.add_argument("--kind", help="the node's name in launch files, for heartbeats")
     parser.add_argument("--params", default="{}", help="parameters as a JSON object")
     parser.add_argument("--params-source", help="where the parameters came from (for error messages)")
     parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
@@ -52,9 +53,22 @@ def _die_with_launcher() -> None:
         sys.exit(0)  # the launcher is already gone
 
 
+def _tell_ready() -> None:
+    """Tell the launcher (if it asked, through $TOUCH4D_READY_FD) that the node is built."""
+    fd = os.environ.pop(READY_FD_ENV, None)
+    if fd is None:
+        return
+    try:
+        os.write(int(fd), b"1")
+        os.close(int(fd))
+    except (OSError, ValueError):
+        pass
+
+
 def run_node(node_class, argv: list[str] | None = None) -> int:
     """Build `node_class` from the command line, spin it until SIGINT/SIGTERM, shut it down; returns
-    the exit code (0 after a clean stop, 2 when the node's parameters or config are wrong)."""
+    the exit code (0 after a clean stop, 2 when the node's parameters or config are wrong, 1 when
+    something it needs is unavailable)."""
     args = parse_node_args(sys.argv[1:] if argv is None else argv, getattr(node_class, "__name__", None))
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
@@ -89,14 +103,15 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
     try:
         kwargs["bus"] = resolve_bus_config(args.bus)
         node = holder["node"] = node_class(**kwargs)
+    except Unavailable as exc:   # a package, device or service it needs is not there
+        print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
+        return 1
     except Touch4dError as exc:
         print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
         return 2
+    _tell_ready()
     if holder["stop"]:
         node.request_shutdown()
-    unknown = node.undeclared_parameters()
-    if unknown:
-        node.log.warning("ignoring parameters it does not declare: %s", ", ".join(unknown))
     try:
         node.spin()
     finally:
@@ -107,25 +122,22 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m touch4d.bus MODULE [node args]`: run `touch4d.nodes.MODULE`'s main."""
+    """`python -m touch4d.bus NODE [node args]`: run the node NODE names (touch4d.bus.registry)."""
+    from touch4d.bus.registry import NodeNotFound, find
+
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0].startswith("-"):
-        print("usage: python -m touch4d.bus MODULE [--name N] [--params JSON] ...", file=sys.stderr)
+        print("usage: python -m touch4d.bus NODE [--name N] [--params JSON] ...", file=sys.stderr)
         return 2
-    module_name, rest = argv[0], argv[1:]
+    ref, rest = argv[0], argv[1:]
     if "--kind" not in rest:
-        rest = [*rest, "--kind", module_name]
+        rest = [*rest, "--kind", ref]
     try:
-        module = importlib.import_module(f"touch4d.nodes.{module_name}")
-    except ModuleNotFoundError as exc:
-        if exc.name == f"touch4d.nodes.{module_name}":
-            print(f"node module touch4d.nodes.{module_name} not found", file=sys.stderr)
-            return 2
-        raise
-    if not callable(getattr(module, "main", None)):
-        print(f"node module touch4d.nodes.{module_name} has no main(argv)", file=sys.stderr)
+        node_class = find(ref).load()
+    except NodeNotFound as exc:
+        print(f"node {ref!r}: {exc}", file=sys.stderr)
         return 2
-    return int(module.main(rest) or 0)
+    return run_node(node_class, rest)
 
 
 if __name__ == "__main__":

@@ -157,7 +157,8 @@ def _finish(out: ProcessOutput, stop_signal: int, grace: float) -> None:
 @contextmanager
 def node_process(module: str, bus: BusConfig, name: str | None = None, params: dict | None = None,
                  grace: float = 5.0, realtime: bool = False) -> Iterator[ProcessOutput]:
-    """Run `touch4d.nodes.<module>` as its own process on `bus`; SIGTERM then kill on exit."""
+    """Run node `module` (a name as in launch files, or a module path) as its own process on `bus`;
+    SIGTERM then kill on exit."""
     cmd = [sys.executable, "-u", "-m", "touch4d.bus", module, "--name", name or module,
            "--params", json.dumps(params or {}), *(["--realtime"] if realtime else [])]
     out = _start(cmd, bus_env(bus))
@@ -193,9 +194,10 @@ class LaunchRun(ProcessOutput):
 
 
 @contextmanager
-def launch_process(args: list[str], bus_config: str | None = None, grace: float = 5.0) -> Iterator[LaunchRun]:
-    """Run `touch4d launch ARGS` with a broker on free loopback ports (unless `bus_config` names a
-    file); on exit Ctrl+C it, then kill its whole process group."""
+def launch_process(args: list[str], bus_config: str | None = None, grace: float = 5.0,
+                   cwd: str | Path | None = None) -> Iterator[LaunchRun]:
+    """Run `touch4d launch ARGS` (in `cwd`, default the repository) with a broker on free loopback
+    ports (unless `bus_config` names a file); on exit Ctrl+C it, then kill its whole process group."""
     with tempfile.TemporaryDirectory(prefix="touch4d-launch-") as tmp:
         ready = Path(tmp) / "bus.json"
         if bus_config is None:
@@ -206,7 +208,7 @@ def launch_process(args: list[str], bus_config: str | None = None, grace: float 
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR}
         env["PYTHONUNBUFFERED"] = "1"
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                env=env, cwd=REPO, start_new_session=True)
+                                env=env, cwd=cwd or REPO, start_new_session=True)
         run = LaunchRun(proc, ready)
         try:
             yield run

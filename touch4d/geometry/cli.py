@@ -1,13 +1,17 @@
-"""`touch4d shape list` and `touch4d shape info NAME [-p KEY=VALUE ...]`: what the catalog holds."""
+"""`touch4d shape list`, `touch4d shape info NAME [-p KEY=VALUE ...]`: what the catalog holds;
+`touch4d scene check FILE`: whether a scene file is right, and what it holds."""
 from __future__ import annotations
 
 
 import numpy as np
 import yaml
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
 from .polytope import GeometryError
+from .projection import project
+from .scene import load_scene
 from .shapes import get_shape, list_shapes, shape_params
 
 
@@ -22,6 +26,15 @@ def register(subparsers) -> None:
                       help="a shape parameter, e.g. -p base=dodecahedron (repeatable)")
     info.set_defaults(func=_info)
     shape.set_defaults(func=lambda args: shape.print_help() or 2)
+
+    scene = subparsers.add_parser("scene", help="scene files")
+    sub = scene.add_subparsers(dest="scene_command", metavar="ACTION")
+    check = sub.add_parser("check", help="check a scene file: every mistake named by its key; what it holds",
+                           description="Load a scene file as the scene node would; print its objects and where "
+                                       "they fall on the screen, or the first mistake with its key (exit 2).")
+    check.add_argument("file", metavar="FILE", help="scene file, e.g. config/scenes/hypercube.yaml")
+    check.set_defaults(func=_check)
+    scene.set_defaults(func=lambda args: scene.print_help() or 2)
 
 
 def _counts(shape) -> tuple[int, int, int, int]:
@@ -60,6 +73,40 @@ def _info(args) -> int:
         print(f"part {i}: {v} vertices, {e} edges, {f} faces, {c} cells ({cells}); "
               f"V-E+F-C = {v - e + f - c}; box {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
     return 0
+
+
+def _check(args) -> int:
+    path = resolve_path(args.file, COMMAND_LINE, key="FILE", what="scene file")
+    scene = load_scene(path)
+    eye = f", eye at w = -{scene.eye_distance:g}" if scene.projection == "perspective" else ""
+    print(f"{path}: {len(scene.objects)} object(s), {scene.projection} projection{eye}")
+    outside = 0
+    for i, obj in enumerate(scene.objects):
+        parts = obj.world_parts()
+        vertices = np.vstack([p.vertices for p in parts])
+        rgba = "#" + "".join(f"{round(c * 255):02x}" for c in obj.color)
+        what = obj.shape if obj.shape != "custom" else f"custom, {len(parts)} convex part(s)"
+        line = (f"  [{i}] {obj.name}: {what}, size {obj.size:g}, at {np.round(obj.position, 3).tolist()}, "
+                f"colour {rgba}, {len(vertices)} vertices")
+        where = _on_screen(vertices, scene)
+        outside += where is not None
+        print(line + ("" if where is None else f"; {where}"))
+    selected = "the whole scene" if scene.selected < 0 else f"object {scene.selected}"
+    print(f"ok{f', but {outside} object(s) cannot be seen or touched' if outside else ''}; the controller turns "
+          f"{selected}")
+    return 0
+
+
+def _on_screen(vertices: np.ndarray, scene) -> str | None:
+    """None when the object's projection meets the screen cube [-1, 1]^3, else why not."""
+    if scene.projection == "perspective" and np.any(vertices[:, 3] <= -scene.eye_distance):
+        return "WARNING: partly behind the eye"
+    points = project(vertices, scene.projection, scene.eye_distance)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    if np.any(hi < -1) or np.any(lo > 1):
+        return f"WARNING: outside the screen [-1, 1]^3 (projected box {np.round(lo, 2).tolist()} .. " \
+               f"{np.round(hi, 2).tolist()}): it can be neither seen nor touched"
+    return None
 
 
 def _cell_kinds(part) -> dict[int, int]:

@@ -3,18 +3,17 @@
 Along a ray x(t) = (p, 0) + t e_w a half-space n.x <= c bounds t from below when n_w < 0 (the ray enters
 there), from above when n_w > 0 (it leaves), and not at all when n_w = 0 (then p itself must satisfy it).
 Each bound is t = c/n_w - (n3/n_w).p, linear in p, so all of them are one matrix product; the half-spaces
-of every part are sorted once into entering / leaving / parallel columns, reduced per part with reduceat.
-Perspective rays become parallel to w under the projective map of `projection.perspective_points`.
+of every part are sorted once into entering / leaving / parallel columns (by the shared kernel,
+`halfspace.kinds`), reduced per part with reduceat. Perspective rays become parallel to w under the
+projective map of `projection.perspective_points`.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .halfspace import GRAZE, kinds, view_halfspaces
 from .polytope import Polytope
-from .projection import perspective_distance, perspective_halfspaces
-
-PARALLEL = 1e-12   # |n_w| below this: the cell runs parallel to the rays
-GRAZE = 1e-9       # slack so a ray grazing an edge or a cell still counts as a hit
+from .projection import perspective_distance
 
 
 class RayCaster:
@@ -30,9 +29,8 @@ class RayCaster:
         self.part_object = np.array([int(i) for i, _ in world_parts], dtype=np.int64)
         blocks = []
         for _, poly in world_parts:
-            n, c = poly.normals, poly.offsets
+            n, c = view_halfspaces(poly.normals, poly.offsets, self.eye_distance)
             if self.eye_distance is not None:
-                n, c = perspective_halfspaces(n, c, self.eye_distance)
                 # phi is only valid in front of the eye: v < 1.
                 n, c = np.vstack([n, [0, 0, 0, 1.0]]), np.r_[c, 1.0 - 1e-9]
             blocks.append(_split(n, c))
@@ -128,8 +126,7 @@ class RayCaster:
 def _split(normals: np.ndarray, offsets: np.ndarray):
     """Half-spaces as ((A_enter, b_enter), (A_exit, b_exit), (A_par, b_par)): bound t = b - A.p; parallel: A.p <= b."""
     nw = normals[:, 3]
-    entering, leaving = nw < -PARALLEL, nw > PARALLEL
-    parallel = ~(entering | leaving)
+    entering, leaving, parallel = kinds(normals)
 
     def bounds(mask):
         return normals[mask, :3] / nw[mask, None], offsets[mask] / nw[mask]

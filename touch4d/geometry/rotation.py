@@ -1,4 +1,4 @@
-"""4D rotations and poses: plane rotations (design.md sign convention), composition, re-orthonormalisation,
+"""4D rotations and poses: plane rotations (ab turns axis a toward axis b), composition, re-orthonormalisation,
 and the controller mapping of paper §4.4."""
 from __future__ import annotations
 

@@ -5,28 +5,34 @@ Scene file (YAML)::
     projection: orthographic          # or perspective, with eye_distance (screen units, default 3)
     objects:
       - name: cube                    # optional
-        shape: tesseract              # a catalog name (params: {...} for its parameters), or instead
-                                      # vertices: [[x,y,z,w], ...] | halfspaces: [[n1,n2,n3,n4,d], ...]
-                                      # | parts: [{vertices: ...} | {halfspaces: ...}, ...] (a union)
+        shape: tesseract              # a catalog name (params: {...} for its parameters), or a custom
+                                      # shape, here or beside `shape`: {vertices: [[x,y,z,w], ...]}
+                                      # | {halfspaces: [[n1,n2,n3,n4,d], ...]}
+                                      # | {parts: [{vertices: ...} | {halfspaces: ...}, ...]} (a union)
         size: 1.0                     # scale of local coordinates; halfspaces become n.x <= d * size
         position: [0, 0, 0, 1.5]
         rotation: [[xw, 30], [yz, 10]]  # world = R_yz(10) R_xw(30) local + position
-        color: [0.2, 0.6, 1.0, 1.0]   # RGB or RGBA, 0..1
+        color: "#3399ff"              # [r, g, b] or [r, g, b, a] in 0..1, #rrggbb, #rrggbbaa or a CSS name
+
+Every mistake is a ConfigError naming the file and the key (`objects[0].color`), never a traceback.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
+from PIL import ImageColor
 
-from touch4d.configfile import read_yaml
+from touch4d.configfile import read_yaml, resolve_path
 from touch4d.errors import ConfigError
 
 from .polytope import GeometryError, Polytope
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
 from .shapes import get_shape, list_shapes
+
+CUSTOM_KINDS = ("vertices", "halfspaces", "parts")
+COLOR_FORMS = "a colour: [r, g, b] or [r, g, b, a] in 0..1, '#rrggbb', '#rrggbbaa' or a CSS name such as 'orange'"
 
 DEFAULT_EYE_DISTANCE = 3.0
 PALETTE = np.array([
@@ -37,6 +43,7 @@ OBJECT_KEYS = {"name", "shape", "params", "vertices", "halfspaces", "parts", "si
 TOP_KEYS = {"objects", "projection", "eye_distance", "description", "selected"}
 
 _custom_cache: dict[bytes, list[Polytope]] = {}
+_part_cache: dict[tuple[str, bytes], np.ndarray] = {}   # (kind, rows) of a custom part -> its half-spaces
 
 
 @dataclass
@@ -144,8 +151,9 @@ def _custom_polytopes(parts) -> list[Polytope]:
 
 
 def load_scene(path) -> Scene:
-    """Read and check a YAML scene file; a bad file raises ConfigError naming the file, key and reason."""
-    path = Path(path)
+    """Read and check a YAML scene file (found by `resolve_path`); a bad file raises ConfigError naming
+    the file, key and reason."""
+    path = resolve_path(path, what="scene file")
     return parse_scene(read_yaml(path, "scene file"), path)
 
 
@@ -153,9 +161,9 @@ def parse_scene(data, file=None) -> Scene:
     """A Scene from the parsed YAML mapping `data` (errors name `file`)."""
     if not isinstance(data, dict):
         raise ConfigError(file, "(top level)", "a mapping with 'objects'", got=type(data).__name__)
-    unknown = set(data) - TOP_KEYS
-    if unknown:
-        raise ConfigError(file, sorted(unknown)[0], f"one of the keys {', '.join(sorted(TOP_KEYS))}")
+    _known_keys(file, "", data, TOP_KEYS)
+    if not isinstance(data.get("description", ""), str):
+        raise ConfigError(file, "description", "a line of text", got=data["description"])
     projection = data.get("projection", "orthographic")
     if projection not in ("orthographic", "perspective"):
         raise ConfigError(file, "projection", "orthographic or perspective", got=projection)
@@ -193,46 +201,80 @@ def _matrix(file, key, value, width) -> np.ndarray:
 def _object(file, key, item, index) -> SceneObject:
     if not isinstance(item, dict):
         raise ConfigError(file, key, "a mapping with shape, size, position, rotation, color", got=item)
-    unknown = set(item) - OBJECT_KEYS
-    if unknown:
-        raise ConfigError(file, f"{key}.{sorted(unknown)[0]}", f"one of the keys {', '.join(sorted(OBJECT_KEYS))}")
-    given = [k for k in ("shape", "vertices", "halfspaces", "parts") if k in item]
+    _known_keys(file, f"{key}.", item, OBJECT_KEYS)
+    given = [k for k in ("shape", *CUSTOM_KINDS) if k in item]
     if len(given) != 1:
         raise ConfigError(file, key, "exactly one of shape, vertices, halfspaces, parts", got=given or None)
     size = _number(file, f"{key}.size", item.get("size", 1.0), positive=True)
     position = _vector(file, f"{key}.position", item.get("position", [0, 0, 0, 0]), (4,))
-    color = _vector(file, f"{key}.color", item.get("color", list(PALETTE[index % len(PALETTE)])), (3, 4))
-    if np.any((color < 0) | (color > 1)):
-        raise ConfigError(file, f"{key}.color", "components between 0 and 1", got=color.tolist())
-    if len(color) == 3:
-        color = np.r_[color, 1.0]
+    color = _color(file, f"{key}.color", item.get("color", PALETTE[index % len(PALETTE)].tolist()))
     orientation = _rotation(file, f"{key}.rotation", item.get("rotation", []))
     params = item.get("params", {})
-    if not isinstance(params, dict):
-        raise ConfigError(file, f"{key}.params", "a mapping of shape parameters", got=params)
-    kind = given[0]
+    if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
+        raise ConfigError(file, f"{key}.params", "a mapping of shape parameter names to values", got=params)
     custom = None
-    if kind == "shape":
-        shape = item["shape"]
-        if shape not in list_shapes():
-            raise ConfigError(file, f"{key}.shape", f"a catalog shape ({', '.join(list_shapes())})", got=shape)
+    shape = item.get("shape")
+    if isinstance(shape, dict) and (len(shape) != 1 or next(iter(shape)) not in CUSTOM_KINDS):
+        raise ConfigError(file, f"{key}.shape", "a catalog name, or a mapping with one of vertices, halfspaces, "
+                          "parts", got=shape)
+    if params and (isinstance(shape, dict) or "shape" not in item):
+        raise ConfigError(file, f"{key}.params", "no params for a shape given by vertices/half-spaces", got=params)
+    if isinstance(shape, dict):                        # a custom shape written under `shape:`
+        kinds = list(shape)
+        custom = _custom(file, f"{key}.shape", kinds[0], shape[kinds[0]])
+    elif "shape" in item:
+        if not isinstance(shape, str) or shape not in list_shapes():
+            raise ConfigError(file, f"{key}.shape", f"a catalog shape ({', '.join(list_shapes())}) or a mapping "
+                              "with one of vertices, halfspaces, parts", got=shape)
+        if any(not isinstance(v, (str, int, float)) for v in params.values()):
+            raise ConfigError(file, f"{key}.params", f"a name or a number for each parameter of {shape}", got=params)
         try:
             get_shape(shape, **params)
         except GeometryError as exc:
             raise ConfigError(file, f"{key}.params", f"valid parameters for {shape}", got=str(exc)) from None
     else:
-        if params:
-            raise ConfigError(file, f"{key}.params", "no params for a shape given by vertices/half-spaces", got=params)
+        custom = _custom(file, key, given[0], item[given[0]])
+    if custom is not None:
         shape = "custom"
-        specs = item["parts"] if kind == "parts" else [{kind: item[kind]}]
-        if kind == "parts" and (not isinstance(specs, list) or not specs):
-            raise ConfigError(file, f"{key}.parts", "a non-empty list of {vertices: ...} or {halfspaces: ...}", got=specs)
-        custom = [_part(file, f"{key}.parts[{j}]" if kind == "parts" else key, spec) for j, spec in enumerate(specs)]
     name = item.get("name", f"{shape}{index}")
     if not isinstance(name, str):
         raise ConfigError(file, f"{key}.name", "a string", got=name)
     return SceneObject(name=name, shape=shape, params=dict(params), size=size, position=position,
                        orientation=orientation, color=color, custom_parts=custom)
+
+
+def _known_keys(file, prefix: str, mapping: dict, allowed: set[str]) -> None:
+    """Refuse a key that is not in `allowed` (whatever its type), naming it."""
+    unknown = sorted((k for k in mapping if k not in allowed), key=str)
+    if unknown:
+        raise ConfigError(file, f"{prefix}{unknown[0]}", f"one of the keys {', '.join(sorted(allowed))}")
+
+
+def _color(file, key, value) -> np.ndarray:
+    """RGBA in 0..1 from [r, g, b], [r, g, b, a], or a string Pillow's ImageColor reads (#rrggbb, #rrggbbaa,
+    CSS names such as 'orange', rgb(...), hsl(...))."""
+    if isinstance(value, str):
+        try:
+            rgba = ImageColor.getrgb(value.strip())
+        except ValueError:
+            raise ConfigError(file, key, COLOR_FORMS, got=value) from None
+        color = np.array(rgba, dtype=np.float64) / 255.0
+    elif isinstance(value, list) and len(value) in (3, 4):
+        color = np.array([_number(file, f"{key}[{i}]", v) for i, v in enumerate(value)])
+        if np.any((color < 0) | (color > 1)):
+            raise ConfigError(file, key, f"{COLOR_FORMS} (list components between 0 and 1)", got=value)
+    else:
+        raise ConfigError(file, key, COLOR_FORMS, got=value)
+    return np.r_[color, 1.0] if len(color) == 3 else color
+
+
+def _custom(file, key, kind, value) -> list[np.ndarray]:
+    """A custom shape (vertices, halfspaces or parts, at `key`) -> the local half-spaces of its parts."""
+    if kind == "parts":
+        if not isinstance(value, list) or not value:
+            raise ConfigError(file, f"{key}.parts", "a non-empty list of {vertices: ...} or {halfspaces: ...}", got=value)
+        return [_part(file, f"{key}.parts[{j}]", spec) for j, spec in enumerate(value)]
+    return [_part(file, key, {kind: value})]
 
 
 def _part(file, key, spec) -> np.ndarray:
@@ -241,11 +283,16 @@ def _part(file, key, spec) -> np.ndarray:
         raise ConfigError(file, key, "a mapping with one key, vertices or halfspaces", got=spec)
     kind, value = next(iter(spec.items()))
     rows = _matrix(file, f"{key}.{kind}", value, 4 if kind == "vertices" else 5)
-    try:
-        poly = Polytope.from_vertices(rows) if kind == "vertices" else Polytope.from_halfspaces(rows)
-    except GeometryError as exc:
-        raise ConfigError(file, f"{key}.{kind}", "a bounded convex 4-polytope", got=str(exc)) from None
-    return poly.halfspaces
+    cache_key = (kind, rows.tobytes())
+    if cache_key not in _part_cache:                 # a hull takes tens of ms: build each part once
+        try:
+            poly = Polytope.from_vertices(rows) if kind == "vertices" else Polytope.from_halfspaces(rows)
+        except GeometryError as exc:
+            raise ConfigError(file, f"{key}.{kind}", "a bounded convex 4-polytope", got=str(exc)) from None
+        halfspaces = np.array(poly.halfspaces)
+        halfspaces.setflags(write=False)             # shared by every scene that has this part
+        _part_cache[cache_key] = halfspaces
+    return _part_cache[cache_key]
 
 
 def _rotation(file, key, steps) -> np.ndarray:

@@ -17,10 +17,11 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import linprog
 
+from . import halfspace
+from .halfspace import FACING, view_halfspaces as _view
 from .polytope import Polytope
-from .projection import perspective_halfspaces, perspective_points
+from .projection import perspective_points
 
-FACING = 1e-12   # a cell whose normal is this close to orthogonal to the view is edge-on (not front-facing)
 TOL = 1e-9
 
 
@@ -38,25 +39,12 @@ class Relation(IntEnum):
 
 def view_halfspaces(poly: Polytope, eye_distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(normals, offsets) in view space: as is (orthographic) or mapped for perspective (unit normals)."""
-    if eye_distance is None:
-        return poly.normals, poly.offsets
-    return perspective_halfspaces(poly.normals, poly.offsets, eye_distance)
+    return _view(poly.normals, poly.offsets, eye_distance)
 
 
 def view_vertices(poly: Polytope, eye_distance: float | None = None) -> np.ndarray:
     """Vertices in view space; their first three coordinates are the projection on the screen."""
     return poly.vertices if eye_distance is None else perspective_points(poly.vertices, eye_distance)
-
-
-def _facing(poly: Polytope, eye_distance: float | None) -> np.ndarray:
-    """(C,) how much each cell faces the viewer, s = -(view-space n_w), up to a positive factor per cell.
-
-    Orthographic: -n_w. Perspective: -(n_w d + c) = n.e - c for the eye e = (0,0,0,-d): positive when the
-    eye lies outside the cell's half-space.
-    """
-    if eye_distance is None:
-        return -poly.normals[:, 3]
-    return -(poly.normals[:, 3] * float(eye_distance) + poly.offsets)
 
 
 def facing_cells(poly: Polytope, eye_distance: float | None = None) -> np.ndarray:
@@ -65,7 +53,7 @@ def facing_cells(poly: Polytope, eye_distance: float | None = None) -> np.ndarra
     Orthographic: n_w < 0. Perspective: the eye lies outside the cell's half-space, n.e > c. Edge-on
     cells (normal orthogonal to the sight lines) are not front-facing.
     """
-    return _facing(poly, eye_distance) > FACING
+    return halfspace.facing(view_halfspaces(poly, eye_distance)[0])
 
 
 def visible_faces(poly: Polytope, eye_distance: float | None = None) -> np.ndarray:
@@ -93,29 +81,11 @@ def silhouette_faces(poly: Polytope, eye_distance: float | None = None) -> np.nd
 
 
 def clip_units(poly: Polytope, eye_distance: float | None = None) -> np.ndarray:
-    """(M, 4) rows [m1, m2, m3, c], unit m: the clip units of a convex object as screen half-spaces m.x <= c.
-
-    Each silhouette ridge, between front cell a and back cell b, spans with the eye (a direction along w
-    in orthographic view) a hyperplane. Among the hyperplanes through the ridge it is the combination
-    s_a n_b - s_b n_a of the two cells' (view-space) hyperplanes whose w component vanishes (s: how much
-    a cell faces the viewer), so it meets the screen w = 0 in a plane, and the object lies on its
-    negative side. The intersection of the units is the object's projected silhouette: the region it
-    hides from objects behind it.
-    """
-    s = _facing(poly, eye_distance)
-    front = s > FACING
-    fc = poly.topology.face_cells
-    fa, fb = front[fc[:, 0]], front[fc[:, 1]]
-    ridge = fa != fb
-    a = np.where(fa[ridge], fc[ridge, 0], fc[ridge, 1])
-    b = np.where(fa[ridge], fc[ridge, 1], fc[ridge, 0])
-    n3, c = poly.normals[:, :3], poly.offsets
-    m = (-s[b])[:, None] * n3[a] + s[a][:, None] * n3[b]
-    off = -s[b] * c[a] + s[a] * c[b]
-    units = np.empty((len(a), 4))
-    units[:, :3], units[:, 3] = m, off
-    units /= np.linalg.norm(m, axis=1)[:, None]
-    return units
+    """(M, 4) rows [m1, m2, m3, c], unit m: the clip units of a convex object as screen half-spaces m.x <= c,
+    one per silhouette ridge (`halfspace.clip_units`); their intersection is the object's projected
+    silhouette, the region it hides from objects behind it."""
+    planes, ridge = halfspace.clip_units(*view_halfspaces(poly, eye_distance), poly.topology.face_cells)
+    return planes[ridge]
 
 
 def in_region(units: np.ndarray, points3, tol: float = TOL) -> np.ndarray:
@@ -233,11 +203,8 @@ def _relation_lp(ha, hb) -> Relation:
 
 def _interval(n, c, x3):
     """[enter, leave] in w of the line (x3, w) through the half-spaces n.x <= c (assumed to meet it)."""
-    rest = c - n[:, :3] @ x3
-    nw = n[:, 3]
-    lo = np.max(rest[nw < -FACING] / nw[nw < -FACING], initial=-np.inf)
-    hi = np.min(rest[nw > FACING] / nw[nw > FACING], initial=np.inf)
-    return lo, hi
+    enter, leave, _ = halfspace.ray_interval(n, c, x3, start=None)
+    return float(enter), float(leave)
 
 
 # ---- subtracting a hidden region -----------------------------------------------------------------

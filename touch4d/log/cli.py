@@ -25,17 +25,25 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_record)
 
     p = subparsers.add_parser("replay", help="republish a log with its recorded timing",
-                              description="Republish a log's messages (original bytes unless --restamp) with "
-                                          "the recorded timing scaled by --rate.")
+                              description="Republish a log's messages with the recorded timing scaled by "
+                                          "--rate, stamped now (the recorded stamp kept in each message's "
+                                          "recorded_stamp) unless --original-stamps.")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
     p.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl+C")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of the log")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="replay only these topics")
     p.add_argument("--remap", action="append", metavar="FROM:=TO", help="publish topic FROM as TO (repeatable)")
-    p.add_argument("--restamp", action="store_true",
-                   help="re-encode with stamp=now and a fresh seq (default: the recorded bytes, unchanged)")
-    p.add_argument("--recover", action="store_true", help="replay what is readable of a damaged log")
+    stamps = p.add_mutually_exclusive_group()
+    stamps.add_argument("--restamp", dest="restamp", action="store_true", default=True,
+                        help="the default: stamp and source_stamp moved to now (their difference kept), a fresh "
+                             "seq, the recorded stamp in recorded_stamp; live nodes treat it as live")
+    stamps.add_argument("--original-stamps", dest="restamp", action="store_false",
+                        help="send the recorded bytes unchanged (stamps as recorded: a live motor node "
+                             "drops such commands as stale)")
+    p.add_argument("--recover", action="store_true",
+                   help="replay an unfinished log (no footer: its recorder was killed) up to where it ends; "
+                        "damaged chunks are skipped with a warning in any case")
     p.add_argument("--bus", metavar="FILE", help="bus config file")
     p.add_argument("--no-realtime", dest="realtime", action="store_false",
                    help="do not try real-time priority for the sending thread (it keeps timing exact)")
@@ -46,7 +54,8 @@ def register(subparsers) -> None:
     q = sub.add_parser("info", help="topics, types, counts, rates, duration, time range, seq gaps")
     q.add_argument("file", metavar="FILE")
     q.add_argument("--json", action="store_true", help="print the summary as JSON")
-    q.add_argument("--recover", action="store_true", help="summarize what is readable of a damaged log")
+    q.add_argument("--recover", action="store_true",
+                   help="summarize an unfinished log up to where it ends (damaged chunks are skipped anyway)")
     q.set_defaults(func=cmd_info)
     q = sub.add_parser("export", help="one topic as CSV / JSON Lines, or a JSON MCAP copy for Foxglove")
     q.add_argument("file", metavar="FILE")
@@ -54,7 +63,8 @@ def register(subparsers) -> None:
     q.add_argument("--topic", action="append", metavar="TOPIC",
                    help="the topic to export (csv/json: exactly one; foxglove: repeatable, default all)")
     q.add_argument("-o", "--output", metavar="OUT", help="output file (csv/json default: standard output)")
-    q.add_argument("--recover", action="store_true", help="export what is readable of a damaged log")
+    q.add_argument("--recover", action="store_true",
+                   help="export an unfinished log up to where it ends (damaged chunks are skipped anyway)")
     q.set_defaults(func=cmd_export)
     q = sub.add_parser("recover", help="copy everything readable of a damaged log into a complete one")
     q.add_argument("file", metavar="FILE")
@@ -75,6 +85,15 @@ def _stop_on_signals(stop):
 
 def _err(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
+
+
+def _warn_damage(path: str, problems: list[str], chunks: int, messages: int, prefix: str = "") -> None:
+    """What was skipped or could not be read, as warnings: the command went on with the rest."""
+    for problem in problems:
+        _err(f"{prefix}warning: {path}: {problem}")
+    if chunks:
+        _err(f"{prefix}warning: {path}: {chunks} damaged chunk{'s' if chunks != 1 else ''} skipped, "
+             f"{messages} message(s) lost")
 
 
 def cmd_record(args) -> int:
@@ -117,8 +136,6 @@ def cmd_replay(args) -> int:
     plan = Plan(reader, options)
     for warning in plan.warnings():
         _err(f"replay: {warning}")
-    for problem in reader.problems:
-        _err(f"replay: {args.file}: {problem}")
     sys.setswitchinterval(0.0005)
     sender = BusSender(resolve_bus_config(args.bus), realtime=args.realtime)
     replayer = Replayer(reader, plan, options, sender)
@@ -130,7 +147,8 @@ def cmd_replay(args) -> int:
     how = "stopped" if stats.stopped else "done"
     _err(f"replay {how}: {stats.sent} messages sent, {stats.passes} full pass(es), "
          f"worst lateness {stats.late_max * 1e3:.1f} ms"
-         + (f", {stats.restamp_failed} not restamped (not decodable)" if stats.restamp_failed else ""))
+         + (f", {stats.restamp_failed} sent as recorded (not a stamped message map)" if stats.restamp_failed else ""))
+    _warn_damage(args.file, reader.problems, reader.skipped_chunks, reader.skipped_messages, "replay: ")
     return 0
 
 
@@ -163,7 +181,8 @@ def cmd_info(args) -> int:
     from .summary import format_summary, summarize
 
     summary = summarize(args.file, recover=args.recover)
-    print(json.dumps(summary.to_dict(), indent=2) if args.json else format_summary(summary))
+    print(json.dumps(summary.to_dict(), indent=2) if args.json else format_summary(summary), flush=True)
+    _warn_damage(args.file, summary.problems, summary.skipped_chunks, summary.skipped_messages)
     return 0
 
 
@@ -194,8 +213,7 @@ def cmd_export(args) -> int:
     _err(f"exported {result.written} messages to {out}")
     for topic, n in result.skipped.items():
         _err(f"skipped {n} message(s) on {topic} that are not decodable messages")
-    for problem in reader.problems:
-        _err(f"{args.file}: {problem}")
+    _warn_damage(args.file, reader.problems, reader.skipped_chunks, reader.skipped_messages)
     return 0
 
 
@@ -203,7 +221,6 @@ def cmd_recover(args) -> int:
     from .recover import recover_log
 
     result = recover_log(args.file, args.output)
-    for problem in result.problems:
-        _err(f"{args.file}: {problem}")
+    _warn_damage(args.file, result.problems, result.skipped_chunks, result.skipped_messages)
     print(f"recovered {result.messages} messages from {args.file} into {args.output}")
     return 0

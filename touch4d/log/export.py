@@ -1,6 +1,7 @@
 """`touch4d log export`: one topic as flat CSV or JSON Lines, or the whole log as a JSON-encoded MCAP.
 
-Flat rows hold `log_time` (receive time, seconds) and every field, nested values flattened into
+Flat rows hold `log_time` (receive time, seconds) and every field (`recorded_stamp` 0 where the
+message was live, the recorded stamp where a replay re-stamped it), nested values flattened into
 dotted columns (`position.0`, `positions.3.1`, `objects.0.name`), ready for pandas
 (`read_csv`, `read_json(lines=True)`) or a spreadsheet. The Foxglove copy keeps topics, times and
 schemas but encodes messages as JSON, which Foxglove decodes and plots (it does not decode msgpack).
@@ -19,7 +20,7 @@ from mcap.writer import CompressionType, Writer
 from touch4d.messages.codec import CodecError
 
 from .reader import LogFileError, LogReader
-from .schema import message_schema, to_jsonable
+from .schema import message_schema, to_jsonable, with_optional_fields
 
 FORMATS = ("csv", "json", "foxglove")
 
@@ -63,7 +64,7 @@ def flat_rows(reader: LogReader, topic: str, result: ExportResult) -> list[dict[
     rows = []
     for msg in reader.messages({topic}):
         try:
-            data = msg.decode()
+            data = with_optional_fields(msg.decode())
         except CodecError:
             result.skip(topic)
             continue
@@ -113,7 +114,7 @@ def export_foxglove(reader: LogReader, out_path: str, topics: list[str] | None =
         channels: dict[tuple[str, str], int] = {}
         for msg in reader.messages(wanted):
             try:
-                data = msg.decode()
+                data = with_optional_fields(msg.decode())
             except CodecError:
                 result.skip(msg.topic)
                 continue

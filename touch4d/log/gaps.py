@@ -25,6 +25,9 @@ class SeqGaps:
     def add(self, topic: str, seq: int) -> int:
         """Account one received `seq` on `topic`; returns how many messages it shows were lost."""
         streams = self._next[topic]  # least recently continued first
+        if streams and streams[-1] == seq:  # the usual case: the stream continued last goes on
+            streams[-1] = seq + 1
+            return 0
         if seq in streams:
             streams.remove(seq)
             streams.append(seq + 1)

@@ -14,6 +14,8 @@ from .writer import PROFILE
 class RecoverResult:
     messages: int = 0
     problems: list[str] = field(default_factory=list)
+    skipped_chunks: int = 0
+    skipped_messages: int = 0
 
 
 def recover_log(src: str, dst: str) -> RecoverResult:
@@ -39,4 +41,5 @@ def recover_log(src: str, dst: str) -> RecoverResult:
                 writer.add_metadata(rec.name, dict(rec.metadata))
         writer.finish()
     result.problems = list(reader.problems)
+    result.skipped_chunks, result.skipped_messages = reader.skipped_chunks, reader.skipped_messages
     return result

@@ -1,9 +1,14 @@
 """The replay engine: republishes a log's messages with their recorded timing, scaled by a rate.
 
-Messages go out with their original bytes by default, so a replayed log recorded again is
-byte-identical (`seq`, `stamp` and `source_stamp` are as recorded). With `restamp`, each message is
-re-encoded with `stamp` = now, `source_stamp` shifted by the same amount (so derived latencies
-stay meaningful) and a fresh per-topic `seq`: what live nodes downstream of a replayed tracker need.
+By default each message is re-stamped as it goes out (`touch4d.log.restamp`): `stamp` = now,
+`source_stamp` shifted by the same amount (so latencies measured downstream are this run's), a
+fresh per-topic `seq`, and the recorded stamp kept in the header's `recorded_stamp`: live nodes
+downstream of a replayed tracker see messages as from a live one (the motor node's stale-command
+guard lets them through). With `restamp` off, the recorded bytes go out unchanged, so a replayed
+log recorded again is byte-identical.
+
+The log is streamed: the plan comes from the file's summary section when it has one, so the first
+message goes out without reading the log through.
 """
 from __future__ import annotations
 
@@ -18,11 +23,11 @@ import zmq
 
 from touch4d.bus.config import BusConfig
 from touch4d.errors import Touch4dError
-from touch4d.messages.codec import CodecError, pack, unpack
 
 from .reader import LogFileError, LogMessage, LogReader
+from .restamp import restamp
 from touch4d.bus.realtime import bus_context, raise_thread_priority, reset_thread_priority
-from .summary import LogSummary, summarize
+from .summary import LogSummary, indexed_summary, summarize
 
 
 @dataclass
@@ -32,7 +37,7 @@ class ReplayOptions:
     start: float = 0.0                      # seconds from the log's first message
     topics: list[str] | None = None         # None: every topic in the log
     remap: dict[str, str] = field(default_factory=dict)
-    restamp: bool = False
+    restamp: bool = True                    # stamps = now, the recorded stamp kept in recorded_stamp
     realtime: bool = True                   # best-effort SCHED_FIFO for the sending thread
 
 
@@ -41,7 +46,7 @@ class ReplayStats:
     sent: int = 0
     passes: int = 0
     late_max: float = 0.0                   # worst lateness of a send behind its due time, seconds
-    restamp_failed: int = 0                 # payloads sent unchanged because they did not decode
+    restamp_failed: int = 0                 # payloads sent unchanged: not a message map with a stamp
     realtime: bool = False                  # the sending thread ran with real-time priority
     stopped: bool = False                   # stopped early (Ctrl+C, stop())
 
@@ -65,7 +70,8 @@ class Plan:
             raise LogFileError(f"{reader.path}: --rate must be a finite number > 0, got {options.rate}")
         if not 0 <= options.start < math.inf:
             raise LogFileError(f"{reader.path}: --start must be a finite number >= 0 seconds, got {options.start}")
-        self.summary: LogSummary = summarize(reader.path, recover=reader.recover)
+        # A complete log's index says all a plan needs; only a damaged or unfinished one is read through.
+        self.summary: LogSummary = indexed_summary(reader) or summarize(reader.path, recover=reader.recover)
         available = {t.topic for t in self.summary.topics}
         named = list(options.topics) if options.topics is not None else sorted(available)
         self.unknown = [t for t in named if t not in available]
@@ -99,48 +105,45 @@ class Plan:
 
 
 class Restamper:
-    """Re-encodes payloads with now-stamps and a fresh per-topic seq (see the module docstring)."""
+    """Re-stamps payloads (see `touch4d.log.restamp`) with a gapless `seq` per published topic."""
 
     def __init__(self) -> None:
         self._seq: dict[str, int] = {}
 
     def __call__(self, topic: str, payload: bytes, now: float) -> bytes | None:
-        try:
-            data = unpack(payload)
-        except CodecError:
-            return None
-        if not isinstance(data, dict) or not isinstance(data.get("stamp"), (int, float)):
-            return None
-        shift = now - float(data["stamp"])
-        data["stamp"] = now
-        if isinstance(data.get("source_stamp"), (int, float)):
-            data["source_stamp"] = float(data["source_stamp"]) + shift
         seq = self._seq.get(topic, 0)
-        data["seq"] = seq
-        self._seq[topic] = seq + 1
-        return pack(data)
+        fresh = restamp(payload, now, seq)
+        if fresh is not None:
+            self._seq[topic] = seq + 1
+        return fresh
 
 
 class _ReadAhead:
     """Messages read from the file ahead of their send time, while the replay would only sleep.
 
-    Reading (a chunk's decompression, record parsing) then never delays a message that is due."""
+    Reading (a chunk's decompression, record parsing) then never delays a message that is due; at
+    most `limit` messages or `max_bytes` of payload wait in memory."""
 
-    def __init__(self, messages: Iterator[LogMessage], limit: int = 20000) -> None:
+    def __init__(self, messages: Iterator[LogMessage], limit: int = 20000, max_bytes: int = 64 << 20) -> None:
         self._it = messages
         self._buffer: deque[LogMessage] = deque()
-        self._limit = limit
+        self._limit, self._max_bytes = limit, max_bytes
+        self._bytes = 0
         self._done = False
 
     def fill(self, clock: Callable[[], float], until: float) -> None:
-        while not self._done and len(self._buffer) < self._limit and clock() < until:
+        while (not self._done and len(self._buffer) < self._limit and self._bytes < self._max_bytes
+               and clock() < until):
             self._pull()
 
     def _pull(self) -> None:
         try:
-            self._buffer.append(next(self._it))
+            msg = next(self._it)
         except StopIteration:
             self._done = True
+            return
+        self._buffer.append(msg)
+        self._bytes += len(msg.data)
 
     def __iter__(self) -> Iterator[LogMessage]:
         while True:
@@ -149,7 +152,9 @@ class _ReadAhead:
                     return
                 self._pull()
                 continue
-            yield self._buffer.popleft()
+            msg = self._buffer.popleft()
+            self._bytes -= len(msg.data)
+            yield msg
 
 
 class Replayer:
@@ -190,16 +195,18 @@ class Replayer:
     def _run(self, progress, progress_interval: float) -> ReplayStats:
         opts, plan, stats = self.options, self.plan, self.stats
         topics = set(plan.topics)
-        restamp = Restamper() if opts.restamp else None
+        restamper = Restamper() if opts.restamp else None
         remap = opts.remap
         next_progress = 0.0
         wall0 = None
         while not self.stop_event.is_set():
-            ahead = _ReadAhead(m for m in self.reader.messages(topics) if m.log_time >= plan.origin)
+            ahead = _ReadAhead(self.reader.messages(topics, start=plan.origin if opts.start > 0 else None))
             if wall0 is None:
                 ahead.fill(self.clock, self.clock() + 0.05)  # the first chunks are read before the clock starts
                 wall0 = last_rest = self.clock()
             for msg in ahead:
+                if self.stop_event.is_set():
+                    break
                 offset = (msg.log_time - plan.origin) / 1e9
                 due = wall0 + offset / opts.rate
                 now = self.clock()
@@ -214,14 +221,14 @@ class Replayer:
                 late = self.clock() - due
                 if late > stats.late_max:
                     stats.late_max = late
-                payload = msg.data
-                if restamp is not None:
-                    fresh = restamp(msg.topic, payload, time.time())
+                payload, topic = msg.data, remap.get(msg.topic, msg.topic)
+                if restamper is not None:
+                    fresh = restamper(topic, payload, time.time())
                     if fresh is None:
                         stats.restamp_failed += 1
                     else:
                         payload = fresh
-                self.send(remap.get(msg.topic, msg.topic), payload)
+                self.send(topic, payload)
                 stats.sent += 1
                 self.position = offset
                 if progress is not None and self.clock() >= next_progress:

@@ -1,6 +1,7 @@
 """JSON schemas for message types, and the JSON form of decoded messages (NaN -> null, arrays -> lists).
 
-One schema per message type goes into every log, so `mcap info` and Foxglove can show the fields.
+One schema per message type goes into every log, so `mcap info` and Foxglove can show the fields;
+exports fill in the optional header fields a payload leaves out, so every row has the same columns.
 Known types (`touch4d.messages.TYPES`) get a schema from their field kinds and docs; anything else
 gets one inferred from a sample message.
 """
@@ -96,10 +97,30 @@ def message_schema(type_name: str, sample: dict | None = None) -> dict:
         for f in cls._fields():
             props[f.name] = {**kind_schema(f.metadata["kind"]), "description": docs[f.name]}
         schema["properties"] = props
-        schema["required"] = list(props)
+        optional = {name for name, _ in cls._optional()}
+        schema["required"] = [name for name in props if name not in optional]
     elif isinstance(sample, dict):
         schema["properties"] = {str(k): value_schema(v) for k, v in sample.items()}
     return schema
+
+
+def with_optional_fields(data: Any) -> Any:
+    """A decoded message map with the optional fields of its type filled in where absent (their default:
+    recorded_stamp 0 for a live message), each in its declared place, so exported rows share columns."""
+    cls = TYPES.get(data.get("type")) if isinstance(data, dict) and isinstance(data.get("type"), str) else None
+    missing = {name: default for name, default in cls._optional() if name not in data} if cls else None
+    if not missing:
+        return data
+    names = [f.name for f in cls._fields()]
+    out = {}
+    for key, value in data.items():
+        out[key] = value
+        at = names.index(key) + 1 if key in names else len(names)
+        while at < len(names) and names[at] in missing:
+            out[names[at]] = missing.pop(names[at])
+            at += 1
+    out.update(missing)
+    return out
 
 
 def to_jsonable(value: Any) -> Any:

@@ -1,4 +1,8 @@
-"""`touch4d log info`: what a log holds (topics, types, counts, rates, duration, gaps, problems)."""
+"""`touch4d log info`: what a log holds (topics, types, counts, rates, duration, gaps, problems).
+
+`summarize` reads the log through (sizes and seq gaps need every message); `indexed_summary` reads
+only a complete file's index, for a replay that must start at once.
+"""
 from __future__ import annotations
 
 import os
@@ -34,6 +38,8 @@ class LogSummary:
     topics: list[TopicSummary] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    skipped_chunks: int = 0     # damaged chunks skipped
+    skipped_messages: int = 0   # messages lost in them
 
     @property
     def count(self) -> int:
@@ -78,7 +84,35 @@ def summarize(path: str, *, recover: bool = False) -> LogSummary:
         t.lost = gaps.lost.get(topic, 0)
         t.publishers = gaps.streams(topic)
     return LogSummary(path, os.path.getsize(path), reader.complete, sorted(topics.values(), key=lambda t: t.topic),
-                      reader.metadata, reader.problems)
+                      reader.metadata, reader.problems, reader.skipped_chunks, reader.skipped_messages)
+
+
+def indexed_summary(reader: LogReader) -> LogSummary | None:
+    """Topics, types, counts and first/last receive times from a complete file's index alone, without
+    reading its messages (sizes and seq gaps are not in it: 0); None when the file has no usable index."""
+    index = reader.index()
+    if index is None:
+        return None
+    counts = index.statistics.channel_message_counts
+    topics: dict[str, TopicSummary] = {}
+    try:
+        for channel in index.channels.values():
+            count = counts.get(channel.id, 0)
+            chunks = [c for c in index.chunk_indexes if channel.id in c.message_index_offsets]
+            if not count:
+                continue
+            if not chunks:
+                return None
+            first = min(reader.index_times(min(chunks, key=lambda c: c.message_start_time), channel.id))
+            last = max(reader.index_times(max(chunks, key=lambda c: c.message_end_time), channel.id))
+            schema = index.schemas.get(channel.schema_id)
+            t = topics.setdefault(channel.topic, TopicSummary(channel.topic, schema.name if schema else "",
+                                                              first=first, last=last))
+            t.count += count
+            t.first, t.last = min(t.first, first), max(t.last, last)
+    except Exception:  # noqa: BLE001 - a damaged message index: the caller reads the file through instead
+        return None
+    return LogSummary(reader.path, os.path.getsize(reader.path), True, sorted(topics.values(), key=lambda t: t.topic))
 
 
 def _when(ns: int) -> str:

@@ -3,18 +3,21 @@
 Each message keeps its payload exactly as received; MCAP `log_time` is the receive time,
 `publish_time` the message's own `stamp` and `sequence` its `seq` (mod 2^32). One JSON schema per
 message type describes the fields, so standard MCAP tools (`mcap info`, `mcap filter`,
-`mcap recover`) and Foxglove's topic list understand the file.
+`mcap recover`) and Foxglove's topic list understand the file. Per message, only the header keys
+are read (msgspec skips the rest), so recording costs little beyond the mcap writer's own work.
 """
 from __future__ import annotations
 
 import json
 import math
 import os
+import sys
 import time
 from collections import Counter
-from typing import IO
+from typing import IO, Annotated, Iterable
 
 import msgpack
+import msgspec
 from mcap.writer import CompressionType, Writer
 
 from touch4d.messages.codec import CodecError, unpack
@@ -32,36 +35,46 @@ RECORDING_METADATA = "touch4d.recording"
 _HEADER_KEYS = ("type", "stamp", "seq")
 
 
-def _header_fields(payload: bytes, limit: int | None) -> dict | None:
-    """The header keys of a msgpack map, read from its first `limit` bytes; None if not found there."""
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
-    unpacker.feed(payload if limit is None else payload[:limit])
-    found: dict = {}
-    try:
-        for _ in range(unpacker.read_map_header()):
-            key = unpacker.unpack()
-            if key in _HEADER_KEYS:
-                found[key] = unpacker.unpack()
-                if len(found) == len(_HEADER_KEYS):
-                    break
-            else:
-                unpacker.skip()
-    except msgpack.OutOfData:
-        return None if limit is not None else found
-    return found
+class _Header(msgspec.Struct):
+    """The header keys of a message map as the recorder reads them (a finite stamp >= 0, a seq >= 0);
+    msgspec steps over every other field without decoding it."""
+
+    type: str
+    stamp: Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)] = 0.0
+    seq: Annotated[int, msgspec.Meta(ge=0)] = -1
+
+
+_decode_header = msgspec.msgpack.Decoder(_Header).decode
 
 
 def peek_header(payload: bytes) -> tuple[str, float, int] | None:
     """(type, stamp, seq) of a payload without decoding the rest; None if it is not a message map.
 
-    Our encoder writes the header keys first, so the first bytes usually hold them all."""
+    A stamp that is not a finite number >= 0 reads 0.0, a seq that is not an integer >= 0 reads -1."""
     try:
-        data = _header_fields(payload, 128)
-        if data is None or len(data) < len(_HEADER_KEYS):
-            data = _header_fields(payload, None)
+        header = _decode_header(payload)  # the recorder's hot path: one C call
+    except msgspec.DecodeError:  # odd values, cut short, bytes after the map: looked at key by key
+        return _peek_any(payload)
+    return header.type, header.stamp, header.seq
+
+
+def _peek_any(payload: bytes) -> tuple[str, float, int] | None:
+    """`peek_header` for payloads of any shape, with msgpack's streaming unpacker."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
+    unpacker.feed(payload)
+    data: dict = {}
+    try:
+        for _ in range(unpacker.read_map_header()):
+            key = unpacker.unpack()
+            if isinstance(key, str) and key in _HEADER_KEYS:
+                data[key] = unpacker.unpack()
+            else:
+                unpacker.skip()
+    except msgpack.OutOfData:
+        pass  # cut short: the keys before the cut
     except Exception:  # noqa: BLE001 - any garbage: recorded as is, counted as malformed
         return None
-    if not isinstance(data, dict) or not isinstance(data.get("type"), str):
+    if not isinstance(data.get("type"), str):
         return None
     stamp, seq = data.get("stamp"), data.get("seq")
     if isinstance(stamp, bool) or not isinstance(stamp, (int, float)) or not math.isfinite(stamp) or stamp < 0:
@@ -83,7 +96,7 @@ class WallClock:
 
 
 class LogWriter:
-    """An MCAP log being written; `write` one message at a time, `flush` to make it crash-safe."""
+    """An MCAP log being written; `write` one message or `write_many`, `flush` to make it crash-safe."""
 
     def __init__(self, path: str | os.PathLike, *, chunk_size: int = 1 << 20,
                  compression: str = "zstd", output: IO[bytes] | None = None) -> None:
@@ -96,35 +109,58 @@ class LogWriter:
         except OSError as exc:
             raise LogFileError(f"{self.path}: cannot write a log here ({exc.strerror or exc})") from None
         self._channels: dict[tuple[str, str], int] = {}
+        self._topics: dict[int, str] = {}          # channel -> topic
+        self._counts: dict[int, int] = {}          # channel -> messages written
         self._schemas: dict[str, int] = {}
-        self.counts: Counter[str] = Counter()
         self.malformed: Counter[str] = Counter()
         self.bytes = 0
         self.first_time = self.last_time = 0
         self.gaps = SeqGaps()
         self._closed = False
 
+    @property
+    def counts(self) -> Counter[str]:
+        """Messages written per topic."""
+        out: Counter[str] = Counter()
+        for channel, n in self._counts.items():
+            out[self._topics[channel]] += n
+        return out
+
     def write(self, topic: str, payload: bytes, log_time: int) -> None:
         """Record `payload` as received on `topic` at `log_time` (ns since the epoch)."""
-        header = peek_header(payload)
-        if header is None:
-            self.malformed[topic] += 1
-            type_name, stamp, seq = "", 0.0, -1
-        else:
-            type_name, stamp, seq = header
-        channel = self._channels.get((topic, type_name))
-        if channel is None:
-            channel = self._add_channel(topic, type_name, payload)
-        if seq >= 0:
-            self.gaps.add(topic, seq)
-        publish_time = int(stamp * 1e9) if stamp > 0 else log_time
-        self._mcap.add_message(channel, log_time=log_time, data=payload, publish_time=publish_time,
-                               sequence=max(seq, 0) & 0xFFFFFFFF)
-        self.counts[topic] += 1
-        self.bytes += len(payload)
-        if not self.first_time:
-            self.first_time = log_time
-        self.last_time = log_time
+        self.write_many(((topic, payload, log_time),))
+
+    def write_many(self, messages: Iterable[tuple[str, bytes, int]]) -> None:
+        """Record (topic, payload, log_time) messages in order: the recorder's hot path, kept lean so
+        that recording costs little beyond the mcap writer's own work."""
+        decode, channels, counts, gaps_add = _decode_header, self._channels, self._counts, self.gaps.add
+        add_message = self._mcap.add_message
+        size, last = 0, self.last_time
+        try:
+            for topic, payload, log_time in messages:
+                try:  # peek_header, inlined: this loop runs once per recorded message
+                    header = decode(payload)
+                    type_name, stamp, seq = header.type, header.stamp, header.seq
+                except msgspec.DecodeError:
+                    header = _peek_any(payload)
+                    if header is None:
+                        self.malformed[topic] += 1
+                        header = ("", 0.0, -1)
+                    type_name, stamp, seq = header
+                channel = channels.get((topic, type_name))
+                if channel is None:
+                    channel = self._add_channel(topic, type_name, payload)
+                    self.first_time = self.first_time or log_time
+                if seq >= 0:
+                    gaps_add(topic, seq)
+                add_message(channel, log_time, payload, int(stamp * 1e9) if stamp > 0 else log_time,
+                            seq & 0xFFFFFFFF if seq > 0 else 0)
+                counts[channel] += 1
+                size += len(payload)
+                last = log_time
+        finally:  # a write error: what was written is accounted for
+            self.bytes += size
+            self.last_time = last
 
     def _add_channel(self, topic: str, type_name: str, payload: bytes) -> int:
         schema_id = self._schemas.get(type_name)
@@ -142,6 +178,7 @@ class LogWriter:
         channel = self._mcap.register_channel(topic, MESSAGE_ENCODING, schema_id,
                                               metadata={"encoding_note": MSGPACK_NOTE})
         self._channels[(topic, type_name)] = channel
+        self._topics[channel], self._counts[channel] = topic, 0
         return channel
 
     def flush(self) -> None:

@@ -1,4 +1,5 @@
-"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] -o out.png`: one frame, offline."""
+"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] [--backend gpu|clip] -o out.png`:
+one frame, offline."""
 from __future__ import annotations
 
 import argparse
@@ -6,10 +7,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
 from .camera import OrbitCamera, parse_camera
-from .scene_mesh import Style
+from .frame import Style
 
 
 def register(subparsers) -> None:
@@ -28,10 +30,13 @@ def register(subparsers) -> None:
     p.add_argument("--size", default="1280x800", help="image size WIDTHxHEIGHT in pixels")
     p.add_argument("--samples", type=int, default=4, help="multisampling (0 for exact pixel colours)")
     p.add_argument("--no-frame", action="store_true", help="leave out the screen's frame")
-    p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube")
+    p.add_argument("--no-tactile", action="store_true", help="leave out the tactile cube (always out without --hand)")
     p.add_argument("--no-status", action="store_true", help="leave out the status line")
     p.add_argument("--no-centres", action="store_true", help="leave out the cells' centre copies")
-    p.add_argument("--no-clip", action="store_true", help="draw hidden parts too (no clip units)")
+    p.add_argument("--no-clip", action="store_true", help="draw what other objects hide too")
+    p.add_argument("--backend", choices=("gpu", "clip", "auto"), default="auto",
+                   help="gpu: per-pixel ray test in shaders; clip: the paper's clip units on the CPU; "
+                        "auto: gpu, or clip on a software rasteriser (llvmpipe)")
     p.add_argument("-o", "--output", required=True, help="PNG file to write")
     p.set_defaults(func=_render)
 
@@ -53,17 +58,19 @@ def _render(args) -> int:
     from touch4d.tactile.glove import load_glove
 
     from .context import save_png
-    from .view import OffscreenRenderer, SceneView, Show
+    from .offscreen import OffscreenRenderer
+    from .view import SceneView, Show
 
     size = parse_size(args.size)
     camera = parse_camera(args.camera, OrbitCamera())
     if args.samples < 0:
         raise ConfigError("--samples", "samples", "0 or more", got=args.samples)
-    scene = load_scene(args.scene)
+    scene_file = resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file")
+    scene = load_scene(scene_file)
     if args.projection:
         scene = replace(scene, projection=args.projection)
-    glove = load_glove(args.glove)
-    show = Show(frame=not args.no_frame, tactile=not args.no_tactile, status=not args.no_status)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    show = Show(frame=not args.no_frame, tactile=bool(args.hand) and not args.no_tactile, status=not args.no_status)
     view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)
     view.set_scene(scene)
     if args.hand:
@@ -80,11 +87,11 @@ def _render(args) -> int:
         if field is not None:
             view.set_field(field)
         view.set_motors(motors)
-    renderer = OffscreenRenderer(size, samples=args.samples)
+    renderer = OffscreenRenderer(size, samples=args.samples, backend=args.backend)
     try:
-        image = renderer.render(view, camera)
+        image = renderer.render(view, camera, [f"scene file {args.scene}"])
     finally:
         renderer.release()
     path = save_png(image, args.output)
-    print(f"wrote {path} ({size[0]}x{size[1]})")
+    print(f"wrote {path} ({size[0]}x{size[1]}) of {scene_file}")
     return 0

@@ -63,6 +63,18 @@ class OffscreenTarget:
             self._resolved_color.release()
 
 
+def frame_files(output: str) -> str:
+    """The file pattern (with `{frame}`) of numbered frames for the renderer's `output`: a pattern is
+    kept, a folder (ending in "/" or existing) gets frame-NNNNNN.png, a file name gets -NNNNNN
+    before its suffix; so frames are never written over one another."""
+    if "{frame" in output:
+        return output
+    if output.endswith(("/", os.sep)) or Path(output).is_dir():
+        return str(Path(output) / "frame-{frame:06d}.png")
+    path = Path(output)
+    return str(path.with_name(f"{path.stem}-{{frame:06d}}{path.suffix or '.png'}"))
+
+
 def save_png(image: np.ndarray, path: str | Path) -> Path:
     """Write a (H, W, 4) uint8 image as PNG, creating the folder; the file appears whole (written
     beside it, then renamed), so a reader never sees half a frame."""

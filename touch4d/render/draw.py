@@ -1,55 +1,60 @@
-"""moderngl programs and drawing: triangles, wide lines, round points and a text overlay, alpha-blended.
+"""moderngl drawing of a frame's flat layers (triangles, wide lines, round points, the text overlay),
+alpha-blended, shared by every backend. The shaders are the GLSL ES-compatible ones of `glsl`.
 
-The scene is drawn without a depth buffer: hidden parts are already cut away on the CPU (clip
-units), and the semi-transparent fills must all show through each other.
+The flat layers are drawn without a depth buffer: what is hidden is already removed, and the
+semi-transparent fills must all show through each other.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass, field
-from importlib import resources
 
 import moderngl
 import numpy as np
 
-from .scene_mesh import FLOATS_PER_VERTEX
+from .frame import FLOATS_PER_VERTEX, POINT_FLOATS, Frame
+from .glsl import shader_source
 
-POINT_FLOATS = 8          # x, y, z, r, g, b, a, size (pixels)
-
-
-def _shader(name: str) -> str:
-    return resources.files("touch4d.render").joinpath("shaders", name).read_text()
+QUAD_CORNERS = np.arange(4, dtype=np.float32)      # a wide line's quad, as a triangle strip
 
 
-@dataclass
-class Layers:
-    """Everything one frame draws, in screen coordinates: (N, 7) triangle and line vertices,
-    (N, 8) points, and an optional RGBA overlay image at the top-left corner."""
-
-    triangles: list = field(default_factory=list)
-    lines: list = field(default_factory=list)
-    points: list = field(default_factory=list)
-    overlay: np.ndarray | None = None
+def program(ctx: moderngl.Context, vertex: str, fragment: str) -> moderngl.Program:
+    """A program from two shaders of `glsl`, for desktop GLSL 3.30."""
+    return ctx.program(vertex_shader=shader_source(vertex), fragment_shader=shader_source(fragment))
 
 
-class _Stream:
+def set_uniforms(prog: moderngl.Program, **values) -> None:
+    """Set the uniforms the program has (the compiler drops unused ones); 4x4 matrices are row-major
+    numpy (GL wants them column-major), other arrays are written as they are (e.g. a vec3 array)."""
+    for name, value in values.items():
+        if name not in prog:
+            continue
+        if isinstance(value, np.ndarray):
+            data = np.ascontiguousarray(value.T if value.shape == (4, 4) else value, dtype=np.float32)
+            prog[name].write(data.tobytes())
+        else:
+            prog[name].value = value
+
+
+class Stream:
     """A vertex buffer reused across frames (grown when needed) and its vertex array."""
 
-    def __init__(self, ctx: moderngl.Context, program: moderngl.Program, layout: str, attributes: tuple):
-        self.ctx, self.program, self.layout, self.attributes = ctx, program, layout, attributes
+    def __init__(self, ctx: moderngl.Context, prog: moderngl.Program, layout: str, attributes: tuple,
+                 corners: moderngl.Buffer | None = None):
+        self.ctx, self.program, self.layout, self.attributes = ctx, prog, layout, attributes
+        self.corners = corners
         self.buffer = None
         self.vao = None
 
     def upload(self, data: np.ndarray) -> int:
-        """Write the vertices; returns how many there are."""
+        """Write the items; returns how many there are."""
         data = np.ascontiguousarray(data, dtype=np.float32)
         if len(data) == 0:
             return 0
         if self.buffer is None or self.buffer.size < data.nbytes:
-            if self.buffer is not None:
-                self.vao.release()
-                self.buffer.release()
+            self.release()
             self.buffer = self.ctx.buffer(reserve=max(data.nbytes, 1 << 16) * 2, dynamic=True)
-            self.vao = self.ctx.vertex_array(self.program, [(self.buffer, self.layout, *self.attributes)])
+            content = [(self.buffer, self.layout, *self.attributes)]
+            if self.corners is not None:
+                content.insert(0, (self.corners, "1f", "in_corner"))
+            self.vao = self.ctx.vertex_array(self.program, content)
         self.buffer.write(data)
         return len(data)
 
@@ -57,57 +62,58 @@ class _Stream:
         if self.buffer is not None:
             self.vao.release()
             self.buffer.release()
+            self.buffer = self.vao = None
 
 
 class Painter:
-    """Draws `Layers` with a camera matrix into whatever framebuffer is bound."""
+    """Draws a frame's flat layers with a camera matrix into whatever framebuffer is bound."""
 
     def __init__(self, ctx: moderngl.Context, line_width: float = 2.0):
         self.ctx = ctx
         self.line_width = line_width
-        self.flat = ctx.program(vertex_shader=_shader("flat.vert.glsl"), fragment_shader=_shader("flat.frag.glsl"))
-        self.line = ctx.program(vertex_shader=_shader("flat.vert.glsl"), geometry_shader=_shader("line.geom.glsl"),
-                                fragment_shader=_shader("line.frag.glsl"))
-        self.point = ctx.program(vertex_shader=_shader("point.vert.glsl"), fragment_shader=_shader("point.frag.glsl"))
-        self.overlay = ctx.program(vertex_shader=_shader("overlay.vert.glsl"), fragment_shader=_shader("overlay.frag.glsl"))
-        self._tris = _Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
-        self._lines = _Stream(ctx, self.line, "3f 4f", ("in_position", "in_color"))
-        self._points = _Stream(ctx, self.point, "3f 4f 1f", ("in_position", "in_color", "in_size"))
-        self._quad = _Stream(ctx, self.overlay, "2f 2f", ("in_position", "in_uv"))
+        self.flat = program(ctx, "flat.vert", "flat.frag")
+        self.line = program(ctx, "line.vert", "flat.frag")
+        self.point = program(ctx, "point.vert", "point.frag")
+        self.overlay = program(ctx, "overlay.vert", "overlay.frag")
+        self.corners = ctx.buffer(QUAD_CORNERS.tobytes())
+        self._tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
+        self._lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
+                             self.corners)
+        self._points = Stream(ctx, self.point, "3f 4f 1f", ("in_position", "in_color", "in_size"))
+        self._quad = Stream(ctx, self.overlay, "2f 2f", ("in_position", "in_uv"))
         self._texture = None
+        self._counts = (0, 0, 0)
+        self._overlay = None
 
-    def upload(self, layers: Layers) -> tuple[int, int, int]:
-        """Send the frame's vertices to the GPU; returns (triangle, line, point) vertex counts."""
-        return (self._tris.upload(_join(layers.triangles, FLOATS_PER_VERTEX)),
-                self._lines.upload(_join(layers.lines, FLOATS_PER_VERTEX)),
-                self._points.upload(_join(layers.points, POINT_FLOATS)))
+    def upload(self, frame: Frame, triangles=(), lines=()) -> tuple[int, int, int]:
+        """Send the frame's flat layers (after `triangles` and `lines` given first, e.g. a scene mesh)
+        to the GPU; returns the (triangle vertex, line segment, point) counts."""
+        self._counts = (self._tris.upload(join([*triangles, *frame.triangles], FLOATS_PER_VERTEX)),
+                        self._lines.upload(join([*lines, *frame.lines], FLOATS_PER_VERTEX).reshape(-1, 14)),
+                        self._points.upload(join(frame.points, POINT_FLOATS)))
+        self._overlay = frame.overlay
+        return self._counts
 
-    def draw(self, counts: tuple[int, int, int], mvp: np.ndarray, viewport: tuple[int, int],
-             background=(0.0, 0.0, 0.0, 1.0), overlay: np.ndarray | None = None) -> None:
-        """Clear and draw what `upload` sent, seen through `mvp` (world -> clip, row-major numpy)."""
+    def draw(self, mvp: np.ndarray, viewport: tuple[int, int]) -> None:
+        """Draw what `upload` sent, seen through `mvp` (3D screen -> clip, row-major numpy), blended
+        over what the framebuffer holds."""
         ctx = self.ctx
-        ctx.clear(*background)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.enable(moderngl.BLEND | moderngl.PROGRAM_POINT_SIZE)
         ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
-        m = np.ascontiguousarray(mvp.T, dtype=np.float32).tobytes()   # GL wants column-major
-        n_tri, n_line, n_point = counts
+        n_tri, n_line, n_point = self._counts
         if n_tri:
-            self.flat["u_mvp"].write(m)
+            set_uniforms(self.flat, u_mvp=mvp)
             self._tris.vao.render(moderngl.TRIANGLES, vertices=n_tri)
         if n_line:
-            self.line["u_mvp"].write(m)
-            self.line["u_viewport"].value = tuple(float(v) for v in viewport)
-            self.line["u_width"].value = float(self.line_width)
-            self._lines.vao.render(moderngl.LINES, vertices=n_line)
+            set_uniforms(self.line, u_mvp=mvp, u_viewport=tuple(float(v) for v in viewport),
+                         u_width=float(self.line_width))
+            self._lines.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n_line)
         if n_point:
-            self.point["u_mvp"].write(m)
+            set_uniforms(self.point, u_mvp=mvp)
             self._points.vao.render(moderngl.POINTS, vertices=n_point)
-        if overlay is not None:
-            self._draw_overlay(overlay, viewport)
-
-    def paint(self, layers: Layers, mvp: np.ndarray, viewport: tuple[int, int], background=(0, 0, 0, 1)) -> None:
-        self.draw(self.upload(layers), mvp, viewport, background, layers.overlay)
+        if self._overlay is not None:
+            self._draw_overlay(self._overlay, viewport)
 
     def _draw_overlay(self, image: np.ndarray, viewport: tuple[int, int]) -> None:
         """Blit an RGBA image (row 0 at the top) to the top-left corner, pixel for pixel."""
@@ -131,10 +137,12 @@ class Painter:
             s.release()
         for p in (self.flat, self.line, self.point, self.overlay):
             p.release()
+        self.corners.release()
         if self._texture is not None:
             self._texture.release()
 
 
-def _join(parts: list, width: int) -> np.ndarray:
+def join(parts, width: int) -> np.ndarray:
+    """Concatenate vertex arrays of `width` floats (None and empty ones skipped) as float32."""
     parts = [np.asarray(p, dtype=np.float32).reshape(-1, width) for p in parts if p is not None and len(p)]
     return np.concatenate(parts) if parts else np.zeros((0, width), np.float32)

@@ -1,8 +1,9 @@
-"""The renderer's picture of the world (last good scene, hand, tactile field, motors) and offscreen rendering."""
+"""The renderer's picture of the world (last good scene, hand, tactile field, motors), turned into
+GL-free frames that any backend draws."""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -11,20 +12,11 @@ from touch4d.messages import HandPose, MotorCommand, SceneState, TactileField
 from touch4d.tactile.glove import Glove
 from touch4d.tactile.pose import check_pose, place, quaternion_matrix
 
-from .camera import OrbitCamera
-from .context import OffscreenTarget, create_headless_context
-from .draw import Layers, Painter
+from .frame import Frame, SceneLayer, Style
 from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
-from .scene_mesh import Body, MeshBuilder, SceneMesh, Style
-
+from .scene_geometry import SceneGeometry, object_transforms
 
 BACKGROUND = (0.04, 0.04, 0.06, 1.0)
-
-
-def bodies_from_scene(scene: Scene) -> list[Body]:
-    """Every convex part of every object, with its placement and colour."""
-    return [Body(part, obj.orientation, obj.position, obj.size, np.asarray(obj.color, dtype=float), index)
-            for index, obj in enumerate(scene.objects) for part in obj.local_parts()]
 
 
 def scene_digest(msg: SceneState) -> bytes:
@@ -69,7 +61,8 @@ class _Hand:
 
 
 class SceneView:
-    """Holds the last good state of every input and turns it into the `Layers` of a frame.
+    """Holds the last good state of every input and turns it into a `Frame`. The scene's geometry is
+    built once per revision of its shapes and colours; a scene that only moved gets new transforms.
 
     Setters raise (ValueError subclasses) on input they cannot use and then keep the previous state,
     so a caller that catches keeps drawing the last good picture.
@@ -81,28 +74,32 @@ class SceneView:
         self.style = style
         self.show = show or Show()
         self.cube = cube
-        self.builder = MeshBuilder()
         self.scene: Scene | None = None
-        self.bodies: list[Body] = []
+        self.layer: SceneLayer | None = None
+        self.geometry_builds = 0
         self.hand: _Hand | None = None
         self.field: TactileField | None = None
         self.motors: MotorCommand | None = None
-        self._mesh: SceneMesh | None = None
         self._scene_key: bytes | None = None
 
     # ---- inputs -------------------------------------------------------------------------------------
     def set_scene(self, scene: Scene | SceneState) -> bool:
-        """Adopt a scene and build its vertex arrays; True if it was built. A message equal to the
-        last adopted one (the scene node repeats it for late joiners) is not built again."""
+        """Adopt a scene: its geometry (only if its shapes or colours changed) and its transforms; True if
+        adopted. A message equal to the last adopted one (the scene node repeats it for late joiners) is
+        not adopted again."""
         key = None
         if isinstance(scene, SceneState):
             key = scene_digest(scene)
             if key == self._scene_key:
                 return False
             scene = Scene.from_message(scene)
-        bodies = bodies_from_scene(scene)
-        mesh = self.builder.build(bodies, scene.projection, scene.eye_distance, self.style)  # fails before adopting
-        self.scene, self.bodies, self._mesh, self._scene_key = scene, bodies, mesh, key
+        geometry = self.layer.geometry if self.layer is not None else None
+        if geometry is None or not geometry.fits(scene):
+            geometry = SceneGeometry.build(scene)        # fails before adopting
+            self.geometry_builds += 1
+        self.layer = SceneLayer(geometry, object_transforms(scene), scene.projection, float(scene.eye_distance),
+                                self.style)
+        self.scene, self._scene_key = scene, key
         return True
 
     def set_hand(self, pose: HandPose) -> None:
@@ -126,18 +123,10 @@ class SceneView:
         self.motors = msg
 
     # ---- output -------------------------------------------------------------------------------------
-    def mesh(self) -> SceneMesh | None:
-        """The scene's vertex arrays, rebuilt only after the scene changed."""
-        if self._mesh is None and self.scene is not None:
-            self._mesh = self.builder.build(self.bodies, self.scene.projection, self.scene.eye_distance, self.style)
-        return self._mesh
-
-    def layers(self, status: list[str] | None = None) -> Layers:
-        out = Layers()
-        mesh = self.mesh()
-        if mesh is not None:
-            out.triangles += [mesh.fills, mesh.centres]
-            out.lines.append(mesh.edges)
+    def frame(self, status: list[str] | None = None) -> Frame:
+        """The frame to draw now: the scene layer (the same object until the scene changes) and the
+        flat layers around it."""
+        out = Frame(scene=self.layer)
         if self.show.frame:
             out.lines.append(screen_frame())
         if self.show.hand and self.hand is not None:
@@ -152,7 +141,7 @@ class SceneView:
             out.overlay = text_image(self.status_lines(status))
         return out
 
-    def _tactile(self, out: Layers) -> None:
+    def _tactile(self, out: Frame) -> None:
         f = self.field
         glove = self.glove
         motor_sample = None
@@ -179,52 +168,3 @@ class SceneView:
             shown = ", ".join(touched[:6]) + (f" +{len(touched) - 6}" if len(touched) > 6 else "")
             lines.append(f"touched motors: {len(touched)} {shown}".rstrip())
         return lines or ["waiting for scene/state"]
-
-
-@dataclass
-class OffscreenRenderer:
-    """Renders a `SceneView` through a camera into an image, on a headless EGL context."""
-
-    size: tuple[int, int]
-    samples: int = 0
-    background: tuple = BACKGROUND
-    line_width: float = 2.0
-    ctx: object = None
-    _target: OffscreenTarget = field(init=False, repr=False)
-    _painter: Painter = field(init=False, repr=False)
-
-    def __post_init__(self):
-        self._own_ctx = self.ctx is None
-        if self._own_ctx:
-            self.ctx = create_headless_context()
-        self._target = OffscreenTarget(self.ctx, self.size, self.samples)
-        self._painter = Painter(self.ctx, self.line_width)
-
-    def render(self, view: SceneView, camera: OrbitCamera, status: list[str] | None = None) -> np.ndarray:
-        """The frame as (height, width, 4) uint8, row 0 at the top."""
-        return self.render_layers(view.layers(status), camera)
-
-    def render_layers(self, layers: Layers, camera: OrbitCamera) -> np.ndarray:
-        self.draw_layers(layers, camera)
-        return self.read()
-
-    def draw_layers(self, layers: Layers, camera: OrbitCamera) -> None:
-        """Draw without reading back (reading waits for the GPU)."""
-        self._target.use()
-        self._painter.paint(layers, camera.matrix(self.size), self.size, self.background)
-
-    def read(self) -> np.ndarray:
-        """The last drawn frame as (height, width, 4) uint8, row 0 at the top."""
-        return self._target.read_rgba()
-
-    @property
-    def painter(self) -> Painter:
-        return self._painter
-
-    def release(self) -> None:
-        """Free the GL objects, and the context if this renderer made it (each EGL context holds
-        llvmpipe's threads until released)."""
-        self._painter.release()
-        self._target.release()
-        if self._own_ctx:
-            self.ctx.release()

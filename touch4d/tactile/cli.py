@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.geometry.scene import load_scene
 
 from .glove import load_glove
@@ -36,10 +37,10 @@ def register(subparsers) -> None:
 
 
 def run_probe(args) -> int:
-    scene = load_scene(args.scene)
+    scene = load_scene(resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file"))
     if args.projection != "scene":
         scene.projection = args.projection
-    glove = load_glove(args.glove)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
     st = compute_stimulus(glove, scene.ray_caster(), args.position, args.orientation, args.alpha, args.beta)
     if args.json:
         print(json.dumps(probe_report(glove.motor_names, glove.motor_sample, st)))

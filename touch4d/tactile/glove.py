@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from touch4d.configfile import read_yaml, resolve
+from touch4d.configfile import read_yaml, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.boards.config import DEFAULT_GLOVE, glove_can_from_mapping
 
@@ -56,7 +56,7 @@ class Glove:
 
 def load_glove(path: str | Path | None = None) -> Glove:
     """Read a glove file (default: config/glove.yaml) and build its samples and motor bindings."""
-    path = resolve(path) if path is not None else DEFAULT_GLOVE
+    path = resolve_path(path if path is not None else "config/glove.yaml", what="glove file")
     return glove_from_dict(read_yaml(path, "glove file"), path)
 
 

@@ -50,8 +50,9 @@ def adjusted_strength(s: np.ndarray, beta: float) -> np.ndarray:
     active = np.count_nonzero(s > 0)
     if active == 0:
         return np.zeros(np.shape(s))
-    # The factor is >= 0 in exact arithmetic (s <= 1, beta <= 1); clip the rounding so V stays >= 0.
-    return max(1.0 - beta * float(s.sum()) / active, 0.0) * s
+    # No clip needed: with s <= 1 and beta <= 1, beta * sum(s) <= active holds after every rounding too
+    # (rounding to nearest never passes a representable bound), so the factor is never negative.
+    return (1.0 - beta * float(s.sum()) / active) * s
 
 
 def intensity(h: np.ndarray, gamma: float) -> np.ndarray:

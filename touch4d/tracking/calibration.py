@@ -8,11 +8,11 @@ holds (`hand_in_controller`). Quaternions are (x, y, z, w), as on the wire.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
 from . import quaternion
@@ -98,7 +98,7 @@ class Calibration:
 
 def load_calibration(path=None) -> Calibration:
     """Read config/calibration.yaml (or `path`); a bad file stops with the file, key and what was expected."""
-    path = Path(path) if path is not None else DEFAULT_CALIBRATION
+    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
     data = read_yaml(path)
     screen = get_map(data, "screen", path)
     hand = get_map(data, "hand_in_controller", path, default={})

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
 from . import quaternion
@@ -215,14 +215,15 @@ def _keyframes(spec: dict, q: np.ndarray, file, where: str) -> list[Keyframe]:
 
 def load_paths(path=None) -> dict[str, object]:
     """Every named path of config/paths.yaml (or `path`)."""
-    path = Path(path) if path is not None else DEFAULT_PATHS
+    path = resolve_path(path if path is not None else "config/paths.yaml", what="paths file")
     entries = get_map(read_yaml(path), "paths", path)
     return {str(name): path_from_config(spec, path, f"paths.{name}.") for name, spec in entries.items()}
 
 
 def load_path(name: str, path=None):
     """One named path; an unknown name is a ConfigError listing the names that exist."""
-    paths = load_paths(path)
+    file = resolve_path(path if path is not None else "config/paths.yaml", what="paths file")
+    paths = load_paths(file)
     if name not in paths:
-        raise ConfigError(path or DEFAULT_PATHS, f"paths.{name}", f"one of {', '.join(sorted(paths))}", got=name)
+        raise ConfigError(file, f"paths.{name}", f"one of {', '.join(sorted(paths))}", got=name)
     return paths[name]

@@ -1,4 +1,3 @@
-#version 330
 // A textured rectangle in normalised device coordinates (the status line).
 in vec2 in_position;
 in vec2 in_uv;

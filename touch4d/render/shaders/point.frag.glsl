@@ -1,4 +1,3 @@
-#version 330
 in vec4 v_color;
 out vec4 f_color;
 void main() {

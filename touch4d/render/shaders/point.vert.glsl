@@ -1,4 +1,3 @@
-#version 330
 // Round points of a per-vertex size in pixels (tactile samples, hand samples).
 uniform mat4 u_mvp;
 in vec3 in_position;

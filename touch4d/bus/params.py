@@ -1,0 +1,171 @@
+"""Node parameters, declared once on the node class: type, default, bounds, documentation.
+
+The launcher checks a launch file's parameters against these declarations before it starts any
+process, and the node checks them again when it starts (it may be run without the launcher), with
+the same function, so both say the same thing:
+
+    class ScriptedTracker(Node):
+        PARAMS = {
+            "rate": Param(90.0, "poses per second", unit="Hz", above=0, max=1000),
+            "path": Param("demo", "a path name of the paths file"),
+            "paths": Param("config/paths.yaml", "the paths file", path=True),
+        }
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+_TYPES = (bool, int, float, str, list, dict)
+_TYPE_TEXT = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list",
+              dict: "a mapping"}
+_PLURAL = {bool: "booleans", int: "integers", float: "finite numbers", str: "strings", list: "lists", dict: "mappings"}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: its default (whose type is the parameter's unless `type` says otherwise) and checks.
+
+    `above`/`min`/`max` bound numbers (exclusive/inclusive/inclusive), `choices` lists the allowed
+    values, `items` and `length` constrain lists, `path` marks a file and says what it is ("glove
+    file"): the node gets it found by touch4d.configfile.resolve_path (the current directory, the
+    launch file's folder, the packaged defaults) as a Path. A default of None makes the parameter
+    optional (null allowed).
+    """
+
+    default: Any
+    doc: str = ""
+    type: type | None = None
+    unit: str = ""
+    choices: tuple = ()
+    above: float | None = None
+    min: float | None = None
+    max: float | None = None
+    items: type | None = None
+    length: int | None = None
+    path: bool | str = False
+    finite: bool = True
+
+    def __post_init__(self):
+        kind = self.kind
+        if kind not in _TYPES:
+            raise TypeError(f"Param type must be one of {[t.__name__ for t in _TYPES]}, got {kind!r}")
+
+    @property
+    def kind(self) -> type:
+        """The parameter's type: `type` if given, else that of the default."""
+        if self.type is not None:
+            return self.type
+        if self.default is None:
+            raise TypeError("a Param whose default is None needs type=")
+        return type(self.default)
+
+    @property
+    def path_what(self) -> str:
+        """What the file is, for messages ("glove file")."""
+        return self.path if isinstance(self.path, str) else "file"
+
+    def describe(self) -> str:
+        """What a valid value is, in words (used in error messages and `touch4d node info`)."""
+        kind = self.kind
+        if self.choices:
+            text = "one of " + ", ".join(str(c) for c in self.choices)
+        elif kind is list and (self.items or self.length):
+            what = _PLURAL[self.items] if self.items else "values"
+            text = f"a list of {self.length} {what}" if self.length else f"a list of {what}"
+        elif self.path:
+            text = f"a {self.path_what} path"
+        else:
+            text = _TYPE_TEXT[kind]
+            if kind is float and self.finite:
+                text = "a finite number"
+        bounds = []
+        if self.above is not None:
+            bounds.append(f"> {self.above:g}")
+        if self.min is not None:
+            bounds.append(f">= {self.min:g}")
+        if self.max is not None:
+            bounds.append(f"<= {self.max:g}")
+        if bounds:
+            text += " " + " and ".join(bounds)
+        if self.unit:
+            text += f" ({self.unit})"
+        if self.default is None:
+            text += ", or null"
+        return text
+
+    def check(self, value) -> Any:
+        """`value` converted to the parameter's type (an int for a float parameter becomes a float);
+        raises ValueError(describe()) when it is not valid."""
+        if value is None and self.default is None:
+            return None
+        kind = self.kind
+        if not _is(value, kind):
+            raise ValueError(self.describe())
+        if kind is float:
+            value = float(value)
+            if self.finite and not math.isfinite(value):
+                raise ValueError(self.describe())
+        if self.choices and value not in self.choices:
+            raise ValueError(self.describe())
+        if kind in (int, float) and not _in_bounds(value, self.above, self.min, self.max):
+            raise ValueError(self.describe())
+        if kind is list:
+            if self.length is not None and len(value) != self.length:
+                raise ValueError(self.describe())
+            if self.items is not None and not all(_is(v, self.items) and _finite(v) for v in value):
+                raise ValueError(self.describe())
+            if self.items is float:
+                value = [float(v) for v in value]
+        return value
+
+    def to_dict(self) -> dict:
+        """The declaration as plain data (for `touch4d node info --json`)."""
+        return {"type": self.kind.__name__, "default": self.default, "doc": self.doc, "valid": self.describe()}
+
+
+def _is(value, kind: type) -> bool:
+    if kind is bool:
+        return isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return isinstance(value, kind)
+
+
+def _finite(value) -> bool:
+    return not isinstance(value, float) or math.isfinite(value)
+
+
+def _in_bounds(value, above, low, high) -> bool:
+    return ((above is None or value > above) and (low is None or value >= low)
+            and (high is None or value <= high))
+
+
+def suggest(name: str, choices) -> str:
+    """' (did you mean 'x'?)' for the closest of `choices`, or ''."""
+    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def check_params(declared: dict[str, Param], given: dict, error: Callable[[str, str, Any], Exception],
+                 owner: str) -> dict:
+    """Every declared parameter's value: `given`'s, checked, or the default. `error(name, expected,
+    got)` builds the exception for an undeclared name or a bad value; `owner` names the node in it."""
+    for name in given:
+        if name not in declared:
+            known = ", ".join(sorted(declared)) or "none"
+            raise error(name, f"a parameter of {owner} (one of: {known}){suggest(name, declared)}", name)
+    values = {}
+    for name, param in declared.items():
+        if name not in given:
+            values[name] = param.default
+            continue
+        try:
+            values[name] = param.check(given[name])
+        except ValueError as exc:
+            raise error(name, f"{exc} for parameter '{name}' of {owner}", given[name]) from None
+    return values
