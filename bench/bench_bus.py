@@ -336,7 +336,7 @@ def main():
     for k in kinds:
         r = res[k]
         print(f"{k:>8}: latency p50 {r['p50']:7.1f} us  p99 {r['p99']:8.1f} us  throughput {r['rate']:8.0f} msg/s  "
-              f"CPU rate {r['cpu_rate']:8.0f} msg/s   (p50 per round: "
+              f"CPU rate {r['cpu_rate']:8.0f} msg/s   (p99 per round: {', '.join(str(round(x['p99'])) for x in rounds[k])}; p50: "
               f"{', '.join(str(round(x['p50'])) for x in rounds[k])} us)")
     for k in ("runtime", "touch4d"):
         print(f"   ratio {k}/raw: latency p50 {res[k]['p50'] / res['raw']['p50']:.2f}x  "
