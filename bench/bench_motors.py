@@ -7,13 +7,25 @@ Three figures in one run, on python-can's virtual bus (a listener bus receives t
 - end to end: publish on the topic bus -> broker -> motor node (spinning in its own thread) ->
   the last of the four frames received by the listener.
 Every update changes every board. The default glove is used with its thermal limit lifted (the
-run keeps every motor on for longer than max_on_s). Run: .venv/bin/python bench/bench_motors.py
+run keeps every motor on for longer than max_on_s).
+
+Idle: the motor node as its own process with no command coming (it still refreshes every board
+at refresh_hz, publishes its status, traces and heartbeats), CPU share of one core:
+- bare (the baseline): a plain loop that sleeps to each refresh tick and sends the same frames,
+  pre-encoded, with python-can, and polls the bus for answers;
+- the node alone (nothing else on its virtual bus): the node's own cost. Target: under 3 %;
+- the node with the board emulator in its process (as in the demo): the process, split into the
+  node's thread and the emulator's (python-can's virtual bus copies every frame to it and wakes it).
+Run: .venv/bin/python bench/bench_motors.py [--idle-seconds 8] [--idle-rounds 3]
 """
 from __future__ import annotations
 
 import argparse
+import atexit
 import logging
 import os
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -24,10 +36,12 @@ import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy load
 import numpy as np
 import yaml
 
+from cpu import cpu_seconds, thread_seconds
 from touch4d.bus import Broker, BusConfig, Node
+from touch4d.bus.testing import node_process, running_broker, wait_until
 from touch4d.boards.config import DEFAULT_GLOVE
 from touch4d.boards.duty import duty_to_levels, intensity_to_duty
-from touch4d.messages import MotorCommand
+from touch4d.messages import MotorCommand, MotorStatus
 from touch4d.nodes.motors import MotorsNode
 
 
@@ -44,10 +58,88 @@ def patterns(n_motors, count, seed=1):
     return out
 
 
+# ---- idle --------------------------------------------------------------------------------------
+
+def bare_loop(seconds: float, channel: str) -> None:
+    """The baseline of the idle figures: sleep to each refresh tick, send the boards' pre-encoded
+    duty frames with python-can, poll the bus for answers."""
+    from touch4d.boards.config import load_glove_can
+    from touch4d.boards.protocol import GloveProtocol
+
+    cfg = load_glove_can(None)
+    protocol = GloveProtocol(cfg)
+    frames = [protocol.duty(b.id, [0] * b.channels, 0) for b in cfg.boards]
+    bus = can.Bus(interface="virtual", channel=channel)
+    period = 1.0 / cfg.refresh_hz
+    tick = time.monotonic()
+    end = tick + seconds
+    while tick < end:
+        tick += period
+        time.sleep(max(0.0, tick - time.monotonic()))
+        for frame in frames:
+            bus.send(frame, timeout=cfg.send_timeout_s)
+        while bus.recv(timeout=0) is not None:
+            pass
+    bus.shutdown()
+
+
+def idle_share(pid: int, seconds: float) -> dict[str, float]:
+    """CPU share of one core of a process over `seconds`: the whole process and its threads."""
+    p0, t0, w0 = cpu_seconds(pid), thread_seconds(pid), time.monotonic()
+    time.sleep(seconds)
+    p1, t1, wall = cpu_seconds(pid), thread_seconds(pid), time.monotonic() - w0
+    return {"process": (p1 - p0) / wall, **{k: (t1[k] - t0[k]) / wall for k in t0}}
+
+
+def idle_node(bus, glove: str, emulate: bool, seconds: float) -> dict[str, float]:
+    params = {"glove": glove, "channel": f"bench-idle-{uuid.uuid4().hex}", "emulate": emulate, "trace": True}
+    with node_process("motors", bus, params=params) as proc:
+        probe = Node("bench", bus=bus, heartbeat=False)
+        seen = []
+        probe.create_subscription("motors/status", MotorStatus, seen.append)
+        try:
+            wait_until(lambda: len(seen) >= 3, timeout=60, spin=probe)   # up and refreshing
+        finally:
+            probe.shutdown()
+        time.sleep(1.0)
+        return idle_share(proc.pid, seconds)
+
+
+def idle(glove: str, seconds: float, rounds: int) -> None:
+    results: dict[str, list] = {"bare": [], "alone": [], "emulated": []}
+    with running_broker() as bus:
+        for _ in range(rounds):   # interleaved, so a burst of load hits every setup alike
+            channel = f"bench-idle-{uuid.uuid4().hex}"
+            proc = subprocess.Popen([sys.executable, __file__, "--bare-loop", str(seconds + 1.5), channel])
+            time.sleep(1.0)
+            results["bare"].append(idle_share(proc.pid, seconds))
+            proc.wait(30)
+            results["alone"].append(idle_node(bus, glove, False, seconds))
+            results["emulated"].append(idle_node(bus, glove, True, seconds))
+    med = {k: {m: 100 * float(np.median([r[m] for r in v])) for m in v[0]} for k, v in results.items()}
+    print(f"\nidle, no command ({rounds} interleaved rounds of {seconds:g} s, medians; CPU share of one core)")
+    bare = med["bare"]["process"]
+    print(f"  bare loop sending the same frames (baseline)    {bare:6.2f} %")
+    alone = med["alone"]["process"]
+    print(f"  motor node alone                                 {alone:6.2f} %   ratio {alone / bare:.1f}x   "
+          f"(target < 3 %: {'met' if alone < 3 else 'MISSED'})")
+    e = med["emulated"]
+    print(f"  motor node with the board emulator (as in demo)  {e['process']:6.2f} %   node thread {e['main']:.2f} %, "
+          f"emulator {e['other']:.2f} %, ZeroMQ {e['zmq']:.2f} %")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=2000)
+    parser.add_argument("--idle-seconds", type=float, default=8.0)
+    parser.add_argument("--idle-rounds", type=int, default=3)
+    parser.add_argument("--bare-loop", nargs=2, metavar=("SECONDS", "CHANNEL"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.bare_loop:
+        bare_loop(float(args.bare_loop[0]), args.bare_loop[1])
+        return
+    load = os.getloadavg()
+    print(f"load average at start: {load[0]:.2f} ({os.cpu_count()} cores)")
     logging.getLogger("motors").setLevel(logging.ERROR)  # no boards on this bus: only frames are timed
     channel = f"bench-motors-{uuid.uuid4().hex}"
     glove = yaml.safe_load(DEFAULT_GLOVE.read_text())
@@ -55,6 +147,7 @@ def main():
     glove_file = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
     yaml.safe_dump(glove, glove_file)
     glove_file.close()
+    atexit.register(os.unlink, glove_file.name)
 
     with Broker(BusConfig(pub_port=0, sub_port=0)) as endpoints:
         node = MotorsNode(params={"glove": glove_file.name, "channel": channel, "status_hz": 1.0}, bus=endpoints)
@@ -141,7 +234,6 @@ def main():
             node.shutdown()
             listener.shutdown()
             sender.shutdown()
-            os.unlink(glove_file.name)
 
     b50, b99 = pct(bare)
     c50, c99 = pct(cb)
@@ -154,6 +246,9 @@ def main():
     print(f"  end to end (publish -> last frame)  p50 {e50:7.1f} us   p99 {e99:7.1f} us   "
           f"ratio p50 {e50 / b50:.1f}x  ({len(e2e)} updates, {lost} not seen within 1 s)")
     print(f"  bus load of the configuration: {100 * node.load.fraction:.1f} % worst case")
+    idle(glove_file.name, args.idle_seconds, args.idle_rounds)
+    load = os.getloadavg()
+    print(f"load average at the end: {load[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -272,12 +272,7 @@ class Message:
         TYPES[cls.TYPE] = cls
 
     def __post_init__(self):
-        for f in self._fields():
-            value = getattr(self, f.name)
-            try:
-                object.__setattr__(self, f.name, f.metadata["kind"].coerce(value))
-            except (TypeError, ValueError) as exc:
-                raise MessageError(f"{self.TYPE}.{f.name}: {exc}") from None
+        (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).coerce(self)   # each kind's coerce
 
     @classmethod
     def _fields(cls) -> tuple[dataclasses.Field, ...]:
@@ -303,6 +298,11 @@ class Message:
 
     def validate(self) -> None:
         """Check every field (types, shapes, finiteness) and the message's own rules."""
+        try:
+            if (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).validate(self):
+                return
+        except (KeyError, TypeError, ValueError):
+            pass  # the checks below say what is wrong
         for name, check in self._checks():
             try:
                 check(getattr(self, name))
@@ -317,7 +317,8 @@ class Message:
         """Rules across fields (equal lengths, unit quaternions); subclasses override."""
 
     def encode(self) -> bytes:
-        return pack(self.to_dict())
+        payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).encode(self)
+        return pack(self.to_dict()) if payload is None else payload
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Message:
@@ -369,6 +370,15 @@ class Message:
 _REQUIRED = object()
 
 
+def _fast_paths(cls):
+    """The class's generated fast paths (messages/compiled.py), made on first use: @dataclass has
+    not yet made the fields when __init_subclass__ runs."""
+    from .compiled import compile_class
+
+    fast = cls._FAST = compile_class(cls)
+    return fast
+
+
 def _where(type_name: str, field_name: str, exc: Exception) -> str:
     text = str(exc)
     sep = "" if text.startswith("[") else ": "  # list items read as objects[2].size: ...
@@ -382,6 +392,13 @@ def encode(msg: Message) -> bytes:
 
 def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
+    if expected is not None and TYPES.get(expected.TYPE) is expected:
+        try:
+            msg = (expected.__dict__.get("_FAST") or _fast_paths(expected)).decode(payload)
+        except Exception:  # noqa: BLE001 - whatever it is, the checks below say what is wrong
+            msg = None
+        if msg is not None:
+            return msg
     try:
         data = unpack(payload)
     except CodecError as exc:
@@ -394,4 +411,9 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
         raise MessageError(f"unknown message type {name!r}")
     if expected is not None and cls is not expected:
         raise MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
-    return cls.from_dict(data)
+    del data["type"]
+    try:
+        msg = (cls.__dict__.get("_FAST") or _fast_paths(cls)).from_dict(data)
+    except (KeyError, TypeError, ValueError):
+        msg = None  # from_dict says what is wrong
+    return cls.from_dict(data) if msg is None else msg

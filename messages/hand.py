@@ -13,7 +13,7 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
 
 
 def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float = 1e-3) -> None:
-    norm = math.sqrt(sum(x * x for x in q.tolist()))
+    norm = math.hypot(*q.tolist())
     if abs(norm - 1.0) > tol:
         raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
 

@@ -41,5 +41,5 @@ class MotorCommand(Message):
     def check(self):
         if len(self.names) != len(self.intensity):
             raise ValueError(f"intensity: expected {len(self.names)} values, one per name, got {len(self.intensity)}")
-        if (self.intensity < 0).any():
+        if len(self.intensity) and self.intensity.min() < 0:
             raise ValueError("intensity: expected values >= 0")

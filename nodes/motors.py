@@ -174,15 +174,17 @@ class MotorsNode(Node):
         self._can_bus_off = bus_off
 
     def _send_frames(self, outs: list[Outgoing], now: float) -> None:
+        duty_sent = False
         for out in outs:
             fault = self.link.send(out.msg)
             if fault is None:
-                if self.tracing and out.board:
-                    self._last_sent_at = time.time()
+                duty_sent = duty_sent or out.board != 0
                 self.driver.sent(out, now)
             else:
                 self.driver.failed(out, fault)
                 self._can_warn(fault, self.link.last_error)
+        if duty_sent and self.tracing:
+            self._last_sent_at = time.time()   # just after the last accepted duty frame's send returned
         if self._trace_pending is not None and outs and self.driver.duties_on_bus():
             self._trace_stamps.append(self._trace_pending)
             self._trace_times.append(self._last_sent_at)

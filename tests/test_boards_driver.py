@@ -295,3 +295,85 @@ def test_cached_duty_frames_are_the_protocols_encoding(driver):
                 want = PROTO.duty(o.board, o.levels, counter)
                 assert (o.msg.arbitration_id, bytes(o.msg.data), o.msg.is_extended_id) == \
                        (want.arbitration_id, bytes(want.data), want.is_extended_id)
+
+
+class CountingProtocol(GloveProtocol):
+    """The glove's protocol, counting the duty frames cantools encodes."""
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.encoded = 0
+
+    def duty(self, board, levels, counter):
+        self.encoded += 1
+        return super().duty(board, levels, counter)
+
+
+def test_an_idle_glove_is_refreshed_with_its_cached_frames_unchanged():
+    proto = CountingProtocol(CFG)
+    d = MotorDriver(CFG, proto, now=T0)
+    period = 1 / CFG.refresh_hz
+    sent = []
+    for i in range(600):
+        now = T0 + i * period
+        sent.append({o.board: o.msg for o in send_all(d, d.outgoing(now, refresh=True), now) if o.board})
+    assert all(len(tick) == 4 for tick in sent)
+    # a full counter cycle later, every board's frame is the very same object, encoded before
+    encoded = proto.encoded
+    for i in range(600):
+        now = T0 + (600 + i) * period
+        for o in send_all(d, d.outgoing(now, refresh=True), now):
+            if o.board:
+                assert o.msg is sent[(600 + i) % 256 + 256][o.board]
+                assert PROTO.decode(o.msg).signals["Counter"] == (600 + i + 1) & 0xFF
+                assert PROTO.levels(PROTO.decode(o.msg), 8) == [0] * 8
+    assert proto.encoded == encoded
+
+
+def test_new_duties_are_encoded_once_per_board_and_change():
+    proto = CountingProtocol(CFG)
+    d = MotorDriver(CFG, proto, now=T0)
+    period = 1 / CFG.refresh_hz
+    for i in range(300):   # every counter value seen once (the counter's part is then known)
+        send_all(d, d.outgoing(T0 + i * period, refresh=True), T0 + i * period)
+    rng = np.random.default_rng(3)
+    patterns = rng.uniform(0.2, 1.0, (40, 30))
+    seen = set()
+    before = proto.encoded
+    for k, v in enumerate(np.repeat(patterns, 3, axis=0)):   # each pattern held for 3 ticks
+        now = T0 + (300 + k) * period
+        d.command(NAMES, v, now)
+        for o in send_all(d, d.outgoing(now, refresh=True), now):
+            if o.board:
+                seen.add((o.board, o.levels))
+                want = PROTO.duty(o.board, o.levels, PROTO.decode(o.msg).signals["Counter"])
+                assert bytes(o.msg.data) == bytes(want.data)
+    assert proto.encoded - before == len(seen) == 40 * 4
+
+
+def test_duties_follow_time_without_input_as_if_computed_every_tick(tmp_path):
+    """Watchdog, stop hold and thermal limit act on time alone: the driver, which computes the
+    duties again only when they can change, gives every tick what the rules give."""
+    from touch4d.boards.duty import ThermalState, thermal_limit
+
+    cfg = dataclasses.replace(CFG, stop_hold_s=0.3,
+                              thermal=dataclasses.replace(CFG.thermal, max_on_s=0.4, cool_s=0.25))
+    d = MotorDriver(cfg, GloveProtocol(cfg), now=T0)
+    period = 1 / cfg.refresh_hz
+    state, last_command, stop_until = ThermalState.initial(30), None, -np.inf
+    v = np.linspace(0.0, 1.0, 30)
+    for i in range(1, 800):
+        now = T0 + i * period
+        if (i < 150 or 300 <= i < 500) and i % 9 == 0:   # commands, silence (watchdog), commands again ...
+            d.command(NAMES, v, now)
+            if now >= stop_until:
+                last_command = now
+        if i == 420:                             # ... a stop in the middle of them
+            d.stop(now)
+            stop_until = now + cfg.stop_hold_s
+        send_all(d, d.outgoing(now, refresh=True), now)
+        silent = last_command is None or now - last_command > cfg.watchdog_s
+        wanted = np.zeros(30) if silent or now < stop_until else intensity_to_duty(v, cfg.duty)
+        want, state = thermal_limit(wanted, state, now, cfg.thermal)
+        assert d.duty.tolist() == want.tolist(), i
+        assert d.duties_on_bus()

@@ -6,11 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from touch4d.errors import ConfigError
 from touch4d.boards.busload import bus_load, check_bus_load, frame_bits
 from touch4d.boards.config import DutyConfig, ThermalConfig, load_glove_can
-from touch4d.boards.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
+from touch4d.boards.duty import (
+    ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_deadline, thermal_limit,
+)
 
 DUTY = DutyConfig(exponent=2.0, start=0.3, max=0.8, deadband=0.05, full_scale=1.0)
 
@@ -82,6 +86,30 @@ def test_motors_are_limited_independently():
     for t in np.arange(0, 2.5, 0.01):
         d, state = thermal_limit(np.array([0.5, 0.5 if t > 1.0 else 0.0]), state, t, THERMAL)
     assert d.tolist() == [0.0, 0.5]
+
+
+@settings(max_examples=200, deadline=None)
+@given(wanted=st.lists(st.sampled_from([0.0, 0.4]), min_size=3, max_size=3),
+       changes=st.lists(st.tuples(st.floats(0.0, 4.0), st.integers(0, 2)), max_size=6),
+       max_on=st.sampled_from([0.0, 0.5, 2.0]), cool=st.sampled_from([0.0, 0.3, 1.0]))
+def test_the_thermal_limit_holds_until_its_deadline(wanted, changes, max_on, cool):
+    """Between calls at a deadline, the limit (duty and state) is what the call at the last one gave."""
+    cfg = ThermalConfig(max_on_s=max_on, cool_s=cool)
+    state, wanted = ThermalState.initial(3), np.array(wanted)
+    flips = dict(changes)
+    for t in np.round(np.arange(0.0, 5.0, 0.05), 6):
+        if any(abs(t - at) < 0.025 for at in flips):   # the wanted duty changes now and then
+            k = flips[min(flips, key=lambda at: abs(t - at))]
+            wanted[k] = 0.4 - wanted[k]
+        duty, state = thermal_limit(wanted, state, t, cfg)
+        until = thermal_deadline(wanted, state, t, cfg)
+        assert until >= t
+        for later in (t + 0.3 * (until - t), np.nextafter(until, -np.inf)) if np.isfinite(until) else (t + 100.0,):
+            if later > t:
+                again, after = thermal_limit(wanted, state, later, cfg)
+                assert again.tolist() == duty.tolist()
+                for a, b in zip(after.__dict__.values(), state.__dict__.values()):
+                    np.testing.assert_array_equal(a, b)
 
 
 def test_frame_bits_with_worst_case_stuffing():

@@ -76,6 +76,29 @@ def test_latest_only_slow_subscriber_handles_newest_never_a_backlog():
     assert stats["gaps"] == 0 and stats["malformed"] == 0
 
 
+def test_a_latest_only_message_replaced_while_other_callbacks_ran_is_skipped():
+    with running_broker() as bus, Node("busy", bus=bus) as node, Node("pub", bus=bus) as pub_node:
+        poses = pub_node.create_publisher("test/pose", HandPose)
+        slow = pub_node.create_publisher("test/scene", Stop)
+        handled = []
+
+        def busy(msg):   # while this runs, a newer pose arrives
+            handled.append("scene")
+            poses.publish(pose(2.0))
+            assert node._sub.poll(10000), "the newer pose did not arrive"
+
+        node.create_subscription("test/scene", Stop, busy)
+        node.create_subscription("test/pose", HandPose, lambda m: handled.append(m.position[0]), latest_only=True)
+        slow.publish(Stop(reason="build", origin="test"))
+        poses.publish(pose(1.0))
+        assert node._sub.poll(10000)
+        time.sleep(0.3)   # both queued: one batch, the scene first
+        wait_until(lambda: len(handled) >= 2, timeout=10, spin=node)
+        node.spin(0.2)
+    assert handled == ["scene", 2.0]   # pose 1 was stale before its callback could start
+    assert node.stats["test/pose"]["dropped"] == 1 and node.stats["test/pose"]["gaps"] == 0
+
+
 def test_first_message_after_subscribe_returns_is_never_lost():
     with running_broker() as bus, Node("pub", bus=bus) as pub_node:
         publishers = [pub_node.create_publisher(f"join/{i}", HandPose) for i in range(25)]
@@ -173,6 +196,26 @@ def test_timers_run_on_the_spin_thread_at_their_period():
     # Never early, never a burst to catch up: the k-th tick comes at least k + 1 periods after creation.
     # (A late tick may be followed closely by an on-time one, so gaps between ticks are not bounded.)
     assert all(t >= created + (k + 1) * 0.05 - 1e-6 for k, t in enumerate(ticks))
+
+
+def test_a_timer_created_or_cancelled_by_a_timer_callback_takes_effect():
+    with running_broker() as bus, Node("timed", bus=bus, heartbeat=False) as node:
+        fast, slow = [], []
+        later: list = []
+
+        def start():
+            if not later:
+                later.append(node.create_timer(0.02, lambda: fast.append(time.monotonic())))
+
+        starter = node.create_timer(0.3, start)
+        node.spin(0.05)   # the slow timer is what the node waits for when `start` runs
+        node.create_timer(1.0, lambda: slow.append(1))
+        node.spin(0.5)
+        starter.cancel()
+        later[0].cancel()
+        count = len(fast)
+        node.spin(0.1)
+    assert 6 <= count <= 13 and len(fast) == count   # 12 at 20 ms from 0.32 s to 0.55 s, then none
 
 
 def test_a_1_khz_timer_keeps_its_average_rate_despite_millisecond_polling():

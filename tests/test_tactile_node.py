@@ -184,6 +184,36 @@ def test_node_publishes_field_and_motors_for_every_pose_and_survives_bad_input(g
             tactile.shutdown()
 
 
+def test_a_pose_replaced_while_the_scene_was_built_is_never_computed():
+    with running_broker() as bus:
+        tactile = TactileNode(bus=bus, heartbeat=False)
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            motors = collect(probe, "tactile/motors", MotorCommand)
+            scene_pub = probe.create_publisher("scene/state", SceneState)
+            pose_pub = probe.create_publisher("hand/pose", HandPose)
+            build = tactile.engine.set_scene
+
+            def slow_build(msg):   # a newer pose arrives while the scene is being built
+                rebuilt = build(msg)
+                pose_pub.publish(pose(stamp=2001.0))
+                assert tactile._sub.poll(10000)
+                return rebuilt
+
+            tactile.engine.set_scene = slow_build
+            scene_pub.publish(scene_msg())
+            pose_pub.publish(pose(stamp=2000.0))
+            assert tactile._sub.poll(10000)
+            time.sleep(0.3)   # scene and first pose queued together
+            spin_until((tactile, probe), lambda: len(motors) >= 1)
+            spin_until((tactile, probe), lambda: True)
+            assert [m.source_stamp for m in motors] == [2001.0]
+            assert tactile.counts["poses"] == 1 and tactile.stats["hand/pose"]["dropped"] == 1
+        finally:
+            probe.shutdown()
+            tactile.shutdown()
+
+
 def test_node_rejects_bad_parameters_with_their_names():
     with running_broker() as bus:
         for params, key in (({"projection": "fisheye"}, "projection"), ({"beta": 3.0}, "beta"),

@@ -17,6 +17,10 @@ the frames `outgoing` returns. Rules:
   (a momentary stop); `stop_hold_s` infinite latches the stop until the node restarts;
 - a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
   every `RESTART_PERIOD_S`; a board silent for `board_timeout_s` is reported offline.
+
+Idle costs little: the duties are computed again only on an input (command, stop) or when time
+alone can change them (the watchdog, the end of a stop hold, the thermal limit), and each board's
+frames are encoded once (see `DutyFrames`), so a steady board is refreshed with the same objects.
 """
 from __future__ import annotations
 
@@ -28,14 +32,16 @@ import can
 import numpy as np
 
 from touch4d.boards.config import GloveCan
-from touch4d.boards.duty import ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_limit
+from touch4d.boards.duty import (
+    ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_deadline, thermal_limit,
+)
 from touch4d.boards.protocol import Frame, GloveProtocol
 
 RESTART_PERIOD_S = 0.1
 CHANGE_GAP = 0.5     # periods between two change frames of one board
 REFRESH_AGE = 0.8    # periods since a board's last change frame before a tick refreshes it
 FRAMES_PER_PERIOD = 1 / CHANGE_GAP
-ENCODED_CACHE = 4096  # duty frame payloads kept (4 boards x 256 counters of one steady pattern fit)
+FRAMES_KEPT = 1024   # duty frames kept per board (one steady pattern's 256 counters fit, and some more)
 
 
 class Outgoing(NamedTuple):
@@ -71,6 +77,44 @@ class BoardView:
     send_failures: int = 0
 
 
+class DutyFrames:
+    """The duty frames of one board, each part encoded by cantools once.
+
+    The DBC gives the counter and the channels disjoint bits, so a frame is the bitwise OR of the
+    encoding of its levels (counter 0; once per change of levels) and that of its counter (levels 0;
+    once per counter value). Each (levels, counter) frame is kept as the can.Message to send: a
+    steady board is refreshed with the same objects, encoding nothing.
+    """
+
+    def __init__(self, protocol: GloveProtocol, board: int, channels: int):
+        self.protocol, self.board = protocol, board
+        self._zero = (0,) * channels
+        empty = protocol.duty(board, self._zero, 0)
+        self._id, self._length = empty.arbitration_id, len(empty.data)
+        self._counters: dict[int, int] = {}
+        self._levels: dict[tuple, int] = {}
+        self._frames: dict[tuple, can.Message] = {}
+
+    def _bits(self, cache: dict, key, levels: tuple, counter: int) -> int:
+        bits = cache.get(key)
+        if bits is None:
+            if len(cache) >= FRAMES_KEPT:
+                cache.clear()
+            bits = cache[key] = int.from_bytes(self.protocol.duty(self.board, levels, counter).data, "little")
+        return bits
+
+    def frame(self, levels: tuple, counter: int) -> can.Message:
+        """The duty frame carrying `levels` (one per channel) and `counter`."""
+        msg = self._frames.get((levels, counter))
+        if msg is None:
+            bits = self._bits(self._levels, levels, levels, 0) | self._bits(self._counters, counter, self._zero, counter)
+            if len(self._frames) >= FRAMES_KEPT:
+                self._frames.clear()
+            msg = self._frames[(levels, counter)] = can.Message(
+                arbitration_id=self._id, data=bits.to_bytes(self._length, "little"), is_extended_id=False)
+        return msg
+
+
 class MotorDriver:
     """Decides the duty frames and NMT commands for every board of one glove."""
 
@@ -89,15 +133,18 @@ class MotorDriver:
         self._restart_pending = True  # the first refresh tick broadcasts NMT START
         self.watchdog_off = True
         self.errors: Counter = Counter()
-        self._encoded: dict[tuple, tuple[int, bytes]] = {}
         self.period = 1.0 / cfg.refresh_hz
         board_of = np.asarray(cfg.motor_board)
         channel_of = np.asarray(cfg.motor_channel)
         self.boards = {}
+        self._frames: dict[int, DutyFrames] = {}
         for b in cfg.boards:
             idx = np.flatnonzero(board_of == b.id)
             self.boards[b.id] = BoardView(b.id, b.channels, idx, channel_of[idx])
+            self._frames[b.id] = DutyFrames(self.protocol, b.id, b.channels)
         self._started = now
+        self._valid_until = -np.inf     # the duties hold until then, unless an input comes (update)
+        self._levels: dict[int, tuple] = {}   # each board's levels for the current duties
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -125,6 +172,7 @@ class MotorDriver:
         if now < self.stop_until:
             self.errors["ignored_during_stop"] += 1
             return
+        self._valid_until = -np.inf
         if self.is_stale(age):
             self.errors["stale_command"] += 1
             self.intensity = np.zeros(len(self.names))
@@ -140,6 +188,7 @@ class MotorDriver:
         """Safety stop: every duty 0 and commands ignored for stop_hold_s (inf: until restart);
         returns the NMT STOP to send first."""
         self.stop_until = now + self.cfg.stop_hold_s
+        self._valid_until = -np.inf
         self._restart_pending = True
         self.intensity = np.zeros(len(self.names))
         self.last_command_at = None
@@ -177,15 +226,25 @@ class MotorDriver:
     # -- outputs ------------------------------------------------------------------------------
 
     def update(self, now: float) -> np.ndarray:
-        """Recompute the duty of every motor: watchdog, stop, intensity -> duty, thermal limit."""
+        """The duty of every motor: watchdog, stop, intensity -> duty, thermal limit; computed again
+        only after an input or once time alone can change it."""
+        if now < self._valid_until:
+            return self.duty
         stopped = now < self.stop_until
         silent = self.last_command_at is None or now - self.last_command_at > self.cfg.watchdog_s
         if silent and not self.watchdog_off and not stopped:
             self.errors["watchdog_off"] += 1
         self.watchdog_off = silent
         wanted = np.zeros(len(self.names)) if (silent or stopped) else intensity_to_duty(self.intensity, self.cfg.duty)
-        self.duty, self.thermal = thermal_limit(wanted, self.thermal, now, self.cfg.thermal)
-        return self.duty
+        duty, self.thermal = thermal_limit(wanted, self.thermal, now, self.cfg.thermal)
+        self._valid_until = min(self.stop_until if stopped else np.inf,
+                                np.inf if silent else self.last_command_at + self.cfg.watchdog_s,
+                                thermal_deadline(wanted, self.thermal, now, self.cfg.thermal))
+        if not self._levels or not np.array_equal(duty, self.duty):
+            motor_levels = duty_to_levels(duty)
+            self._levels = {b: self.board_levels(b, motor_levels) for b in self.boards}
+        self.duty = duty
+        return duty
 
     def board_levels(self, board_id: int, motor_levels: np.ndarray | None = None) -> tuple:
         """The duty levels of one board's channels (from every motor's levels, if already computed)."""
@@ -219,26 +278,13 @@ class MotorDriver:
                     self.errors["nmt_restart" if want_start else "nmt_restop"] += 1
                     out.append(Outgoing(0, self.protocol.nmt("STOP" if want_stop else "START", b.id)))
         gap, age = CHANGE_GAP * self.period - 1e-9, REFRESH_AGE * self.period - 1e-9
-        motor_levels = duty_to_levels(self.duty)
         for b in self.boards.values():
-            levels = self.board_levels(b.id, motor_levels)
+            levels = self._levels[b.id]
             change = levels != b.sent_levels
             if force or (change and now - b.last_change_sent >= gap) or (refresh and now - b.last_change_sent >= age):
                 b.counter = (b.counter + 1) & 0xFF
-                out.append(Outgoing(b.id, self._duty_frame(b.id, levels, b.counter), levels, change))
+                out.append(Outgoing(b.id, self._frames[b.id].frame(levels, b.counter), levels, change))
         return out
-
-    def _duty_frame(self, board: int, levels: tuple, counter: int) -> can.Message:
-        """The duty frame, its cantools encoding cached: an idle or steady glove repeats the same
-        256 counter values per board at the refresh rate, and encoding is most of a tick's work."""
-        key = (board, levels, counter)
-        encoded = self._encoded.get(key)
-        if encoded is None:
-            if len(self._encoded) >= ENCODED_CACHE:
-                self._encoded.clear()
-            msg = self.protocol.duty(board, levels, counter)
-            encoded = self._encoded[key] = (msg.arbitration_id, bytes(msg.data))
-        return can.Message(arbitration_id=encoded[0], data=encoded[1], is_extended_id=False)
 
     def sent(self, out: Outgoing, now: float) -> None:
         """A frame from `outgoing` went out."""
@@ -275,9 +321,9 @@ class MotorDriver:
         return events
 
     def duties_on_bus(self) -> bool:
-        """Whether every board's last sent frame carries the duties to be sent now."""
-        motor_levels = duty_to_levels(self.duty)
-        return all(b.sent_levels == self.board_levels(b.id, motor_levels) for b in self.boards.values())
+        """Whether every board's last sent frame carries the duties to be sent now (as of the last
+        `outgoing`)."""
+        return bool(self._levels) and all(b.sent_levels == self._levels[b.id] for b in self.boards.values())
 
     def sent_duty(self) -> np.ndarray:
         """The duty last sent to every motor (0..1, glove file order)."""

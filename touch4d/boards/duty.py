@@ -65,3 +65,21 @@ def thermal_limit(duty, state: ThermalState, now: float, cfg: ThermalConfig) -> 
     off_since = np.where(over, now, off_since)
     limited = np.where(wants & ~over, duty, 0.0)
     return limited, ThermalState(on_since=on_since, off_since=off_since, cool_until=cool_until)
+
+
+def thermal_deadline(duty, state: ThermalState, now: float, cfg: ThermalConfig) -> float:
+    """The earliest time after `now` at which `thermal_limit` with the same duty and the `state` it
+    returned at `now` can give another result or state (a streak reaching `max_on_s`, a cool-down or
+    a rest ending); inf if never. Until then the limit need not be computed again."""
+    duty = np.asarray(duty, dtype=np.float64)
+    cooling = now < state.cool_until
+    wants = (duty > 0) & ~cooling
+    streak = ~np.isnan(state.on_since)
+    if (wants & ~streak).any():
+        return now                                            # its streak starts at the next call
+    times = np.concatenate([
+        state.cool_until[cooling],                            # cooling ends: the motor may start
+        state.on_since[wants & streak] + cfg.max_on_s,        # a streak reaches the limit
+        state.off_since[~wants & streak] + cfg.cool_s,        # a rest ends the streak
+    ])
+    return float(times.min()) if len(times) else np.inf

@@ -69,9 +69,10 @@ class CanLink:
 
     def send(self, msg: can.Message) -> str | None:
         """Send one frame; None on success, else the fault name."""
-        fault = self.ensure_open()
-        if fault:
-            return fault
+        if self.bus is None:
+            fault = self.ensure_open()
+            if fault:
+                return fault
         try:
             self.bus.send(msg, timeout=self.send_timeout)
         except can.CanError as exc:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import can
 import cantools
@@ -28,6 +29,7 @@ def _snake(flag: str) -> str:
 
 
 FAULT_NAMES = tuple(_snake(f) for f in FAULT_FLAGS)
+DECODED_KEPT = 4096  # decoded frames kept: a steady board repeats its 256 duty frames, its status a few
 
 
 class FrameError(ValueError):
@@ -43,11 +45,12 @@ class FrameError(ValueError):
 
 @dataclass(frozen=True)
 class Frame:
-    """A decoded glove frame: kind ('nmt', 'duty', 'status', 'heartbeat'), board node id, raw signals."""
+    """A decoded glove frame: kind ('nmt', 'duty', 'status', 'heartbeat'), board node id, raw signals
+    (read-only: a frame decoded once is handed out again for the same bytes)."""
 
     kind: str
     board: int
-    signals: dict
+    signals: MappingProxyType
 
 
 class GloveProtocol:
@@ -66,6 +69,7 @@ class GloveProtocol:
                 message = self.db.get_message_by_name(f"{name}_B{b.id}")
                 self._ids[base + b.id] = (kind, b.id, message)
                 self._messages[(kind, b.id)] = message
+        self._decoded: dict[tuple[int, bytes], Frame] = {}
 
     def _frame(self, kind: str, board: int, signals: dict) -> can.Message:
         message = self._messages[(kind, board)]
@@ -116,10 +120,21 @@ class GloveProtocol:
         kind, board, message = known
         if msg.is_remote_frame or msg.is_fd:
             raise FrameError(f"{message.name}: remote or FD frame", "bad_frame_type")
-        if len(msg.data) != message.length:
-            raise FrameError(f"{message.name}: expected {message.length} data bytes, got {len(msg.data)}", "bad_length")
+        key = (msg.arbitration_id, bytes(msg.data))
+        frame = self._decoded.get(key)
+        if frame is None:
+            frame = self._decode(kind, board, message, key[1])
+            if len(self._decoded) >= DECODED_KEPT:
+                self._decoded.clear()
+            self._decoded[key] = frame
+        return frame
+
+    @staticmethod
+    def _decode(kind: str, board: int, message, data: bytes) -> Frame:
+        if len(data) != message.length:
+            raise FrameError(f"{message.name}: expected {message.length} data bytes, got {len(data)}", "bad_length")
         try:
-            signals = message.decode(bytes(msg.data), decode_choices=False, scaling=False)
+            signals = MappingProxyType(message.decode(data, decode_choices=False, scaling=False))
         except (cantools.database.DecodeError, ValueError) as exc:
             raise FrameError(f"{message.name}: {exc}", "bad_length") from None
         if kind == "nmt":

@@ -39,6 +39,7 @@ _HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
 MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
 INTERNAL_PREFIX = b"_bus/"  # topics of the runtime itself, never delivered to callbacks
 _MAX_BATCH = 4096
+_SNDMORE, _NOBLOCK, _RCVMORE = zmq.SNDMORE, zmq.NOBLOCK, zmq.RCVMORE
 _MAX_LOGGED_CAUSES = 200
 
 
@@ -162,6 +163,7 @@ class Node:
         self._zmq_topics: set[bytes] = set()
         self._topics: dict[bytes, _TopicState] = {}
         self._timers: list[Timer] = []
+        self._next_due = -math.inf   # when the next timer is due (kept by _run_timers)
         self._pending: list[list[bytes]] = []
         self._logged: set = set()
         self._counters = {"errors": 0}
@@ -294,6 +296,7 @@ class Node:
             raise ValueError(f"timer period must be > 0 s, got {period}")
         timer = Timer(float(period), callback, time.monotonic() + period)
         self._timers.append(timer)
+        self._next_due = min(self._next_due, timer.next_due)
         return timer
 
     @property
@@ -322,20 +325,20 @@ class Node:
             handled += self._dispatch(pending)
         if handled or self._stopping:
             timeout = 0.0
-        due = min((t.next_due for t in self._timers if not t.cancelled), default=None)
-        if due is not None:
-            timeout = max(0.0, min(timeout, due - time.monotonic()))
+        elif self._next_due - time.monotonic() < timeout:
+            timeout = max(0.0, self._next_due - time.monotonic())
         # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
-        events = dict(self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0))
-        if self._sub in events:
-            handled += self._dispatch(self._drain())
-        if self._pub in events:
-            self._drain_subscriptions()
-        if self._wake_r.fileno() in events:
-            try:
-                self._wake_r.recv(4096)
-            except BlockingIOError:
-                pass
+        events = self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0)
+        for sock, _ in events:
+            if sock is self._sub:
+                handled += self._dispatch(self._drain())
+            elif sock is self._pub:
+                self._drain_subscriptions()
+            else:
+                try:
+                    self._wake_r.recv(4096)
+                except BlockingIOError:
+                    pass
         return handled + self._run_calls() + self._run_timers()
 
     def spin(self, duration: float | None = None) -> None:
@@ -409,11 +412,15 @@ class Node:
         seq = self._seq.get(topic, 0)
         msg.seq = seq
         self._seq[topic] = seq + 1
-        self._pub.send_multipart((topic, msg.encode()))
+        payload = msg.encode()
+        # Two sends, not send_multipart: its per-frame Python work costs more than the ZeroMQ calls.
+        self._pub.send(topic, _SNDMORE)
+        self._pub.send(payload)
 
     def _send_raw(self, topic: bytes, payload: bytes) -> None:
         self._seq[topic] = self._seq.get(topic, 0) + 1
-        self._pub.send_multipart((topic, payload))
+        self._pub.send(topic, _SNDMORE)
+        self._pub.send(payload)
 
     def _await_broker(self) -> bool:
         """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
@@ -472,23 +479,43 @@ class Node:
     def _drain(self) -> list[list[bytes]]:
         """Everything queued on the SUB socket now (up to _MAX_BATCH messages)."""
         sock = self._sub
+        recv, more = sock.recv, sock.getsockopt
         batch = []
-        while len(batch) < _MAX_BATCH and sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            batch.append(sock.recv_multipart(zmq.NOBLOCK))
+        # recv until EAGAIN, frame by frame: recv_multipart and an EVENTS query per message cost
+        # more than the receiving itself. The frames of one message arrive together (ZeroMQ).
+        while len(batch) < _MAX_BATCH:
+            try:
+                frames = [recv(_NOBLOCK)]
+            except zmq.Again:
+                break
+            while more(_RCVMORE):
+                frames.append(recv())
+            batch.append(frames)
         return batch
 
     def _dispatch(self, batch: list[list[bytes]]) -> int:
         last: dict[bytes, int] = {}
-        if self._latest_only_topics and len(batch) > 1:
+        latest_only = self._latest_only_topics
+        if latest_only and len(batch) > 1:
             for i, frames in enumerate(batch):
                 last[frames[0]] = i
         handled = 0
-        for i, frames in enumerate(batch):
+        i = -1
+        while (i := i + 1) < len(batch):   # the batch may grow: see below
+            frames = batch[i]
             topic = frames[0]
             if topic.startswith(INTERNAL_PREFIX):
                 continue
             subs = self._subs.get(topic)
             if subs is not None:
+                if handled and topic in latest_only and last.get(topic, i) == i:
+                    # Callbacks ran since the drain: a newer message may have come meanwhile, and
+                    # then this one is stale before its callback even starts (a pose replaced while
+                    # a scene was being built): read what came, in order, after this batch.
+                    start = len(batch)
+                    batch.extend(self._drain())
+                    for j in range(start, len(batch)):
+                        last[batch[j][0]] = j
                 handled += self._deliver(topic, frames, subs, last.get(topic, i) == i)
             if self._raw_subs and len(frames) == 2:
                 for prefix, sub in self._raw_subs:
@@ -538,10 +565,12 @@ class Node:
         state.last_seq = seq
         state.stale_since_last = 0
 
-    def _call(self, callback: Callable, args: tuple, where: str) -> None:
+    def _call(self, callback: Callable, args: tuple, where) -> None:
         try:
             callback(*args)
         except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the node
+            if isinstance(where, Timer):
+                where = f"timer {where.period:g} s"
             self._counters["errors"] += 1
             cause = (where, type(exc).__name__, str(exc)[:120])
             if cause not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
@@ -563,21 +592,33 @@ class Node:
         return ran
 
     def _run_timers(self) -> int:
+        """Run the due timers; keeps `_next_due`, when the next one is due, for `spin_once`'s wait."""
         ran = 0
         now = time.monotonic()
-        for timer in list(self._timers):
-            if timer.cancelled or timer.next_due > now or self._stopping:
+        if now < self._next_due or self._stopping:
+            return 0   # the common case of a spin woken by a message: nothing due
+        next_due, cancelled = math.inf, False
+        timers = list(self._timers)   # a copy: a callback may create timers
+        for timer in timers:
+            if timer.cancelled:
+                cancelled = True
                 continue
-            # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the next
-            # spins, so a 1 kHz timer averages 1 kHz; after a stall of more than MAX_CATCH_UP the
-            # missed ticks are skipped rather than fired in a burst.
-            timer.next_due += timer.period
-            if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
-                timer.next_due = now + timer.period
-            self._call(timer.callback, (), f"timer {timer.period:g} s")
-            ran += 1
-        if any(t.cancelled for t in self._timers):
+            if timer.next_due <= now and not self._stopping:
+                # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the
+                # next spins, so a 1 kHz timer averages 1 kHz; after a stall of more than
+                # MAX_CATCH_UP the missed ticks are skipped rather than fired in a burst.
+                timer.next_due += timer.period
+                if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
+                    timer.next_due = now + timer.period
+                self._call(timer.callback, (), timer)
+                ran += 1
+            if timer.next_due < next_due:   # cancelled by its own callback: a wake for nothing
+                next_due = timer.next_due
+        if len(self._timers) != len(timers):   # created by a callback
+            next_due = min([next_due] + [t.next_due for t in self._timers[len(timers):]])
+        if cancelled:
             self._timers = [t for t in self._timers if not t.cancelled]
+        self._next_due = next_due
         return ran
 
     def _send_heartbeat(self) -> None:

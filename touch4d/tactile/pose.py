@@ -19,10 +19,12 @@ def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
     """Return (position (3,), unit quaternion (4,) x,y,z,w) as floats, or raise PoseError."""
     p = np.asarray(position, dtype=float)
     q = np.asarray(orientation, dtype=float)
-    if p.shape == (3,) and q.shape == (4,) and math.isfinite(p.sum() + q.sum()):
-        norm = math.sqrt(float(q @ q))
-        if abs(norm - 1.0) <= UNIT_TOLERANCE:
-            return p, q / norm
+    if p.shape == (3,) and q.shape == (4,):   # the usual case, in plain floats (quicker for 7 values)
+        values = q.tolist()
+        if math.isfinite(sum(p.tolist()) + sum(values)):
+            norm = math.hypot(*values)
+            if abs(norm - 1.0) <= UNIT_TOLERANCE:
+                return p, q / norm
     if p.shape != (3,):
         raise PoseError(f"position: expected 3 numbers (x, y, z), got shape {p.shape}")
     if not np.all(np.isfinite(p)):

@@ -77,12 +77,13 @@ def compute_stimulus(glove: Glove, caster, position, orientation, alpha: float |
     beta = glove.beta if beta is None else beta
     positions = place(glove.samples, glove.units_per_metre, position, orientation)
     inside = inside_screen(positions)
-    l = np.full(len(positions), np.nan)
-    hit = np.full(len(positions), -1)
     if inside.any():
-        t, obj = caster.cast(positions)
-        l = np.where(inside, t, np.nan)
-        hit = np.where(np.isnan(l), -1, obj)
+        l, hit = caster.cast(positions)       # NaN and -1 on a miss
+        if not inside.all():
+            l = np.where(inside, l, np.nan)
+            hit = np.where(inside, hit, -1)
+    else:
+        l, hit = np.full(len(positions), np.nan), np.full(len(positions), -1)
     return _from_distances(glove, positions, inside, l, hit, alpha, beta)
 
 
