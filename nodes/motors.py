@@ -16,6 +16,8 @@ chain (tracking PC, motor Pi) are NTP-synchronised; set `command_max_age_s: 0` w
 A `safety/stop` is momentary by default: commands resume `can.stop_hold_s` (1 s) after it;
 `stop_hold_s: .inf` latches it until the node restarts. Every refresh tick sends, whatever the
 receive side raised, and shutdown always sends NMT STOP and zero duty.
+While every motor is off and the boards have been sent so, the refresh slows to the glove's
+`can.idle_refresh_hz` (an idle node costs little); a command goes out at once and speeds it up.
 
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
@@ -91,7 +93,7 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
-        self.create_timer(1.0 / cfg.refresh_hz, self.on_refresh)
+        self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
         self.tracing = p["trace"]
         if self.tracing:
@@ -116,6 +118,7 @@ class MotorsNode(Node):
                                                   "are the clocks NTP-synchronised?")
         if not self.tracing:
             self._send_frames(self.driver.outgoing(now), now)
+            self._pace(now)
             return
         if self._trace_pending is not None:
             self._counters["trace_superseded"] += 1
@@ -126,6 +129,7 @@ class MotorsNode(Node):
             return
         self._trace_pending = msg.source_stamp
         self._send_frames(outs, now)
+        self._pace(now)
 
     def on_stop(self, msg: Stop) -> None:
         now = time.monotonic()
@@ -141,6 +145,13 @@ class MotorsNode(Node):
         stop = self.driver.stop(now)
         self._send_frames([Outgoing(0, stop)], now)
         self._send_frames(self.driver.outgoing(now, refresh=True, force=True), now)
+        self._pace(now)
+
+    def _pace(self, now: float) -> None:
+        """Refresh at refresh_hz, or at idle_refresh_hz while every motor is off and sent."""
+        period = self.driver.refresh_period(now)
+        if period != self.refresh_timer.period:
+            self.set_timer_period(self.refresh_timer, period)
 
     def on_refresh(self) -> None:
         now = time.monotonic()
@@ -151,6 +162,7 @@ class MotorsNode(Node):
         except Exception as exc:  # noqa: BLE001 - fail safe: the tick's frames (and watchdog) must go out
             self._can_fault("receive_error", f"{type(exc).__name__}: {exc}")
         self._send_frames(self.driver.outgoing(now, refresh=True), now)
+        self._pace(now)
 
     def _receive_frames(self, now: float) -> None:
         msgs, fault = self.link.receive()

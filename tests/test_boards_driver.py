@@ -377,3 +377,57 @@ def test_duties_follow_time_without_input_as_if_computed_every_tick(tmp_path):
         want, state = thermal_limit(wanted, state, now, cfg.thermal)
         assert d.duty.tolist() == want.tolist(), i
         assert d.duties_on_bus()
+
+
+def test_refresh_slows_to_the_idle_rate_only_while_every_motor_is_off_and_sent():
+    fast, idle = 1 / CFG.refresh_hz, 1 / CFG.idle_refresh_hz
+    assert CFG.idle_refresh_hz == 25.0 and idle == pytest.approx(0.04)   # the default: 25 Hz
+    d = MotorDriver(CFG, PROTO, now=T0)
+    assert d.refresh_period(T0) == fast                    # the first tick's NMT START is due
+    send_all(d, d.outgoing(T0, refresh=True), T0)
+    assert d.refresh_period(T0) == idle                    # all off, and the boards were sent so
+    t = T0 + 0.01
+    d.command(NAMES, np.full(30, 0.5), t)
+    assert d.refresh_period(t) == fast                     # a command's duties are not yet sent
+    send_all(d, d.outgoing(t), t)
+    assert d.refresh_period(t) == fast                     # motors on: the boards' watchdogs need feeding
+    t += CFG.watchdog_s + 0.001                            # silence: the node's watchdog turns all off
+    assert d.refresh_period(t) == fast                     # ... but the zeros are not sent yet
+    send_all(d, d.outgoing(t, refresh=True), t)
+    assert d.refresh_period(t) == idle
+    d.command(NAMES, np.zeros(30), t + 0.001)               # a command of all zeros changes nothing
+    assert d.refresh_period(t + 0.001) == idle
+    t += 0.01
+    d.stop(t)
+    send_all(d, d.outgoing(t, refresh=True, force=True), t)
+    assert d.refresh_period(t) == fast                     # a stop hold ends in an NMT START, on time
+    t += CFG.stop_hold_s + 0.001
+    assert d.refresh_period(t) == fast
+    out = frames(send_all(d, d.outgoing(t, refresh=True), t))
+    assert out[0][1].kind == "nmt" and out[0][1].signals["Command"] == 1   # START, to every board
+    assert d.refresh_period(t) == idle
+
+
+@pytest.mark.parametrize("can, want", [
+    ({}, 25.0),                                            # the default
+    ({"board_watchdog_s": 0.05}, 40.0),                    # two frames per board watchdog
+    ({"refresh_hz": 20.0, "board_watchdog_s": 1.0}, 20.0),  # never faster than the refresh
+    ({"idle_refresh_hz": 50.0}, 50.0),
+])
+def test_idle_refresh_rate_default_follows_the_board_watchdog(can, want):
+    data = {"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}],
+            "can": {"boards": [{"id": 1, "channels": 1}], **can}}
+    assert glove_can_from_mapping(data, "g.yaml").idle_refresh_hz == want
+
+
+@pytest.mark.parametrize("can, expected", [
+    ({"idle_refresh_hz": 10.0}, ">= 20"),                  # 100 ms between frames: one loss trips a board
+    ({"idle_refresh_hz": 300.0}, "<= can.refresh_hz"),
+    ({"idle_refresh_hz": "slow"}, "float"),
+])
+def test_bad_idle_refresh_rate_names_the_key(can, expected):
+    data = {"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}],
+            "can": {"boards": [{"id": 1, "channels": 1}], **can}}
+    with pytest.raises(ConfigError) as err:
+        glove_can_from_mapping(data, "g.yaml")
+    assert "'can.idle_refresh_hz'" in str(err.value) and expected in str(err.value)

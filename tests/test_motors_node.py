@@ -535,3 +535,30 @@ def test_no_trace_without_the_parameter(rig):
     rig.tester.create_subscription("motors/trace", MotorTrace, traces.append)
     assert rig.spin(0.5, intensity=np.full(30, 0.5), until=lambda: False) is False
     assert traces == [] and "trace_traced" not in rig.node.stats_flat()
+
+
+def test_an_idle_node_refreshes_the_boards_at_the_idle_rate_and_speeds_up_for_a_command(rig):
+    def frames_per_board_per_second(seconds, intensity=None):
+        sent = record_sent(rig.node)
+        rig.spin(seconds, intensity=intensity)
+        rig.node.driver.sent = type(rig.node.driver).sent.__get__(rig.node.driver)
+        span = max(t for t, _, _ in sent) - min(t for t, _, _ in sent)
+        return (len(sent) - 4) / 4 / span, sent
+
+    assert rig.spin(WAIT, until=lambda: bool(rig.status) and all(b["online"] for b in rig.status[-1].boards))
+    # the boards' start-up (NMT START) is paced at the full rate; then the node idles
+    assert rig.spin(WAIT, until=lambda: rig.node.refresh_timer.period == pytest.approx(1 / 25))
+    idle_rate, sent = frames_per_board_per_second(1.0)
+    assert all(levels == (0,) * 8 for _, _, levels in sent)
+    # 25 Hz (the default idle_refresh_hz), not 200 (a late tick's catch-up may add one or two)
+    assert rig.node.refresh_timer.period == pytest.approx(1 / 25) and idle_rate <= 30, idle_rate
+    busy_rate, _ = frames_per_board_per_second(1.0, intensity=np.full(30, 0.5))
+    assert rig.node.refresh_timer.period == pytest.approx(1 / 200)
+    assert busy_rate >= 2.5 * idle_rate, (busy_rate, idle_rate)   # ~200 Hz, less what a loaded machine loses
+    # the idle boards were fed all along: still online, no fault, nothing tripped by their watchdog
+    assert rig.spin(WAIT, until=lambda: rig.emu.motor_levels() == [0] * 30)
+    idle_again, _ = frames_per_board_per_second(1.0)
+    assert rig.node.refresh_timer.period == pytest.approx(1 / 25) and idle_again <= 30
+    last = rig.status[-1].boards
+    assert all(b["online"] and b["faults"] == [] for b in last), last
+    assert sum(b.counters["watchdog_trips"] for b in rig.emu.boards.values()) == 0

@@ -21,6 +21,7 @@ DEFAULTS = {
     "channel": "touch4d-glove",
     "bitrate": 500000,
     "refresh_hz": 200.0,
+    "idle_refresh_hz": None,    # None: 25 Hz, or faster when the board watchdog needs it (_idle_refresh)
     "watchdog_s": 0.1,
     "board_watchdog_s": 0.1,
     "status_hz": 20.0,
@@ -83,6 +84,7 @@ class GloveCan:
     channel: str
     bitrate: int
     refresh_hz: float
+    idle_refresh_hz: float
     watchdog_s: float
     board_watchdog_s: float
     status_hz: float
@@ -167,6 +169,7 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
         channel=str(_typed(file, "can.channel", can.get("channel", DEFAULTS["channel"]), (str, int))),
         bitrate=get("bitrate", int, lambda v: 10_000 <= v <= 1_000_000, "a classic CAN bitrate 10000..1000000"),
         refresh_hz=get("refresh_hz", float, *positive),
+        idle_refresh_hz=_idle_refresh(file, can, get),
         watchdog_s=watchdog_s,
         board_watchdog_s=get("board_watchdog_s", float, *positive),
         status_hz=get("status_hz", float, *positive),
@@ -185,7 +188,33 @@ def glove_can_from_mapping(data, file="<input>") -> GloveCan:
         motor_channel=tuple(m[2] for m in motors),
     )
     _check_ids(cfg)
+    _check_idle_refresh(cfg)
     return cfg
+
+
+IDLE_REFRESH_HZ = 25.0
+
+
+def _idle_refresh(file, can: dict, get) -> float:
+    """`can.idle_refresh_hz`, or its default: 25 Hz, at least two frames per board watchdog, at
+    most refresh_hz."""
+    if can.get("idle_refresh_hz") is not None:
+        return get("idle_refresh_hz", float, lambda v: 0 < v < math.inf, "> 0 and finite")
+    positive = (lambda v: 0 < v < math.inf, "> 0 and finite")
+    fastest, watchdog = get("refresh_hz", float, *positive), get("board_watchdog_s", float, *positive)
+    return min(max(IDLE_REFRESH_HZ, 2.0 / watchdog), fastest)
+
+
+def _check_idle_refresh(cfg: GloveCan) -> None:
+    """All-off boards are refreshed at `idle_refresh_hz`: no faster than `refresh_hz`, and at least
+    twice per board watchdog, so that one lost frame trips no board."""
+    if cfg.idle_refresh_hz > cfg.refresh_hz:
+        raise ConfigError(cfg.file, "can.idle_refresh_hz", f"<= can.refresh_hz ({cfg.refresh_hz:g})",
+                          got=cfg.idle_refresh_hz)
+    if 2.0 / cfg.idle_refresh_hz > cfg.board_watchdog_s + 1e-12:
+        raise ConfigError(cfg.file, "can.idle_refresh_hz",
+                          f">= {2.0 / cfg.board_watchdog_s:g} (two frames per can.board_watchdog_s)",
+                          got=cfg.idle_refresh_hz)
 
 
 def _typed(file, key, value, kind, check=None, what=""):

@@ -18,6 +18,10 @@ the frames `outgoing` returns. Rules:
 - a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
   every `RESTART_PERIOD_S`; a board silent for `board_timeout_s` is reported offline.
 
+While every motor is off and every board has been sent that (nothing to change, no stop hold,
+no NMT start due), `refresh_period` is that of `idle_refresh_hz`: zeros need feeding only so that
+the boards' watchdogs do not trip, and a command still goes out at once.
+
 Idle costs little: the duties are computed again only on an input (command, stop) or when time
 alone can change them (the watchdog, the end of a stop hold, the thermal limit), and each board's
 frames are encoded once (see `DutyFrames`), so a steady board is refreshed with the same objects.
@@ -94,6 +98,8 @@ class DutyFrames:
         self._counters: dict[int, int] = {}
         self._levels: dict[tuple, int] = {}
         self._frames: dict[tuple, can.Message] = {}
+        for counter in range(256):   # every counter part up front: no encoding in the loop for it
+            self._bits(self._counters, counter, self._zero, counter)
 
     def _bits(self, cache: dict, key, levels: tuple, counter: int) -> int:
         bits = cache.get(key)
@@ -245,6 +251,15 @@ class MotorDriver:
             self._levels = {b: self.board_levels(b, motor_levels) for b in self.boards}
         self.duty = duty
         return duty
+
+    def refresh_period(self, now: float) -> float:
+        """Seconds to the next refresh tick: 1 / refresh_hz, or 1 / idle_refresh_hz while all is off
+        and sent (see the module doc)."""
+        self.update(now)
+        if (self._restart_pending or now < self.stop_until or self.duty.any()
+                or any(b.sent_levels != self._levels[b.id] for b in self.boards.values())):
+            return self.period
+        return 1.0 / self.cfg.idle_refresh_hz
 
     def board_levels(self, board_id: int, motor_levels: np.ndarray | None = None) -> tuple:
         """The duty levels of one board's channels (from every motor's levels, if already computed)."""

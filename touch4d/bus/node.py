@@ -299,6 +299,15 @@ class Node:
         self._next_due = min(self._next_due, timer.next_due)
         return timer
 
+    def set_timer_period(self, timer: Timer, period: float) -> None:
+        """Change a timer's period; a shorter one takes effect at once (the next tick at most
+        `period` from now), a longer one after the tick already due."""
+        if not period > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period}")
+        timer.period = float(period)
+        timer.next_due = min(timer.next_due, time.monotonic() + timer.period)
+        self._next_due = min(self._next_due, timer.next_due)
+
     @property
     def stats(self) -> dict[str, dict]:
         """Per subscribed topic: received, dropped (stale, latest-only), malformed, gaps (from seq)."""
