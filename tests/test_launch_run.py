@@ -63,7 +63,7 @@ def test_a_killed_node_with_respawn_comes_back_and_sigterm_stops_all():
 
 def test_a_node_stuck_past_the_grace_is_killed_and_the_launch_still_stops_cleanly():
     from touch4d.bus.launcher import STOP_GRACE
-    assert STOP_GRACE < 2.0  # the bound on a clean stop
+    assert STOP_GRACE < 2.0  # a clean stop is over within 2 s
     with launch_process(["launch/example.yaml", "listener.delay:=120"]) as run:
         pids = heartbeat_pids(run, ["talker", "listener"])
         with Node("probe", bus=run.bus, heartbeat=False) as probe:
