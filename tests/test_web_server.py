@@ -3,6 +3,7 @@ the node's own certificate, and the node surviving garbage on its WebSocket."""
 import asyncio
 import json
 import os
+import queue
 import ssl
 import time
 
@@ -94,6 +95,28 @@ def test_tls_with_the_nodes_own_certificate(tmp_path):
         server.stop()
     # a new address needs a new certificate
     assert ensure_certificate(tmp_path, ["192.0.2.7"])[2] != fingerprint
+
+
+def test_a_new_page_hears_broadcasts_only_after_its_first_frame():
+    """The node answers a connection on its own thread: broadcasts queued before its setup frame
+    must not reach the page ahead of it."""
+    connected = queue.Queue()
+    server = PageServer("127.0.0.1", 0, None, on_connect=connected.put)
+    port = server.start()
+    try:
+        async def page():
+            async with aiohttp.ClientSession() as session, session.ws_connect(f"http://127.0.0.1:{port}/ws") as ws:
+                conn = await asyncio.get_running_loop().run_in_executor(None, connected.get, True, 5)
+                server.broadcast(b"frame before setup", latest=True)
+                server.broadcast(b"geometry before setup")
+                await asyncio.sleep(0.2)
+                server.send(conn, b"setup")
+                server.broadcast(b"frame after setup", latest=True)
+                return [await ws.receive_bytes(timeout=5), await ws.receive_bytes(timeout=5)]
+
+        assert asyncio.run(page()) == [b"setup", b"frame after setup"]
+    finally:
+        server.stop()
 
 
 def test_access_helpers():

@@ -6,7 +6,8 @@ text, the bytes, or the WebSocket error that closed the connection, e.g. a messa
 `on_connect(conn)` / `on_close(conn)`), called on the server's thread (the node hands them to its
 own); what the node sends goes out through `send` and `broadcast`, safe from any thread. Per page,
 frames marked `latest` replace one not yet sent (a slow Wi-Fi link gets the newest state, never a
-backlog); the others (setup, geometry) are sent in order, never dropped.
+backlog); the others (setup, geometry) are sent in order, never dropped. A new page hears broadcasts
+only after the node's first frame to it (its setup): no page sees a frame before its setup.
 """
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ class _Client:
         self.queue: collections.deque = collections.deque()
         self.latest: bytes | None = None
         self.wake = asyncio.Event()
+        self.ready = False   # set by the node's first frame to this page: broadcasts reach it after
 
 
 class PageServer:
@@ -89,7 +91,7 @@ class PageServer:
     def send(self, conn: int, data: bytes) -> None:
         """Queue a frame for one page (in order, never dropped)."""
         if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._enqueue, conn, data, False)
+            self._loop.call_soon_threadsafe(self._enqueue, conn, data, False, True)
 
     def broadcast(self, data: bytes, latest: bool = False) -> None:
         """Queue a frame for every page; `latest` frames replace an unsent one."""
@@ -199,10 +201,11 @@ class PageServer:
         except (ConnectionError, RuntimeError):
             pass   # the page went away; the receive loop sees the close
 
-    def _enqueue(self, conn: int, data: bytes, latest: bool) -> None:
+    def _enqueue(self, conn: int, data: bytes, latest: bool, direct: bool = False) -> None:
         client = self.clients.get(conn)
-        if client is None:
+        if client is None or not (direct or client.ready):
             return
+        client.ready = True
         if latest:
             client.latest = data
         else:
