@@ -57,8 +57,9 @@ def test_the_full_stack_drives_the_firmware_boards_outputs_to_the_commanded_duti
                     probe.spin_once(0.0)
                     if not commands:
                         continue
-                    samples.append((len(commands), {b: glove.levels(b) for b in glove.boards},
-                                    {b: glove.pwm(b) for b in glove.boards}))
+                    outputs = {b: glove.outputs(b) for b in glove.boards}   # levels and PWM of one moment
+                    samples.append((len(commands), {b: o[0] for b, o in outputs.items()},
+                                    {b: o[1] for b, o in outputs.items()}))
                     if touched_at is None and commands[-1].intensity.max() > 0:
                         touched_at = len(commands)
                     quiet = len(commands) > 90 and not any(c.intensity.any() for c in commands[-90:])

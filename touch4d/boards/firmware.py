@@ -263,6 +263,11 @@ class FirmwareGloveEmulator(GloveEmulator):
         """Timer compare values of a board's channels."""
         return self.boards[board_id].pwm
 
+    def outputs(self, board_id: int) -> tuple[list[int], list[int]]:
+        """A board's duty levels and timer compare values, read together (the bus thread may apply
+        a frame between two separate reads)."""
+        return self.boards[board_id]._outputs()
+
 
 __all__ = ["FirmwareGloveEmulator", "FirmwareBoard", "FirmwareCore", "FirmwareBuildError", "build", "build_dir",
            "FIRMWARE_DIR"]
