@@ -11,7 +11,9 @@ does not decide the percentiles (the throughput runs, which keep both cores busy
 Throughput: the publisher sends as fast as it can; rate = messages handled by the subscriber per
 second of receiving. On a shared machine that rate follows the other load, so each setup also gets
 a CPU rate: messages handled per CPU second of its busiest process (publisher or subscriber), the
-rate it sustains with a core per process. Targets: latency within 1.5x of raw, throughput >= 0.8x raw.
+rate it sustains with a core per process; the CPU per message of publisher and subscriber (their
+ZeroMQ I/O threads included) shows where it goes. Targets: latency within 1.5x of raw, throughput
+>= 0.8x raw.
 
     .venv/bin/python bench/bench_bus.py [--latency-count 2000] [--throughput-count 60000] [--rounds 5]
 """
@@ -299,7 +301,8 @@ def run(kind, count, rate, realtime=False):
     cpu_rate = (received - 1) / max(sub_cpu, pub_cpu) if received > 1 else float("nan")
     return {"received": received, "p50": float(np.percentile(lat, 50)) if received else float("nan"),
             "p99": float(np.percentile(lat, 99)) if received else float("nan"), "rate": rate_out,
-            "cpu_rate": cpu_rate}
+            "cpu_rate": cpu_rate, "pub_us": pub_cpu / count * 1e6,
+            "sub_us": sub_cpu / (received - 1) * 1e6 if received > 1 else float("nan")}
 
 
 def main():
@@ -330,19 +333,24 @@ def main():
             lat = run(k, args.latency_count, args.latency_rate, realtime)
             thr = run(k, args.throughput_count, None)
             rounds[k].append({"p50": lat["p50"], "p99": lat["p99"], "rate": thr["rate"], "cpu_rate": thr["cpu_rate"],
-                              "lost": args.latency_count - lat["received"]})
-    res = {k: {m: float(np.median([r[m] for r in rounds[k]])) for m in ("p50", "p99", "rate", "cpu_rate", "lost")}
+                              "pub_us": thr["pub_us"], "sub_us": thr["sub_us"], "lost": args.latency_count - lat["received"]})
+    res = {k: {m: float(np.median([r[m] for r in rounds[k]])) for m in ("p50", "p99", "rate", "cpu_rate", "pub_us", "sub_us", "lost")}
            for k in kinds}
     for k in kinds:
         r = res[k]
         print(f"{k:>8}: latency p50 {r['p50']:7.1f} us  p99 {r['p99']:8.1f} us  throughput {r['rate']:8.0f} msg/s  "
-              f"CPU rate {r['cpu_rate']:8.0f} msg/s   (p99 per round: {', '.join(str(round(x['p99'])) for x in rounds[k])}; p50: "
+              f"CPU rate {r['cpu_rate']:8.0f} msg/s (CPU per message: publisher {r['pub_us']:.1f} us, "
+              f"subscriber {r['sub_us']:.1f} us)   (p99 per round: {', '.join(str(round(x['p99'])) for x in rounds[k])}; p50: "
               f"{', '.join(str(round(x['p50'])) for x in rounds[k])} us)")
     for k in ("runtime", "touch4d"):
         print(f"   ratio {k}/raw: latency p50 {res[k]['p50'] / res['raw']['p50']:.2f}x  "
               f"p99 {res[k]['p99'] / res['raw']['p99']:.2f}x (target <= 1.5x)   "
               f"throughput {res[k]['rate'] / res['raw']['rate']:.2f}x, CPU rate "
               f"{res[k]['cpu_rate'] / res['raw']['cpu_rate']:.2f}x (target >= 0.8x)")
+    for k in ("runtime", "touch4d"):   # round by round: how steady the ratio is on this machine
+        print(f"   throughput ratio {k}/raw per round: " + ", ".join(
+            f"{a['rate'] / b['rate']:.2f}" for a, b in zip(rounds[k], rounds["raw"])) + "; CPU rate: " + ", ".join(
+            f"{a['cpu_rate'] / b['cpu_rate']:.2f}" for a, b in zip(rounds[k], rounds["raw"])))
     load = os.getloadavg()
     print(f"load average at the end {load[0]:.2f}")
 

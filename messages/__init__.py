@@ -2,7 +2,7 @@
 
 See docs/contracts.md for the table of topics and fields.
 """
-from .base import Message, MessageError, TYPES, decode, encode
+from .base import Message, MessageError, TYPES, decode, decoder, encode
 from .hand import ControllerState, HandJoints, HandPose
 from .scene import PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
 from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
@@ -24,7 +24,7 @@ TOPIC_TYPES: dict[str, type[Message]] = {
 }
 
 __all__ = [
-    "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode",
+    "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode", "decoder",
     "HandPose", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
     "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
 ]

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 
@@ -241,7 +242,11 @@ def spec(kind: Kind, doc: str, *, optional: bool = False):
 
     An `optional` (scalar) field may be absent from a payload, meaning its default, and is left out
     of the payload while it holds its default: payloads without it stay valid and byte-identical."""
-    return field(default_factory=kind.default, metadata={"kind": kind, "doc": doc, "optional": optional})
+    metadata = {"kind": kind, "doc": doc, "optional": optional}
+    default = kind.default()
+    if default.__class__ in (float, int, bool, str):   # immutable: shared, and no call per message made
+        return field(default=default, metadata=metadata)
+    return field(default_factory=kind.default, metadata=metadata)
 
 
 # ---- the message base class ------------------------------------------------------------------------
@@ -327,6 +332,29 @@ class Message:
         payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).encode(self)
         return pack(self.to_dict()) if payload is None else payload
 
+    def stamp_for_publish(self, seq: int) -> None:
+        """Fill the header as a publisher sends it: `stamp` (if 0) now, `source_stamp` (if 0) the
+        stamp (an originating message), `seq` the publisher's number for it."""
+        if not self.stamp:
+            self.stamp = time.time()
+        if not self.source_stamp:
+            self.source_stamp = self.stamp
+        self.seq = seq
+
+    def publish_payload(self, seq: int) -> bytes:
+        """The payload a publisher sends: validated, stamped (`stamp_for_publish`) and encoded, in
+        one generated pass where it can; raises MessageError, leaving the message as it was, if a
+        field is invalid."""
+        try:
+            payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).publish(self, seq)
+        except (KeyError, TypeError, ValueError):
+            payload = None  # validate says what is wrong
+        if payload is None:
+            self.validate()
+            self.stamp_for_publish(seq)
+            payload = self.encode()
+        return payload
+
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Message:
         """Build and fully check a message of this class from a decoded map."""
@@ -397,6 +425,25 @@ def encode(msg: Message) -> bytes:
     return msg.encode()
 
 
+def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
+    """`decode(payload, expected)` as one function made once (a subscription's): the class's
+    generated decode first, without looking it up per message."""
+    fast = (expected.__dict__.get("_FAST") or _fast_paths(expected)).decode
+    name = expected.TYPE
+
+    def decode_expected(payload: bytes) -> Message:
+        if TYPES.get(name) is expected:
+            try:
+                msg = fast(payload)
+            except Exception:  # noqa: BLE001 - whatever it is, decode() says what is wrong
+                msg = None
+            if msg is not None:
+                return msg
+        return _decode_reference(payload, expected)
+
+    return decode_expected
+
+
 def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
     if expected is not None and TYPES.get(expected.TYPE) is expected:
@@ -406,6 +453,11 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
             msg = None
         if msg is not None:
             return msg
+    return _decode_reference(payload, expected)
+
+
+def _decode_reference(payload: bytes, expected: type[Message] | None) -> Message:
+    """decode() by the reference code, which names what is wrong."""
     try:
         data = unpack(payload)
     except CodecError as exc:

@@ -1,27 +1,30 @@
 """Per-class fast paths of the messages, generated from their field declarations.
 
 Like `dataclasses` writes each class's `__init__`, this writes, once per message class, straight-line
-code for the hot operations: coercing the fields of a new message, validating before publish,
-encoding, and decoding. No loop over fields, no call per field for the common kinds; decoding checks
-the plain fields in C, through a msgspec struct made from the declarations (floats finite, strings
-among their choices, lists of strings, string keys), and takes arrays as views into the payload.
+code for the hot operations: coercing the fields of a new message, validating, encoding, publishing
+(validate, fill the header and encode in one pass) and decoding. No loop over fields, no call per
+field for the common kinds; decoding checks the plain fields in C, through a msgspec struct made from
+the declarations (floats finite, strings among their choices, lists of strings, string keys), and
+takes arrays as views into the payload (small fixed-shape ones, a pose's, as copies: quicker).
 
 Each fast path accepts only what the reference code of base.py (the kinds' `check` and `coerce`,
-`Message.from_dict`, `Message.validate`, `Message.to_dict`) accepts unchanged; for anything else (a
-value to coerce, a bad field, a subclass that overrides the reference) it declines and the reference
-code runs. So behaviour and error texts are base.py's, whatever the speed.
+`Message.from_dict`, `validate`, `to_dict` and `stamp_for_publish`) accepts unchanged; for anything
+else (a value to coerce, a bad field, a subclass that overrides the reference) it declines and the
+reference code runs. So behaviour and error texts are base.py's, whatever the speed.
 """
 from __future__ import annotations
 
 import itertools
+import math
 import sys
+import time
 from typing import Annotated, Any, Callable, Literal, NamedTuple
 
 import msgspec
 import numpy as np
 
 from . import base
-from .codec import _array_prefix, _ext_hook, array_parts, encode_plain, unpack
+from .codec import NDARRAY_EXT, _array_prefix, _ext_hook, _header, array_parts, encode_plain, unpack
 
 
 class FastPaths(NamedTuple):
@@ -30,10 +33,14 @@ class FastPaths(NamedTuple):
     coerce: Callable        # coerce(msg): every field coerced, as __post_init__ must (raises MessageError)
     validate: Callable      # validate(msg) -> True, or False to run the reference validate
     encode: Callable        # encode(msg) -> payload bytes, or None to encode the reference way
+    publish: Callable       # publish(msg, seq) -> payload of msg validated and stamped (see base.py's
+                            #   `stamp_for_publish`), or None (or raises) having changed nothing: the
+                            #   reference validate, stamp_for_publish and encode then run
     from_dict: Callable     # from_dict(map without "type") -> message, or None (or raises) for the reference
     decode: Callable        # decode(payload) -> message of this class, or None (or raises) for the reference
 
 
+_SMALL_ARRAY = 512   # bytes: a fixed-shape array up to this size is copied, not viewed (quicker)
 _ANY_STR = itertools.repeat(str)   # map(isinstance, values, _ANY_STR): a C loop over the values
 _FINITE = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]  # rejects NaN, inf
 
@@ -206,53 +213,95 @@ def _gen_from_dict(cls, fields, src: _Source) -> list[str]:
                "    msg.check()", "    return msg"])
 
 
+def _small_fixed(kind) -> tuple[np.dtype, tuple[int, ...]] | None:
+    """(dtype, shape) of a fixed array kind of at most _SMALL_ARRAY bytes (copied, not viewed)."""
+    fixed = _fixed_array(kind)
+    return fixed if fixed is not None and math.prod(fixed[1]) * fixed[0].itemsize <= _SMALL_ARRAY else None
+
+
 def _gen_decode(cls, fields, src: _Source) -> list[str]:
     """msgspec decodes the payload into a struct made from the declarations, checking the plain
-    fields; arrays (raw) become views into the payload; the other kinds run their `check`."""
+    fields; arrays (raw) become views into the payload, small fixed ones arrays over their own copy
+    (msgspec's Ext: quicker than a view's checks); the other kinds run their `check`."""
+    def typ(kind):
+        return msgspec.msgpack.Ext if _small_fixed(kind) else wire_type(kind)
+
     wire = msgspec.defstruct(
         f"{cls.__name__}Wire",
-        [(f.name, wire_type(f.metadata["kind"]), f.metadata["kind"].default()) if f.metadata.get("optional")
-         else (f.name, wire_type(f.metadata["kind"])) for f in fields],
+        [(f.name, typ(f.metadata["kind"]), f.metadata["kind"].default()) if f.metadata.get("optional")
+         else (f.name, typ(f.metadata["kind"])) for f in fields],
         tag_field="type", tag=cls.TYPE, forbid_unknown_fields=True, kw_only=True)
     decoder = msgspec.msgpack.Decoder(wire, ext_hook=_ext_hook)
     lines = ["def decode(payload):", f"    d = {src.const(msgspec.structs.asdict)}({src.const(decoder.decode)}(payload))"]
     for f in fields:
         kind = f.metadata["kind"]
-        typ = wire_type(kind)
-        if typ is msgspec.Raw:
-            fixed = _fixed_array(kind)
+        fixed = _fixed_array(kind)
+        if typ(kind) is msgspec.msgpack.Ext:   # the usual dtype and shape: known from the ext's first bytes
+            header = _header(fixed[0].str, fixed[1])
+            size = len(header) + math.prod(fixed[1]) * fixed[0].itemsize
             lines.append(f"    v = d[{f.name!r}]")
-            if fixed is not None:   # the usual dtype and shape: known from the bytes that start the value
-                prefix = _array_prefix(*fixed)
-                lines.append(f"    if {src.const(memoryview)}(v)[:{len(prefix)}] == {src.const(prefix)}:")
-                lines.append(f"        v = {src.const(np.frombuffer)}(v, {src.const(fixed[0])}, "
-                             f"{int(np.prod(fixed[1]))}, {len(prefix)})")
-                if len(fixed[1]) != 1:
-                    lines.append(f"        v = v.reshape({src.const(fixed[1])})")
-                test = check_test(kind, src, shape_known=True)
-                lines.append(f"        if not ({test}): return None")
-                lines.append("    else:")
-                indent = "        "
-            else:
-                indent = "    "
-            lines.append(f"{indent}v = {src.const(unpack)}(v)")
-            lines.append(f"{indent}if not ({check_test(kind, src)}): return None")
+            lines.append(f"    if v.code == {NDARRAY_EXT} and len(b := v.data) == {size} and b.startswith({src.const(header)}):")
+            lines.append(f"        v = {src.const(np.frombuffer)}(b, {src.const(fixed[0])}, {math.prod(fixed[1])}, {len(header)})")
+            if len(fixed[1]) != 1:
+                lines.append(f"        v = v.reshape({src.const(fixed[1])})")
+            lines.append(f"        if not ({check_test(kind, src, shape_known=True)}): return None")
+            lines.append("    else:")
+            lines.append(f"        v = {src.const(_ext_hook)}(v.code, {src.const(memoryview)}(v.data))")
+            lines.append(f"        if not ({check_test(kind, src)}): return None")
             lines.append(f"    d[{f.name!r}] = v")
-        elif typ is Any:
+        elif typ(kind) is msgspec.Raw:
+            lines.append(f"    v = {src.const(unpack)}(d[{f.name!r}])")
+            lines.append(f"    if not ({check_test(kind, src)}): return None")
+            lines.append(f"    d[{f.name!r}] = v")
+        elif typ(kind) is Any:
             lines.append(f"    d[{f.name!r}] = {src.const(kind.check)}(d[{f.name!r}])")
     lines += [f"    msg = {src.const(object.__new__)}({src.const(cls)})", "    msg.__dict__ = d",
               "    msg.check()", "    return msg"]
     return lines
 
 
-def _gen_encode(cls, fields, src: _Source) -> list[str]:
-    """Plain fields through msgspec's encoder; arrays appended after them as ext values whose bytes
-    are copied once, into the payload (the map's header then counts both)."""
+def _array_lines(i: int, f, src: _Source, check: bool) -> list[str]:
+    """Lines that set `p{i}, r{i}` (ext prefix, bytes) of array field `f`; with `check`, also its
+    checks (`return None` on a failure); without, `return None` for a value that is no array."""
+    kind = f.metadata["kind"]
+    nd = src.const(np.ndarray)
+    lines = [f"    a{i} = d[{f.name!r}]"]
+    fixed = _fixed_array(kind)
+    if fixed is not None:   # the usual dtype and shape: a constant prefix, and the shape needs no check
+        nbytes = math.prod(fixed[1]) * fixed[0].itemsize
+        data = f"a{i}.tobytes()" if nbytes <= _SMALL_ARRAY else f"a{i}.data"
+        lines.append(f"    if a{i}.__class__ is {nd} and a{i}.dtype is {src.const(fixed[0])} and "
+                     f"a{i}.shape == {src.const(fixed[1])} and a{i}.flags.c_contiguous:")
+        if check and kind._check_finite:
+            lines.append(f"        v = a{i}")
+            lines.append(f"        if not ({check_test(kind, src, shape_known=True)}): return None")
+        lines.append(f"        p{i}, r{i} = {src.const(_array_prefix(*fixed))}, {data}")
+        lines.append("    else:")
+        indent = "        "
+    else:
+        indent = "    "
+    if check:
+        test = check_test(kind, src)
+        lines.append(f"{indent}v = a{i}")
+        lines.append(f"{indent}if not ({test}): return None" if test is not None else f"{indent}{src.const(kind.check)}(v)")
+    else:
+        lines.append(f"{indent}if a{i}.__class__ is not {nd}: return None")
+    lines.append(f"{indent}p{i}, r{i} = {src.const(array_parts)}(a{i})")
+    return lines
+
+
+def _split(fields):
     arrays = [f for f in fields if type(f.metadata["kind"]) is base.Array]
-    plain = [f for f in fields if f not in arrays]
+    return [f for f in fields if f not in arrays], arrays
+
+
+def _payload_lines(cls, fields, src: _Source) -> list[str]:
+    """Lines that return the payload: the plain fields through msgspec's encoder, then the arrays
+    (`p{i}, r{i}`, see `_array_lines`) appended as ext values (the map's header counts both)."""
+    plain, arrays = _split(fields)
     lead = next((i for i, f in enumerate(plain) if f.metadata.get("optional")), len(plain))
     items = ", ".join([f"'type': {cls.TYPE!r}"] + [f"{f.name!r}: d[{f.name!r}]" for f in plain[:lead]])
-    lines = ["def encode(msg):", "    d = msg.__dict__", f"    h = {{{items}}}"]
+    lines = [f"    h = {{{items}}}"]
     for f in plain[lead:]:   # in declaration order; an optional field left out at its default (to_dict's rule)
         if f.metadata.get("optional"):
             lines.append(f"    if d[{f.name!r}] != {src.const(f.metadata['kind'].default())}: "
@@ -261,26 +310,38 @@ def _gen_encode(cls, fields, src: _Source) -> list[str]:
             lines.append(f"    h[{f.name!r}] = d[{f.name!r}]")
     if not arrays:
         return lines + [f"    return {src.const(encode_plain)}(h)"]
-    nd = src.const(np.ndarray)
-    for i, f in enumerate(arrays):
-        lines.append(f"    a{i} = d[{f.name!r}]")
-        fixed = _fixed_array(f.metadata["kind"])
-        if fixed is not None:   # the usual dtype and shape: a constant prefix
-            lines.append(f"    if a{i}.__class__ is {nd} and a{i}.dtype is {src.const(fixed[0])} and "
-                         f"a{i}.shape == {src.const(fixed[1])} and a{i}.flags.c_contiguous:")
-            lines.append(f"        p{i}, r{i} = {src.const(_array_prefix(*fixed))}, a{i}.data")
-            lines.append(f"    elif a{i}.__class__ is {nd}: p{i}, r{i} = {src.const(array_parts)}(a{i})")
-        else:
-            lines.append(f"    if a{i}.__class__ is {nd}: p{i}, r{i} = {src.const(array_parts)}(a{i})")
-        lines.append("    else: return None")
     lines.append(f"    head = {src.const(encode_plain)}(h)")
-    header = src.const(_map_header)
-    # the map's header counts the arrays too: msgspec's (1 byte up to 15 entries, else 3) replaced
-    pieces = [f"{header}(len(h) + {len(arrays)})", "head[1 if len(h) <= 15 else 3:]"]
+    # The map's header counts the arrays too: msgspec's (1 byte up to 15 entries, else 3) replaced,
+    # by a table lookup (bytes((n,)) costs more than the rest of the join).
+    headers = src.const(tuple(_map_header(n) for n in range(len(fields) + 2)))
+    skip = "1" if len(plain) + 1 <= 15 else "1 if len(h) <= 15 else 3"
+    pieces = [f"{headers}[len(h) + {len(arrays)}]", f"head[{skip}:]"]
     for i, f in enumerate(arrays):
         pieces += [src.const(encode_plain(f.name)), f"p{i}", f"r{i}"]
-    lines.append(f"    return b''.join(({', '.join(pieces)}))")
-    return lines
+    return lines + [f"    return b''.join(({', '.join(pieces)}))"]
+
+
+def _gen_encode(cls, fields, src: _Source) -> list[str]:
+    """Each array's bytes copied once, into the payload (small fixed ones: once more, see
+    `_SMALL_ARRAY`)."""
+    arrays = _split(fields)[1]
+    return (["def encode(msg):", "    d = msg.__dict__"]
+            + [line for i, f in enumerate(arrays) for line in _array_lines(i, f, src, check=False)]
+            + _payload_lines(cls, fields, src))
+
+
+def _gen_publish(cls, fields, src: _Source) -> list[str]:
+    """validate, then stamp_for_publish, then encode, in one function that looks at each field
+    once; a failed check returns before the message is touched."""
+    plain, arrays = _split(fields)
+    return (["def publish(msg, seq):", "    d = msg.__dict__"]
+            + _gen_checks(plain, src, "return None", store=False)
+            + [line for i, f in enumerate(arrays) for line in _array_lines(i, f, src, check=True)]
+            + ["    msg.check()",
+               f"    if not d['stamp']: d['stamp'] = {src.const(time.time)}()",
+               "    if not d['source_stamp']: d['source_stamp'] = d['stamp']",
+               "    d['seq'] = seq"]
+            + _payload_lines(cls, fields, src))
 
 
 def _decline(*_args):
@@ -291,19 +352,26 @@ def compile_class(cls) -> FastPaths:
     """The fast paths of one message class (the reference for whatever the class overrides)."""
     fields = cls._fields()
     if any("__slots__" in c.__dict__ for c in cls.__mro__[:-1]) or any(f.name == "type" for f in fields):
-        return FastPaths(_reference_coerce(cls), lambda msg: False, _decline, _decline, _decline)
+        return FastPaths(coerce=_reference_coerce(cls), validate=lambda msg: False, encode=_decline,
+                         publish=_decline, from_dict=_decline, decode=_decline)
     src = _Source()
     code = (_gen_coerce(cls, fields, src) + _gen_validate(fields, src) + _gen_from_dict(cls, fields, src)
-            + _gen_decode(cls, fields, src) + _gen_encode(cls, fields, src))
+            + _gen_decode(cls, fields, src) + _gen_encode(cls, fields, src) + _gen_publish(cls, fields, src))
     namespace = dict(src.names)
     exec(compile("\n".join(code), f"<fast paths of {cls.__name__}>", "exec"), namespace)  # noqa: S102
     reference_decode = cls.from_dict.__func__ is base.Message.from_dict.__func__
+    reference_encode = cls.to_dict is base.Message.to_dict
+    # publish stands for validate + stamp_for_publish + encode: only where none is overridden
+    reference_publish = reference_encode and all(
+        getattr(cls, name) is getattr(base.Message, name) for name in ("validate", "stamp_for_publish", "encode")
+    ) and cls.__setattr__ is object.__setattr__
     return FastPaths(
-        namespace["coerce"],
-        namespace["validate"],
-        namespace["encode"] if cls.to_dict is base.Message.to_dict else _decline,
-        namespace["from_dict"] if reference_decode else _decline,
-        namespace["decode"] if reference_decode else _decline,
+        coerce=namespace["coerce"],
+        validate=namespace["validate"],
+        encode=namespace["encode"] if reference_encode else _decline,
+        publish=namespace["publish"] if reference_publish else _decline,
+        from_dict=namespace["from_dict"] if reference_decode else _decline,
+        decode=namespace["decode"] if reference_decode else _decline,
     )
 
 

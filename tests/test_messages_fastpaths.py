@@ -1,18 +1,21 @@
 """The generated fast paths of the messages (messages/compiled.py) against the reference code of
-messages/base.py: the same messages and the same errors for valid and broken payloads, the wire
-readable by another msgpack implementation, arrays decoded without a copy."""
+messages/base.py: the same messages and the same errors for valid and broken payloads, the same
+payloads published (and nothing touched when publishing fails), the wire readable by another msgpack
+implementation, large arrays decoded without a copy."""
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from touch4d.messages import TYPES, HandPose, Message, MessageError, MotorCommand, TactileField, decode
+from touch4d.messages import TYPES, HandPose, Message, MessageError, MotorCommand, TactileField, decode, decoder
 from touch4d.messages.base import Array, Float, Str, spec
 from touch4d.messages.codec import pack, unpack
-from touch4d.messages.compiled import compile_class
+from touch4d.messages.compiled import FastPaths, compile_class
 
 from test_messages import EXAMPLES
 
@@ -47,8 +50,40 @@ def reference_decode(payload: bytes, cls: type[Message]):
 
 
 def outcome(payload: bytes, cls: type[Message]):
+    """decode(payload, cls), or its error's text; a subscription's decoder() must say the same."""
     try:
-        return decode(payload, cls)
+        got = decode(payload, cls)
+    except MessageError as exc:
+        got = str(exc)
+    try:
+        by_decoder = decoder(cls)(payload)
+    except MessageError as exc:
+        by_decoder = str(exc)
+    assert by_decoder == got if isinstance(got, str) else same(by_decoder, got)
+    return got
+
+
+def _decline(*_args):
+    return None
+
+
+@contextmanager
+def reference_only(cls: type[Message]):
+    """The class's generated code switched off (but the coercion of new messages): base.py alone."""
+    cls.prepare()
+    saved = cls.__dict__["_FAST"]
+    cls._FAST = FastPaths(coerce=saved.coerce, validate=lambda msg: False, encode=_decline, publish=_decline,
+                          from_dict=_decline, decode=_decline)
+    try:
+        yield
+    finally:
+        cls._FAST = saved
+
+
+def published(msg: Message, seq: int):
+    """msg.publish_payload(seq) decoded, or the error's text."""
+    try:
+        return unpack(msg.publish_payload(seq))
     except MessageError as exc:
         return str(exc)
 
@@ -66,6 +101,10 @@ def test_every_fast_path_takes_a_valid_message(msg):
     data = unpack(payload)
     del data["type"]
     assert same(fast.from_dict(data), msg)
+    fresh = type(msg).from_dict(data)
+    sent = fast.publish(fresh, 41)   # the message is stamped and numbered as a publisher sends it
+    assert sent is not None and fresh.seq == 41 and fresh.stamp and fresh.source_stamp
+    assert same(fast.decode(sent), fresh)
 
 
 @settings(max_examples=300, deadline=None)
@@ -82,6 +121,9 @@ def test_every_fast_path_takes_a_valid_message(msg):
     extra=st.sampled_from([None, "extra", "type"]),
     missing=st.sampled_from([None, "valid", "position"]),
 )
+@example(stamp=1.0, seq=0, position=np.array([0.0, np.inf, 0.0]), norm=1.0, valid=True, extra=None, missing=None)
+@example(stamp=1.0, seq=0, position=np.zeros(3), norm=float("nan"), valid=False, extra=None, missing=None)
+@example(stamp=1.0, seq=0, position=np.zeros(3, np.int64), norm=1.0, valid=True, extra=None, missing=None)
 def test_fast_decoding_agrees_with_the_reference_on_any_pose_payload(stamp, seq, position, norm, valid, extra,
                                                                       missing):
     data = {"type": "HandPose", "stamp": stamp, "seq": seq, "source_stamp": 1.0, "position": position,
@@ -109,6 +151,68 @@ def test_fast_decoding_agrees_with_the_reference_on_any_motor_command(names, int
         assert got == want
     else:
         assert same(got, want)
+
+
+_ANY_NUMBER = st.one_of(st.floats(), st.just(0.0), st.integers(-3, 3), st.booleans())
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    stamp=_ANY_NUMBER, source_stamp=_ANY_NUMBER, recorded_stamp=st.one_of(st.just(0.0), st.floats()),
+    seq=st.one_of(st.integers(0, 5), st.floats(allow_nan=False), st.booleans()),
+    position=st.one_of(
+        st.lists(st.floats(width=64), min_size=3, max_size=3).map(np.array),
+        st.lists(st.floats(width=64, allow_nan=False), min_size=2, max_size=4).map(np.array),
+        st.lists(st.integers(-3, 3), min_size=3, max_size=3).map(np.array),
+        st.lists(st.floats(width=32, allow_nan=False), min_size=3, max_size=3).map(lambda v: np.array(v, np.float32)),
+        st.just(np.arange(6.0)[::2]), st.just(np.zeros(3, ">f8")), st.just(np.zeros((1, 3))),
+        st.just([0.0, 0.0, 0.0]), st.just("abc")),
+    norm=st.sampled_from([1.0, 1.0005, 0.5, float("nan"), float("inf")]),
+    valid=st.one_of(st.booleans(), st.integers(0, 1)),
+)
+@example(stamp=0.0, source_stamp=0.0, recorded_stamp=0.0, seq=0, position=np.array([0.0, np.nan, 0.0]), norm=1.0,
+         valid=True)
+@example(stamp=1.0, source_stamp=0.0, recorded_stamp=0.0, seq=0, position=np.zeros(3), norm=float("inf"),
+         valid=False)   # no quaternion rule while invalid: only the finiteness check stops it
+@example(stamp=float("nan"), source_stamp=0.0, recorded_stamp=0.0, seq=0, position=np.zeros(3), norm=1.0, valid=True)
+def test_publishing_agrees_with_the_reference_and_touches_nothing_when_it_fails(
+        stamp, source_stamp, recorded_stamp, seq, position, norm, valid):
+    def pose():
+        msg = HandPose(position=[0.0, 0.0, 0.0], valid=True)
+        with np.errstate(invalid="ignore"):
+            orientation = np.array([0.0, 0.0, 0.6, 0.8]) * norm
+        # fields set after construction, as a node does (the constructor's coercion does not see them)
+        msg.__dict__.update(stamp=stamp, source_stamp=source_stamp, recorded_stamp=recorded_stamp, seq=seq,
+                            position=position, orientation=orientation, valid=valid)
+        return msg
+
+    fast_msg, reference_msg = pose(), pose()
+    before = dict(fast_msg.__dict__)
+    started = time.time()
+    got = published(fast_msg, 9)
+    with reference_only(HandPose):
+        want = published(reference_msg, 9)
+    if isinstance(want, str):
+        assert got == want
+        assert fast_msg.__dict__.keys() == before.keys()
+        assert all(fast_msg.__dict__[k] is v for k, v in before.items())   # nothing stamped, numbered or coerced
+        return
+    assert not isinstance(got, str), got
+    # a stamp of 0 becomes the time of publishing (the two runs differ there only); a source_stamp of 0, the stamp
+    if not before["stamp"]:
+        assert started <= got["stamp"] <= want["stamp"] <= time.time()
+    if not before["source_stamp"]:
+        assert got["source_stamp"] == got["stamp"] and want["source_stamp"] == want["stamp"]
+    for key in ("stamp", "source_stamp"):
+        if not before[key]:
+            got[key] = want[key]
+    assert got.keys() == want.keys()
+    for key, value in want.items():
+        if isinstance(value, np.ndarray):
+            assert got[key].dtype == value.dtype and np.array_equal(got[key], value, equal_nan=True), key
+        else:
+            assert got[key] == value and type(got[key]) is type(value), key
+    assert got["seq"] == 9 and fast_msg.seq == 9
 
 
 def old_encoding(msg: Message) -> bytes:
@@ -150,6 +254,10 @@ def test_decoded_arrays_are_read_only_views_of_the_payload():
         assert np.shares_memory(arr, raw), name       # no copy of the array's bytes
         assert not arr.flags.writeable
     np.testing.assert_array_equal(back.positions, np.arange(30.0).reshape(10, 3))
+    # a small array of fixed shape (a pose's 24 bytes) is copied, quicker than checking a view; read-only too
+    pose = decode(HandPose(position=[0.1, 0.2, 0.3], valid=True).encode(), HandPose)
+    assert not pose.position.flags.writeable and not pose.orientation.flags.writeable
+    assert pose.position.tolist() == [0.1, 0.2, 0.3] and pose.orientation.tolist() == [0.0, 0.0, 0.0, 1.0]
 
 
 def test_arrays_that_are_not_contiguous_or_not_native_encode_their_values():
@@ -188,11 +296,24 @@ class _Custom(Message):
         return super().from_dict(data)
 
 
+@dataclass(kw_only=True)
+class _Bounded(Message):
+    """A message that adds a rule in its own validate(): publishing must run it."""
+
+    TYPE = "test_fastpaths.Bounded"
+    value: float = spec(Float(), "0..1")
+
+    def validate(self):
+        super().validate()
+        if self.value > 1.0:
+            raise MessageError(f"{self.TYPE}.value: expected at most 1, got {self.value}")
+
+
 @pytest.fixture(scope="module")
 def declared_here():
     """The test types stay registered while this module runs, and no longer."""
     yield
-    for name in (_Joints.TYPE, _Custom.TYPE):
+    for name in (_Joints.TYPE, _Custom.TYPE, _Bounded.TYPE):
         TYPES.pop(name, None)
 
 
@@ -206,6 +327,23 @@ def test_a_newly_declared_type_gets_checked_fast_paths(declared_here):
         decode(bad.encode(), _Joints)
     with pytest.raises(MessageError, match=r"hand: expected one of left, right, got 'middle'"):
         decode(pack({**msg.to_dict(), "hand": "middle"}), _Joints)
+
+
+def test_a_fixed_array_too_large_to_copy_is_decoded_as_a_view(declared_here):
+    msg = _Joints(positions=np.arange(75.0).reshape(25, 3), radii=np.full(25, 0.01, np.float32), hand="left",
+                  confidence=0.9)   # 600 bytes of positions
+    payload = msg.encode()
+    back = decode(payload, _Joints)
+    assert np.shares_memory(back.positions, np.frombuffer(payload, np.uint8))
+    np.testing.assert_array_equal(back.positions, msg.positions)
+
+
+def test_a_class_that_overrides_validate_has_it_run_on_publish(declared_here):
+    assert _Bounded(value=0.5).publish_payload(0)
+    msg = _Bounded(value=2.0)
+    with pytest.raises(MessageError, match="expected at most 1, got 2.0"):
+        msg.publish_payload(0)
+    assert msg.stamp == 0.0 and msg.seq == 0
 
 
 def test_a_class_that_overrides_from_dict_keeps_its_override(declared_here):

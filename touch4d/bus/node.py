@@ -31,7 +31,7 @@ from touch4d.bus.config import BusConfig, resolve_bus_config
 from touch4d.bus.params import Param, check_params
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
-from touch4d.messages import Heartbeat, Message, MessageError, decode
+from touch4d.messages import Heartbeat, Message, MessageError, decoder
 
 HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
@@ -53,18 +53,18 @@ class Publisher:
         self._topic = topic.encode()
 
     def publish(self, msg: Message) -> None:
-        """Stamp (if 0), number and send `msg`; raises MessageError if a field is invalid."""
-        if not isinstance(msg, self.msg_type):
+        """Check, stamp (if 0), number and send `msg` (Message.publish_payload); raises MessageError,
+        and sends nothing, if a field is invalid."""
+        if msg.__class__ is not self.msg_type and not isinstance(msg, self.msg_type):
             raise TypeError(f"{self.topic}: expected a {self.msg_type.TYPE}, got {type(msg).__name__}")
+        node, topic = self.node, self._topic
+        seq = node._seq.get(topic, 0)
         try:
-            msg.validate()
+            payload = msg.publish_payload(seq)
         except MessageError as exc:
             raise MessageError(f"publishing on {self.topic}: {exc}") from None
-        if not msg.stamp:
-            msg.stamp = time.time()
-        if not msg.source_stamp:
-            msg.source_stamp = msg.stamp
-        self.node._send(self._topic, msg)
+        node._seq[topic] = seq + 1
+        node._send_payload(topic, payload)
 
 
 class RawPublisher:
@@ -90,6 +90,11 @@ class Subscription:
     raw: bool = False
     active: bool = True
     optional: bool = False  # the node works without a publisher (commands, stops): never reported missing
+    decode: Callable[[bytes], Message] | None = field(default=None, repr=False)  # payload -> msg_type message
+
+    def __post_init__(self):
+        if self.msg_type is not None and self.decode is None:
+            self.decode = decoder(self.msg_type)
 
 
 @dataclass
@@ -419,19 +424,15 @@ class Node:
             state = self._topics[key] = _TopicState()
         return state
 
-    def _send(self, topic: bytes, msg: Message) -> None:
-        seq = self._seq.get(topic, 0)
-        msg.seq = seq
-        self._seq[topic] = seq + 1
-        payload = msg.encode()
+    def _send_payload(self, topic: bytes, payload: bytes) -> None:
+        """Send one message; the caller has counted it in `_seq`."""
         # Two sends, not send_multipart: its per-frame Python work costs more than the ZeroMQ calls.
         self._pub.send(topic, _SNDMORE)
         self._pub.send(payload)
 
     def _send_raw(self, topic: bytes, payload: bytes) -> None:
         self._seq[topic] = self._seq.get(topic, 0) + 1
-        self._pub.send(topic, _SNDMORE)
-        self._pub.send(payload)
+        self._send_payload(topic, payload)
 
     def _await_broker(self) -> bool:
         """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
@@ -539,8 +540,22 @@ class Node:
         state = self._topics[topic]
         stats = state.stats
         stats["received"] += 1
-        takers = subs if newest and len(subs) == 1 and subs[0].active else \
-            [s for s in subs if s.active and (newest or not s.latest_only)]
+        if newest and len(subs) == 1 and len(frames) == 2 and subs[0].active:
+            # The usual case (one subscription, the newest message) without the general case's lists.
+            sub = subs[0]
+            try:
+                msg = sub.decode(frames[1])
+            except MessageError as exc:
+                stats["malformed"] += 1
+                self._log_once(topic, str(exc))
+                return 0
+            self._track_seq(state, msg.seq)
+            try:
+                sub.callback(msg)
+            except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the node
+                self._callback_failed(sub.topic, exc)
+            return 1
+        takers = [s for s in subs if s.active and (newest or not s.latest_only)]
         if not takers:
             stats["dropped"] += 1
             state.stale_since_last += 1
@@ -555,7 +570,7 @@ class Node:
             msg = decoded.get(sub.msg_type)
             if msg is None:
                 try:
-                    msg = decoded[sub.msg_type] = decode(frames[1], sub.msg_type)
+                    msg = decoded[sub.msg_type] = sub.decode(frames[1])
                 except MessageError as exc:
                     stats["malformed"] += 1
                     self._log_once(topic, str(exc))
@@ -580,13 +595,18 @@ class Node:
         try:
             callback(*args)
         except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the node
-            if isinstance(where, Timer):
-                where = f"timer {where.period:g} s"
-            self._counters["errors"] += 1
-            cause = (where, type(exc).__name__, str(exc)[:120])
-            if cause not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
-                self._logged.add(cause)
-                self.log.exception("callback for %s failed (further identical failures are only counted)", where)
+            self._callback_failed(where, exc)
+
+    def _callback_failed(self, where, exc: Exception) -> None:
+        """Count a callback's exception and log it (with its traceback: call it in the `except`)
+        the first time its cause is seen."""
+        if isinstance(where, Timer):
+            where = f"timer {where.period:g} s"
+        self._counters["errors"] += 1
+        cause = (where, type(exc).__name__, str(exc)[:120])
+        if cause not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
+            self._logged.add(cause)
+            self.log.exception("callback for %s failed (further identical failures are only counted)", where)
 
     def _log_once(self, topic: bytes, cause: str) -> None:
         key = (topic, cause)
