@@ -402,3 +402,48 @@ def test_call_soon_threadsafe_runs_on_the_nodes_thread_and_wakes_its_poll():
         caller.join()
         assert ran and ran[0][0] == 7 and ran[0][1] == threading.get_ident()
         assert ran[0][2] - start < 1.0
+
+
+_HEAP_PROBE = """
+import gc, sys, weakref
+from touch4d.bus import Node
+from touch4d.bus.process import run_node
+
+
+class Cycle:
+    pass
+
+
+class HeapProbe(Node):
+    def setup(self):
+        self.create_timer(0.01, self.tick)
+
+    def tick(self):
+        frozen = gc.get_freeze_count()
+        made = Cycle()
+        made.me = made            # garbage only a collection frees, made while spinning
+        alive = weakref.ref(made)
+        del made
+        gc.collect()
+        print("frozen", frozen, "cycle freed", alive() is None, flush=True)
+        self.request_shutdown()
+
+
+sys.exit(run_node(HeapProbe, ["--name", "heap_probe"]))
+"""
+
+
+def test_a_node_process_freezes_its_start_up_heap_and_still_frees_later_garbage():
+    # A full collection over the start-up heap stalls the loop for tens of ms; frozen, it is skipped.
+    import subprocess
+    import sys
+
+    from touch4d.bus.testing import bus_env
+
+    with running_broker() as bus:
+        done = subprocess.run([sys.executable, "-c", _HEAP_PROBE], env=bus_env(bus), capture_output=True,
+                              text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    words = done.stdout.split()
+    assert words[0] == "frozen" and int(words[1]) > 10000, done.stdout   # modules, codecs, the node itself
+    assert words[2:] == ["cycle", "freed", "True"], done.stdout

@@ -2,7 +2,7 @@
 
 The launcher starts each node as `python -u -m touch4d.bus NODE --name ROLE --params JSON`, NODE
 as its launch file names it (touch4d.bus.registry finds the class). Once the node is built the
-process tells the launcher it is ready (a byte on the pipe `$TOUCH4D_READY_FD`); one that exits
+process freezes its start-up heap (touch4d.bus.heap) and tells the launcher it is ready (a byte on the pipe `$TOUCH4D_READY_FD`); one that exits
 before that failed to start. SIGINT/SIGTERM make `spin` return, then `on_shutdown` runs before the
 sockets close and the process exits 0; a bad parameter or config exits 2.
 """
@@ -19,6 +19,7 @@ import sys
 import zmq
 
 from touch4d.bus.config import resolve_bus_config
+from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.realtime import PRIORITY, raise_thread_priority
 from touch4d.errors import Touch4dError, Unavailable
 
@@ -109,6 +110,7 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
     except Touch4dError as exc:
         print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
         return 2
+    freeze_startup_heap()   # a full collection over it would stall the loop for tens of ms
     _tell_ready()
     if holder["stop"]:
         node.request_shutdown()
