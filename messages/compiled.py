@@ -268,10 +268,12 @@ def _array_lines(i: int, f, src: _Source, check: bool) -> list[str]:
     lines = [f"    a{i} = d[{f.name!r}]"]
     fixed = _fixed_array(kind)
     if fixed is not None:   # the usual dtype and shape: a constant prefix, and the shape needs no check
-        nbytes = math.prod(fixed[1]) * fixed[0].itemsize
-        data = f"a{i}.tobytes()" if nbytes <= _SMALL_ARRAY else f"a{i}.data"
+        # A small array's bytes are copied (tobytes: C order, whatever the strides); a larger one's
+        # memory goes into the payload as it is (a view), which must then be C-contiguous.
+        small = math.prod(fixed[1]) * fixed[0].itemsize <= _SMALL_ARRAY
+        data = f"a{i}.tobytes()" if small else f"a{i}.data"
         lines.append(f"    if a{i}.__class__ is {nd} and a{i}.dtype is {src.const(fixed[0])} and "
-                     f"a{i}.shape == {src.const(fixed[1])} and a{i}.flags.c_contiguous:")
+                     f"a{i}.shape == {src.const(fixed[1])}{'' if small else f' and a{i}.flags.c_contiguous'}:")
         if check and kind._check_finite:
             lines.append(f"        v = a{i}")
             lines.append(f"        if not ({check_test(kind, src, shape_known=True)}): return None")
