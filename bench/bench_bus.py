@@ -332,15 +332,15 @@ def main():
         for k in kinds:
             lat = run(k, args.latency_count, args.latency_rate, realtime)
             thr = run(k, args.throughput_count, None)
-            rounds[k].append({"p50": lat["p50"], "p99": lat["p99"], "rate": thr["rate"], "cpu_rate": thr["cpu_rate"],
-                              "pub_us": thr["pub_us"], "sub_us": thr["sub_us"], "lost": args.latency_count - lat["received"]})
-    res = {k: {m: float(np.median([r[m] for r in rounds[k]])) for m in ("p50", "p99", "rate", "cpu_rate", "pub_us", "sub_us", "lost")}
-           for k in kinds}
+            rounds[k].append({"p50": lat["p50"], "p99": lat["p99"], "lost": args.latency_count - lat["received"],
+                              **{m: thr[m] for m in ("rate", "cpu_rate", "pub_us", "sub_us")}})
+    res = {k: {m: float(np.median([r[m] for r in rounds[k]])) for m in rounds[k][0]} for k in kinds}
     for k in kinds:
         r = res[k]
         print(f"{k:>8}: latency p50 {r['p50']:7.1f} us  p99 {r['p99']:8.1f} us  throughput {r['rate']:8.0f} msg/s  "
               f"CPU rate {r['cpu_rate']:8.0f} msg/s (CPU per message: publisher {r['pub_us']:.1f} us, "
-              f"subscriber {r['sub_us']:.1f} us)   (p99 per round: {', '.join(str(round(x['p99'])) for x in rounds[k])}; p50: "
+              f"subscriber {r['sub_us']:.1f} us)   (p99 per round: "
+              f"{', '.join(str(round(x['p99'])) for x in rounds[k])}; p50: "
               f"{', '.join(str(round(x['p50'])) for x in rounds[k])} us)")
     for k in ("runtime", "touch4d"):
         print(f"   ratio {k}/raw: latency p50 {res[k]['p50'] / res['raw']['p50']:.2f}x  "

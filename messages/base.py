@@ -343,16 +343,21 @@ class Message:
 
     def publish_payload(self, seq: int) -> bytes:
         """The payload a publisher sends: validated, stamped (`stamp_for_publish`) and encoded, in
-        one generated pass where it can; raises MessageError, leaving the message as it was, if a
-        field is invalid."""
+        one generated pass where it can. Raises MessageError if a field is invalid or cannot be
+        encoded; the header (stamp, source_stamp, seq) is then left as it was."""
         try:
             payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).publish(self, seq)
         except (KeyError, TypeError, ValueError):
-            payload = None  # validate says what is wrong
+            payload = None  # the reference below says what is wrong
         if payload is None:
             self.validate()
+            header = (self.stamp, self.source_stamp, self.seq)
             self.stamp_for_publish(seq)
-            payload = self.encode()
+            try:
+                payload = self.encode()
+            except (TypeError, ValueError, OverflowError) as exc:   # e.g. an object in a map field
+                self.stamp, self.source_stamp, self.seq = header     # nothing is sent
+                raise MessageError(f"{self.TYPE}: cannot encode: {exc}") from None
         return payload
 
     @classmethod

@@ -34,8 +34,8 @@ class FastPaths(NamedTuple):
     validate: Callable      # validate(msg) -> True, or False to run the reference validate
     encode: Callable        # encode(msg) -> payload bytes, or None to encode the reference way
     publish: Callable       # publish(msg, seq) -> payload of msg validated and stamped (see base.py's
-                            #   `stamp_for_publish`), or None (or raises) having changed nothing: the
-                            #   reference validate, stamp_for_publish and encode then run
+                            #   `stamp_for_publish`; the header written once the payload is made), or
+                            #   None (or raises) with the header untouched: the reference then runs
     from_dict: Callable     # from_dict(map without "type") -> message, or None (or raises) for the reference
     decode: Callable        # decode(payload) -> message of this class, or None (or raises) for the reference
 
@@ -232,16 +232,19 @@ def _gen_decode(cls, fields, src: _Source) -> list[str]:
          else (f.name, typ(f.metadata["kind"])) for f in fields],
         tag_field="type", tag=cls.TYPE, forbid_unknown_fields=True, kw_only=True)
     decoder = msgspec.msgpack.Decoder(wire, ext_hook=_ext_hook)
-    lines = ["def decode(payload):", f"    d = {src.const(msgspec.structs.asdict)}({src.const(decoder.decode)}(payload))"]
+    as_dict, wire_decode = src.const(msgspec.structs.asdict), src.const(decoder.decode)
+    lines = ["def decode(payload):", f"    d = {as_dict}({wire_decode}(payload))"]
     for f in fields:
         kind = f.metadata["kind"]
         fixed = _fixed_array(kind)
-        if typ(kind) is msgspec.msgpack.Ext:   # the usual dtype and shape: known from the ext's first bytes
+        if typ(kind) is msgspec.msgpack.Ext:   # the usual dtype and shape: known from the ext's start
             header = _header(fixed[0].str, fixed[1])
             size = len(header) + math.prod(fixed[1]) * fixed[0].itemsize
             lines.append(f"    v = d[{f.name!r}]")
-            lines.append(f"    if v.code == {NDARRAY_EXT} and len(b := v.data) == {size} and b.startswith({src.const(header)}):")
-            lines.append(f"        v = {src.const(np.frombuffer)}(b, {src.const(fixed[0])}, {math.prod(fixed[1])}, {len(header)})")
+            lines.append(f"    if v.code == {NDARRAY_EXT} and len(b := v.data) == {size} "
+                         f"and b.startswith({src.const(header)}):")
+            lines.append(f"        v = {src.const(np.frombuffer)}(b, {src.const(fixed[0])}, "
+                         f"{math.prod(fixed[1])}, {len(header)})")
             if len(fixed[1]) != 1:
                 lines.append(f"        v = v.reshape({src.const(fixed[1])})")
             lines.append(f"        if not ({check_test(kind, src, shape_known=True)}): return None")
@@ -260,35 +263,26 @@ def _gen_decode(cls, fields, src: _Source) -> list[str]:
     return lines
 
 
-def _array_lines(i: int, f, src: _Source, check: bool) -> list[str]:
-    """Lines that set `p{i}, r{i}` (ext prefix, bytes) of array field `f`; with `check`, also its
-    checks (`return None` on a failure); without, `return None` for a value that is no array."""
+def _array_lines(i: int, f, src: _Source) -> list[str]:
+    """Lines that set `p{i}, r{i}` (ext prefix, bytes) of array field `f`, or `return None` for a
+    value that is no array."""
     kind = f.metadata["kind"]
     nd = src.const(np.ndarray)
     lines = [f"    a{i} = d[{f.name!r}]"]
     fixed = _fixed_array(kind)
-    if fixed is not None:   # the usual dtype and shape: a constant prefix, and the shape needs no check
+    if fixed is not None:   # the usual dtype and shape: a constant prefix
         # A small array's bytes are copied (tobytes: C order, whatever the strides); a larger one's
         # memory goes into the payload as it is (a view), which must then be C-contiguous.
-        small = math.prod(fixed[1]) * fixed[0].itemsize <= _SMALL_ARRAY
-        data = f"a{i}.tobytes()" if small else f"a{i}.data"
-        lines.append(f"    if a{i}.__class__ is {nd} and a{i}.dtype is {src.const(fixed[0])} and "
-                     f"a{i}.shape == {src.const(fixed[1])}{'' if small else f' and a{i}.flags.c_contiguous'}:")
-        if check and kind._check_finite:
-            lines.append(f"        v = a{i}")
-            lines.append(f"        if not ({check_test(kind, src, shape_known=True)}): return None")
-        lines.append(f"        p{i}, r{i} = {src.const(_array_prefix(*fixed))}, {data}")
-        lines.append("    else:")
-        indent = "        "
+        small = _small_fixed(kind) is not None
+        test = (f"a{i}.__class__ is {nd} and a{i}.dtype is {src.const(fixed[0])} and "
+                f"a{i}.shape == {src.const(fixed[1])}" + ("" if small else f" and a{i}.flags.c_contiguous"))
+        lines.append(f"    if {test}:")
+        data = "tobytes()" if small else "data"
+        lines.append(f"        p{i}, r{i} = {src.const(_array_prefix(*fixed))}, a{i}.{data}")
+        lines.append(f"    elif a{i}.__class__ is {nd}: p{i}, r{i} = {src.const(array_parts)}(a{i})")
     else:
-        indent = "    "
-    if check:
-        test = check_test(kind, src)
-        lines.append(f"{indent}v = a{i}")
-        lines.append(f"{indent}if not ({test}): return None" if test is not None else f"{indent}{src.const(kind.check)}(v)")
-    else:
-        lines.append(f"{indent}if a{i}.__class__ is not {nd}: return None")
-    lines.append(f"{indent}p{i}, r{i} = {src.const(array_parts)}(a{i})")
+        lines.append(f"    if a{i}.__class__ is {nd}: p{i}, r{i} = {src.const(array_parts)}(a{i})")
+    lines.append("    else: return None")
     return lines
 
 
@@ -297,21 +291,24 @@ def _split(fields):
     return [f for f in fields if f not in arrays], arrays
 
 
-def _payload_lines(cls, fields, src: _Source) -> list[str]:
-    """Lines that return the payload: the plain fields through msgspec's encoder, then the arrays
-    (`p{i}, r{i}`, see `_array_lines`) appended as ext values (the map's header counts both)."""
+def _payload_lines(cls, fields, src: _Source, values: dict[str, str] | None = None) -> list[str]:
+    """Lines that set `payload`: the plain fields through msgspec's encoder, then the arrays (see
+    `_array_lines`) appended as ext values (the map's header counts both). `values`: expressions
+    to encode for some fields instead of their values in `d`."""
+    values = values or {}
     plain, arrays = _split(fields)
     lead = next((i for i, f in enumerate(plain) if f.metadata.get("optional")), len(plain))
-    items = ", ".join([f"'type': {cls.TYPE!r}"] + [f"{f.name!r}: d[{f.name!r}]" for f in plain[:lead]])
-    lines = [f"    h = {{{items}}}"]
+    value = {f.name: values.get(f.name, f"d[{f.name!r}]") for f in fields}
+    items = ", ".join([f"'type': {cls.TYPE!r}"] + [f"{f.name!r}: {value[f.name]}" for f in plain[:lead]])
+    lines = [line for i, f in enumerate(arrays) for line in _array_lines(i, f, src)] + [f"    h = {{{items}}}"]
     for f in plain[lead:]:   # in declaration order; an optional field left out at its default (to_dict's rule)
         if f.metadata.get("optional"):
-            lines.append(f"    if d[{f.name!r}] != {src.const(f.metadata['kind'].default())}: "
-                         f"h[{f.name!r}] = d[{f.name!r}]")
+            lines.append(f"    if {value[f.name]} != {src.const(f.metadata['kind'].default())}: "
+                         f"h[{f.name!r}] = {value[f.name]}")
         else:
-            lines.append(f"    h[{f.name!r}] = d[{f.name!r}]")
+            lines.append(f"    h[{f.name!r}] = {value[f.name]}")
     if not arrays:
-        return lines + [f"    return {src.const(encode_plain)}(h)"]
+        return lines + [f"    payload = {src.const(encode_plain)}(h)"]
     lines.append(f"    head = {src.const(encode_plain)}(h)")
     # The map's header counts the arrays too: msgspec's (1 byte up to 15 entries, else 3) replaced,
     # by a table lookup (bytes((n,)) costs more than the rest of the join).
@@ -320,30 +317,27 @@ def _payload_lines(cls, fields, src: _Source) -> list[str]:
     pieces = [f"{headers}[len(h) + {len(arrays)}]", f"head[{skip}:]"]
     for i, f in enumerate(arrays):
         pieces += [src.const(encode_plain(f.name)), f"p{i}", f"r{i}"]
-    return lines + [f"    return b''.join(({', '.join(pieces)}))"]
+    return lines + [f"    payload = b''.join(({', '.join(pieces)}))"]
 
 
 def _gen_encode(cls, fields, src: _Source) -> list[str]:
     """Each array's bytes copied once, into the payload (small fixed ones: once more, see
     `_SMALL_ARRAY`)."""
-    arrays = _split(fields)[1]
-    return (["def encode(msg):", "    d = msg.__dict__"]
-            + [line for i, f in enumerate(arrays) for line in _array_lines(i, f, src, check=False)]
-            + _payload_lines(cls, fields, src))
+    return ["def encode(msg):", "    d = msg.__dict__"] + _payload_lines(cls, fields, src) + ["    return payload"]
 
 
 def _gen_publish(cls, fields, src: _Source) -> list[str]:
-    """validate, then stamp_for_publish, then encode, in one function that looks at each field
-    once; a failed check returns before the message is touched."""
-    plain, arrays = _split(fields)
+    """validate, then stamp_for_publish, then encode, in one function. The header's new values are
+    written into the message only once the payload is made: a failure anywhere (a check, the
+    class's `check`, a value the encoder refuses) leaves the message as it was."""
+    header = {"stamp": "stamp", "source_stamp": "source", "seq": "seq"}
     return (["def publish(msg, seq):", "    d = msg.__dict__"]
-            + _gen_checks(plain, src, "return None", store=False)
-            + [line for i, f in enumerate(arrays) for line in _array_lines(i, f, src, check=True)]
-            + ["    msg.check()",
-               f"    if not d['stamp']: d['stamp'] = {src.const(time.time)}()",
-               "    if not d['source_stamp']: d['source_stamp'] = d['stamp']",
-               "    d['seq'] = seq"]
-            + _payload_lines(cls, fields, src))
+            + _gen_checks(fields, src, "return None", store=False)
+            + ["    msg.check()",   # before the fields are read for encoding: it may change them
+               f"    stamp = d['stamp'] or {src.const(time.time)}()",
+               "    source = d['source_stamp'] or stamp"]
+            + _payload_lines(cls, fields, src, header)
+            + ["    d['stamp'], d['source_stamp'], d['seq'] = stamp, source, seq", "    return payload"])
 
 
 def _decline(*_args):

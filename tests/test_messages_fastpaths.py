@@ -101,10 +101,13 @@ def test_every_fast_path_takes_a_valid_message(msg):
     data = unpack(payload)
     del data["type"]
     assert same(fast.from_dict(data), msg)
-    fresh = type(msg).from_dict(data)
+    fresh, reference = type(msg).from_dict(dict(data)), type(msg).from_dict(dict(data))
     sent = fast.publish(fresh, 41)   # the message is stamped and numbered as a publisher sends it
     assert sent is not None and fresh.seq == 41 and fresh.stamp and fresh.source_stamp
     assert same(fast.decode(sent), fresh)
+    with reference_only(type(msg)):
+        reference.stamp, reference.source_stamp = fresh.stamp, fresh.source_stamp   # the fast run's stamps
+        assert same(decode(reference.publish_payload(41)), fast.decode(sent))
 
 
 @settings(max_examples=300, deadline=None)
@@ -309,11 +312,22 @@ class _Bounded(Message):
             raise MessageError(f"{self.TYPE}.value: expected at most 1, got {self.value}")
 
 
+@dataclass(kw_only=True)
+class _Normalised(Message):
+    """A message whose check() normalises an array: what it sends is the normalised one."""
+
+    TYPE = "test_fastpaths.Normalised"
+    q: np.ndarray = spec(Array((4,)), "a quaternion, made unit length")
+
+    def check(self):
+        self.q = self.q / float(np.linalg.norm(self.q))
+
+
 @pytest.fixture(scope="module")
 def declared_here():
     """The test types stay registered while this module runs, and no longer."""
     yield
-    for name in (_Joints.TYPE, _Custom.TYPE, _Bounded.TYPE):
+    for name in (_Joints.TYPE, _Custom.TYPE, _Bounded.TYPE, _Normalised.TYPE):
         TYPES.pop(name, None)
 
 
@@ -339,11 +353,29 @@ def test_a_fixed_array_too_large_to_copy_is_decoded_as_a_view(declared_here):
 
 
 def test_a_class_that_overrides_validate_has_it_run_on_publish(declared_here):
-    assert _Bounded(value=0.5).publish_payload(0)
+    assert decode(_Bounded(value=0.5).publish_payload(7)).seq == 7
     msg = _Bounded(value=2.0)
     with pytest.raises(MessageError, match="expected at most 1, got 2.0"):
-        msg.publish_payload(0)
-    assert msg.stamp == 0.0 and msg.seq == 0
+        msg.publish_payload(7)
+    assert msg.stamp == 0.0 and msg.source_stamp == 0.0 and msg.seq == 0
+
+
+def test_what_a_class_check_changes_is_what_gets_published(declared_here):
+    msg = _Normalised(q=[0.0, 0.0, 0.0, 2.0])
+    sent = unpack(msg.publish_payload(3))["q"]   # as sent (decoding would normalise it again)
+    assert sent.tolist() == [0.0, 0.0, 0.0, 1.0] == msg.q.tolist()
+
+
+def test_a_value_msgpack_cannot_carry_fails_the_publish_and_leaves_the_header():
+    from touch4d.messages import MotorStatus
+
+    msg = MotorStatus(boards=[], duty=np.zeros(30), bus_load=0.2, errors={"send": object()})
+    msg.seq = 4
+    with pytest.raises(MessageError, match="MotorStatus: cannot encode"):
+        msg.publish_payload(9)
+    assert (msg.stamp, msg.source_stamp, msg.seq) == (0.0, 0.0, 4)
+    msg.errors = {"send": 1}
+    assert decode(msg.publish_payload(9), MotorStatus).errors == {"send": 1}
 
 
 def test_a_class_that_overrides_from_dict_keeps_its_override(declared_here):

@@ -2,9 +2,10 @@
 
 The launcher starts each node as `python -u -m touch4d.bus NODE --name ROLE --params JSON`, NODE
 as its launch file names it (touch4d.bus.registry finds the class). Once the node is built the
-process freezes its start-up heap (touch4d.bus.heap) and tells the launcher it is ready (a byte on the pipe `$TOUCH4D_READY_FD`); one that exits
-before that failed to start. SIGINT/SIGTERM make `spin` return, then `on_shutdown` runs before the
-sockets close and the process exits 0; a bad parameter or config exits 2.
+process freezes its start-up heap (touch4d.bus.heap) and tells the launcher it is ready (a byte on
+the pipe `$TOUCH4D_READY_FD`); one that exits before that failed to start. SIGINT/SIGTERM make
+`spin` return, then `on_shutdown` runs before the sockets close and the process exits 0; a bad
+parameter or config exits 2.
 """
 from __future__ import annotations
 
