@@ -9,15 +9,23 @@ class Touch4dError(Exception):
 class ConfigError(Touch4dError, ValueError):
     """A config, scene, glove or launch file is wrong: names the file, the key and what was expected."""
 
-    def __init__(self, file, key: str, expected: str, got=None):
+    def __init__(self, file, key: str, expected: str, got=None, *, hint: str | None = None,
+                 detail: str | None = None):
         self.file = str(file) if file is not None else "<input>"
         self.key = key
         self.expected = expected
         self.got = got
-        text = f"{self.file}: key '{key}': expected {expected}"
+        self.hint = hint
+        self.detail = detail
+        where = key if key.startswith("line ") else f"key '{key}'"   # a YAML syntax error has no key
+        text = f"{self.file}: {where}: expected {expected}"
         if got is not None:
             shown = repr(got)
             text += f", got {shown[:80] + '...' if len(shown) > 80 else shown}"
+        if detail:
+            text += f": {detail}"          # whole: a YAML problem or a reason is never cut
+        if hint:
+            text += f" ({hint})"
         super().__init__(text)
 
 
