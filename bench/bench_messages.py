@@ -2,7 +2,8 @@
 stamp, encode) and decoding by a subscription's `decoder(type)`, in microseconds, beside plain
 msgpack of the same fields (arrays as raw bytes: no checks, no dtype or shape), measured in the
 same run. Messages: a HandPose (the 1 kHz stream), a 30-motor MotorCommand and a 256-sample
-TactileField. Each figure is the best of a few repeats (the machine's other load only slows).
+TactileField. Each figure is CPU time (process_time: what the machine's other load takes from the
+run is not counted), the best of a few repeats.
 
     .venv/bin/python bench/bench_messages.py [--number 20000] [--repeat 5]
 """
@@ -17,13 +18,13 @@ import numpy as np
 
 
 def best(fn, number: int, repeat: int) -> float:
-    """Fastest mean time of `fn()` over `repeat` runs of `number` calls, microseconds."""
+    """Least mean CPU time of `fn()` over `repeat` runs of `number` calls, microseconds."""
     out = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for _ in range(number):
             fn()
-        out.append((time.perf_counter() - t0) / number * 1e6)
+        out.append((time.process_time() - t0) / number * 1e6)
     return min(out)
 
 

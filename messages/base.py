@@ -19,6 +19,8 @@ the plain fields of a payload; the arrays, records and the class's `check()` are
 by the same functions when publishing and when decoding. Anything wrong is a MessageError naming
 the type and the field.
 """
+import re
+import sys
 import time
 import typing
 from typing import Annotated, Any, Callable, ClassVar, Literal, NamedTuple
@@ -48,8 +50,12 @@ Map = dict[str, Any]           # a map with string keys and plain values (number
 
 
 def _all_finite(arr: np.ndarray) -> bool:
-    # A finite sum proves every value finite; only a non-finite sum needs the element-wise look.
-    total = sum(arr.ravel().tolist()) if arr.size <= 64 else arr.sum()
+    # A finite sum (of squares) proves every value finite; only a non-finite one needs the element-wise look.
+    if arr.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
+        total = sum(arr.tolist() if arr.ndim == 1 else arr.ravel().tolist())
+    else:
+        flat = arr.reshape(-1)
+        total = np.dot(flat, flat)
     return total - total == 0 or bool(np.isfinite(arr).all())
 
 
@@ -61,18 +67,30 @@ class ArraySpec:
         self.kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
         self.check_finite = finite and self.dtype.kind == "f"
         self.text = "x".join("N" if n is None else str(n) for n in shape) or "scalar"
+        self.fixed = {i: n for i, n in enumerate(shape) if n is not None}   # the lengths that are given
 
-    def check(self, value) -> None:
-        if not isinstance(value, np.ndarray):
-            raise ValueError(f"expected a numpy array, got {type(value).__name__}")
-        if value.dtype.kind not in self.kinds:
-            raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
-        shape = value.shape
-        if shape != self.shape and (len(shape) != len(self.shape)
-                                    or any(w is not None and w != g for w, g in zip(self.shape, shape))):
-            raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
-        if self.check_finite and not _all_finite(value):
-            raise ValueError("expected finite values, got NaN or infinity")
+        self.check = self._checker()
+
+    def _checker(self) -> Callable[[Any], None]:
+        """check(value): raises ValueError unless `value` is such an array (a closure: this runs per message)."""
+        want, kinds, fixed, finite, ndarray = self.shape, self.kinds, self.fixed.items(), self.check_finite, np.ndarray
+
+        def check(value) -> None:
+            if value.__class__ is not ndarray and not isinstance(value, ndarray):
+                raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+            if value.dtype.kind not in kinds:
+                raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
+            shape = value.shape
+            if shape != want and (len(shape) != len(want) or any(shape[i] != n for i, n in fixed)):
+                raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+            if finite:
+                if value.size <= 16:   # a finite sum proves every value finite (a pose's: plain floats, quicker)
+                    total = sum(value.tolist() if value.ndim == 1 else value.ravel().tolist())
+                    if total - total == 0.0:
+                        return
+                if not _all_finite(value):
+                    raise ValueError("expected finite values, got NaN or infinity")
+        return check
 
     def coerce(self, value) -> np.ndarray:
         arr = np.asarray(value)
@@ -131,6 +149,9 @@ def _spec(tp):
     if typing.get_origin(tp) is Annotated:
         return next((m for m in tp.__metadata__ if isinstance(m, (ArraySpec, RecordsSpec))), None)
     return None
+
+
+_FIELD_PATH = re.compile(r"[A-Za-z_]\w*(\[\d+\])*(\.\w+(\[\d+\])*)*: ")
 
 
 def _sep(exc: Exception) -> str:
@@ -281,8 +302,14 @@ class MessageMeta(msgspec.StructMeta):
         if "Message" not in globals():   # the base class itself
             return super().__new__(mcls, name, bases, namespace, **kwargs)
         type_name = namespace.get("TYPE", name)
+        module = vars(sys.modules[namespace["__module__"]])
+        declared_types = {n: eval(t, module, dict(namespace)) if isinstance(t, str) else t  # noqa: S307 - a
+                          for n, t in namespace.get("__annotations__", {}).items()}  # module's own annotation
+        # On the wire the array fields follow the others, as earlier versions wrote them: the same bytes.
+        namespace["__annotations__"] = dict(sorted(declared_types.items(),
+                                                   key=lambda item: isinstance(_spec(item[1]), ArraySpec)))
         docs: dict[str, doc] = {}
-        for field_name in namespace.get("__annotations__", {}):
+        for field_name in declared_types:
             declared = namespace.get(field_name)
             if not isinstance(declared, doc):
                 raise TypeError(f"{name}.{field_name}: declare it as `{field_name}: TYPE = doc(\"what it means\")`")
@@ -301,19 +328,23 @@ class MessageMeta(msgspec.StructMeta):
                 fields.append(inherited[info.name])
                 continue
             declared = docs.get(info.name) or doc(HEADER_DOCS[info.name], optional=info.required is False)
+            check = _checker(info.type)   # first: it says which types a field may have
             zero = info.default if declared.optional else _zero(info.type)   # msgspec's own: see `_encode`
             default = declared.default if declared.default is not None and not declared.optional else zero
             if declared.default is not None and not callable(declared.default):
                 coerce = _coercer(info.type)
                 value = coerce(declared.default) if coerce else declared.default
                 default = (lambda v=value: v.copy()) if isinstance(value, (np.ndarray, list, dict)) else value
-            fields.append(Field(info.name, info.type, declared.text, declared.optional, default,
-                                _checker(info.type), _coercer(info.type)))
-        cls.FIELDS = tuple(fields)
+            fields.append(Field(info.name, info.type, declared.text, declared.optional, default, check,
+                                _coercer(info.type)))
+        order = [*(f.name for base in bases for f in getattr(base, "FIELDS", ())), *declared_types]
+        fields.sort(key=lambda f: order.index(f.name) if f.name in order else -1)   # -1: the header
+        cls.FIELDS = tuple(fields)   # as declared (docs, schemas)
         cls._plain_defaults = {f.name: f.default for f in fields if not callable(f.default)}
         cls._made_defaults = tuple((f.name, f.default) for f in fields if callable(f.default))
         cls._coerce = {f.name: f.coerce for f in fields if f.coerce is not None}
         cls._checks = tuple((f.name, f.check) for f in fields)
+        cls._body_checks = tuple((f.name, f.check) for f in fields if f.name not in HEADER_DOCS)
         cls._after_decode = tuple((f.name, f.check) for f in fields if _needs_check_after_decode(f.type))
         cls._decode = msgspec.msgpack.Decoder(cls, ext_hook=_ext_hook).decode
         cls._overrides_check = cls.check is not Message.check
@@ -354,9 +385,13 @@ class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=Tru
 
     def validate(self) -> None:
         """Check every field (types, shapes, finiteness) and the message's own rules (`check`)."""
+        s, q, t, r = self.stamp, self.seq, self.source_stamp, self.recorded_stamp
+        # the header as it nearly always is, at one look (any other value: each field's own check)
+        usual = (s.__class__ is float and t.__class__ is float and r.__class__ is float and q.__class__ is int
+                 and s - s == 0.0 and t - t == 0.0 and r - r == 0.0)
         name = ""
         try:
-            for name, check in self._checks:
+            for name, check in self._body_checks if usual else self._checks:
                 check(getattr(self, name))
         except ValueError as exc:
             raise MessageError(f"{self.TYPE}.{name}{_sep(exc)}{exc}") from None
@@ -368,16 +403,17 @@ class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=Tru
                 self.check()
             except MessageError:
                 raise
-            except ValueError as exc:
-                raise MessageError(f"{self.TYPE}: {exc}") from None
+            except ValueError as exc:   # "field: ..." or "objects[2].size: ..." reads TYPE.field: ...
+                raise MessageError(f"{self.TYPE}{'.' if _FIELD_PATH.match(str(exc)) else ': '}{exc}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """The message as the map it is sent as (an optional field at its default left out)."""
         out = {"type": self.TYPE}
-        for f in self.FIELDS:
-            value = getattr(self, f.name)
-            if not (f.optional and value == f.default):
-                out[f.name] = value
+        optional = dict(self._optional)
+        for name in self.__struct_fields__:   # in wire order
+            value = getattr(self, name)
+            if not (name in optional and value == optional[name]):
+                out[name] = value
         return out
 
     @classmethod
@@ -395,7 +431,8 @@ class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=Tru
     def _encode(self) -> bytes:
         for name, default in self._optional:
             # msgspec leaves a field out only while it holds its default object itself
-            if getattr(self, name) == default:
+            value = getattr(self, name)
+            if value is not default and value == default:
                 setattr(self, name, default)
         return encode_plain(self)
 
@@ -474,8 +511,8 @@ def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> Me
         return MessageError(str(exc))
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
         return MessageError(f"not a msgpack payload: {exc}")
-    text, _, path = str(exc).partition(" - at `$")
-    path = path.rstrip("`").lstrip(".")
+    found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
+    text, key, path = found.group(1), found.group(2), found.group(3) or ""
     if not path and text.startswith("Expected `object`"):
         return MessageError(f"expected a message map, got {text.rpartition('got ')[2].strip('`')}")
     name = _type_of(payload)
@@ -498,6 +535,8 @@ def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> Me
         text = f"expected {_WIRE_NAMES.get(want, want)}, got {_WIRE_NAMES.get(got.strip('`'), got.strip('`'))}"
     else:
         text = text[0].lower() + text[1:]
+    if key:
+        text = f"keys: {text}"
     return MessageError(f"{cls.TYPE}.{path}: {text}" if path else f"{cls.TYPE}: {text}")
 
 

@@ -47,26 +47,30 @@ _SMALL = 512                         # bytes: a smaller array is copied by tobyt
 
 def _default(obj):
     """msgspec's hook for what it cannot encode itself: a numpy array becomes the ext value, written
-    as it is (msgspec.Raw: the array's bytes copied once, into the payload)."""
+    as it is (msgspec.Raw)."""
     if obj.__class__ is np.ndarray:
-        key = (obj.dtype, obj.shape)
-        prefix = _PREFIXES.get(key)
+        prefix = _PREFIXES.get((obj.dtype, obj.shape))
         if prefix is None:
-            if obj.dtype.kind not in _ALLOWED_KINDS:
-                raise TypeError(f"cannot send a numpy array of dtype {obj.dtype}")
-            header = _header(obj.dtype, obj.shape)
-            prefix = ext_prefix(NDARRAY_EXT, len(header) + obj.nbytes) + header
-            if len(_PREFIXES) >= _MAX_LAYOUTS:
-                _PREFIXES.clear()
-            _PREFIXES[key] = prefix
+            prefix = _prefix(obj)
         # tobytes: C order whatever the strides; a large C-contiguous array's own memory, not copied twice
-        data = obj.data if obj.nbytes > _SMALL and obj.flags.c_contiguous else obj.tobytes()
-        return msgspec.Raw(prefix + data)
+        return msgspec.Raw(prefix + (obj.data if obj.nbytes > _SMALL and obj.flags.c_contiguous else obj.tobytes()))
     if isinstance(obj, np.ndarray):
         return _default(np.asarray(obj))
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"cannot encode {type(obj).__name__}")
+
+
+def _prefix(obj: np.ndarray) -> bytes:
+    """The ext value's start for an array of this dtype and shape: msgpack's ext prefix, our array header."""
+    if obj.dtype.kind not in _ALLOWED_KINDS:
+        raise TypeError(f"cannot send a numpy array of dtype {obj.dtype}")
+    header = _header(obj.dtype, obj.shape)
+    prefix = ext_prefix(NDARRAY_EXT, len(header) + obj.nbytes) + header
+    if len(_PREFIXES) >= _MAX_LAYOUTS:
+        _PREFIXES.clear()
+    _PREFIXES[(obj.dtype, obj.shape)] = prefix
+    return prefix
 
 
 def _layout(header: bytes) -> tuple:
@@ -76,7 +80,7 @@ def _layout(header: bytes) -> tuple:
         raise CodecError(f"array dtype {dtype} is not allowed")
     shape = struct.unpack_from(f"<{header[1 + n]}I", header, 2 + n)
     count = math.prod(shape)
-    return dtype, shape, count, count * dtype.itemsize
+    return dtype, None if len(shape) == 1 else shape, count, count * dtype.itemsize   # None: 1-D, no reshape
 
 
 def _ext_hook(code: int, data: memoryview):
@@ -85,7 +89,7 @@ def _ext_hook(code: int, data: memoryview):
     try:
         n = data[0]
         offset = 2 + n + 4 * data[1 + n]
-        header = bytes(data[:offset])
+        header = data[:offset].tobytes()
         layout = _LAYOUTS.get(header)
         if layout is None:
             if len(header) != offset:
@@ -100,9 +104,10 @@ def _ext_hook(code: int, data: memoryview):
         raise CodecError(f"malformed array: {exc}") from None
     dtype, shape, count, need = layout
     if len(data) - offset != need:
-        raise CodecError(f"array of shape {shape} and dtype {dtype} needs {need} bytes, got {len(data) - offset}")
+        raise CodecError(f"array of shape {shape or (count,)} and dtype {dtype} needs {need} bytes, "
+                         f"got {len(data) - offset}")
     arr = np.frombuffer(data, dtype, count, offset)   # a view: the payload's bytes stay alive with it
-    return arr if len(shape) == 1 else arr.reshape(shape)
+    return arr if shape is None else arr.reshape(shape)
 
 
 # msgspec's Encoder and Decoder hold no state between calls: one of each serves every thread.
