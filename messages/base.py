@@ -299,56 +299,57 @@ class MessageMeta(msgspec.StructMeta):
     """Makes each message class a tagged msgspec Struct of its declared fields and registers it."""
 
     def __new__(mcls, name, bases, namespace, **kwargs):
-        if "Message" not in globals():   # the base class itself
+        if not any(isinstance(base, MessageMeta) for base in bases):   # Message itself
             return super().__new__(mcls, name, bases, namespace, **kwargs)
         type_name = namespace.get("TYPE", name)
         module = vars(sys.modules[namespace["__module__"]])
-        declared_types = {n: eval(t, module, dict(namespace)) if isinstance(t, str) else t  # noqa: S307 - a
-                          for n, t in namespace.get("__annotations__", {}).items()}  # module's own annotation
-        # On the wire the array fields follow the others, as earlier versions wrote them: the same bytes.
-        namespace["__annotations__"] = dict(sorted(declared_types.items(),
-                                                   key=lambda item: isinstance(_spec(item[1]), ArraySpec)))
+        types = {n: eval(t, module, dict(namespace)) if isinstance(t, str) else t  # noqa: S307 - the module's
+                 for n, t in namespace.get("__annotations__", {}).items()}      # own annotations, as typing does
         docs: dict[str, doc] = {}
-        for field_name in declared_types:
+        for field_name, tp in types.items():
             declared = namespace.get(field_name)
             if not isinstance(declared, doc):
                 raise TypeError(f"{name}.{field_name}: declare it as `{field_name}: TYPE = doc(\"what it means\")`")
+            _checker(tp)   # a type no message can carry: TypeError, now
             docs[field_name] = declared
-            if declared.optional:
-                namespace[field_name] = declared.default   # msgspec's default: absent from payloads at it
-            else:
-                del namespace[field_name]                  # required in every payload
-        kwargs = {"tag": type_name, "kw_only": True, **kwargs}
-        cls = super().__new__(mcls, name, bases, namespace, **kwargs)
+            del namespace[field_name]   # required in every payload (msgspec: no default) ...
+            if declared.optional:       # ... but an optional field: msgspec leaves it out while at its default
+                namespace[field_name] = _zero(tp) if declared.default is None else declared.default
+                if callable(namespace[field_name]) or isinstance(namespace[field_name], (list, dict, np.ndarray)):
+                    raise TypeError(f"{name}.{field_name}: only a number, bool or string field may be optional")
+        # On the wire the array fields follow the others, as earlier versions wrote them: the same bytes.
+        namespace["__annotations__"] = dict(sorted(types.items(), key=lambda t: isinstance(_spec(t[1]), ArraySpec)))
+        cls = super().__new__(mcls, name, bases, namespace, **{"tag": type_name, "kw_only": True, **kwargs})
         cls.TYPE = type_name
         inherited = {f.name: f for base in bases for f in getattr(base, "FIELDS", ())}
         fields = []
-        for info in msgspec.structs.fields(cls):
+        for info in msgspec.structs.fields(cls):   # header first, then each class's fields
             if info.name in inherited:
                 fields.append(inherited[info.name])
                 continue
-            declared = docs.get(info.name) or doc(HEADER_DOCS[info.name], optional=info.required is False)
-            check = _checker(info.type)   # first: it says which types a field may have
-            zero = info.default if declared.optional else _zero(info.type)   # msgspec's own: see `_encode`
-            default = declared.default if declared.default is not None and not declared.optional else zero
-            if declared.default is not None and not callable(declared.default):
-                coerce = _coercer(info.type)
+            declared = docs.get(info.name) or doc(HEADER_DOCS[info.name], optional=not info.required)
+            coerce = _coercer(info.type)
+            if declared.optional:
+                default = info.default     # that very object: msgspec leaves out only it (see `_encode`)
+            elif declared.default is None:
+                default = _zero(info.type)
+            else:
                 value = coerce(declared.default) if coerce else declared.default
                 default = (lambda v=value: v.copy()) if isinstance(value, (np.ndarray, list, dict)) else value
-            fields.append(Field(info.name, info.type, declared.text, declared.optional, default, check,
-                                _coercer(info.type)))
-        order = [*(f.name for base in bases for f in getattr(base, "FIELDS", ())), *declared_types]
+            fields.append(Field(info.name, info.type, declared.text, declared.optional, default,
+                                _checker(info.type), coerce))
+        order = [*inherited, *types]
         fields.sort(key=lambda f: order.index(f.name) if f.name in order else -1)   # -1: the header
-        cls.FIELDS = tuple(fields)   # as declared (docs, schemas)
+        cls.FIELDS = tuple(fields)   # as declared (docs, schemas); the wire has the arrays last
         cls._plain_defaults = {f.name: f.default for f in fields if not callable(f.default)}
         cls._made_defaults = tuple((f.name, f.default) for f in fields if callable(f.default))
         cls._coerce = {f.name: f.coerce for f in fields if f.coerce is not None}
         cls._checks = tuple((f.name, f.check) for f in fields)
         cls._body_checks = tuple((f.name, f.check) for f in fields if f.name not in HEADER_DOCS)
         cls._after_decode = tuple((f.name, f.check) for f in fields if _needs_check_after_decode(f.type))
-        cls._decode = msgspec.msgpack.Decoder(cls, ext_hook=_ext_hook).decode
-        cls._overrides_check = cls.check is not Message.check
         cls._optional = tuple((f.name, f.default) for f in fields if f.optional)
+        cls._overrides_check = cls.check is not Message.check
+        cls._decode = msgspec.msgpack.Decoder(cls, ext_hook=_ext_hook).decode
         TYPES[type_name] = cls
         _union.clear()
         return cls
@@ -389,22 +390,7 @@ class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=Tru
         # the header as it nearly always is, at one look (any other value: each field's own check)
         usual = (s.__class__ is float and t.__class__ is float and r.__class__ is float and q.__class__ is int
                  and s - s == 0.0 and t - t == 0.0 and r - r == 0.0)
-        name = ""
-        try:
-            for name, check in self._body_checks if usual else self._checks:
-                check(getattr(self, name))
-        except ValueError as exc:
-            raise MessageError(f"{self.TYPE}.{name}{_sep(exc)}{exc}") from None
-        self._check_rules()
-
-    def _check_rules(self) -> None:
-        if self._overrides_check:
-            try:
-                self.check()
-            except MessageError:
-                raise
-            except ValueError as exc:   # "field: ..." or "objects[2].size: ..." reads TYPE.field: ...
-                raise MessageError(f"{self.TYPE}{'.' if _FIELD_PATH.match(str(exc)) else ': '}{exc}") from None
+        _checked(self, self._body_checks if usual else self._checks)
 
     def to_dict(self) -> dict[str, Any]:
         """The message as the map it is sent as (an optional field at its default left out)."""
@@ -464,29 +450,38 @@ def _decode_any(payload: bytes) -> Message:
     return decode_any(payload)
 
 
-def _finish(msg: Message) -> Message:
-    """The checks msgspec leaves to Python: arrays, records and the class's rules."""
+def _checked(msg: Message, checks: tuple) -> Message:
+    """`msg` once its fields pass `checks` ((name, check) pairs) and it passes its class's `check()`;
+    else a MessageError naming the type and the field. The one place both publishing and decoding
+    check a message (after decoding, only what msgspec leaves: arrays and records)."""
     name = ""
     try:
-        for name, check in msg._after_decode:
+        for name, check in checks:
             check(getattr(msg, name))
+        name = None
+        if msg._overrides_check:
+            msg.check()
+    except MessageError:
+        raise
     except ValueError as exc:
-        raise MessageError(f"{msg.TYPE}.{name}{_sep(exc)}{exc}") from None
-    msg._check_rules()
+        text = str(exc)
+        if name is not None:
+            raise MessageError(f"{msg.TYPE}.{name}{_sep(exc)}{text}") from None
+        # the class's rule: "field: ..." or "objects[2].size: ..." reads TYPE.field: ...
+        raise MessageError(f"{msg.TYPE}{'.' if _FIELD_PATH.match(text) else ': '}{text}") from None
     return msg
 
 
 def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
     """`decode(payload, expected)` as one function, made once (a subscription's)."""
-    decode_one = expected._decode
-    finish = _finish
+    decode_one, checks = expected._decode, expected._after_decode
 
     def decode_expected(payload: bytes) -> Message:
         try:
             msg = decode_one(payload)
         except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
             raise _error(exc, payload, expected) from None
-        return finish(msg)
+        return _checked(msg, checks)
 
     return decode_expected
 
@@ -497,7 +492,7 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
         msg = expected._decode(payload) if expected is not None else _decode_any(payload)
     except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
         raise _error(exc, payload, expected) from None
-    return _finish(msg)
+    return _checked(msg, msg._after_decode)
 
 
 def encode(msg: Message) -> bytes:

@@ -367,6 +367,7 @@ class _Joints(Message):
     confidence: Float = doc("0..1")
     tags: Map = doc("anything")
     parts: Records(name=str, size=Float, optional=("size",)) = doc("named parts")
+    note: str = doc("left out of payloads while empty", optional=True)
 
 
 class _Normalised(Message):
@@ -406,6 +407,9 @@ def test_a_newly_declared_type_is_checked_and_decodes_large_fixed_arrays_as_view
     assert type(back) is _Joints and same(back, msg) and back.parts == [{"name": "a"}, {"name": "b", "size": 2}]
     assert np.shares_memory(back.positions, np.frombuffer(payload, np.uint8))   # 600 bytes: not copied
     assert _Joints.field_docs()["confidence"] == "0..1"
+    assert "note" not in unpack(payload) and back.note == ""
+    noted = decode(_Joints(positions=msg.positions, radii=msg.radii, note="hi").encode(), _Joints)
+    assert noted.note == "hi" and list(unpack(noted.encode()))[-4:] == ["parts", "note", "positions", "radii"]
     bad = _Joints(positions=np.ones((24, 3)), radii=np.zeros(25, np.float32), hand="left", confidence=1.0)
     with pytest.raises(MessageError, match=r"^test_checks.Joints.positions: expected shape 25x3, got 24x3"):
         decode(bad.encode(), _Joints)
@@ -426,7 +430,11 @@ def test_a_field_must_be_documented_and_of_a_known_type():
         class _Unknown(Message):
             TYPE = "test_checks.Unknown"
             value: set = doc("a set")
-    for name in ("test_checks.Undocumented", "test_checks.Unknown"):
+    with pytest.raises(TypeError, match="only a number, bool or string field may be optional"):
+        class _OptionalList(Message):
+            TYPE = "test_checks.OptionalList"
+            value: list[str] = doc("names", optional=True)
+    for name in ("test_checks.Undocumented", "test_checks.Unknown", "test_checks.OptionalList"):
         TYPES.pop(name, None)
 
 

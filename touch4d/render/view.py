@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from touch4d.geometry.scene import Scene
-from touch4d.messages import HandPose, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandPose, MessageError, MotorCommand, SceneState, TactileField
 from touch4d.tactile.glove import Glove
 from touch4d.tactile.pose import check_pose, place, quaternion_matrix
 
@@ -116,7 +116,7 @@ class SceneView:
 
     def set_field(self, msg: TactileField) -> None:
         if len(msg.positions) == 0:
-            raise ValueError("tactile/field: expected at least one sample")
+            raise MessageError("TactileField.positions: expected at least one sample to draw")
         self.field = msg
 
     def set_motors(self, msg: MotorCommand) -> None:
