@@ -93,6 +93,8 @@ class ArraySpec:
         return check
 
     def coerce(self, value) -> np.ndarray:
+        if value.__class__ is np.ndarray and value.dtype.kind == self.dtype.kind:
+            return value
         arr = np.asarray(value)
         if arr.dtype != self.dtype and not (arr.dtype.kind == self.dtype.kind and arr.dtype.kind in "fiu"):
             arr = arr.astype(self.dtype)   # float32 stays float32; a list of ints becomes float64
@@ -367,7 +369,10 @@ class MessageMeta(msgspec.StructMeta):
         for name, make in cls._made_defaults:
             if name not in values:
                 values[name] = make()
-        return super().__call__(**{**cls._plain_defaults, **values})
+        return _make(cls, **{**cls._plain_defaults, **values})
+
+
+_make = msgspec.StructMeta.__call__
 
 
 class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=True, forbid_unknown_fields=True):
