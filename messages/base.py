@@ -49,16 +49,6 @@ Map = dict[str, Any]           # a map with string keys and plain values (number
 # ---- field types that msgspec checks only in part: arrays and records ------------------------------
 
 
-def _all_finite(arr: np.ndarray) -> bool:
-    # A finite sum (of squares) proves every value finite; only a non-finite one needs the element-wise look.
-    if arr.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
-        total = sum(arr.tolist() if arr.ndim == 1 else arr.ravel().tolist())
-    else:
-        flat = arr.reshape(-1)
-        total = np.dot(flat, flat)
-    return total - total == 0 or bool(np.isfinite(arr).all())
-
-
 class ArraySpec:
     """A numpy array field: dtype kind ('f' float, 'i' int, 'b' bool) and shape (None: any length)."""
 
@@ -68,7 +58,6 @@ class ArraySpec:
         self.check_finite = finite and self.dtype.kind == "f"
         self.text = "x".join("N" if n is None else str(n) for n in shape) or "scalar"
         self.fixed = {i: n for i, n in enumerate(shape) if n is not None}   # the lengths that are given
-
         self.check = self._checker()
 
     def _checker(self) -> Callable[[Any], None]:
@@ -84,11 +73,13 @@ class ArraySpec:
             if shape != want and (len(shape) != len(want) or any(shape[i] != n for i, n in fixed)):
                 raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
             if finite:
-                if value.size <= 16:   # a finite sum proves every value finite (a pose's: plain floats, quicker)
+                if value.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
                     total = sum(value.tolist() if value.ndim == 1 else value.ravel().tolist())
-                    if total - total == 0.0:
-                        return
-                if not _all_finite(value):
+                else:
+                    flat = value.reshape(-1)
+                    total = np.dot(flat, flat)
+                # a finite sum (of squares) proves every value finite; only a non-finite one needs the look
+                if total - total != 0.0 and not np.isfinite(value).all():
                     raise ValueError("expected finite values, got NaN or infinity")
         return check
 
