@@ -32,7 +32,7 @@ from touch4d.errors import Touch4dError
 
 from .codec import CodecError, _ext_hook, encode_plain
 from .header import DOCS as HEADER_DOCS
-from .header import Finite, Header
+from .header import Finite, Header, peek_any
 
 __all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
            "decoder"]
@@ -537,9 +537,5 @@ _WIRE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false"
 
 def _type_of(payload: bytes):
     """The "type" of a payload that failed to decode (for the error's text), or None."""
-    try:
-        from .header import peek_any
-        found = peek_any(payload)
-    except Exception:  # noqa: BLE001 - only for an error's text
-        return None
+    found = peek_any(payload)
     return found[0] if found else None
