@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import difflib
 import re
+import sys
 import typing
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 import yaml
@@ -24,6 +25,15 @@ from touch4d.errors import ConfigError
 
 T = TypeVar("T")
 
+# Numbers as files mean them: finite (YAML's .nan and .inf are refused where a size or a position is
+# expected), with the usual ranges. The bound FINITE_MAX is shown as "finite" in errors.
+FINITE_MAX = sys.float_info.max
+Finite = Annotated[float, msgspec.Meta(ge=-FINITE_MAX, le=FINITE_MAX)]
+Positive = Annotated[float, msgspec.Meta(gt=0, le=FINITE_MAX)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0, le=FINITE_MAX)]
+Fraction = Annotated[float, msgspec.Meta(ge=0, le=1)]
+
+_ENUM = re.compile(r"^Invalid (?:enum )?value (?P<got>.+)$")
 _AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
 _UNKNOWN = re.compile(r"^Object contains unknown field `(?P<name>[^`]*)`")
 _MISSING = re.compile(r"^Object missing required field `(?P<name>[^`]*)`")
@@ -76,7 +86,34 @@ def convert(data: Any, type_: type[T], file=None, key: str = "") -> T:
     try:
         return msgspec.convert(data, type_, strict=True)
     except msgspec.ValidationError as exc:
-        raise _config_error(str(exc), data, type_, file, key) from None
+        raise error_of(exc, data, type_, file, key) from None
+
+
+class Invalid(ValueError):
+    """Raised by a Struct's `__post_init__` for a check no type expresses (a unit quaternion, two
+    keys that must agree): `convert` turns it into a ConfigError at the Struct's key path extended
+    by `key`. `choices` adds a did-you-mean for `got`."""
+
+    def __init__(self, expected: str, got=None, key: str = "", *, hint: str | None = None, choices=None):
+        super().__init__(expected)
+        self.expected, self.got, self.key = expected, got, key
+        self.hint = hint if hint is not None else (did_you_mean(got, choices) if choices else None)
+
+
+def error_of(exc: msgspec.ValidationError, data, type_, file=None, key: str = "") -> ConfigError:
+    """The ConfigError for msgspec's ValidationError `exc` raised converting (or decoding) `data` to
+    `type_`: key path, expected and got in the words of a YAML or JSON file."""
+    text = str(exc)
+    cause = exc.__cause__
+    if isinstance(cause, Invalid):
+        at = _AT.search(text)
+        where = _walk(data, type_, at.group("path") if at else "", key)[0]
+        if cause.key:
+            where = join(where, cause.key)
+        return ConfigError(file, where or "(top level)", cause.expected, got=cause.got, hint=cause.hint)
+    if isinstance(cause, ConfigError):
+        return cause
+    return _config_error(text, data, type_, file, key)
 
 
 def fail(file, key: str, expected: str, got=None, choices=None) -> typing.NoReturn:
@@ -119,25 +156,29 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     if at:
         path = at.group("path")
         text = text[: at.start()]
-    parts = re.findall(r"\.([^.\[\]]+)|\[(\d+)\]", path)
-    steps: list[str | int] = [name if name else int(index) for name, index in parts]
-    key = prefix
-    for step in steps:
-        key = join(key, f"[{step}]" if isinstance(step, int) else step)
-    value, found = _follow(data, steps)
+    key, value, found, type_ = _walk(data, type_, path, prefix)
     unknown = _UNKNOWN.match(text)
     if unknown:
         name = unknown.group("name")
-        allowed = struct_fields(_type_at(type_, steps))
+        allowed = struct_fields(type_)
         expected = f"one of the keys {', '.join(allowed)}" if allowed else "no such key"
         return ConfigError(file, join(key, name), expected, got=None, hint=did_you_mean(name, allowed))
     missing = _MISSING.match(text)
     if missing:
         return ConfigError(file, join(key, missing.group("name")), "a value (the key is required)")
+    enum = _ENUM.match(text)
+    if enum:
+        choices = _choices(type_)
+        got = value if found else enum.group("got")
+        what = f"one of {', '.join(map(str, choices))}" if choices else "one of the allowed values"
+        return ConfigError(file, key or "(top level)", what, got=got, hint=did_you_mean(got, choices))
+    if text == "Number out of range":
+        return ConfigError(file, key or "(top level)", "a finite number", got=value if found else None)
     expected = _EXPECTED.match(text)
     if expected:
-        what = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), expected.group("expected"))
-        what = what.replace("`", "")
+        what = _finite_words(expected.group("expected"))
+        what = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), what)
+        what = re.sub(r"(\d)\.0\b", r"\1", what.replace("`", ""))
         if expected.group("count") is not None:
             what += f" (not {expected.group('count')})"
         if expected.group("got") is not None and not found:
@@ -146,13 +187,27 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     return ConfigError(file, key or "(top level)", text.replace("`", ""), got=value if found else None)
 
 
-def _follow(data, steps):
-    for step in steps:
-        try:
-            data = data[step]
-        except (KeyError, IndexError, TypeError):
-            return None, False
-    return data, True
+def _finite_words(text: str) -> str:
+    """msgspec's `float` >= -1.79e308 (the bound of Finite) as "a finite number"."""
+    bound = repr(FINITE_MAX)
+    if bound not in text:
+        return text
+    text = re.sub(rf"\s*(?:and\s*)?[<>]=\s*-?{re.escape(bound)}", "", text)
+    text = re.sub(r"`float`,?", "a finite number", text, count=1)
+    return text.replace(" ,", ",").strip()
+
+
+def _choices(type_) -> tuple:
+    """The values of a Literal annotation (through Annotated and Optional), else ()."""
+    origin = typing.get_origin(type_)
+    if origin is typing.Literal:
+        return typing.get_args(type_)
+    if origin is typing.Annotated or origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        for arg in typing.get_args(type_):
+            found = _choices(arg)
+            if found:
+                return found
+    return ()
 
 
 def _struct(type_):
@@ -171,25 +226,62 @@ def _struct(type_):
     return None
 
 
-def _type_at(type_, steps):
-    """The annotation reached from `type_` by following `steps` (field names and indices)."""
-    for step in steps:
+def _walk(data, type_, path: str, key: str):
+    """Follow msgspec's error path (`.name`, `[3]`, `[...]` for a mapping's key, which msgspec does
+    not name) through `data` and `type_` together: (key as shown, value there, whether the value was
+    found, annotation there)."""
+    found = True
+    for name, index in re.findall(r"\.([^.\[\]]+)|\[(\d+|\.\.\.)\]", path):
+        type_ = _bare(type_)
+        if index == "...":                  # the first entry of the mapping whose value does not convert
+            args = typing.get_args(type_)
+            inner = args[1] if len(args) == 2 else Any
+            bad = None
+            if found and isinstance(data, dict):
+                for k, v in data.items():
+                    try:
+                        msgspec.convert(v, inner, strict=True)
+                    except msgspec.ValidationError:
+                        bad = k
+                        break
+            if bad is None:
+                return join(key, "[...]"), None, False, inner
+            key, data, type_ = join(key, str(bad)), data[bad], inner
+            continue
+        if index:
+            step = int(index)
+            args = typing.get_args(type_)
+            type_ = (args[step] if step < len(args) and args[-1] is not Ellipsis and typing.get_origin(type_) is tuple
+                     else args[0] if args else Any)
+            key = join(key, f"[{step}]")
+        else:
+            step = name
+            struct = _struct(type_)
+            if struct is not None:
+                hints = typing.get_type_hints(struct, include_extras=True)
+                by_name = {f.encode_name: f.name for f in msgspec.inspect.type_info(struct).fields}
+                type_ = hints.get(by_name.get(step, step), Any)
+            else:
+                type_ = Any
+            key = join(key, step)
+        if found:
+            try:
+                data = data[step]
+            except (KeyError, IndexError, TypeError):
+                data, found = None, False
+    return key, data, found, type_
+
+
+def _bare(type_):
+    """`type_` without Annotated, and the non-None member of an Optional."""
+    while True:
         origin = typing.get_origin(type_)
         if origin is typing.Annotated:
             type_ = typing.get_args(type_)[0]
-            origin = typing.get_origin(type_)
-        if isinstance(step, int):
-            args = typing.get_args(type_)
-            type_ = args[0] if args else Any
-            continue
-        struct = _struct(type_)
-        if struct is not None:
-            hints = typing.get_type_hints(struct, include_extras=True)
-            by_name = {f.encode_name: f.name for f in msgspec.inspect.type_info(struct).fields}
-            type_ = hints.get(by_name.get(step, step), Any)
-        elif origin is dict:
-            args = typing.get_args(type_)
-            type_ = args[1] if len(args) == 2 else Any
+        elif origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+            members = [a for a in typing.get_args(type_) if a is not type(None)]
+            if len(members) != 1:
+                return type_
+            type_ = members[0]
         else:
-            return Any
-    return type_
+            return type_
