@@ -35,6 +35,7 @@ Fraction = Annotated[float, msgspec.Meta(ge=0, le=1)]
 
 _ENUM = re.compile(r"^Invalid (?:enum )?value (?P<got>.+)$")
 _AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
+_AT_KEY = re.compile(r" - at `key` in `\$(?P<path>[^`]*)`$")
 _UNKNOWN = re.compile(r"^Object contains unknown field `(?P<name>[^`]*)`")
 _MISSING = re.compile(r"^Object missing required field `(?P<name>[^`]*)`")
 _EXPECTED = re.compile(r"^Expected (?P<expected>.+?)(?:, got `(?P<got>[^`]*)`|, got (?P<count>\d+))?$")
@@ -152,11 +153,17 @@ def describe(type_) -> str:
 
 def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     path = ""
-    at = _AT.search(text)
+    at_key = _AT_KEY.search(text)
+    at = at_key or _AT.search(text)
     if at:
         path = at.group("path")
         text = text[: at.start()]
     key, value, found, type_ = _walk(data, type_, path, prefix)
+    if at_key:                              # a mapping's key that is not a name
+        bad = next((k for k in value if not isinstance(k, str)), None) if found and isinstance(value, dict) else None
+        return ConfigError(file, join(key, str(bad)) if bad is not None else key or "(top level)",
+                           "a key that is a name (text)", got=bad)
+    described = _description(type_)
     unknown = _UNKNOWN.match(text)
     if unknown:
         name = unknown.group("name")
@@ -170,15 +177,21 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     if enum:
         choices = _choices(type_)
         got = value if found else enum.group("got")
+        if described:
+            return ConfigError(file, key or "(top level)", described, got=got, hint=did_you_mean(got, choices))
         what = f"one of {', '.join(map(str, choices))}" if choices else "one of the allowed values"
         return ConfigError(file, key or "(top level)", what, got=got, hint=did_you_mean(got, choices))
     if text == "Number out of range":
         return ConfigError(file, key or "(top level)", "a finite number", got=value if found else None)
     expected = _EXPECTED.match(text)
+    if described:
+        return ConfigError(file, key or "(top level)", described, got=value if found else None)
+    if expected and _fixed_tuple(type_) and "length" in text:
+        return ConfigError(file, key or "(top level)", _fixed_tuple(type_), got=value if found else None)
     if expected:
         what = _finite_words(expected.group("expected"))
         what = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), what)
-        what = re.sub(r"(\d)\.0\b", r"\1", what.replace("`", ""))
+        what = re.sub(r"(\d)\.0\b", r"\1", what.replace("`", "")).replace(" | ", " or ")
         if expected.group("count") is not None:
             what += f" (not {expected.group('count')})"
         if expected.group("got") is not None and not found:
@@ -195,6 +208,30 @@ def _finite_words(text: str) -> str:
     text = re.sub(rf"\s*(?:and\s*)?[<>]=\s*-?{re.escape(bound)}", "", text)
     text = re.sub(r"`float`,?", "a finite number", text, count=1)
     return text.replace(" ,", ",").strip()
+
+
+def _description(type_) -> str | None:
+    """The `msgspec.Meta(description=...)` of an annotation: what a valid value is, in a user's words."""
+    if typing.get_origin(type_) is typing.Annotated:
+        for meta in typing.get_args(type_)[1:]:
+            if isinstance(meta, msgspec.Meta) and meta.description:
+                return meta.description
+        return _description(typing.get_args(type_)[0])
+    return None
+
+
+def _fixed_tuple(type_) -> str | None:
+    """"a list of 4 numbers" for tuple[float, float, float, float] (through Annotated), else None."""
+    type_ = _bare(type_)
+    args = typing.get_args(type_)
+    if typing.get_origin(type_) is not tuple or not args or args[-1] is Ellipsis:
+        return None
+    kinds = {_bare(a) for a in args}
+    if kinds <= {float, int}:
+        return f"a list of {len(args)} numbers"
+    names = ", ".join(_WORDS.get({float: "float", int: "int", str: "str", bool: "bool"}.get(_bare(a), ""), "a value")
+                      for a in args)
+    return f"a list of {len(args)}: {names}"
 
 
 def _choices(type_) -> tuple:
@@ -244,7 +281,13 @@ def _walk(data, type_, path: str, key: str):
                     except msgspec.ValidationError:
                         bad = k
                         break
-            if bad is None:
+            if bad is None:                 # a key of the wrong kind
+                keys = args[0] if len(args) == 2 else Any
+                for k in data if found and isinstance(data, dict) else ():
+                    try:
+                        msgspec.convert(k, keys, strict=True)
+                    except msgspec.ValidationError:
+                        return join(key, str(k)), k, True, keys
                 return join(key, "[...]"), None, False, inner
             key, data, type_ = join(key, str(bad)), data[bad], inner
             continue
