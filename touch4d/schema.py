@@ -172,7 +172,10 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
         return ConfigError(file, join(key, name), expected, got=None, hint=did_you_mean(name, allowed))
     missing = _MISSING.match(text)
     if missing:
-        return ConfigError(file, join(key, missing.group("name")), "a value (the key is required)")
+        name = missing.group("name")
+        field = _walk({}, type_, f".{name}", "")[3]
+        what = _description(field) or _fixed_tuple(field) or "a value"
+        return ConfigError(file, join(key, name), f"{what} (the key is required)")
     enum = _ENUM.match(text)
     if enum:
         choices = _choices(type_)
