@@ -28,10 +28,10 @@ T = TypeVar("T")
 # Numbers as files mean them: finite (YAML's .nan and .inf are refused where a size or a position is
 # expected), with the usual ranges. The bound FINITE_MAX is shown as "finite" in errors.
 FINITE_MAX = sys.float_info.max
-Finite = Annotated[float, msgspec.Meta(ge=-FINITE_MAX, le=FINITE_MAX)]
-Positive = Annotated[float, msgspec.Meta(gt=0, le=FINITE_MAX)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0, le=FINITE_MAX)]
-Fraction = Annotated[float, msgspec.Meta(ge=0, le=1)]
+Finite = Annotated[float, msgspec.Meta(ge=-FINITE_MAX, le=FINITE_MAX, description="a finite number")]
+Positive = Annotated[float, msgspec.Meta(gt=0, le=FINITE_MAX, description="a finite number > 0")]
+NonNegative = Annotated[float, msgspec.Meta(ge=0, le=FINITE_MAX, description="a finite number >= 0")]
+Fraction = Annotated[float, msgspec.Meta(ge=0, le=1, description="a number in 0..1")]
 
 _ENUM = re.compile(r"^Invalid (?:enum )?value (?P<got>.+)$")
 _AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -122,6 +122,11 @@ def fail(file, key: str, expected: str, got=None, choices=None) -> typing.NoRetu
     raise ConfigError(file, key, expected, got=got, hint=did_you_mean(got, choices) if choices else None)
 
 
+def to_builtins(value) -> Any:
+    """A Struct (or anything holding Structs) as plain dicts and lists."""
+    return msgspec.to_builtins(value)
+
+
 def did_you_mean(word, choices) -> str | None:
     """`did you mean 'x'?` for the nearest of `choices` to `word`, or None."""
     if not isinstance(word, str):
@@ -163,6 +168,12 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
         bad = next((k for k in value if not isinstance(k, str)), None) if found and isinstance(value, dict) else None
         return ConfigError(file, join(key, str(bad)) if bad is not None else key or "(top level)",
                            "a key that is a name (text)", got=bad)
+    if _strip_optional(type_) is not type_ and found and value is not None and not at_key:
+        try:                                # Optional[X] given a value: say what X says (not "or null")
+            msgspec.convert(value, _strip_optional(type_), strict=True)
+        except msgspec.ValidationError as inner:
+            if inner.__cause__ is None and not _AT.search(str(inner)):
+                return _config_error(str(inner), value, _strip_optional(type_), file, key)
     described = _description(type_)
     unknown = _UNKNOWN.match(text)
     if unknown:
@@ -193,7 +204,7 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
         return ConfigError(file, key or "(top level)", _fixed_tuple(type_), got=value if found else None)
     if expected:
         what = _finite_words(expected.group("expected"))
-        what = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), what)
+        what = re.sub(r"`([\w |]+)`", lambda m: " | ".join(_WORDS.get(w, w) for w in m.group(1).split(" | ")), what)
         what = re.sub(r"(\d)\.0\b", r"\1", what.replace("`", "")).replace(" | ", " or ")
         if expected.group("count") is not None:
             what += f" (not {expected.group('count')})"
@@ -213,8 +224,20 @@ def _finite_words(text: str) -> str:
     return text.replace(" ,", ",").strip()
 
 
+def _strip_optional(type_):
+    """`X` for `X | None`, else `type_`."""
+    origin = typing.get_origin(type_)
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        members = [a for a in typing.get_args(type_) if a is not type(None)]
+        if len(members) == 1:
+            return members[0]
+    return type_
+
+
 def _description(type_) -> str | None:
     """The `msgspec.Meta(description=...)` of an annotation: what a valid value is, in a user's words."""
+    if _strip_optional(type_) is not type_:
+        return _description(_strip_optional(type_))
     if typing.get_origin(type_) is typing.Annotated:
         for meta in typing.get_args(type_)[1:]:
             if isinstance(meta, msgspec.Meta) and meta.description:
