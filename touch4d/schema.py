@@ -16,7 +16,7 @@ import re
 import sys
 import typing
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 import yaml
@@ -185,7 +185,9 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     if missing:
         name = missing.group("name")
         field = _walk({}, type_, f".{name}", "")[3]
-        what = _description(field) or _fixed_tuple(field) or "a value"
+        choices = _choices(field)
+        what = _description(field) or _fixed_tuple(field) or (f"one of {', '.join(map(str, choices))}" if choices
+                                                              else "a value")
         return ConfigError(file, join(key, name), f"{what} (the key is required)")
     enum = _ENUM.match(text)
     if enum:
@@ -326,11 +328,20 @@ def _walk(data, type_, path: str, key: str):
         else:
             step = name
             struct = _struct(type_)
+            tagged = _tagged(type_)
+            if tagged:                      # a union told apart by a tag field (kind: sweep)
+                tag_field = tagged[0].__struct_config__.tag_field
+                if step == tag_field:
+                    type_ = Literal[tuple(m.__struct_config__.tag for m in tagged)]
+                    struct = None
+                else:
+                    tag = data.get(tag_field) if found and isinstance(data, dict) else None
+                    struct = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
             if struct is not None:
                 hints = typing.get_type_hints(struct, include_extras=True)
                 by_name = {f.encode_name: f.name for f in msgspec.inspect.type_info(struct).fields}
                 type_ = hints.get(by_name.get(step, step), Any)
-            else:
+            elif not (tagged and step == tag_field):
                 type_ = Any
             key = join(key, step)
         if found:
@@ -339,6 +350,17 @@ def _walk(data, type_, path: str, key: str):
             except (KeyError, IndexError, TypeError):
                 data, found = None, False
     return key, data, found, type_
+
+
+def _tagged(type_) -> list:
+    """The members of a union of tagged Structs (`tag_field=`), else []."""
+    type_ = _bare(type_)
+    origin = typing.get_origin(type_)
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        members = [a for a in typing.get_args(type_) if isinstance(a, type) and issubclass(a, msgspec.Struct)]
+        if members and all(m.__struct_config__.tag_field for m in members):
+            return members
+    return []
 
 
 def _bare(type_):
