@@ -19,6 +19,7 @@ from touch4d.configfile import resolve_path
 from touch4d.schema import Finite, Fraction, NonNegative, Positive
 
 DEFAULT_PATH = "config/glove.yaml"
+DEFAULT_TOUCH_THRESHOLD = 0.05   # see GloveFile.touch_threshold
 MAX_CHANNELS = 8   # one duty frame per board: 8 x 7-bit duty + 8-bit counter = 64 bits (see boards/dbc.py)
 
 Point2 = tuple[Finite, Finite]
@@ -201,7 +202,8 @@ class GloveFile(msgspec.Struct, forbid_unknown_fields=True):
     beta: Beta | None = None
     gamma: Positive | None = None                # paper eq. 3
     # A motor counts as touched (status line, HUD, WebXR page) when its intensity is above this.
-    touch_threshold: Annotated[float, msgspec.Meta(ge=0, lt=1, description="an intensity in 0..1")] = 0.05
+    touch_threshold: Annotated[float, msgspec.Meta(ge=0, lt=1, description="an intensity in 0..1")] = \
+        DEFAULT_TOUCH_THRESHOLD
     can: CanSection = msgspec.field(default_factory=CanSection)
 
     def __post_init__(self):

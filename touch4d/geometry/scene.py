@@ -18,6 +18,7 @@ Every mistake is a ConfigError naming the file and the key (`objects[0].color`),
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 from typing import Annotated, Literal
 
@@ -32,7 +33,7 @@ from touch4d.schema import Finite, Positive
 from .polytope import GeometryError, Polytope
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
-from .shapes import get_shape, list_shapes
+from .shapes import get_shape, list_shapes, shape_params
 
 CUSTOM_KINDS = ("vertices", "halfspaces", "parts")
 COLOR_FORMS = "a colour: [r, g, b] or [r, g, b, a] in 0..1, '#rrggbb', '#rrggbbaa' or a CSS name such as 'orange'"
@@ -121,16 +122,29 @@ class Scene:
 
         objects = []
         for i, m in enumerate(msg.objects):
-            try:
+            try:   # the map's fields, as the message codec left them (plain values and arrays)
+                shape = str(m["shape"])
+                params = dict(m.get("params") or {})
                 obj = SceneObject(
-                    name=str(m["name"]), shape=str(m["shape"]), params=dict(m.get("params") or {}),
+                    name=str(m["name"]), shape=shape, params=params,
                     size=float(m["size"]), position=np.asarray(m["position"], dtype=np.float64).reshape(4),
                     orientation=np.asarray(m["orientation"], dtype=np.float64).reshape(4, 4),
                     color=np.asarray(m["color"], dtype=np.float64).reshape(4),
-                    custom_parts=[np.asarray(h, dtype=np.float64) for h in m["parts"]] if m["shape"] == "custom" else None,
+                    custom_parts=[np.asarray(h, dtype=np.float64).reshape(-1, 5) for h in m["parts"]]
+                    if shape == "custom" else None,
                 )
-                obj.local_parts()
             except (KeyError, ValueError, TypeError) as exc:
+                raise MessageError(f"SceneState.objects[{i}]: {exc!r}") from exc
+            if shape != "custom":
+                defaults = shape_params(shape) if shape in list_shapes() else {}
+                bad = [k for k, v in params.items() if k in defaults and type(v) is not type(defaults[k])
+                       and not (isinstance(v, (int, float)) and type(defaults[k]) in (int, float) and not isinstance(v, bool))]
+                if shape not in list_shapes() or bad:
+                    raise MessageError(f"SceneState.objects[{i}]: shape {shape!r} with params {params!r}: expected a "
+                                       f"catalog shape ({', '.join(list_shapes())}) and parameters like {defaults}")
+            try:
+                obj.local_parts()
+            except GeometryError as exc:
                 raise MessageError(f"SceneState.objects[{i}]: {exc}") from exc
             objects.append(obj)
         return cls(objects=objects, projection=msg.projection, eye_distance=float(msg.eye_distance),
@@ -139,6 +153,35 @@ class Scene:
     def copy(self) -> "Scene":
         return replace(self, objects=[replace(o, position=o.position.copy(), orientation=o.orientation.copy())
                                       for o in self.objects])
+
+
+def scene_digest(msg, touch_only: bool = False) -> bytes:
+    """The one digest of a `scene/state` message: everything in its objects, the projection and the
+    eye distance (all but `selected` and `revision`; with `touch_only`, names and colours too, which
+    the hand cannot feel). Equal digests draw (or touch) the same scene, so a repeated message (the
+    scene node repeats it for late joiners) or a new selection rebuilds nothing."""
+    skipped = ("name", "color") if touch_only else ()
+    digest = hashlib.blake2b(digest_size=16)
+    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}".encode())
+
+    def add(value) -> None:
+        if isinstance(value, dict):
+            for k in sorted(value, key=str):
+                if k in skipped:
+                    continue
+                digest.update(f"<{k}>".encode())
+                add(value[k])
+        elif isinstance(value, (list, tuple)):
+            digest.update(f"[{len(value)}".encode())
+            for item in value:
+                add(item)
+        elif isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype}{value.shape}".encode() + np.ascontiguousarray(value).tobytes())
+        else:
+            digest.update(repr(value).encode())
+
+    add(msg.objects)
+    return digest.digest()
 
 
 def _custom_polytopes(parts) -> list[Polytope]:

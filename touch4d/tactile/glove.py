@@ -14,7 +14,7 @@ import numpy as np
 
 from touch4d import glovefile, schema
 from touch4d.configfile import CONFIG_DIR
-from touch4d.glovefile import Beta, CanSection, GloveFile
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD, Beta, CanSection, GloveFile
 from touch4d.schema import Positive
 
 from .hand import FINGER_NAMES, Hand
@@ -39,7 +39,7 @@ class Glove:
     alpha: float
     beta: float
     gamma: float
-    touch_threshold: float = 0.05   # a motor driven above this counts as touched (glove file)
+    touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # a motor driven above this counts as touched
     can: CanSection = field(default_factory=CanSection)   # the boards' part, as the file gave it
 
     @property

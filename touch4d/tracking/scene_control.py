@@ -15,6 +15,7 @@ import msgspec
 import numpy as np
 
 from touch4d import schema
+from touch4d.errors import Touch4dError
 from touch4d.schema import Finite
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene
@@ -26,6 +27,10 @@ from .calibration import Calibration
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
 ROTATE_TARGETS = ("object", "scene")
 BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
+
+
+class SceneCommandError(Touch4dError, ValueError):
+    """A scene/command the scene cannot carry out (an unknown command, a bad argument): says what was expected."""
 
 
 class Gains(msgspec.Struct, forbid_unknown_fields=True):
@@ -143,7 +148,7 @@ class SceneControl:
     def command(self, name: str, argument: str = "") -> bool:
         """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle].
 
-        A bad command or argument raises ValueError saying what was expected.
+        A bad command or argument raises SceneCommandError saying what was expected.
         """
         if name == "next":
             return self._select(self._next_index())
@@ -157,7 +162,7 @@ class SceneControl:
             return True
         if name == "projection":
             return self._projection(argument)
-        raise ValueError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
 
     def _next_index(self) -> int:
         order = list(range(len(self.scene.objects))) + [-1]
@@ -177,7 +182,7 @@ class SceneControl:
         except ValueError:
             index = None
         if index is None or not 0 <= index < len(names):
-            raise ValueError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
+            raise SceneCommandError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
                              f"or 'scene', got {argument!r}")
         return index
 
@@ -196,7 +201,7 @@ class SceneControl:
         elif argument in PROJECTIONS:
             target = argument
         else:
-            raise ValueError(f"projection: expected {', '.join(PROJECTIONS)} or toggle, got {argument!r}")
+            raise SceneCommandError(f"projection: expected {', '.join(PROJECTIONS)} or toggle, got {argument!r}")
         if target == self.scene.projection:
             return False
         self.scene.projection = target
