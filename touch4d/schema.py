@@ -131,7 +131,10 @@ def did_you_mean(word, choices) -> str | None:
     """`did you mean 'x'?` for the nearest of `choices` to `word`, or None."""
     if not isinstance(word, str):
         return None
-    near = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
+    names = [str(c) for c in choices]
+    near = difflib.get_close_matches(word, names, n=1, cutoff=0.6)
+    if not near:                     # a short name with two letters swapped (di -> id)
+        near = [n for n in names if sorted(n) == sorted(word) and n != word][:1]
     return f"did you mean '{near[0]}'?" if near else None
 
 
@@ -178,6 +181,11 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     unknown = _UNKNOWN.match(text)
     if unknown:
         name = unknown.group("name")
+        tagged = _tagged(type_)
+        if tagged:                          # the member of a tagged union that `value` names
+            tag_field = tagged[0].__struct_config__.tag_field
+            tag = value.get(tag_field) if found and isinstance(value, dict) else None
+            type_ = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
         allowed = struct_fields(type_)
         expected = f"one of the keys {', '.join(allowed)}" if allowed else "no such key"
         return ConfigError(file, join(key, name), expected, got=None, hint=did_you_mean(name, allowed))
