@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from touch4d import glovefile, schema
+from touch4d import glovefile
 from touch4d.boards.config import load_glove_can
 from touch4d.bus.config import BusFile, load_bus_config
 from touch4d.bus.launchfile import load_launch

@@ -151,11 +151,6 @@ def struct_fields(type_) -> tuple[str, ...]:
     return tuple(f.encode_name for f in msgspec.inspect.type_info(info).fields) if info else ()
 
 
-def describe(type_) -> str:
-    """A short human description of an annotation, for messages."""
-    return str(msgspec.inspect.type_info(type_).__class__.__name__).removesuffix("Type").lower()
-
-
 # ---- msgspec's error text -> ConfigError ------------------------------------------------------------
 
 

@@ -33,7 +33,6 @@ from touch4d.bus import registry
 from touch4d.bus.params import check_params, suggest
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
-from touch4d.schema import NonNegative
 
 
 class NodeEntry(msgspec.Struct, forbid_unknown_fields=True):
