@@ -2,12 +2,17 @@
 converted to declared types (msgspec Structs) with one error naming file, key path, expected and got.
 
 Declare a file's shape once as `msgspec.Struct` classes (`forbid_unknown_fields=True` so a typo is
-caught, `Annotated[float, msgspec.Meta(gt=0)]` for ranges) and call `load(path, Type)` or
-`convert(data, Type, file)`. Every mistake is a `ConfigError(file, "objects[0].size", expected,
-got)`; an unknown key suggests the nearest declared one (`did you mean 'position'?`); a YAML syntax
-error names line and column and the whole problem. Checks no type can express (a unit
-quaternion, a known shape name) raise `ConfigError` from the Struct's `__post_init__` or the
-caller, with `fail(...)`.
+caught; `Finite`, `Positive`, `NonNegative`, `Fraction` or `Annotated[..., msgspec.Meta(...)]` for
+ranges, with `description=` saying what a valid value is in the user's words; defaults on the
+fields, the one place they live) and call `load(path, Type)` or `convert(data, Type, file)`.
+Every mistake is a `ConfigError(file, "objects[0].size", expected, got)`; an unknown key, a
+Literal value or a tag suggests the nearest declared one (`did you mean 'position'?`); a YAML
+syntax error names line and column and the whole problem. Checks no type can express (a unit
+quaternion, two keys that must agree) raise `Invalid` from the Struct's `__post_init__` (the error
+gets the Struct's key path) or call `fail(...)` after conversion.
+
+(msgspec 0.22: a constrained int inside a union, `Annotated[int, Meta(ge=2)] | tuple[...]`, crashes
+the garbage collector; constrain the union as a whole or check in `__post_init__`.)
 """
 from __future__ import annotations
 
