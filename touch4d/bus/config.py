@@ -7,9 +7,8 @@ XPUB port (`sub_port`). Binding is loopback-only unless the file names another a
 from __future__ import annotations
 
 import ipaddress
-import json
 import os
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Annotated
 
 import msgspec
@@ -108,16 +107,17 @@ class BusConfig:
         return replace(self, curve=replace(self.curve, server_secret=None, authorized=()))
 
     def to_json(self) -> str:
-        data = asdict(self)
-        return json.dumps(data)
+        """This config as the JSON the launcher hands its nodes (`from_json` reads it back)."""
+        return msgspec.json.encode(self).decode()
 
     @classmethod
     def from_json(cls, text: str) -> "BusConfig":
-        data = json.loads(text)
-        curve = data.pop("curve", None)
-        if curve is not None:
-            curve = CurveKeys(**{**curve, "authorized": tuple(curve.get("authorized", ()))})
-        return cls(**data, curve=curve)
+        """A config from `to_json`'s text; a ConfigError naming $TOUCH4D_LAUNCH_BUS if it is not one."""
+        try:
+            return msgspec.json.decode(text, type=cls)
+        except msgspec.DecodeError as exc:   # a ValidationError too
+            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
+                              got=str(exc)) from None
 
     def client_socket_options(self, sock: zmq.Socket) -> None:
         """Make `sock` a CURVE client of the broker, when keys are configured."""
@@ -222,9 +222,5 @@ def resolve_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
     started), else `user_bus_config`."""
     text = os.environ.get(ENV_VAR) if path is None else None
     if text:
-        try:
-            return BusConfig.from_json(text)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
-                              got=str(exc)) from None
+        return BusConfig.from_json(text)
     return user_bus_config(path)
