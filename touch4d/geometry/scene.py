@@ -33,7 +33,7 @@ from touch4d.schema import Finite, Positive
 from .polytope import GeometryError, Polytope
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
-from .shapes import get_shape, list_shapes, shape_params
+from .shapes import get_shape, list_shapes
 
 CUSTOM_KINDS = ("vertices", "halfspaces", "parts")
 COLOR_FORMS = "a colour: [r, g, b] or [r, g, b, a] in 0..1, '#rrggbb', '#rrggbbaa' or a CSS name such as 'orange'"
@@ -124,7 +124,7 @@ class Scene:
         for i, m in enumerate(msg.objects):
             try:   # the map's fields, as the message codec left them (plain values and arrays)
                 shape = str(m["shape"])
-                params = dict(m.get("params") or {})
+                params = msgspec.convert(m.get("params") or {}, ShapeParams, strict=True)
                 obj = SceneObject(
                     name=str(m["name"]), shape=shape, params=params,
                     size=float(m["size"]), position=np.asarray(m["position"], dtype=np.float64).reshape(4),
@@ -134,14 +134,7 @@ class Scene:
                     if shape == "custom" else None,
                 )
             except (KeyError, ValueError, TypeError) as exc:
-                raise MessageError(f"SceneState.objects[{i}]: {exc!r}") from exc
-            if shape != "custom":
-                defaults = shape_params(shape) if shape in list_shapes() else {}
-                bad = [k for k, v in params.items() if k in defaults and type(v) is not type(defaults[k])
-                       and not (isinstance(v, (int, float)) and type(defaults[k]) in (int, float) and not isinstance(v, bool))]
-                if shape not in list_shapes() or bad:
-                    raise MessageError(f"SceneState.objects[{i}]: shape {shape!r} with params {params!r}: expected a "
-                                       f"catalog shape ({', '.join(list_shapes())}) and parameters like {defaults}")
+                raise MessageError(f"SceneState.objects[{i}]: {exc}") from exc
             try:
                 obj.local_parts()
             except GeometryError as exc:
@@ -193,6 +186,7 @@ def _custom_polytopes(parts) -> list[Polytope]:
 
 # ---- scene files ---------------------------------------------------------------------------------
 
+ShapeParams = dict[str, str | int | float]   # a catalog shape's parameters (their ranges: shapes.py)
 Row4 = Annotated[tuple[Finite, Finite, Finite, Finite], msgspec.Meta(description="a list of 4 numbers")]
 Row5 = Annotated[tuple[Finite, Finite, Finite, Finite, Finite], msgspec.Meta(description="a list of 5 numbers")]
 Rows4 = Annotated[list[Row4], msgspec.Meta(min_length=1)]
@@ -229,7 +223,7 @@ class ObjectSpec(msgspec.Struct, forbid_unknown_fields=True):
 
     name: str | None = None
     shape: str | CustomShape | None = None
-    params: dict[str, str | int | float] = {}
+    params: ShapeParams = {}
     vertices: Rows4 | None = None
     halfspaces: Rows5 | None = None
     parts: Annotated[list[PartSpec], msgspec.Meta(min_length=1)] | None = None
