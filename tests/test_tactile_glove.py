@@ -123,7 +123,7 @@ _DELETE = object()
     ("hand.fingers.0.name", "pinky", "hand.fingers[0].name", "thumb"),
     ("hand.fingers.0.name", "thum", "hand.fingers[0].name", "did you mean 'thumb'?"),
     ("touch_threshold", 1.5, "touch_threshold", "an intensity in 0..1, got 1.5"),
-    ("can.duty.start", 0.9, "can.duty.start", "<= can.duty.max (0.8)"),
+    ("can.duty", {"start": 0.9}, "can.duty.start", "<= can.duty.max (0.8)"),
     ("can.refresh_hz", float("nan"), "can.refresh_hz", "a finite number"),
     ("hand.fingers.1.base", [0.0], "hand.fingers[1].base", "list of 2"),
     ("motors", [], "motors", "list"),

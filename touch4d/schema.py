@@ -26,7 +26,7 @@ from typing import Annotated, Any, Literal, TypeVar
 import msgspec
 import yaml
 
-from touch4d.errors import ConfigError
+from touch4d.errors import ConfigError, Touch4dError
 
 T = TypeVar("T")
 
@@ -95,7 +95,7 @@ def convert(data: Any, type_: type[T], file=None, key: str = "") -> T:
         raise error_of(exc, data, type_, file, key) from None
 
 
-class Invalid(ValueError):
+class Invalid(Touch4dError, ValueError):
     """Raised by a Struct's `__post_init__` for a check no type expresses (a unit quaternion, two
     keys that must agree): `convert` turns it into a ConfigError at the Struct's key path extended
     by `key`. `choices` adds a did-you-mean for `got`."""
