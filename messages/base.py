@@ -350,17 +350,18 @@ class MessageMeta(msgspec.StructMeta):
     def __call__(cls, **values):
         """A new message: every field not given holds its default; given values are coerced to the
         field's type (a list to an array, an int to a float); nothing is checked before publishing."""
-        coerce = cls._coerce
-        for name, value in values.items():
-            if name in coerce:
-                try:
-                    values[name] = coerce[name](value)
-                except (TypeError, ValueError) as exc:
-                    raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
+        coerce, fields = cls._coerce, cls._plain_defaults.copy()
+        name = ""
+        try:
+            for name, value in values.items():
+                c = coerce.get(name)
+                fields[name] = value if c is None else c(value)
+        except (TypeError, ValueError) as exc:
+            raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
         for name, make in cls._made_defaults:
-            if name not in values:
-                values[name] = make()
-        return _make(cls, **{**cls._plain_defaults, **values})
+            if name not in fields:
+                fields[name] = make()
+        return _make(cls, **fields)
 
 
 _make = msgspec.StructMeta.__call__
