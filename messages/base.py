@@ -19,6 +19,8 @@ the plain fields of a payload; the arrays, records and the class's `check()` are
 by the same functions when publishing and when decoding. Anything wrong is a MessageError naming
 the type and the field.
 """
+import itertools
+import math
 import re
 import sys
 import time
@@ -62,7 +64,8 @@ class ArraySpec:
 
     def _checker(self) -> Callable[[Any], None]:
         """check(value): raises ValueError unless `value` is such an array (a closure: this runs per message)."""
-        want, kinds, fixed, finite, ndarray = self.shape, self.kinds, self.fixed.items(), self.check_finite, np.ndarray
+        want, ndim, kinds, finite, ndarray = self.shape, len(self.shape), self.kinds, self.check_finite, np.ndarray
+        fixed, dot, isfinite = tuple(self.fixed.items()), np.dot, math.isfinite
 
         def check(value) -> None:
             if value.__class__ is not ndarray and not isinstance(value, ndarray):
@@ -70,16 +73,20 @@ class ArraySpec:
             if value.dtype.kind not in kinds:
                 raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
             shape = value.shape
-            if shape != want and (len(shape) != len(want) or any(shape[i] != n for i, n in fixed)):
-                raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+            if shape != want:
+                if len(shape) != ndim:
+                    raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+                for i, n in fixed:
+                    if shape[i] != n:
+                        raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape))}")
             if finite:
+                # A finite sum (of squares) proves every value finite; only a non-finite one needs the look.
                 if value.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
                     total = sum(value.tolist() if value.ndim == 1 else value.ravel().tolist())
                 else:
                     flat = value.reshape(-1)
-                    total = np.dot(flat, flat)
-                # a finite sum (of squares) proves every value finite; only a non-finite one needs the look
-                if total - total != 0.0 and not np.isfinite(value).all():
+                    total = dot(flat, flat)
+                if not isfinite(total) and not np.isfinite(value).all():
                     raise ValueError("expected finite values, got NaN or infinity")
         return check
 
@@ -190,10 +197,12 @@ def _checker(tp) -> Callable[[Any], None]:
                 raise ValueError(f"expected one of {', '.join(args)}, got {v!r}")
         return check_choice
     if origin is list and args[0] in (str, int):
-        item, what = args[0], "strings" if args[0] is str else "integers"
+        items, what = itertools.repeat(args[0]), "strings" if args[0] is str else "integers"
+        bools = itertools.repeat(bool)
 
-        def check_list(v):
-            if v.__class__ is not list or not all(x.__class__ is item for x in v):
+        def check_list(v):   # map(isinstance, ...): a loop in C (a list of names is checked per message)
+            if (v.__class__ is not list or not all(map(isinstance, v, items))
+                    or (what == "integers" and any(map(isinstance, v, bools)))):
                 raise ValueError(f"expected a list of {what}")
         return check_list
     if origin is list:
