@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .config import CONFIG_DIR, get_map, get_number, get_vector, read_yaml
 
 DEFAULT_CALIBRATION = CONFIG_DIR / "calibration.yaml"

@@ -18,7 +18,7 @@ import numpy as np
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .calibration import rotation_from_steps
 from .config import CONFIG_DIR, get_map, get_number, get_vector, read_yaml
 
