@@ -142,24 +142,26 @@ def _node_list(args) -> int:
 
         node_list(resolve_bus_config(args.bus), args.duration)
         return 0
-    from touch4d.bus.registry import available, entry_points
+    from touch4d.bus.registry import aliases, available, shadowed
 
     kinds = available()
-    shadowed = [k for name, k in entry_points().items() if kinds[name] is not k]
-    width = max(len(name) for name in kinds)
+    names = aliases(kinds)
     rows = []
-    for name, kind in sorted(kinds.items()):
+    for name, others in sorted(names.items()):
+        kind = kinds[name]
         origin = "touch4d" if kind.origin == "touch4d" else f"{kind.origin} ({kind.target})"
         try:
             doc = (kind.load().__doc__ or "").strip().splitlines()[:1]
         except Exception as exc:  # noqa: BLE001 - another package's node may fail to import: say so, go on
             doc = [f"cannot be imported: {type(exc).__name__}: {exc}"]
-        rows.append((name, origin, doc[0] if doc else ""))
+        label = name + (f" (alias {', '.join(others)})" if others else "")
+        rows.append((label, origin, doc[0] if doc else ""))
+    width = max(len(r[0]) for r in rows)
     owidth = max(len(r[1]) for r in rows)
     print(f"{'node'.ljust(width)}  {'from'.ljust(owidth)}  what")
-    for name, origin, doc in rows:
-        print(f"{name.ljust(width)}  {origin.ljust(owidth)}  {doc}")
-    for kind in shadowed:
+    for label, origin, doc in rows:
+        print(f"{label.ljust(width)}  {origin.ljust(owidth)}  {doc}")
+    for kind in shadowed():
         print(f"(not listed: '{kind.name}' of the {kind.origin} ({kind.target}): a built-in node has that name; "
               f"launch it as node: {kind.target})")
     print("Any importable module holding a Node class also launches by its path, e.g. node: mylab.nodes.my_tracker.")

@@ -24,6 +24,7 @@ from touch4d.bus.broker import Broker
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
+from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout
 
 STOP_GRACE = 1.5
 _MAX_RESPAWN_DELAY = 5.0
@@ -81,8 +82,6 @@ class Launcher:
             self.out.flush()
         except BrokenPipeError:
             # Whoever read the output is gone (`touch4d launch | head`): stop every node cleanly.
-            from touch4d.cli import silence_stdout
-
             silence_stdout()
             self.out = open(os.devnull, "wb")
             self._output_closed = True
@@ -240,8 +239,6 @@ class Launcher:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
         if self._output_closed:
-            from touch4d.cli import EXIT_PIPE_CLOSED
-
             return EXIT_PIPE_CLOSED
         if self._start_failure is not None:
             line, code = self._start_failure
