@@ -97,6 +97,8 @@ class WebXRNode(Node):
             raise self.param_error("port", f"a port free on {host}", got=f"{p['port']} ({exc.strerror or exc})") \
                 from None
         self.add_cleanup(self.server.stop)
+        self.add_stats(lambda: {**self.bridge.counts, "page_refused": self.server.refused,
+                                "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1)})
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
@@ -126,13 +128,6 @@ class WebXRNode(Node):
                           path)
         except (OSError, ConfigError) as exc:
             self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
-
-    def stats_flat(self) -> dict:
-        out = super().stats_flat()
-        if hasattr(self, "server"):
-            out.update(self.bridge.counts, page_refused=self.server.refused, pages=len(self.bridge.pages),
-                       page_fps=round(self.bridge.page_fps(), 1))
-        return out
 
     def on_shutdown(self) -> None:
         if self.publishers:
