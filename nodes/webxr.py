@@ -31,7 +31,7 @@ class WebXRNode(Node):
     default_name = "webxr"
     PARAMS = {
         "host": Param("127.0.0.1", "address to serve on; beyond loopback: https and a token"),
-        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535),
+        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535, port=True),
         "token": Param("auto", "'auto' (random, only beyond loopback) or a token of your own"),
         "tls": Param("auto", "https: auto (beyond loopback), on, off", choices=("auto", "on", "off")),
         "cert_dir": Param("", "where the self-signed certificate is kept ('' = ~/.config/touch4d/webxr-tls)"),

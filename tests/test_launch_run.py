@@ -133,8 +133,6 @@ def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
 
 @pytest.mark.parametrize("role, entry, expected", [
     ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a positive number"]),
-    ("tactile", "{node: tactile, params: {glove: no-such-glove.yaml}}",
-     ["nodes.tactile.params.glove", "an existing glove file", "no-such-glove.yaml", "looked in"]),
 ])
 def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_error_last(tmp_path, role, entry,
                                                                                           expected):
@@ -151,6 +149,20 @@ def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_e
     assert last.startswith("[launch]") and f"node '{role}' ({role}) failed to start" in last
     assert all(text in last for text in expected), last
     assert "[talker]" in run.text and "stopping (node" in run.text  # the others were started, then stopped
+
+
+def test_a_missing_file_stops_the_launch_before_any_node_starts(tmp_path):
+    launch = tmp_path / "stack.yaml"
+    launch.write_text("nodes:\n  talker: {node: example_talker}\n"
+                      "  tactile: {node: tactile, params: {glove: no-such-glove.yaml}}\n")
+    with launch_process([str(launch)]) as run:
+        code = run.proc.wait(60)
+        run.join()
+    assert code == 2
+    last = run.text.rstrip().splitlines()[-1]
+    assert last.startswith(f"touch4d launch: {launch}: key 'nodes.tactile.params.glove': expected an existing "
+                           "glove file, got 'no-such-glove.yaml': looked in "), last
+    assert f"{tmp_path}/no-such-glove.yaml" in last and "[talker]" not in run.text   # nothing was started
 
 
 def test_a_failing_node_with_respawn_keeps_the_launch_and_the_monitor_names_the_topic_without_publisher(tmp_path):

@@ -72,11 +72,11 @@ class Broker:
                 backend.close()
                 self._stop_auth()
                 if exc.errno == zmq.EADDRINUSE:
-                    raise ConfigError(cfg.source, key, f"a free port on {cfg.bind_host}", got=(
-                        f"{port}, in use (another touch4d launch or broker?): join the running broker with "
-                        f"--no-broker, or give this one other ports with --bus FILE (a bus config with "
-                        f"broker: {{pub_port: ..., sub_port: ...}})")) from None
-                raise ConfigError(cfg.source, key, f"a port to bind on {cfg.bind_host}", got=f"{port} ({exc})") from None
+                    raise ConfigError(cfg.source, key, f"a free port on {cfg.bind_host}", got=port, detail=(
+                        f"in use (another touch4d launch or broker?): join the running broker with --no-broker, "
+                        f"or give this one other ports with --bus FILE (a bus config with broker: "
+                        f"{{pub_port: ..., sub_port: ...}})")) from None
+                raise ConfigError(cfg.source, key, f"a port to bind on {cfg.bind_host}", got=port, detail=str(exc)) from None
         # Subscribe to everything: publishers then forward all topics to the broker at once.
         frontend.send(transport.SUBSCRIBE_ALL)
         self._frontend, self._backend = frontend, backend

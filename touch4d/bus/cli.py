@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from touch4d.bus.config import resolve_bus_config, user_bus_config
-from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.configfile import COMMAND_LINE, PathNotFound, resolve_path
 from touch4d.errors import ConfigError
 
 DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
@@ -89,13 +89,28 @@ def launch_file_path(name: str):
     wins when it exists; the name is then found like any path, yours first, else the packaged one)."""
     given = Path(name)
     if len(given.parts) == 1 and not given.suffix and not given.exists():
-        name = f"launch/{name}.yaml"
+        try:
+            return resolve_path(f"launch/{name}.yaml", COMMAND_LINE, key="launch file", what="launch file")
+        except PathNotFound as exc:
+            near = [Path(n).stem for n in exc.near]   # `dmeo`: did you mean 'demo'?
+            raise ConfigError(COMMAND_LINE, "launch file", "a launch file: a path, or the name of one in launch/ "
+                              f"({', '.join(_launch_names()) or 'none found'})", got=name, detail=exc.detail,
+                              hint=f"did you mean {' or '.join(repr(n) for n in near)}?" if near else None) from None
     return resolve_path(name, COMMAND_LINE, key="launch file", what="launch file")
+
+
+def _launch_names() -> list[str]:
+    """The bare names `touch4d launch NAME` takes: launch/*.yaml here and packaged."""
+    from touch4d.defaults import ROOT
+
+    return sorted({p.stem for folder in (Path("launch"), ROOT / "launch") if folder.is_dir()
+                   for p in folder.glob("*.yaml")})
 
 
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
     from touch4d.bus.launchfile import load_launch
+    from touch4d.bus.preflight import check_launch
 
     files = [i for i in args.items if ":=" not in i]
     overrides = [i for i in args.items if ":=" in i]
@@ -103,6 +118,7 @@ def _launch(args) -> int:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
     nodes = load_launch(path, overrides)
+    check_launch(nodes)   # every file found and every port free before any node starts
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
                     ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
