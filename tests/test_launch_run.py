@@ -179,3 +179,13 @@ def test_a_failing_node_with_respawn_keeps_the_launch_and_the_monitor_names_the_
         assert run.proc.poll() is None
         run.stop(timeout=30)
     assert "scene/state" in line and "listener" in line
+
+
+def test_two_publishers_of_one_input_are_warned_by_the_launcher_and_the_monitor():
+    with launch_process(["launch/example.yaml", "+talker2:=example_talker", "+monitor:=monitor"]) as run:
+        line = run.wait_for_line(r"^\[launch\].*warning: example/pose has 2 publishers", timeout=30)
+        assert "(talker, talker2)" in line and "latest-only" in line
+        run.wait_for_line(r"^\[monitor\].*several publishers: example/pose \(talker, talker2\)", timeout=30)
+        run.wait_for_line(r"^\[monitor\].*WARNING.*example/pose has 2 publishers", timeout=5)
+        assert run.stop(timeout=30) == 0
+    assert run.text.count("warning: example/pose has 2 publishers") == 1   # said once
