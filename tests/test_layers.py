@@ -101,3 +101,12 @@ def test_the_check_sees_an_upward_import(tmp_path, monkeypatch):
         "touch4d.bus imports touch4d.cli (commands)", "touch4d.bus imports touch4d.nodes (touch4d.nodes)",
 
         "touch4d.bus imports touch4d.tracking (touch4d.tracking)"]
+
+
+def test_no_node_has_an_init_of_its_own():
+    """Construction is the base class's: a node builds itself in setup() (anything a test hands it is
+    set between Node(..., start=False) and start())."""
+    own = [f"{path.name}: {cls.name}" for path in sorted((ROOT / "nodes").glob("*.py"))
+           for cls in ast.walk(ast.parse(path.read_text())) if isinstance(cls, ast.ClassDef)
+           for item in cls.body if isinstance(item, ast.FunctionDef) and item.name == "__init__"]
+    assert own == []
