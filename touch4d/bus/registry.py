@@ -11,10 +11,12 @@ for one module are aliases (`scripted` and `scripted_tracker`).
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.metadata
 import importlib.util
 import inspect
+import sys
 from dataclasses import dataclass
 
 from touch4d.bus.params import suggest
@@ -82,6 +84,13 @@ def node_class_of(module):
 
 def _registered() -> list[NodeKind]:
     """Every entry point of the group, in install order: touch4d's own nodes and other packages'."""
+    return list(_scan(tuple(sys.path)))
+
+
+@functools.lru_cache(maxsize=4)
+def _scan(path: tuple[str, ...]) -> tuple[NodeKind, ...]:
+    """The entry points installed on `path` (scanning the installed packages takes tens of ms: a
+    launch asks once per node, so the answer is kept while sys.path stays the same)."""
     found = []
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         dist = getattr(ep, "dist", None)
@@ -90,7 +99,7 @@ def _registered() -> list[NodeKind]:
         else:
             origin = f"entry point of {dist.name} {dist.version}" if dist is not None else "entry point"
         found.append(NodeKind(ep.name, ep.value.replace(" ", ""), origin))
-    return found
+    return tuple(found)
 
 
 def _normal(dist_name: str) -> str:
