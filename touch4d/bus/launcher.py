@@ -5,8 +5,10 @@ are told to die with the launcher. On Ctrl+C, SIGTERM or the end of `--duration`
 SIGTERM, has STOP_GRACE seconds to run `on_shutdown` and exit, and is then killed.
 
 Each node tells the launcher when it is built (a byte on a pipe, see touch4d.bus.process). A node
-that exits before that failed to start (a bad scene, a missing glove file...): unless its launch
+that exits before that failed to start (a bad scene, SteamVR not running...): unless its launch
 entry says `respawn`, the whole launch stops and exits non-zero, the node's error the last line.
+(Files and ports are checked before, by touch4d.bus.preflight.) While it runs, the launcher reads
+the nodes' heartbeats and warns once when two nodes publish a topic another node waits for.
 """
 from __future__ import annotations
 
