@@ -348,8 +348,8 @@ class MessageMeta(msgspec.StructMeta):
         order = [*inherited, *types]
         fields.sort(key=lambda f: order.index(f.name) if f.name in order else -1)   # -1: the header
         cls.FIELDS = tuple(fields)   # as declared (docs, schemas); the wire has the arrays last
-        cls._plain_defaults = {f.name: f.default for f in fields if not callable(f.default)}
         cls._made_defaults = tuple((f.name, f.default) for f in fields if callable(f.default))
+        cls._defaults = _make(cls, **{f.name: f.default() if callable(f.default) else f.default for f in fields})
         cls._coerce = {f.name: f.coerce for f in fields if f.coerce is not None}
         cls._checks = tuple((f.name, f.check) for f in fields)
         cls._body_checks = tuple((f.name, f.check) for f in fields if f.name not in HEADER_DOCS)
@@ -364,21 +364,24 @@ class MessageMeta(msgspec.StructMeta):
     def __call__(cls, **values):
         """A new message: every field not given holds its default; given values are coerced to the
         field's type (a list to an array, an int to a float); nothing is checked before publishing."""
-        coerce, fields = cls._coerce, cls._plain_defaults.copy()
+        coerce = cls._coerce
         name = ""
         try:
             for name, value in values.items():
                 c = coerce.get(name)
-                fields[name] = value if c is None else c(value)
+                if c is not None:
+                    values[name] = c(value)
         except (TypeError, ValueError) as exc:
             raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
         for name, make in cls._made_defaults:
-            if name not in fields:
-                fields[name] = make()
-        return _make(cls, **fields)
+            if name not in values:
+                values[name] = make()
+        # A copy of the class's message of defaults with these values: msgspec's replace, in C (quicker
+        # than its __init__ with every field); each array, list or map default is made fresh above.
+        return _replace(cls._defaults, **values)
 
 
-_make = msgspec.StructMeta.__call__
+_make, _replace = msgspec.StructMeta.__call__, msgspec.structs.replace
 
 
 class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=True, forbid_unknown_fields=True,
