@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
+import numpy as np
 import yaml
 
 from touch4d.errors import ConfigError, Touch4dError
@@ -89,10 +90,23 @@ def load(path, type_: type[T], what: str = "file") -> T:
 def convert(data: Any, type_: type[T], file=None, key: str = "") -> T:
     """`data` (as YAML or JSON gives it) as `type_`; a mismatch is a ConfigError naming the key path
     below `key`, what was expected and what was there, with a did-you-mean for an unknown key."""
+    data = plain(data)
     try:
         return msgspec.convert(data, type_, strict=True)
     except msgspec.ValidationError as exc:
         raise error_of(exc, data, type_, file, key) from None
+
+
+def plain(value) -> Any:
+    """`value` with numpy scalars and arrays (which a caller may pass for numbers and lists) as the
+    Python numbers and lists a YAML file gives."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    return value
 
 
 class Invalid(Touch4dError, ValueError):
