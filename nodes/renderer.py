@@ -24,7 +24,7 @@ import numpy as np
 
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
-from touch4d.messages import HandPose, InputEvents, MessageError, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, TactileField
 from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
 from touch4d.render.context import RenderError, frame_files, save_png
@@ -126,7 +126,7 @@ class RendererNode(Node):
         try:
             if self.view.set_scene(msg):
                 self.counts["scenes_built"] += 1
-        except (Touch4dError, MessageError) as exc:   # a scene that cannot be built (GeometryError), a bad message
+        except Touch4dError as exc:   # MessageError, GeometryError: a scene that cannot be drawn
             self.counts["bad_scenes"] += 1
             self.warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "
                                             f"keeping the last good scene: {exc}")
@@ -135,7 +135,7 @@ class RendererNode(Node):
         self._received["pose"] += 1
         try:
             self.view.set_hand(msg)
-        except (Touch4dError, MessageError) as exc:   # PoseError
+        except Touch4dError as exc:   # PoseError: a pose that cannot be placed
             self.counts["bad_poses"] += 1
             self.warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
 
@@ -143,7 +143,7 @@ class RendererNode(Node):
         self._received["field"] += 1
         try:
             self.view.set_field(msg)
-        except (Touch4dError, MessageError) as exc:
+        except Touch4dError as exc:   # MessageError: a field that cannot be drawn
             self.counts["bad_fields"] += 1
             self.warn_once(f"field:{exc}", f"tactile/field ignored: {exc}")
 

@@ -93,7 +93,7 @@ class SceneView:
 
     def set_field(self, msg: TactileField) -> None:
         if len(msg.positions) == 0:
-            raise MessageError("tactile/field: expected at least one sample")
+            raise MessageError("TactileField.positions: expected at least one sample to draw")
         self.field = msg
 
     def set_motors(self, msg: MotorCommand) -> None:

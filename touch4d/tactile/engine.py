@@ -36,7 +36,7 @@ class TactileEngine:
     def set_scene(self, msg: SceneState) -> bool:
         """Adopt a scene; rebuild the RayCaster only if what can be touched changed. True if rebuilt.
 
-        Raises (MessageError, GeometryError: ValueErrors) for a scene that cannot be built; the
+        Raises (MessageError, GeometryError: Touch4dErrors) for a scene that cannot be built; the
         previous scene is then kept.
         """
         key = (scene_digest(msg, touch_only=True), self.projection)
