@@ -160,8 +160,8 @@ def test_the_packaged_glove_file_shows_the_declared_defaults_and_sets_none_of_th
     for key, value in shown.items():
         assert value == declared[key], key
     assert set(yaml.safe_load(GLOVE_TEXT)["can"]) == {"boards"}          # nothing repeated, only the hardware
-    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == glovefile.GloveFile.__struct_defaults__[
-        glovefile.GloveFile.__struct_fields__.index("touch_threshold") - 1] == glovefile.DEFAULT_TOUCH_THRESHOLD
+    least = glovefile.convert({"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}]})
+    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == least.touch_threshold == 0.05
 
 
 def test_the_packaged_bus_file_shows_the_declared_defaults_and_sets_none_of_them():
