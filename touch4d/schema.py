@@ -97,16 +97,21 @@ def convert(data: Any, type_: type[T], file=None, key: str = "") -> T:
         raise error_of(exc, data, type_, file, key) from None
 
 
-def plain(value) -> Any:
+def plain(value, _memo: dict | None = None) -> Any:
     """`value` with numpy scalars and arrays (which a caller may pass for numbers and lists) as the
-    Python numbers and lists a YAML file gives."""
-    if isinstance(value, dict):
-        return {k: plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
+    Python numbers and lists a YAML file gives. Shared parts (YAML aliases) are converted once, so
+    an alias bomb (9^9 items once expanded) costs what its text costs."""
     if isinstance(value, (np.generic, np.ndarray)):
         return value.tolist()
-    return value
+    if not isinstance(value, (dict, list, tuple)):
+        return value
+    memo = {} if _memo is None else _memo
+    if id(value) not in memo:
+        if isinstance(value, dict):
+            memo[id(value)] = {k: plain(v, memo) for k, v in value.items()}
+        else:
+            memo[id(value)] = [plain(v, memo) for v in value]
+    return memo[id(value)]
 
 
 class Invalid(Touch4dError, ValueError):
