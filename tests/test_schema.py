@@ -80,3 +80,8 @@ def test_numpy_numbers_convert_like_the_python_ones_yaml_gives():
     assert got.objects[0].size == 2.5 and got.objects[0].position == (0.0, 1.0, 2.0, 3.0)
     e = error({"objects": [{"size": np.float64(-1)}]})
     assert e.key == "objects[0].size" and e.got == -1.0
+
+
+def test_a_misspelt_required_key_is_named_as_written():
+    e = error({"objcts": [{}]})
+    assert e.key == "objcts" and "did you mean 'objects'?" in str(e) and "objects, mode" in e.expected
