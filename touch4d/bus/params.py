@@ -124,7 +124,7 @@ class Param:
         """`value` converted to the parameter's type (an int for a float parameter becomes a float);
         raises schema.Invalid (a ValueError) whose text is describe() when it is not valid."""
         try:
-            value = msgspec.convert(value, self.annotation, strict=True)
+            value = msgspec.convert(schema.plain(value), self.annotation, strict=True)
         except msgspec.ValidationError:
             raise schema.Invalid(self.describe(), value) from None
         if self.choices and value not in self.choices:
