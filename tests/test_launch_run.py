@@ -132,7 +132,7 @@ def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
 
 
 @pytest.mark.parametrize("role, entry, expected", [
-    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a positive number"]),
+    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a finite number > 0, got -1"]),
 ])
 def test_a_node_failing_at_start_with_a_config_error_stops_the_launch_with_its_error_last(tmp_path, role, entry,
                                                                                           expected):
