@@ -364,8 +364,8 @@ def figure_accuracy(result: dict, ax=None):
                 continue
             xs.append(i + (j - (len(conditions) - 1) / 2) * width)
             ys.append(cell["accuracy"])
-            err[0].append(cell["accuracy"] - cell["ci95"][0])
-            err[1].append(cell["ci95"][1] - cell["accuracy"])
+            err[0].append(max(0.0, cell["accuracy"] - cell["ci95"][0]))   # Wilson's ends may round past it
+            err[1].append(max(0.0, cell["ci95"][1] - cell["accuracy"]))
         ax.bar(xs, ys, width * 0.92, yerr=err, capsize=3, label=condition, color=colors.get(condition))
     for i, task in enumerate(tasks):
         chance = next(iter(result["tasks"][task].values()))["chance"]
