@@ -259,25 +259,29 @@ def _gee(frame, formula: str, reference: str) -> dict:
                             cov_struct=sm.cov_struct.Exchangeable())
             fit = model.fit()
             terms = fit.wald_test_terms(skip_single=False, scalar=True)
+            ci, pvalues = fit.conf_int(), fit.pvalues         # computed lazily: inside, so warnings are kept
         except (ValueError, np.linalg.LinAlgError) as exc:
             return {"error": f"GEE failed: {exc}"}
     table = terms.table
     row = [name for name in table.index if name.startswith("C(condition")]
     wald = table.loc[row[0]] if row else None
-    ci = fit.conf_int()
     effects = {}
     for name in fit.params.index:
         if name.startswith("C(condition"):
             effects[_term_name(name, reference)] = {
                 "log_odds": float(fit.params[name]), "ci95": [float(ci.loc[name, 0]), float(ci.loc[name, 1])],
                 "odds_ratio": float(math.exp(fit.params[name])) if abs(fit.params[name]) < 700 else math.inf,
-                "p": float(fit.pvalues[name])}
+                "p": float(pvalues[name])}
+    clusters = frame["participant"].nunique()
+    note = (f"only {clusters} participants: GEE's robust errors are too small with fewer than about 10"
+            if clusters < 10 else None)
     return {
         "test": "GEE logistic, exchangeable within participant; joint Wald test of condition",
         "chi2": float(wald["statistic"]) if wald is not None else math.nan,
         "df": int(wald["df_constraint"]) if wald is not None else 0,
         "p": float(wald["pvalue"]) if wald is not None else math.nan,
         "effects": effects, "warnings": sorted({str(w.message).splitlines()[0] for w in caught})[:5],
+        **({"note": note} if note else {}),
     }
 
 
@@ -338,7 +342,8 @@ def summary_text(result: dict) -> str:
         gee = test.get("gee", {})
         if "p" in gee:
             lines.append(f"{task}: condition effect (GEE Wald chi2({gee['df']}) = {gee['chi2']:.2f}, "
-                         f"p = {gee['p']:.3g}; reference {test['reference']})")
+                         f"p = {gee['p']:.3g}; reference {test['reference']})"
+                         + (f"; {gee['note']}" if gee.get("note") else ""))
         elif "error" in test or "error" in gee:
             lines.append(f"{task}: {test.get('error') or gee.get('error')}")
     return "\n".join(lines)
@@ -529,7 +534,10 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
         for label, part in (("GEE", gee), ("mixed model", mixed)):
             if part.get("error"):
                 parts.append(f"<p>{label}: {esc(part['error'])}</p>")
-            elif part.get("warnings"):
+                continue
+            if part.get("note"):
+                parts.append(f"<p><small>{label}: {esc(part['note'])}</small></p>")
+            if part.get("warnings"):
                 parts.append(f"<p><small>{label} warnings: {esc('; '.join(part['warnings']))}</small></p>")
     parts.append("<h2>Confusion matrices</h2>")
     parts.append(f"<img alt='confusions' src='data:image/png;base64,{_png(figure_confusions(result))}'>")

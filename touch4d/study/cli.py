@@ -142,7 +142,7 @@ def run_offline(args) -> int:
     """Simulated participants on the library alone (touch4d.study.simulate)."""
     from touch4d.tactile import load_glove
 
-    from .observer import every_sample_glove
+    from .observer import ModelObserver, every_sample_glove
     from .plan import participant_ids
     from .simulate import simulate_study
 
@@ -151,9 +151,12 @@ def run_offline(args) -> int:
     if args.every_sample:
         glove = every_sample_glove(glove)
     started = time.perf_counter()
+    # --quick checks every cell quickly: a lighter-trained observer (its accuracy is not the point)
+    training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
+    observer = ModelObserver(glove, study, noise=args.noise, visual_noise=args.visual_noise, lapse=args.lapse,
+                             seed=args.seed, **training)
     folders = simulate_study(study, participant_ids(args.participants), args.out, glove=glove, seed=args.seed,
-                             quick=args.quick, noise=args.noise, visual_noise=args.visual_noise, lapse=args.lapse,
-                             spread=args.spread, echo=print)
+                             quick=args.quick, spread=args.spread, observer=observer, echo=print)
     print(f"{len(folders)} simulated sessions in {time.perf_counter() - started:.1f} s under {args.out}; "
           f"next: touch4d study analyze {args.out}")
     return 0
