@@ -199,6 +199,8 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     fit = fit_psychometric(level, positive)
     out = {**fit, "positive": positive_option, "n": int(len(cell))}
     levels = np.unique(level)
+    # A threshold past the largest level shown is no measurement of one: the answers barely follow the level.
+    out["within_range"] = bool(fit["threshold_deg"] <= np.abs(levels).max())
     out["levels"] = levels.tolist()
     out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
     out["trials_per_level"] = [int((level == x).sum()) for x in levels]
@@ -342,6 +344,10 @@ def summary_text(result: dict) -> str:
         for condition, fit in fits.items():
             if "error" in fit:
                 lines.append(f"{task} {condition}: {fit['error']}")
+                continue
+            if not fit["within_range"]:
+                lines.append(f"{task} {condition}: no threshold within the levels shown (answers barely follow the "
+                             f"level; fitted {fit['threshold_deg']:.3g} deg, lapse {fit['lapse']:.3f})")
                 continue
             ci = fit.get("ci95", {}).get("threshold_deg")
             interval = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
