@@ -204,3 +204,12 @@ def test_a_table_without_the_columns_is_named(tmp_path, capsys):
     assert main(["study", "analyze", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert str(tmp_path / "trials.csv") in err and "missing" in err and COLUMNS[1] in err
+
+
+def test_each_participant_gets_a_threshold_of_their_own():
+    rng = np.random.default_rng(8)
+    rows = tilt_rows(rng, 0.0, 1.5, 0.0, 40, participant="P01") + tilt_rows(rng, 0.0, 6.0, 0.0, 40, participant="P02")
+    data = pd.DataFrame(rows)
+    data["timed_out"] = False
+    own = psychometric(data, bootstrap=0)["threshold_by_participant"]
+    assert own["P01"] == pytest.approx(0.6745 * 1.5, rel=0.4) and own["P02"] == pytest.approx(0.6745 * 6.0, rel=0.4)

@@ -204,6 +204,14 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     out["levels"] = levels.tolist()
     out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
     out["trials_per_level"] = [int((level == x).sum()) for x in levels]
+    # Each participant's own threshold (no interval): what a paired comparison across conditions takes.
+    own = {}
+    for participant, rows in cell.groupby("participant"):
+        lv = rows["level"].to_numpy(float)
+        if len(rows) >= 4 and len(np.unique(lv)) >= 2:
+            f = fit_psychometric(lv, (rows["response"] == positive_option).to_numpy(float))
+            own[str(participant)] = f["threshold_deg"] if f["threshold_deg"] <= np.abs(levels).max() else None
+    out["threshold_by_participant"] = own
     if bootstrap > 0:
         def statistic(lv, pos):
             if len(np.unique(lv)) < 2:
@@ -544,6 +552,10 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
                 row[key] = f"{fit[key]:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
             rows.append(row)
         parts.append(pd.DataFrame(rows).to_html(index=False, na_rep=""))
+        own = pd.DataFrame({c: f.get("threshold_by_participant", {}) for c, f in result["psychometric"][task].items()})
+        if not own.empty:
+            parts.append("<p>Threshold (degrees) per participant; - where it lies beyond the levels shown:</p>")
+            parts.append(own.sort_index().to_html(float_format=lambda v: f"{v:.2f}", na_rep="-"))
     parts.append("<h2>Effect of condition</h2>")
     for task, test in result["tests"].items():
         parts.append(f"<h3>{esc(task)}</h3>")
