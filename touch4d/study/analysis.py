@@ -19,6 +19,7 @@ import math
 import warnings
 
 import numpy as np
+from scipy.stats import norm
 
 from touch4d.errors import Touch4dError, Unavailable
 
@@ -180,8 +181,8 @@ def fit_psychometric(level, positive) -> dict:
             "slope_per_deg": (1.0 - lapse) * _PHI0 / sigma}
 
 
-_Z75 = 0.6744897501960817     # Phi^-1(0.75)
-_PHI0 = 0.3989422804014327    # phi(0) = 1 / sqrt(2 pi)
+_Z75 = float(norm.ppf(0.75))      # 75% correct lies 0.674 sigma from the pse
+_PHI0 = float(norm.pdf(0.0))      # the slope of Phi at the pse, per sigma
 _PSYCHOMETRIC_KEYS = ("pse_deg", "threshold_deg", "sigma_deg", "slope_per_deg", "lapse")
 
 
