@@ -3,6 +3,7 @@ participants offline, or through the full stack), analyse its trials."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import time
@@ -187,7 +188,7 @@ def run_offline(args) -> int:
 def run_full_stack(args) -> int:
     """A study through the bus: a participant's session, or simulated participants (touch4d.study.session)."""
     try:
-        from . import session
+        session = importlib.import_module("touch4d.study.session")
     except ModuleNotFoundError as exc:
         if exc.name != "touch4d.study.session":
             raise
