@@ -46,12 +46,6 @@ def every_sample_glove(glove: Glove) -> Glove:
                    motor_sample=index, motor_board=1 + index // 8, motor_channel=index % 8)
 
 
-def touch_threshold(glove: Glove) -> float:
-    """The intensity above which a motor is felt: the motor node's dead band (below it the duty is 0)."""
-    duty = (glove.can or {}).get("duty") or {}
-    return float(duty.get("deadband", 0.02))
-
-
 @dataclass
 class Exploration:
     """How the scripted hand explores: `touches` positions, uniform in a box of half-size `reach`
@@ -250,4 +244,4 @@ def chance(trial_or_options) -> float:
 
 
 __all__ = ["ModelObserver", "Exploration", "every_sample_glove", "patterns_at", "view_features", "touch_examples",
-           "view_examples", "touch_threshold", "chance"]
+           "view_examples", "chance"]

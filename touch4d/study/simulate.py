@@ -22,7 +22,7 @@ import numpy as np
 from touch4d.tactile import Glove
 
 from .design import Study
-from .observer import ModelObserver, patterns_at, touch_threshold
+from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
 from .table import TRIALS, write_rows
@@ -63,7 +63,7 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
     rt *= float(np.exp(rng.normal(0.0, timing.rt_spread)))
     timed_out = rt > trial.time_limit_s
     felt = patterns if patterns is not None else np.zeros((len(positions), len(glove.motor_names)))
-    touching = (felt > touch_threshold(glove)).any(axis=1)
+    touching = (felt > glove.touch_threshold).any(axis=1)   # felt: above the glove's touch threshold
     return {
         "response": None if timed_out else response,
         "rt_s": min(rt, trial.time_limit_s),
