@@ -38,6 +38,7 @@ class Timing:
     dwell_s: float = 0.6
     decide_s: float = 0.5
     rt_spread: float = 0.25          # sd of the log of the answer-time factor
+    break_s: float = 30.0            # a pause offered (break_every) is taken, this long
     iti_s: float = 1.0
 
 
@@ -83,7 +84,7 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
     rows, clock = [], 0.0
     for trial in trials:
         if trial.break_before:
-            clock += 30.0
+            clock += timing.break_s
         result = simulate_trial(own, glove, study, trial, seed=seed, timing=timing)
         rows.append(_row(trial, participant, session, clock, result))
         clock += result["rt_s"] + timing.iti_s
