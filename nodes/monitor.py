@@ -44,3 +44,9 @@ class Monitor(Node):
 
     def on_timer(self) -> None:
         print(self.status.line(time.time()), flush=True)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -231,3 +231,8 @@ class MotorsNode(Node):
         self._stop_all(time.monotonic())
         self.publish_status()
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

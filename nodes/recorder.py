@@ -40,3 +40,9 @@ class RecorderNode(Node):
     def on_shutdown(self) -> None:
         for line in self.recorder.stop().lines():
             self.log.info(line)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -138,3 +138,9 @@ class WebXRNode(Node):
         if self.publishers:
             self.bridge.owner = None
             self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -1,0 +1,51 @@
+"""What a user copies from a comment or tries by habit works, or says what to do instead: the
+command lines in the launch files' comments, and `python -m touch4d.nodes.NAME`."""
+import pkgutil
+import re
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import touch4d.nodes
+from touch4d.bus.launchfile import load_launch
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def commented_overrides():
+    """(launch file, the overrides of one comment line) for every comment line that shows some."""
+    for path in sorted((REPO / "launch").glob("*.yaml")):
+        for line in path.read_text().splitlines():
+            if line.lstrip().startswith("#"):
+                tokens = re.findall(r"[+\w.]+:=[^\s)`,]+", line)
+                if tokens:
+                    yield path, tokens
+
+
+@pytest.mark.parametrize("path, overrides", list(commented_overrides()),
+                         ids=lambda v: v.name if isinstance(v, Path) else " ".join(v))
+def test_every_command_line_in_a_launch_files_comments_is_accepted(path, overrides):
+    assert load_launch(path, overrides)
+
+
+NODE_MODULES = sorted(m.name for m in pkgutil.iter_modules(touch4d.nodes.__path__) if not m.name.startswith("_"))
+
+
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules:RuntimeWarning")
+@pytest.mark.parametrize("name", NODE_MODULES)
+def test_every_node_module_run_as_a_script_runs_its_node(name, monkeypatch, capsys):
+    # The node is built from the command line: a misspelt parameter is its error, exit code 2.
+    monkeypatch.setattr(sys, "argv", [name, "--params", '{"no_such_param": 1}'])
+    with pytest.raises(SystemExit) as done:
+        runpy.run_module(f"touch4d.nodes.{name}", run_name="__main__")
+    assert done.value.code == 2
+    assert "no_such_param" in capsys.readouterr().err
+
+
+def test_python_dash_m_runs_a_node():
+    done = subprocess.run([sys.executable, "-m", "touch4d.nodes.scripted", "--params", '{"rat": 5}'],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "did you mean 'rate'?" in done.stderr
