@@ -49,3 +49,40 @@ def test_python_dash_m_runs_a_node():
     done = subprocess.run([sys.executable, "-m", "touch4d.nodes.scripted", "--params", '{"rat": 5}'],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "did you mean 'rate'?" in done.stderr
+
+
+def nodes_md_example() -> str:
+    text = (REPO / "docs" / "nodes.md").read_text()
+    return re.search(r"```python\n(# mylab/nodes/wave.py\n.*?)```", text, re.S).group(1)
+
+
+def test_the_node_authors_page_says_where_the_screen_is_and_what_the_scene_node_hears():
+    text = (REPO / "docs" / "nodes.md").read_text()
+    assert "The screen is the cube `[-1, 1]^3`" in text
+    assert "The scene node subscribes `controller/state`" in text
+
+
+def test_the_node_authors_example_uses_every_parameter_it_declares_and_stays_on_the_screen(tmp_path, monkeypatch):
+    import numpy as np
+
+    from touch4d.bus import Node
+    from touch4d.bus.testing import collect, running_broker, wait_until
+    from touch4d.messages import HandPose
+
+    (tmp_path / "wave_example.py").write_text(nodes_md_example())
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import wave_example
+
+    declared = set(wave_example.WaveTracker.PARAMS)
+    used = set(re.findall(r"""self\.params\[["'](\w+)["']\]""", nodes_md_example()))
+    assert declared == used, f"declared but never read: {sorted(declared - used)}"
+    with running_broker() as bus:
+        node = wave_example.WaveTracker(params={"rate": 200.0, "amplitude": 0.9}, bus=bus)
+        with Node("probe", bus=bus, heartbeat=False) as probe:
+            poses = collect(probe, "hand/pose", HandPose)
+            try:
+                wait_until(lambda: (node.spin_once(0.005), probe.spin_once(0.0), len(poses) >= 60)[-1], timeout=30)
+            finally:
+                node.shutdown()
+    x = np.array([p.position for p in poses])
+    assert np.all(np.abs(x) <= 1.0) and np.ptp(x[:, 0]) > 0.5     # a sweep, inside the screen cube
