@@ -7,6 +7,8 @@ SIGTERM, has STOP_GRACE seconds to run `on_shutdown` and exit, and is then kille
 Each node tells the launcher when it is built (a byte on a pipe, see touch4d.bus.process). A node
 that exits before that failed to start (a bad scene, a missing glove file...): unless its launch
 entry says `respawn`, the whole launch stops and exits non-zero, the node's error the last line.
+A broker that goes away (killed, or the other machine's with `--no-broker`) stops the launch the
+same way, named in the last line: the nodes' shutdown sends the boards NMT STOP.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from touch4d.bus.broker import Broker
+from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
@@ -68,6 +70,8 @@ class Launcher:
         self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
+        self._broker_lost = lambda: None
+        self._broker_gone: str | None = None
 
     # ---- output ------------------------------------------------------------------------------
 
@@ -202,6 +206,8 @@ class Launcher:
         endpoints = broker.start() if broker else self.bus
         self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
                      "PYTHONUNBUFFERED": "1"}
+        watch = BrokerWatch(endpoints.for_clients())   # a broker that dies stops the launch, named
+        self._broker_lost = watch.lost
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_r, False)
         os.set_blocking(wake_w, False)
@@ -236,6 +242,7 @@ class Launcher:
             self._selector.close()
             os.close(wake_r)
             os.close(wake_w)
+            watch.close()
             if broker:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
@@ -247,6 +254,9 @@ class Launcher:
             line, code = self._start_failure
             self.say(f"stopped: {line}")   # the cause, last, where the user looks
             return code
+        if self._broker_gone:
+            self.say(f"stopped: {self._broker_gone}")   # the cause, last, where the user looks
+            return 1
         if failed:
             self.say(f"stopped; node(s) that failed: {', '.join(failed)}")
             return 1
@@ -265,6 +275,10 @@ class Launcher:
                 self._stop_reason = f"--duration {self.duration:g} s"
                 break
             self._pump(0.2 if end is None else min(0.2, end - now))
+            gone = self._broker_lost()
+            if gone:
+                self._broker_gone = self._stop_reason = gone
+                break
             for child in self.children.values():
                 if child.proc is not None and child.proc.poll() is not None:
                     self._reap(child)
