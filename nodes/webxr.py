@@ -81,7 +81,8 @@ class WebXRNode(Node):
                                 save_calibration=self._save_calibration)
         # The server's thread hands every event to this node's thread (one thread runs the bridge).
         self.server = PageServer(host, p["port"], self.token, ssl_context,
-                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn),
+                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
+                                                                                   self.server.peer(conn)),
                                  on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
                                      self.bridge.page_message, conn, data, arrival),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))

@@ -38,8 +38,9 @@ REFUSED = ("touch4d: this page needs the token that the webxr node printed (its 
 class _Client:
     """One page's WebSocket and what waits to be sent to it."""
 
-    def __init__(self, ws: web.WebSocketResponse):
+    def __init__(self, ws: web.WebSocketResponse, peer: str = ""):
         self.ws = ws
+        self.peer = peer     # the page's address (host:port), to name it in the log
         self.queue: collections.deque = collections.deque()
         self.latest: bytes | None = None
         self.wake = asyncio.Event()
@@ -92,6 +93,11 @@ class PageServer:
         """Queue a frame for one page (in order, never dropped)."""
         if self._loop is not None:
             self._loop.call_soon_threadsafe(self._enqueue, conn, data, False, True)
+
+    def peer(self, conn: int) -> str:
+        """The address (host:port) of a connected page; '' once it has gone."""
+        client = self.clients.get(conn)
+        return client.peer if client is not None else ""
 
     def broadcast(self, data: bytes, latest: bool = False) -> None:
         """Queue a frame for every page; `latest` frames replace an unsent one."""
@@ -168,7 +174,9 @@ class PageServer:
         ws = web.WebSocketResponse(max_msg_size=WS_MAX_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
         await ws.prepare(request)
         conn = next(self._ids)
-        client = self.clients[conn] = _Client(ws)
+        transport_peer = request.transport.get_extra_info("peername") if request.transport else None
+        peer = f"{transport_peer[0]}:{transport_peer[1]}" if transport_peer else (request.remote or "?")
+        client = self.clients[conn] = _Client(ws, peer)
         sender = asyncio.ensure_future(self._sender(client))
         self.on_connect(conn)
         try:
