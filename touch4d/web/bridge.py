@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
                 "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
-                 "page_not_driver", "page_connections", "recentred")
+                 "page_unresponsive", "page_not_driver", "page_connections", "recentred")
 
 
 @dataclass(frozen=True)
