@@ -51,7 +51,8 @@ _LEN = struct.Struct("<I")
 
 
 class PageError(ValueError):
-    """A page message that is dropped; `cause` is its counter's name: malformed, oversized or non_finite."""
+    """A page message that is dropped; `cause` is its counter's name: malformed, oversized, non_finite or
+    unresponsive (a page that answered no ping)."""
 
     def __init__(self, cause: str, detail: str):
         super().__init__(detail)
