@@ -159,7 +159,9 @@ class BrokerWatch:
     (started after the launch) is waited for, not lost.
     """
 
-    EVENTS = zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED
+    # Connected = the ZMTP (and CURVE) handshake done: a broker that refuses this machine's key is
+    # never "there", so it is not reported as gone (the nodes say why they cannot connect).
+    EVENTS = zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
 
     def __init__(self, bus: BusConfig, grace: float = 1.0):
         self.endpoint = bus.sub_endpoint
@@ -178,7 +180,7 @@ class BrokerWatch:
         now = time.monotonic() if now is None else now
         while self.monitor.poll(0):
             event = recv_monitor_message(self.monitor)["event"]
-            if event == zmq.EVENT_CONNECTED:
+            if event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
                 self.connected, self.down_since = True, None
             elif event == zmq.EVENT_DISCONNECTED and self.connected:
                 self.connected, self.down_since = False, now
