@@ -327,12 +327,12 @@ class WebBridge:
         if not self.config.tracker:
             self.counts["page_ignored"] += 1
             return
+        if not msg["tracking"] and page.conn != self.owner:
+            self.counts["page_ignored"] += 1   # no hand to drive with (a desktop page being hidden)
+            return
         if not self._may_drive(page, arrival):
             return
-        if msg["tracking"] or self.owner is None:
-            self._take(page)
-        elif page.conn != self.owner:
-            return   # not tracking, and not the owner: nothing of its to say
+        self._take(page)
         stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
         page.last_input = arrival
         page.tracking = msg["tracking"]
