@@ -287,3 +287,40 @@ def test_any_launch_file_text_is_a_launch_or_a_config_error_naming_the_file(tmp_
         load_launch(path)
     except Touch4dError as exc:
         assert str(path) in str(exc) or "l.yaml" in str(exc)
+
+
+def alias_bomb(levels: int = 9) -> str:
+    """YAML whose last list, expanded, holds 9^levels items (anchors and aliases: a few hundred bytes)."""
+    rows = ["- &a0 [x, x, x, x, x, x, x, x, x]"]
+    rows += [f"- &a{k} [{', '.join([f'*a{k - 1}'] * 9)}]" for k in range(1, levels)]
+    return "\n".join(rows)
+
+
+def test_a_yaml_alias_bomb_in_a_scene_or_launch_file_is_refused_at_once(tmp_path):
+    import signal
+
+    from touch4d.bus.launchfile import load_launch
+    from touch4d.errors import ConfigError
+    from touch4d.geometry.scene import load_scene
+
+    bomb = "\n".join("      " + row for row in alias_bomb().splitlines())
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"objects:\n  - shape: tesseract\n    size:\n{bomb}\n")
+    launch = tmp_path / "launch.yaml"
+    launch.write_text(f"nodes:\n  tracker:\n    node: scripted\n    params:\n      rate:\n{bomb}\n")
+
+    def hung(signum, frame):
+        raise TimeoutError("still expanding the aliases after 10 s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(10)
+    try:
+        for load, path, key in ((load_scene, scene, "objects[0].size"), (load_launch, launch, "nodes.tracker.params.rate")):
+            started = time.monotonic()
+            with pytest.raises(ConfigError) as err:
+                load(path)
+            assert time.monotonic() - started < 2.0
+            assert key in str(err.value) and len(str(err.value)) < 1000
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
