@@ -308,6 +308,10 @@ def test_a_yaml_alias_bomb_in_a_scene_or_launch_file_is_refused_at_once(tmp_path
     scene.write_text(f"objects:\n  - shape: tesseract\n    size:\n{bomb}\n")
     launch = tmp_path / "launch.yaml"
     launch.write_text(f"nodes:\n  tracker:\n    node: scripted\n    params:\n      rate:\n{bomb}\n")
+    # A mapping parameter takes any values: it would go to the node as JSON of 9^9 values.
+    remap = tmp_path / "remap.yaml"
+    deeper = "\n".join("    " + row for row in bomb.splitlines())
+    remap.write_text(f"nodes:\n  tracker:\n    node: replay\n    params:\n      remap:\n        a:\n{deeper}\n")
 
     def hung(signum, frame):
         raise TimeoutError("still expanding the aliases after 10 s")
@@ -315,7 +319,8 @@ def test_a_yaml_alias_bomb_in_a_scene_or_launch_file_is_refused_at_once(tmp_path
     old = signal.signal(signal.SIGALRM, hung)
     signal.alarm(10)
     try:
-        for load, path, key in ((load_scene, scene, "objects[0].size"), (load_launch, launch, "nodes.tracker.params.rate")):
+        for load, path, key in ((load_scene, scene, "objects[0].size"), (load_launch, launch, "nodes.tracker.params.rate"),
+                                (load_launch, remap, "nodes.tracker.params.remap")):
             started = time.monotonic()
             with pytest.raises(ConfigError) as err:
                 load(path)

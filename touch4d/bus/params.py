@@ -112,6 +112,10 @@ class Param:
             raise ValueError(self.describe())
         if kind in (int, float) and not _in_bounds(value, self.above, self.min, self.max):
             raise ValueError(self.describe())
+        if kind in (list, dict) and not _small(value):
+            # A parameter goes to its node as JSON on the command line: a YAML alias bomb (lists of
+            # aliases, billions of values once expanded) would take minutes and then fail there.
+            raise ValueError(f"{self.describe()} of at most {MAX_VALUES} values in all")
         if kind is list:
             if self.length is not None and len(value) != self.length:
                 raise ValueError(self.describe())
@@ -134,6 +138,26 @@ def _is(value, kind: type) -> bool:
     if kind is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     return isinstance(value, kind)
+
+
+MAX_VALUES = 100_000   # values in a list or mapping parameter, nested ones included
+
+
+def _small(value, limit: int = MAX_VALUES) -> bool:
+    """Whether `value` holds at most `limit` values, nested ones counted as often as they appear
+    (a walk that stops at the limit, so a structure that repeats itself costs no more)."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > limit:
+            return False
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return True
 
 
 def _finite(value) -> bool:
