@@ -8,7 +8,8 @@ this process), `board_emulator` (which: `python`, the reference, or `firmware`, 
 core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
 below).
 
-Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
+Fail safe: whatever breaks, the motors end off. The broker's death turns them off at the next
+refresh tick (its connection closes; counted as `broker_lost`). A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
 turns a motor on: older than the glove's `can.command_max_age_s` (default `watchdog_s`) it counts
 as `stale_command` and turns every motor off. This assumes the clocks of the machines in the
@@ -35,6 +36,7 @@ import time
 import numpy as np
 
 from touch4d.bus import Node, Param
+from touch4d.bus.broker import BrokerWatch
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
@@ -93,6 +95,11 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
+        # The broker's death is seen at once (its connection closes): every motor off then, rather
+        # than a watchdog period after the last command that got through.
+        self.broker_watch = BrokerWatch(self.bus, grace=0.0, context=self._ctx)
+        self.add_cleanup(self.broker_watch.close)
+        self._broker_down = False
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
         self.tracing = p["trace"]
@@ -155,6 +162,11 @@ class MotorsNode(Node):
 
     def on_refresh(self) -> None:
         now = time.monotonic()
+        down = self.broker_watch.lost(now) is not None
+        if down and not self._broker_down:
+            self.driver.silence(now)
+            self._can_fault("broker_lost", f"the broker at {self.broker_watch.endpoint} went away: every motor off")
+        self._broker_down = down
         try:
             self._receive_frames(now)
             for event in self.driver.check_boards(now):

@@ -1,5 +1,6 @@
 """The broker killed in the middle of a touch (the two-machine set-up: the motor node's launch uses a
-broker that runs elsewhere, `--no-broker`): the motors are off within 100 ms, and the launch stops,
+broker that runs elsewhere, `--no-broker`): the motors are off within 100 ms (the motor node sees the
+broker's connection close), and the launch stops,
 exits non-zero and names the broker. The boards run in this process on a CAN bus shared with the
 launched motor node (python-can's udp_multicast on loopback)."""
 from __future__ import annotations
@@ -21,7 +22,6 @@ from touch4d.bus.testing import REPO, ProcessOutput, free_port, launch_process, 
 from touch4d.messages import MotorCommand
 
 pytestmark = pytest.mark.timeout(120)
-SLACK_S = 0.05   # this test's sampling and the emulator's thread on a shared machine
 
 
 def test_a_killed_broker_turns_the_motors_off_and_stops_the_launch_naming_it(tmp_path):
@@ -59,7 +59,9 @@ def test_a_killed_broker_turns_the_motors_off_and_stops_the_launch_naming_it(tmp
                 cmd.publish(MotorCommand(names=names, intensity=np.full(len(names), 0.7)))   # into the void
                 time.sleep(0.002)
             off_after = time.monotonic() - killed_at
-            assert off_after <= 0.1 + SLACK_S, off_after
+            # The motor node sees the broker's connection close and turns every motor off at its next
+            # refresh tick (5 ms), not a watchdog period (100 ms) after the last command.
+            assert off_after <= 0.1, off_after
             code = run.proc.wait(20)
             run.join()
             assert code != 0

@@ -163,10 +163,11 @@ class BrokerWatch:
     # never "there", so it is not reported as gone (the nodes say why they cannot connect).
     EVENTS = zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
 
-    def __init__(self, bus: BusConfig, grace: float = 1.0):
+    def __init__(self, bus: BusConfig, grace: float = 1.0, context: zmq.Context | None = None):
         self.endpoint = bus.sub_endpoint
         self.grace = grace
-        self.context = zmq.Context()
+        self._own_context = context is None
+        self.context = context or zmq.Context()
         self.sock = self.context.socket(zmq.SUB)
         self.sock.linger = 0
         bus.client_socket_options(self.sock)
@@ -193,4 +194,5 @@ class BrokerWatch:
         self.sock.disable_monitor()
         self.monitor.close(linger=0)
         self.sock.close(linger=0)
-        self.context.term()
+        if self._own_context:
+            self.context.term()
