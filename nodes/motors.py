@@ -9,7 +9,9 @@ core built for this machine), `status_hz` (motors/status rate), `trace` (publish
 below).
 
 Fail safe: whatever breaks, the motors end off. The broker's death turns them off at the next
-refresh tick (its connection closes; counted as `broker_lost`). A command's age is taken from its own
+refresh tick (its connection closes; counted as `broker_lost`). A process stalled between deciding
+a tick's duties and sending them (SIGSTOP, swapping) decides them again before they go out
+(`stalled`), so a command fresh when it arrived is not sent seconds later. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
 turns a motor on: older than the glove's `can.command_max_age_s` (default `watchdog_s`) it counts
 as `stale_command` and turns every motor off. This assumes the clocks of the machines in the
@@ -81,6 +83,8 @@ class MotorsNode(Node):
         self.load = check_bus_load(cfg)
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
+        # Frames decided longer ago than this are decided again before they go out (see _send_frames).
+        self._stall_s = 0.5 * cfg.watchdog_s
         if p["emulate"]:
             self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
             self.add_cleanup(self.emulator.stop)
@@ -200,6 +204,11 @@ class MotorsNode(Node):
     def _send_frames(self, outs: list[Outgoing], now: float) -> None:
         duty_sent = False
         for out in outs:
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # This process stalled (SIGSTOP, swapping, a debugger) between deciding these duties
+                # at `now` and sending them: the command they carry may be long stale. Decide again.
+                self._decide_again()
+                break
             fault = self.link.send(out.msg)
             if fault is None:
                 duty_sent = duty_sent or out.board != 0
@@ -207,6 +216,10 @@ class MotorsNode(Node):
             else:
                 self.driver.failed(out, fault)
                 self._can_warn(fault, self.link.last_error)
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # ... or in the instant before the frame left: correct it at once.
+                self._decide_again()
+                break
         if duty_sent and self.tracing:
             self._last_sent_at = time.time()   # just after the last accepted duty frame's send returned
         if self._trace_pending is not None and outs and self.driver.duties_on_bus():
@@ -214,6 +227,12 @@ class MotorsNode(Node):
             self._trace_times.append(self._last_sent_at)
             self._counters["trace_traced"] += 1
             self._trace_pending = None
+
+    def _decide_again(self) -> None:
+        """Every board's duties decided afresh and sent now (after a stall of this process)."""
+        self.driver.errors["stalled"] += 1
+        now = time.monotonic()
+        self._send_frames(self.driver.outgoing(now, refresh=True, force=True), now)
 
     def publish_trace(self) -> None:
         """The commands traced since the last batch, on motors/trace."""

