@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import time
 
+from touch4d import glovefile
 from touch4d.bus import Node, Param
 from touch4d.bus.node import HEARTBEAT_TOPIC
+from touch4d.bus.topology import shared_text
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 from touch4d.status import StackStatus
 
@@ -14,11 +16,16 @@ class Monitor(Node):
     """Watches the whole bus and prints what a user wants to see while the demo runs."""
 
     default_name = "monitor"
-    PARAMS = {"period": Param(1.0, "seconds between status lines", unit="s", above=0)}
+    PARAMS = {
+        "period": Param(1.0, "seconds between status lines", unit="s", above=0),
+        "glove": Param("config/glove.yaml", "the glove file (a motor above its touch_threshold is touched)",
+                       path="glove file"),
+    }
 
     def setup(self) -> None:
         period = self.params["period"]
-        self.status = StackStatus(window=max(2.0, 2 * period))
+        glove, _ = glovefile.load(self.params["glove"])
+        self.status = StackStatus(window=max(2.0, 2 * period), touch_threshold=glove.touch_threshold)
         self.create_raw_subscription("", self.on_any)
         # What it watches is optional: a stack without motors is no fault of the monitor's.
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True, optional=True)
@@ -43,7 +50,10 @@ class Monitor(Node):
         self.status.on_heartbeat(msg, time.time())
 
     def on_timer(self) -> None:
-        print(self.status.line(time.time()), flush=True)
+        now = time.time()
+        for topic, nodes in self.status.shared(now).items():
+            self.warn_once(("shared", topic, tuple(nodes)), shared_text(topic, nodes))
+        print(self.status.line(now), flush=True)
 
 
 if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does

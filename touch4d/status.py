@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
+from touch4d.bus.topology import shared_inputs
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 
 NODE_TIMEOUT = 3.5  # s without a heartbeat after which a node counts as gone (they beat every second)
@@ -24,6 +26,7 @@ class StackStatus:
     latencies: deque = field(default_factory=lambda: deque(maxlen=2000))   # (arrival, pose -> command)
     frame_latencies: deque = field(default_factory=lambda: deque(maxlen=2000))  # (arrival, pose -> CAN frame)
     touched: int = 0
+    touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # the glove file's: a motor above it is touched
     motors: int = 0
     boards_online: int | None = None
     boards: int | None = None
@@ -38,7 +41,7 @@ class StackStatus:
             times.popleft()
 
     def on_motors(self, msg: MotorCommand, now: float) -> None:
-        self.touched = int(np.count_nonzero(msg.intensity > 0))
+        self.touched = int(np.count_nonzero(msg.intensity > self.touch_threshold))
         self.motors = len(msg.intensity)
         if msg.source_stamp > 0:
             # Stamped by the tactile node when it published: the monitor's own wake-up (it runs at
@@ -75,6 +78,10 @@ class StackStatus:
                 waiting.setdefault(topic, []).append(hb.node)
         return {t: sorted(names) for t, names in sorted(waiting.items())}
 
+    def shared(self, now: float) -> dict[str, list[str]]:
+        """Inputs two or more live nodes publish: topic -> the publishers (touch4d.bus.topology)."""
+        return shared_inputs(hb for heard, hb in self.nodes.values() if now - heard <= NODE_TIMEOUT)
+
     def rate(self, topic: str, now: float) -> float:
         times = self.arrivals.get(topic)
         if not times:
@@ -101,6 +108,9 @@ class StackStatus:
         parts.append(f"{what} p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else f"{what} -")
         if self.boards is not None:
             parts.append(f"boards {self.boards_online}/{self.boards} online, CAN load {100 * self.bus_load:.0f}%")
+        shared = self.shared(now)
+        if shared:
+            parts.append("several publishers: " + ", ".join(f"{t} ({', '.join(n)})" for t, n in shared.items()))
         missing = self.unpublished(now)
         if missing:
             parts.append("no publisher: " + ", ".join(f"{t} ({', '.join(n)})" for t, n in missing.items()))

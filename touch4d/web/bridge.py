@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from touch4d.errors import Touch4dError
 from touch4d.messages import ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
@@ -145,7 +146,8 @@ class WebBridge:
         camera = OrbitCamera()
         fields = {
             "tracker": self.config.tracker, "hand": self.config.hand, "hand_source": self.config.hand_source,
-            "motor_names": list(g.motor_names), "cube_center": list(cube.center), "cube_half": cube.half,
+            "motor_names": list(g.motor_names), "touch_threshold": g.touch_threshold,
+            "cube_center": list(cube.center), "cube_half": cube.half,
             "camera": {"yaw": camera.yaw, "pitch": camera.pitch, "distance": camera.distance,
                        "target": [float(v) for v in camera.target], "fov": camera.fov},
             "style": dataclasses.asdict(self.view.style),
@@ -175,7 +177,7 @@ class WebBridge:
         try:
             if not self.view.set_scene(msg):
                 return
-        except (ValueError, TypeError, KeyError) as exc:     # MessageError, GeometryError, odd parameters
+        except Touch4dError as exc:     # MessageError, GeometryError: a scene that cannot be drawn
             self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn: {exc}")
             return
         geometry = self.view.layer.geometry
