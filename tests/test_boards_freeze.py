@@ -19,6 +19,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+import yaml
 
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.emulator import make_glove_emulator
@@ -57,13 +58,12 @@ class Frames(can.Listener):
 
 
 def glove_file(group: str, max_age: float | None) -> Path:
-    text = (Path(__file__).resolve().parents[1] / "config" / "glove.yaml").read_text()
-    text = text.replace("interface: virtual ", "interface: udp_multicast ").replace("channel: touch4d-glove",
-                                                                                    f"channel: {group}")
+    data = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "glove.yaml").read_text())
+    data["can"].update(interface="udp_multicast", channel=group)
     if max_age is not None:
-        text = text.replace("command_max_age_s: 0.1", f"command_max_age_s: {max_age}")
+        data["can"]["command_max_age_s"] = max_age
     path = Path(tempfile.mkdtemp(prefix="freeze-")) / "glove.yaml"
-    path.write_text(text)
+    path.write_text(yaml.safe_dump(data))
     return path
 
 

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.emulator import make_glove_emulator
@@ -29,10 +30,10 @@ def test_a_killed_broker_turns_the_motors_off_and_stops_the_launch_naming_it(tmp
     bus_file = tmp_path / "bus.yaml"
     bus_file.write_text(f"broker: {{bind: 127.0.0.1, pub_port: {free_port()}, sub_port: {sub_port}}}\n"
                         "connect: 127.0.0.1\n")
-    text = (REPO / "config" / "glove.yaml").read_text()
+    data = yaml.safe_load((REPO / "config" / "glove.yaml").read_text())
+    data["can"].update(interface="udp_multicast", channel=group)
     glove = tmp_path / "glove.yaml"
-    glove.write_text(text.replace("interface: virtual ", "interface: udp_multicast ")
-                     .replace("channel: touch4d-glove", f"channel: {group}"))
+    glove.write_text(yaml.safe_dump(data))
     cfg = load_glove_can(glove)
     emu = make_glove_emulator("python", cfg).start()
     broker = ProcessOutput(subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "bus", "broker", "--bus",
