@@ -71,3 +71,8 @@ class TactileNode(Node):
     def on_shutdown(self) -> None:
         self.log.info("handled %d pose(s): %s", self.counts["poses"], self.counts)
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)
