@@ -8,7 +8,7 @@ import numpy as np
 from .base import Array, ArrayList, Float, Int, Map, Message, Records, Str, spec
 
 PROJECTIONS = ("orthographic", "perspective")
-SCENE_COMMANDS = ("next", "select", "reset", "projection")
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "load")
 
 SCENE_OBJECT = Records(
     {
@@ -58,7 +58,9 @@ class SceneState(Message):
 
 @dataclass(kw_only=True)
 class SceneCommand(Message):
-    """A request to the scene node (topic scene/command): next/select object, reset, projection."""
+    """A request to the scene node (topic scene/command): next/select object, reset, projection, or load a
+    whole scene (argument: scene-file text, YAML, as touch4d.geometry.scene.parse_scene reads it)."""
 
     command: str = spec(Str(SCENE_COMMANDS), "what to do")
-    argument: str = spec(Str(), "select: object name or index; projection: orthographic|perspective|toggle")
+    argument: str = spec(Str(), "select: object name or index; projection: orthographic|perspective|toggle; "
+                             "load: the scene file's text")

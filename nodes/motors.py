@@ -41,7 +41,8 @@ from touch4d.boards.driver import MotorDriver, Outgoing
 from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
-from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop, StudyTrial
+from touch4d.study.gate import StudyGate
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
 TRACE_PERIOD_S = 0.05  # motors/trace batches
@@ -93,6 +94,8 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
+        self.gate = StudyGate()
+        self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
         self.tracing = p["trace"]
@@ -109,7 +112,9 @@ class MotorsNode(Node):
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
         errors = self.driver.errors
         stale, future = errors["stale_command"], errors["command_from_future"]
-        self.driver.command(msg.names, msg.intensity, now, age=age)
+        # A study's condition may hold the motors off (a visual trial, between trials): every duty 0.
+        intensity = msg.intensity if self.gate.motors else np.zeros(len(msg.intensity))
+        self.driver.command(msg.names, intensity, now, age=age)
         if errors["stale_command"] != stale:
             self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
                                             f"{self.cfg.command_max_age_s} s): every motor off")
@@ -139,6 +144,15 @@ class MotorsNode(Node):
             self._trace_pending = None
         self._stop_all(now)
         self.publish_status()
+
+    def on_trial(self, msg: StudyTrial) -> None:
+        """Follow the study's gate; when it closes, every motor goes off now, not at the next command."""
+        if self.gate.update(msg) and not self.gate.motors:
+            now = time.monotonic()
+            names = self.cfg.motor_names
+            self.driver.command(names, np.zeros(len(names)), now, age=0.0)
+            self._send_frames(self.driver.outgoing(now), now)
+            self._pace(now)
 
     def _stop_all(self, now: float) -> None:
         """NMT STOP first (highest priority frame), then zero duty to every board."""

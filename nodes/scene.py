@@ -1,7 +1,8 @@
 """Scene node: holds the 4D scene, turns it with the controller (paper §4.4), publishes `scene/state`.
 
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
-skipping a backlog loses no rotation) and `scene/command`. Publishes `scene/state` on every change,
+skipping a backlog loses no rotation) and `scene/command` (`load` with a scene file's text replaces
+the whole scene: how a study shows each trial's stimulus). Publishes `scene/state` on every change,
 at most `max_rate` times a second, and every 1/`rate` s for late joiners. The calibration file is
 read again when it changes (a headset re-centring the screen turns the controller's axes with it).
 """
@@ -77,8 +78,8 @@ class SceneNode(Node):
     def on_command(self, msg: SceneCommand) -> None:
         try:
             changed = self.control.command(msg.command, msg.argument)
-        except ValueError as exc:
-            self.log.warning("scene/command ignored: %s", exc)
+        except ValueError as exc:   # a bad command, or (ConfigError) a bad scene to load: the scene stays
+            self.log.warning("scene/command %s ignored: %s", msg.command, exc)
             return
         self.changed(changed)
 

@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from touch4d.errors import ConfigError
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
-from touch4d.geometry.scene import Scene
+from touch4d.geometry.scene import Scene, parse_scene
 from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
+from touch4d.schema import parse_yaml
 
 from . import quaternion
 from .calibration import Calibration
@@ -132,7 +133,8 @@ class SceneControl:
     # ---- commands ------------------------------------------------------------------------------
 
     def command(self, name: str, argument: str = "") -> bool:
-        """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle].
+        """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle]
+        | load SCENE-FILE-TEXT.
 
         A bad command or argument raises ValueError saying what was expected.
         """
@@ -148,7 +150,21 @@ class SceneControl:
             return True
         if name == "projection":
             return self._projection(argument)
+        if name == "load":
+            return self.load(argument)
         raise ValueError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+
+    def load(self, text: str, source: str = "scene/command load") -> bool:
+        """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it. A bad
+        scene raises ConfigError (a ValueError) naming `source` and the key, and the scene stays."""
+        scene = parse_scene(parse_yaml(text, source), source)
+        if self.config.rotate == "scene":
+            scene.selected = -1
+        scene.revision = self.scene.revision + 1
+        self.scene = scene
+        self._initial = scene.copy()
+        self._grab = None
+        return True
 
     def _next_index(self) -> int:
         order = list(range(len(self.scene.objects))) + [-1]
