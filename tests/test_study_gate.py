@@ -119,3 +119,55 @@ def test_a_visual_trial_holds_every_duty_at_zero_and_the_last_gate_holds_when_th
     t1 = time.monotonic()
     rig.spin(0.5, intensity=0.7)
     assert rig.duty_frames_on_since(t1) == 0
+
+
+@pytest.mark.timeout(300)
+def test_the_renderer_draws_no_object_pixel_in_a_touch_trial_and_shows_the_prompt():
+    """The renderer node (headless, its own draw path): a green tesseract is drawn with no study and in a
+    visual trial, and not one green pixel is in a touch trial, while the hand and the prompt still are."""
+    from touch4d.bus.testing import running_broker, wait_until
+    from touch4d.geometry.scene import parse_scene
+    from touch4d.messages import HandPose
+    from touch4d.nodes.renderer import RendererNode
+
+    green_scene = parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5],
+                                            "color": [0, 1, 0, 1]}]}).to_message()
+    with running_broker() as bus:
+        node = RendererNode(params={"headless": True, "width": 240, "height": 240, "samples": 0, "rate": 30.0,
+                                    "show_status": False, "show_frame": False, "show_tactile": False,
+                                    "camera": "yaw=0,pitch=0,distance=4,target=0:0:0,ortho"},
+                            bus=bus, heartbeat=False)
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            scene_pub = probe.create_publisher("scene/state", type(green_scene))
+            trial_pub = probe.create_publisher("study/trial", StudyTrial)
+            pose_pub = probe.create_publisher("hand/pose", HandPose)
+
+            def shown(predicate, *messages):
+                def check():
+                    for pub, msg in messages:
+                        pub.publish(msg)
+                    node.spin_once(0.05)
+                    if not node.counts["frames"]:
+                        return None
+                    img = node.renderer.read()
+                    return [img] if predicate(img) else None
+                return wait_until(check, timeout=120, interval=0.0)[0]
+
+            # the object: pure green; the hand's y axis (0.3, 1, 0.3) is not counted
+            green = lambda img: int(((img[..., 1] > 150) & (img[..., 0] < 50) & (img[..., 2] < 50)).sum())  # noqa: E731
+            shown(lambda img: green(img) > 200, (scene_pub, green_scene))
+            hand = HandPose(position=np.array([0.0, 0.0, 0.0]), orientation=np.array([0.0, 0, 0, 1]), valid=True)
+            touch = trial("touch")
+            count = node.counts["frames"]
+            img = shown(lambda img: node.counts["frames"] > count + 2,
+                        (scene_pub, green_scene), (trial_pub, touch), (pose_pub, hand))
+            assert node.gate.trial is not None and node.gate.trial.condition == "touch"
+            assert green(img) == 0
+            hand_pixels = ((img[..., 0] > 180) & (img[..., 1] > 160) & (img[..., 2] > 130)).sum()
+            assert hand_pixels > 20                                   # the hand is still drawn
+            assert (np.abs(img[:40, :200, :3].astype(int) - img[-1, -1, :3]).sum(axis=2) > 60).sum() > 100  # text
+            shown(lambda img: green(img) > 200, (trial_pub, trial("visual", index=1)))
+        finally:
+            probe.shutdown()
+            node.shutdown()

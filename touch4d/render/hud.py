@@ -153,3 +153,31 @@ def touched_motors(names: list[str], intensity: np.ndarray, threshold: float = 0
     intensity = np.asarray(intensity, dtype=float)
     order = np.argsort(-intensity, kind="stable")
     return [names[i] for i in order if intensity[i] > threshold]
+
+
+PROMPT_SIZE = 22
+
+
+def study_lines(trial) -> list[str]:
+    """What a participant reads for a `study/trial` message: the question and the keys that answer it
+    in a trial, else the line of its phase (break, pause, end); nothing between trials."""
+    if trial.phase == "stimulus":
+        head = f"Trial {trial.index + 1} of {trial.total}" + (" (practice)" if trial.practice else "")
+        keys = "   ".join(f"{k}: {option}" for k, option in enumerate(trial.options, start=1))
+        return [head, trial.prompt, keys]
+    return [trial.message] if trial.message else []
+
+
+def study_overlay(trial, below: np.ndarray | None = None) -> np.ndarray | None:
+    """The study's lines in large type, above the status overlay `below` (if any)."""
+    lines = study_lines(trial)
+    if not lines:
+        return below
+    top = text_image(lines, size=PROMPT_SIZE, background=(0, 0, 0, 190))
+    if below is None:
+        return top
+    width = max(top.shape[1], below.shape[1])
+    out = np.zeros((top.shape[0] + below.shape[0], width, 4), np.uint8)
+    out[:top.shape[0], :top.shape[1]] = top
+    out[top.shape[0]:, :below.shape[1]] = below
+    return out
