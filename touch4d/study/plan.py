@@ -135,14 +135,25 @@ def _trial(study: Study, index: int, block: int, position: int, practice: bool, 
            rng: np.random.Generator) -> Trial:
     task, stimulus, level, answer = item
     seed = int(rng.integers(0, 2**63 - 1))
-    own = np.random.default_rng(seed)
-    transform = [(plane, round(float(own.uniform(-task.jitter_deg, task.jitter_deg)), 3))
-                 for plane in task.jitter_planes] if task.jitter_deg > 0 else []
+    transform = draw_jitter(task, np.random.default_rng(seed))
     every = study.break_every
     return Trial(index=index, block=block, trial=position, practice=practice, task=task.id, kind=task.kind,
                  condition=condition, stimulus=stimulus, answer=answer, options=list(task.options),
                  prompt=task.prompt, level=level, transform=transform, time_limit_s=study.time_limit_of(task),
                  seed=seed, break_before=bool(every and position > 0 and position % every == 0))
+
+
+def draw_jitter(task: Task, rng: np.random.Generator) -> list[tuple[str, float]]:
+    """A task's small random turn: each jitter plane by a uniform angle in [-jitter_deg, +jitter_deg]
+    (degrees, rounded to 0.001 so that a written plan reproduces it exactly)."""
+    if task.jitter_deg <= 0:
+        return []
+    return [(plane, round(float(rng.uniform(-task.jitter_deg, task.jitter_deg)), 3)) for plane in task.jitter_planes]
+
+
+def stimuli_of(task: Task) -> list[tuple[str, float, str]]:
+    """(name, level, answer) of each stimulus of a task, in the task's order."""
+    return _stimuli(task)
 
 
 def constrained_shuffle(items: list, max_run: int, rng: np.random.Generator, *, key, last=None, run: int = 0,

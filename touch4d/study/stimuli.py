@@ -19,43 +19,54 @@ from .design import Study, scene_path
 from .plan import Trial
 
 
-def stimulus_scene_path(study: Study, trial: Trial) -> Path:
-    """The scene file behind a trial's stimulus (a tilt task's untilted scene)."""
-    index = [t.id for t in study.tasks].index(trial.task)
+def stimulus_scene_path(study: Study, task_id: str, stimulus: str) -> Path:
+    """The scene file behind a task's stimulus (a tilt task's untilted scene)."""
+    index = [t.id for t in study.tasks].index(task_id)
     task = study.tasks[index]
     if task.kind == "tilt":
         return scene_path(study, f"tasks[{index}].scene", task.scene)
     for j, stim in enumerate(task.stimuli):
-        if stim.label == trial.stimulus:
+        if stim.label == stimulus:
             return scene_path(study, f"tasks[{index}].stimuli[{j}].scene", stim.scene)
-    schema.fail(study.path, f"tasks[{index}].stimuli", f"a stimulus named {trial.stimulus!r}", got=trial.stimulus,
+    schema.fail(study.path, f"tasks[{index}].stimuli", f"a stimulus named {stimulus!r}", got=stimulus,
                 choices=task.stimulus_names())
 
 
-def trial_rotation(study: Study, trial: Trial) -> list[list]:
-    """The turns a trial adds to every object, in order: the tilt (tilt tasks), then the jitter."""
+def stimulus_rotation(study: Study, task_id: str, level: float, transform) -> list[list]:
+    """The turns a stimulus adds to every object, in order: the tilt (tilt tasks), then the jitter."""
     steps = []
-    if trial.kind == "tilt" and not math.isnan(trial.level):
-        steps.append([study.task(trial.task).plane, float(trial.level)])
-    steps.extend([str(plane), float(deg)] for plane, deg in trial.transform)
+    task = study.task(task_id)
+    if task.kind == "tilt" and not math.isnan(level):
+        steps.append([task.plane, float(level)])
+    steps.extend([str(plane), float(deg)] for plane, deg in transform)
     return steps
 
 
-def scene_mapping(study: Study, trial: Trial) -> dict:
-    """The trial's scene as a scene-file mapping (objects' `rotation` lists extended by the trial's)."""
-    path = stimulus_scene_path(study, trial)
+def stimulus_mapping(study: Study, task_id: str, stimulus: str, level: float = math.nan, transform=()) -> dict:
+    """A stimulus, tilted and jittered, as a scene-file mapping (objects' `rotation` lists extended)."""
+    path = stimulus_scene_path(study, task_id, stimulus)
     data = copy.deepcopy(_scene_file(str(path), path.stat().st_mtime_ns))
-    steps = trial_rotation(study, trial)
+    steps = stimulus_rotation(study, task_id, level, transform)
     for obj in data["objects"]:
         obj["rotation"] = [list(step) for step in obj.get("rotation", [])] + [list(s) for s in steps]
-    data["description"] = f"{study.name}: {trial.task} {trial.stimulus} ({Path(path).name})"
+    data["description"] = f"{study.name}: {task_id} {stimulus} ({path.name})"
     return data
+
+
+def stimulus_scene(study: Study, task_id: str, stimulus: str, level: float = math.nan, transform=()) -> Scene:
+    """A stimulus, tilted and jittered, as a Scene."""
+    return parse_scene(stimulus_mapping(study, task_id, stimulus, level, transform),
+                       stimulus_scene_path(study, task_id, stimulus))
+
+
+def scene_mapping(study: Study, trial: Trial) -> dict:
+    """The trial's scene as a scene-file mapping (what `parse_scene` reads; a runner sends it as text)."""
+    return stimulus_mapping(study, trial.task, trial.stimulus, trial.level, trial.transform)
 
 
 def trial_scene(study: Study, trial: Trial) -> Scene:
     """The trial's scene, ready for a RayCaster or a renderer."""
-    path = stimulus_scene_path(study, trial)
-    return parse_scene(scene_mapping(study, trial), path)
+    return stimulus_scene(study, trial.task, trial.stimulus, trial.level, trial.transform)
 
 
 @lru_cache(maxsize=64)
