@@ -124,6 +124,21 @@ def plan_session(study: Study, participant: str) -> list[Trial]:
     return trials
 
 
+def quick_plan(study: Study, participant: str) -> list[Trial]:
+    """A quick session (`--quick`): one repetition per task x condition cell, i.e. every stimulus once
+    per condition, no practice, otherwise as `plan_session` (same order, constraint and seeds)."""
+    tasks = [msgspec.structs.replace(t, repetitions=1) for t in study.tasks]
+    quick = msgspec.structs.replace(study, tasks=tasks, repetitions=1, practice=0)
+    quick.__dict__["_path"] = study.path
+    return plan_session(quick, participant)
+
+
+def participant_ids(n: int) -> list[str]:
+    """P01, P02, ... Pnn: the ids of n participants, in counterbalancing order."""
+    width = max(2, len(str(n)))
+    return [f"P{k:0{width}d}" for k in range(1, n + 1)]
+
+
 def _stimuli(task: Task) -> list[tuple[str, float, str]]:
     """(name, level, answer) of each stimulus of a task."""
     if task.kind == "tilt":
