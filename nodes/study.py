@@ -31,9 +31,8 @@ from touch4d.messages import (HandPose, InputEvents, MotorCommand, SceneCommand,
 from touch4d.render.view import scene_digest
 from touch4d.schema import parse_yaml
 from touch4d.study.design import load_study
-from touch4d.study.plan import condition_order, plan_session
-from touch4d.study.session import (TrialMeasures, TrialsFile, quick_plan, session_dir, start_manifest, trial_row,
-                                   TRIALS)
+from touch4d.study.plan import condition_order, plan_session, quick_plan
+from touch4d.study.session import TRIALS, TrialMeasures, TrialsFile, session_dir, start_manifest, trial_row
 from touch4d.study.stimuli import scene_mapping
 
 KEYS = {**{str(k): k for k in range(1, 10)}, **{f"kp_{k}": k for k in range(1, 10)}}
@@ -59,7 +58,7 @@ class StudyNode(Node):
         "participant": Param("", "participant id (P01, P02, ... pick the counterbalancing rows in turn)"),
         "session": Param("1", "session label written in every row"),
         "out": Param("study-data", "output directory; the session lives in OUT/PARTICIPANT/"),
-        "quick": Param(False, "one trial per task x condition cell (a fast run through every cell)"),
+        "quick": Param(False, "one repetition per task x condition cell, no practice (touch4d.study.plan.quick_plan)"),
         "glove": Param("config/glove.yaml", "the glove file (touch threshold; hashed in the manifest)",
                        path="glove file"),
         "calibration": Param("config/calibration.yaml", "the calibration file (hashed in the manifest)",
@@ -76,8 +75,8 @@ class StudyNode(Node):
         if not p["participant"]:
             raise self.param_error("participant", "a participant id, e.g. P01")
         self.study = load_study(p["study"])
-        plan = plan_session(self.study, p["participant"])
-        self.plan = quick_plan(plan) if p["quick"] else plan
+        quick = quick_plan if p["quick"] else plan_session
+        self.plan = quick(self.study, p["participant"])
         self.directory = session_dir(p["out"], p["participant"])
         self.trials = TrialsFile(self.directory / TRIALS)
         self.add_cleanup(self.trials.close)

@@ -20,8 +20,7 @@ from touch4d.messages import HandPose, MotorCommand, SceneState, StudyResponse, 
 from touch4d.study.design import load_study
 from touch4d.study.gate import allowed
 from touch4d.study.observer import FACING, ModelObserver
-from touch4d.study.plan import participant_hash, plan_session
-from touch4d.study.session import quick_plan
+from touch4d.study.plan import participant_hash, plan_session, quick_plan
 from touch4d.tactile.glove import load_glove
 
 RESEND_S = 0.5       # a pose whose command has not come back by then is published again
@@ -34,7 +33,7 @@ class StudyObserverNode(Node):
     PARAMS = {
         "study": Param("config/studies/paper.yaml", "the study file", path="study file"),
         "participant": Param("", "the participant id the study node runs (the plan is the same)"),
-        "quick": Param(False, "the study node's quick plan (one trial per task x condition)"),
+        "quick": Param(False, "the study node's quick plan (touch4d.study.plan.quick_plan)"),
         "glove": Param("config/glove.yaml", "the glove file (the tactile node's)", path="glove file"),
         "seed": Param(None, "observer seed (default: from the participant id)", type=int),
         "noise": Param(0.08, "sensory noise on every motor, fraction of full drive", min=0),
@@ -50,8 +49,8 @@ class StudyObserverNode(Node):
         if not p["participant"]:
             raise self.param_error("participant", "the participant id the study node runs, e.g. P01")
         self.study = load_study(p["study"])
-        plan = plan_session(self.study, p["participant"])
-        self.plan = {t.index: t for t in (quick_plan(plan) if p["quick"] else plan)}
+        quick = quick_plan if p["quick"] else plan_session
+        self.plan = {t.index: t for t in quick(self.study, p["participant"])}
         seed = p["seed"] if p["seed"] is not None else participant_hash(p["participant"]) % 2**32
         self.observer = ModelObserver(load_glove(p["glove"]), self.study, noise=p["noise"], lapse=p["lapse"],
                                       seed=seed, train_scenes=p["train_scenes"],

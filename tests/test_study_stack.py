@@ -17,10 +17,10 @@ import pytest
 
 from touch4d.bus import Node
 from touch4d.log.reader import LogReader
-from touch4d.messages import Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
+from touch4d.messages import HandPose, Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
 from touch4d.study.design import load_study
-from touch4d.study.plan import condition_order, plan_session
-from touch4d.study.session import COLUMNS, quick_plan, run_session
+from touch4d.study.plan import condition_order, quick_plan
+from touch4d.study.session import COLUMNS, run_session
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -31,7 +31,7 @@ KILL_AT = 4                   # the trial whose stimulus is running when the stu
 
 class Watcher:
     """Collects study/trial, study/response, motors/status and heartbeats from the running stack, and
-    SIGKILLs the study node once trial KILL_AT's stimulus has started."""
+    SIGKILLs the study node once the observer's hand explores trial KILL_AT."""
 
     def __init__(self):
         self.bus_ready = threading.Event()
@@ -40,6 +40,7 @@ class Watcher:
         self.status: list[MotorStatus] = []
         self.pids: dict[str, int] = {}
         self.killed: int | None = None
+        self.kill_after: float | None = None
         self.stop = False
         self.error: BaseException | None = None
 
@@ -56,6 +57,7 @@ class Watcher:
             node.create_subscription("study/response", StudyResponse, self.responses.append)
             node.create_subscription("motors/status", MotorStatus, self.status.append)
             node.create_subscription("node/heartbeat", Heartbeat, lambda h: self.pids.__setitem__(h.node, h.pid))
+            node.create_subscription("hand/pose", HandPose, self.on_pose)
             self.bus_ready.set()
             while not self.stop:
                 node.spin_once(0.02)
@@ -66,8 +68,13 @@ class Watcher:
 
     def on_trial(self, msg: StudyTrial):
         self.trials.append(msg)
-        if msg.phase == "stimulus" and msg.index == KILL_AT and self.killed is None and "study" in self.pids:
-            time.sleep(0.1)                     # well inside the trial: the observer is exploring
+        if msg.phase == "stimulus" and msg.index == KILL_AT and self.kill_after is None:
+            self.kill_after = msg.onset
+
+    def on_pose(self, msg: HandPose):
+        # the observer's hand has started exploring trial KILL_AT: kill the study node now, mid-trial
+        if (self.kill_after is not None and self.killed is None and msg.valid and msg.stamp > self.kill_after
+                and "study" in self.pids):
             self.killed = self.pids["study"]
             os.kill(self.killed, signal.SIGKILL)
 
@@ -86,7 +93,7 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
     assert watcher.killed is not None, "the study node was never killed"
 
     study = load_study(STUDY)
-    plan = quick_plan(plan_session(study, PARTICIPANT))
+    plan = quick_plan(study, PARTICIPANT)
     directory = tmp_path / PARTICIPANT
     with open(directory / "trials.csv", newline="") as f:
         reader = csv.DictReader(f)

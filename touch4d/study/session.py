@@ -29,10 +29,8 @@ import numpy as np
 
 from touch4d.errors import ConfigError, Touch4dError
 
-COLUMNS = ("participant", "session", "block", "trial", "index", "practice", "task", "kind", "condition", "stimulus",
-           "level", "transform", "answer", "response", "correct", "rt_s", "timed_out", "time_touching_s",
-           "mean_intensity", "path_length", "onset_stamp", "response_stamp", "seed")
-TRIALS = "trials.csv"
+from .table import COLUMNS, TRIALS, _cell
+
 MANIFEST = "manifest.json"
 SEGMENT = "session-{:03d}.mcap"
 
@@ -126,13 +124,6 @@ def _csv_line(values) -> str:
     csv.writer(buf, lineterminator="\n").writerow(values)
     return buf.getvalue()
 
-
-def _cell(value) -> str:
-    if isinstance(value, bool):
-        return "1" if value else "0"
-    if isinstance(value, float):
-        return "" if math.isnan(value) else repr(value)
-    return "" if value is None else str(value)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -292,30 +283,9 @@ def next_segment(directory) -> Path:
     return directory / SEGMENT.format(n)
 
 
-def quick_plan(trials: list) -> list:
-    """One trial per task x condition cell (the first non-practice one of each, in plan order),
-    re-indexed 0..n-1: a fast run through every cell."""
-    import msgspec
-
-    seen, out = set(), []
-    for trial in trials:
-        cell = (trial.task, trial.condition)
-        if trial.practice or cell in seen:
-            continue
-        seen.add(cell)
-        out.append(msgspec.structs.replace(trial, index=len(out)))
-    return out
-
-
 # ---- running a session through the full stack ------------------------------------------------------------
 
 STUDY_LAUNCH = "launch/study.yaml"
-
-
-def participant_ids(n: int) -> list[str]:
-    """P01, P02, ... (the counterbalancing rows in turn)."""
-    width = max(2, len(str(n)))
-    return [f"P{k:0{width}d}" for k in range(1, n + 1)]
 
 
 def session_overrides(study_path, participant: str, out, *, session: str = "1", quick: bool = False,
@@ -330,11 +300,12 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
     if simulate:
         args += ["tracker:=study_observer", f"tracker.study:={text(study_path)}",
                  f"tracker.participant:={text(participant)}", f"tracker.quick:={flag}", "renderer:=none",
-                 "monitor:=none", "study.iti_s:=0.1"]
+                 "monitor:=none", "study.iti_s:=0.05"]
         if seed is not None:
             args.append(f"tracker.seed:={seed}")
         if quick:   # a lighter observer: the run checks the stack, not the observer's accuracy
-            args += ["tracker.train_scenes:=4", "tracker.train_positions:=8", "tracker.view_scenes:=8"]
+            args += ["tracker.train_scenes:=4", "tracker.train_positions:=8", "tracker.view_scenes:=8",
+                     "tracker.dwell_s:=0.0"]
     return args
 
 
@@ -413,6 +384,8 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
 def run_simulation(study_path, participants: int, out, overrides: list[str] = (), *, seed: int | None = None,
                    quick: bool = False, echo=print, **kwargs) -> int:
     """N simulated participants (P01 ...), one full-stack session each, in turn; the worst exit code."""
+    from .plan import participant_ids
+
     worst = 0
     for k, participant in enumerate(participant_ids(participants)):
         code = run_session(study_path, participant, out, overrides, simulate=True, quick=quick,
