@@ -10,6 +10,11 @@ to send input). Fail safe: when that page closes, hides, loses tracking or falls
 `stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
 node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
 except while its page is only silent.
+
+A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
+(touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
+"response" publishes `study/response`, stamped with the page's clock mapped to this machine's. While
+a trial runs, the re-centre button answers instead of re-centring.
 """
 from __future__ import annotations
 
@@ -22,13 +27,15 @@ from typing import Callable
 
 import numpy as np
 
-from touch4d.messages import ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.messages import (ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, StudyResponse,
+                              StudyTrial, TactileField)
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.glsl import shader_source
 from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
 from touch4d.render.scene_geometry import SceneGeometry, data_rows
 from touch4d.render.view import SceneView
+from touch4d.study.gate import StudyGate
 from touch4d.tactile.glove import Glove
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
@@ -41,7 +48,10 @@ log = logging.getLogger(__name__)
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
                 "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
-                 "page_connections", "recentred")
+                 "page_connections", "recentred", "study_answers")
+# A study's answers from the controller: the k-th of these buttons picks the k-th option (A, B, the
+# thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
+ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,13 @@ class _Page:
     last_input: float = 0.0          # arrival of its last input (node clock)
     tracking: bool = False
     buttons: frozenset = frozenset()
+    answer_held: frozenset = frozenset()   # answer buttons held at its last input (any controller)
     fps: float = 0.0
+
+
+def _shown(trial: StudyTrial) -> tuple:
+    """What of a study/trial the pages show (its repeats change nothing)."""
+    return (trial.phase, trial.index, trial.condition, trial.prompt, tuple(trial.options), trial.message)
 
 
 class WebBridge:
@@ -127,6 +143,7 @@ class WebBridge:
         self._dirty = False
         self._last_frame: bytes | None = None
         self._frame_count = 0
+        self.gate = StudyGate()
 
     # ---- bus -> pages ----------------------------------------------------------------------------
 
@@ -211,6 +228,22 @@ class WebBridge:
         self._boards = [{"id": b["id"], "online": b["online"], "state": b["state"]} for b in msg.boards]
         self._dirty = True
 
+    def on_trial(self, msg: StudyTrial) -> None:
+        """A study's state: the pages show its prompt and hide objects where its condition says so."""
+        previous = self.gate.trial
+        self.gate.update(msg)
+        if previous is None or _shown(previous) != _shown(msg):
+            self._dirty = True
+
+    def study_fields(self) -> dict:
+        trial = self.gate.trial
+        if trial is None:
+            return {"draw_objects": True, "study": None}
+        return {"draw_objects": self.gate.objects,
+                "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
+                          "options": list(trial.options), "message": trial.message, "practice": trial.practice,
+                          "buttons": list(ANSWER_BUTTONS[:len(trial.options)])}}
+
     def frame(self) -> bytes | None:
         """The per-tick frame when something changed since the last one (else None)."""
         if not self._dirty:
@@ -218,7 +251,8 @@ class WebBridge:
         self._dirty = False
         self._frame_count += 1
         fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards,
-                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now()}
+                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now(),
+                  **self.study_fields()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
         layer = self.view.layer
@@ -282,8 +316,34 @@ class WebBridge:
             self.recenter(msg["head"])
         elif kind == "input":
             self._input(page, msg, arrival)
+        elif kind == "response":
+            self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival))
+
+    def _answer(self, index: int, option: str, source: str, stamp: float) -> None:
+        """A study answer goes on the bus as given; the study node takes the first valid one per trial."""
+        self.counts["study_answers"] += 1
+        self.publish("study/response", StudyResponse(index=index, response=option, source=source, stamp=stamp))
+
+    def _answer_buttons(self, page: _Page, msg: dict, stamp: float) -> frozenset:
+        """Newly pressed answer buttons of any controller answer the trial shown (or end a break).
+        Returns the buttons they used, which do nothing else."""
+        held = frozenset(b for s in msg["sources"] for b in s.buttons if b in ANSWER_BUTTONS)
+        pressed, page.answer_held = held - page.answer_held, held
+        trial = self.gate.trial
+        if trial is None or not pressed or trial.phase not in ("stimulus", "break"):
+            return frozenset()
+        if trial.phase == "break":
+            self._answer(trial.index, "", "controller", stamp)
+            return pressed
+        for k, button in enumerate(ANSWER_BUTTONS[:len(trial.options)]):
+            if button in pressed:
+                self._answer(trial.index, trial.options[k], "controller", stamp)
+                return pressed
+        return frozenset()
 
     def _input(self, page: _Page, msg: dict, arrival: float) -> None:
+        stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
+        answered = self._answer_buttons(page, msg, stamp) if page.tracking or msg["tracking"] else frozenset()
         if not self.config.tracker:
             self.counts["page_ignored"] += 1
             return
@@ -292,7 +352,6 @@ class WebBridge:
         if page.conn != self.owner:
             self.counts["page_ignored"] += 1
             return
-        stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
         page.last_input = arrival
         page.tracking = msg["tracking"]
         by_side = {s.handedness: s for s in msg["sources"]}
@@ -309,7 +368,7 @@ class WebBridge:
         if not pose.valid:
             self._invalid_at = arrival
         held = frozenset(control_side.buttons) if control_side is not None else frozenset()
-        if self.config.recenter_button in held - page.buttons and msg["head"] is not None:
+        if self.config.recenter_button in held - page.buttons - answered and msg["head"] is not None:
             self.recenter(msg["head"])
         page.buttons = held
 
