@@ -70,6 +70,7 @@ class MotorsNode(Node):
         self._trace_stamps: list[float] = []
         self._trace_times: list[float] = []
         self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
+        self._last_command: MotorCommand | None = None
         super().__init__(**kwargs)
 
     def setup(self) -> None:
@@ -108,6 +109,7 @@ class MotorsNode(Node):
                       100 * self.load.fraction, f" ({p['board_emulator']} emulated boards)" if self.emulator else "")
 
     def on_command(self, msg: MotorCommand) -> None:
+        self._last_command = msg
         now = time.monotonic()
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
         errors = self.driver.errors
@@ -146,13 +148,20 @@ class MotorsNode(Node):
         self.publish_status()
 
     def on_trial(self, msg: StudyTrial) -> None:
-        """Follow the study's gate; when it closes, every motor goes off now, not at the next command."""
-        if self.gate.update(msg) and not self.gate.motors:
-            now = time.monotonic()
-            names = self.cfg.motor_names
-            self.driver.command(names, np.zeros(len(names)), now, age=0.0)
-            self._send_frames(self.driver.outgoing(now), now)
-            self._pace(now)
+        """Follow the study's gate at once: when it closes every motor goes off now, when it opens the
+        latest command (if still fresh) goes out now, not at the next one."""
+        if not self.gate.update(msg):
+            return
+        if self.gate.motors:
+            last = self._last_command
+            if last is not None and time.time() - last.source_stamp < (self.cfg.command_max_age_s or math.inf):
+                self.on_command(last)
+            return
+        now = time.monotonic()
+        names = self.cfg.motor_names
+        self.driver.command(names, np.zeros(len(names)), now, age=0.0)
+        self._send_frames(self.driver.outgoing(now), now)
+        self._pace(now)
 
     def _stop_all(self, now: float) -> None:
         """NMT STOP first (highest priority frame), then zero duty to every board."""
