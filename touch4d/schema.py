@@ -134,6 +134,11 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     missing = _MISSING.match(text)
     if missing:
         return ConfigError(file, join(key, missing.group("name")), "a value (the key is required)")
+    if text.startswith("Invalid enum value"):       # a Literal: name the allowed values
+        allowed = _literal_values(_type_at(type_, steps))
+        if allowed:
+            return ConfigError(file, key or "(top level)", f"one of {', '.join(map(str, allowed))}",
+                               got=value if found else None, hint=did_you_mean(value, allowed))
     expected = _EXPECTED.match(text)
     if expected:
         what = re.sub(r"`(\w+)`", lambda m: _WORDS.get(m.group(1), m.group(1)), expected.group("expected"))
@@ -153,6 +158,16 @@ def _follow(data, steps):
         except (KeyError, IndexError, TypeError):
             return None, False
     return data, True
+
+
+def _literal_values(type_) -> tuple:
+    """The values of a Literal annotation (through Optional, Annotated), else ()."""
+    origin = typing.get_origin(type_)
+    if origin is typing.Literal:
+        return typing.get_args(type_)
+    if origin is typing.Annotated or origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        return tuple(v for arg in typing.get_args(type_) for v in _literal_values(arg))
+    return ()
 
 
 def _struct(type_):

@@ -28,7 +28,7 @@ naming the file, the key path, what was expected and what was there, as for a sc
         scene: config/scenes/hypercube.yaml
         plane: xw
         angles_deg: [2, 4, 8, 16]     # each with both signs: +a answers `positive`, -a the other
-        positive: left
+        positive: right
 
 Scene paths are found like every path (`touch4d.configfile.resolve_path`, relative to the study
 file first, then the packaged `config/`).

@@ -111,9 +111,7 @@ def plan_session(study: Study, participant: str) -> list[Trial]:
         rng = np.random.default_rng(seed)
         items = [(task, stim, level, answer) for task in study.tasks
                  for stim, level, answer in _stimuli(task) for _ in range(study.repetitions_of(task))]
-        practice = [items[k] for k in rng.choice(len(items), size=study.practice, replace=True)] \
-            if study.practice else []
-        sequence = constrained_shuffle(practice, study.max_run, rng, key=lambda it: it[3])
+        sequence = _practice(items, study.practice, study.max_run, rng)
         start = len(sequence)
         last = sequence[-1][3] if sequence else None
         run = _tail_run([it[3] for it in sequence])
@@ -137,6 +135,17 @@ def participant_ids(n: int) -> list[str]:
     """P01, P02, ... Pnn: the ids of n participants, in counterbalancing order."""
     width = max(2, len(str(n)))
     return [f"P{k:0{width}d}" for k in range(1, n + 1)]
+
+
+def _practice(items: list, count: int, max_run: int, rng: np.random.Generator) -> list:
+    """`count` practice trials drawn at random from a block's items, one by one among those whose
+    answer keeps runs within `max_run`."""
+    out: list = []
+    for _ in range(count):
+        run = _tail_run([it[3] for it in out]) if out else 0
+        allowed = [it for it in items if not (out and it[3] == out[-1][3] and run >= max_run)]
+        out.append(allowed[int(rng.integers(len(allowed)))])
+    return out
 
 
 def _stimuli(task: Task) -> list[tuple[str, float, str]]:
