@@ -42,7 +42,7 @@ from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
 from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop, StudyTrial
-from touch4d.study.gate import StudyGate
+from touch4d.study.gate import GATE_START, StudyGate
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
 TRACE_PERIOD_S = 0.05  # motors/trace batches
@@ -60,6 +60,8 @@ class MotorsNode(Node):
         "board_emulator": Param("python", "which board emulator runs with emulate", choices=tuple(sorted(EMULATORS))),
         "status_hz": Param(10.0, "motors/status messages per second", unit="Hz", above=0),
         "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
     }
 
     def __init__(self, bus_factory=None, **kwargs):
@@ -95,7 +97,7 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
-        self.gate = StudyGate()
+        self.gate = StudyGate(p["study_gate"])
         self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)

@@ -33,7 +33,7 @@ from touch4d.render.context import RenderError, frame_files, save_png
 from touch4d.render.frame import Style
 from touch4d.render.hud import study_overlay
 from touch4d.render.view import BACKGROUND, SceneView, Show
-from touch4d.study.gate import StudyGate
+from touch4d.study.gate import GATE_START, StudyGate
 from touch4d.tactile.glove import load_glove
 
 
@@ -61,6 +61,8 @@ class RendererNode(Node):
         "show_frame": Param(True, "draw the screen's frame"),
         "show_tactile": Param(True, "draw the hand's tactile field"),
         "show_status": Param(True, "draw the status text"),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
     }
 
     def setup(self) -> None:
@@ -122,7 +124,7 @@ class RendererNode(Node):
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
         self.create_subscription("tactile/field", TactileField, self.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
-        self.gate = StudyGate()
+        self.gate = StudyGate(p["study_gate"])
         self.create_subscription("study/trial", StudyTrial, self.gate.update, latest_only=True, optional=True)
         self.create_timer(1.0 / rate, self.on_frame)
 

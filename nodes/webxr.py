@@ -24,6 +24,7 @@ from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
 from touch4d.web import access
+from touch4d.study.gate import GATE_START
 from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.server import PageServer
 
@@ -51,6 +52,8 @@ class WebXRNode(Node):
         "save_calibration": Param(True, "store a re-centred screen in the calibration file"),
         "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "rate": Param(90.0, "frames sent to the pages per second, at most", unit="Hz", above=0, max=240),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
         "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
                          above=0, max=0.09),
     }
@@ -71,7 +74,8 @@ class WebXRNode(Node):
 
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
-                              recenter_button=p["recenter_button"], stale_s=p["stale_s"])
+                              recenter_button=p["recenter_button"], stale_s=p["stale_s"],
+                              study_gate=p["study_gate"])
         self.publishers = {"study/response": self.create_publisher("study/response", StudyResponse)}
         if p["tracker"]:
             self.publishers |= {"hand/pose": self.create_publisher("hand/pose", HandPose),

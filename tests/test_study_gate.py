@@ -39,6 +39,9 @@ def test_each_condition_allows_what_it_names_and_only_in_the_stimulus_phase():
         for condition in ("visual", "touch", "visual+touch"):
             assert allowed(condition, phase) == CLOSED
     assert allowed("smell") == CLOSED
+    assert StudyGate("closed").state == CLOSED       # a study's launch: closed until the study says more
+    with pytest.raises(ValueError, match="open, closed"):
+        StudyGate("ajar")
     gate = StudyGate()
     assert gate.state == OPEN                       # no study: the demo as it always was
     assert gate.update(trial("touch")) and gate.motors and not gate.objects

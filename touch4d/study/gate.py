@@ -37,11 +37,20 @@ def allowed(condition: str, phase: str = "stimulus") -> Allowed:
     return Allowed(objects=condition != "touch", motors=condition != "visual")
 
 
-class StudyGate:
-    """The latest `study/trial`'s gate. `update(msg)` returns True when what is allowed changed."""
+GATE_START = ("open", "closed")   # a node's `study_gate` parameter: its gate before any study/trial
 
-    def __init__(self):
-        self.state = OPEN
+
+class StudyGate:
+    """The latest `study/trial`'s gate. `update(msg)` returns True when what is allowed changed.
+
+    `start`: "open" (no study runs: everything allowed until a study/trial says otherwise) or
+    "closed" (a study's launch: a node that (re)starts in the middle of a visual trial drives no
+    motor, and one in a touch trial draws no object, until the study's next message)."""
+
+    def __init__(self, start: str = "open"):
+        if start not in GATE_START:
+            raise ValueError(f"study gate start: expected one of {', '.join(GATE_START)}, got {start!r}")
+        self.state = OPEN if start == "open" else CLOSED
         self.trial: StudyTrial | None = None
 
     def update(self, msg: StudyTrial) -> bool:

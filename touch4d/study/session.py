@@ -331,11 +331,15 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
                                        simulate=simulate, seed=seed), *overrides]
     with tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp:
         ready = Path(tmp) / "bus.json"
-        bus_file = Path(tmp) / "bus.yaml"
-        bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\nconnect: 127.0.0.1\n")
-        env = {k: v for k, v in os.environ.items() if k != ENV_VAR}
-        cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, "--bus", str(bus_file), "--ready-file",
-               str(ready)]
+        bus_args = []
+        if simulate:   # a private bus on free ports: simulations never meet a running stack
+            bus_file = Path(tmp) / "bus.yaml"
+            bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\nconnect: 127.0.0.1\n")
+            bus_args = ["--bus", str(bus_file)]
+        else:          # the usual bus, so `touch4d topic pub study/command '{command: pause}'` reaches it
+            echo(f"{participant}: pause with the Pause key (F9) or touch4d topic pub study/command '{{command: pause}}'")
+        env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
+        cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, *bus_args, "--ready-file", str(ready)]
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
         watcher = None
         deadline = None if timeout_s is None else time.monotonic() + timeout_s

@@ -65,6 +65,7 @@ class BridgeConfig:
     recenter_button: str = "a"          # on the controller: re-centre the screen in front of the user
     stale_s: float = 0.05               # tracker page silent this long -> invalid poses
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
+    study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
 
 
 class ClockMap:
@@ -143,7 +144,7 @@ class WebBridge:
         self._dirty = False
         self._last_frame: bytes | None = None
         self._frame_count = 0
-        self.gate = StudyGate()
+        self.gate = StudyGate(config.study_gate)
 
     # ---- bus -> pages ----------------------------------------------------------------------------
 
@@ -238,7 +239,7 @@ class WebBridge:
     def study_fields(self) -> dict:
         trial = self.gate.trial
         if trial is None:
-            return {"draw_objects": True, "study": None}
+            return {"draw_objects": self.gate.objects, "study": None}
         return {"draw_objects": self.gate.objects,
                 "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
                           "options": list(trial.options), "message": trial.message, "practice": trial.practice,
