@@ -93,3 +93,28 @@ def test_measures_hold_each_sample_until_the_next_and_clip_to_the_window():
     m.reset()
     later = m.measure(onset=20.0, end=21.0)     # the last command (on) still holds
     assert later.time_touching_s == pytest.approx(1.0) and later.path_length == 0.0
+
+
+def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_overrides_win(tmp_path):
+    from touch4d.bus.launchfile import load_launch
+    from touch4d.cli import build_parser
+    from touch4d.study.session import STUDY_LAUNCH, session_overrides
+
+    # as touch4d.cli reads a command line: overrides after the options come back unknown and join the rest
+    args, extra = build_parser("study").parse_known_args(["study", "run", "config/studies/paper.yaml", "--simulate",
+                                                          "--quick", "--out", str(tmp_path), "renderer:=renderer",
+                                                          "study.iti_s:=1.5"])
+    args.items.extend(extra)
+    assert args.items == ["renderer:=renderer", "study.iti_s:=1.5"]
+    overrides = session_overrides("config/studies/paper.yaml", "P 7", tmp_path, quick=True, simulate=True, seed=3,
+                                  user=args.items)
+    nodes = load_launch(STUDY_LAUNCH, [*overrides, *args.items])
+    assert "monitor" not in nodes        # a simulation runs without what nobody watches, unless asked
+    assert nodes["tracker"].module == "study_observer" and nodes["renderer"].module == "renderer"
+    assert nodes["study"].params["participant"] == "P 7" and nodes["study"].params["iti_s"] == 1.5
+    assert nodes["tracker"].params["seed"] == 3 and nodes["tracker"].params["quick"] is True
+    assert nodes["recorder"].params["file"] == str(tmp_path / "P 7" / "session-001.mcap")
+    assert nodes["motors"].params["study_gate"] == "closed" and nodes["renderer"].params["study_gate"] == "closed"
+    assert all(spec.respawn for spec in nodes.values())
+    person = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "007", tmp_path))
+    assert person["tracker"].module == "desktop" and person["study"].params["participant"] == "007"

@@ -289,8 +289,9 @@ STUDY_LAUNCH = "launch/study.yaml"
 
 
 def session_overrides(study_path, participant: str, out, *, session: str = "1", quick: bool = False,
-                      simulate: bool = False, seed: int | None = None) -> list[str]:
-    """The launch overrides that make launch/study.yaml run `participant`'s session into OUT."""
+                      simulate: bool = False, seed: int | None = None, user: list[str] = ()) -> list[str]:
+    """The launch overrides that make launch/study.yaml run `participant`'s session into OUT. A
+    simulation drops the renderer and the monitor unless the `user` overrides (which follow) name them."""
     directory = session_dir(out, participant)
     text = lambda value: json.dumps(str(value))   # noqa: E731 - a YAML string whatever it looks like
     flag = "true" if quick else "false"
@@ -299,8 +300,9 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
             f"recorder.file:={text(next_segment(directory))}"]
     if simulate:
         args += ["tracker:=study_observer", f"tracker.study:={text(study_path)}",
-                 f"tracker.participant:={text(participant)}", f"tracker.quick:={flag}", "renderer:=none",
-                 "monitor:=none", "study.iti_s:=0.05"]
+                 f"tracker.participant:={text(participant)}", f"tracker.quick:={flag}", "study.iti_s:=0.05"]
+        named = {arg.partition(":=")[0].lstrip("+").partition(".")[0] for arg in user}
+        args += [f"{role}:=none" for role in ("renderer", "monitor") if role not in named]
         if seed is not None:
             args.append(f"tracker.seed:={seed}")
         if quick:   # a lighter observer: the run checks the stack, not the observer's accuracy
@@ -328,7 +330,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
     directory = session_dir(out, participant)
     directory.mkdir(parents=True, exist_ok=True)
     args = [launch, *session_overrides(study_path, participant, out, session=session, quick=quick,
-                                       simulate=simulate, seed=seed), *overrides]
+                                       simulate=simulate, seed=seed, user=overrides), *overrides]
     with tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp:
         ready = Path(tmp) / "bus.json"
         bus_args = []
