@@ -120,3 +120,21 @@ def test_check_and_plan_commands(capsys, tmp_path):
     assert main(["study", "check", str(bad)]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "tasks[0].plane" in err and "'xq'" in err
+
+
+def test_a_turn_through_w_would_show_the_look_alikes_apart_so_the_study_leaves_them_unturned(paper):
+    from touch4d.study.observer import view_features
+    from touch4d.study.stimuli import stimulus_scene
+
+    def outline(name, turn):
+        return view_features(stimulus_scene(paper, "lookalikes", name, math.nan, turn), grid=21)
+
+    names = ("convex", "flat", "concave")
+    for turn in ([], [("xy", 3.0), ("yz", -3.0)]):              # as shown, or turned within the screen: one ball
+        views = [outline(n, turn) for n in names]
+        assert all(np.array_equal(views[0], v) for v in views[1:])
+    # 3 degrees in xw: the prisms' depth (1.6 units) widens their outline by 1.6 sin 3 deg; the cone's
+    # apex stays inside its base.
+    turned = {n: outline(n, [("xw", 3.0)]).sum() for n in names}
+    assert turned["flat"] > turned["convex"] and turned["concave"] > turned["convex"]
+    assert all(t.jitter_deg == 0 for t in paper.tasks if t.kind == "look-alikes")

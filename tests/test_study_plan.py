@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from touch4d.errors import ConfigError
-from touch4d.study.design import load_study, parse_study
+from touch4d.study.design import load_study, parse_study, replace_study
 from touch4d.study.plan import (balanced_latin_square, condition_order, constrained_shuffle, participant_index,
                                 plan_session, quick_plan)
 from touch4d.study.stimuli import scene_mapping, trial_scene
@@ -24,10 +24,7 @@ def paper():
 
 
 def with_fields(study, **fields):
-    """A copy of a study with some fields replaced (its file kept for scene paths)."""
-    out = msgspec.structs.replace(study, **fields)
-    out.__dict__["_path"] = study.path
-    return out
+    return replace_study(study, **fields)
 
 
 # ---- counterbalancing ---------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ import numpy as np
 
 from touch4d.errors import Touch4dError, Unavailable
 
+from .design import KINDS
 from .infotransfer import information_transfer
 from .table import read_trials
 
@@ -55,13 +56,21 @@ def conditions_in(data) -> list[str]:
     return [c for c in CONDITION_ORDER if c in present] + [c for c in present if c not in CONDITION_ORDER]
 
 
+def tasks_in(data) -> list[str]:
+    """The tasks present, in the order of their kinds (front element, look-alikes, tilt), then by id."""
+    kinds = {k: i for i, k in enumerate(KINDS)}
+    first = data.drop_duplicates("task")
+    return [str(t) for t in sorted(first["task"], key=lambda t: (
+        kinds.get(first.loc[first["task"] == t, "kind"].iloc[0], len(kinds)), str(t)))]
+
+
 def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) -> dict:
     """Everything the report shows, as plain data (JSON-ready)."""
     _require()
     if len(data) == 0:
         raise AnalysisError("no trials to analyse (only practice trials, or empty tables)")
     conditions = conditions_in(data)
-    tasks = list(dict.fromkeys(data["task"]))
+    tasks = tasks_in(data)
     result = {
         "trials": int(len(data)), "participants": sorted(map(str, data["participant"].unique())),
         "conditions": conditions, "tasks": {}, "cells": [], "confusion": {}, "psychometric": {}, "tests": {},
@@ -190,6 +199,8 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     fit = fit_psychometric(level, positive)
     out = {**fit, "positive": positive_option, "n": int(len(cell))}
     levels = np.unique(level)
+    # A threshold past the largest level shown is no measurement of one: the answers barely follow the level.
+    out["within_range"] = bool(fit["threshold_deg"] <= np.abs(levels).max())
     out["levels"] = levels.tolist()
     out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
     out["trials_per_level"] = [int((level == x).sum()) for x in levels]
@@ -334,6 +345,10 @@ def summary_text(result: dict) -> str:
             if "error" in fit:
                 lines.append(f"{task} {condition}: {fit['error']}")
                 continue
+            if not fit["within_range"]:
+                lines.append(f"{task} {condition}: no threshold within the levels shown (answers barely follow the "
+                             f"level; fitted {fit['threshold_deg']:.3g} deg, lapse {fit['lapse']:.3f})")
+                continue
             ci = fit.get("ci95", {}).get("threshold_deg")
             interval = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
             lines.append(f"{task} {condition}: threshold {fit['threshold_deg']:.2f} deg{interval}, "
@@ -376,22 +391,24 @@ def figure_accuracy(result: dict, ax=None):
         chance = next(iter(result["tasks"][task].values()))["chance"]
         ax.hlines(chance, i - 0.45, i + 0.45, colors="k", linestyles="dashed", linewidth=1)
     ax.set_xticks(range(len(tasks)), tasks)
-    ax.set_ylim(0, 1.05)
+    ax.set_ylim(0, 1.2)
+    ax.set_yticks(np.linspace(0, 1, 6))
     ax.set_ylabel("proportion correct (95% CI)")
-    ax.set_title(f"{len(result['participants'])} participants; dashed: chance")
-    ax.legend(loc="lower right", fontsize=8, frameon=False)
+    ax.set_title(f"accuracy, {len(result['participants'])} participants (95% Wilson CI; dashed: chance)", fontsize=10)
+    ax.legend(loc="upper center", ncol=len(conditions), fontsize=8, frameon=False)
     fig.tight_layout()
     return fig
 
 
-def figure_psychometric(result: dict, task: str):
+def figure_psychometric(result: dict, task: str, ax=None):
+    """The psychometric data and fits of a tilt task, one curve per condition."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fits = result["psychometric"][task]
-    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    fig, ax = plt.subplots(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
     colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
     for condition, fit in fits.items():
         if "error" in fit:
@@ -405,7 +422,26 @@ def figure_psychometric(result: dict, task: str):
     ax.set_xlabel(f"{task} level (degrees)")
     ax.set_ylabel(f"P(answer '{positive}')")
     ax.set_ylim(-0.02, 1.02)
+    ax.set_title("psychometric functions (ML fit with lapses)", fontsize=10)
     ax.legend(fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig
+
+
+def figure_summary(result: dict):
+    """Accuracy per task and condition beside the first tilt task's psychometric functions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tilt = next(iter(result["psychometric"]), None)
+    width = 1.9 + 1.9 * len(result["tasks"])
+    if tilt is None:
+        return figure_accuracy(result)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
+    figure_accuracy(result, ax=left)
+    figure_psychometric(result, tilt, ax=right)
     fig.tight_layout()
     return fig
 
@@ -447,7 +483,7 @@ def figure_times(data):
     import matplotlib.pyplot as plt
 
     conditions = conditions_in(data)
-    tasks = list(dict.fromkeys(data["task"]))
+    tasks = tasks_in(data)
     fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.4))
     groups, labels = [], []
     for task in tasks:

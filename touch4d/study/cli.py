@@ -72,6 +72,8 @@ def register(subparsers) -> None:
     analyze.add_argument("--json", action="store_true", help="print the results as JSON")
     analyze.add_argument("--report", metavar="FILE", help="HTML report (default: DIR/report.html)")
     analyze.add_argument("--no-report", action="store_true", help="write no HTML report")
+    analyze.add_argument("--plot", metavar="FILE", help="also save the summary plot (accuracy, psychometric functions) "
+                                                     "as an image, e.g. results.png")
     analyze.add_argument("--bootstrap", type=_count0, default=200, metavar="N",
                          help="bootstrap resamples for the psychometric intervals (default 200; 0: none)")
     analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
@@ -195,6 +197,11 @@ def run_analyze(args) -> int:
         report = Path(args.report) if args.report else (where if where.is_dir() else where.parent) / "report.html"
         report.write_text(report_html(result, data, title=f"touch4d study: {args.dir}"))
         result["report"] = str(report)
+    if args.plot:
+        from .analysis import figure_summary
+
+        figure_summary(result).savefig(args.plot, dpi=110)
+        result["plot"] = str(args.plot)
     if args.json:
         print(json.dumps(_clean(result)))
     else:

@@ -149,6 +149,13 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
         return task.time_limit_s or self.time_limit_s
 
 
+def replace_study(study: Study, **fields) -> Study:
+    """A copy of `study` with some fields replaced, still knowing its file (for paths and errors)."""
+    out = msgspec.structs.replace(study, **fields)
+    out.__dict__["_path"] = study.path
+    return out
+
+
 def tilt_name(level: float) -> str:
     """The stimulus name of a signed tilt level: tilt+8, tilt-2.5."""
     return f"tilt{level:+g}"

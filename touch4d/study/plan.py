@@ -19,7 +19,7 @@ import numpy as np
 
 from touch4d import schema
 
-from .design import Study, Task, tilt_name
+from .design import Study, Task, replace_study, tilt_name
 
 _NUMBERED = re.compile(r"^[Pp](\d+)$")
 _MAX_SHUFFLES = 10_000
@@ -126,9 +126,7 @@ def quick_plan(study: Study, participant: str) -> list[Trial]:
     """A quick session (`--quick`): one repetition per task x condition cell, i.e. every stimulus once
     per condition, no practice, otherwise as `plan_session` (same order, constraint and seeds)."""
     tasks = [msgspec.structs.replace(t, repetitions=1) for t in study.tasks]
-    quick = msgspec.structs.replace(study, tasks=tasks, repetitions=1, practice=0)
-    quick.__dict__["_path"] = study.path
-    return plan_session(quick, participant)
+    return plan_session(replace_study(study, tasks=tasks, repetitions=1, practice=0), participant)
 
 
 def participant_ids(n: int) -> list[str]:
