@@ -11,6 +11,7 @@ import yaml
 from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import StudyTrial
+from touch4d.render.hud import study_lines
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import Placement, load_calibration
 from touch4d.tracking.scene_control import SceneControl
@@ -59,6 +60,10 @@ def test_the_frame_carries_the_question_and_hides_objects_in_touch_trials():
     assert header["draw_objects"] is False
     assert header["study"]["prompt"] == "What is in front?" and header["study"]["options"] == ["face", "edge", "vertex"]
     assert header["study"]["buttons"] == ["a", "b", "thumbstick"]
+    # the page shows the desktop's lines, with the controller's buttons for the keys
+    assert header["study"]["lines"] == ["Trial 4 of 9", "What is in front?", "A: face   B: edge   stick: vertex"]
+    assert study_lines(trial()) == ["Trial 4 of 9", "What is in front?", "1: face   2: edge   3: vertex"]
+    assert study_lines(trial(phase="break")) == ["Break."] and study_lines(trial(phase="idle")) == []
     assert rig.bridge.frame() is None                                        # a repeat of the same trial: nothing new
     rig.bridge.on_trial(trial(condition="visual", index=4))
     assert unpack_frame(rig.bridge.frame())[0]["draw_objects"] is True

@@ -158,13 +158,15 @@ def touched_motors(names: list[str], intensity: np.ndarray, threshold: float = 0
 PROMPT_SIZE = 22
 
 
-def study_lines(trial) -> list[str]:
+def study_lines(trial, keys: list[str] | None = None) -> list[str]:
     """What a participant reads for a `study/trial` message: the question and the keys that answer it
-    in a trial, else the line of its phase (break, pause, end); nothing between trials."""
+    (`keys`, one per option; default 1, 2, ...) in a trial, else the line of its phase (break, pause,
+    end); nothing between trials. The WebXR page shows the same lines with its controller's buttons."""
     if trial.phase == "stimulus":
         head = f"Trial {trial.index + 1} of {trial.total}" + (" (practice)" if trial.practice else "")
-        keys = "   ".join(f"{k}: {option}" for k, option in enumerate(trial.options, start=1))
-        return [head, trial.prompt, keys]
+        labels = keys or [str(k) for k in range(1, len(trial.options) + 1)]
+        answers = "   ".join(f"{key}: {option}" for key, option in zip(labels, trial.options))
+        return [head, trial.prompt, answers]
     return [trial.message] if trial.message else []
 
 

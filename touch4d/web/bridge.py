@@ -32,7 +32,7 @@ from touch4d.messages import (ControllerState, HandPose, MotorCommand, MotorStat
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.glsl import shader_source
-from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
+from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton, study_lines
 from touch4d.render.scene_geometry import SceneGeometry, data_rows
 from touch4d.render.view import SceneView
 from touch4d.study.gate import StudyGate
@@ -52,6 +52,7 @@ PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_
 # A study's answers from the controller: the k-th of these buttons picks the k-th option (A, B, the
 # thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
 ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
+BUTTON_LABELS = {"a": "A", "b": "B", "thumbstick": "stick", "squeeze": "grip", "touchpad": "pad"}
 
 
 @dataclass(frozen=True)
@@ -243,7 +244,8 @@ class WebBridge:
         return {"draw_objects": self.gate.objects,
                 "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
                           "options": list(trial.options), "message": trial.message, "practice": trial.practice,
-                          "buttons": list(ANSWER_BUTTONS[:len(trial.options)])}}
+                          "buttons": list(ANSWER_BUTTONS[:len(trial.options)]),
+                          "lines": study_lines(trial, [BUTTON_LABELS[b] for b in ANSWER_BUTTONS])}}
 
     def frame(self) -> bytes | None:
         """The per-tick frame when something changed since the last one (else None)."""

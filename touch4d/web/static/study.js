@@ -1,7 +1,7 @@
 // A running study in the page (the node's frames carry it: touch4d/web/bridge.py): the question and
 // the buttons that answer it, as a text panel standing above the screen in the headset (drawn from a
-// 2D canvas), and as page buttons that a tap or click answers (any browser). The same lines as the
-// desktop renderer's (touch4d/render/hud.py, study_lines).
+// 2D canvas), and as page buttons that a tap or click answers (any browser). The node sends the
+// lines, the desktop renderer's (touch4d/render/hud.py, study_lines).
 
 import { program, Vertices } from './gl.js';
 
@@ -24,20 +24,13 @@ void main() {
   color = texture(u_text, v_uv);
 }`;
 
-// The controller button that picks each option, as the node maps them (bridge.ANSWER_BUTTONS).
-const BUTTON_LABELS = { a: 'A', b: 'B', thumbstick: 'stick', squeeze: 'grip', touchpad: 'pad' };
 // The panel, screen units: above the screen cube ([-1, 1]^3), facing the viewer.
 const PANEL = { left: -1.2, right: 1.2, bottom: 1.12, top: 1.72 };
 const TEXTURE = [1024, 256];
 
+// The lines the node made (touch4d/render/hud.py study_lines, with the controller's button names).
 export function studyLines(study) {
-  if (!study) return [];
-  if (study.phase === 'stimulus') {
-    const head = `Trial ${study.index + 1} of ${study.total}${study.practice ? ' (practice)' : ''}`;
-    const keys = study.options.map((o, k) => `${BUTTON_LABELS[study.buttons[k]] || k + 1}: ${o}`).join('   ');
-    return [head, study.prompt, keys];
-  }
-  return study.message ? [study.message] : [];
+  return study ? study.lines : [];
 }
 
 export class StudyPanel {
