@@ -118,3 +118,28 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
     assert all(spec.respawn for spec in nodes.values())
     person = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "007", tmp_path))
     assert person["tracker"].module == "desktop" and person["study"].params["participant"] == "007"
+
+
+def test_a_session_resumes_only_as_it_was_started(tmp_path):
+    from touch4d.boards.config import load_glove_can
+    from touch4d.boards.dbc import dbc_text
+    from touch4d.configfile import resolve_path
+    from touch4d.study.design import load_study
+    from touch4d.study.session import start_manifest
+
+    study_path = resolve_path("config/studies/paper.yaml")
+    common = dict(study=load_study(study_path), study_path=study_path, session="1",
+                  condition_order=["visual", "touch", "visual+touch"], trials=9,
+                  glove_path=resolve_path("config/glove.yaml"), calibration_path=resolve_path("config/calibration.yaml"),
+                  dbc_text=dbc_text(load_glove_can(None)))
+    first = start_manifest(tmp_path, participant="P01", resumed_at=0, quick=True, **common)
+    again = start_manifest(tmp_path, participant="P01", resumed_at=4, quick=True, **common)
+    assert [s["resumed_at"] for s in again["starts"]] == [0, 4] and again["study_sha256"] == first["study_sha256"]
+    with pytest.raises(SessionError, match="quick"):
+        start_manifest(tmp_path, participant="P01", resumed_at=4, quick=False, **common)
+    with pytest.raises(SessionError, match="participant"):
+        start_manifest(tmp_path, participant="P02", resumed_at=4, quick=True, **common)
+    other = tmp_path / "other.yaml"
+    other.write_text(study_path.read_text() + "\n# changed\n")
+    with pytest.raises(SessionError, match="sha256"):
+        start_manifest(tmp_path, participant="P01", resumed_at=4, quick=True, **{**common, "study_path": other})

@@ -255,9 +255,14 @@ def start_manifest(directory, *, study, study_path, participant: str, session: s
     what the session is (study, hashes, order, seeds), a later one checks it is the same study."""
     manifest = read_manifest(directory)
     study_hash = sha256_file(study_path)
+    where = Path(directory) / MANIFEST
     if manifest and manifest.get("study_sha256") != study_hash:
-        raise SessionError(f"{Path(directory) / MANIFEST}: this session ran study file sha256 "
+        raise SessionError(f"{where}: this session ran study file sha256 "
                            f"{manifest.get('study_sha256')}, {study_path} is now {study_hash}: use a new --out")
+    for key, value in (("participant", participant), ("quick", quick)):
+        if manifest and manifest.get(key) != value:
+            raise SessionError(f"{where}: this session ran with {key} {manifest.get(key)!r}, not {value!r}: "
+                               "resume it as it was, or use a new --out")
     if not manifest:
         manifest = {
             "software": "touch4d", "version": software_version(), "study": study.name,
