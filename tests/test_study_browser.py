@@ -1,6 +1,7 @@
 """A study in a real browser (Debian's chromium, a Quest 3 emulated by iwer) against launch/study.yaml
 with the WebXR node as the tracker: the page shows each trial's question in the headset, its
-controller's buttons answer, and the study node writes those answers, timed from the onset."""
+controller's buttons answer (and the page's own), and the study node writes those answers, timed from
+the onset."""
 from __future__ import annotations
 
 import csv
@@ -61,9 +62,19 @@ def test_two_trials_answered_with_the_controller_in_an_immersive_session(tmp_pat
                 answer = press(page, watcher, BUTTONS[choice], lambda: next(
                     (r for r in responses if r.index == trial.index and r.source == "controller" and r.response), None))
                 assert answer.response == trial.options[choice]
-            rows = wait_until(lambda: _rows(tmp_path / "P01" / "trials.csv", 2), timeout=20)
+            # the third with the page's own button (a tap in the headset's browser, a click on a desktop)
+            third = plan[2]
+            page.wait_for_function(f"touch4d.study && touch4d.study.phase === 'stimulus' && "
+                                   f"touch4d.study.index === {third.index}", timeout=30000)
+            # (iwer's immersive overlay covers the page: the click is dispatched to the button itself)
+            page.locator(f"#study button[data-option='{third.options[-1]}']").dispatch_event("click")
+            tapped = wait_until(lambda: next((r for r in responses if r.index == third.index and r.source == "page"),
+                                             None), timeout=20, spin=watcher)
+            assert tapped.response == third.options[-1]
+            rows = wait_until(lambda: _rows(tmp_path / "P01" / "trials.csv", 3), timeout=20)
         finally:
             watcher.shutdown()
+    assert rows[2]["response"] == plan[2].options[-1] and float(rows[2]["rt_s"]) > 0
     for k, (row, trial) in enumerate(zip(rows, plan[:2])):
         assert int(row["index"]) == trial.index and row["response"] == trial.options[(k + 1) % 2]
         assert row["timed_out"] == "0" and 0 < float(row["rt_s"]) < 30
