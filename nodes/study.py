@@ -167,8 +167,11 @@ class StudyNode(Node):
         now = time.monotonic()
         if self.phase in ("done", "paused") or self.current is None:
             return
-        if not self.scene_kind_ok and now - self.loaded_at >= RELOAD_PERIOD_S:
-            self._load_scene()      # the scene node (re)started without it, or missed the command
+        # The scene node (re)started without the trial's scene, missed the command, or (before the onset)
+        # the scene was turned: send it again. A stimulus already shown keeps being turned as it is.
+        wrong = not self.scene_kind_ok if self.phase == "stimulus" else not self.scene_ok
+        if wrong and now - self.loaded_at >= RELOAD_PERIOD_S:
+            self._load_scene()
         if self.phase == "break":
             if self.params["break_s"] > 0 and now - self.since >= self.params["break_s"]:
                 self._set_phase("idle")
