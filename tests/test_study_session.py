@@ -135,6 +135,8 @@ def test_a_session_resumes_only_as_it_was_started(tmp_path):
     first = start_manifest(tmp_path, participant="P01", resumed_at=0, quick=True, **common)
     again = start_manifest(tmp_path, participant="P01", resumed_at=4, quick=True, **common)
     assert [s["resumed_at"] for s in again["starts"]] == [0, 4] and again["study_sha256"] == first["study_sha256"]
+    from touch4d.study.plan import participant_seed
+    assert participant_seed(common["study"], "P01").entropy == first["seed"]      # the plan's random stream
     with pytest.raises(SessionError, match="quick"):
         start_manifest(tmp_path, participant="P01", resumed_at=4, quick=False, **common)
     with pytest.raises(SessionError, match="participant"):

@@ -29,6 +29,7 @@ import numpy as np
 
 from touch4d.errors import ConfigError, Touch4dError
 
+from .plan import participant_hash
 from .table import COLUMNS, TRIALS, _cell
 
 MANIFEST = "manifest.json"
@@ -267,7 +268,9 @@ def start_manifest(directory, *, study, study_path, participant: str, session: s
         manifest = {
             "software": "touch4d", "version": software_version(), "study": study.name,
             "study_file": str(study_path), "study_sha256": study_hash, "participant": participant,
-            "session": session, "study_seed": int(study.seed), "condition_order": list(condition_order),
+            "session": session, "study_seed": int(study.seed),
+            "seed": [int(study.seed), participant_hash(participant)],   # the plan's SeedSequence entropy
+            "condition_order": list(condition_order),
             "trials": trials, "quick": quick,
             "glove_file": str(glove_path), "glove_sha256": sha256_file(glove_path),
             "calibration_file": str(calibration_path), "calibration_sha256": sha256_file(calibration_path),
