@@ -32,7 +32,8 @@ from touch4d.render.view import scene_digest
 from touch4d.schema import parse_yaml
 from touch4d.study.design import load_study
 from touch4d.study.plan import condition_order, plan_session, quick_plan
-from touch4d.study.session import TRIALS, TrialMeasures, TrialsFile, session_dir, start_manifest, trial_row
+from touch4d.study.session import TrialMeasures, TrialsFile, session_dir, start_manifest, trial_row
+from touch4d.study.table import TRIALS
 from touch4d.study.stimuli import scene_mapping
 
 KEYS = {**{str(k): k for k in range(1, 10)}, **{f"kp_{k}": k for k in range(1, 10)}}

@@ -5,7 +5,6 @@ the onset."""
 from __future__ import annotations
 
 import csv
-import time
 
 import pytest
 

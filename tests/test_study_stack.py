@@ -11,13 +11,12 @@ import json
 import os
 import signal
 import threading
-import time
 
 import pytest
 
 from touch4d.bus import Node
 from touch4d.log.reader import LogReader
-from touch4d.messages import HandPose, Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
+from touch4d.messages import Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
 from touch4d.study.design import load_study
 from touch4d.study.plan import condition_order, quick_plan
 from touch4d.study.session import COLUMNS, run_session
@@ -31,7 +30,7 @@ KILL_AT = 4                   # the trial whose stimulus is running when the stu
 
 class Watcher:
     """Collects study/trial, study/response, motors/status and heartbeats from the running stack, and
-    SIGKILLs the study node once the observer's hand explores trial KILL_AT."""
+    SIGKILLs the study node as soon as trial KILL_AT's stimulus is on."""
 
     def __init__(self):
         self.bus_ready = threading.Event()
@@ -40,7 +39,6 @@ class Watcher:
         self.status: list[MotorStatus] = []
         self.pids: dict[str, int] = {}
         self.killed: int | None = None
-        self.kill_after: float | None = None
         self.stop = False
         self.error: BaseException | None = None
 
@@ -57,7 +55,6 @@ class Watcher:
             node.create_subscription("study/response", StudyResponse, self.responses.append)
             node.create_subscription("motors/status", MotorStatus, self.status.append)
             node.create_subscription("node/heartbeat", Heartbeat, lambda h: self.pids.__setitem__(h.node, h.pid))
-            node.create_subscription("hand/pose", HandPose, self.on_pose)
             self.bus_ready.set()
             while not self.stop:
                 node.spin_once(0.02)
@@ -68,13 +65,8 @@ class Watcher:
 
     def on_trial(self, msg: StudyTrial):
         self.trials.append(msg)
-        if msg.phase == "stimulus" and msg.index == KILL_AT and self.kill_after is None:
-            self.kill_after = msg.onset
-
-    def on_pose(self, msg: HandPose):
-        # the observer's hand has started exploring trial KILL_AT: kill the study node now, mid-trial
-        if (self.kill_after is not None and self.killed is None and msg.valid and msg.stamp > self.kill_after
-                and "study" in self.pids):
+        # trial KILL_AT's stimulus is on (the observer's hand is on its way): kill the study node now
+        if msg.phase == "stimulus" and msg.index == KILL_AT and self.killed is None and "study" in self.pids:
             self.killed = self.pids["study"]
             os.kill(self.killed, signal.SIGKILL)
 
@@ -112,9 +104,13 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
         assert float(r["rt_s"]) == pytest.approx(float(r["response_stamp"]) - float(r["onset_stamp"]), abs=1e-6)
         assert r["correct"] == ("1" if r["response"] == r["answer"] else "0")
 
-    # the killed trial was shown twice (two onsets); its row is the second showing's
-    onsets = sorted({m.onset for m in watcher.trials if m.phase == "stimulus" and m.index == KILL_AT})
-    assert len(onsets) == 2
+    # the killed trial, and only it, was shown twice (two onsets); its row is the second showing's
+    shown = {}
+    for m in watcher.trials:
+        if m.phase == "stimulus":
+            shown.setdefault(m.index, set()).add(m.onset)
+    assert [i for i, o in shown.items() if len(o) > 1] == [KILL_AT] and set(shown) == set(range(len(plan)))
+    onsets = sorted(shown[KILL_AT])
     assert float(rows[KILL_AT]["onset_stamp"]) == pytest.approx(onsets[1], abs=1e-6)
     manifest = json.loads((directory / "manifest.json").read_text())
     assert [s["resumed_at"] for s in manifest["starts"]] == [0, KILL_AT]

@@ -19,7 +19,6 @@ import csv
 import hashlib
 import io
 import json
-import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -30,7 +29,7 @@ import numpy as np
 from touch4d.errors import ConfigError, Touch4dError
 
 from .plan import participant_hash
-from .table import COLUMNS, TRIALS, _cell
+from .table import COLUMNS, _cell
 
 MANIFEST = "manifest.json"
 SEGMENT = "session-{:03d}.mcap"
