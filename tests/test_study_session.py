@@ -47,6 +47,15 @@ def test_rows_are_read_back_exactly_and_a_row_cut_by_a_crash_is_dropped(tmp_path
     assert rows[1]["response"] == "" and rows[1]["timed_out"] == "1" and rows[1]["rt_s"] == ""
 
 
+def test_a_header_cut_short_is_written_again(tmp_path):
+    path = tmp_path / "trials.csv"
+    path.write_text("participant,sess")
+    f = TrialsFile(path)
+    f.write(row(0))
+    f.close()
+    assert path.read_text().splitlines()[0] == ",".join(COLUMNS) and TrialsFile(path).done == {0}
+
+
 def test_a_file_with_other_columns_or_a_repeated_index_is_refused_naming_it(tmp_path):
     bad = tmp_path / "trials.csv"
     bad.write_text("participant,index\nP01,0\n")

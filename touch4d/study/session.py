@@ -85,6 +85,9 @@ class TrialsFile:
                 f.flush()
                 os.fsync(f.fileno())
             data = data[:cut]
+            if not data:            # the header itself was cut short: start the file again
+                self._create()
+                return
         reader = csv.DictReader(io.StringIO(data.decode()))
         if tuple(reader.fieldnames or ()) != COLUMNS:
             raise ConfigError(self.path, "(header)", "the trials.csv columns " + ",".join(COLUMNS),
