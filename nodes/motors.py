@@ -18,6 +18,9 @@ A `safety/stop` is momentary by default: commands resume `can.stop_hold_s` (1 s)
 receive side raised, and shutdown always sends NMT STOP and zero duty.
 While every motor is off and the boards have been sent so, the refresh slows to the glove's
 `can.idle_refresh_hz` (an idle node costs little); a command goes out at once and speeds it up.
+A running study gates the motors (`study/trial`, touch4d.study.gate): in a visual trial, between
+trials and after the end every duty is 0; the last gate holds if the study node dies, and
+`study_gate: closed` keeps a motor node (re)started mid-study off until the study's next message.
 
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
