@@ -255,9 +255,13 @@ class StudyNode(Node):
             self.scene_ok = self.scene_kind_ok = False
 
     def on_motors(self, msg: MotorCommand) -> None:
+        if self.phase != "stimulus":
+            self.measures.reset()     # outside a trial only the latest sample matters (it holds into the next)
         self.measures.add_motors(msg.stamp, msg.intensity)
 
     def on_pose(self, msg: HandPose) -> None:
+        if self.phase != "stimulus":
+            self.measures.reset()
         self.measures.add_pose(msg.stamp, msg.position, msg.valid)
 
     # ---- output ---------------------------------------------------------------------------------------
