@@ -103,6 +103,10 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
         assert float(r["rt_s"]) > 0
         assert float(r["rt_s"]) == pytest.approx(float(r["response_stamp"]) - float(r["onset_stamp"]), abs=1e-6)
         assert r["correct"] == ("1" if r["response"] == r["answer"] else "0")
+        # the exploration: the observer's hand visits 6 places (5 steps after the first, from away)
+        assert 0.0 <= float(r["time_touching_s"]) <= float(r["rt_s"]) + 1e-6
+        assert float(r["path_length"]) > 0.0 and float(r["mean_intensity"]) >= 0.0
+    assert max(float(r["time_touching_s"]) for r in rows) > 0.0
 
     # the killed trial, and only it, was shown twice (two onsets); its row is the second showing's
     shown = {}
