@@ -5,7 +5,7 @@ is simulated.
    1999) per task of config/studies/paper.yaml, by an LDA observer trained on noisy motor patterns at
    random hand positions and tested on new jittered scenes and positions: the default glove (30
    motors) beside the same glove with a motor at every one of its 247 samples (paper §7: actuator
-   resolution). Ratio = every-sample bits / default bits.
+   resolution). Ratio = every-sample bits / default bits. Then the tilt task's bits at four noise levels.
 2. The offline simulation's speed (trials per CPU second: scene, exploration, the observer's answer)
    beside the bare tactile model on the same trials (scene and motor patterns only), measured in the
    same run.
@@ -52,6 +52,15 @@ def main(argv=None) -> int:
         ratio = many["bits"] / few["bits"] if few["bits"] > 0 else float("inf")
         print(f"{task.id:<12} {len(few['stimuli']):>7} {few['max_bits']:>8.2f} {few['bits']:>10.3f} "
               f"{many['bits']:>11.3f} {ratio:>5.2f}x   {few['accuracy']:.2f} / {many['accuracy']:.2f}")
+
+    tilt = next((t.id for t in study.tasks if t.kind == "tilt"), None)
+    if tilt is not None:
+        cells = []
+        for noise in (0.02, 0.05, 0.08, 0.15):
+            few, many = (predicted_transfer(g, study, tilt, noise=noise, scenes=args.scenes, positions=args.positions)
+                         for g in (glove, dense))
+            cells.append(f"{noise:g}: {few['bits']:.2f} / {many['bits']:.2f}")
+        print(f"{tilt}, bits by noise per motor (30 / 247 motors): " + "; ".join(cells))
 
     observer = ModelObserver(glove, study, seed=1)
     cpu = time.process_time()

@@ -204,3 +204,26 @@ def test_a_table_without_the_columns_is_named(tmp_path, capsys):
     assert main(["study", "analyze", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert str(tmp_path / "trials.csv") in err and "missing" in err and COLUMNS[1] in err
+
+
+def test_each_participant_gets_a_threshold_of_their_own():
+    rng = np.random.default_rng(8)
+    rows = tilt_rows(rng, 0.0, 1.5, 0.0, 40, participant="P01") + tilt_rows(rng, 0.0, 6.0, 0.0, 40, participant="P02")
+    data = pd.DataFrame(rows)
+    data["timed_out"] = False
+    own = psychometric(data, bootstrap=0)["threshold_by_participant"]
+    assert own["P01"] == pytest.approx(0.6745 * 1.5, rel=0.4) and own["P02"] == pytest.approx(0.6745 * 6.0, rel=0.4)
+
+
+def test_a_bad_cell_names_file_line_and_column(tmp_path, capsys):
+    rows = synthetic(np.random.default_rng(1), 1, 3, {c: 0.5 for c in CONDITIONS})
+    write_sessions(tmp_path, rows)
+    path = tmp_path / "P01" / "trials.csv"
+    lines = path.read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[COLUMNS.index("correct")] = "yes"
+    lines[3] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["study", "analyze", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "line 4, column correct" in err and "'yes'" in err

@@ -138,3 +138,12 @@ def test_a_turn_through_w_would_show_the_look_alikes_apart_so_the_study_leaves_t
     turned = {n: outline(n, [("xw", 3.0)]).sum() for n in names}
     assert turned["flat"] > turned["convex"] and turned["concave"] > turned["convex"]
     assert all(t.jitter_deg == 0 for t in paper.tasks if t.kind == "look-alikes")
+
+
+def test_transfer_reports_bits_per_task_for_the_glove_and_the_every_sample_glove(capsys):
+    assert main(["study", "transfer", "config/studies/paper.yaml", "--task", "lookalikes", "--every-sample",
+                 "--scenes", "4", "--positions", "6", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [(r["task"], r["motors"]) for r in out["results"]] == [("lookalikes", 30), ("lookalikes", 247)]
+    for r in out["results"]:
+        assert 0 < r["bits"] <= r["max_bits"] + 1e-9 and np.sum(r["confusion"]) == r["test_patterns"] == 3 * 2 * 6

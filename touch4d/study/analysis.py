@@ -19,6 +19,7 @@ import math
 import warnings
 
 import numpy as np
+from scipy.stats import norm
 
 from touch4d.errors import Touch4dError, Unavailable
 
@@ -180,8 +181,8 @@ def fit_psychometric(level, positive) -> dict:
             "slope_per_deg": (1.0 - lapse) * _PHI0 / sigma}
 
 
-_Z75 = 0.6744897501960817     # Phi^-1(0.75)
-_PHI0 = 0.3989422804014327    # phi(0) = 1 / sqrt(2 pi)
+_Z75 = float(norm.ppf(0.75))      # 75% correct lies 0.674 sigma from the pse
+_PHI0 = float(norm.pdf(0.0))      # the slope of Phi at the pse, per sigma
 _PSYCHOMETRIC_KEYS = ("pse_deg", "threshold_deg", "sigma_deg", "slope_per_deg", "lapse")
 
 
@@ -204,6 +205,14 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     out["levels"] = levels.tolist()
     out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
     out["trials_per_level"] = [int((level == x).sum()) for x in levels]
+    # Each participant's own threshold (no interval): what a paired comparison across conditions takes.
+    own = {}
+    for participant, rows in cell.groupby("participant"):
+        lv = rows["level"].to_numpy(float)
+        if len(rows) >= 4 and len(np.unique(lv)) >= 2:
+            f = fit_psychometric(lv, (rows["response"] == positive_option).to_numpy(float))
+            own[str(participant)] = f["threshold_deg"] if f["threshold_deg"] <= np.abs(levels).max() else None
+    out["threshold_by_participant"] = own
     if bootstrap > 0:
         def statistic(lv, pos):
             if len(np.unique(lv)) < 2:
@@ -544,6 +553,10 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
                 row[key] = f"{fit[key]:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
             rows.append(row)
         parts.append(pd.DataFrame(rows).to_html(index=False, na_rep=""))
+        own = pd.DataFrame({c: f.get("threshold_by_participant", {}) for c, f in result["psychometric"][task].items()})
+        if not own.empty:
+            parts.append("<p>Threshold (degrees) per participant; - where it lies beyond the levels shown:</p>")
+            parts.append(own.sort_index().to_html(float_format=lambda v: f"{v:.2f}", na_rep="-"))
     parts.append("<h2>Effect of condition</h2>")
     for task, test in result["tests"].items():
         parts.append(f"<h3>{esc(task)}</h3>")

@@ -3,6 +3,7 @@ participants offline, or through the full stack), analyse its trials."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import time
@@ -64,6 +65,26 @@ def register(subparsers) -> None:
     sim.add_argument("--spread", type=_nonnegative, default=0.25, metavar="X",
                      help="between-participant spread of the noise, sd of its log (default 0.25)")
     run.set_defaults(func=run_run)
+
+    transfer = sub.add_parser("transfer", help="bits one touch tells about each task's stimuli, with a glove",
+                              description="Before recruiting anyone: the information transferred (bits, "
+                                          "maximum-likelihood from the confusion matrix) per task by an observer "
+                                          "trained on the glove's motor patterns at random hand positions, "
+                                          "tested on new scenes and positions.")
+    transfer.add_argument("study", metavar="STUDY", help="study file")
+    transfer.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    transfer.add_argument("--every-sample", action="store_true",
+                          help="also a motor at every sample point of the glove, side by side")
+    transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
+    transfer.add_argument("--noise", type=_nonnegative, default=0.08, metavar="X",
+                          help="sensory noise on each motor, in units of full drive (default 0.08)")
+    transfer.add_argument("--scenes", type=_count, default=20, metavar="N",
+                          help="jittered scenes per stimulus, half of them held out (default 20)")
+    transfer.add_argument("--positions", type=_count, default=16, metavar="N",
+                          help="hand positions per scene (default 16)")
+    transfer.add_argument("--seed", type=int, default=0, metavar="S")
+    transfer.add_argument("--json", action="store_true", help="print JSON")
+    transfer.set_defaults(func=run_transfer)
 
     analyze = sub.add_parser("analyze", help="analyse a study's trials (accuracy, times, psychometric fit, tests)",
                              description="DIR holds session folders, each with trials.csv (or is one, or is a "
@@ -172,7 +193,7 @@ def run_offline(args) -> int:
 def run_full_stack(args) -> int:
     """A study through the bus: a participant's session, or simulated participants (touch4d.study.session)."""
     try:
-        from . import session
+        session = importlib.import_module("touch4d.study.session")
     except ModuleNotFoundError as exc:
         if exc.name != "touch4d.study.session":
             raise
@@ -184,6 +205,28 @@ def run_full_stack(args) -> int:
         return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
                                       seed=args.seed, quick=args.quick)
     return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick)
+
+
+def run_transfer(args) -> int:
+    from touch4d.tactile import load_glove
+
+    from .infotransfer import predicted_transfer
+    from .observer import every_sample_glove
+
+    study = _study(args.study)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    gloves = [glove] + ([every_sample_glove(glove)] if args.every_sample else [])
+    tasks = [study.task(t).id for t in args.task] if args.task else [t.id for t in study.tasks]
+    results = [predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
+                                  seed=args.seed) for task in tasks for g in gloves]
+    if args.json:
+        print(json.dumps(_clean({"study": study.name, "glove": glove.path, "noise": args.noise, "results": results})))
+        return 0
+    print(f"{study.name}: information transferred by one touch ({glove.path}; noise {args.noise} per motor)")
+    print(f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>5} {'accuracy':>8}")
+    for r in results:
+        print(f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>5.2f} {r['accuracy']:>8.2f}")
+    return 0
 
 
 def run_analyze(args) -> int:

@@ -18,12 +18,13 @@ off) and `scene` None in the touch condition (nothing drawn).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from touch4d.errors import Unavailable
+from touch4d.errors import ConfigError, Unavailable
 from touch4d.geometry.scene import Scene
 from touch4d.tactile import Glove, compute_stimulus
 
@@ -163,8 +164,11 @@ class ModelObserver:
     def __init__(self, glove: Glove, study: Study, *, noise: float = 0.08, visual_noise: float = 0.5,
                  lapse: float = 0.03, seed: int = 0, exploration: Exploration | None = None,
                  train_scenes: int = 12, train_positions: int = 20, view_scenes: int = 30):
-        if not noise >= 0 or not visual_noise >= 0 or not 0 <= lapse <= 1:
-            raise ValueError("ModelObserver: expected noise >= 0, visual_noise >= 0 and 0 <= lapse <= 1")
+        for key, value, ok in (("noise", noise, noise >= 0), ("visual_noise", visual_noise, visual_noise >= 0),
+                               ("lapse", lapse, 0 <= lapse <= 1)):
+            if not ok:
+                raise ConfigError("model observer", key, "a number in 0..1" if key == "lapse" else "a number >= 0",
+                                  got=value)
         self.glove, self.study = glove, study
         self.noise, self.visual_noise, self.lapse = float(noise), float(visual_noise), float(lapse)
         self.exploration = exploration or Exploration()
@@ -219,6 +223,13 @@ class ModelObserver:
             self._view[task_id] = _Cue(x + rng.normal(0.0, self.visual_noise, x.shape), answers, groups,
                                        list(task.options))
         return self._view[task_id]
+
+    def with_noise(self, factor: float) -> "ModelObserver":
+        """The same trained observer with its sensory noise (touch and sight) scaled by `factor`: a
+        participant of the same population who feels and sees more or less sharply."""
+        other = copy.copy(self)                      # shares the trained cues
+        other.noise, other.visual_noise = self.noise * factor, self.visual_noise * factor
+        return other
 
     def train(self) -> "ModelObserver":
         """Train every task's cues now (else on first use)."""

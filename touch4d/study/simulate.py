@@ -45,12 +45,7 @@ def participant_observer(observer: ModelObserver, study: Study, participant: str
                          spread: float) -> ModelObserver:
     """`observer`'s trained cues with this participant's own sensory noise (see the module docstring)."""
     rng = np.random.default_rng([int(seed), participant_hash(participant), int(study.seed)])
-    factor = float(np.exp(rng.normal(0.0, spread))) if spread > 0 else 1.0
-    own = ModelObserver.__new__(ModelObserver)
-    own.__dict__.update(observer.__dict__)
-    own.noise = observer.noise * factor
-    own.visual_noise = observer.visual_noise * factor
-    return own
+    return observer.with_noise(float(np.exp(rng.normal(0.0, spread))) if spread > 0 else 1.0)
 
 
 def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: Trial, *, seed: int,

@@ -72,11 +72,15 @@ def read_trials(where):
         if missing:
             raise ConfigError(path, "(header)", f"the trials.csv columns {', '.join(COLUMNS)}",
                               got=f"missing {', '.join(missing)}")
+        for name in ("practice", "correct", "timed_out"):
+            flags = pd.to_numeric(frame[name], errors="coerce")
+            bad = ~flags.isin([0, 1])
+            if bad.any():
+                line = int(bad.to_numpy().nonzero()[0][0]) + 2
+                raise ConfigError(path, f"line {line}, column {name}", "0 or 1", got=frame[name][bad].iloc[0])
+            frame[name] = flags.astype(bool)
+        for name in ("level", "rt_s", "time_touching_s", "mean_intensity", "path_length"):
+            frame[name] = pd.to_numeric(frame[name], errors="coerce")    # empty: not measured (NaN)
         frame["source"] = str(path)
         frames.append(frame)
-    data = pd.concat(frames, ignore_index=True)
-    for name in ("practice", "correct", "timed_out"):
-        data[name] = data[name].astype(int).astype(bool)
-    for name in ("level", "rt_s", "time_touching_s", "mean_intensity", "path_length"):
-        data[name] = pd.to_numeric(data[name], errors="coerce")
-    return data
+    return pd.concat(frames, ignore_index=True)
