@@ -284,4 +284,7 @@ class StudyNode(Node):
         return out
 
     def on_shutdown(self) -> None:
+        """A clean stop closes the gate (motors off, nothing drawn); the trial shown is shown again on resume."""
+        if self.phase not in ("done", "paused"):
+            self._set_phase("paused", "Stopped.")
         self.log.info("stopped with %d of %d trials done: %s", len(self.trials.rows), len(self.plan), self.counts)

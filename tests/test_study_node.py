@@ -83,6 +83,20 @@ def test_keys_pause_breaks_timeouts_and_the_end(tmp_path):
             done = phase("done", -1)
             spin_until(lambda: stops)
             assert done.message and study.counts["responses_ignored"] >= 2 and study.counts["pauses"] == 1
+            # run again on the same session: every trial is done, so it ends at once; a clean stop of a
+            # session under way closes the gate
+            again_node = StudyNode(params={"study": str(study_file), "participant": "P01", "out": str(tmp_path)},
+                                   bus=bus, heartbeat=False)
+            nodes = (probe, scene, again_node)
+            assert again_node.phase == "done" and again_node.remaining == []
+            again_node.shutdown()
+            other = StudyNode(params={"study": str(study_file), "participant": "P02", "out": str(tmp_path)},
+                              bus=bus, heartbeat=False)
+            nodes = (probe, scene, other)
+            phase("break", 0)
+            other.shutdown()
+            nodes = (probe, scene)
+            assert phase("paused", 0).participant == "P02"
         finally:
             for n in (study, scene, probe):
                 n.shutdown()
