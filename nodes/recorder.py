@@ -2,9 +2,9 @@
 
 Parameters: `file` (the .mcap to write; default `touch4d-<date>-<time>.mcap`), `topics` (list of
 exact topic names; empty = all). A file that exists is never written over: a recorder restarted
-with the same `file` (a respawn) writes NAME-2.mcap, NAME-3.mcap, ... beside it. Receiving and writing run on the recorder's own socket and
-threads (touch4d.log.recorder), so the node thread only reports; the report (counts, seq gaps)
-is logged at shutdown.
+with the same `file` (a respawn) writes NAME-2.mcap, NAME-3.mcap, ... beside it. Receiving and
+writing run on the recorder's own socket and threads (touch4d.log.recorder), so the node thread
+only reports; the report (counts, seq gaps) is logged at shutdown.
 """
 from __future__ import annotations
 

@@ -4,9 +4,9 @@ Serves the page (touch4d/web/static) and a WebSocket to it; sends the page `scen
 `hand/pose`, `tactile/field`, `tactile/motors` and `motors/status` (geometry once per change of
 what the scene is made of, then per tick only transforms and tactile values). With `tracker:
 true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
-grip or from hand tracking: `hand_source`), `controller/state` and `hand/joints`. A running study (`study/trial`) shows its
-question in the page, hides objects where its condition says so, and the page's answers (controller
-buttons, or the page's own) go out on `study/response`.
+grip or from hand tracking: `hand_source`), `controller/state` and `hand/joints`. A running study
+(`study/trial`) shows its question in the page, hides objects where its condition says so, and the
+page's answers (controller buttons, or the page's own) go out on `study/response`.
 
 Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
 reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a

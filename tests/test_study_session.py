@@ -139,7 +139,8 @@ def test_a_session_resumes_only_as_it_was_started(tmp_path):
     study_path = resolve_path("config/studies/paper.yaml")
     common = dict(study=load_study(study_path), study_path=study_path, session="1",
                   condition_order=["visual", "touch", "visual+touch"], trials=9,
-                  glove_path=resolve_path("config/glove.yaml"), calibration_path=resolve_path("config/calibration.yaml"),
+                  glove_path=resolve_path("config/glove.yaml"),
+                  calibration_path=resolve_path("config/calibration.yaml"),
                   dbc_text=dbc_text(load_glove_can(None)))
     first = start_manifest(tmp_path, participant="P01", resumed_at=0, quick=True, **common)
     again = start_manifest(tmp_path, participant="P01", resumed_at=4, quick=True, **common)

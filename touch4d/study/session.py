@@ -349,7 +349,8 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\nconnect: 127.0.0.1\n")
             bus_args = ["--bus", str(bus_file)]
         else:          # the usual bus, so `touch4d topic pub study/command '{command: pause}'` reaches it
-            echo(f"{participant}: pause with the Pause key (F9) or touch4d topic pub study/command '{{command: pause}}'")
+            echo(f"{participant}: pause with the Pause key (F9) or "
+                 "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
         cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, *bus_args, "--ready-file", str(ready)]
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
