@@ -6,7 +6,9 @@ passed, then starts the stimulus: a `study/trial` in phase `stimulus` whose stam
 renderers, the WebXR page and the motor node gate on it (touch4d.study.gate). The first answer on
 `study/response` for that trial (or keys 1..9 in the renderer window, `ui/input`) ends it, timed
 from the onset on the bus clock; `time_limit_s` ends it unanswered. Each trial's row goes to
-trials.csv, fsync'd, before the next one starts.
+trials.csv, fsync'd, before the next one starts, with the exploration between onset and answer:
+time touching and mean intensity of the motors as the glove delivered them (0 in a visual trial,
+as the offline simulation counts them) and the hand's path.
 
 Pause: the Pause key or F9, `study/command` {pause, resume, toggle} (`touch4d topic pub study/command
 '{command: pause}'`); a trial interrupted by a pause is shown again from its start. Breaks (between
@@ -31,6 +33,7 @@ from touch4d.messages import (HandPose, InputEvents, MotorCommand, SceneCommand,
 from touch4d.render.view import scene_digest
 from touch4d.schema import parse_yaml
 from touch4d.study.design import load_study
+from touch4d.study.gate import allowed
 from touch4d.study.plan import condition_order, plan_session, quick_plan
 from touch4d.study.session import TrialMeasures, TrialsFile, session_dir, start_manifest, trial_row
 from touch4d.study.table import TRIALS
@@ -255,9 +258,13 @@ class StudyNode(Node):
             self.scene_ok = self.scene_kind_ok = False
 
     def on_motors(self, msg: MotorCommand) -> None:
-        if self.phase != "stimulus":
-            self.measures.reset()     # outside a trial only the latest sample matters (it holds into the next)
-        self.measures.add_motors(msg.stamp, msg.intensity)
+        # What the glove delivered: nothing outside a trial's stimulus or where its condition holds the
+        # motors off (a visual trial). Outside a trial only the latest sample is kept: it holds into the next.
+        stimulus = self.phase == "stimulus"
+        if not stimulus:
+            self.measures.reset()
+        felt = stimulus and allowed(self.current.condition).motors
+        self.measures.add_motors(msg.stamp, msg.intensity if felt else np.zeros(len(msg.intensity)))
 
     def on_pose(self, msg: HandPose) -> None:
         if self.phase != "stimulus":

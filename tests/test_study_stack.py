@@ -107,6 +107,9 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
         assert 0.0 <= float(r["time_touching_s"]) <= float(r["rt_s"]) + 1e-6
         assert float(r["path_length"]) > 0.0 and float(r["mean_intensity"]) >= 0.0
     assert max(float(r["time_touching_s"]) for r in rows) > 0.0
+    # as the offline simulation counts them: nothing is felt where the motors are held off
+    assert all(float(r["time_touching_s"]) == 0.0 == float(r["mean_intensity"])
+               for r in rows if r["condition"] == "visual")
 
     # the killed trial, and only it, was shown twice (two onsets); its row is the second showing's
     shown = {}
