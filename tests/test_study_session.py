@@ -155,3 +155,14 @@ def test_a_session_resumes_only_as_it_was_started(tmp_path):
     other.write_text(study_path.read_text() + "\n# changed\n")
     with pytest.raises(SessionError, match="sha256"):
         start_manifest(tmp_path, participant="P01", resumed_at=4, quick=True, **{**common, "study_path": other})
+
+
+def test_a_restarted_recorder_never_writes_over_a_segment(tmp_path):
+    from touch4d.nodes.recorder import unused_path
+
+    first = tmp_path / "session-001.mcap"
+    assert unused_path(first) == first
+    first.write_bytes(b"x")
+    assert unused_path(first) == tmp_path / "session-001-2.mcap"
+    (tmp_path / "session-001-2.mcap").write_bytes(b"x")
+    assert unused_path(first) == tmp_path / "session-001-3.mcap"
