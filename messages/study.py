@@ -6,11 +6,9 @@ in its `stimulus` phase draws objects (unless its condition is `touch`) or drive
 `visual`). Reaction times are measured on the bus clock: a response's `stamp` minus the trial's
 `onset` (the stamp of the first `study/trial` of its stimulus phase).
 """
-from __future__ import annotations
+from typing import Literal
 
-from dataclasses import dataclass
-
-from .base import Bool, Float, Int, Message, Str, StrList, spec
+from .base import Float, Message, doc
 
 # idle: between trials (the next trial's scene loads); stimulus: the trial runs and takes answers;
 # break: a rest the participant ends; paused: the experimenter paused; done: the session is complete.
@@ -20,28 +18,27 @@ STUDY_COMMANDS = ("pause", "resume", "toggle")
 RESPONSE_SOURCES = ("keyboard", "controller", "page", "observer", "cli")
 
 
-@dataclass(kw_only=True)
 class StudyTrial(Message):
     """The study's state (topic study/trial): published at every change and repeated a few times a
     second, so a node that (re)starts gates at once."""
 
-    study: str = spec(Str(), "the study's name")
-    participant: str = spec(Str(), "the participant id")
-    phase: str = spec(Str(STUDY_PHASES), "idle, stimulus, break, paused or done")
-    index: int = spec(Int(), "trial index over the session (practice included); -1: none (done)")
-    total: int = spec(Int(), "trials in the session")
-    block: int = spec(Int(), "block (one per condition), from 0")
-    trial: int = spec(Int(), "trial within its block, from 0")
-    practice: bool = spec(Bool(), "a practice trial (not analysed)")
-    task: str = spec(Str(), "task id")
-    kind: str = spec(Str(), "task kind: front-element, look-alikes or tilt")
-    condition: str = spec(Str(STUDY_CONDITIONS), "visual (motors held off), touch (no object drawn), visual+touch")
-    stimulus: str = spec(Str(), "stimulus name, e.g. face, tilt+8")
-    prompt: str = spec(Str(), "the question shown")
-    options: list = spec(StrList(), "the response options, in the order keys 1..9 and buttons pick them")
-    onset: float = spec(Float(), "stamp of the stimulus onset (bus clock, s); 0 outside the stimulus phase")
-    time_limit_s: float = spec(Float(), "the trial ends unanswered this long after onset, s")
-    message: str = spec(Str(), "a line for the participant (break, pause, end)")
+    study: str = doc("the study's name")
+    participant: str = doc("the participant id")
+    phase: Literal[STUDY_PHASES] = doc("idle, stimulus, break, paused or done")
+    index: int = doc("trial index over the session (practice included); -1: none (done)")
+    total: int = doc("trials in the session")
+    block: int = doc("block (one per condition), from 0")
+    trial: int = doc("trial within its block, from 0")
+    practice: bool = doc("a practice trial (not analysed)")
+    task: str = doc("task id")
+    kind: str = doc("task kind: front-element, look-alikes or tilt")
+    condition: Literal[STUDY_CONDITIONS] = doc("visual (motors held off), touch (no object drawn), visual+touch")
+    stimulus: str = doc("stimulus name, e.g. face, tilt+8")
+    prompt: str = doc("the question shown")
+    options: list[str] = doc("the response options, in the order keys 1..9 and buttons pick them")
+    onset: Float = doc("stamp of the stimulus onset (bus clock, s); 0 outside the stimulus phase")
+    time_limit_s: Float = doc("the trial ends unanswered this long after onset, s")
+    message: str = doc("a line for the participant (break, pause, end)")
 
     def check(self):
         if self.phase == "stimulus" and (self.index < 0 or len(self.options) < 2):
@@ -50,20 +47,18 @@ class StudyTrial(Message):
             raise ValueError(f"options: at most 9 (keys 1..9), got {len(self.options)}")
 
 
-@dataclass(kw_only=True)
 class StudyResponse(Message):
     """An answer (topic study/response). Its `stamp` is when it was given on the bus clock (a page maps
     its own clock to it); the study node keeps the first valid answer per trial."""
 
-    index: int = spec(Int(), "the trial answered (StudyTrial.index)")
-    response: str = spec(Str(), "the option chosen, one of the trial's options")
-    source: str = spec(Str(RESPONSE_SOURCES), "what gave it: keyboard, controller, page, observer, cli")
+    index: int = doc("the trial answered (StudyTrial.index)")
+    response: str = doc("the option chosen, one of the trial's options")
+    source: Literal[RESPONSE_SOURCES] = doc("what gave it: keyboard, controller, page, observer, cli")
 
 
-@dataclass(kw_only=True)
 class StudyCommand(Message):
     """Tell the study node to pause or resume (topic study/command), e.g.
     `touch4d topic pub study/command '{command: pause}'`."""
 
-    command: str = spec(Str(STUDY_COMMANDS), "pause, resume or toggle")
-    reason: str = spec(Str(), "why, for the log")
+    command: Literal[STUDY_COMMANDS] = doc("pause, resume or toggle")
+    reason: str = doc("why, for the log")

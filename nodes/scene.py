@@ -12,7 +12,7 @@ import os
 import time
 
 from touch4d.bus import Node, Param
-from touch4d.errors import ConfigError
+from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
@@ -78,7 +78,7 @@ class SceneNode(Node):
     def on_command(self, msg: SceneCommand) -> None:
         try:
             changed = self.control.command(msg.command, msg.argument)
-        except ValueError as exc:   # a bad command, or (ConfigError) a bad scene to load: the scene stays
+        except Touch4dError as exc:   # SceneCommandError, or (ConfigError) a bad scene to load: the scene stays
             self.log.warning("scene/command %s ignored: %s", msg.command, exc)
             return
         self.changed(changed)

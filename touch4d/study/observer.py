@@ -48,8 +48,7 @@ def every_sample_glove(glove: Glove) -> Glove:
 
 def touch_threshold(glove: Glove) -> float:
     """The intensity above which a motor is felt: the motor node's dead band (below it the duty is 0)."""
-    duty = (glove.can or {}).get("duty") or {}
-    return float(duty.get("deadband", 0.02))
+    return float(glove.can.duty.deadband)
 
 
 @dataclass
