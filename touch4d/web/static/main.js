@@ -23,7 +23,8 @@ const state = (window.touch4d = {
   study: null, drawObjects: true, answers: 0, panel: [],
 });
 
-let hud = null, scene = null, orbit = null, panel = null;   // made when the node's setup frame (with the shaders) arrives
+// made when the node's setup frame (with the shaders) arrives
+let hud = null, scene = null, orbit = null, panel = null;
 let screenModel = null;   // screen units -> the room, from the setup frame
 
 if (!gl) {
@@ -102,7 +103,6 @@ function drawWorld(framebuffer, size, viewport, projection, view, model) {
   hud.draw(mvp, (scale * projection[5] * viewport[3]) / 2, viewport);
   if (panel) panel.draw(mvp);
 }
-
 
 function clear(framebuffer, width, height) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
