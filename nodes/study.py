@@ -144,6 +144,11 @@ class StudyNode(Node):
 
     def _prepare_scene(self) -> None:
         mapping = scene_mapping(self.study, self.current)
+        # Nothing a participant may read gives the answer away: the objects' names (the desktop's status
+        # line shows them, e.g. a look-alike's "cone") and the description are neutral.
+        mapping["description"] = f"{self.study.name}: a trial"
+        for k, obj in enumerate(mapping["objects"]):
+            obj["name"] = f"object-{k + 1}"
         text = yaml.safe_dump(mapping, sort_keys=False)
         msg = parse_scene(parse_yaml(text, "study"), "study").to_message()   # as the scene node will read it
         self.expected = (scene_digest(msg), scene_kind(msg), text)

@@ -12,7 +12,7 @@ import yaml
 
 from touch4d.bus import Node
 from touch4d.bus.testing import collect, running_broker, wait_until
-from touch4d.messages import InputEvents, Stop, StudyCommand, StudyResponse, StudyTrial
+from touch4d.messages import InputEvents, SceneState, Stop, StudyCommand, StudyResponse, StudyTrial
 from touch4d.nodes.scene import SceneNode
 from touch4d.nodes.study import StudyNode
 from touch4d.study.design import load_study
@@ -37,6 +37,7 @@ def test_keys_pause_breaks_timeouts_and_the_end(tmp_path):
         probe = Node("probe", bus=bus, heartbeat=False)
         trials = collect(probe, "study/trial", StudyTrial)
         stops = collect(probe, "safety/stop", Stop)
+        scenes = collect(probe, "scene/state", SceneState)
         keys = probe.create_publisher("ui/input", InputEvents)
         answers = probe.create_publisher("study/response", StudyResponse)
         commands = probe.create_publisher("study/command", StudyCommand)
@@ -64,6 +65,9 @@ def test_keys_pause_breaks_timeouts_and_the_end(tmp_path):
             press("enter")
             first = phase("stimulus", 0)
             assert first.onset == first.stamp and first.options == plan[0].options   # the onset is its own stamp
+            # the trial's scene is shown, its objects named so that no name gives the answer away
+            assert [o["name"] for o in scenes[-1].objects] == ["object-1"]
+            assert scenes[-1].objects[0]["shape"] == "tesseract"
             press("2")                                                               # the second option
             phase("idle", 1)
             shown = phase("stimulus", 1)
