@@ -131,14 +131,14 @@ class StudyNode(Node):
             self._finish_session()
             return
         self._prepare_scene()
+        words = CONDITION_WORDS.get(self.current.condition, self.current.condition)
         new_block = previous is not None and previous.block != self.current.block
-        if (new_block or (self.current.break_before and not first)) and not first:
-            words = CONDITION_WORDS.get(self.current.condition, self.current.condition)
-            self._set_phase("break", f"Break. Next: {words}. Press Enter or any answer button to go on."
-                            if new_block else "Break. Press Enter or any answer button to go on.")
-        elif first and self.current.trial == 0:
-            words = CONDITION_WORDS.get(self.current.condition, self.current.condition)
+        if first and self.current.trial == 0:      # a block's start, the session's or after a restart
             self._set_phase("break", f"Ready? First: {words}. Press Enter or any answer button to start.")
+        elif new_block:
+            self._set_phase("break", f"Break. Next: {words}. Press Enter or any answer button to go on.")
+        elif self.current.break_before and not first:
+            self._set_phase("break", "Break. Press Enter or any answer button to go on.")
         else:
             self._set_phase("idle", "")
 
