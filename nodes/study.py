@@ -92,6 +92,7 @@ class StudyNode(Node):
                        quick=p["quick"])
         self.measures = TrialMeasures(threshold=load_glove(p["glove"]).touch_threshold)
         self.counts = {"responses": 0, "responses_ignored": 0, "timed_out": 0, "scene_loads": 0, "pauses": 0}
+        self.add_stats(lambda: {**self.counts, "done": len(self.trials.rows), "trials": len(self.plan)})
 
         self.trial_pub = self.create_publisher("study/trial", StudyTrial)
         self.response_pub = self.create_publisher("study/response", StudyResponse)
@@ -283,12 +284,6 @@ class StudyNode(Node):
                              kind=t.kind, condition=t.condition, stimulus=t.stimulus, prompt=t.prompt,
                              options=list(t.options), onset=self.onset, time_limit_s=t.time_limit_s, **common)
         self.trial_pub.publish(msg)
-
-    def stats_flat(self) -> dict:
-        out = super().stats_flat()
-        if hasattr(self, "counts"):
-            out.update(self.counts, done=len(self.trials.rows), trials=len(self.plan))
-        return out
 
     def on_shutdown(self) -> None:
         """A clean stop closes the gate (motors off, nothing drawn); the trial shown is shown again on resume."""

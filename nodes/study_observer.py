@@ -76,6 +76,7 @@ class StudyObserverNode(Node):
         self.sent_at = 0.0
         self.felt_at: float | None = None
         self.counts = {"trials": 0, "breaks": 0, "resent": 0}
+        self.add_stats(lambda: dict(self.counts))
         self._onset = 0.0
         self._away()
 
@@ -150,9 +151,3 @@ class StudyObserverNode(Node):
         self.counts["trials"] += 1
         self.trial = None
         self._away()
-
-    def stats_flat(self) -> dict:
-        out = super().stats_flat()
-        if hasattr(self, "counts"):
-            out.update(self.counts)
-        return out
