@@ -16,7 +16,7 @@ from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
+from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ROTATE_TARGETS, ControlConfig, SceneControl
 
 
 class SceneNode(Node):
@@ -32,7 +32,7 @@ class SceneNode(Node):
         "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
         "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
         "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> scene command"),
-        "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
+        "rotate": Param("object", "what the controller turns (none: nothing)", choices=ROTATE_TARGETS),
         "spin": Param({}, "turn by itself: {plane: xw, deg_per_s: 6}"),
     }
 

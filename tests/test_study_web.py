@@ -123,3 +123,17 @@ def test_the_scene_node_loads_a_scene_given_as_text_and_keeps_its_scene_on_a_bad
     with pytest.raises(ConfigError, match="scene/command load.*size"):
         control.command("load", bad)
     assert control.message().objects[0]["orientation"].tolist() == expected.objects[0]["orientation"].tolist()
+
+
+def test_a_study_scene_node_turns_nothing_with_the_trigger():
+    from touch4d.tracking.scene_control import ControlConfig
+
+    calibration = load_calibration(REPO / "config/calibration.yaml")
+    scene = load_scene(REPO / "config/scenes/hypercube.yaml")
+    for rotate, turns in (("object", True), ("none", False)):
+        control = SceneControl(scene, calibration, ControlConfig(rotate=rotate))
+        before = control.message().objects[0]["orientation"].copy()
+        for x in (0.0, 0.05, 0.1):                       # the trigger held, the controller moved 10 cm
+            control.on_controller([x, 1.2, -0.45], [0, 0, 0, 1], 1.0, [])
+        moved = control.message().objects[0]["orientation"]
+        assert (not (moved == before).all()) is turns

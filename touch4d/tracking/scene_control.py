@@ -25,7 +25,7 @@ from touch4d.geometry import quaternion
 from .calibration import Calibration
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
-ROTATE_TARGETS = ("object", "scene")
+ROTATE_TARGETS = ("object", "scene", "none")   # none: the controller turns nothing (a study's fixed stimuli)
 BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
 
 
@@ -55,7 +55,8 @@ class ControlConfig:
     rotation_gain: float = 1.0         # radians of yz/zx/xy rotation per radian the controller turns
     trigger_threshold: float = 0.5     # trigger travel above which the controller holds the object
     buttons: dict = field(default_factory=lambda: dict(DEFAULT_BUTTONS))  # button -> command
-    rotate: str = "object"             # "object": the selected one; "scene": everything, about its centre
+    rotate: str = "object"             # "object": the selected one; "scene": everything, about its centre;
+                                       # "none": nothing
     spin_plane: str | None = None      # slow automatic rotation (the demo's turning hypercube)
     spin_deg_per_s: float = 0.0
 
@@ -106,7 +107,7 @@ class SceneControl:
             if command is not None:
                 changed |= self.command(command)
         self._held = now
-        if not valid or trigger < self.config.trigger_threshold:
+        if not valid or trigger < self.config.trigger_threshold or self.config.rotate == "none":
             self._grab = None
             return changed
         position = np.asarray(position_m, dtype=float)
