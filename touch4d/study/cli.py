@@ -41,6 +41,9 @@ def register(subparsers) -> None:
                                      "trial; --offline runs them on the library alone (no bus), else through the "
                                      "full stack. --participant ID: a real participant's session.")
     run.add_argument("study", metavar="STUDY", help="study file")
+    run.add_argument("items", nargs="*", metavar="ROLE:=NODE",
+                     help="full stack: launch overrides, as for touch4d launch (tracker:=webxr, renderer:=none, "
+                          "study.iti_s:=1, ...)")
     who = run.add_mutually_exclusive_group(required=True)
     who.add_argument("--simulate", action="store_true", help="simulated participants (model observers)")
     who.add_argument("--participant", metavar="ID", help="a participant's session through the full stack")
@@ -153,6 +156,8 @@ def run_plan(args) -> int:
 
 
 def run_run(args) -> int:
+    if args.offline and args.items:
+        raise ConfigError(COMMAND_LINE, args.items[0], "no launch overrides with --offline (no stack runs)")
     if args.simulate and args.offline:
         return run_offline(args)
     if args.offline:
@@ -195,8 +200,10 @@ def run_full_stack(args) -> int:
                           "--simulate --offline runs simulated participants without it") from None
     study_path = resolve_path(args.study, COMMAND_LINE, key="STUDY", what="study file")
     if args.simulate:
-        return session.run_simulation(study_path, args.participants, args.out, seed=args.seed, quick=args.quick)
-    return session.run_session(study_path, args.participant, args.out, quick=args.quick)
+        observer = [f"tracker.noise:={args.noise}", f"tracker.lapse:={args.lapse}"]
+        return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
+                                      seed=args.seed, quick=args.quick)
+    return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick)
 
 
 def run_transfer(args) -> int:
