@@ -39,8 +39,10 @@ PALETTE = np.array([
     [0.30, 0.65, 1.00, 1.0], [1.00, 0.55, 0.20, 1.0], [0.40, 0.85, 0.40, 1.0],
     [0.90, 0.35, 0.60, 1.0], [0.95, 0.85, 0.30, 1.0], [0.60, 0.50, 0.95, 1.0],
 ])
-OBJECT_KEYS = {"name", "shape", "params", "vertices", "halfspaces", "parts", "size", "position", "rotation", "color"}
-TOP_KEYS = {"objects", "projection", "eye_distance", "description", "selected"}
+# `physics` (scene and object) is read by touch4d.physics.config; the geometry ignores it.
+OBJECT_KEYS = {"name", "shape", "params", "vertices", "halfspaces", "parts", "size", "position", "rotation", "color",
+               "physics"}
+TOP_KEYS = {"objects", "projection", "eye_distance", "description", "selected", "physics"}
 
 _custom_cache: dict[bytes, list[Polytope]] = {}
 _part_cache: dict[tuple[str, bytes], np.ndarray] = {}   # (kind, rows) of a custom part -> its half-spaces

@@ -1,0 +1,633 @@
+"""The step's loops, compiled with numba: rotation flow, broad and narrow phase, the impulse solver.
+
+Everything here works on flat arrays (no Python objects) so numba compiles it; `world.step` is the
+Python face. Conventions are those of `bivector`: a bivector is a 6-vector over xy, xz, xw, yz, yw, zw,
+w_ab turns axis a toward axis b, a point r of a body turning at w moves at W r, an impulse P at r
+changes the angular momentum by r ^ P.
+
+Contacts (docs/physics.md): the separating axis among the cell normals of the two convex parts gives
+the contact normal; the contact points are the edges of each part clipped to the other (grown by
+the speculative margin), deduplicated, at most MAX_POINTS per pair (the deepest, then the spread).
+The solver is sequential impulses: a normal impulse >= 0 per point with restitution and speculative
+targets, a tangential impulse vector in the 3D tangent space held inside the Coulomb disc of radius
+mu * normal impulse (static mu while the point sticks, kinetic while it slides), then a separate
+pass of pseudo-velocities that removes penetration without adding energy (split impulse).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+PA = np.array([0, 0, 0, 1, 1, 2])      # first axis of each plane
+PB = np.array([1, 2, 3, 2, 3, 3])      # second axis
+MAX_POINTS = 12                        # contact points kept per pair of convex parts
+MAX_CANDIDATES = 512                   # clipped edge end points examined per pair
+
+# solver options, in this order in the `options` array
+OPT_ITERATIONS, OPT_POSITION_ITERATIONS, OPT_MARGIN, OPT_SLOP, OPT_BAUMGARTE, OPT_RESTITUTION_SPEED, \
+    OPT_STICK_SPEED = range(7)
+N_OPTIONS = 7
+
+# columns of the contact array (one row per contact point)
+C_A, C_B, C_PX, C_NX, C_DEPTH, C_LAMBDA, C_TX, C_SPEED = 0, 1, 2, 6, 10, 11, 12, 16
+C_WIDTH = 17
+
+
+cache = dict(cache=True, nogil=True)
+
+
+@njit(**cache)
+def compound(m, out):
+    """6x6 matrix turning bivectors as m turns vectors."""
+    for i in range(6):
+        a, b = PA[i], PB[i]
+        for j in range(6):
+            c, d = PA[j], PB[j]
+            out[i, j] = m[a, c] * m[b, d] - m[a, d] * m[b, c]
+
+
+@njit(**cache)
+def wedge(r, p, out):
+    for i in range(6):
+        out[i] = r[PA[i]] * p[PB[i]] - r[PB[i]] * p[PA[i]]
+
+
+@njit(**cache)
+def turn(w, r, out):
+    """out = W r, the velocity of the point r of a body turning at w."""
+    for k in range(4):
+        out[k] = 0.0
+    for i in range(6):
+        a, b = PA[i], PB[i]
+        out[b] += w[i] * r[a]
+        out[a] -= w[i] * r[b]
+
+
+@njit(**cache)
+def exp_bivector(w, out):
+    """exp(hat(w)) in closed form: the product of its two commuting isoclinic parts."""
+    star = np.empty(6)
+    star[0], star[1], star[2], star[3], star[4], star[5] = w[5], -w[4], w[3], w[2], -w[1], w[0]
+    tmp = np.empty((4, 4))
+    for k in range(4):
+        for j in range(4):
+            out[k, j] = 1.0 if k == j else 0.0
+    for sgn in (1.0, -1.0):
+        part = 0.5 * (w + sgn * star)
+        theta = math.sqrt(np.sum(part * part) * 0.5)
+        c = math.cos(theta)
+        s = math.sin(theta) / theta if theta > 0 else 1.0
+        e = np.zeros((4, 4))
+        for k in range(4):
+            e[k, k] = c
+        for i in range(6):
+            a, b = PA[i], PB[i]
+            e[b, a] += s * part[i]
+            e[a, b] -= s * part[i]
+        for k in range(4):
+            for j in range(4):
+                acc = 0.0
+                for m in range(4):
+                    acc += out[k, m] * e[m, j]
+                tmp[k, j] = acc
+        out[:, :] = tmp
+
+
+@njit(**cache)
+def world_inverse_inertia(r, axes, inv_plane, out):
+    """R Q diag(1 / I) (R Q)^T on bivectors: the world inverse inertia (6x6) of one body."""
+    w = r @ axes
+    c = np.empty((6, 6))
+    compound(w, c)
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += c[i, k] * inv_plane[k] * c[j, k]
+            out[i, j] = acc
+
+
+@njit(**cache)
+def renormalize(r):
+    """One Newton-Schulz step towards the nearest rotation: r (3 I - r^T r) / 2."""
+    e = r.T @ r
+    for k in range(4):
+        e[k, k] -= 3.0
+    return -0.5 * (r @ e)
+
+
+@njit(**cache)
+def _plane_momentum(w, L, lp):
+    c = np.empty((6, 6))
+    compound(w, c)
+    for j in range(6):
+        acc = 0.0
+        for i in range(6):
+            acc += c[i, j] * L[i]
+        lp[j] = acc
+
+
+@njit(**cache)
+def _turn_columns(w, a, b, phi):
+    c, s = math.cos(phi), math.sin(phi)
+    for k in range(4):
+        wa, wb = w[k, a], w[k, b]
+        w[k, a] = c * wa + s * wb
+        w[k, b] = -s * wa + c * wb
+
+
+@njit(**cache)
+def rotate_free(r, axes, L, iso_inv, excess, dt):
+    """The orientation after dt of a free body with world angular momentum L (which it keeps).
+
+    Kinetic energy L^2 / (2 I0) + sum_ab excess_ab Lp_ab^2 / 2 (Lp: L in principal axes, excess_ab =
+    1 / I_ab - 1 / I0) is split into its isotropic part, an exact rotation exp(L dt / I0) in the world,
+    and one part per principal plane, each an exact rotation in that plane of the body: a symmetric
+    (Strang) composition, so symplectic, second order, L kept exactly, energy without drift; a body
+    with equal inertia in every plane (all excess 0) turns exactly.
+    """
+    w = r @ axes
+    lp = np.empty(6)
+    half = 0.5 * dt
+    for j in range(6):
+        if excess[j] != 0.0:
+            _plane_momentum(w, L, lp)
+            _turn_columns(w, PA[j], PB[j], excess[j] * lp[j] * half)
+    e = np.empty((4, 4))
+    exp_bivector(L * (iso_inv * dt), e)
+    w = e @ w
+    for j in range(5, -1, -1):
+        if excess[j] != 0.0:
+            _plane_momentum(w, L, lp)
+            _turn_columns(w, PA[j], PB[j], excess[j] * lp[j] * half)
+    return renormalize(w @ axes.T)
+
+
+# ---- broad phase ----------------------------------------------------------------------------------
+
+
+@njit(**cache)
+def part_bounds(part_body, v_start, v_count, verts_world, margin):
+    n = len(part_body)
+    lo = np.empty((n, 4))
+    hi = np.empty((n, 4))
+    for p in range(n):
+        for k in range(4):
+            lo[p, k] = np.inf
+            hi[p, k] = -np.inf
+        for v in range(v_start[p], v_start[p] + v_count[p]):
+            for k in range(4):
+                x = verts_world[v, k]
+                if x < lo[p, k]:
+                    lo[p, k] = x
+                if x > hi[p, k]:
+                    hi[p, k] = x
+        for k in range(4):
+            lo[p, k] -= 0.5 * margin
+            hi[p, k] += 0.5 * margin
+    return lo, hi
+
+
+@njit(**cache)
+def broad_phase(part_body, dynamic, lo, hi):
+    """Pairs of parts of different bodies, at least one dynamic, whose boxes overlap (sweep along x)."""
+    n = len(part_body)
+    order = np.argsort(lo[:, 0], kind="mergesort")
+    pairs = np.empty((max(16, 4 * n), 2), dtype=np.int64)
+    count = 0
+    for ii in range(n):
+        i = order[ii]
+        for jj in range(ii + 1, n):
+            j = order[jj]
+            if lo[j, 0] > hi[i, 0]:
+                break
+            bi, bj = part_body[i], part_body[j]
+            if bi == bj or not (dynamic[bi] or dynamic[bj]):
+                continue
+            if hi[i, 1] < lo[j, 1] or hi[j, 1] < lo[i, 1] or hi[i, 2] < lo[j, 2] or hi[j, 2] < lo[i, 2] \
+                    or hi[i, 3] < lo[j, 3] or hi[j, 3] < lo[i, 3]:
+                continue
+            if count == len(pairs):
+                grown = np.empty((2 * len(pairs), 2), dtype=np.int64)
+                grown[:count] = pairs[:count]
+                pairs = grown
+            a, b = (i, j) if i < j else (j, i)
+            pairs[count, 0] = a
+            pairs[count, 1] = b
+            count += 1
+    pairs = pairs[:count]
+    # a fixed order whatever the sweep found first: the solver's order, and so the result, depends on it
+    key = pairs[:, 0] * n + pairs[:, 1]
+    return pairs[np.argsort(key, kind="mergesort")]
+
+
+# ---- narrow phase ---------------------------------------------------------------------------------
+
+
+@njit(**cache)
+def _separation(na, oa, ca_start, ca_count, vb, vb_start, vb_count):
+    """Largest separation of B's vertices beyond a cell plane of A, and which cell."""
+    best, which = -np.inf, -1
+    for c in range(ca_start, ca_start + ca_count):
+        low = np.inf
+        for v in range(vb_start, vb_start + vb_count):
+            d = na[c, 0] * vb[v, 0] + na[c, 1] * vb[v, 1] + na[c, 2] * vb[v, 2] + na[c, 3] * vb[v, 3]
+            if d < low:
+                low = d
+        sep = low - oa[c]
+        if sep > best:
+            best, which = sep, c
+    return best, which
+
+
+@njit(**cache)
+def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_count, margin, pts, count):
+    """End points of the edges (of one part) clipped to the other part grown by margin (Cyrus-Beck)."""
+    for e in range(e_start, e_start + e_count):
+        p0 = verts[edges[e, 0]]
+        p1 = verts[edges[e, 1]]
+        t0, t1 = 0.0, 1.0
+        for c in range(c_start, c_start + c_count):
+            n = normals[c]
+            den = n[0] * (p1[0] - p0[0]) + n[1] * (p1[1] - p0[1]) + n[2] * (p1[2] - p0[2]) + n[3] * (p1[3] - p0[3])
+            num = offsets[c] + margin - (n[0] * p0[0] + n[1] * p0[1] + n[2] * p0[2] + n[3] * p0[3])
+            if abs(den) < 1e-14:
+                if num < 0:
+                    t0, t1 = 1.0, 0.0
+                    break
+            elif den > 0:
+                t1 = min(t1, num / den)
+            else:
+                t0 = max(t0, num / den)
+            if t0 > t1:
+                break
+        if t0 > t1:
+            continue
+        for t in (t0, t1):
+            if count >= MAX_CANDIDATES:
+                return count
+            for k in range(4):
+                pts[count, k] = p0[k] + t * (p1[k] - p0[k])
+            count += 1
+            if t1 - t0 < 1e-12:
+                break
+    return count
+
+
+@njit(**cache)
+def _exit_depth(q, direction, normals, offsets, c_start, c_count):
+    """How far q must move along `direction` to leave the part (negative: q is outside, that far)."""
+    best = np.inf
+    for c in range(c_start, c_start + c_count):
+        n = normals[c]
+        along = n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2] + n[3] * direction[3]
+        if along > 1e-9:
+            t = (offsets[c] - (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] + n[3] * q[3])) / along
+            if t < best:
+                best = t
+    return best
+
+
+@njit(**cache)
+def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
+                 edges, margin, out_pts, out_depth, out_normal):
+    """Contact points of two convex parts: returns their number (0: apart by more than margin);
+    fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b."""
+    sep_a, cell_a = _separation(normals, offsets, c_start[pa], c_count[pa], verts, v_start[pb], v_count[pb])
+    if sep_a > margin:
+        return 0
+    sep_b, cell_b = _separation(normals, offsets, c_start[pb], c_count[pb], verts, v_start[pa], v_count[pa])
+    if sep_b > margin:
+        return 0
+    # prefer a's axis unless b's is clearly better: equal axes (face on face) must not flip-flop
+    if sep_b > sep_a + 1e-9:
+        for k in range(4):
+            out_normal[k] = -normals[cell_b, k]
+    else:
+        for k in range(4):
+            out_normal[k] = normals[cell_a, k]
+    n = out_normal
+    minus = -n
+    cand = np.empty((MAX_CANDIDATES, 4))
+    depth = np.empty(MAX_CANDIDATES)
+    count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
+                        margin, cand, 0)
+    split = count
+    count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
+                        margin, cand, count)
+    keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
+    kept = 0
+    for i in range(count):
+        if i < split:    # a point of b inside a: b must move along +n to leave a
+            d = _exit_depth(cand[i], n, normals, offsets, c_start[pa], c_count[pa])
+        else:            # a point of a inside b: b leaves it by moving a along -n
+            d = _exit_depth(cand[i], minus, normals, offsets, c_start[pb], c_count[pb])
+        if not d > -0.9 * margin:
+            continue
+        dup = False
+        for j in range(i):
+            if keep[j]:
+                dist = 0.0
+                for k in range(4):
+                    dist += (cand[i, k] - cand[j, k]) ** 2
+                if dist < 1e-16:
+                    dup = True
+                    if d > depth[j]:
+                        depth[j] = d
+                    break
+        if dup:
+            continue
+        depth[i] = d
+        keep[i] = True
+        kept += 1
+    if kept == 0:
+        return 0
+    idx = np.empty(kept, dtype=np.int64)
+    m = 0
+    for i in range(count):
+        if keep[i]:
+            idx[m] = i
+            m += 1
+    if kept <= MAX_POINTS:
+        for m in range(kept):
+            out_pts[m] = cand[idx[m]]
+            out_depth[m] = depth[idx[m]]
+        return kept
+    # too many: the deepest, then each time the point farthest (across the normal) from those chosen
+    chosen = np.zeros(kept, dtype=np.bool_)
+    far = np.full(kept, np.inf)
+    first = 0
+    for m in range(kept):
+        if depth[idx[m]] > depth[idx[first]]:
+            first = m
+    pick = first
+    for slot in range(MAX_POINTS):
+        chosen[pick] = True
+        out_pts[slot] = cand[idx[pick]]
+        out_depth[slot] = depth[idx[pick]]
+        best, nxt = -1.0, -1
+        for m in range(kept):
+            if chosen[m]:
+                continue
+            diff = cand[idx[m]] - cand[idx[pick]]
+            along = diff[0] * n[0] + diff[1] * n[1] + diff[2] * n[2] + diff[3] * n[3]
+            dist = diff[0] ** 2 + diff[1] ** 2 + diff[2] ** 2 + diff[3] ** 2 - along * along
+            if dist < far[m]:
+                far[m] = dist
+            if far[m] > best:
+                best, nxt = far[m], m
+        if nxt < 0:
+            return slot + 1
+        pick = nxt
+    return MAX_POINTS
+
+
+# ---- the step -------------------------------------------------------------------------------------
+
+
+@njit(**cache)
+def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw):
+    """Impulse sign * p at offset r on one body: its velocity, angular velocity and momentum change."""
+    if inv_mass[body] == 0.0:
+        return
+    for k in range(4):
+        v[body, k] += sign * inv_mass[body] * p[k]
+    wedge(r, p, tmp6)
+    for i in range(6):
+        dL[body, i] += sign * tmp6[i]
+    for i in range(6):
+        acc = 0.0
+        for j in range(6):
+            acc += inv_inertia[body, i, j] * tmp6[j]
+        w[body, i] += sign * acc
+
+
+@njit(**cache)
+def _point_velocity(body, r, v, w, out, tmp):
+    turn(w[body], r, tmp)
+    for k in range(4):
+        out[k] = v[body, k] + tmp[k]
+
+
+@njit(**cache)
+def _inv_effective(a, b, ra, rb, d, inv_mass, inv_inertia, tmp6):
+    """1 / (effective mass) of the pair at the points ra, rb along the unit direction d."""
+    k = inv_mass[a] + inv_mass[b]
+    for body, r in ((a, ra), (b, rb)):
+        if inv_mass[body] == 0.0:
+            continue
+        wedge(r, d, tmp6)
+        for i in range(6):
+            acc = 0.0
+            for j in range(6):
+                acc += inv_inertia[body, i, j] * tmp6[j]
+            k += tmp6[i] * acc
+    return k
+
+
+@njit(**cache)
+def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
+         part_body, v_start, v_count, c_start, c_count, e_start, e_count, local_verts, local_normals,
+         local_offsets, edges, friction_static, friction_kinetic, restitution,
+         gravity, dt, options, impulses):
+    """One step: state (x, v, r, L) in, new state and the contact rows out (see module doc).
+
+    impulses: (K, 9) rows [body, px, py, pz, pw (world point), jx, jy, jz, jw] applied at the start.
+    """
+    n = len(x)
+    iterations = int(options[OPT_ITERATIONS])
+    position_iterations = int(options[OPT_POSITION_ITERATIONS])
+    margin = options[OPT_MARGIN]
+    slop = options[OPT_SLOP]
+    baumgarte = options[OPT_BAUMGARTE]
+    bounce_speed = options[OPT_RESTITUTION_SPEED]
+    stick_speed = options[OPT_STICK_SPEED]
+    x = x.copy()
+    v = v.copy()
+    L = L.copy()
+    r = r.copy()
+    dynamic = inv_mass > 0.0
+    tmp6 = np.empty(6)
+    tmp4 = np.empty(4)
+    tmpw = np.empty(4)
+    # world inertia, angular velocity
+    inv_inertia = np.zeros((n, 6, 6))
+    w = np.zeros((n, 6))
+    for i in range(n):
+        if dynamic[i]:
+            world_inverse_inertia(r[i], axes[i], inv_plane[i], inv_inertia[i])
+            w[i] = inv_inertia[i] @ L[i]
+    dL = np.zeros((n, 6))
+    # external impulses (the hand), then gravity
+    for k in range(len(impulses)):
+        body = int(impulses[k, 0])
+        rr = impulses[k, 1:5] - x[body]
+        _apply(body, impulses[k, 5:9].copy(), rr, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+    for i in range(n):
+        if dynamic[i]:
+            for k in range(4):
+                v[i, k] += gravity_scale[i] * gravity[k] * dt
+    # world geometry of every part
+    n_parts = len(part_body)
+    verts = np.empty_like(local_verts)
+    normals = np.empty_like(local_normals)
+    offsets = np.empty_like(local_offsets)
+    for p in range(n_parts):
+        b = part_body[p]
+        for vv in range(v_start[p], v_start[p] + v_count[p]):
+            verts[vv] = r[b] @ local_verts[vv] + x[b]
+        for c in range(c_start[p], c_start[p] + c_count[p]):
+            normals[c] = r[b] @ local_normals[c]
+            offsets[c] = local_offsets[c] + normals[c] @ x[b]
+    lo, hi = part_bounds(part_body, v_start, v_count, verts, margin)
+    pairs = broad_phase(part_body, dynamic, lo, hi)
+    rows = np.zeros((len(pairs) * MAX_POINTS, C_WIDTH))
+    ra_all = np.empty((len(rows), 4))
+    rb_all = np.empty((len(rows), 4))
+    mass_n = np.empty(len(rows))
+    target = np.empty(len(rows))
+    mu = np.empty(len(rows))
+    pts = np.empty((MAX_POINTS, 4))
+    depth = np.empty(MAX_POINTS)
+    normal = np.empty(4)
+    va = np.empty(4)
+    vb = np.empty(4)
+    m = 0
+    for q in range(len(pairs)):
+        pa, pb = pairs[q, 0], pairs[q, 1]
+        k = narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
+                         edges, margin, pts, depth, normal)
+        a, b = part_body[pa], part_body[pb]
+        mus = math.sqrt(friction_static[a] * friction_static[b])
+        muk = math.sqrt(friction_kinetic[a] * friction_kinetic[b])
+        e = max(restitution[a], restitution[b])
+        for j in range(k):
+            row = rows[m]
+            row[C_A] = a
+            row[C_B] = b
+            row[C_PX:C_PX + 4] = pts[j]
+            row[C_NX:C_NX + 4] = normal
+            row[C_DEPTH] = depth[j]
+            ra_all[m] = pts[j] - x[a]
+            rb_all[m] = pts[j] - x[b]
+            mass_n[m] = 1.0 / _inv_effective(a, b, ra_all[m], rb_all[m], normal, inv_mass, inv_inertia, tmp6)
+            _point_velocity(a, ra_all[m], v, w, va, tmp4)
+            _point_velocity(b, rb_all[m], v, w, vb, tmp4)
+            rel = vb - va
+            vn = rel @ normal
+            row[C_SPEED] = vn
+            gap = max(-depth[j], 0.0)
+            goal = -gap / dt                          # speculative: may close the gap, no more
+            if e > 0.0 and vn < -bounce_speed and vn < goal:
+                goal = -e * vn
+            target[m] = goal
+            tangential = rel - vn * normal
+            mu[m] = mus if math.sqrt(tangential @ tangential) < stick_speed else muk
+            m += 1
+    rows = rows[:m]
+    # velocity pass
+    imp = np.empty(4)
+    for it in range(iterations):
+        for c in range(m):
+            a, b = int(rows[c, C_A]), int(rows[c, C_B])
+            normal[:] = rows[c, C_NX:C_NX + 4]
+            ra, rb = ra_all[c], rb_all[c]
+            _point_velocity(a, ra, v, w, va, tmp4)
+            _point_velocity(b, rb, v, w, vb, tmp4)
+            rel = vb - va
+            vn = rel @ normal
+            old = rows[c, C_LAMBDA]
+            new = max(old + mass_n[c] * (target[c] - vn), 0.0)
+            rows[c, C_LAMBDA] = new
+            d = new - old
+            if d != 0.0:
+                for k in range(4):
+                    imp[k] = d * normal[k]
+                _apply(b, imp, rb, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+                _apply(a, imp, ra, -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+            # friction: a tangential impulse vector inside the disc mu * lambda
+            limit = mu[c] * new
+            told = rows[c, C_TX:C_TX + 4].copy()
+            if limit <= 0.0 and not told.any():
+                continue
+            _point_velocity(a, ra, v, w, va, tmp4)
+            _point_velocity(b, rb, v, w, vb, tmp4)
+            rel = vb - va
+            vt = rel - (rel @ normal) * normal
+            speed = math.sqrt(vt @ vt)
+            tnew = told.copy()
+            if speed > 1e-14:
+                t = vt / speed
+                tnew -= t * (speed / _inv_effective(a, b, ra, rb, t, inv_mass, inv_inertia, tmp6))
+            size = math.sqrt(tnew @ tnew)
+            if size > limit:
+                tnew *= limit / size if size > 0 else 0.0
+            rows[c, C_TX:C_TX + 4] = tnew
+            imp[:] = tnew - told
+            if imp.any():
+                _apply(b, imp, rb, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+                _apply(a, imp, ra, -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+    # the new momentum: exactly the old plus the impulses' moments
+    held = np.zeros(n, dtype=np.bool_)
+    for c in range(m):
+        if rows[c, C_LAMBDA] > 0.0:
+            held[int(rows[c, C_A])] = True
+            held[int(rows[c, C_B])] = True
+    for i in range(n):
+        L[i] += dL[i]
+    # positions: a body no contact pushed follows its parabola exactly; one held moves with its new
+    # velocity (symplectic Euler), which keeps resting contact still
+    for i in range(n):
+        if not dynamic[i]:
+            continue
+        for k in range(4):
+            x[i, k] += dt * v[i, k]
+            if not held[i]:
+                x[i, k] -= 0.5 * dt * dt * gravity_scale[i] * gravity[k]
+        r[i] = rotate_free(r[i], axes[i], L[i], iso_inv[i], excess[i], dt)
+    # split impulse: pseudo-velocities push penetrating bodies apart, touching positions only
+    if position_iterations > 0 and m > 0:
+        pv = np.zeros((n, 4))
+        pw = np.zeros((n, 6))
+        pdl = np.zeros((n, 6))
+        plam = np.zeros(m)
+        for it in range(position_iterations):
+            for c in range(m):
+                excess_depth = rows[c, C_DEPTH] - slop
+                if excess_depth <= 0.0:
+                    continue
+                a, b = int(rows[c, C_A]), int(rows[c, C_B])
+                normal[:] = rows[c, C_NX:C_NX + 4]
+                _point_velocity(a, ra_all[c], pv, pw, va, tmp4)
+                _point_velocity(b, rb_all[c], pv, pw, vb, tmp4)
+                vn = (vb - va) @ normal
+                old = plam[c]
+                new = max(old + mass_n[c] * (baumgarte * excess_depth / dt - vn), 0.0)
+                plam[c] = new
+                d = new - old
+                if d != 0.0:
+                    for k in range(4):
+                        imp[k] = d * normal[k]
+                    _apply(b, imp, rb_all[c], 1.0, pv, pw, pdl, inv_mass, inv_inertia, tmp6, tmpw)
+                    _apply(a, imp, ra_all[c], -1.0, pv, pw, pdl, inv_mass, inv_inertia, tmp6, tmpw)
+        turn_by = np.empty((4, 4))
+        for i in range(n):
+            if dynamic[i] and (pv[i].any() or pw[i].any()):
+                x[i] += dt * pv[i]
+                exp_bivector(pw[i] * dt, turn_by)
+                r[i] = renormalize(turn_by @ r[i])
+    return x, v, r, L, rows
+
+
+@njit(**cache)
+def angular_velocities(r, L, axes, inv_plane):
+    """World angular velocity (N, 6) of every body from its momentum."""
+    n = len(r)
+    out = np.zeros((n, 6))
+    inv = np.empty((6, 6))
+    for i in range(n):
+        world_inverse_inertia(r[i], axes[i], inv_plane[i], inv)
+        out[i] = inv @ L[i]
+    return out
