@@ -68,7 +68,7 @@ class ScenePhysics(msgspec.Struct, forbid_unknown_fields=True):
     iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 20
     position_iterations: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 8
     margin: Annotated[float, msgspec.Meta(ge=0)] = 0.02
-    slop: Annotated[float, msgspec.Meta(ge=0)] = 0.0005
+    slop: Annotated[float, msgspec.Meta(ge=0)] = 0.00005
 
 
 class PhysicsConfig(msgspec.Struct):

@@ -30,9 +30,11 @@ OPT_ITERATIONS, OPT_POSITION_ITERATIONS, OPT_MARGIN, OPT_SLOP, OPT_BAUMGARTE, OP
     OPT_STICK_SPEED = range(7)
 N_OPTIONS = 7
 
-# columns of the contact array (one row per contact point)
-C_A, C_B, C_PX, C_NX, C_DEPTH, C_LAMBDA, C_TX, C_SPEED = 0, 1, 2, 6, 10, 11, 12, 16
-C_WIDTH = 17
+# columns of the contact array (one row per contact point); KEY (the pair of parts) and LOCAL (the point
+# in body b's frame) find a point again in the next step, whose impulses then start from this step's
+C_A, C_B, C_PX, C_NX, C_DEPTH, C_LAMBDA, C_TX, C_SPEED, C_KEY, C_LOCAL = 0, 1, 2, 6, 10, 11, 12, 16, 17, 18
+C_WIDTH = 22
+WARM_DISTANCE = 0.005                  # a point moved less than this (body frame) is the same point
 
 
 cache = dict(cache=True, nogil=True)
@@ -243,8 +245,10 @@ def _separation(na, oa, ca_start, ca_count, vb, vb_start, vb_count):
 
 
 @njit(**cache)
-def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_count, margin, pts, count):
-    """End points of the edges (of one part) clipped to the other part grown by margin (Cyrus-Beck)."""
+def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_count, margin, facing, pts, count):
+    """End points of the edges (of one part) clipped to the other part (Cyrus-Beck), whose cells are grown
+    by margin times how much they face `facing` (the direction the edges' part lies in): a point may
+    hover up to margin above the contact, never beside it."""
     for e in range(e_start, e_start + e_count):
         p0 = verts[edges[e, 0]]
         p1 = verts[edges[e, 1]]
@@ -252,7 +256,8 @@ def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_cou
         for c in range(c_start, c_start + c_count):
             n = normals[c]
             den = n[0] * (p1[0] - p0[0]) + n[1] * (p1[1] - p0[1]) + n[2] * (p1[2] - p0[2]) + n[3] * (p1[3] - p0[3])
-            num = offsets[c] + margin - (n[0] * p0[0] + n[1] * p0[1] + n[2] * p0[2] + n[3] * p0[3])
+            grow = n[0] * facing[0] + n[1] * facing[1] + n[2] * facing[2] + n[3] * facing[3]
+            num = offsets[c] + margin * max(grow, 0.0) - (n[0] * p0[0] + n[1] * p0[1] + n[2] * p0[2] + n[3] * p0[3])
             if abs(den) < 1e-14:
                 if num < 0:
                     t0, t1 = 1.0, 0.0
@@ -313,10 +318,10 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
     cand = np.empty((MAX_CANDIDATES, 4))
     depth = np.empty(MAX_CANDIDATES)
     count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
-                        margin, cand, 0)
+                        margin, n, cand, 0)
     split = count
     count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
-                        margin, cand, count)
+                        margin, minus, cand, count)
     keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
     kept = 0
     for i in range(count):
@@ -332,7 +337,7 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
                 dist = 0.0
                 for k in range(4):
                     dist += (cand[i, k] - cand[j, k]) ** 2
-                if dist < 1e-16:
+                if dist < 1e-12:
                     dup = True
                     if d > depth[j]:
                         depth[j] = d
@@ -431,10 +436,12 @@ def _inv_effective(a, b, ra, rb, d, inv_mass, inv_inertia, tmp6):
 def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
          part_body, v_start, v_count, c_start, c_count, e_start, e_count, local_verts, local_normals,
          local_offsets, edges, friction_static, friction_kinetic, restitution,
-         gravity, dt, options, impulses):
+         gravity, dt, options, impulses, previous):
     """One step: state (x, v, r, L) in, new state and the contact rows out (see module doc).
 
     impulses: (K, 9) rows [body, px, py, pz, pw (world point), jx, jy, jz, jw] applied at the start.
+    previous: the contact rows of the step before (warm start: a point found again starts from its
+    impulses, so a stack's solution carries over from step to step instead of being found anew).
     """
     n = len(x)
     iterations = int(options[OPT_ITERATIONS])
@@ -495,8 +502,12 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     va = np.empty(4)
     vb = np.empty(4)
     m = 0
+    cursor = 0
     for q in range(len(pairs)):
         pa, pb = pairs[q, 0], pairs[q, 1]
+        key = pa * n_parts + pb
+        while cursor < len(previous) and previous[cursor, C_KEY] < key:
+            cursor += 1
         k = narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
                          edges, margin, pts, depth, normal)
         a, b = part_body[pa], part_body[pb]
@@ -525,10 +536,35 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
             target[m] = goal
             tangential = rel - vn * normal
             mu[m] = mus if math.sqrt(tangential @ tangential) < stick_speed else muk
+            row[C_KEY] = key
+            local = r[b].T @ rb_all[m]
+            row[C_LOCAL:C_LOCAL + 4] = local
+            # warm start from the same point of the step before
+            best = WARM_DISTANCE * WARM_DISTANCE
+            found = -1
+            prev = cursor
+            while prev < len(previous) and previous[prev, C_KEY] == key:
+                dd = 0.0
+                for kk in range(4):
+                    dd += (previous[prev, C_LOCAL + kk] - local[kk]) ** 2
+                if dd < best:
+                    best, found = dd, prev
+                prev += 1
+            if found >= 0:
+                lam = previous[found, C_LAMBDA]
+                tang = previous[found, C_TX:C_TX + 4] - (previous[found, C_TX:C_TX + 4] @ normal) * normal
+                row[C_LAMBDA] = lam
+                row[C_TX:C_TX + 4] = tang
             m += 1
     rows = rows[:m]
-    # velocity pass
     imp = np.empty(4)
+    for c in range(m):
+        if rows[c, C_LAMBDA] != 0.0 or rows[c, C_TX:C_TX + 4].any():
+            a, b = int(rows[c, C_A]), int(rows[c, C_B])
+            imp[:] = rows[c, C_LAMBDA] * rows[c, C_NX:C_NX + 4] + rows[c, C_TX:C_TX + 4]
+            _apply(b, imp, rb_all[c], 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+            _apply(a, imp, ra_all[c], -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+    # velocity pass
     for it in range(iterations):
         for c in range(m):
             a, b = int(rows[c, C_A]), int(rows[c, C_B])

@@ -8,7 +8,7 @@ and world angular momentum `L` (a bivector: what a free body keeps exactly; its 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -73,7 +73,8 @@ class World:
 
 @dataclass(frozen=True, eq=False)
 class State:
-    """Time, step count and every body's x (N, 4), v (N, 4), r (N, 4, 4), L (N, 6)."""
+    """Time, step count, every body's x (N, 4), v (N, 4), r (N, 4, 4), L (N, 6), and the last step's contact
+    rows (their impulses start the next step's solver)."""
 
     time: float
     steps: int
@@ -81,10 +82,20 @@ class State:
     v: np.ndarray
     r: np.ndarray
     L: np.ndarray
+    contacts: np.ndarray = field(default_factory=lambda: np.zeros((0, kernels.C_WIDTH)))
 
     def digest(self) -> bytes:
         """The state's exact bytes (for determinism checks and replays)."""
-        return b"".join(np.ascontiguousarray(a).tobytes() for a in (self.x, self.v, self.r, self.L))
+        return b"".join(np.ascontiguousarray(a).tobytes() for a in (self.x, self.v, self.r, self.L, self.contacts))
+
+
+def from_data(data: dict, **kwargs) -> tuple[World, State]:
+    """The world of a scene given as the mapping a scene file holds (for scripts and tests)."""
+    from touch4d.geometry.scene import parse_scene
+
+    from .config import parse_physics
+
+    return build_world(parse_scene(data), parse_physics(data), **kwargs)
 
 
 def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: float | None = None,
@@ -175,8 +186,8 @@ def step(world: World, state: State, impulses: np.ndarray | None = None) -> tupl
     x, v, r, L, rows = kernels.step(
         state.x, state.v, state.r, state.L, world.inv_mass, world.axes, world.inv_plane, world.iso_inv,
         world.excess, world.gravity_scale, *world.parts, world.friction_static, world.friction_kinetic,
-        world.restitution, world.gravity, world.dt, world.options, imp)
-    return State(state.time + world.dt, state.steps + 1, x, v, r, L), Contacts(rows)
+        world.restitution, world.gravity, world.dt, world.options, imp, state.contacts)
+    return State((state.steps + 1) * world.dt, state.steps + 1, x, v, r, L, rows), Contacts(rows)
 
 
 def run(world: World, state: State, steps: int) -> State:
@@ -235,4 +246,4 @@ def with_pose(world: World, state: State, index: int, position=None, orientation
     if angular_velocity_world is not None and not world.static[index]:
         c = bivector.compound(r[index] @ world.axes[index])
         L[index] = c @ (world.plane_inertia[index] * (c.T @ np.asarray(angular_velocity_world, dtype=float)))
-    return replace(state, x=x, v=v, r=r, L=L)
+    return replace(state, x=x, v=v, r=r, L=L, contacts=np.zeros((0, kernels.C_WIDTH)))
