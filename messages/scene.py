@@ -8,7 +8,7 @@ import numpy as np
 from .base import Array, ArrayList, Float, Int, Map, Message, Records, Str, spec
 
 PROJECTIONS = ("orthographic", "perspective")
-SCENE_COMMANDS = ("next", "select", "reset", "projection")
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "pause", "play", "step")   # the last three: physics
 
 SCENE_OBJECT = Records(
     {
@@ -61,4 +61,5 @@ class SceneCommand(Message):
     """A request to the scene node (topic scene/command): next/select object, reset, projection."""
 
     command: str = spec(Str(SCENE_COMMANDS), "what to do")
-    argument: str = spec(Str(), "select: object name or index; projection: orthographic|perspective|toggle")
+    argument: str = spec(Str(), "select: object name or index; projection: orthographic|perspective|toggle; "
+                                "step: how many physics steps (default 1)")

@@ -253,3 +253,17 @@ def test_simulate_command_prints_the_final_state(tmp_path):
     assert ball["angular_velocity"]["xy"] == pytest.approx(45.0) and abs(ball["angular_velocity"]["zw"]) < 1e-9
     np.testing.assert_allclose(np.array(ball["orientation"]), bv.exp(np.radians([45, 0, 0, 0, 0, 0])), atol=1e-9)
     assert set(report["angular_momentum"]) == {"xy", "xz", "xw", "yz", "yw", "zw"} and "energy" in report
+
+
+def test_the_cradle_scene_passes_the_strike_down_the_row():
+    from touch4d.geometry.scene import load_scene
+    from touch4d.physics.config import load_physics
+    from touch4d.physics.world import build_world
+
+    path = "config/scenes/physics-cradle.yaml"
+    world, state = build_world(load_scene(path), load_physics(path))
+    end = run(world, state, 1000)
+    np.testing.assert_allclose(end.v[:, 0], [0, 0, 0, 0, 1.0], atol=1e-9)      # only the last one leaves
+    np.testing.assert_allclose(end.v[:, 1:], 0, atol=1e-9)
+    np.testing.assert_allclose(angular_velocity(world, end), 0, atol=1e-9)
+    assert energy(world, end) == pytest.approx(energy(world, state), rel=1e-9)

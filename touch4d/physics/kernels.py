@@ -335,9 +335,11 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
         for j in range(i):
             if keep[j]:
                 dist = 0.0
+                along = 0.0
                 for k in range(4):
                     dist += (cand[i, k] - cand[j, k]) ** 2
-                if dist < 1e-12:
+                    along += (cand[i, k] - cand[j, k]) * n[k]
+                if dist - along * along < 1e-12:      # the same place across the normal: one point
                     dup = True
                     if d > depth[j]:
                         depth[j] = d
@@ -530,10 +532,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
             vn = rel @ normal
             row[C_SPEED] = vn
             gap = max(-depth[j], 0.0)
-            goal = -gap / dt                          # speculative: may close the gap, no more
-            if e > 0.0 and vn < -bounce_speed and vn < goal:
-                goal = -e * vn
-            target[m] = goal
+            target[m] = -gap / dt                     # speculative: may close the gap, no more
             tangential = rel - vn * normal
             mu[m] = mus if math.sqrt(tangential @ tangential) < stick_speed else muk
             row[C_KEY] = key
@@ -550,12 +549,25 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                 if dd < best:
                     best, found = dd, prev
                 prev += 1
-            if found >= 0:
+            if found >= 0 and previous[found, C_SPEED] >= -bounce_speed:   # an impact's impulse is not a load
                 lam = previous[found, C_LAMBDA]
                 tang = previous[found, C_TX:C_TX + 4] - (previous[found, C_TX:C_TX + 4] @ normal) * normal
                 row[C_LAMBDA] = lam
                 row[C_TX:C_TX + 4] = tang
             m += 1
+        # restitution: when any point of the pair closes its gap within this step, every point of the pair
+        # that approaches faster than bounce_speed (and is no further than the margin) bounces, so a face
+        # striking a face bounces as one whatever rounding does to each point's gap
+        if e > 0.0 and k > 0:
+            impact = False
+            for c in range(m - k, m):
+                if rows[c, C_SPEED] < target[c]:
+                    impact = True
+            if impact:
+                for c in range(m - k, m):
+                    vn = rows[c, C_SPEED]
+                    if vn < -bounce_speed and vn * dt - rows[c, C_DEPTH] < margin:
+                        target[c] = -e * vn
     rows = rows[:m]
     imp = np.empty(4)
     for c in range(m):

@@ -1,0 +1,177 @@
+"""The physics node's logic without a bus: the scene node's controller and commands over a physics world.
+
+Every input (a controller sample, a command) is applied between two fixed steps and written to the
+journal with the step it was applied before; `replay(...)` feeds a journal to a fresh session and
+reaches the same states, byte for byte, since `world.step` is a pure function. Commands beyond the
+scene node's: `pause`, `play` (`pause` toggles when already paused) and `step [N]` (N steps while
+paused); `reset` puts bodies back where the scene file has them, moving as the file says. The steps run
+are journaled too, so a replay needs no clock.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from touch4d.geometry.scene import Scene
+from touch4d.tracking.calibration import Calibration
+from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneControl
+
+from .config import PhysicsConfig
+from .world import Contacts, build_world, step, with_pose
+
+PHYSICS_COMMANDS = ("pause", "play", "step")
+MAX_SINGLE_STEPS = 100000
+
+
+@dataclass(frozen=True)
+class JournalEntry:
+    """An input and the step count it was applied at."""
+
+    step: int
+    kind: str          # "controller", "command" or "run" (args: the number of steps)
+    args: tuple
+
+
+class PhysicsSession:
+    """A physics world driven like the scene node: controller rotation (paper §4.4), buttons, commands."""
+
+    def __init__(self, scene: Scene, physics: PhysicsConfig | None, calibration: Calibration,
+                 config: ControlConfig | None = None, physics_buttons: dict | None = None, paused: bool = False):
+        self.control = SceneControl(scene, calibration, config)
+        self.world, self.initial = build_world(self.control.scene, physics)
+        self.state = self.initial
+        self.paused = paused
+        self.single_steps = 0
+        self.physics_buttons = dict(physics_buttons or {})
+        self._held: frozenset[str] = frozenset()
+        self.journal: list[JournalEntry] = []
+        self._sync_scene()
+
+    # ---- inputs (between steps) -------------------------------------------------------------------
+
+    def on_controller(self, position_m, quat_room, trigger: float, buttons, valid: bool = True) -> bool:
+        """One controller sample: physics buttons (pause, step), then the scene node's handling."""
+        self.journal.append(JournalEntry(self.state.steps, "controller", (
+            tuple(map(float, position_m)), tuple(map(float, quat_room)), float(trigger), tuple(buttons), bool(valid))))
+        now = frozenset(buttons)
+        changed = False
+        for button in sorted(now - self._held):
+            command = self.physics_buttons.get(button)
+            if command is not None:
+                changed |= self._physics_command(command, "")
+        self._held = now
+        before = self._poses()
+        changed |= self.control.on_controller(position_m, quat_room, trigger, buttons, valid)
+        self._take_poses(before)
+        return changed
+
+    def command(self, name: str, argument: str = "") -> bool:
+        """A `scene/command`: the physics ones here, the others as the scene node does (ValueError if bad)."""
+        if name in PHYSICS_COMMANDS:
+            result = self._physics_command(name, argument)
+        else:
+            before = self._poses()
+            result = self.control.command(name, argument)
+            if name == "reset":
+                self.state = self.initial
+                self._sync_scene()
+            else:
+                self._take_poses(before)
+        self.journal.append(JournalEntry(self.state.steps, "command", (name, argument)))
+        return result
+
+    def _physics_command(self, name: str, argument: str) -> bool:
+        if name == "pause":
+            self.paused = not self.paused
+        elif name == "play":
+            self.paused = False
+        else:
+            text = argument.strip() or "1"
+            try:
+                count = int(text)
+            except ValueError:
+                count = -1
+            if not 0 < count <= MAX_SINGLE_STEPS:
+                raise ValueError(f"step: expected a number of steps 1..{MAX_SINGLE_STEPS}, got {argument!r}")
+            self.paused = True
+            self.single_steps += count
+        return False
+
+    # ---- stepping ---------------------------------------------------------------------------------
+
+    def advance(self, steps: int) -> list[Contacts]:
+        """Run the `steps` fixed steps that are due (while paused: the single steps asked instead);
+        returns their contacts."""
+        if self.paused:
+            steps, self.single_steps = self.single_steps, 0
+        return self.run(steps)
+
+    def run(self, steps: int) -> list[Contacts]:
+        """Exactly `steps` fixed steps, journaled."""
+        out = []
+        for _ in range(steps):
+            self.state, contacts = step(self.world, self.state)
+            out.append(contacts)
+        if steps:
+            self.journal.append(JournalEntry(self.state.steps - steps, "run", (steps,)))
+            self._sync_scene()
+        return out
+
+    # ---- the scene it shows -----------------------------------------------------------------------
+
+    def _poses(self):
+        return [(o.position.copy(), o.orientation.copy()) for o in self.control.scene.objects]
+
+    def _take_poses(self, before) -> None:
+        """Objects the controller turned (or commands moved) are placed so in the physics state."""
+        for i, (obj, (pos, rot)) in enumerate(zip(self.control.scene.objects, before)):
+            if not (np.array_equal(obj.position, pos) and np.array_equal(obj.orientation, rot)):
+                self.state = with_pose(self.world, self.state, i, position=obj.position, orientation=obj.orientation)
+
+    def _sync_scene(self) -> None:
+        """The scene's objects where the bodies are (a new revision when anything moved)."""
+        from .world import object_positions
+
+        positions = object_positions(self.world, self.state)
+        moved = False
+        for i, obj in enumerate(self.control.scene.objects):
+            if not (np.array_equal(obj.position, positions[i]) and np.array_equal(obj.orientation, self.state.r[i])):
+                obj.position = positions[i].copy()
+                obj.orientation = self.state.r[i].copy()
+                moved = True
+        if moved:
+            self.control.scene.revision += 1
+
+    def message(self):
+        return self.control.message()
+
+
+def split_buttons(buttons: dict) -> tuple[dict, dict]:
+    """A button map split into the scene node's commands and the physics commands (ValueError names a bad one)."""
+    scene, physics = {}, {}
+    for button, command in buttons.items():
+        if command in PHYSICS_COMMANDS:
+            physics[button] = command
+        elif command in BUTTON_COMMANDS:
+            scene[button] = command
+        else:
+            raise ValueError(f"buttons.{button}: expected one of {', '.join(BUTTON_COMMANDS + PHYSICS_COMMANDS)}, "
+                             f"got {command!r}")
+    return scene, physics
+
+
+def replay(scene: Scene, physics: PhysicsConfig | None, calibration: Calibration, config: ControlConfig | None,
+           physics_buttons: dict | None, journal) -> PhysicsSession:
+    """A fresh session fed a journal's inputs and steps in order: it reaches the same states, byte for byte."""
+    session = PhysicsSession(scene, physics, calibration, config, physics_buttons)
+    for entry in journal:
+        if entry.step != session.state.steps:
+            raise ValueError(f"journal entry at step {entry.step} reached at step {session.state.steps}")
+        if entry.kind == "controller":
+            session.on_controller(*entry.args)
+        elif entry.kind == "command":
+            session.command(*entry.args)
+        else:
+            session.run(*entry.args)
+    return session
