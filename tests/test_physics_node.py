@@ -1,0 +1,108 @@
+"""The physics node's logic (controller, commands, journal replay) and the node as a process on the bus."""
+import numpy as np
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.testing import collect, node_process, running_broker, wait_until
+from touch4d.geometry.scene import load_scene, parse_scene
+from touch4d.messages import ControllerState, PhysicsContacts, SceneCommand, SceneState
+from touch4d.physics.config import load_physics, parse_physics
+from touch4d.physics.session import PhysicsSession, replay, split_buttons
+from touch4d.tracking.calibration import load_calibration
+from touch4d.tracking.scene_control import ControlConfig, SceneControl
+
+DROP = "config/scenes/physics-drop.yaml"
+CENTER = np.array([0.0, 1.2, -0.45])       # the default calibration's screen centre (room, metres)
+Q = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def session(path=DROP, **kwargs):
+    scene_buttons, physics_buttons = split_buttons({"menu": "next", "grip": "reset", "thumbstick": "pause",
+                                                    "a": "step"})
+    config = ControlConfig(buttons=scene_buttons)
+    return PhysicsSession(load_scene(path), load_physics(path), load_calibration(None), config, physics_buttons,
+                          **kwargs)
+
+
+def test_the_controller_turns_the_selected_body_as_the_scene_node_does():
+    data = {"physics": {"gravity": [0, 0, 0, 0]}, "objects": [{"name": "t", "shape": "tesseract", "position": [0, 0, 0, 1.5]}]}
+    calibration = load_calibration(None)
+    s = PhysicsSession(parse_scene(data), parse_physics(data), calibration, ControlConfig())
+    plain = SceneControl(parse_scene(data), calibration, ControlConfig())
+    for k in range(6):
+        sample = (CENTER + [0.01 * k, 0.004 * k, 0.0], Q, 1.0, [], True)
+        s.on_controller(*sample)
+        plain.on_controller(*sample)
+        s.advance(5)                                             # free, at rest: the physics keeps the pose
+    turned = plain.scene.objects[0].orientation
+    assert not np.allclose(turned, np.eye(4))
+    np.testing.assert_allclose(s.message().objects[0]["orientation"], turned, atol=1e-12)
+
+
+def test_pause_step_play_and_reset():
+    s = session()
+    y0 = s.message().objects[1]["position"][1]
+    s.command("pause")
+    s.advance(100)
+    assert s.state.steps == 0 and s.message().objects[1]["position"][1] == y0
+    s.command("step", "3")
+    s.advance(100)
+    assert s.state.steps == 3 and s.paused
+    s.on_controller(CENTER, Q, 0.0, ["thumbstick"])              # the pause button toggles: running again
+    s.advance(100)
+    assert s.state.steps == 103 and s.message().objects[1]["position"][1] < y0
+    s.command("reset")
+    assert s.state.steps == 0 and s.message().objects[1]["position"][1] == y0
+    with pytest.raises(ValueError, match="step"):
+        s.command("step", "many")
+
+
+def test_a_journal_replays_to_the_same_bytes():
+    s = session()
+    rng = np.random.default_rng(7)
+    for k in range(12):
+        trigger = 1.0 if 3 <= k < 8 else 0.0
+        s.on_controller(CENTER + rng.normal(scale=0.02, size=3), Q, trigger, ["menu"] if k == 9 else [])
+        s.advance(int(rng.integers(5, 40)))
+        if k == 10:
+            s.command("projection", "perspective")
+    again = replay(load_scene(DROP), load_physics(DROP), load_calibration(None), s.control.config,
+                   s.physics_buttons, s.journal)
+    assert again.state.steps == s.state.steps > 0
+    assert again.state.digest() == s.state.digest()
+    assert again.message().objects[1]["orientation"].tobytes() == s.message().objects[1]["orientation"].tobytes()
+
+
+def test_bad_buttons_are_named():
+    with pytest.raises(ValueError, match="buttons.menu"):
+        split_buttons({"menu": "explode"})
+
+
+@pytest.mark.timeout(120)
+def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
+    with running_broker() as bus:
+        with node_process("physics", bus, params={"scene": DROP, "publish_rate": 50.0}) as proc:
+            probe = Node("probe", bus=bus)
+            try:
+                states = collect(probe, "scene/state", SceneState)
+                hits = collect(probe, "physics/contacts", PhysicsContacts)
+                commands = probe.create_publisher("scene/command", SceneCommand)
+                try:
+                    wait_until(lambda: hits, timeout=30, spin=probe)      # it fell and struck the floor
+                except TimeoutError:
+                    raise AssertionError(f"physics node output:\n{proc.text}") from None
+                hit = hits[0]
+                assert hit.names == ["floor", "tesseract"] and set(hit.a) | set(hit.b) == {0, 1}
+                assert (hit.speeds > 1.0).all() and (hit.impulses > 0).all()
+                np.testing.assert_allclose(hit.normals[:, 1], 1.0, atol=1e-9)     # the floor's top, up
+                assert states[-1].objects[1]["position"][1] < 0.45
+                commands.publish(SceneCommand(command="pause"))
+                probe.spin(0.3)
+                frozen = states[-1].revision
+                probe.spin(0.3)
+                assert states[-1].revision == frozen
+                commands.publish(SceneCommand(command="reset"))
+                wait_until(lambda: states[-1].revision > frozen, timeout=10, spin=probe)
+                assert states[-1].objects[1]["position"][1] == pytest.approx(0.45)
+            finally:
+                probe.shutdown()
