@@ -19,6 +19,9 @@ from touch4d.physics.inertia import mass_properties
 from touch4d.physics.world import (angular_momentum, angular_velocity, energy, from_data, object_positions, run,
                                    step)
 
+# The first test compiles the step (numba, cached on disk afterwards): tens of seconds on a busy machine.
+pytestmark = pytest.mark.timeout(600)
+
 G = 9.81
 FLOOR = {"name": "floor", "shape": "tesseract", "size": 4.0, "position": [0, -2.5, 0, 1.5],
          "physics": {"static": True, "friction": 0.5}}   # its top cell is the plane y = -0.5

@@ -11,6 +11,8 @@ from touch4d.physics.session import PhysicsSession, replay, split_buttons
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.scene_control import ControlConfig, SceneControl
 
+pytestmark = pytest.mark.timeout(600)     # the first test may compile the step (numba; cached afterwards)
+
 DROP = "config/scenes/physics-drop.yaml"
 CENTER = np.array([0.0, 1.2, -0.45])       # the default calibration's screen centre (room, metres)
 Q = np.array([0.0, 0.0, 0.0, 1.0])
@@ -78,7 +80,6 @@ def test_bad_buttons_are_named():
         split_buttons({"menu": "explode"})
 
 
-@pytest.mark.timeout(120)
 def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
     with running_broker() as bus:
         with node_process("physics", bus, params={"scene": DROP, "publish_rate": 50.0}) as proc:

@@ -419,19 +419,51 @@ def _point_velocity(body, r, v, w, out, tmp):
 
 
 @njit(**cache)
-def _inv_effective(a, b, ra, rb, d, inv_mass, inv_inertia, tmp6):
-    """1 / (effective mass) of the pair at the points ra, rb along the unit direction d."""
-    k = inv_mass[a] + inv_mass[b]
-    for body, r in ((a, ra), (b, rb)):
-        if inv_mass[body] == 0.0:
+def _tangent_basis(n, out):
+    """out[0] = n, out[1:4] an orthonormal basis of the tangent space (from the axes least along n)."""
+    big = 0
+    for k in range(1, 4):
+        if abs(n[k]) > abs(n[big]):
+            big = k
+    out[0] = n
+    row = 1
+    for axis in range(4):
+        if axis == big:
             continue
-        wedge(r, d, tmp6)
-        for i in range(6):
-            acc = 0.0
-            for j in range(6):
-                acc += inv_inertia[body, i, j] * tmp6[j]
-            k += tmp6[i] * acc
-    return k
+        t = np.zeros(4)
+        t[axis] = 1.0
+        for j in range(row):
+            dot = t[0] * out[j, 0] + t[1] * out[j, 1] + t[2] * out[j, 2] + t[3] * out[j, 3]
+            for k in range(4):
+                t[k] -= dot * out[j, k]
+        size = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
+        for k in range(4):
+            out[row, k] = t[k] / size
+        row += 1
+
+
+@njit(**cache)
+def _row_velocity(c, d, a, b, basis, ang, v, w):
+    """Relative velocity of the bodies at contact c along its row d (b's minus a's)."""
+    acc = 0.0
+    for k in range(4):
+        acc += basis[c, d, k] * (v[b, k] - v[a, k])
+    for i in range(6):
+        acc += ang[c, d, 1, i] * w[b, i] - ang[c, d, 0, i] * w[a, i]
+    return acc
+
+
+@njit(**cache)
+def _apply_row(c, d, delta, a, b, basis, ang, inv_ang, inv_mass, v, w, dL):
+    """An impulse delta along row d of contact c: +delta on b, -delta on a."""
+    for k in range(4):
+        v[b, k] += inv_mass[b] * delta * basis[c, d, k]
+        v[a, k] -= inv_mass[a] * delta * basis[c, d, k]
+    for i in range(6):
+        w[b, i] += delta * inv_ang[c, d, 1, i]
+        w[a, i] -= delta * inv_ang[c, d, 0, i]
+        dL[b, i] += delta * ang[c, d, 1, i]
+        dL[a, i] -= delta * ang[c, d, 0, i]
 
 
 @njit(**cache)
@@ -495,7 +527,6 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     rows = np.zeros((len(pairs) * MAX_POINTS, C_WIDTH))
     ra_all = np.empty((len(rows), 4))
     rb_all = np.empty((len(rows), 4))
-    mass_n = np.empty(len(rows))
     target = np.empty(len(rows))
     mu = np.empty(len(rows))
     pts = np.empty((MAX_POINTS, 4))
@@ -525,7 +556,6 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
             row[C_DEPTH] = depth[j]
             ra_all[m] = pts[j] - x[a]
             rb_all[m] = pts[j] - x[b]
-            mass_n[m] = 1.0 / _inv_effective(a, b, ra_all[m], rb_all[m], normal, inv_mass, inv_inertia, tmp6)
             _point_velocity(a, ra_all[m], v, w, va, tmp4)
             _point_velocity(b, rb_all[m], v, w, vb, tmp4)
             rel = vb - va
@@ -569,54 +599,71 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                     if vn < -bounce_speed and vn * dt - rows[c, C_DEPTH] < margin:
                         target[c] = -e * vn
     rows = rows[:m]
-    imp = np.empty(4)
+    # Jacobians of every row (normal, three tangents) with the inverse inertia applied, computed once:
+    # each solver visit is then a few dot products and no allocation
+    basis = np.empty((m, 4, 4))                     # n, t1, t2, t3
+    ang = np.zeros((m, 4, 2, 6))                    # r_a ^ d, r_b ^ d
+    inv_ang = np.zeros((m, 4, 2, 6))                # I^-1 (r ^ d) per body
+    k_row = np.empty((m, 4))                        # effective mass of each row
+    lam = np.zeros((m, 4))                          # accumulated impulses along the rows
     for c in range(m):
-        if rows[c, C_LAMBDA] != 0.0 or rows[c, C_TX:C_TX + 4].any():
-            a, b = int(rows[c, C_A]), int(rows[c, C_B])
-            imp[:] = rows[c, C_LAMBDA] * rows[c, C_NX:C_NX + 4] + rows[c, C_TX:C_TX + 4]
-            _apply(b, imp, rb_all[c], 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
-            _apply(a, imp, ra_all[c], -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
-    # velocity pass
+        a, b = int(rows[c, C_A]), int(rows[c, C_B])
+        _tangent_basis(rows[c, C_NX:C_NX + 4], basis[c])
+        for d in range(4):
+            inv_k = inv_mass[a] + inv_mass[b]
+            for side in range(2):
+                body = a if side == 0 else b
+                rr = ra_all[c] if side == 0 else rb_all[c]
+                if inv_mass[body] == 0.0:
+                    continue
+                dvec = basis[c, d]
+                for i in range(6):
+                    ang[c, d, side, i] = rr[PA[i]] * dvec[PB[i]] - rr[PB[i]] * dvec[PA[i]]
+                for i in range(6):
+                    acc = 0.0
+                    for j in range(6):
+                        acc += inv_inertia[body, i, j] * ang[c, d, side, j]
+                    inv_ang[c, d, side, i] = acc
+                    inv_k += ang[c, d, side, i] * acc
+            k_row[c, d] = 1.0 / inv_k
+        lam[c, 0] = rows[c, C_LAMBDA]
+        for d in range(1, 4):
+            acc = 0.0
+            for kk in range(4):
+                acc += rows[c, C_TX + kk] * basis[c, d, kk]
+            lam[c, d] = acc
+        for d in range(4):                          # warm start
+            if lam[c, d] != 0.0:
+                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
+    rel = np.empty(4)
     for it in range(iterations):
         for c in range(m):
             a, b = int(rows[c, C_A]), int(rows[c, C_B])
-            normal[:] = rows[c, C_NX:C_NX + 4]
-            ra, rb = ra_all[c], rb_all[c]
-            _point_velocity(a, ra, v, w, va, tmp4)
-            _point_velocity(b, rb, v, w, vb, tmp4)
-            rel = vb - va
-            vn = rel @ normal
-            old = rows[c, C_LAMBDA]
-            new = max(old + mass_n[c] * (target[c] - vn), 0.0)
-            rows[c, C_LAMBDA] = new
-            d = new - old
-            if d != 0.0:
-                for k in range(4):
-                    imp[k] = d * normal[k]
-                _apply(b, imp, rb, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
-                _apply(a, imp, ra, -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
-            # friction: a tangential impulse vector inside the disc mu * lambda
+            vn = _row_velocity(c, 0, a, b, basis, ang, v, w)
+            old = lam[c, 0]
+            new = max(old + k_row[c, 0] * (target[c] - vn), 0.0)
+            lam[c, 0] = new
+            if new != old:
+                _apply_row(c, 0, new - old, a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
+            # friction: the tangential impulse (3 rows) held inside the disc of radius mu * normal impulse
             limit = mu[c] * new
-            told = rows[c, C_TX:C_TX + 4].copy()
-            if limit <= 0.0 and not told.any():
+            if limit <= 0.0 and lam[c, 1] == 0.0 and lam[c, 2] == 0.0 and lam[c, 3] == 0.0:
                 continue
-            _point_velocity(a, ra, v, w, va, tmp4)
-            _point_velocity(b, rb, v, w, vb, tmp4)
-            rel = vb - va
-            vt = rel - (rel @ normal) * normal
-            speed = math.sqrt(vt @ vt)
-            tnew = told.copy()
-            if speed > 1e-14:
-                t = vt / speed
-                tnew -= t * (speed / _inv_effective(a, b, ra, rb, t, inv_mass, inv_inertia, tmp6))
-            size = math.sqrt(tnew @ tnew)
-            if size > limit:
-                tnew *= limit / size if size > 0 else 0.0
-            rows[c, C_TX:C_TX + 4] = tnew
-            imp[:] = tnew - told
-            if imp.any():
-                _apply(b, imp, rb, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
-                _apply(a, imp, ra, -1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+            size = 0.0
+            for d in range(1, 4):
+                rel[d] = lam[c, d] - k_row[c, d] * _row_velocity(c, d, a, b, basis, ang, v, w)
+                size += rel[d] * rel[d]
+            size = math.sqrt(size)
+            scale = limit / size if size > limit else 1.0
+            for d in range(1, 4):
+                new_t = rel[d] * scale
+                if new_t != lam[c, d]:
+                    _apply_row(c, d, new_t - lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
+                    lam[c, d] = new_t
+    for c in range(m):
+        rows[c, C_LAMBDA] = lam[c, 0]
+        for kk in range(4):
+            rows[c, C_TX + kk] = lam[c, 1] * basis[c, 1, kk] + lam[c, 2] * basis[c, 2, kk] + lam[c, 3] * basis[c, 3, kk]
     # the new momentum: exactly the old plus the impulses' moments
     held = np.zeros(n, dtype=np.bool_)
     for c in range(m):
@@ -647,19 +694,12 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                 if excess_depth <= 0.0:
                     continue
                 a, b = int(rows[c, C_A]), int(rows[c, C_B])
-                normal[:] = rows[c, C_NX:C_NX + 4]
-                _point_velocity(a, ra_all[c], pv, pw, va, tmp4)
-                _point_velocity(b, rb_all[c], pv, pw, vb, tmp4)
-                vn = (vb - va) @ normal
+                vn = _row_velocity(c, 0, a, b, basis, ang, pv, pw)
                 old = plam[c]
-                new = max(old + mass_n[c] * (baumgarte * excess_depth / dt - vn), 0.0)
+                new = max(old + k_row[c, 0] * (baumgarte * excess_depth / dt - vn), 0.0)
                 plam[c] = new
-                d = new - old
-                if d != 0.0:
-                    for k in range(4):
-                        imp[k] = d * normal[k]
-                    _apply(b, imp, rb_all[c], 1.0, pv, pw, pdl, inv_mass, inv_inertia, tmp6, tmpw)
-                    _apply(a, imp, ra_all[c], -1.0, pv, pw, pdl, inv_mass, inv_inertia, tmp6, tmpw)
+                if new != old:
+                    _apply_row(c, 0, new - old, a, b, basis, ang, inv_ang, inv_mass, pv, pw, pdl)
         turn_by = np.empty((4, 4))
         for i in range(n):
             if dynamic[i] and (pv[i].any() or pw[i].any()):
