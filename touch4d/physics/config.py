@@ -5,8 +5,8 @@ Top level::
     physics:
       gravity: [0, -9.81, 0, 0]     # screen units / s^2 (the screen spans [-1, 1]^3); default none
       rate: 1000                    # internal steps per second (fixed)
-      iterations: 20                # velocity passes of the contact solver per step
-      position_iterations: 8        # pseudo-velocity passes that remove penetration
+      iterations: 10                # velocity passes of the contact solver per step
+      position_iterations: 4        # pseudo-velocity passes that remove penetration
       margin: 0.02                  # contacts are made this far apart (speculative), screen units
 
 Per object (every key optional; an object without `physics:` is a dynamic body of density 1)::
@@ -65,8 +65,8 @@ class ScenePhysics(msgspec.Struct, forbid_unknown_fields=True):
 
     gravity: Vector4 = (0.0, 0.0, 0.0, 0.0)
     rate: Annotated[float, msgspec.Meta(gt=0, le=100000)] = 1000.0
-    iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 20
-    position_iterations: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 8
+    iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 10
+    position_iterations: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 4
     margin: Annotated[float, msgspec.Meta(ge=0)] = 0.02
     slop: Annotated[float, msgspec.Meta(ge=0)] = 0.00005
 

@@ -69,32 +69,37 @@ def turn(w, r, out):
 
 @njit(**cache)
 def exp_bivector(w, out):
-    """exp(hat(w)) in closed form: the product of its two commuting isoclinic parts."""
-    star = np.empty(6)
-    star[0], star[1], star[2], star[3], star[4], star[5] = w[5], -w[4], w[3], w[2], -w[1], w[0]
-    tmp = np.empty((4, 4))
+    """exp(hat(w)) in closed form: the product of its two commuting isoclinic parts, each
+    cos(theta) I + sin(theta) / theta hat(part) with theta = |part| / sqrt(2)."""
+    p0, p1, p2 = 0.5 * (w[0] + w[5]), 0.5 * (w[1] - w[4]), 0.5 * (w[2] + w[3])    # self-dual part
+    q0, q1, q2 = 0.5 * (w[0] - w[5]), 0.5 * (w[1] + w[4]), 0.5 * (w[2] - w[3])    # anti-self-dual part
+    tp = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    tq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+    # hat() of a self-dual bivector (p0, p1, p2, p2, -p1, p0) and of an anti-self-dual one (q0, q1, q2, -q2, q1, -q0)
+    cp, sp = math.cos(tp), (math.sin(tp) / tp if tp > 0 else 1.0)
+    cq, sq = math.cos(tq), (math.sin(tq) / tq if tq > 0 else 1.0)
+    a = np.empty((4, 4))
+    b = np.empty((4, 4))
+    _hat_into(p0, p1, p2, p2, -p1, p0, cp, sp, a)
+    _hat_into(q0, q1, q2, -q2, q1, -q0, cq, sq, b)
     for k in range(4):
         for j in range(4):
-            out[k, j] = 1.0 if k == j else 0.0
-    for sgn in (1.0, -1.0):
-        part = 0.5 * (w + sgn * star)
-        theta = math.sqrt(np.sum(part * part) * 0.5)
-        c = math.cos(theta)
-        s = math.sin(theta) / theta if theta > 0 else 1.0
-        e = np.zeros((4, 4))
-        for k in range(4):
-            e[k, k] = c
-        for i in range(6):
-            a, b = PA[i], PB[i]
-            e[b, a] += s * part[i]
-            e[a, b] -= s * part[i]
-        for k in range(4):
-            for j in range(4):
-                acc = 0.0
-                for m in range(4):
-                    acc += out[k, m] * e[m, j]
-                tmp[k, j] = acc
-        out[:, :] = tmp
+            out[k, j] = a[k, 0] * b[0, j] + a[k, 1] * b[1, j] + a[k, 2] * b[2, j] + a[k, 3] * b[3, j]
+
+
+@njit(**cache)
+def _hat_into(w0, w1, w2, w3, w4, w5, c, s, out):
+    """out = c I + s hat(w)."""
+    for k in range(4):
+        for j in range(4):
+            out[k, j] = 0.0
+        out[k, k] = c
+    out[1, 0], out[0, 1] = s * w0, -s * w0
+    out[2, 0], out[0, 2] = s * w1, -s * w1
+    out[3, 0], out[0, 3] = s * w2, -s * w2
+    out[2, 1], out[1, 2] = s * w3, -s * w3
+    out[3, 1], out[1, 3] = s * w4, -s * w4
+    out[3, 2], out[2, 3] = s * w5, -s * w5
 
 
 @njit(**cache)
@@ -150,6 +155,10 @@ def rotate_free(r, axes, L, iso_inv, excess, dt):
     (Strang) composition, so symplectic, second order, L kept exactly, energy without drift; a body
     with equal inertia in every plane (all excess 0) turns exactly.
     """
+    e = np.empty((4, 4))
+    if not excess.any():                       # equal inertia in every plane: one exact rotation
+        exp_bivector(L * (iso_inv * dt), e)
+        return renormalize(e @ r)
     w = r @ axes
     lp = np.empty(6)
     half = 0.5 * dt
@@ -157,7 +166,6 @@ def rotate_free(r, axes, L, iso_inv, excess, dt):
         if excess[j] != 0.0:
             _plane_momentum(w, L, lp)
             _turn_columns(w, PA[j], PB[j], excess[j] * lp[j] * half)
-    e = np.empty((4, 4))
     exp_bivector(L * (iso_inv * dt), e)
     w = e @ w
     for j in range(5, -1, -1):
@@ -490,6 +498,9 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     L = L.copy()
     r = r.copy()
     dynamic = inv_mass > 0.0
+    isotropic = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        isotropic[i] = not excess[i].any()
     tmp6 = np.empty(6)
     tmp4 = np.empty(4)
     tmpw = np.empty(4)
@@ -497,9 +508,19 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     inv_inertia = np.zeros((n, 6, 6))
     w = np.zeros((n, 6))
     for i in range(n):
-        if dynamic[i]:
+        if not dynamic[i]:
+            continue
+        if isotropic[i]:
+            for j in range(6):
+                inv_inertia[i, j, j] = iso_inv[i]
+                w[i, j] = iso_inv[i] * L[i, j]
+        else:
             world_inverse_inertia(r[i], axes[i], inv_plane[i], inv_inertia[i])
-            w[i] = inv_inertia[i] @ L[i]
+            for j in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += inv_inertia[i, j, k] * L[i, k]
+                w[i, j] = acc
     dL = np.zeros((n, 6))
     # external impulses (the hand), then gravity
     for k in range(len(impulses)):
@@ -517,11 +538,19 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     offsets = np.empty_like(local_offsets)
     for p in range(n_parts):
         b = part_body[p]
+        rb_ = r[b]
         for vv in range(v_start[p], v_start[p] + v_count[p]):
-            verts[vv] = r[b] @ local_verts[vv] + x[b]
+            for k in range(4):
+                verts[vv, k] = (rb_[k, 0] * local_verts[vv, 0] + rb_[k, 1] * local_verts[vv, 1]
+                                + rb_[k, 2] * local_verts[vv, 2] + rb_[k, 3] * local_verts[vv, 3] + x[b, k])
         for c in range(c_start[p], c_start[p] + c_count[p]):
-            normals[c] = r[b] @ local_normals[c]
-            offsets[c] = local_offsets[c] + normals[c] @ x[b]
+            acc = local_offsets[c]
+            for k in range(4):
+                nk = (rb_[k, 0] * local_normals[c, 0] + rb_[k, 1] * local_normals[c, 1]
+                      + rb_[k, 2] * local_normals[c, 2] + rb_[k, 3] * local_normals[c, 3])
+                normals[c, k] = nk
+                acc += nk * x[b, k]
+            offsets[c] = acc
     lo, hi = part_bounds(part_body, v_start, v_count, verts, margin)
     pairs = broad_phase(part_body, dynamic, lo, hi)
     rows = np.zeros((len(pairs) * MAX_POINTS, C_WIDTH))
@@ -554,20 +583,27 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
             row[C_PX:C_PX + 4] = pts[j]
             row[C_NX:C_NX + 4] = normal
             row[C_DEPTH] = depth[j]
-            ra_all[m] = pts[j] - x[a]
-            rb_all[m] = pts[j] - x[b]
+            for kk in range(4):
+                ra_all[m, kk] = pts[j, kk] - x[a, kk]
+                rb_all[m, kk] = pts[j, kk] - x[b, kk]
             _point_velocity(a, ra_all[m], v, w, va, tmp4)
             _point_velocity(b, rb_all[m], v, w, vb, tmp4)
-            rel = vb - va
-            vn = rel @ normal
+            vn = 0.0
+            for kk in range(4):
+                vn += (vb[kk] - va[kk]) * normal[kk]
             row[C_SPEED] = vn
             gap = max(-depth[j], 0.0)
             target[m] = -gap / dt                     # speculative: may close the gap, no more
-            tangential = rel - vn * normal
-            mu[m] = mus if math.sqrt(tangential @ tangential) < stick_speed else muk
+            slide = 0.0
+            for kk in range(4):
+                slide += (vb[kk] - va[kk] - vn * normal[kk]) ** 2
+            mu[m] = mus if math.sqrt(slide) < stick_speed else muk
             row[C_KEY] = key
-            local = r[b].T @ rb_all[m]
-            row[C_LOCAL:C_LOCAL + 4] = local
+            local = tmpw
+            for kk in range(4):
+                local[kk] = (r[b, 0, kk] * rb_all[m, 0] + r[b, 1, kk] * rb_all[m, 1] + r[b, 2, kk] * rb_all[m, 2]
+                             + r[b, 3, kk] * rb_all[m, 3])
+                row[C_LOCAL + kk] = local[kk]
             # warm start from the same point of the step before
             best = WARM_DISTANCE * WARM_DISTANCE
             found = -1
@@ -580,10 +616,12 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                     best, found = dd, prev
                 prev += 1
             if found >= 0 and previous[found, C_SPEED] >= -bounce_speed:   # an impact's impulse is not a load
-                lam = previous[found, C_LAMBDA]
-                tang = previous[found, C_TX:C_TX + 4] - (previous[found, C_TX:C_TX + 4] @ normal) * normal
-                row[C_LAMBDA] = lam
-                row[C_TX:C_TX + 4] = tang
+                row[C_LAMBDA] = previous[found, C_LAMBDA]
+                along = 0.0
+                for kk in range(4):
+                    along += previous[found, C_TX + kk] * normal[kk]
+                for kk in range(4):
+                    row[C_TX + kk] = previous[found, C_TX + kk] - along * normal[kk]
             m += 1
         # restitution: when any point of the pair closes its gap within this step, every point of the pair
         # that approaches faster than bounce_speed (and is no further than the margin) bounces, so a face
@@ -620,9 +658,12 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                 for i in range(6):
                     ang[c, d, side, i] = rr[PA[i]] * dvec[PB[i]] - rr[PB[i]] * dvec[PA[i]]
                 for i in range(6):
-                    acc = 0.0
-                    for j in range(6):
-                        acc += inv_inertia[body, i, j] * ang[c, d, side, j]
+                    if isotropic[body]:
+                        acc = iso_inv[body] * ang[c, d, side, i]
+                    else:
+                        acc = 0.0
+                        for j in range(6):
+                            acc += inv_inertia[body, i, j] * ang[c, d, side, j]
                     inv_ang[c, d, side, i] = acc
                     inv_k += ang[c, d, side, i] * acc
             k_row[c, d] = 1.0 / inv_k
