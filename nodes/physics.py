@@ -2,7 +2,8 @@
 
 Publishes `scene/state` as the scene node does (the bodies where physics has them, at `publish_rate`
 while anything moves, every 1/`rate` s for late joiners) and `physics/contacts` (contact points that
-struck harder than `contact_speed`). Subscribes `controller/state` (the trigger plus controller motion
+struck harder than `contact_speed`, and the hand starting a push). Subscribes `hand/pose` (the hand pushes
+what it feels, touch4d.physics.push), `controller/state` (the trigger plus controller motion
 turns the selected object, paper §4.4; buttons run commands) and `scene/command` (the scene node's
 commands, and pause, play, step [N]). The world steps at the scene's fixed rate (1 kHz by default),
 as many steps as the clock says are due at each tick: the steps themselves never depend on the clock
@@ -15,11 +16,13 @@ import time
 import numpy as np
 
 from touch4d.bus import Node, Param
+from touch4d.errors import Touch4dError
 from touch4d.geometry.scene import load_scene
-from touch4d.messages import ControllerState, PhysicsContacts, SceneCommand, SceneState
+from touch4d.messages import ControllerState, HandPose, PhysicsContacts, SceneCommand, SceneState
 from touch4d.physics.config import load_physics
 from touch4d.physics.kernels import C_A, C_B, C_LAMBDA, C_NX, C_PX, C_SPEED
 from touch4d.physics.session import PhysicsSession, split_buttons
+from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig
 
@@ -42,6 +45,9 @@ class PhysicsNode(Node):
         "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
         "paused": Param(False, "start paused (scene/command play or step to run)"),
         "max_steps": Param(200, "most steps per tick: a slower machine runs slow motion rather than stall", min=1),
+        "glove": Param("config/glove.yaml", "the glove whose samples push (as they feel)", path="glove file"),
+        "push_rate": Param(40.0, "how fast a pushed object takes up the hand's speed (0: the hand pushes nothing)",
+                           unit="1/s", min=0),
         "contact_speed": Param(0.05, "closing speed from which a contact is an event on physics/contacts",
                                unit="screen units/s", min=0),
     }
@@ -55,14 +61,18 @@ class PhysicsNode(Node):
         config = ControlConfig.from_params(gains=p["gains"], trigger_threshold=p["trigger_threshold"],
                                            buttons=scene_buttons, rotate=p["rotate"], spin={},
                                            source=self.param_where("gains")[0])
+        glove = load_glove(p["glove"]) if p["push_rate"] > 0 else None
         self.session = PhysicsSession(load_scene(p["scene"]), load_physics(p["scene"]),
-                                      load_calibration(p["calibration"]), config, physics_buttons, paused=p["paused"])
+                                      load_calibration(p["calibration"]), config, physics_buttons, paused=p["paused"],
+                                      glove=glove, push_rate=p["push_rate"])
         self.dt = self.session.world.dt
         self.counts = {"steps": 0, "late_steps": 0, "contact_events": 0, "bad_commands": 0}
         self.pub = self.create_publisher("scene/state", SceneState)
         self.contacts_pub = self.create_publisher("physics/contacts", PhysicsContacts)
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
+        if glove is not None:
+            self.create_subscription("hand/pose", HandPose, self.on_hand, latest_only=True)
         self.published_revision = -1
         self.start = time.monotonic()
         self.clock_steps = 0
@@ -75,6 +85,12 @@ class PhysicsNode(Node):
 
     def on_controller(self, msg: ControllerState) -> None:
         self.session.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid)
+
+    def on_hand(self, msg: HandPose) -> None:
+        try:
+            self.session.on_hand(msg.position, msg.orientation, msg.valid)
+        except Touch4dError as exc:      # a pose the tactile model refuses (PoseError): no push from it
+            self.warn_once(str(exc), f"hand/pose ignored: {exc}")
 
     def on_command(self, msg: SceneCommand) -> None:
         try:
@@ -102,7 +118,14 @@ class PhysicsNode(Node):
     def publish_contacts(self, contacts) -> None:
         rows = [c.rows[(c.rows[:, C_SPEED] < -self.params["contact_speed"]) & (c.rows[:, C_LAMBDA] > 0)]
                 for c in contacts]
-        rows = [r for r in rows if len(r)]
+        rows = [r[:, :C_SPEED + 1] for r in rows if len(r)]
+        for body, point, normal, impulse, speed in self.session.hand_events:    # the hand starts a push
+            if speed > self.params["contact_speed"]:
+                row = np.zeros(C_SPEED + 1)
+                row[C_A], row[C_B], row[C_LAMBDA], row[C_SPEED] = -1, body, impulse, -speed
+                row[C_PX:C_PX + 4], row[C_NX:C_NX + 4] = point, normal
+                rows.append(row[None])
+        self.session.hand_events.clear()
         if not rows:
             return
         hits = np.concatenate(rows)

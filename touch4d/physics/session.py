@@ -18,6 +18,7 @@ from touch4d.tracking.calibration import Calibration
 from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneControl
 
 from .config import PhysicsConfig
+from .push import Touch, push_impulses, touch_from_stimulus
 from .world import Contacts, build_world, step, with_pose
 
 PHYSICS_COMMANDS = ("pause", "play", "step")
@@ -29,7 +30,7 @@ class JournalEntry:
     """An input and the step count it was applied at."""
 
     step: int
-    kind: str          # "controller", "command" or "run" (args: the number of steps)
+    kind: str          # "controller", "hand", "command" or "run" (args: the number of steps)
     args: tuple
 
 
@@ -37,7 +38,8 @@ class PhysicsSession:
     """A physics world driven like the scene node: controller rotation (paper §4.4), buttons, commands."""
 
     def __init__(self, scene: Scene, physics: PhysicsConfig | None, calibration: Calibration,
-                 config: ControlConfig | None = None, physics_buttons: dict | None = None, paused: bool = False):
+                 config: ControlConfig | None = None, physics_buttons: dict | None = None, paused: bool = False,
+                 glove=None, push_rate: float = 0.0):
         self.control = SceneControl(scene, calibration, config)
         self.world, self.initial = build_world(self.control.scene, physics)
         self.state = self.initial
@@ -46,6 +48,12 @@ class PhysicsSession:
         self.physics_buttons = dict(physics_buttons or {})
         self._held: frozenset[str] = frozenset()
         self.journal: list[JournalEntry] = []
+        self.glove = glove                    # the hand pushes (push_rate > 0) with the glove's samples
+        self.push_rate = push_rate
+        self.touch = Touch.none()
+        self._hand: tuple[np.ndarray, int] | None = None    # last valid hand position and its step
+        self._pushed: frozenset[int] = frozenset()
+        self.hand_events: list[tuple[int, np.ndarray, np.ndarray, float, float]] = []
         self._sync_scene()
 
     # ---- inputs (between steps) -------------------------------------------------------------------
@@ -66,6 +74,28 @@ class PhysicsSession:
         self._take_poses(before)
         return changed
 
+    def on_hand(self, position, quat_xyzw, valid: bool = True) -> None:
+        """A hand pose (screen units): what it touches now pushes while the hand moves (`touch4d.physics.push`)."""
+        self.journal.append(JournalEntry(self.state.steps, "hand", (
+            tuple(map(float, position)), tuple(map(float, quat_xyzw)), bool(valid))))
+        if self.glove is None or self.push_rate <= 0:
+            return
+        if not valid:
+            self.touch, self._hand = Touch.none(), None
+            return
+        from touch4d.tactile.stimulus import compute_stimulus
+
+        position = np.asarray(position, dtype=float)
+        velocity = np.zeros(3)
+        if self._hand is not None and self.state.steps > self._hand[1]:
+            velocity = (position - self._hand[0]) / ((self.state.steps - self._hand[1]) * self.world.dt)
+        elif self._hand is not None:
+            velocity = self.touch.velocity
+        self._hand = (position, self.state.steps)
+        scene = self.control.scene
+        st = compute_stimulus(self.glove, scene.ray_caster(), position, quat_xyzw)
+        self.touch = touch_from_stimulus(st.positions, st.l, st.hit, st.h, velocity, scene.perspective_eye)
+
     def command(self, name: str, argument: str = "") -> bool:
         """A `scene/command`: the physics ones here, the others as the scene node does (ValueError if bad)."""
         if name in PHYSICS_COMMANDS:
@@ -75,6 +105,7 @@ class PhysicsSession:
             result = self.control.command(name, argument)
             if name == "reset":
                 self.state = self.initial
+                self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
                 self._sync_scene()
             else:
                 self._take_poses(before)
@@ -111,12 +142,28 @@ class PhysicsSession:
         """Exactly `steps` fixed steps, journaled."""
         out = []
         for _ in range(steps):
-            self.state, contacts = step(self.world, self.state)
+            impulses = push_impulses(self.world, self.state, self.touch, self.push_rate) if len(self.touch.points) else None
+            if impulses is not None:
+                self._hand_events(impulses)
+            self.state, contacts = step(self.world, self.state, impulses)
             out.append(contacts)
         if steps:
             self.journal.append(JournalEntry(self.state.steps - steps, "run", (steps,)))
             self._sync_scene()
         return out
+
+    def _hand_events(self, impulses) -> None:
+        """A push that starts on an object is a contact event (the hand as body -1)."""
+        pushed = frozenset(int(b) for b in impulses[:, 0])
+        for body in sorted(pushed - self._pushed):
+            rows = impulses[impulses[:, 0] == body]
+            total = rows[:, 5:9].sum(axis=0)
+            size = float(np.linalg.norm(total))
+            point = (rows[:, 1:5] * np.linalg.norm(rows[:, 5:9], axis=1)[:, None]).sum(axis=0) / max(
+                float(np.linalg.norm(rows[:, 5:9], axis=1).sum()), 1e-300)
+            self.hand_events.append((body, point, total / size if size > 0 else total, size,
+                                     float(np.linalg.norm(self.touch.velocity))))
+        self._pushed = pushed
 
     # ---- the scene it shows -----------------------------------------------------------------------
 
@@ -162,14 +209,16 @@ def split_buttons(buttons: dict) -> tuple[dict, dict]:
 
 
 def replay(scene: Scene, physics: PhysicsConfig | None, calibration: Calibration, config: ControlConfig | None,
-           physics_buttons: dict | None, journal) -> PhysicsSession:
+           physics_buttons: dict | None, journal, glove=None, push_rate: float = 0.0) -> PhysicsSession:
     """A fresh session fed a journal's inputs and steps in order: it reaches the same states, byte for byte."""
-    session = PhysicsSession(scene, physics, calibration, config, physics_buttons)
+    session = PhysicsSession(scene, physics, calibration, config, physics_buttons, glove=glove, push_rate=push_rate)
     for entry in journal:
         if entry.step != session.state.steps:
             raise ValueError(f"journal entry at step {entry.step} reached at step {session.state.steps}")
         if entry.kind == "controller":
             session.on_controller(*entry.args)
+        elif entry.kind == "hand":
+            session.on_hand(*entry.args)
         elif entry.kind == "command":
             session.command(*entry.args)
         else:
