@@ -3,10 +3,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 import numpy as np
 
 from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.errors import ConfigError
 
 from .bivector import to_planes
 
@@ -25,6 +27,12 @@ def register(subparsers) -> None:
     sim.add_argument("--duration", type=_seconds, default=1.0, metavar="S", help="simulated seconds (default 1)")
     sim.add_argument("--rate", type=_positive, metavar="HZ", help="internal steps per second (default: the scene's)")
     sim.add_argument("--json", action="store_true", help="print JSON (a stable interface for scripts)")
+    sim.add_argument("--frames", metavar="PNG", help="also draw the scene at --frame-count moments from start to end "
+                                                     "(the renderer, headless) side by side into this PNG")
+    sim.add_argument("--frame-count", type=int, default=6, metavar="N", help="frames in --frames (default 6)")
+    sim.add_argument("--frame-size", default="480x400", metavar="WxH", help="size of each frame (default 480x400)")
+    sim.add_argument("--camera", default="yaw=25,pitch=15,distance=5.2,target=0:-0.2:0",
+                     help="orbit camera of the frames: yaw=DEG,pitch=DEG,distance=D,target=X:Y:Z")
     sim.set_defaults(func=run_simulate)
 
 
@@ -49,9 +57,21 @@ def run_simulate(args) -> int:
     from .world import build_world, run
 
     path = resolve_path(args.scene, COMMAND_LINE, key="SCENE", what="scene file")
-    world, state = build_world(load_scene(path), load_physics(path), rate=args.rate)
+    scene = load_scene(path)
+    world, state = build_world(scene, load_physics(path), rate=args.rate)
     steps = int(round(args.duration / world.dt))
-    state = run(world, state, steps)
+    if args.frames:
+        if not 1 <= args.frame_count <= 64:
+            raise ConfigError("--frame-count", "frame-count", "1..64 frames", got=args.frame_count)
+        marks = sorted(set(np.linspace(0, steps, args.frame_count).round().astype(int).tolist()))
+        shots = []
+        for mark in marks:
+            state = run(world, state, mark - state.steps)
+            shots.append((state.time, state))
+        state = run(world, state, steps - state.steps)
+        draw_frames(scene, world, shots, args)
+    else:
+        state = run(world, state, steps)
     report = simulation_report(world, state)
     if args.json:
         print(json.dumps(report))
@@ -89,3 +109,41 @@ def report_text(report: dict) -> str:
         spin = ", ".join(f"{p} {v:.1f}" for p, v in obj["angular_velocity"].items() if abs(v) >= 0.05) or "none"
         lines.append(f"{name}: position {pos}; velocity {vel}; turning (deg/s) {spin}")
     return "\n".join(lines)
+
+
+def draw_frames(scene, world, shots, args) -> None:
+    """The scene at each (time, state) drawn by the renderer, side by side, with the time under each."""
+    from PIL import Image, ImageDraw
+
+    from touch4d.render.camera import OrbitCamera, parse_camera
+    from touch4d.render.cli import parse_size
+    from touch4d.render.frame import Style
+    from touch4d.render.offscreen import OffscreenRenderer
+    from touch4d.render.view import SceneView, Show
+    from touch4d.tactile.glove import load_glove
+
+    from .world import object_positions
+
+    size = parse_size(args.frame_size)
+    camera = parse_camera(args.camera, OrbitCamera())
+    view = SceneView(load_glove(None), Style(), Show(frame=True, tactile=False, status=False))
+    renderer = OffscreenRenderer(size, samples=4)
+    images = []
+    try:
+        for t, state in shots:
+            shown = scene.copy()
+            positions = object_positions(world, state)
+            for i, obj in enumerate(shown.objects):
+                obj.position, obj.orientation = positions[i].copy(), state.r[i].copy()
+            shown.revision = state.steps + 1
+            view.set_scene(shown)
+            image = Image.fromarray(renderer.render(view, camera)[..., :3])
+            ImageDraw.Draw(image).text((10, size[1] - 22), f"t = {t:.2f} s", fill=(230, 230, 230))
+            images.append(image)
+    finally:
+        renderer.release()
+    strip = Image.new("RGB", (size[0] * len(images), size[1]))
+    for k, image in enumerate(images):
+        strip.paste(image, (k * size[0], 0))
+    strip.save(args.frames)
+    print(f"wrote {args.frames}: {len(images)} frames of {size[0]}x{size[1]}", file=sys.stderr)
