@@ -1,14 +1,13 @@
 """4D rigid-body physics against closed forms: mass properties, free flight, conservation, resting,
 friction, collisions, stacks, determinism; scene-file keys and the `touch4d physics simulate` command."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
+from touch4d.cli import main
 from touch4d.errors import ConfigError
 from touch4d.geometry.polytope import Polytope
 from touch4d.geometry.scene import parse_scene
@@ -241,15 +240,13 @@ def test_physics_keys_errors_name_the_key():
     parse_scene({**base, "physics": {"gravity": [0, -1, 0, 0]}})          # the geometry accepts the key
 
 
-def test_simulate_command_prints_the_final_state(tmp_path):
+def test_simulate_command_prints_the_final_state(tmp_path, capsys):
     path = tmp_path / "fall.yaml"
     path.write_text("physics: {gravity: [0, -2, 0, 0], rate: 200}\n"
                     "objects:\n  - name: ball\n    shape: 24-cell\n    size: 0.2\n    position: [0, 0.5, 0, 1.5]\n"
                     "    physics: {velocity: [0.5, 0, 0, 0], angular_velocity: [[xy, 45]]}\n")
-    out = subprocess.run([sys.executable, "-m", "touch4d.cli", "physics", "simulate", str(path), "--duration", "1",
-                          "--json"], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    report = json.loads(out.stdout)
+    assert main(["physics", "simulate", str(path), "--duration", "1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
     ball = report["objects"]["ball"]
     np.testing.assert_allclose(ball["position"], [0.5, 0.5 - 1.0, 0, 1.5], atol=1e-9)
     np.testing.assert_allclose(ball["velocity"], [0.5, -2.0, 0, 0], atol=1e-9)
@@ -272,15 +269,13 @@ def test_the_cradle_scene_passes_the_strike_down_the_row():
     assert energy(world, end) == pytest.approx(energy(world, state), rel=1e-9)
 
 
-def test_simulate_draws_a_frame_sequence(tmp_path):
+def test_simulate_draws_a_frame_sequence(tmp_path, capsys):
     from PIL import Image
 
     out = tmp_path / "drop.png"
-    done = subprocess.run([sys.executable, "-m", "touch4d.cli", "physics", "simulate", "config/scenes/physics-drop.yaml",
-                           "--duration", "0.4", "--frames", str(out), "--frame-count", "2", "--frame-size", "160x120",
-                           "--json"], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    json.loads(done.stdout)                                                 # the report stays pure JSON
+    assert main(["physics", "simulate", "config/scenes/physics-drop.yaml", "--duration", "0.4", "--frames", str(out),
+                 "--frame-count", "2", "--frame-size", "160x120", "--json"]) == 0
+    json.loads(capsys.readouterr().out)                                     # the report stays pure JSON
     image = np.asarray(Image.open(out).convert("RGB")).astype(int)
     assert image.shape == (120, 320, 3)
     first, last = image[:, :160], image[:, 160:]

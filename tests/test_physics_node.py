@@ -107,3 +107,28 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
                 assert states[-1].objects[1]["position"][1] == pytest.approx(0.45)
             finally:
                 probe.shutdown()
+
+
+def test_released_the_controller_throws_the_body_at_its_last_turning_rate():
+    from touch4d.physics import bivector as bv
+
+    data = {"physics": {"gravity": [0, 0, 0, 0]}, "objects": [{"name": "t", "shape": "tesseract", "position": [0, 0, 0, 1.5]}]}
+    calibration = load_calibration(None)
+    s = PhysicsSession(parse_scene(data), parse_physics(data), calibration, ControlConfig())
+    plain = SceneControl(parse_scene(data), calibration, ControlConfig())
+    orientations = []
+    for k in range(8):                                         # 0.2 m/s sideways, a sample every 10 ms
+        sample = (CENTER + [0.002 * k, 0.0, 0.0], Q, 1.0, [], True)
+        s.on_controller(*sample)
+        plain.on_controller(*sample)
+        orientations.append(plain.scene.objects[0].orientation.copy())
+        s.advance(10)
+        np.testing.assert_allclose(s.message().objects[0]["orientation"], orientations[-1], atol=1e-12)  # held
+    s.on_controller(CENTER + [0.014, 0.0, 0.0], Q, 0.0, [], True)        # released
+    rate = bv.vee(orientations[-1] @ orientations[-2].T) / 0.01
+    assert abs(rate[2]) > 1.0                                  # the xw plane (paper §4.4: x motion turns xw)
+    released = s.state.r[0].copy()
+    s.advance(500)
+    from touch4d.physics.world import angular_velocity
+    np.testing.assert_allclose(angular_velocity(s.world, s.state)[0], rate, atol=1e-9)
+    np.testing.assert_allclose(s.state.r[0], bv.exp(rate * 0.5) @ released, atol=1e-9)

@@ -17,6 +17,7 @@ from touch4d.geometry.scene import Scene
 from touch4d.tracking.calibration import Calibration
 from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneControl
 
+from .bivector import vee
 from .config import PhysicsConfig
 from .push import Touch, push_impulses, touch_from_stimulus
 from .world import Contacts, build_world, step, with_pose
@@ -54,6 +55,7 @@ class PhysicsSession:
         self._hand: tuple[np.ndarray, int] | None = None    # last valid hand position and its step
         self._pushed: frozenset[int] = frozenset()
         self.hand_events: list[tuple[int, np.ndarray, np.ndarray, float, float]] = []
+        self._turn_rate, self._turn_step = np.zeros(6), None
         self._sync_scene()
 
     # ---- inputs (between steps) -------------------------------------------------------------------
@@ -70,9 +72,29 @@ class PhysicsSession:
                 changed |= self._physics_command(command, "")
         self._held = now
         before = self._poses()
+        holding = self.control._grab is not None
         changed |= self.control.on_controller(position_m, quat_room, trigger, buttons, valid)
         self._take_poses(before)
+        self._throw(before, holding, self.control._grab is not None)
         return changed
+
+    def _throw(self, before, was_holding: bool, holding: bool) -> None:
+        """While the trigger holds the selected body, it turns with the controller only (no spin of its own) and
+        its rate is measured; released, it keeps turning at that rate: the controller throws it (§4.4 mapping)."""
+        index = self.control.scene.selected
+        if index < 0 or self.world.static[index]:
+            return
+        if holding:
+            obj = self.control.scene.objects[index]
+            rate = np.zeros(6)
+            if was_holding and self._turn_step is not None and self.state.steps > self._turn_step:
+                delta = obj.orientation @ before[index][1].T
+                rate = vee(delta) / ((self.state.steps - self._turn_step) * self.world.dt)
+            self._turn_rate, self._turn_step = rate, self.state.steps
+            self.state = with_pose(self.world, self.state, index, angular_velocity_world=np.zeros(6))
+        elif was_holding:
+            self.state = with_pose(self.world, self.state, index, angular_velocity_world=self._turn_rate)
+            self._turn_rate, self._turn_step = np.zeros(6), None
 
     def on_hand(self, position, quat_xyzw, valid: bool = True) -> None:
         """A hand pose (screen units): what it touches now pushes while the hand moves (`touch4d.physics.push`)."""

@@ -246,4 +246,5 @@ def with_pose(world: World, state: State, index: int, position=None, orientation
     if angular_velocity_world is not None and not world.static[index]:
         c = bivector.compound(r[index] @ world.axes[index])
         L[index] = c @ (world.plane_inertia[index] * (c.T @ np.asarray(angular_velocity_world, dtype=float)))
-    return replace(state, x=x, v=v, r=r, L=L, contacts=np.zeros((0, kernels.C_WIDTH)))
+    moved = position is not None or orientation is not None      # a moved body's contacts are found anew
+    return replace(state, x=x, v=v, r=r, L=L, contacts=np.zeros((0, kernels.C_WIDTH)) if moved else state.contacts)
