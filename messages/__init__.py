@@ -4,7 +4,7 @@ See docs/contracts.md for the table of topics and fields.
 """
 from .base import Message, MessageError, TYPES, decode, decoder, encode
 from .hand import ControllerState, HandJoints, HandPose
-from .physics import PhysicsContacts
+from .physics import PhysicsContacts, PhysicsInput
 from .scene import PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
 from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
 from .tactile import MotorCommand, TactileField
@@ -23,11 +23,12 @@ TOPIC_TYPES: dict[str, type[Message]] = {
     "node/heartbeat": Heartbeat,
     "ui/input": InputEvents,
     "physics/contacts": PhysicsContacts,
+    "physics/journal": PhysicsInput,
 }
 
 __all__ = [
     "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode", "decoder",
     "HandPose", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
     "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PROJECTIONS", "SCENE_COMMANDS",
-    "PhysicsContacts",
+    "PhysicsContacts", "PhysicsInput",
 ]

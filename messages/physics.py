@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Array, Float, Int, Message, StrList, spec
+from .base import Array, Float, Int, Map, Message, Str, StrList, spec
 
 
 @dataclass(kw_only=True)
@@ -30,3 +30,17 @@ class PhysicsContacts(Message):
         n = len(self.a)
         if not (len(self.b) == len(self.points) == len(self.normals) == len(self.impulses) == len(self.speeds) == n):
             raise ValueError("a, b, points, normals, impulses and speeds need one row per contact point")
+
+
+JOURNAL_KINDS = ("controller", "hand", "command", "run")
+
+
+@dataclass(kw_only=True)
+class PhysicsInput(Message):
+    """One entry of the physics node's journal (topic physics/journal): an input it applied, or steps it ran,
+    at a step count. A recorded log's journal replays to the same states (`touch4d physics replay`)."""
+
+    step: int = spec(Int(), "the step count the entry was applied at")
+    kind: str = spec(Str(JOURNAL_KINDS), "controller | hand | command | run")
+    args: dict = spec(Map(), "controller: position, orientation, trigger, buttons, valid; hand: position, orientation, "
+                             "valid; command: command, argument; run: steps")

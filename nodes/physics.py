@@ -18,15 +18,13 @@ import numpy as np
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
 from touch4d.geometry.scene import load_scene
-from touch4d.messages import ControllerState, HandPose, PhysicsContacts, SceneCommand, SceneState
+from touch4d.messages import ControllerState, HandPose, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
 from touch4d.physics.config import load_physics
 from touch4d.physics.kernels import C_A, C_B, C_LAMBDA, C_NX, C_PX, C_SPEED
-from touch4d.physics.session import PhysicsSession, split_buttons
+from touch4d.physics.session import DEFAULT_BUTTONS, PhysicsSession, entry_to_map, split_buttons
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig
-
-PHYSICS_BUTTONS = {**DEFAULT_BUTTONS, "thumbstick": "pause"}
+from touch4d.tracking.scene_control import ControlConfig
 
 
 class PhysicsNode(Node):
@@ -41,7 +39,7 @@ class PhysicsNode(Node):
                               max=1000),
         "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
         "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
-        "buttons": Param(dict(PHYSICS_BUTTONS), "controller button -> command (next, reset, projection, pause, step)"),
+        "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> command (next, reset, projection, pause, step)"),
         "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
         "paused": Param(False, "start paused (scene/command play or step to run)"),
         "max_steps": Param(200, "most steps per tick: a slower machine runs slow motion rather than stall", min=1),
@@ -69,6 +67,7 @@ class PhysicsNode(Node):
         self.counts = {"steps": 0, "late_steps": 0, "contact_events": 0, "bad_commands": 0}
         self.pub = self.create_publisher("scene/state", SceneState)
         self.contacts_pub = self.create_publisher("physics/contacts", PhysicsContacts)
+        self.journal_pub = self.create_publisher("physics/journal", PhysicsInput)
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
         if glove is not None:
@@ -85,12 +84,20 @@ class PhysicsNode(Node):
 
     def on_controller(self, msg: ControllerState) -> None:
         self.session.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid)
+        self.flush_journal()
+
+    def flush_journal(self) -> None:
+        """Publish the journal's new entries (a recording of them replays to the same states), then forget them."""
+        for entry in self.session.journal:
+            self.journal_pub.publish(PhysicsInput(step=entry.step, kind=entry.kind, args=entry_to_map(entry)))
+        self.session.journal.clear()
 
     def on_hand(self, msg: HandPose) -> None:
         try:
             self.session.on_hand(msg.position, msg.orientation, msg.valid)
         except Touch4dError as exc:      # a pose the tactile model refuses (PoseError): no push from it
             self.warn_once(str(exc), f"hand/pose ignored: {exc}")
+        self.flush_journal()
 
     def on_command(self, msg: SceneCommand) -> None:
         try:
@@ -98,6 +105,7 @@ class PhysicsNode(Node):
         except ValueError as exc:
             self.counts["bad_commands"] += 1
             self.log.warning("scene/command ignored: %s", exc)
+        self.flush_journal()
 
     def tick(self) -> None:
         """Run the steps the clock says are due, then publish what moved and what struck."""
@@ -112,6 +120,7 @@ class PhysicsNode(Node):
         contacts = self.session.advance(max(due, 0))
         self.counts["steps"] += self.session.state.steps - before
         self.publish_contacts(contacts)
+        self.flush_journal()
         if self.session.control.scene.revision != self.published_revision:
             self.publish()
 

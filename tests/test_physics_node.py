@@ -1,11 +1,13 @@
 """The physics node's logic (controller, commands, journal replay) and the node as a process on the bus."""
+import json
+
 import numpy as np
 import pytest
 
 from touch4d.bus import Node
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.geometry.scene import load_scene, parse_scene
-from touch4d.messages import ControllerState, PhysicsContacts, SceneCommand, SceneState
+from touch4d.messages import ControllerState, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
 from touch4d.physics.config import load_physics, parse_physics
 from touch4d.physics.session import PhysicsSession, replay, split_buttons
 from touch4d.tracking.calibration import load_calibration
@@ -80,14 +82,16 @@ def test_bad_buttons_are_named():
         split_buttons({"menu": "explode"})
 
 
-def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
+def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, capsys):
     with running_broker() as bus:
         with node_process("physics", bus, params={"scene": DROP, "publish_rate": 50.0}) as proc:
             probe = Node("probe", bus=bus)
             try:
                 states = collect(probe, "scene/state", SceneState)
                 hits = collect(probe, "physics/contacts", PhysicsContacts)
+                journal = collect(probe, "physics/journal", PhysicsInput)
                 commands = probe.create_publisher("scene/command", SceneCommand)
+                controller = probe.create_publisher("controller/state", ControllerState)
                 try:
                     wait_until(lambda: hits, timeout=30, spin=probe)      # it fell and struck the floor
                 except TimeoutError:
@@ -97,6 +101,10 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
                 assert (hit.speeds > 1.0).all() and (hit.impulses > 0).all()
                 np.testing.assert_allclose(hit.normals[:, 1], 1.0, atol=1e-9)     # the floor's top, up
                 assert states[-1].objects[1]["position"][1] < 0.45
+                for k in range(6):                                   # the trigger turns the tesseract as it lies
+                    controller.publish(ControllerState(position=CENTER + [0.01 * k, 0, 0], orientation=Q, trigger=1.0,
+                                                       buttons=[], valid=True))
+                    probe.spin(0.03)
                 commands.publish(SceneCommand(command="pause"))
                 probe.spin(0.3)
                 frozen = states[-1].revision
@@ -105,8 +113,25 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause():
                 commands.publish(SceneCommand(command="reset"))
                 wait_until(lambda: states[-1].revision > frozen, timeout=10, spin=probe)
                 assert states[-1].objects[1]["position"][1] == pytest.approx(0.45)
+                commands.publish(SceneCommand(command="step", argument="25"))
+                wait_until(lambda: any(e.kind == "run" and e.args["steps"] > 0 for e in journal[-3:]), timeout=10,
+                           spin=probe)
+                probe.spin(0.3)
             finally:
                 probe.shutdown()
+    # the recorded session (journal and states) replays to the same bytes
+    from touch4d.cli import main
+    from touch4d.log.writer import LogWriter
+    from touch4d.messages import encode
+
+    log = tmp_path / "session.mcap"
+    with LogWriter(log) as writer:
+        for t, msg in enumerate([("physics/journal", m) for m in journal] + [("scene/state", m) for m in states]):
+            writer.write(msg[0], encode(msg[1]), t)
+    assert main(["physics", "replay", str(log), "--scene", DROP, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["identical"] and report["max_difference"] == 0.0
+    assert report["steps"] == 25 and report["states_compared"] > 10      # every state before and after the reset
 
 
 def test_released_the_controller_throws_the_body_at_its_last_turning_rate():

@@ -23,6 +23,7 @@ from .push import Touch, push_impulses, touch_from_stimulus
 from .world import Contacts, build_world, step, with_pose
 
 PHYSICS_COMMANDS = ("pause", "play", "step")
+DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection", "thumbstick": "pause"}
 MAX_SINGLE_STEPS = 100000
 
 
@@ -33,6 +34,28 @@ class JournalEntry:
     step: int
     kind: str          # "controller", "hand", "command" or "run" (args: the number of steps)
     args: tuple
+
+
+_ARG_NAMES = {"controller": ("position", "orientation", "trigger", "buttons", "valid"),
+              "hand": ("position", "orientation", "valid"), "command": ("command", "argument"), "run": ("steps",)}
+
+
+def entry_to_map(entry: JournalEntry) -> dict:
+    """A journal entry's arguments by name (the `args` of a `physics/journal` message)."""
+    return {name: list(value) if isinstance(value, tuple) else value
+            for name, value in zip(_ARG_NAMES[entry.kind], entry.args)}
+
+
+def entry_from_map(step: int, kind: str, args: dict) -> JournalEntry:
+    """The journal entry of a `physics/journal` message (ValueError names what is missing)."""
+    if kind not in _ARG_NAMES:
+        raise ValueError(f"physics/journal: unknown kind {kind!r}")
+    try:
+        values = [args[name] for name in _ARG_NAMES[kind]]
+    except KeyError as exc:
+        raise ValueError(f"physics/journal: a {kind} entry without {exc.args[0]!r}") from None
+    values = [tuple(v) if isinstance(v, (list, tuple)) else v for v in values]
+    return JournalEntry(int(step), kind, tuple(values))
 
 
 class PhysicsSession:
@@ -120,6 +143,7 @@ class PhysicsSession:
 
     def command(self, name: str, argument: str = "") -> bool:
         """A `scene/command`: the physics ones here, the others as the scene node does (ValueError if bad)."""
+        at = self.state.steps
         if name in PHYSICS_COMMANDS:
             result = self._physics_command(name, argument)
         else:
@@ -131,7 +155,7 @@ class PhysicsSession:
                 self._sync_scene()
             else:
                 self._take_poses(before)
-        self.journal.append(JournalEntry(self.state.steps, "command", (name, argument)))
+        self.journal.append(JournalEntry(at, "command", (name, argument)))
         return result
 
     def _physics_command(self, name: str, argument: str) -> bool:
@@ -231,8 +255,9 @@ def split_buttons(buttons: dict) -> tuple[dict, dict]:
 
 
 def replay(scene: Scene, physics: PhysicsConfig | None, calibration: Calibration, config: ControlConfig | None,
-           physics_buttons: dict | None, journal, glove=None, push_rate: float = 0.0) -> PhysicsSession:
-    """A fresh session fed a journal's inputs and steps in order: it reaches the same states, byte for byte."""
+           physics_buttons: dict | None, journal, glove=None, push_rate: float = 0.0, after=None) -> PhysicsSession:
+    """A fresh session fed a journal's inputs and steps in order: it reaches the same states, byte for byte.
+    `after(session)`, if given, is called after each entry."""
     session = PhysicsSession(scene, physics, calibration, config, physics_buttons, glove=glove, push_rate=push_rate)
     for entry in journal:
         if entry.step != session.state.steps:
@@ -245,4 +270,6 @@ def replay(scene: Scene, physics: PhysicsConfig | None, calibration: Calibration
             session.command(*entry.args)
         else:
             session.run(*entry.args)
+        if after is not None:
+            after(session)
     return session
