@@ -91,3 +91,45 @@ def test_a_struck_object_reaches_the_motors_touching_it():
     bank.add(struck.a[hard], struck.b[hard], -struck.speed[hard], now=0.0)
     got = bank.apply(st.V, hits, now=0.01)
     assert (got[hits >= 0] > st.V[hits >= 0]).all() and np.array_equal(got[hits < 0], st.V[hits < 0])
+
+
+def test_the_tactile_node_adds_the_burst_of_a_physics_contact_on_the_touching_motors():
+    from touch4d.bus import Node
+    from touch4d.bus.testing import collect, running_broker, wait_until
+    from touch4d.geometry.scene import Scene, SceneObject
+    from touch4d.messages import HandPose, MotorCommand, PhysicsContacts, SceneState
+    from touch4d.nodes.tactile import TactileNode
+
+    cube = SceneObject(name="cube", shape="tesseract", size=0.6, position=np.array([0.6, 0, 0, 1.6]))
+    scene = Scene(objects=[cube], revision=1).to_message()
+    hand = HandPose(position=np.array([0.25, 0.0, 0.0]), orientation=np.array(Q), valid=True)
+    with running_broker() as bus:
+        tactile = TactileNode(bus=bus, heartbeat=False)
+        tactile.transients = TransientBank(tau=10.0, duration=60.0)        # a long burst: no race with the clock
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            motors = collect(probe, "tactile/motors", MotorCommand)
+            probe.create_publisher("scene/state", SceneState).publish(scene)
+            poses = probe.create_publisher("hand/pose", HandPose)
+            contacts = probe.create_publisher("physics/contacts", PhysicsContacts)
+
+            def spin(predicate):
+                wait_until(lambda: (tactile.spin_once(0.01), probe.spin_once(0.01), predicate())[-1], timeout=30)
+
+            spin(lambda: tactile.engine.caster is not None)
+            poses.publish(hand)
+            spin(lambda: len(motors) == 1)
+            contacts.publish(PhysicsContacts(names=["cube"], a=np.array([-1]), b=np.array([0]),
+                                             points=np.zeros((1, 4)), normals=np.array([[1.0, 0, 0, 0]]),
+                                             impulses=np.array([0.1]), speeds=np.array([0.75]), step=1, time=0.001))
+            spin(lambda: tactile.transients.active)
+            poses.publish(hand)
+            spin(lambda: len(motors) == 2)
+        finally:
+            probe.shutdown()
+            tactile.shutdown()
+    before, after = motors[0].intensity, motors[1].intensity
+    touching = before > 0
+    assert touching.any() and not touching.all()                         # the hand half on the cube
+    np.testing.assert_allclose(after[touching], np.minimum(before[touching] + 0.5, 1.0), atol=0.01)  # a = 0.75 / 1.5
+    np.testing.assert_array_equal(after[~touching], before[~touching])
