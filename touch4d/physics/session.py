@@ -148,8 +148,11 @@ class PhysicsSession:
             result = self._physics_command(name, argument)
         else:
             before = self._poses()
+            shapes = self._shapes()
             result = self.control.command(name, argument)
-            if name == "reset":
+            if self._shapes() != shapes:
+                self._rebuild(argument)         # another scene was loaded: new bodies, its physics if it has any
+            elif name == "reset":
                 self.state = self.initial
                 self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
                 self._sync_scene()
@@ -212,6 +215,24 @@ class PhysicsSession:
         self._pushed = pushed
 
     # ---- the scene it shows -----------------------------------------------------------------------
+
+    def _shapes(self):
+        return [(o.name, o.shape, o.size, repr(o.params)) for o in self.control.scene.objects]
+
+    def _rebuild(self, path: str) -> None:
+        """The world of the scene the control now holds (after a scene command such as `load PATH`)."""
+        from touch4d.errors import Touch4dError
+
+        from .config import load_physics
+
+        try:
+            physics = load_physics(path) if path.strip() else None
+        except Touch4dError:
+            physics = None
+        self.world, self.initial = build_world(self.control.scene, physics)
+        self.state = self.initial
+        self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
+        self._turn_rate, self._turn_step = np.zeros(6), None
 
     def _poses(self):
         return [(o.position.copy(), o.orientation.copy()) for o in self.control.scene.objects]
