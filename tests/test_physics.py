@@ -33,7 +33,7 @@ def box(sides):
         for sign in (1, -1):
             n = np.zeros(4)
             n[k] = sign
-            rows.append([*n, side / 2])
+            rows.append([float(c) for c in n] + [float(side) / 2])
     return rows
 
 

@@ -26,12 +26,11 @@ from typing import Annotated, Union
 import msgspec
 
 from touch4d import schema
-from touch4d.errors import ConfigError
-from touch4d.geometry.rotation import plane_axes
+from touch4d.geometry.rotation import PLANES, plane_axes
+from touch4d.schema import Finite, NonNegative, Positive
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
-Vector4 = tuple[float, float, float, float]
+Vector4 = Annotated[tuple[Finite, Finite, Finite, Finite], msgspec.Meta(description="a list of 4 numbers")]
+PlaneRate = Annotated[tuple[str, Finite], msgspec.Meta(description="a pair [plane, degrees per second] such as [xw, 90]")]
 
 
 class Friction(msgspec.Struct, forbid_unknown_fields=True):
@@ -47,10 +46,20 @@ class ObjectPhysics(msgspec.Struct, forbid_unknown_fields=True):
     mass: Union[Positive, None] = None
     density: Union[Positive, None] = None
     velocity: Vector4 = (0.0, 0.0, 0.0, 0.0)
-    angular_velocity: list[tuple[str, float]] = []
+    angular_velocity: list[PlaneRate] = []
     friction: Union[NonNegative, Friction] = 0.5
-    restitution: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    restitution: Annotated[float, msgspec.Meta(ge=0, le=1, description="a number in 0..1")] = 0.0
     static: bool = False
+
+    def __post_init__(self):
+        if self.mass is not None and self.density is not None:
+            raise schema.Invalid("mass or density, not both", got=self.mass, key="mass")
+        for j, (plane, _) in enumerate(self.angular_velocity):
+            try:
+                plane_axes(plane)
+            except ValueError:
+                raise schema.Invalid("a plane of two axes among x, y, z, w (e.g. xw)", got=plane,
+                                     key=f"angular_velocity[{j}]", choices=PLANES) from None
 
     @property
     def friction_pair(self) -> tuple[float, float]:
@@ -64,11 +73,11 @@ class ScenePhysics(msgspec.Struct, forbid_unknown_fields=True):
     """The scene's top-level `physics:` section."""
 
     gravity: Vector4 = (0.0, 0.0, 0.0, 0.0)
-    rate: Annotated[float, msgspec.Meta(gt=0, le=100000)] = 1000.0
+    rate: Annotated[float, msgspec.Meta(gt=0, le=100000, description="steps per second, 0..100000")] = 1000.0
     iterations: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 10
     position_iterations: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 4
-    margin: Annotated[float, msgspec.Meta(ge=0)] = 0.02
-    slop: Annotated[float, msgspec.Meta(ge=0)] = 0.00005
+    margin: NonNegative = 0.02
+    slop: NonNegative = 0.00005
 
 
 class PhysicsConfig(msgspec.Struct):
@@ -79,26 +88,12 @@ class PhysicsConfig(msgspec.Struct):
 
 
 def parse_physics(data, file=None) -> PhysicsConfig:
-    """The physics of a parsed scene file (`data`); errors name the file and key (`objects[1].physics.mass`)."""
-    if not isinstance(data, dict):
-        raise ConfigError(file, "(top level)", "a mapping with 'objects'", got=type(data).__name__)
-    scene = schema.convert(data.get("physics", {}), ScenePhysics, file, "physics")
-    objects = []
-    items = data.get("objects")
-    for i, item in enumerate(items if isinstance(items, list) else []):
-        key = f"objects[{i}].physics"
-        raw = item.get("physics", {}) if isinstance(item, dict) else {}
-        obj = schema.convert(raw, ObjectPhysics, file, key)
-        if obj.mass is not None and obj.density is not None:
-            schema.fail(file, f"{key}.mass", "mass or density, not both", got=obj.mass)
-        for j, (plane, _) in enumerate(obj.angular_velocity):
-            try:
-                plane_axes(plane)
-            except ValueError:
-                schema.fail(file, f"{key}.angular_velocity[{j}]", "a plane of two axes among x, y, z, w (e.g. xw)",
-                            got=plane, choices=("xy", "xz", "xw", "yz", "yw", "zw"))
-        objects.append(obj)
-    return PhysicsConfig(scene, objects)
+    """The physics of a parsed scene file (`data`, checked whole as the scene module declares it); errors name
+    the file and key (`objects[1].physics.mass`)."""
+    from touch4d.geometry.scene import SceneFile
+
+    spec = schema.convert(data, SceneFile, file)
+    return PhysicsConfig(spec.physics or ScenePhysics(), [o.physics or ObjectPhysics() for o in spec.objects])
 
 
 def load_physics(path) -> PhysicsConfig:
