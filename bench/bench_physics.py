@@ -31,7 +31,7 @@ def grid(n: int, spacing: float) -> np.ndarray:
     """n points on a square grid in the floor's x, z, w (one layer)."""
     side = int(np.ceil(n ** (1 / 3)))
     idx = np.array([(i, j, k) for i in range(side) for j in range(side) for k in range(side)][:n], dtype=float)
-    return (idx - (side - 1) / 2) * spacing
+    return ((idx - (side - 1) / 2) * spacing).tolist()      # plain floats, as a scene file holds
 
 
 def scene(n: int, kind: str, seed: int = 0) -> dict:
@@ -50,7 +50,8 @@ def scene(n: int, kind: str, seed: int = 0) -> dict:
         else:   # colliding: tilted bodies dropped in two layers onto the floor and onto each other
             layer = k % 2
             objects.append({"name": f"b{k}", "shape": "tesseract", "size": a,
-                            "position": [p[0] + 0.1 * layer, -0.5 + a + 0.45 * layer + 0.3 * rng.random(), p[1], p[2]],
+                            "position": [p[0] + 0.1 * layer, -0.5 + a + 0.45 * layer + 0.3 * float(rng.random()), p[1],
+                                         p[2]],
                             "rotation": [["xy", float(rng.uniform(0, 40))], ["zw", float(rng.uniform(0, 40))],
                                          ["yw", float(rng.uniform(0, 40))]],
                             "physics": {"restitution": 0.2, "velocity": [0, -1.0, 0, 0]}})

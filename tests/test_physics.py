@@ -280,3 +280,37 @@ def test_simulate_draws_a_frame_sequence(tmp_path, capsys):
     assert image.shape == (120, 320, 3)
     first, last = image[:, :160], image[:, 160:]
     assert first.std() > 5 and np.abs(first - last).sum(axis=2).astype(bool).mean() > 0.005   # drawn, and it fell
+
+
+def test_edge_against_face_contact_flips_where_the_bodies_start_to_overlap():
+    """Two tesseracts meeting edge to face (no cell axis separates them): the contact's depth changes sign
+    exactly where a linear program says the bodies start to overlap."""
+    from scipy.optimize import linprog
+
+    from touch4d.geometry.rotation import rotation_from_list
+
+    rot = [["xy", 45], ["zw", 45], ["xz", 30]]
+    cube = get_shape("tesseract").parts[0].vertices * 0.4
+    turned = cube @ rotation_from_list(rot).T
+    u = np.array([1.0, 0.3, 0.2, 0.0]) / np.linalg.norm([1.0, 0.3, 0.2, 0.0])
+
+    def overlap(t):                     # is there a point in both hulls? (feasibility LP)
+        a, b = cube, turned + t * u
+        eq = np.zeros((6, 32))
+        eq[:4, :16], eq[:4, 16:], eq[4, :16], eq[5, 16:] = a.T, -b.T, 1, 1
+        return linprog(np.zeros(32), A_eq=eq, b_eq=[0, 0, 0, 0, 1, 1], bounds=(0, None), method="highs").status == 0
+
+    lo, hi = 0.0, 2.0
+    for _ in range(50):
+        lo, hi = ((0.5 * (lo + hi), hi) if overlap(0.5 * (lo + hi)) else (lo, 0.5 * (lo + hi)))
+    for gap in (0.004, -0.004):
+        data = {"physics": {"gravity": [0, 0, 0, 0]}, "objects": [
+            {"shape": "tesseract", "size": 0.4}, {"shape": "tesseract", "size": 0.4, "rotation": rot,
+                                                   "position": [float(c) for c in (hi + gap) * u]}]}
+        world, state = from_data(data)
+        _, contacts = step(world, state)
+        assert len(contacts) >= 1
+        n = contacts.normals[0]
+        assert min(np.abs(n @ world.parts[8][:8].T).max(), 1.0) < 0.99        # not a cell normal of either
+        assert np.sign(contacts.depth.max()) == -np.sign(gap)
+        assert abs(contacts.depth.max()) == pytest.approx(abs(gap) * (u @ n), rel=1e-3)

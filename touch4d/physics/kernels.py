@@ -304,8 +304,78 @@ def _exit_depth(q, direction, normals, offsets, c_start, c_count):
 
 
 @njit(**cache)
+def _cross3(a, b, c, out):
+    """The vector orthogonal to a, b, c (4D): cofactors of the rows a, b, c; its length the 3-volume."""
+    m01 = b[0] * c[1] - b[1] * c[0]
+    m02 = b[0] * c[2] - b[2] * c[0]
+    m03 = b[0] * c[3] - b[3] * c[0]
+    m12 = b[1] * c[2] - b[2] * c[1]
+    m13 = b[1] * c[3] - b[3] * c[1]
+    m23 = b[2] * c[3] - b[3] * c[2]
+    out[0] = a[1] * m23 - a[2] * m13 + a[3] * m12
+    out[1] = -(a[0] * m23 - a[2] * m03 + a[3] * m02)
+    out[2] = a[0] * m13 - a[1] * m03 + a[3] * m01
+    out[3] = -(a[0] * m12 - a[1] * m02 + a[2] * m01)
+
+
+@njit(**cache)
+def _extent(n, verts, start, count):
+    lo, hi = np.inf, -np.inf
+    for v in range(start, start + count):
+        d = n[0] * verts[v, 0] + n[1] * verts[v, 1] + n[2] * verts[v, 2] + n[3] * verts[v, 3]
+        lo = min(lo, d)
+        hi = max(hi, d)
+    return lo, hi
+
+
+@njit(**cache)
+def _edge_face_axes(verts, pa_v, pa_vc, pb_v, pb_vc, dirs, d_s, d_c, spans, f_s, f_c, best, axis):
+    """Separating axes orthogonal to an edge direction of one part and a 2-face of the other: the largest
+    separation (b beyond a) found above `best`, its axis (from a to b) written into `axis`."""
+    n = np.empty(4)
+    for i in range(d_s, d_s + d_c):
+        for j in range(f_s, f_s + f_c):
+            _cross3(dirs[i], spans[j, 0], spans[j, 1], n)
+            size = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] + n[3] * n[3])
+            if size < 1e-6:
+                continue                       # the edge lies in the face's plane: no axis
+            for k in range(4):
+                n[k] /= size
+            lo_a, hi_a = _extent(n, verts, pa_v, pa_vc)
+            lo_b, hi_b = _extent(n, verts, pb_v, pb_vc)
+            plus, minus = lo_b - hi_a, lo_a - hi_b
+            sep = max(plus, minus)
+            if sep > best:
+                best = sep
+                sign = 1.0 if plus >= minus else -1.0
+                for k in range(4):
+                    axis[k] = sign * n[k]
+    return best
+
+
+@njit(**cache)
+def _support_mid(verts, start, count, n, sign, out):
+    """The centre of a part's vertices that lie farthest along sign * n (its supporting vertex, edge or face)."""
+    top = -np.inf
+    for v in range(start, start + count):
+        d = sign * (n[0] * verts[v, 0] + n[1] * verts[v, 1] + n[2] * verts[v, 2] + n[3] * verts[v, 3])
+        top = max(top, d)
+    m = 0
+    for k in range(4):
+        out[k] = 0.0
+    for v in range(start, start + count):
+        d = sign * (n[0] * verts[v, 0] + n[1] * verts[v, 1] + n[2] * verts[v, 2] + n[3] * verts[v, 3])
+        if d >= top - 1e-9:
+            for k in range(4):
+                out[k] += verts[v, k]
+            m += 1
+    for k in range(4):
+        out[k] /= m
+
+
+@njit(**cache)
 def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
-                 edges, margin, out_pts, out_depth, out_normal):
+                 edges, d_start, d_count, dirs, f_start, f_count, spans, margin, out_pts, out_depth, out_normal):
     """Contact points of two convex parts: returns their number (0: apart by more than margin);
     fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b."""
     sep_a, cell_a = _separation(normals, offsets, c_start[pa], c_count[pa], verts, v_start[pb], v_count[pb])
@@ -318,10 +388,35 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
     if sep_b > sep_a + 1e-9:
         for k in range(4):
             out_normal[k] = -normals[cell_b, k]
+        best, other, o_start, o_count = sep_b, pa, c_start[pa], c_count[pa]
     else:
         for k in range(4):
             out_normal[k] = normals[cell_a, k]
+        best, other, o_start, o_count = sep_a, pb, c_start[pb], c_count[pb]
     n = out_normal
+    edge_contact = False
+    # edge x 2-face axes, unless a cell of the other part lies flat against the reference cell (cell on
+    # cell: no such axis separates more)
+    flat = False
+    sign = 1.0 if other == pb else -1.0
+    for c in range(o_start, o_start + o_count):
+        along = sign * (normals[c, 0] * n[0] + normals[c, 1] * n[1] + normals[c, 2] * n[2] + normals[c, 3] * n[3])
+        if along < -1.0 + 1e-9:
+            flat = True
+            break
+    if not flat and (d_count[pa] > 0 and f_count[pb] > 0 or d_count[pb] > 0 and f_count[pa] > 0):
+        axis = np.empty(4)
+        edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pa],
+                                    d_count[pa], spans, f_start[pb], f_count[pb], best + 1e-7, axis)
+        edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pb],
+                                    d_count[pb], spans, f_start[pa], f_count[pa], edge_best, axis)
+        if edge_best > best + 1e-7:
+            if edge_best > margin:
+                return 0                       # separated along an edge-face axis
+            for k in range(4):
+                n[k] = axis[k]
+            edge_contact = True
+            best = edge_best
     minus = -n
     cand = np.empty((MAX_CANDIDATES, 4))
     depth = np.empty(MAX_CANDIDATES)
@@ -358,7 +453,16 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
         keep[i] = True
         kept += 1
     if kept == 0:
-        return 0
+        if not edge_contact:
+            return 0
+        # an edge against a 2-face meet where no edge of either is inside the other (the overlap's corners are
+        # where 2-faces cross): one point between the two parts' supporting features, at the axis' depth
+        _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, out_pts[0])
+        _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, cand[0])
+        for k in range(4):
+            out_pts[0, k] = 0.5 * (out_pts[0, k] + cand[0, k])
+        out_depth[0] = -best
+        return 1
     idx = np.empty(kept, dtype=np.int64)
     m = 0
     for i in range(count):
@@ -477,7 +581,8 @@ def _apply_row(c, d, delta, a, b, basis, ang, inv_ang, inv_mass, v, w, dL):
 @njit(**cache)
 def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
          part_body, v_start, v_count, c_start, c_count, e_start, e_count, local_verts, local_normals,
-         local_offsets, edges, friction_static, friction_kinetic, restitution,
+         local_offsets, edges, d_start, d_count, local_dirs, f_start, f_count, local_spans,
+         friction_static, friction_kinetic, restitution,
          gravity, dt, options, impulses, previous):
     """One step: state (x, v, r, L) in, new state and the contact rows out (see module doc).
 
@@ -536,6 +641,8 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     verts = np.empty_like(local_verts)
     normals = np.empty_like(local_normals)
     offsets = np.empty_like(local_offsets)
+    dirs = np.empty_like(local_dirs)
+    spans = np.empty_like(local_spans)
     for p in range(n_parts):
         b = part_body[p]
         rb_ = r[b]
@@ -551,6 +658,15 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                 normals[c, k] = nk
                 acc += nk * x[b, k]
             offsets[c] = acc
+        for d in range(d_start[p], d_start[p] + d_count[p]):
+            for k in range(4):
+                dirs[d, k] = (rb_[k, 0] * local_dirs[d, 0] + rb_[k, 1] * local_dirs[d, 1]
+                              + rb_[k, 2] * local_dirs[d, 2] + rb_[k, 3] * local_dirs[d, 3])
+        for f in range(f_start[p], f_start[p] + f_count[p]):
+            for h in range(2):
+                for k in range(4):
+                    spans[f, h, k] = (rb_[k, 0] * local_spans[f, h, 0] + rb_[k, 1] * local_spans[f, h, 1]
+                                      + rb_[k, 2] * local_spans[f, h, 2] + rb_[k, 3] * local_spans[f, h, 3])
     lo, hi = part_bounds(part_body, v_start, v_count, verts, margin)
     pairs = broad_phase(part_body, dynamic, lo, hi)
     rows = np.zeros((len(pairs) * MAX_POINTS, C_WIDTH))
@@ -571,7 +687,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
         while cursor < len(previous) and previous[cursor, C_KEY] < key:
             cursor += 1
         k = narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
-                         edges, margin, pts, depth, normal)
+                         edges, d_start, d_count, dirs, f_start, f_count, spans, margin, pts, depth, normal)
         a, b = part_body[pa], part_body[pb]
         mus = math.sqrt(friction_static[a] * friction_static[b])
         muk = math.sqrt(friction_kinetic[a] * friction_kinetic[b])

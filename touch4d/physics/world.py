@@ -128,8 +128,9 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
             c = bivector.compound(obj.orientation @ props.axes)
             L[i] = c @ (planes[i] * (c.T @ w))
         for poly in local:
+            dirs, spans = edge_face_directions(poly)
             part_rows.append((i, poly.vertices - props.center, poly.normals, poly.offsets - poly.normals @ props.center,
-                              poly.edges))
+                              poly.edges, dirs, spans))
     dynamic = np.isfinite(masses)
     inv_mass = np.where(dynamic, 1.0 / np.where(dynamic, masses, 1.0), 0.0)
     inv_plane = np.where(planes > 0, 1.0 / np.where(planes > 0, planes, 1.0), 0.0)
@@ -160,7 +161,8 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
 
 def _flatten(rows) -> tuple:
     """The parts as flat arrays: part_body, v_start, v_count, c_start, c_count, e_start, e_count,
-    vertices, normals, offsets, edges (global vertex indices)."""
+    vertices, normals, offsets, edges (global vertex indices), d_start, d_count, edge directions, f_start,
+    f_count, 2-face planes."""
     body = np.array([row[0] for row in rows], dtype=np.int64)
     vc = np.array([len(row[1]) for row in rows], dtype=np.int64)
     cc = np.array([len(row[2]) for row in rows], dtype=np.int64)
@@ -171,7 +173,44 @@ def _flatten(rows) -> tuple:
     normals = np.ascontiguousarray(np.concatenate([row[2] for row in rows]))
     offsets = np.ascontiguousarray(np.concatenate([row[3] for row in rows]))
     edges = np.ascontiguousarray(np.concatenate([np.asarray(row[4], dtype=np.int64) + s for row, s in zip(rows, vs)]))
-    return body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges
+    dc = np.array([len(row[5]) for row in rows], dtype=np.int64)
+    fc = np.array([len(row[6]) for row in rows], dtype=np.int64)
+    dirs = np.ascontiguousarray(np.concatenate([row[5] for row in rows]).reshape(-1, 4))
+    spans = np.ascontiguousarray(np.concatenate([row[6] for row in rows]).reshape(-1, 2, 4))
+    return body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges, starts(dc), dc, dirs, starts(fc), fc, spans
+
+
+MAX_EDGE_DIRECTIONS = 32      # parts with more distinct edge directions (or 2-face planes, below) are
+MAX_FACE_PLANES = 64          # separated by their cells only: the edge x face axes would cost too much
+
+
+def edge_face_directions(poly) -> tuple[np.ndarray, np.ndarray]:
+    """A convex part's distinct edge directions (D, 4) and 2-face planes (F, 2, 4: two orthonormal
+    spanning vectors each), for the edge x 2-face separating axes; empty when there are too many."""
+    v = poly.vertices
+    d = v[poly.edges[:, 1]] - v[poly.edges[:, 0]]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d *= np.where(d[np.arange(len(d)), np.argmax(np.abs(d) > 1e-9, axis=1)] < 0, -1.0, 1.0)[:, None]
+    _, first = np.unique(np.round(d, 9), axis=0, return_index=True)
+    dirs = d[np.sort(first)]
+    spans, keys = [], []
+    for face in poly.topology.faces:
+        p0 = v[face[0]]
+        e1 = v[face[1]] - p0
+        e1 /= np.linalg.norm(e1)
+        rest = v[face[2:]] - p0
+        rest -= np.outer(rest @ e1, e1)
+        e2 = rest[np.argmax(np.linalg.norm(rest, axis=1))]
+        e2 /= np.linalg.norm(e2)
+        plane = bivector.wedge(e1, e2)                     # the plane, up to sign
+        plane *= -1.0 if plane[np.argmax(np.abs(plane) > 1e-9)] < 0 else 1.0
+        keys.append(np.round(plane, 9))
+        spans.append((e1, e2))
+    _, first = np.unique(np.array(keys), axis=0, return_index=True)
+    spans = np.array(spans)[np.sort(first)]
+    if len(dirs) > MAX_EDGE_DIRECTIONS or len(spans) > MAX_FACE_PLANES:
+        return np.zeros((0, 4)), np.zeros((0, 2, 4))
+    return dirs, spans
 
 
 NO_IMPULSES = np.zeros((0, 9))
