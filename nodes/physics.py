@@ -73,7 +73,7 @@ class PhysicsNode(Node):
         if glove is not None:
             self.create_subscription("hand/pose", HandPose, self.on_hand, latest_only=True)
         self.published_revision = -1
-        self.start = time.monotonic()
+        self.start: float | None = None       # the clock starts at the first tick, not during set-up
         self.clock_steps = 0
         self.create_timer(1.0 / p["publish_rate"], self.tick)
         self.create_timer(1.0 / p["rate"], self.publish)
@@ -109,6 +109,8 @@ class PhysicsNode(Node):
 
     def tick(self) -> None:
         """Run the steps the clock says are due, then publish what moved and what struck."""
+        if self.start is None:
+            self.start = time.monotonic()
         due = int((time.monotonic() - self.start) / self.dt) - self.clock_steps
         if due > self.params["max_steps"]:
             self.counts["late_steps"] += due - self.params["max_steps"]
