@@ -65,3 +65,15 @@ def test_topics_that_nodes_wait_for_and_nobody_publishes_are_named_with_the_wait
             st.on_heartbeat(beat(name, pubs, subs), t)
     # (and the replayed hand/pose has left the window)
     assert st.unpublished(18.0) == {"hand/pose": ["tactile"], "scene/state": ["renderer", "tactile"]}
+
+
+def test_an_input_published_by_two_nodes_is_named_with_both_but_not_an_optional_one():
+    from touch4d.status import StackStatus
+
+    s = StackStatus()
+    for hb in (beat("tracker", ["hand/pose", "safety/stop"]), beat("tracker2", ["hand/pose", "safety/stop"]),
+               beat("tactile", ["tactile/motors"], ["hand/pose", "safety/stop?"]), beat("rec", [], ["*"])):
+        s.on_heartbeat(hb, 100.0)
+    assert s.shared(100.0) == {"hand/pose": ["tracker", "tracker2"]}
+    assert "several publishers: hand/pose (tracker, tracker2)" in s.line(100.0)
+    assert s.shared(100.0 + 10) == {}   # gone nodes publish nothing

@@ -6,5 +6,4 @@ desktop       a hand steered by keyboard and mouse
 vr            OpenVR poses and buttons -> touch4d values
 outputs       the hand/pose and controller/state messages every tracker publishes
 scene_control the scene node's logic: controller motion -> 4D rotation (paper §4.4), commands
-quaternion    single-pose quaternion helpers in numpy
 """
