@@ -30,9 +30,9 @@ from PIL import ImageColor
 
 from touch4d import schema
 from touch4d.configfile import resolve_path
-from touch4d.physics.config import ObjectPhysics, ScenePhysics
 from touch4d.schema import Finite, Positive
 
+from .physics_keys import ObjectPhysics, ScenePhysics
 from .polytope import GeometryError, Polytope
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
