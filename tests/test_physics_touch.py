@@ -69,7 +69,7 @@ def test_transient_envelope_and_which_motors_get_it():
 
 def test_a_struck_object_reaches_the_motors_touching_it():
     """A cube falls onto a floor under the hand: the physics contact event gives the touching motors a burst."""
-    from touch4d.physics.world import from_data, run, step
+    from touch4d.physics.world import from_data, step
 
     data = {"physics": {"gravity": [0, -9.81, 0, 0]}, "objects": [
         {"name": "floor", "shape": "tesseract", "size": 1.0, "position": [0, -1.0, 0, 1.0], "physics": {"static": True}},

@@ -5,9 +5,10 @@ Python face. Conventions are those of `bivector`: a bivector is a 6-vector over 
 w_ab turns axis a toward axis b, a point r of a body turning at w moves at W r, an impulse P at r
 changes the angular momentum by r ^ P.
 
-Contacts (docs/physics.md): the separating axis among the cell normals of the two convex parts gives
-the contact normal; the contact points are the edges of each part clipped to the other (grown by
-the speculative margin), deduplicated, at most MAX_POINTS per pair (the deepest, then the spread).
+Contacts (docs/physics.md): the separating axis of least penetration among the cell normals of the two
+convex parts and the axes orthogonal to an edge of one and a 2-face of the other gives the contact
+normal; the contact points are the edges of each part clipped to the other (grown by the speculative
+margin), deduplicated, at most MAX_POINTS per pair (the deepest, then the spread).
 The solver is sequential impulses: a normal impulse >= 0 per point with restitution and speculative
 targets, a tangential impulse vector in the 3D tangent space held inside the Coulomb disc of radius
 mu * normal impulse (static mu while the point sticks, kinetic while it slides), then a separate
@@ -507,7 +508,7 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
 
 
 @njit(**cache)
-def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw):
+def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6):
     """Impulse sign * p at offset r on one body: its velocity, angular velocity and momentum change."""
     if inv_mass[body] == 0.0:
         return
@@ -631,7 +632,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
     for k in range(len(impulses)):
         body = int(impulses[k, 0])
         rr = impulses[k, 1:5] - x[body]
-        _apply(body, impulses[k, 5:9].copy(), rr, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6, tmpw)
+        _apply(body, impulses[k, 5:9].copy(), rr, 1.0, v, w, dL, inv_mass, inv_inertia, tmp6)
     for i in range(n):
         if dynamic[i]:
             for k in range(4):
