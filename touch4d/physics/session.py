@@ -1,6 +1,6 @@
 """The physics node's logic without a bus: the scene node's controller and commands over a physics world.
 
-Every input (a controller sample, a command) is applied between two fixed steps and written to the
+Every input (a controller sample, a hand pose, a command) is applied between two fixed steps and written to the
 journal with the step it was applied before; `replay(...)` feeds a journal to a fresh session and
 reaches the same states, byte for byte, since `world.step` is a pure function. Commands beyond the
 scene node's: `pause`, `play` (`pause` toggles when already paused) and `step [N]` (N steps while
