@@ -74,6 +74,21 @@ def test_simplex_moments_from_its_vertices():
     np.testing.assert_allclose(props.second_moment, second - vol * np.outer(c, c), rtol=1e-9, atol=1e-12)
 
 
+def test_a_random_convex_body_agrees_with_monte_carlo():
+    """A hull of 14 random points: volume, centre and second moments against 400 000 uniform samples."""
+    rng = np.random.default_rng(5)
+    poly = Polytope.from_vertices(rng.normal(size=(14, 4)))
+    props = mass_properties([poly], density=1.0)
+    lo, hi = poly.vertices.min(axis=0), poly.vertices.max(axis=0)
+    pts = rng.uniform(lo, hi, size=(400_000, 4))
+    inside = pts[poly.contains(pts)]
+    volume = np.prod(hi - lo) * len(inside) / len(pts)
+    assert props.volume == pytest.approx(volume, rel=0.02)
+    np.testing.assert_allclose(props.center, inside.mean(axis=0), atol=0.02)
+    cov = np.cov(inside.T, bias=True) * props.mass
+    np.testing.assert_allclose(props.second_moment, cov, atol=0.03 * np.abs(cov).max())
+
+
 def test_bivector_algebra_matches_matrices():
     rng = np.random.default_rng(1)
     w, r, p = rng.normal(size=6), rng.normal(size=4), rng.normal(size=4)
