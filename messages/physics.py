@@ -4,7 +4,7 @@ from typing import Literal
 
 from .base import Array, Float, Map, Message, doc
 
-JOURNAL_KINDS = ("controller", "hand", "command", "run")
+JOURNAL_KINDS = ("controller", "hand", "command", "run", "start")
 
 
 class PhysicsContacts(Message):
@@ -35,6 +35,8 @@ class PhysicsInput(Message):
     at a step count. A recorded log's journal replays to the same states (`touch4d physics replay`)."""
 
     step: int = doc("the step count the entry was applied at")
-    kind: Literal[JOURNAL_KINDS] = doc("controller | hand | command | run")
+    kind: Literal[JOURNAL_KINDS] = doc("controller | hand | command | run | start (the node's set-up, repeated "
+                                       "for a recorder that joins late)")
     args: Map = doc("controller: position, orientation, trigger, buttons, valid; hand: position, orientation, "
-                    "valid; command: command, argument; run: steps")
+                    "valid; command: command, argument; run: steps; start: scene, calibration, glove, push_rate, "
+                    "gains, trigger_threshold, buttons, rotate")

@@ -77,6 +77,13 @@ class PhysicsNode(Node):
         self.clock_steps = 0
         self.create_timer(1.0 / p["publish_rate"], self.tick)
         self.create_timer(1.0 / p["rate"], self.publish)
+        # what a replay needs to rebuild this node (touch4d physics replay), repeated for late recorders
+        self.start_args = {"scene": str(p["scene"]), "calibration": str(p["calibration"]), "glove": str(p["glove"]),
+                           "push_rate": float(p["push_rate"]), "gains": dict(p["gains"]),
+                           "trigger_threshold": float(p["trigger_threshold"]), "buttons": dict(p["buttons"]),
+                           "rotate": str(p["rotate"])}
+        self.create_timer(1.0 / p["rate"], self.publish_start)
+        self.publish_start()
         self.publish()
         w = self.session.world
         self.log.info("scene %s: %d bodies (%d static), %g Hz steps, gravity %s%s", p["scene"], len(w.names),
@@ -85,6 +92,9 @@ class PhysicsNode(Node):
     def on_controller(self, msg: ControllerState) -> None:
         self.session.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid)
         self.flush_journal()
+
+    def publish_start(self) -> None:
+        self.journal_pub.publish(PhysicsInput(step=0, kind="start", args=self.start_args))
 
     def flush_journal(self) -> None:
         """Publish the journal's new entries (a recording of them replays to the same states), then forget them."""

@@ -128,7 +128,7 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
     with LogWriter(log) as writer:
         for t, msg in enumerate([("physics/journal", m) for m in journal] + [("scene/state", m) for m in states]):
             writer.write(msg[0], encode(msg[1]), t)
-    assert main(["physics", "replay", str(log), "--scene", DROP, "--json"]) == 0
+    assert main(["physics", "replay", str(log), "--json"]) == 0            # the set-up from the journal
     report = json.loads(capsys.readouterr().out)
     assert report["identical"] and report["max_difference"] == 0.0
     assert report["steps"] == 25 and report["states_compared"] > 10      # every state before and after the reset

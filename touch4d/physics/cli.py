@@ -38,13 +38,12 @@ def register(subparsers) -> None:
         "replay", help="replay a recorded physics session from its journal and compare with its recorded states",
         description="Read the physics node's journal (topic physics/journal) from a recorded log, feed it to a fresh "
                     "world of the same scene, and compare the result with the log's last scene/state of the same "
-                    "revision: a deterministic run gives the same bytes. Give the node's parameters that were not "
-                    "its defaults.")
+                    "revision: a deterministic run gives the same bytes. The node's set-up (scene file, calibration, "
+                    "glove, controller settings) comes from the journal too; --scene and the others override it.")
     rep.add_argument("log", metavar="LOG", help="MCAP log with physics/journal and scene/state")
-    rep.add_argument("--scene", required=True, metavar="FILE", help="the scene file the node ran")
-    rep.add_argument("--calibration", default="config/calibration.yaml", metavar="FILE")
-    rep.add_argument("--glove", default="config/glove.yaml", metavar="FILE")
-    rep.add_argument("--push-rate", type=float, default=40.0, metavar="R", help="the node's push_rate (default 40)")
+    rep.add_argument("--scene", metavar="FILE", help="the scene file the node ran (default: as the log says)")
+    rep.add_argument("--calibration", metavar="FILE", help="default: as the log says")
+    rep.add_argument("--glove", metavar="FILE", help="default: as the log says")
     rep.add_argument("--json", action="store_true", help="print JSON")
     rep.set_defaults(func=run_replay)
 
@@ -174,21 +173,38 @@ def run_replay(args) -> int:
     from .session import DEFAULT_BUTTONS, entry_from_map, replay, split_buttons
 
     log = resolve_path(args.log, COMMAND_LINE, key="LOG", what="log file")
-    scene_path = resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file")
-    journal, states = [], []
+    journal, states, start = [], [], None
     for msg in LogReader(log).messages({"physics/journal", "scene/state"}):
         data = msg.decode()
-        if msg.topic == "physics/journal":
+        if msg.topic == "scene/state":
+            states.append(data)
+        elif data.get("kind") == "start":
+            start = start or data.get("args") or {}
+        else:
             try:
                 journal.append(entry_from_map(data["step"], data["kind"], data["args"]))
             except (KeyError, ValueError) as exc:
                 raise ConfigError(log, "physics/journal", "journal entries of the physics node", got=str(exc)) from None
-        else:
-            states.append(data)
     if not journal:
         raise ConfigError(log, "physics/journal", "a log recorded from the physics node (no journal in it)")
-    scene_buttons, physics_buttons = split_buttons(DEFAULT_BUTTONS)
-    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file"))
+    start = start or {}
+
+    def setting(name, flag, what, default):
+        """A path: the command line's, else the node's (from the log), else the default."""
+        if flag is not None:
+            return resolve_path(flag, COMMAND_LINE, key=f"--{name}", what=what)
+        return resolve_path(start.get(name) or default, what=what)
+
+    if args.scene is None and "scene" not in start:
+        raise ConfigError(log, "physics/journal", "the node's set-up (a start entry), or --scene")
+    scene_path = setting("scene", args.scene, "scene file", None)
+    scene_buttons, physics_buttons = split_buttons(start.get("buttons", DEFAULT_BUTTONS))
+    config = ControlConfig.from_params(gains=start.get("gains", {}), trigger_threshold=start.get("trigger_threshold", 0.5),
+                                       buttons=scene_buttons, rotate=start.get("rotate", "object"), spin={},
+                                       source=str(log))
+    glove = load_glove(setting("glove", args.glove, "glove file", "config/glove.yaml"))
+    calibration = load_calibration(setting("calibration", args.calibration, "calibration file",
+                                           "config/calibration.yaml"))
     by_revision = {int(m["revision"]): m["objects"] for m in states}
     compared, differences = set(), []
 
@@ -202,11 +218,8 @@ def run_replay(args) -> int:
                     g, w = np.asarray(got[key]), np.asarray(want[key])
                     differences.append(0.0 if g.tobytes() == w.tobytes() else float(np.abs(g - w).max()))
 
-    session = replay(load_scene(scene_path), load_physics(scene_path),
-                     load_calibration(resolve_path(args.calibration, COMMAND_LINE, key="--calibration",
-                                                   what="calibration file")),
-                     ControlConfig(buttons=scene_buttons), physics_buttons, journal, glove=glove,
-                     push_rate=args.push_rate, after=check)
+    session = replay(load_scene(scene_path), load_physics(scene_path), calibration, config, physics_buttons, journal,
+                     glove=glove, push_rate=float(start.get("push_rate", 40.0)), after=check)
     same = bool(compared) and max(differences) == 0.0
     report = {"entries": len(journal), "steps": session.state.steps, "states_compared": len(compared),
               "identical": same, "max_difference": max(differences) if differences else None}
