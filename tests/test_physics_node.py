@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from touch4d.bus import Node
+from touch4d.bus.config import ENV_VAR
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
+from touch4d.cli import main
 from touch4d.geometry.scene import load_scene, parse_scene
 from touch4d.messages import ControllerState, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
 from touch4d.physics.config import load_physics, parse_physics
@@ -82,7 +84,7 @@ def test_bad_buttons_are_named():
         split_buttons({"menu": "explode"})
 
 
-def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, capsys):
+def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, capsys, monkeypatch):
     with running_broker() as bus:
         with node_process("physics", bus, params={"scene": DROP, "publish_rate": 50.0}) as proc:
             probe = Node("probe", bus=bus)
@@ -105,7 +107,8 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
                     controller.publish(ControllerState(position=CENTER + [0.01 * k, 0, 0], orientation=Q, trigger=1.0,
                                                        buttons=[], valid=True))
                     probe.spin(0.03)
-                commands.publish(SceneCommand(command="pause"))
+                monkeypatch.setenv(ENV_VAR, bus.to_json())          # the command line, as in a launched stack
+                assert main(["physics", "pause"]) == 0
                 probe.spin(0.3)
                 frozen = states[-1].revision
                 probe.spin(0.3)
@@ -113,14 +116,13 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
                 commands.publish(SceneCommand(command="reset"))
                 wait_until(lambda: states[-1].revision > frozen, timeout=10, spin=probe)
                 assert states[-1].objects[1]["position"][1] == pytest.approx(0.45)
-                commands.publish(SceneCommand(command="step", argument="25"))
+                assert main(["physics", "step", "25"]) == 0
                 wait_until(lambda: any(e.kind == "run" and e.args["steps"] > 0 for e in journal[-3:]), timeout=10,
                            spin=probe)
                 probe.spin(0.3)
             finally:
                 probe.shutdown()
     # the recorded session (journal and states) replays to the same bytes
-    from touch4d.cli import main
     from touch4d.log.writer import LogWriter
     from touch4d.messages import encode
 
@@ -128,6 +130,7 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
     with LogWriter(log) as writer:
         for t, msg in enumerate([("physics/journal", m) for m in journal] + [("scene/state", m) for m in states]):
             writer.write(msg[0], encode(msg[1]), t)
+    capsys.readouterr()
     assert main(["physics", "replay", str(log), "--json"]) == 0            # the set-up from the journal
     report = json.loads(capsys.readouterr().out)
     assert report["identical"] and report["max_difference"] == 0.0

@@ -46,6 +46,14 @@ def register(subparsers) -> None:
     rep.add_argument("--glove", metavar="FILE", help="default: as the log says")
     rep.add_argument("--json", action="store_true", help="print JSON")
     rep.set_defaults(func=run_replay)
+    for name, text in (("pause", "pause the running physics node (again: go on)"), ("play", "go on after a pause"),
+                       ("step", "run N steps of the paused physics node"), ("reset", "put every body back where "
+                                                                                   "the scene file has it")):
+        cmd = sub.add_parser(name, help=text, description=f"{text[0].upper()}{text[1:]}: a scene/command on the bus.")
+        if name == "step":
+            cmd.add_argument("count", nargs="?", type=int, default=1, metavar="N", help="how many steps (default 1)")
+        cmd.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+        cmd.set_defaults(func=run_command, command=name)
 
 
 def _positive(text: str) -> float:
@@ -231,3 +239,16 @@ def run_replay(args) -> int:
         print(f"{len(journal)} journal entries, {len(compared)} recorded states compared: "
               + ("the same bytes" if same else f"they differ by up to {report['max_difference']:.3g}"))
     return 0 if same else 1
+
+
+def run_command(args) -> int:
+    """Send one scene/command (pause, play, step N, reset) to the physics node on the bus."""
+    from touch4d.bus.config import resolve_bus_config
+    from touch4d.bus.introspect import topic_pub
+
+    argument = str(args.count) if args.command == "step" else ""
+    if args.command == "step" and args.count < 1:
+        raise ConfigError(COMMAND_LINE, "N", "a number of steps >= 1", got=args.count)
+    topic_pub("scene/command", json.dumps({"command": args.command, "argument": argument}),
+              resolve_bus_config(args.bus), count=1)
+    return 0
