@@ -5,7 +5,8 @@ import pytest
 
 from touch4d.messages import (
     TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
-    MotorStatus, MotorTrace, SceneCommand, SceneState, Stop, TactileField, decode, encode,
+    MotorStatus, MotorTrace, PhysicsContacts, PhysicsInput, SceneCommand, SceneState, Stop, TactileField, decode,
+    encode,
 )
 from touch4d.messages.codec import pack
 
@@ -34,6 +35,10 @@ EXAMPLES = [
     MotorTrace(source_stamps=[1.0, 2.0], frame_times=[1.001, 2.002]),
     Heartbeat(node="tactile", pid=42, kind="tactile", publishes=["tactile/field"], subscribes=[], stats={"received": 3}),
     InputEvents(keys_down=["w"], pressed=["space"], mouse=[10, 20], mouse_delta=[1, -1], buttons=[1], scroll=0.5),
+    PhysicsContacts(names=["floor", "cube"], a=np.array([0, -1]), b=np.array([1, 1]), points=np.zeros((2, 4)),
+                    normals=[[0, 1, 0, 0], [1, 0, 0, 0]], impulses=[0.01, 0.002], speeds=[1.2, 0.3], step=7, time=0.007),
+    PhysicsInput(step=12, kind="controller", args={"position": [0.0, 1.2, -0.4], "orientation": [0, 0, 0, 1],
+                                                   "trigger": 1.0, "buttons": ["menu"], "valid": True}),
 ]
 
 
