@@ -103,16 +103,4 @@ MESSAGES = [
         "stamp": T + 0.015, "seq": 0, "source_stamp": T + 0.015, "recorded_stamp": 0.0,
         "keys_down": ["w", "left_shift"], "pressed": ["space"], "mouse": arr("<f8", (2,), [640.0, 360.0]),
         "mouse_delta": arr("<f8", (2,), [1.5, -2.0]), "buttons": [1, 3], "scroll": -1.0}),
-    ("physics/contacts", T_NS + 16_000_000, "PhysicsContacts", {
-        "stamp": T + 0.016, "seq": 0, "source_stamp": T + 0.016, "recorded_stamp": 0.0,
-        "names": ["floor", "cube"], "a": arr("<i8", (2,), [0, -1]), "b": arr("<i8", (2,), [1, 1]),
-        "points": arr("<f8", (2, 4), [[0.0, -0.5, 0.25, 1.5], [0.125, 0.0, 0.0, 1.25]]),
-        "normals": arr("<f8", (2, 4), [[0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]),
-        "impulses": arr("<f8", (2,), [0.015625, 0.001953125]), "speeds": arr("<f8", (2,), [1.25, 0.5]),
-        "step": 1234, "time": 1.234}),
-    ("physics/journal", T_NS + 17_000_000, "PhysicsInput", {
-        "stamp": T + 0.017, "seq": 0, "source_stamp": T + 0.017, "recorded_stamp": 0.0,
-        "step": 1234, "kind": "controller",
-        "args": {"position": [0.0, 1.25, -0.5], "orientation": [0.0, 0.0, 0.0, 1.0], "trigger": 1.0,
-                 "buttons": ["menu"], "valid": True}}),
 ]
