@@ -126,3 +126,14 @@ def test_every_node_module_is_registered_as_an_entry_point():
     from touch4d.bus import registry
 
     assert {n: k.target for n, k in registry.built_in().items()} == declared   # the installation is current
+
+
+def test_a_node_module_left_out_of_the_entry_points_is_named_with_the_fix(monkeypatch):
+    from touch4d.bus import registry
+
+    every = registry._registered()
+    monkeypatch.setattr(registry, "_registered", lambda: [k for k in every if k.name != "motors"])
+    with pytest.raises(registry.NodeNotFound) as err:
+        registry.find("motors")
+    assert "touch4d.nodes.motors exists but is not registered" in str(err.value)
+    assert "pip install -e ." in str(err.value)

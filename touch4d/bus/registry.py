@@ -24,6 +24,7 @@ from touch4d.errors import Touch4dError
 
 ENTRY_POINT_GROUP = "touch4d.nodes"
 BUILT_IN = "touch4d"
+NODES_PACKAGE = "touch4d.nodes"   # where touch4d's own node modules live (found by entry point, never imported here)
 
 
 class NodeNotFound(Touch4dError, ValueError):
@@ -174,7 +175,17 @@ def _not_found(ref, why: str = "", names=None) -> str:
     if not any(k.origin == BUILT_IN for k in names.values()):
         text += ("; touch4d's own nodes are not registered in this installation (its metadata predates "
                  "them): reinstall it with `pip install -e .` or ./dev")
+    elif isinstance(ref, str) and ref.isidentifier() and _find_spec(f"{NODES_PACKAGE}.{ref}") is not None:
+        text += (f"; {NODES_PACKAGE}.{ref} exists but is not registered: name it in pyproject.toml's "
+                 f"[project.entry-points.\"{ENTRY_POINT_GROUP}\"] and reinstall (`pip install -e .` or ./dev)")
     return text + suggest(ref, names)
+
+
+def _find_spec(module: str):
+    try:
+        return importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return None
 
 
 def load(ref: str):
