@@ -17,6 +17,7 @@ from touch4d.bus.launchfile import load_launch
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.polytope import GeometryError
 from touch4d.geometry.scene import Scene, SceneObject, load_scene
+from touch4d.study.design import load_study
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.paths import load_paths
@@ -29,6 +30,9 @@ CALIBRATION_TEXT = "screen:\n  center_m: [0, 1.2, -0.45]\n  edge_m: 0.5\n"
 PATHS_TEXT = "paths:\n  p:\n    kind: hold\n    position: [0, 0, 0]\n"
 LAUNCH_TEXT = "nodes:\n  talker:\n    node: example_talker\n    respawn: false\n"
 BUS_TEXT = "broker:\n  pub_port: 7710\nhwm: 100\n"
+STUDY_TEXT = ("name: s\ntime_limit_s: 20\ntasks:\n  - id: t\n    kind: look-alikes\n    prompt: '?'\n"
+              "    options: [convex, flat]\n    stimuli:\n      - {answer: convex, scene: config/scenes/convex-front.yaml}\n"
+              "      - {answer: flat, scene: config/scenes/flat-front.yaml}\n")
 
 # Each reader, a good file, a bad line replacing a good one (the same indent), and what the error says.
 READERS = {
@@ -44,6 +48,7 @@ READERS = {
               "a finite number", None),
     "launch": (load_launch, LAUNCH_TEXT, "    respawn: false", "    respawn: 'yes'", "nodes.talker.respawn",
                "true or false", "yes"),
+    "study": (load_study, STUDY_TEXT, "time_limit_s: 20", "time_limit_s: -1", "time_limit_s", "a finite number > 0", -1),
 }
 
 

@@ -12,7 +12,6 @@ from pathlib import Path
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError, Unavailable
 
-from .design import DEFAULT_STUDY
 
 
 def register(subparsers) -> None:
@@ -102,7 +101,7 @@ def register(subparsers) -> None:
 
 
 def _study(path):
-    from .design import load_study
+    from .design import DEFAULT_STUDY, load_study
 
     return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
 

@@ -50,11 +50,13 @@ KINDS = ("front-element", "look-alikes", "tilt")
 DEFAULT_STUDY = "config/studies/paper.yaml"
 ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
 
-Name = Annotated[str, msgspec.Meta(min_length=1, pattern=r"^[A-Za-z0-9_.+-]+$")]
-Count = Annotated[int, msgspec.Meta(ge=0)]
-Positive = Annotated[int, msgspec.Meta(ge=1)]
-Seconds = Annotated[float, msgspec.Meta(gt=0)]
-Degrees = Annotated[float, msgspec.Meta(ge=0, le=45)]
+Name = Annotated[str, msgspec.Meta(min_length=1, pattern=r"^[A-Za-z0-9_.+-]+$",
+                                    description="a name of letters, digits and _ . + - (no spaces)")]
+Count = Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")]
+Positive = Annotated[int, msgspec.Meta(ge=1, description="an integer >= 1")]
+Seconds = schema.Positive
+Degrees = Annotated[float, msgspec.Meta(ge=0, le=45, description="an angle in degrees, 0..45")]
+Tilt = Annotated[float, msgspec.Meta(gt=0, le=45, description="an angle in degrees, > 0 and <= 45")]
 
 
 class StimulusSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
@@ -86,7 +88,7 @@ class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
     # and the option that a positive angle answers (the other option answers a negative one)
     scene: str | None = None
     plane: str = "xw"
-    angles_deg: list[Annotated[float, msgspec.Meta(gt=0, le=45)]] = []
+    angles_deg: list[Tilt] = []
     positive: str | None = None
 
     def stimulus_names(self) -> list[str]:
@@ -123,7 +125,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     break_every: Count = 0              # 0: no breaks but between blocks
     time_limit_s: Seconds = 30.0
     max_run: Positive = 3
-    seed: Annotated[int, msgspec.Meta(ge=0)] = 0
+    seed: Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")] = 0
 
     @property
     def path(self) -> str:

@@ -7,10 +7,11 @@ drive) on every motor. Vision: the projected geometry, i.e. what the view shows:
 show how far each point lies in w, which is the depth the paper adds by touch.
 
 Per task the observer is trained once, on stimuli with the task's jitter and hand positions drawn
-at random, with scikit-learn's linear discriminant analysis (shrinkage covariance, so 247 motors
-need no more examples than 30). On a trial it adds the log posteriors of every pattern it felt and
-of the view it saw (independent cues, uniform prior) and answers the best option; with probability
-`lapse` it answers at random instead.
+at random, with scikit-learn's linear discriminant analysis (a shrinkage covariance keeps 247
+motors as well conditioned as 30), its posteriors tempered on held-out scenes so that a cue that
+cannot tell the options apart adds nothing. On a trial it adds the log posteriors of every pattern
+it felt and of the view it saw (independent cues, uniform prior) and answers the best option; with
+probability `lapse` it answers at random instead.
 
 `explore(trial, rng)` gives the positions of the scripted hand (screen units); `respond(trial,
 patterns, scene, rng)` the answer, where `patterns` is None in the visual condition (motors held
@@ -46,21 +47,15 @@ def every_sample_glove(glove: Glove) -> Glove:
                    motor_sample=index, motor_board=1 + index // 8, motor_channel=index % 8)
 
 
-def touch_threshold(glove: Glove) -> float:
-    """The intensity above which a motor is felt: the motor node's dead band (below it the duty is 0)."""
-    return float(glove.can.duty.deadband)
-
-
 @dataclass
 class Exploration:
     """How the scripted hand explores: `touches` positions, uniform in a box of half-size `reach`
-    (screen units) around `centre`, `dwell_s` at each; `look_s` to take in the view."""
+    (screen units) around `centre`, the palm facing the screen (the time it takes is the
+    simulation's `Timing`)."""
 
     touches: int = 6
     reach: tuple[float, float, float] = (0.25, 0.25, 0.3)
     centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    dwell_s: float = 0.6
-    look_s: float = 1.2
 
     def positions(self, rng: np.random.Generator, count: int | None = None) -> np.ndarray:
         count = self.touches if count is None else count
@@ -249,4 +244,4 @@ def chance(trial_or_options) -> float:
 
 
 __all__ = ["ModelObserver", "Exploration", "every_sample_glove", "patterns_at", "view_features", "touch_examples",
-           "view_examples", "touch_threshold", "chance"]
+           "view_examples", "chance"]

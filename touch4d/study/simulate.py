@@ -22,7 +22,7 @@ import numpy as np
 from touch4d.tactile import Glove
 
 from .design import Study
-from .observer import ModelObserver, patterns_at, touch_threshold
+from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
 from .table import TRIALS, write_rows
@@ -38,6 +38,7 @@ class Timing:
     dwell_s: float = 0.6
     decide_s: float = 0.5
     rt_spread: float = 0.25          # sd of the log of the answer-time factor
+    break_s: float = 30.0            # a pause offered (break_every) is taken, this long
     iti_s: float = 1.0
 
 
@@ -63,7 +64,7 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
     rt *= float(np.exp(rng.normal(0.0, timing.rt_spread)))
     timed_out = rt > trial.time_limit_s
     felt = patterns if patterns is not None else np.zeros((len(positions), len(glove.motor_names)))
-    touching = (felt > touch_threshold(glove)).any(axis=1)
+    touching = (felt > glove.touch_threshold).any(axis=1)   # felt: above the glove's touch threshold
     return {
         "response": None if timed_out else response,
         "rt_s": min(rt, trial.time_limit_s),
@@ -83,7 +84,7 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
     rows, clock = [], 0.0
     for trial in trials:
         if trial.break_before:
-            clock += 30.0
+            clock += timing.break_s
         result = simulate_trial(own, glove, study, trial, seed=seed, timing=timing)
         rows.append(_row(trial, participant, session, clock, result))
         clock += result["rt_s"] + timing.iti_s
