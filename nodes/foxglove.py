@@ -149,3 +149,9 @@ class FoxgloveNode(Node):
                    for (x, y, z), f in zip(points.tolist(), felt.tolist())]
         hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres)
         return m.SceneUpdate(entities=[screen, hand])
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

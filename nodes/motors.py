@@ -8,7 +8,10 @@ this process), `board_emulator` (which: `python`, the reference, or `firmware`, 
 core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
 below).
 
-Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
+Fail safe: whatever breaks, the motors end off. The broker's death turns them off at the next
+refresh tick (its connection closes; counted as `broker_lost`). A process stalled between deciding
+a tick's duties and sending them (SIGSTOP, swapping) decides them again before they go out
+(`stalled`), so a command fresh when it arrived is not sent seconds later. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
 turns a motor on: older than the glove's `can.command_max_age_s` (default `watchdog_s`) it counts
 as `stale_command` and turns every motor off. This assumes the clocks of the machines in the
@@ -36,8 +39,10 @@ import math
 import time
 
 import numpy as np
+import zmq
 
 from touch4d.bus import Node, Param
+from touch4d.bus.broker import BrokerWatch
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
@@ -86,6 +91,8 @@ class MotorsNode(Node):
         self.load = check_bus_load(cfg)
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
+        # Frames decided longer ago than this are decided again before they go out (see _send_frames).
+        self._stall_s = 0.5 * cfg.watchdog_s
         if p["emulate"]:
             self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
             self.add_cleanup(self.emulator.stop)
@@ -100,6 +107,11 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
+        # The broker's death is seen at once (its connection closes): every motor off then, rather
+        # than a watchdog period after the last command that got through.
+        self.broker_watch = BrokerWatch(self.bus, grace=0.0, context=zmq.Context.instance())   # the node's
+        self.add_cleanup(self.broker_watch.close)
+        self._broker_down = False
         self.gate = StudyGate(p["study_gate"])
         self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
@@ -183,6 +195,11 @@ class MotorsNode(Node):
 
     def on_refresh(self) -> None:
         now = time.monotonic()
+        down = self.broker_watch.lost(now) is not None
+        if down and not self._broker_down:
+            self.driver.silence(now)
+            self._can_fault("broker_lost", f"the broker at {self.broker_watch.endpoint} went away: every motor off")
+        self._broker_down = down
         try:
             self._receive_frames(now)
             for event in self.driver.check_boards(now):
@@ -216,6 +233,11 @@ class MotorsNode(Node):
     def _send_frames(self, outs: list[Outgoing], now: float) -> None:
         duty_sent = False
         for out in outs:
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # This process stalled (SIGSTOP, swapping, a debugger) between deciding these duties
+                # at `now` and sending them: the command they carry may be long stale. Decide again.
+                self._decide_again()
+                break
             fault = self.link.send(out.msg)
             if fault is None:
                 duty_sent = duty_sent or out.board != 0
@@ -223,6 +245,10 @@ class MotorsNode(Node):
             else:
                 self.driver.failed(out, fault)
                 self._can_warn(fault, self.link.last_error)
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # ... or in the instant before the frame left: correct it at once.
+                self._decide_again()
+                break
         if duty_sent and self.tracing:
             self._last_sent_at = time.time()   # just after the last accepted duty frame's send returned
         if self._trace_pending is not None and outs and self.driver.duties_on_bus():
@@ -230,6 +256,12 @@ class MotorsNode(Node):
             self._trace_times.append(self._last_sent_at)
             self.count("trace_traced")
             self._trace_pending = None
+
+    def _decide_again(self) -> None:
+        """Every board's duties decided afresh and sent now (after a stall of this process)."""
+        self.driver.errors["stalled"] += 1
+        now = time.monotonic()
+        self._send_frames(self.driver.outgoing(now, refresh=True, force=True), now)
 
     def publish_trace(self) -> None:
         """The commands traced since the last batch, on motors/trace."""
@@ -259,3 +291,8 @@ class MotorsNode(Node):
         self._stop_all(time.monotonic())
         self.publish_status()
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -31,12 +31,12 @@ class RecorderNode(Node):
             raise self.param_error("topics", "a list of topic names")
         self.recorder = Recorder(self.bus, path, topics)
         self.recorder.start()
-        self.create_timer(10.0, self.on_timer)
+        self.create_timer(0.25, self.on_timer)   # a full disk is said at once; the other nodes go on
         self.log.info("recording %s to %s", ", ".join(topics) if topics else "all topics", path)
 
     def on_timer(self) -> None:
         if self.recorder.wait(0):
-            self.log.error("recording stopped: %s", self.recorder.error)
+            self.log.error("%s", self.recorder.error)
             self.request_shutdown()
 
     def on_shutdown(self) -> None:
@@ -51,3 +51,9 @@ def unused_path(path: Path) -> Path:
         n += 1
         candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
     return candidate
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

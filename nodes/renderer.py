@@ -222,3 +222,9 @@ class RendererNode(Node):
 
 def _nth(n: int) -> str:
     return "" if n == 1 else f"{n}th "
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -101,3 +101,8 @@ class SceneNode(Node):
         self.dirty = False
         self.last_publish = time.monotonic()
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -54,3 +54,9 @@ class ScriptedTracker(Node):
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
         self.tick_count += 1
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -52,6 +52,7 @@ class WebXRNode(Node):
         "save_calibration": Param(True, "store a re-centred screen in the calibration file"),
         "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "rate": Param(90.0, "frames sent to the pages per second, at most", unit="Hz", above=0, max=240),
+        "max_pages": Param(64, "pages connected at once; one more is refused (HTTP 503)", min=1, max=10000),
         "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
                             choices=GATE_START),
         "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
@@ -87,8 +88,9 @@ class WebXRNode(Node):
                                 send=lambda conn, data: self.server.send(conn, data),
                                 save_calibration=self._save_calibration)
         # The server's thread hands every event to this node's thread (one thread runs the bridge).
-        self.server = PageServer(host, p["port"], self.token, ssl_context,
-                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn),
+        self.server = PageServer(host, p["port"], self.token, ssl_context, max_pages=p["max_pages"],
+                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
+                                                                                   self.server.peer(conn)),
                                  on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
                                      self.bridge.page_message, conn, data, arrival),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
@@ -106,6 +108,7 @@ class WebXRNode(Node):
                 from None
         self.add_cleanup(self.server.stop)
         self.add_stats(lambda: {**self.bridge.counts, "page_refused": self.server.refused,
+                                "page_over_limit": self.server.over_limit,
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1)})
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
@@ -141,3 +144,9 @@ class WebXRNode(Node):
         if "hand/pose" in self.publishers:
             self.bridge.owner = None
             self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

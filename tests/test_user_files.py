@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from touch4d import glovefile
+from touch4d import glovefile, schema
 from touch4d.boards.config import load_glove_can
 from touch4d.bus.config import BusFile, load_bus_config
 from touch4d.bus.launchfile import load_launch
@@ -165,8 +165,8 @@ def test_the_packaged_glove_file_shows_the_declared_defaults_and_sets_none_of_th
     for key, value in shown.items():
         assert value == declared[key], key
     assert set(yaml.safe_load(GLOVE_TEXT)["can"]) == {"boards"}          # nothing repeated, only the hardware
-    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == glovefile.GloveFile.__struct_defaults__[
-        glovefile.GloveFile.__struct_fields__.index("touch_threshold") - 1] == glovefile.DEFAULT_TOUCH_THRESHOLD
+    least = glovefile.convert({"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}]})
+    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == least.touch_threshold == 0.05
 
 
 def test_the_packaged_bus_file_shows_the_declared_defaults_and_sets_none_of_them():
@@ -259,3 +259,25 @@ def test_the_webxr_bridge_counts_bad_pages_and_scenes_but_a_bug_surfaces(monkeyp
     monkeypatch.setattr(SceneGeometry, "build", classmethod(lambda cls, s: (_ for _ in ()).throw(TypeError("bug"))))
     with pytest.raises(TypeError, match="bug"):
         bridge.on_scene(scene_message("24-cell"))
+
+
+def test_the_glove_file_is_read_once_into_the_parts_tactile_and_boards_own(monkeypatch):
+    import subprocess
+    import sys
+
+    from touch4d.boards.config import glove_can
+    from touch4d.tactile.glove import glove_from_file
+
+    reads = []
+    real = schema.read_yaml
+    monkeypatch.setattr(schema, "read_yaml", lambda *a, **k: reads.append(a) or real(*a, **k))
+    load_glove()
+    assert len(reads) == 1
+    data, path = glovefile.load(None)
+    tactile, boards = glove_from_file(data, path), glove_can(data, path)
+    assert tuple(tactile.motor_names) == boards.motor_names
+    assert tuple(tactile.motor_board) == boards.motor_board and tuple(tactile.motor_channel) == boards.motor_channel
+    for module, other in (("touch4d.tactile.glove", "touch4d.boards"), ("touch4d.boards.config", "touch4d.tactile")):
+        code = f"import sys, {module}; print(sorted(m for m in sys.modules if m.startswith('{other}')))"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+        assert out.strip() == "[]", (module, out)

@@ -154,3 +154,17 @@ def test_launch_record_and_replay_from_an_empty_directory(wheel_env):
 
 def count(path: Path, topic: str) -> int:
     return sum(1 for _ in LogReader(path).messages({topic}))
+
+
+def test_the_firmware_core_from_a_wheel_says_what_to_do_and_builds_from_a_named_checkout(wheel_env):
+    args = ["touch4d", "glove", "emulate", "--firmware", "--duration", "0.3", "--channel", f"wheel-fw-{os.getpid()}"]
+    done = subprocess.run(args, cwd=wheel_env["work"], env=wheel_env["env"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    for words in ("wheel ships no firmware sources", "source checkout", "TOUCH4D_FIRMWARE_DIR=", "board_emulator: python"):
+        assert words in done.stderr, done.stderr
+    # The installed package, with a checkout's sources named: the core is built there and runs.
+    env = {**wheel_env["env"], "TOUCH4D_FIRMWARE_DIR": str(REPO / "firmware")}
+    done = subprocess.run(args, cwd=wheel_env["work"], env=env, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "emulating boards [1, 2, 3, 4] (firmware)" in done.stdout

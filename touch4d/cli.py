@@ -20,6 +20,7 @@ PARTS = {
     "touch4d.boards.cli": ("glove",),
     "touch4d.defaults.cli": ("config",),
     "touch4d.study.cli": ("study",),
+    "touch4d.physics.cli": ("physics",),
 }
 
 

@@ -5,8 +5,12 @@ Bus -> pages: a "setup" frame when a page connects, a "geometry" frame when what
 made of changes, and at most one "frame" per tick with the latest transforms and tactile values.
 
 Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state` and `hand/joints`
-from the page that holds the tracker role (the last to start an immersive session, else the first
-to send input). Fail safe: when that page closes, hides, loses tracking or falls silent for
+from the one page that drives the hand. The rule: a page drives from its first tracked input while
+no other page drives, and keeps driving until it stops tracking (closes, hides, ends its session,
+loses tracking or falls silent for `stale_s`); only then may another page take over. Meanwhile
+another page's input and re-centring are refused, never silently: counted (`page_not_driver`),
+logged once per page with its address, and the page is told (a "driver" frame). Every change of
+driver is logged. Fail safe: when the driving page closes, hides, loses tracking or falls silent for
 `stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
 node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
 except while its page is only silent.
@@ -49,7 +53,7 @@ log = logging.getLogger(__name__)
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
                 "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
-                 "page_connections", "recentred", "study_answers")
+                 "page_unresponsive", "page_not_driver", "page_connections", "recentred", "study_answers")
 # A study's answers from the controller: the k-th of these buttons picks the k-th option (A, B, the
 # thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
 ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
@@ -95,6 +99,7 @@ class ClockMap:
 @dataclass
 class _Page:
     conn: int
+    peer: str = ""                   # its address, to name it in the log
     clock: ClockMap = dataclasses.field(default_factory=ClockMap)
     mode: str = "inline"
     last_input: float = 0.0          # arrival of its last input (node clock)
@@ -125,7 +130,8 @@ class WebBridge:
         self.now = now
         self.counts = {name: 0 for name in PAGE_COUNTERS}
         self.pages: dict[int, _Page] = {}
-        self.owner: int | None = None
+        self.owner: int | None = None       # the page that drives the hand, or last drove it
+        self._refused: set[int] = set()     # pages already told another one drives
         self._logged: set[str] = set()
         self._invalid_at = -np.inf          # when invalid poses were last published (node clock)
         self._was_live = False
@@ -278,8 +284,8 @@ class WebBridge:
 
     # ---- connections -----------------------------------------------------------------------------
 
-    def connected(self, conn: int) -> None:
-        self.pages[conn] = _Page(conn)
+    def connected(self, conn: int, peer: str = "") -> None:
+        self.pages[conn] = _Page(conn, peer or "?")
         self.counts["page_connections"] += 1
         self.send(conn, self.setup_frame())
         if self._geometry_frame is not None:
@@ -289,6 +295,7 @@ class WebBridge:
 
     def closed(self, conn: int) -> None:
         self.pages.pop(conn, None)
+        self._refused.discard(conn)
         if conn == self.owner:
             self.owner = None
             self.check_tracking(self.now())
@@ -309,20 +316,19 @@ class WebBridge:
         kind = msg["type"]
         if kind == "session":
             page.mode = msg["mode"] if msg["active"] else "inline"
-            if msg["mode"] == "immersive" and msg["active"] and self.config.tracker:
-                self.owner = conn
-            elif not msg["active"] and conn == self.owner:
-                self.owner = None
+            if not msg["active"] and conn == self.owner:
                 page.tracking = False
                 self.check_tracking(arrival)
         elif kind == "stats":
             page.fps = msg["fps"]
         elif kind == "recenter":
-            self.recenter(msg["head"])
+            if self._may_drive(page, arrival):
+                self.recenter(msg["head"])
         elif kind == "input":
             self._input(page, msg, arrival)
         elif kind == "response":
-            self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival))
+            if self._may_drive(page, arrival):   # a second page cannot answer for the participant
+                self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival))
 
     def _answer(self, index: int, option: str, source: str, stamp: float) -> None:
         """A study answer goes on the bus as given; the study node takes the first valid one per trial."""
@@ -346,17 +352,55 @@ class WebBridge:
                 return pressed
         return frozenset()
 
+    # ---- who drives the hand ---------------------------------------------------------------------
+
+    def driving(self, now: float) -> int | None:
+        """The page that drives the hand now: the owner while it tracks and is not silent."""
+        page = self.pages.get(self.owner) if self.owner is not None else None
+        if page is not None and page.tracking and now - page.last_input <= self.config.stale_s:
+            return page.conn
+        return None
+
+    def _may_drive(self, page: _Page, now: float) -> bool:
+        """Whether this page's input may drive the hand; a refusal is counted, logged and told."""
+        driver = self.driving(now)
+        if driver is None or driver == page.conn:
+            return True
+        self.counts["page_not_driver"] += 1
+        if page.conn not in self._refused:
+            self._refused.add(page.conn)
+            other = self.pages[driver]
+            log.warning("page %d (%s) sent input while page %d (%s) drives the hand: refused until that page "
+                        "stops tracking", page.conn, page.peer, other.conn, other.peer)
+            self.send(page.conn, pack_frame("driver", {"driver": False, "by": other.peer}))
+        return False
+
+    def _take(self, page: _Page) -> None:
+        """Make `page` the owner (it may now drive); log and tell it."""
+        if self.owner == page.conn:
+            return
+        before = self.pages.get(self.owner) if self.owner is not None else None
+        self.owner = page.conn
+        self._refused.discard(page.conn)
+        if before is not None:
+            log.info("page %d (%s) drives the hand now (page %d, %s, stopped tracking)", page.conn, page.peer,
+                     before.conn, before.peer)
+        self.send(page.conn, pack_frame("driver", {"driver": True, "by": page.peer}))
+
     def _input(self, page: _Page, msg: dict, arrival: float) -> None:
         stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
-        answered = self._answer_buttons(page, msg, stamp) if page.tracking or msg["tracking"] else frozenset()
+        # Only the page that drives the hand (or any page while none drives) answers a study's trials.
+        may_answer = (page.tracking or msg["tracking"]) and self.driving(arrival) in (None, page.conn)
+        answered = self._answer_buttons(page, msg, stamp) if may_answer else frozenset()
         if not self.config.tracker:
             self.counts["page_ignored"] += 1
             return
-        if self.owner is None:
-            self.owner = page.conn
-        if page.conn != self.owner:
-            self.counts["page_ignored"] += 1
+        if not msg["tracking"] and page.conn != self.owner:
+            self.counts["page_ignored"] += 1   # no hand to drive with (a desktop page being hidden)
             return
+        if not self._may_drive(page, arrival):
+            return
+        self._take(page)
         page.last_input = arrival
         page.tracking = msg["tracking"]
         by_side = {s.handedness: s for s in msg["sources"]}

@@ -61,7 +61,8 @@ _LEN = struct.Struct("<I")
 
 
 class PageError(Touch4dError, ValueError):
-    """A page message that is dropped; `cause` is its counter's name: malformed, oversized or non_finite.
+    """A page message that is dropped; `cause` is its counter's name: malformed, oversized, non_finite
+    or unresponsive (a page that answered no ping).
     A message of the wrong shape names its `field` (e.g. sources[0].grip), what was `expected` and what
     it `got`."""
 
@@ -196,6 +197,8 @@ def parse_page_message(data: str | bytes) -> dict:
     """A page's text message -> a checked map (see the module doc); PageError says why not. `data`
     may also be the WebSocket error that ended a connection (1009: a message too big to receive)."""
     if isinstance(data, BaseException):
+        if isinstance(data, TimeoutError):   # answered no ping: a page that does not read, or is gone
+            raise PageError("unresponsive", f"WebSocket closed: {data}")
         too_big = getattr(data, "code", None) == WS_MESSAGE_TOO_BIG
         raise PageError("oversized" if too_big else "malformed", f"WebSocket error: {data}")
     if isinstance(data, bytes):

@@ -69,6 +69,9 @@ const link = new Link((message) => {
   } else if (header.kind === 'geometry') {
     state.geometry = header.key;
     if (scene) scene.setGeometry(message);
+  } else if (header.kind === 'driver') {
+    state.otherDriver = header.driver ? null : header.by;   // another page drives the hand: say so
+    showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
     const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
@@ -129,7 +132,8 @@ function showStatus() {
   if (state.error) return;
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
-  const hand = f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
+  const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
+    : f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
                                            : 'touch4d: connecting to the node…';
 }
