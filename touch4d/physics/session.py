@@ -4,8 +4,9 @@ Every input (a controller sample, a hand pose, a command) is applied between two
 journal with the step it was applied before; `replay(...)` feeds a journal to a fresh session and
 reaches the same states, byte for byte, since `world.step` is a pure function. Commands beyond the
 scene node's: `pause`, `play` (`pause` toggles when already paused) and `step [N]` (N steps while
-paused); `reset` puts bodies back where the scene file has them, moving as the file says. The steps run
-are journaled too, so a replay needs no clock.
+paused); `reset` puts bodies back where the scene file has them, moving as the file says; `load` (scene-file
+text) builds the new scene's world with its physics keys. The steps run are journaled too, so a replay
+needs no clock.
 """
 from __future__ import annotations
 
