@@ -52,10 +52,7 @@ class PhysicsNode(Node):
 
     def setup(self) -> None:
         p = self.params
-        try:
-            scene_buttons, physics_buttons = split_buttons(p["buttons"])
-        except ValueError as exc:
-            raise self.param_error("buttons", str(exc)) from None
+        scene_buttons, physics_buttons = split_buttons(p["buttons"], self.param_where("buttons")[0])
         config = ControlConfig.from_params(gains=p["gains"], trigger_threshold=p["trigger_threshold"],
                                            buttons=scene_buttons, rotate=p["rotate"], spin={},
                                            source=self.param_where("gains")[0])
@@ -112,7 +109,7 @@ class PhysicsNode(Node):
     def on_command(self, msg: SceneCommand) -> None:
         try:
             self.session.command(msg.command, msg.argument)
-        except ValueError as exc:
+        except Touch4dError as exc:      # SceneCommandError, or (ConfigError) a bad scene to load: nothing changes
             self.counts["bad_commands"] += 1
             self.log.warning("scene/command ignored: %s", exc)
         self.flush_journal()

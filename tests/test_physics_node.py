@@ -4,6 +4,8 @@ import json
 import numpy as np
 import pytest
 
+from touch4d.errors import ConfigError
+
 from touch4d.bus import Node
 from touch4d.bus.config import ENV_VAR
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
@@ -80,8 +82,22 @@ def test_a_journal_replays_to_the_same_bytes():
 
 
 def test_bad_buttons_are_named():
-    with pytest.raises(ValueError, match="buttons.menu"):
-        split_buttons({"menu": "explode"})
+    with pytest.raises(ConfigError) as info:
+        split_buttons({"menu": "explode"}, "launch.yaml")
+    assert info.value.key == "buttons.menu" and info.value.got == "explode" and "pause" in info.value.expected
+
+
+def test_loading_another_scene_builds_its_world():
+    s = session()
+    s.advance(50)
+    s.command("load", "physics: {gravity: [0, 0, 0, -2]}\nobjects:\n  - {name: ball, shape: 24-cell, size: 0.3, "
+                      "position: [0, 0, 0, 1.5], physics: {velocity: [0.5, 0, 0, 0]}}\n")
+    assert s.world.names == ("ball",) and s.state.steps == 0
+    s.advance(100)
+    np.testing.assert_allclose(s.message().objects[0]["position"], [0.05, 0, 0, 1.5 - 0.01], atol=1e-12)
+    with pytest.raises(ConfigError):
+        s.command("load", "objects: [{shape: tesseract, physics: {mass: -1}}]")
+    assert s.world.names == ("ball",)                      # a bad scene changes nothing
 
 
 def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, capsys, monkeypatch):

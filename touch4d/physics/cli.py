@@ -206,7 +206,7 @@ def run_replay(args) -> int:
     if args.scene is None and "scene" not in start:
         raise ConfigError(log, "physics/journal", "the node's set-up (a start entry), or --scene")
     scene_path = setting("scene", args.scene, "scene file", None)
-    scene_buttons, physics_buttons = split_buttons(start.get("buttons", DEFAULT_BUTTONS))
+    scene_buttons, physics_buttons = split_buttons(start.get("buttons", DEFAULT_BUTTONS), log)
     config = ControlConfig.from_params(gains=start.get("gains", {}), trigger_threshold=start.get("trigger_threshold", 0.5),
                                        buttons=scene_buttons, rotate=start.get("rotate", "object"), spin={},
                                        source=str(log))

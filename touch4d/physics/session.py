@@ -4,8 +4,9 @@ Every input (a controller sample, a hand pose, a command) is applied between two
 journal with the step it was applied before; `replay(...)` feeds a journal to a fresh session and
 reaches the same states, byte for byte, since `world.step` is a pure function. Commands beyond the
 scene node's: `pause`, `play` (`pause` toggles when already paused) and `step [N]` (N steps while
-paused); `reset` puts bodies back where the scene file has them, moving as the file says. The steps run
-are journaled too, so a replay needs no clock.
+paused); `reset` puts bodies back where the scene file has them, moving as the file says; `load` (scene-file
+text) builds the new scene's world with its physics keys. The steps run are journaled too, so a replay
+needs no clock.
 """
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from touch4d.errors import ConfigError
 from touch4d.geometry.scene import Scene
 from touch4d.tracking.calibration import Calibration
-from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneControl
+from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneCommandError, SceneControl
 
 from .bivector import vee
 from .config import PhysicsConfig
@@ -148,10 +150,9 @@ class PhysicsSession:
             result = self._physics_command(name, argument)
         else:
             before = self._poses()
-            shapes = self._shapes()
             result = self.control.command(name, argument)
-            if self._shapes() != shapes:
-                self._rebuild(argument)         # another scene was loaded: new bodies, its physics if it has any
+            if name == "load":                  # another scene (file text): new bodies, its physics keys
+                self._rebuild(argument)
             elif name == "reset":
                 self.state = self.initial
                 self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
@@ -173,7 +174,7 @@ class PhysicsSession:
             except ValueError:
                 count = -1
             if not 0 < count <= MAX_SINGLE_STEPS:
-                raise ValueError(f"step: expected a number of steps 1..{MAX_SINGLE_STEPS}, got {argument!r}")
+                raise SceneCommandError(f"step: expected a number of steps 1..{MAX_SINGLE_STEPS}, got {argument!r}")
             self.paused = True
             self.single_steps += count
         return False
@@ -216,20 +217,14 @@ class PhysicsSession:
 
     # ---- the scene it shows -----------------------------------------------------------------------
 
-    def _shapes(self):
-        return [(o.name, o.shape, o.size, repr(o.params)) for o in self.control.scene.objects]
+    def _rebuild(self, text: str) -> None:
+        """The world of the scene the control now holds, with the physics of the scene-file text it came from."""
+        from touch4d.schema import parse_yaml
 
-    def _rebuild(self, path: str) -> None:
-        """The world of the scene the control now holds (after a scene command such as `load PATH`)."""
-        from touch4d.errors import Touch4dError
+        from .config import parse_physics
 
-        from .config import load_physics
-
-        try:
-            physics = load_physics(path) if path.strip() else None
-        except Touch4dError:
-            physics = None
-        self.world, self.initial = build_world(self.control.scene, physics)
+        source = "scene/command load"
+        self.world, self.initial = build_world(self.control.scene, parse_physics(parse_yaml(text, source), source))
         self.state = self.initial
         self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
         self._turn_rate, self._turn_step = np.zeros(6), None
@@ -261,8 +256,9 @@ class PhysicsSession:
         return self.control.message()
 
 
-def split_buttons(buttons: dict) -> tuple[dict, dict]:
-    """A button map split into the scene node's commands and the physics commands (ValueError names a bad one)."""
+def split_buttons(buttons: dict, source="buttons") -> tuple[dict, dict]:
+    """A button map split into the scene node's commands and the physics commands (a ConfigError names a bad
+    one, in `source`)."""
     scene, physics = {}, {}
     for button, command in buttons.items():
         if command in PHYSICS_COMMANDS:
@@ -270,8 +266,8 @@ def split_buttons(buttons: dict) -> tuple[dict, dict]:
         elif command in BUTTON_COMMANDS:
             scene[button] = command
         else:
-            raise ValueError(f"buttons.{button}: expected one of {', '.join(BUTTON_COMMANDS + PHYSICS_COMMANDS)}, "
-                             f"got {command!r}")
+            raise ConfigError(source, f"buttons.{button}", f"one of {', '.join(BUTTON_COMMANDS + PHYSICS_COMMANDS)}",
+                              got=command)
     return scene, physics
 
 
