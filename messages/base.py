@@ -475,7 +475,7 @@ def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
     def decode_expected(payload: bytes) -> Message:
         try:
             msg = decode_one(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+        except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
             raise _error(exc, payload, expected) from None
         return _checked(msg, checks)
 
@@ -486,7 +486,7 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
     try:
         msg = expected._decode(payload) if expected is not None else _decode_any(payload)
-    except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+    except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
         raise _error(exc, payload, expected) from None
     return _checked(msg, msg._after_decode)
 
@@ -500,7 +500,8 @@ def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> Me
     """msgspec's or the codec's complaint about a payload as a MessageError naming type and field."""
     if isinstance(exc, CodecError):
         return MessageError(str(exc))
-    if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
+    if isinstance(exc, (msgspec.DecodeError, UnicodeDecodeError)) and not isinstance(exc, msgspec.ValidationError):
+        # msgspec raises UnicodeDecodeError (not a DecodeError) for a string that is not UTF-8
         return MessageError(f"not a msgpack payload: {exc}")
     found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
     text, key, path = found.group(1), found.group(2), found.group(3) or ""
