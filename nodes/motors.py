@@ -21,6 +21,9 @@ A `safety/stop` is momentary by default: commands resume `can.stop_hold_s` (1 s)
 receive side raised, and shutdown always sends NMT STOP and zero duty.
 While every motor is off and the boards have been sent so, the refresh slows to the glove's
 `can.idle_refresh_hz` (an idle node costs little); a command goes out at once and speeds it up.
+A running study gates the motors (`study/trial`, touch4d.study.gate): in a visual trial, between
+trials and after the end every duty is 0; the last gate holds if the study node dies, and
+`study_gate: closed` keeps a motor node (re)started mid-study off until the study's next message.
 
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
@@ -46,7 +49,8 @@ from touch4d.boards.driver import MotorDriver, Outgoing
 from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
-from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop, StudyTrial
+from touch4d.study.gate import GATE_START, StudyGate
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
 TRACE_PERIOD_S = 0.05  # motors/trace batches
@@ -64,6 +68,8 @@ class MotorsNode(Node):
         "board_emulator": Param("python", "which board emulator runs with emulate", choices=tuple(sorted(EMULATORS))),
         "status_hz": Param(10.0, "motors/status messages per second", unit="Hz", above=0),
         "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
     }
 
     # A python-can bus to use instead of opening the glove's channel (tests: set it between
@@ -77,6 +83,7 @@ class MotorsNode(Node):
         self._trace_stamps: list[float] = []
         self._trace_times: list[float] = []
         self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
+        self._last_command: MotorCommand | None = None
         self.tracing = p["trace"]
         cfg = load_glove_can(p["glove"] or None)
         cfg = dataclasses.replace(cfg, interface=p["interface"] or cfg.interface, channel=p["channel"] or cfg.channel)
@@ -105,6 +112,8 @@ class MotorsNode(Node):
         self.broker_watch = BrokerWatch(self.bus, grace=0.0, context=zmq.Context.instance())   # the node's
         self.add_cleanup(self.broker_watch.close)
         self._broker_down = False
+        self.gate = StudyGate(p["study_gate"])
+        self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
         if self.tracing:
@@ -117,11 +126,14 @@ class MotorsNode(Node):
                       100 * self.load.fraction, f" ({p['board_emulator']} emulated boards)" if self.emulator else "")
 
     def on_command(self, msg: MotorCommand) -> None:
+        self._last_command = msg
         now = time.monotonic()
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
         errors = self.driver.errors
         stale, future = errors["stale_command"], errors["command_from_future"]
-        self.driver.command(msg.names, msg.intensity, now, age=age)
+        # A study's condition may hold the motors off (a visual trial, between trials): every duty 0.
+        intensity = msg.intensity if self.gate.motors else np.zeros(len(msg.intensity))
+        self.driver.command(msg.names, intensity, now, age=age)
         if errors["stale_command"] != stale:
             self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
                                             f"{self.cfg.command_max_age_s} s): every motor off")
@@ -151,6 +163,22 @@ class MotorsNode(Node):
             self._trace_pending = None
         self._stop_all(now)
         self.publish_status()
+
+    def on_trial(self, msg: StudyTrial) -> None:
+        """Follow the study's gate at once: when it closes every motor goes off now, when it opens the
+        latest command (if still fresh) goes out now, not at the next one."""
+        if not self.gate.update(msg):
+            return
+        if self.gate.motors:
+            last = self._last_command
+            if last is not None and time.time() - last.source_stamp < (self.cfg.command_max_age_s or math.inf):
+                self.on_command(last)
+            return
+        now = time.monotonic()
+        names = self.cfg.motor_names
+        self.driver.command(names, np.zeros(len(names)), now, age=0.0)
+        self._send_frames(self.driver.outgoing(now), now)
+        self._pace(now)
 
     def _stop_all(self, now: float) -> None:
         """NMT STOP first (highest priority frame), then zero duty to every board."""

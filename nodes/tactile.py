@@ -9,12 +9,15 @@ and `beta` (override the glove's), `projection` ("scene": follow the scene; "ort
 """
 from __future__ import annotations
 
+import time
+
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
-from touch4d.messages import HandPose, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandPose, MotorCommand, PhysicsContacts, SceneState, TactileField
 from touch4d.tactile.engine import PROJECTION_CHOICES, TactileEngine
 from touch4d.tactile.glove import check_alpha, check_beta, load_glove
 from touch4d.tactile.pose import PoseError
+from touch4d.tactile.transient import TransientBank
 
 
 class TactileNode(Node):
@@ -26,6 +29,7 @@ class TactileNode(Node):
         "alpha": Param(None, "override the glove's alpha (eq. 2)", type=float),
         "beta": Param(None, "override the glove's beta (eq. 2)", type=float),
         "projection": Param("scene", "follow the scene's projection, or force one", choices=PROJECTION_CHOICES),
+        "transients": Param(True, "a short burst on the motors touching objects that physics says collided"),
     }
 
     def setup(self) -> None:
@@ -38,6 +42,9 @@ class TactileNode(Node):
         self.motor_pub = self.create_publisher("tactile/motors", MotorCommand)
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
+        self.transients = TransientBank()
+        if p["transients"]:
+            self.create_subscription("physics/contacts", PhysicsContacts, self.on_contacts, optional=True)
         g = self.engine.glove
         self.log.info("%d samples, %d motors (%s); alpha %g, beta %g, gamma %g; projection: %s",
                       len(g.samples), len(g.motor_names), g.path, g.alpha, g.beta, g.gamma, p["projection"])
@@ -64,9 +71,15 @@ class TactileNode(Node):
             self.warn_once(str(exc), f"hand/pose ignored: {exc}")
             return
         self.counts["poses"] += 1
+        if self.transients.active:
+            hits = self.engine.last_stimulus.hit[self.engine.glove.motor_sample]
+            motors.intensity = self.transients.apply(motors.intensity, hits, time.monotonic())
         if field is not None:
             self.field_pub.publish(field)
         self.motor_pub.publish(motors)
+
+    def on_contacts(self, msg: PhysicsContacts) -> None:
+        self.transients.add(msg.a, msg.b, msg.speeds, time.monotonic())
 
     def on_shutdown(self) -> None:
         self.log.info("handled %d pose(s): %s", self.counts["poses"], self.counts)

@@ -1,6 +1,6 @@
 """touch4d as a new user installs it: the wheel built from the sources (without a setuptools
 warning), installed into a fresh venv, and run from an empty directory — launch, render, tactile
-probe, record and replay find their defaults in the installed package, not in this checkout.
+probe, record, replay and study find their defaults in the installed package, not in this checkout.
 
 The venv borrows this environment's third-party packages (a .pth line) instead of downloading them
 again; touch4d itself comes only from the wheel, which the first test proves."""
@@ -112,6 +112,14 @@ def test_tactile_probe_and_render_from_an_empty_directory(wheel_env):
     image = np.asarray(Image.open(wheel_env["work"] / "frame.png"))[..., :3].astype(int)
     blue = np.all(np.abs(image - np.round(np.array([0.30, 0.65, 1.00]) * 255)) <= 2, axis=-1)  # the scene's colour
     assert blue.sum() > 50
+
+
+def test_the_papers_study_is_packaged_and_planned_from_an_empty_directory(wheel_env):
+    out = run(wheel_env, "touch4d", "study", "check", "config/studies/paper.yaml")
+    assert str(wheel_env["site"] / "touch4d/defaults/config/studies/paper.yaml") in out and "213 trials" in out
+    plan = json.loads(run(wheel_env, "touch4d", "study", "plan", "config/studies/paper.yaml", "--participant", "P01",
+                          "--json"))
+    assert plan["condition_order"] == ["visual", "touch", "visual+touch"] and len(plan["trials"]) == 213
 
 
 def test_launch_record_and_replay_from_an_empty_directory(wheel_env):

@@ -128,7 +128,7 @@ class Param:
             # aliases, billions of values once expanded) would take minutes here and then fail there.
             raise schema.Invalid(f"{self.describe()} of at most {MAX_VALUES} values in all", value)
         try:
-            value = msgspec.convert(value, self.annotation, strict=True)
+            value = msgspec.convert(schema.plain(value), self.annotation, strict=True)
         except msgspec.ValidationError:
             raise schema.Invalid(self.describe(), value) from None
         if self.choices and value not in self.choices:

@@ -13,6 +13,8 @@ Scene file (YAML)::
         position: [0, 0, 0, 1.5]
         rotation: [[xw, 30], [yz, 10]]  # world = R_yz(10) R_xw(30) local + position
         color: "#3399ff"              # [r, g, b] or [r, g, b, a] in 0..1, #rrggbb, #rrggbbaa or a CSS name
+        physics: {mass: 1.0}          # optional: rigid-body physics of the object (touch4d.physics.config)
+    physics: {gravity: [0, -9.81, 0, 0]}   # optional: the scene's (docs/physics.md)
 
 Every mistake is a ConfigError naming the file and the key (`objects[0].color`), never a traceback.
 """
@@ -30,6 +32,7 @@ from touch4d import errors, schema
 from touch4d.configfile import resolve_path
 from touch4d.schema import Finite, Positive
 
+from .physics_keys import ObjectPhysics, ScenePhysics
 from .polytope import GeometryError, Polytope, not_corners
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
@@ -231,6 +234,7 @@ class ObjectSpec(msgspec.Struct, forbid_unknown_fields=True):
     position: Row4 = (0.0, 0.0, 0.0, 0.0)
     rotation: list[Step] = []
     color: str | list[Finite] | None = None
+    physics: ObjectPhysics | None = None          # read by touch4d.physics (docs/physics.md)
 
 
 class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
@@ -241,6 +245,7 @@ class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
     eye_distance: Positive = DEFAULT_EYE_DISTANCE
     description: str = ""
     selected: int = 0
+    physics: ScenePhysics | None = None           # read by touch4d.physics (docs/physics.md)
 
 
 def load_scene(path) -> Scene:

@@ -69,6 +69,7 @@ class TactileEngine:
     def messages(self, pose: HandPose) -> tuple[TactileField | None, MotorCommand]:
         """The field (None when the pose cannot place the samples) and the motor command for a pose."""
         st = self.stimulus(pose)
+        self.last_stimulus = st                  # the hits, for contact transients (tactile.transient)
         source = pose.source_stamp or pose.stamp
         field = None
         if np.isfinite(st.positions).all():
