@@ -6,8 +6,8 @@ the broker in a process of its own (`touch4d bus broker`), twice:
 
 1. baseline: nothing else;
 2. stuck: plus a process subscribed to every topic that never reads, and 1,000 WebSocket
-   connections to the page server that never read (kept at 1,000: a connection the server closes
-   is opened again at once).
+   connections to the page server, opened at once, that never read (one the server accepted and
+   closes is opened again).
 
 For each run it prints the pose -> CAN duty frame latency (p50, p99) and the peak resident memory
 of the broker, the webxr node (its page server) and the motor node, sampled every 0.1 s, and the
@@ -67,7 +67,9 @@ class Peaks(threading.Thread):
 
 
 class IdlePages(threading.Thread):
-    """`count` WebSocket connections that never read; one the server closes is opened again."""
+    """`count` WebSocket connections opened at once that never read; one the server accepted and then
+    closed (no answer to its ping) is opened again. One it refused is not tried again: idle pages,
+    not a connection flood."""
 
     def __init__(self, url: str, count: int):
         super().__init__(daemon=True)
@@ -81,12 +83,15 @@ class IdlePages(threading.Thread):
     async def _main(self):
         async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
             held: list = []
+            missing = self.count
             while not self.stop_flag.is_set():
-                held = [ws for ws in held if not ws.closed and not ws._reader.exception()]
-                missing = self.count - len(held)
+                alive = [ws for ws in held if not ws.closed and not ws._reader.exception()]
+                missing += len(held) - len(alive)
+                held = alive
                 if missing > 0:
                     tries = await asyncio.gather(*[session.ws_connect(self.url, autoping=False)
                                                    for _ in range(missing)], return_exceptions=True)
+                    missing = 0
                     for t in tries:
                         if isinstance(t, BaseException):
                             self.refused += 1

@@ -50,7 +50,7 @@ def peek(payload: bytes) -> tuple[str, float, int] | None:
     A stamp that is not a finite number >= 0 reads 0.0, a seq that is not an integer >= 0 reads -1."""
     try:
         header = peek_fast(payload)  # a recorder's hot path: one C call
-    except msgspec.DecodeError:  # odd values, cut short, bytes after the map: looked at key by key
+    except (msgspec.DecodeError, UnicodeDecodeError):  # odd values, cut short, not UTF-8: key by key
         return peek_any(payload)
     return header.type, header.stamp, header.seq
 

@@ -161,3 +161,8 @@ class PhysicsNode(Node):
     def on_shutdown(self) -> None:
         self.log.info("%d steps (%.3f s simulated): %s", self.session.state.steps, self.session.state.time, self.counts)
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -290,3 +290,9 @@ class StudyNode(Node):
         if self.phase not in ("done", "paused"):
             self._set_phase("paused", "Stopped.")
         self.log.info("stopped with %d of %d trials done: %s", len(self.trials.rows), len(self.plan), self.counts)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

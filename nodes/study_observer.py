@@ -151,3 +151,9 @@ class StudyObserverNode(Node):
         self.counts["trials"] += 1
         self.trial = None
         self._away()
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

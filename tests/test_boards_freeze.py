@@ -178,3 +178,58 @@ def test_a_stall_between_deciding_the_duties_and_sending_them_sends_no_stale_com
 
 
 PROTOCOL = GloveProtocol(load_glove_can(None))
+
+
+def test_a_frozen_tactile_node_delivers_no_stale_command_when_it_wakes():
+    """SIGSTOP the tactile node for 2 s mid-touch: the motor node's watchdog turns every motor off
+    (no command for 100 ms); woken, the tactile node computes the poses that queued up, and the
+    motor node refuses those commands by their source_stamp (older than command_max_age_s)."""
+    import uuid
+
+    from touch4d.geometry.scene import Scene, SceneObject
+    from touch4d.messages import HandPose, SceneState
+    from touch4d.nodes.motors import MotorsNode
+
+    obj = SceneObject(name="cube", shape="tesseract", size=1.2, position=np.array([0, 0, 0, 1.6]))
+    scene = Scene(objects=[obj], projection="orthographic", revision=1).to_message()
+    touching = HandPose(position=np.array([-0.14, -0.18, 0.0]), orientation=np.array([0.0, 0.0, 0.0, 1.0]),
+                        valid=True)
+    with running_broker() as bus:
+        motors = MotorsNode(params={"channel": f"tactile-freeze-{uuid.uuid4().hex}", "emulate": True}, bus=bus,
+                            heartbeat=False)
+        tester = Node("tester", bus=bus, heartbeat=False)
+        try:
+            emu = motors.emulator
+            scene_pub = tester.create_publisher("scene/state", SceneState)
+            pose_pub = tester.create_publisher("hand/pose", HandPose)
+
+            def spin(seconds, publish=True, until=lambda: False):
+                end, samples = time.monotonic() + seconds, []
+                while time.monotonic() < end and not until():
+                    if publish:
+                        scene_pub.publish(scene)
+                        pose_pub.publish(HandPose(position=touching.position, orientation=touching.orientation,
+                                                  valid=True))
+                    motors.spin_once(0.005)
+                    tester.spin_once(0.0)
+                    samples.append((time.monotonic(), any(emu.motor_levels())))
+                return samples
+
+            with node_process("tactile", bus) as tactile:
+                spin(60, until=lambda: all(emu.motor_levels()))
+                assert all(emu.motor_levels()), tactile.text
+                os.kill(tactile.pid, signal.SIGSTOP)
+                frozen_at = time.monotonic()
+                try:
+                    during = spin(FREEZE_S - QUIET_S) + spin(QUIET_S, publish=False)
+                finally:
+                    os.kill(tactile.pid, signal.SIGCONT)
+                woke_at = time.monotonic()
+                after = spin(1.0, publish=False)
+            off_at = next(t for t, on in during if not on)
+            assert off_at - frozen_at <= 0.1 + 0.005 + WATCHDOG_SLACK_S   # the node's watchdog, one refresh tick
+            assert not any(on for t, on in after if t > woke_at), "a stale command turned a motor on"
+            assert motors.driver.errors["stale_command"] >= 1
+        finally:
+            tester.shutdown()
+            motors.shutdown()

@@ -116,6 +116,28 @@ def test_a_node_counts_every_payload_it_rejects_and_keeps_serving():
         assert 0 < accepted < len(sent)   # the strategy reaches both sides
 
 
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(sent=st.lists(payloads() | st.binary(max_size=12).map(lambda b: b"\x83\xa4type\xa3" + b), min_size=1,
+                     max_size=6))
+def test_the_recorder_keeps_any_payload_as_it_came_and_counts_what_is_not_a_message(tmp_path, sent):
+    from touch4d.log.reader import LogReader
+    from touch4d.log.writer import LogWriter
+
+    path = tmp_path / f"fuzz-{uuid.uuid4().hex}.mcap"
+    with LogWriter(path) as writer:
+        for i, payload in enumerate(sent):
+            writer.write("hand/pose", payload, 1_000_000_000 + i)
+        malformed = writer.malformed["hand/pose"]
+    assert [m.data for m in LogReader(path).messages()] == sent    # recorded as is, in order
+    not_messages = 0
+    for payload in sent:
+        try:
+            decode(payload)
+        except MessageError:
+            not_messages += 1
+    assert malformed <= not_messages      # only what is not a message map can be counted so
+
+
 # ---- a page's messages -----------------------------------------------------------------------------
 
 SOURCE = {"handedness": "right", "grip": [0.0, 1.2, -0.45, 0, 0, 0, 1], "trigger": 0.5, "buttons": ["a"],

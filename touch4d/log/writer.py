@@ -90,7 +90,7 @@ class LogWriter:
                 try:  # peek_header, inlined: this loop runs once per recorded message
                     header = decode(payload)
                     type_name, stamp, seq = header.type, header.stamp, header.seq
-                except msgspec.DecodeError:
+                except (msgspec.DecodeError, UnicodeDecodeError):   # msgspec's error for non-UTF-8 text
                     header = peek_any(payload)
                     if header is None:
                         self.malformed[topic] += 1
