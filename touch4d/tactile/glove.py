@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,10 @@ from touch4d.configfile import read_yaml, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.boards.config import DEFAULT_GLOVE, glove_can_from_mapping
 
+from .bones import BonesSection, read_bones
 from .hand import FINGER_NAMES, Hand
 
-TOP_KEYS = ("screen_edge_m", "grid", "hand", "alpha", "beta", "gamma", "motors", "can")
+TOP_KEYS = ("screen_edge_m", "grid", "hand", "alpha", "beta", "gamma", "motors", "can", "bones")
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,13 @@ class Glove:
     beta: float
     gamma: float
     can: dict = field(default_factory=dict)
+    bones: BonesSection = field(default_factory=BonesSection)   # where the finger joints lie (bones.py)
+
+    @cached_property
+    def skeleton(self):
+        """The samples and motors bound to the hand's bones (touch4d.tactile.skeleton), built once."""
+        from .skeleton import Skeleton
+        return Skeleton.of(self)
 
     @property
     def units_per_metre(self) -> float:
@@ -94,6 +103,7 @@ def glove_from_dict(data, path="<input>") -> Glove:
         motor_names=names, motor_positions=positions, motor_sample=motor_sample,
         motor_board=np.array(can_cfg.motor_board, dtype=int), motor_channel=np.array(can_cfg.motor_channel, dtype=int),
         alpha=alpha, beta=beta, gamma=gamma, can=dict(root.get("can") or {}),
+        bones=read_bones(root.get("bones"), path),
     )
 
 

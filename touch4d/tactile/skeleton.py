@@ -1,0 +1,327 @@
+"""The articulated glove: the glove's samples and motors bound to the hand's bones, placed by a joint set.
+
+The glove file's hand (a palm and five capsule fingers) is the hand at rest, fingers straight. It
+defines a rest joint set in WebXR's order and conventions (25 joints, each a pose whose -z runs
+along its bone toward the finger tip and whose +y points out of the back of the hand, and a
+radius): the wrist at the palm's proximal edge, each finger's joints along its capsule's axis at
+the fractions of the glove file's `bones:` section (touch4d.tactile.bones). Every sample and motor
+belongs to one bone (the palm, moved by the wrist joint; or the phalanx of the capsule it lies in)
+and keeps its coordinates in that bone's joint frame, so a tracked joint set places each of them
+where its bone is: one rigid transform per bone, applied to all of the bone's points at once.
+
+A joint set of straight fingers at a pose gives exactly the rigid hand at that pose (tested to
+1e-9), so the rigid hand is the special case. A finger bone may be longer or shorter than the
+glove's (another person's hand): its points are stretched along it to fit. A joint set of the
+other hand (WebXR's `handedness`) is the glove's hand mirrored: every point's x in its bone frame
+changes sign, so the glove's thumb samples stay on the thumb.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from touch4d.errors import Touch4dError
+from touch4d.tracking.webxr import JOINTS
+
+from .bones import BonesSection
+from .hand import FINGER_NAMES, Hand
+
+UNIT_TOLERANCE = 1e-3          # as touch4d.messages.hand: a tracker's float32 quaternion passes
+JOINT_INDEX = {name: i for i, name in enumerate(JOINTS)}
+WRIST = JOINT_INDEX["wrist"]
+
+
+def joint_prefix(finger: str) -> str:
+    """The WebXR joint-name prefix of a glove finger ('little' is WebXR's 'pinky')."""
+    return "thumb-" if finger == "thumb" else f"{'pinky' if finger == 'little' else finger}-finger-"
+
+
+def finger_joints(finger: str) -> tuple[str, str, str, str]:
+    """The four joints that bound a finger's three bones, base to tip (the thumb's start at its metacarpal)."""
+    p = joint_prefix(finger)
+    if finger == "thumb":
+        return (f"{p}metacarpal", f"{p}phalanx-proximal", f"{p}phalanx-distal", f"{p}tip")
+    return (f"{p}phalanx-proximal", f"{p}phalanx-intermediate", f"{p}phalanx-distal", f"{p}tip")
+
+
+BONE_PARTS = {"thumb": ("metacarpal", "proximal", "distal")}
+FINGER_PARTS = ("proximal", "intermediate", "distal")
+
+# (bone name, finger or None, joint at its base, joint at its end or None): the palm, then each
+# finger's three bones base to tip. Points bound to a bone move with the joint at its base.
+BONES: tuple[tuple[str, str | None, str, str | None], ...] = (("palm", None, "wrist", None),) + tuple(
+    (f"{f}-{part}", f, finger_joints(f)[k], finger_joints(f)[k + 1])
+    for f in FINGER_NAMES for k, part in enumerate(BONE_PARTS.get(f, FINGER_PARTS))
+)
+BONE_NAMES = tuple(b[0] for b in BONES)
+
+# Finger shapes for trackers without hand tracking (scripted, desktop): the most each joint bends
+# toward the palm at curl 1 (degrees, base to tip), and how far each finger turns away from the
+# middle finger at spread 1 (degrees about the back-of-hand axis; negative: toward the thumb).
+MAX_FLEX_DEG = {"thumb": (35.0, 55.0, 70.0), "index": (90.0, 100.0, 60.0), "middle": (90.0, 100.0, 60.0),
+                "ring": (90.0, 100.0, 60.0), "little": (90.0, 100.0, 60.0)}
+SPREAD_DEG = {"thumb": -25.0, "index": -10.0, "middle": 0.0, "ring": 8.0, "little": 18.0}
+
+# A finger the glove file leaves out still has joints (WebXR always has 25): the default glove's.
+_DEFAULT_FINGERS = {
+    "thumb": ((0.04, -0.02), 60.0, 0.074, 0.011), "index": ((0.035, 0.0475), 0.0, 0.075, 0.009),
+    "middle": ((0.015, 0.0475), 0.0, 0.083, 0.009), "ring": ((-0.005, 0.0475), 0.0, 0.077, 0.009),
+    "little": ((-0.025, 0.0475), 0.0, 0.062, 0.008),
+}
+_METACARPAL_AT = 0.15    # a finger's metacarpal joint: this fraction of the way from the wrist to its knuckle
+
+
+class JointsError(Touch4dError, ValueError):
+    """A joint set that cannot place the hand: names the field (names, positions, ...) and the problem."""
+
+
+@dataclass(frozen=True)
+class HandShape:
+    """How the fingers bend: `curl` per finger 0 (straight) .. 1 (fist), `spread` 0 (together) .. 1."""
+
+    curl: dict = field(default_factory=dict)     # finger name -> 0..1 (missing: 0)
+    spread: float = 0.0
+
+    def of(self, finger: str) -> float:
+        return float(self.curl.get(finger, 0.0))
+
+
+@dataclass(frozen=True)
+class JointSet:
+    """A hand's joints in screen coordinates (WebXR order and axes; positions and radii in screen units)."""
+
+    names: tuple[str, ...]
+    positions: np.ndarray       # (25, 3)
+    orientations: np.ndarray    # (25, 4) unit quaternions x, y, z, w, joint -> screen
+    radii: np.ndarray           # (25,)
+    handedness: str
+
+    def to_json(self) -> dict:
+        return {"handedness": self.handedness, "names": list(self.names), "positions": self.positions.tolist(),
+                "orientations": self.orientations.tolist(), "radii": self.radii.tolist()}
+
+
+def quaternion_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4) x, y, z, w (vectorised closed form)."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, xw, yw, zw = x * y, x * z, y * z, x * w, y * w, z * w
+    return np.stack([1 - 2 * (yy + zz), 2 * (xy - zw), 2 * (xz + yw),
+                     2 * (xy + zw), 1 - 2 * (xx + zz), 2 * (yz - xw),
+                     2 * (xz - yw), 2 * (yz + xw), 1 - 2 * (xx + yy)], axis=-1).reshape(-1, 3, 3)
+
+
+def _joint_frame(direction: np.ndarray) -> np.ndarray:
+    """The rest frame (columns x, y, z in the hand frame) of a joint whose bone runs along `direction`
+    in the palm's plane: -z along the bone, +y out of the back of the hand (+z of the hand frame)."""
+    z = -direction / np.linalg.norm(direction)
+    y = np.array([0.0, 0.0, 1.0]) - z[2] * z
+    y /= np.linalg.norm(y)
+    return np.column_stack([np.cross(y, z), y, z])
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+class Skeleton:
+    """The glove's rest joint set (hand frame, metres) and its samples and motors bound to bones."""
+
+    def __init__(self, hand: Hand, bones: BonesSection, samples: np.ndarray, motor_positions: np.ndarray,
+                 motor_sample: np.ndarray):
+        fingers = {f.name: f for f in hand.fingers}
+        thumb = fingers.get("thumb")
+        # The glove's hand is a left hand when its thumb lies at +x (x = y cross z, y along the
+        # fingers, z out of the back), as WebXR's joint frames of a left hand have it.
+        self.handedness = "left" if thumb is None or thumb.tip[0] >= 0 else "right"
+        wrist = np.array([*(bones.wrist if bones.wrist is not None else (0.0, -hand.palm_half[1])), 0.0])
+
+        positions = np.zeros((len(JOINTS), 3))
+        frames = np.zeros((len(JOINTS), 3, 3))
+        radii = np.zeros(len(JOINTS))
+        positions[WRIST], radii[WRIST] = wrist, hand.palm_half[2]
+        frames[WRIST] = _joint_frame(np.array([0.0, 1.0, 0.0]))
+        self.fractions = {}
+        self.finger_radius = {}
+        for name in FINGER_NAMES:
+            if name in fingers:
+                f = fingers[name]
+                base, tip, radius = f.base, f.tip, f.radius
+            else:
+                (bx, by), angle, length, radius = _DEFAULT_FINGERS[name]
+                base = np.array([bx, by, 0.0])
+                tip = base + length * np.array([math.sin(math.radians(angle)), math.cos(math.radians(angle)), 0.0])
+            fractions = np.asarray(bones.fractions(name))
+            self.fractions[name] = fractions
+            self.finger_radius[name] = radius
+            frame = _joint_frame(tip - base)
+            at = np.r_[0.0, np.cumsum(fractions)]
+            at[-1] = 1.0
+            for k, joint in enumerate(finger_joints(name)):
+                j = JOINT_INDEX[joint]
+                positions[j] = base + at[k] * (tip - base)
+                frames[j], radii[j] = frame, radius
+            if name != "thumb":
+                j = JOINT_INDEX[f"{joint_prefix(name)}metacarpal"]
+                start = np.array([base[0], wrist[1] + _METACARPAL_AT * (base[1] - wrist[1]), 0.0])
+                positions[j], frames[j], radii[j] = start, _joint_frame(base - start), radius
+        self.rest_positions = positions
+        self.rest_frames = frames
+        self.rest_orientations = Rotation.from_matrix(frames).as_quat(canonical=True)
+        self.radii = radii
+
+        self.bone_joint = np.array([JOINT_INDEX[b[2]] for b in BONES])
+        self.bone_end = np.array([JOINT_INDEX[b[3]] if b[3] else -1 for b in BONES])
+        ends = self.bone_end >= 0
+        self.finger_bones = np.flatnonzero(ends)
+        self.rest_lengths = np.linalg.norm(positions[self.bone_end[ends]] - positions[self.bone_joint[ends]], axis=1)
+
+        self.sample_bone = self.bone_of(hand, samples)
+        self.sample_local = self.local(samples, self.sample_bone)
+        self.motor_bone = self.sample_bone[np.asarray(motor_sample, dtype=int)]
+        self.motor_local = self.local(motor_positions, self.motor_bone)
+        self._names_cache: tuple[list, np.ndarray | None] = ([], None)
+
+    @classmethod
+    def of(cls, glove) -> "Skeleton":
+        return cls(glove.hand, glove.bones, glove.samples, glove.motor_positions, glove.motor_sample)
+
+    # ---- binding ------------------------------------------------------------------------------------
+    def bone_of(self, hand: Hand, points: np.ndarray) -> np.ndarray:
+        """The bone (index into BONES) of each hand-frame point (N, 3): the palm for a point in the
+        palm, else the phalanx of the finger capsule nearest to it, by where it lies along the axis."""
+        points = np.asarray(points, dtype=float)
+        bone = np.zeros(len(points), dtype=int)
+        best = np.full(len(points), np.inf)
+        palm = hand.in_palm(points)
+        for f in hand.fingers:
+            axis = f.tip - f.base
+            t = np.clip((points - f.base) @ axis / (axis @ axis), 0.0, 1.0)
+            gap = np.linalg.norm(points - (f.base + t[:, None] * axis), axis=1) - f.radius
+            closer = ~palm & (gap < best)
+            part = np.searchsorted(np.cumsum(self.fractions[f.name])[:-1], t, side="right")
+            first = BONE_NAMES.index(f"{f.name}-{BONE_PARTS.get(f.name, FINGER_PARTS)[0]}")
+            bone = np.where(closer, first + part, bone)
+            best = np.where(closer, gap, best)
+        return bone
+
+    def local(self, points: np.ndarray, bone: np.ndarray) -> np.ndarray:
+        """Hand-frame points (N, 3), metres, in the rest frames of their bones' base joints."""
+        j = self.bone_joint[bone]
+        return np.einsum("nji,nj->ni", self.rest_frames[j], np.asarray(points, float) - self.rest_positions[j])
+
+    # ---- joint sets ---------------------------------------------------------------------------------
+    def joint_set(self, position, orientation, units_per_metre: float, shape: HandShape | None = None) -> JointSet:
+        """The glove's hand at a pose (screen position, unit quaternion hand -> screen), its fingers
+        bent as `shape` says (default straight), as the joint set a hand tracker would publish."""
+        positions, frames = self.shaped(shape) if shape is not None else (self.rest_positions, self.rest_frames)
+        r = Rotation.from_quat(np.asarray(orientation, dtype=float))
+        world = r.as_matrix()
+        out_pos = np.asarray(position, dtype=float) + units_per_metre * positions @ world.T
+        out_q = (r * Rotation.from_matrix(frames)).as_quat(canonical=True)
+        return JointSet(tuple(JOINTS), out_pos, out_q, self.radii * units_per_metre, self.handedness)
+
+    def shaped(self, shape: HandShape) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions (25, 3) and frames (25, 3, 3), hand frame, metres, with the fingers bent:
+        each joint of a finger turns its bone toward the palm (about the joint's x axis), the
+        finger's base turns sideways for the spread (about its y axis)."""
+        positions, frames = self.rest_positions.copy(), self.rest_frames.copy()
+        for name in FINGER_NAMES:
+            chain = [JOINT_INDEX[j] for j in finger_joints(name)]
+            curl = min(max(shape.of(name), 0.0), 1.0)
+            spread = min(max(float(shape.spread), 0.0), 1.0) * SPREAD_DEG[name]
+            frame = frames[chain[0]] @ _rot_y(spread)
+            point = positions[chain[0]]
+            lengths = self.fractions[name] * np.linalg.norm(positions[chain[-1]] - positions[chain[0]])
+            for k in range(3):
+                frame = frame @ _rot_x(-curl * MAX_FLEX_DEG[name][k])     # -z toward -y: toward the palm
+                positions[chain[k]], frames[chain[k]] = point, frame
+                point = point + frame @ np.array([0.0, 0.0, -lengths[k]])
+            positions[chain[3]], frames[chain[3]] = point, frame
+        return positions, frames
+
+    # ---- placing the glove --------------------------------------------------------------------------
+    def joint_indices(self, names) -> np.ndarray | None:
+        """Where each of WebXR's 25 joints is in a message's `names` (None: already in WebXR's order)."""
+        if len(names) == len(JOINTS) and names == self._names_cache[0]:
+            return self._names_cache[1]
+        if list(names) == list(JOINTS):
+            index = None
+        else:
+            where = {n: i for i, n in enumerate(names)}
+            missing = [n for n in JOINTS if n not in where]
+            if missing:
+                raise JointsError(f"names: expected WebXR's 25 joints, missing {', '.join(missing[:3])}"
+                                  + (f" and {len(missing) - 3} more" if len(missing) > 3 else ""))
+            index = np.array([where[n] for n in JOINTS])
+        self._names_cache = (list(names), index)
+        return index
+
+    def transforms(self, names, positions, orientations, handedness: str, units_per_metre: float):
+        """Per bone the linear map (B, 3, 3) and translation (B, 3) taking its points' local
+        coordinates (metres) to the screen; raises JointsError for joints that cannot be used."""
+        index = self.joint_indices(names)
+        p = np.asarray(positions, dtype=float)
+        q = np.asarray(orientations, dtype=float)
+        if p.shape != (len(names), 3) or q.shape != (len(names), 4):
+            raise JointsError(f"positions, orientations: expected ({len(names)}, 3) and ({len(names)}, 4), "
+                              f"got {p.shape} and {q.shape}")
+        if index is not None:
+            p, q = p[index], q[index]
+        j = self.bone_joint
+        t, q = p[j], q[j]
+        norms = np.sqrt(np.einsum("ij,ij->i", q, q))
+        if not (np.isfinite(t).all() and np.all(np.abs(norms - 1.0) <= UNIT_TOLERANCE)):
+            bad = np.flatnonzero(~np.isfinite(t).all(axis=1) | ~(np.abs(norms - 1.0) <= UNIT_TOLERANCE))
+            raise JointsError(f"joint {JOINTS[j[bad[0]]]}: expected a finite position and a unit quaternion, got "
+                              f"{p[j[bad[0]]].tolist()} and {q[bad[0]].tolist()}")
+        m = quaternion_matrices(q / norms[:, None]) * units_per_metre
+        if handedness != self.handedness:
+            m[:, :, 0] *= -1.0          # the other hand: the glove mirrored in each bone's frame
+        fb = self.finger_bones
+        ends = p[self.bone_end[fb]] - t[fb]
+        stretch = np.sqrt(np.einsum("ij,ij->i", ends, ends)) / (units_per_metre * self.rest_lengths)
+        if not np.isfinite(stretch).all():
+            raise JointsError("positions: expected finite joint positions at every finger's bones")
+        m[fb, :, 2] *= stretch[:, None]   # a longer or shorter finger: its points stretched along the bone
+        return m, t
+
+    def place(self, which: str, m: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The samples ("samples") or motors ("motors") in the screen, from `transforms`."""
+        bone, local = (self.sample_bone, self.sample_local) if which == "samples" else (self.motor_bone, self.motor_local)
+        return t[bone] + np.einsum("nij,nj->ni", m[bone], local)
+
+    def outline(self, joints_positions: np.ndarray) -> np.ndarray:
+        """Segments (S, 2, 3) drawing a hand from its joints (WebXR order): each finger's chain from
+        its metacarpal to its tip, the wrist to each metacarpal, and across the knuckles."""
+        return outline_segments(joints_positions)
+
+
+def _outline_pairs() -> np.ndarray:
+    pairs = []
+    for name in FINGER_NAMES:
+        p = joint_prefix(name)
+        chain = [f"{p}metacarpal", *finger_joints(name)[1:]] if name == "thumb" else [f"{p}metacarpal", *finger_joints(name)]
+        chain = [JOINT_INDEX[c] for c in chain]
+        pairs.append((WRIST, chain[0]))
+        pairs += list(zip(chain, chain[1:]))
+    knuckles = [JOINT_INDEX[finger_joints(n)[0]] for n in FINGER_NAMES[1:]]
+    pairs += list(zip(knuckles, knuckles[1:]))
+    return np.array(pairs)
+
+
+OUTLINE_PAIRS = _outline_pairs()
+
+
+def outline_segments(joint_positions: np.ndarray) -> np.ndarray:
+    """Segments (S, 2, 3) between joints (WebXR order) that draw the hand's skeleton."""
+    return np.asarray(joint_positions)[OUTLINE_PAIRS]
