@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from touch4d.errors import Touch4dError
+from touch4d.messages import HandJoints
 from touch4d.tracking.webxr import JOINTS
 
 from .bones import BonesSection
@@ -98,6 +99,12 @@ class JointSet:
     orientations: np.ndarray    # (25, 4) unit quaternions x, y, z, w, joint -> screen
     radii: np.ndarray           # (25,)
     handedness: str
+
+    def message(self, stamp: float = 0.0) -> HandJoints:
+        """As the `hand/joints` message a tracker publishes (stamped `stamp`; 0: at publishing)."""
+        return HandJoints(handedness=self.handedness, names=list(self.names), positions=self.positions,
+                          orientations=self.orientations, radii=self.radii, valid=True, stamp=stamp,
+                          source_stamp=stamp)
 
     def to_json(self) -> dict:
         return {"handedness": self.handedness, "names": list(self.names), "positions": self.positions.tolist(),
