@@ -18,6 +18,7 @@ from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, Tac
 from touch4d.tactile.engine import PROJECTION_CHOICES, HandSource, TactileEngine
 from touch4d.tactile.glove import check_alpha, check_beta, load_glove
 from touch4d.tactile.pose import PoseError
+from touch4d.tactile.skeleton import JOINTS_TIMEOUT_S
 
 
 class TactileNode(Node):
@@ -30,7 +31,7 @@ class TactileNode(Node):
         "beta": Param(None, "override the glove's beta (eq. 2)", type=float),
         "projection": Param("scene", "follow the scene's projection, or force one", choices=PROJECTION_CHOICES),
         "joints": Param(True, "follow the fingers: hand/joints drives while fresh (else the rigid hand/pose)"),
-        "joints_timeout_s": Param(0.05, "joint sets older than this against the poses are stale: the rigid "
+        "joints_timeout_s": Param(JOINTS_TIMEOUT_S, "joint sets older than this against the poses are stale: the rigid "
                                   "hand takes over", unit="s", above=0, max=1.0),
     }
 

@@ -16,7 +16,7 @@ from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, Tac
 
 from .glove import Glove
 from .pose import PoseError, place
-from .skeleton import JointsError
+from .skeleton import JOINTS_TIMEOUT_S, JointsError
 from .stimulus import Stimulus, compute_joint_stimulus, compute_stimulus, no_stimulus
 
 PROJECTION_CHOICES = ("scene", "orthographic", "perspective")
@@ -109,7 +109,7 @@ class HandSource:
     timeout plus one pose period.
     """
 
-    def __init__(self, engine: TactileEngine, timeout_s: float = 0.05, counts: dict | None = None):
+    def __init__(self, engine: TactileEngine, timeout_s: float = JOINTS_TIMEOUT_S, counts: dict | None = None):
         self.engine = engine
         self.timeout_s = float(timeout_s)
         self.using = "pose"

@@ -332,3 +332,54 @@ OUTLINE_PAIRS = _outline_pairs()
 def outline_segments(joint_positions: np.ndarray) -> np.ndarray:
     """Segments (S, 2, 3) between joints (WebXR order) that draw the hand's skeleton."""
     return np.asarray(joint_positions)[OUTLINE_PAIRS]
+
+
+JOINTS_TIMEOUT_S = 0.05   # joint sets older than this against the poses are stale (the tactile node's default)
+
+
+@dataclass(frozen=True)
+class PlacedHand:
+    """The hand as a view draws it: samples and outline in the screen, from joints or a pose."""
+
+    source: str                  # "joints" or "pose"
+    samples: np.ndarray          # (N, 3) screen
+    outline: np.ndarray          # (S, 2, 3) segments, screen
+    joints: np.ndarray | None    # (25, 3) the joints' positions (None for a pose)
+    stamp: float
+
+
+class ViewHand:
+    """Which hand the views draw, by the tactile node's rule: the latest joint set while valid and
+    no older than `timeout_s` against the latest pose, else the rigid pose. Bad joints are dropped
+    (`on_joints` raises JointsError; the pose is drawn)."""
+
+    def __init__(self, glove, timeout_s: float = JOINTS_TIMEOUT_S):
+        self.glove = glove
+        self.timeout_s = timeout_s
+        self.joints: PlacedHand | None = None
+        self.wrist_orientation: np.ndarray | None = None
+        self.pose_stamp = -np.inf
+
+    def on_joints(self, msg) -> PlacedHand | None:
+        """Adopt a HandJoints message; the placed hand, or None when it is not valid."""
+        self.joints = None
+        if not msg.valid:
+            return None
+        g = self.glove
+        m, t = g.skeleton.transforms(msg.names, msg.positions, msg.orientations, msg.handedness, g.units_per_metre)
+        index = g.skeleton.joint_indices(msg.names)
+        joints = np.asarray(msg.positions, float) if index is None else np.asarray(msg.positions, float)[index]
+        self.joints = PlacedHand("joints", g.skeleton.place("samples", m, t), outline_segments(joints), joints,
+                                 float(msg.stamp))
+        q = np.asarray(msg.orientations, float)[0 if index is None else index[WRIST]]
+        self.wrist_orientation = q / np.linalg.norm(q)
+        return self.joints
+
+    def on_pose(self, stamp: float) -> None:
+        self.pose_stamp = float(stamp)
+
+    def current(self) -> PlacedHand | None:
+        """The joints' hand when it drives, else None (draw the pose)."""
+        if self.joints is not None and self.pose_stamp <= self.joints.stamp + self.timeout_s:
+            return self.joints
+        return None
