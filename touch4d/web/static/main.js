@@ -109,7 +109,8 @@ function showStatus() {
   if (state.error) return;
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
-  const hand = f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
+  const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
+  const hand = f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
                                            : 'touch4d: connecting to the node…';
 }
