@@ -7,6 +7,10 @@ Targets: under 0.5 ms per pose against the 120-cell (a 1 kHz tactile loop); the 
 fast as the plain expression for small objects (5-cell, tesseract) and within 1.2x of it for large
 ones (120-cell, 20 objects), i.e. a speed-up >= 1.0 and >= 0.83.
 
+Then the articulated hand: `compute_joint_stimulus` for a WebXR joint set (25 joints, the fingers
+bent, every sample placed by its bone, joints checked) beside `compute_stimulus` for the rigid
+pose, on the same poses and scenes; target: the joints within 1.2x of the rigid hand.
+
     .venv/bin/python bench/bench_tactile.py [--calls 2000]
 """
 from __future__ import annotations
@@ -21,9 +25,11 @@ from touch4d.geometry.rotation import rotation_from_list
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import quaternion_matrix
-from touch4d.tactile.stimulus import compute_stimulus
+from touch4d.tactile.skeleton import HandShape
+from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 
 TARGET_MS = 0.5
+JOINTS_TARGET = 1.2
 
 
 def one_object(shape: str) -> Scene:
@@ -126,7 +132,39 @@ def main(argv=None) -> int:
     verdict = "meets" if result_120 < TARGET_MS else "MISSES"
     print(f"120-cell: {result_120:.4f} ms CPU per pose, {verdict} the {TARGET_MS} ms target "
           f"({TARGET_MS / result_120:.1f}x headroom)")
+    joints_vs_rigid(glove, positions, quats)
     return 0
+
+
+def joints_vs_rigid(glove, positions, quats) -> None:
+    """The articulated hand (a joint set per pose, fingers bent) beside the rigid hand, same poses."""
+    rng = np.random.default_rng(7)
+    upm = glove.units_per_metre
+    sets = []
+    for p, q in zip(positions, quats):
+        shape = HandShape(curl={f: float(c) for f, c in zip(("thumb", "index", "middle", "ring", "little"),
+                                                            rng.uniform(0, 1, 5))}, spread=float(rng.uniform()))
+        js = glove.skeleton.joint_set(p, q, upm, shape)
+        sets.append((list(js.names), js.positions, js.orientations, js.handedness))
+    print("\narticulated hand: a WebXR joint set (25 joints, fingers bent) beside the rigid pose, ms per call")
+    print(f"{'scene':<12} {'joints ms':>18} {'rigid ms':>18} {'ratio':>7}  target")
+    for label, scene in (("tesseract", one_object("tesseract")), ("120-cell", one_object("120-cell")),
+                         ("20 objects", twenty_objects())):
+        caster = scene.ray_caster()
+        index = iter(range(10 ** 9))
+
+        def jointed(p, q):
+            names, jp, jq, hand = sets[next(index) % len(sets)]
+            return compute_joint_stimulus(glove, caster, names, jp, jq, hand).V
+
+        def rigid(p, q):
+            return compute_stimulus(glove, caster, p, q).V
+
+        ms_j, wall_j = per_call_ms(jointed, positions, quats)
+        ms_r, wall_r = per_call_ms(rigid, positions, quats)
+        ratio = ms_j / ms_r
+        print(f"{label:<12} {ms_j:>8.4f} ({wall_j:.4f}) {ms_r:>8.4f} ({wall_r:.4f}) {ratio:>6.2f}x  <= "
+              f"{JOINTS_TARGET:.1f}x {'met' if ratio <= JOINTS_TARGET else 'MISSED'}")
 
 
 if __name__ == "__main__":

@@ -39,11 +39,11 @@ def test_foxglove_draws_the_hand_where_its_joints_put_the_samples():
     update = protobuf_class(client.channel("foxglove/scene")).FromString(client.messages["foxglove/scene"][-1])
     hand = {e.id: e for e in update.entities}["hand"]
     centres = np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in hand.spheres])
-    placed = GLOVE.skeleton.place("samples", *GLOVE.skeleton.transforms(joints.names, joints.positions,
+    placed = GLOVE.skeleton.place("samples", GLOVE.skeleton.transforms(joints.names, joints.positions,
                                                                         joints.orientations, "left", upm))
     np.testing.assert_allclose(centres, placed, atol=1e-9)
     rigid = GLOVE.skeleton.joint_set(POSITION, QUAT, upm)
-    assert np.abs(centres - GLOVE.skeleton.place("samples", *GLOVE.skeleton.transforms(
+    assert np.abs(centres - GLOVE.skeleton.place("samples", GLOVE.skeleton.transforms(
         rigid.names, rigid.positions, rigid.orientations, "left", upm))).max() > 0.1       # fingers bent
     ends = np.array([[p.x, p.y, p.z] for p in hand.lines[0].points]).reshape(-1, 2, 3)
     np.testing.assert_allclose(ends, outline_segments(joints.positions), atol=1e-9)

@@ -114,7 +114,7 @@ def test_each_motor_moves_with_its_bone(glove):
     bent = sk.joint_set([0.2, -0.1, 0.3], q, UPM, shape)
 
     def motors(js):
-        return sk.place("motors", *sk.transforms(js.names, js.positions, js.orientations, js.handedness, UPM))
+        return sk.place("motors", sk.transforms(js.names, js.positions, js.orientations, js.handedness, UPM))
 
     m0, m1 = motors(rest), motors(bent)
     rigid = Rotation.from_quat(q).apply(m0) + [0.2, -0.1, 0.3]      # where the straight hand would put them
@@ -145,8 +145,8 @@ def test_the_other_hand_is_the_glove_mirrored(glove):
     frames = Rotation.from_quat(left.orientations).as_matrix()
     right_frames = mirror @ frames @ np.diag([-1.0, 1.0, 1.0])          # columns -M x, M y, M z
     right_q = Rotation.from_matrix(right_frames).as_quat()
-    placed_left = sk.place("samples", *sk.transforms(left.names, left.positions, left.orientations, "left", UPM))
-    placed_right = sk.place("samples", *sk.transforms(left.names, left.positions @ mirror, right_q, "right", UPM))
+    placed_left = sk.place("samples", sk.transforms(left.names, left.positions, left.orientations, "left", UPM))
+    placed_right = sk.place("samples", sk.transforms(left.names, left.positions @ mirror, right_q, "right", UPM))
     np.testing.assert_allclose(placed_right, placed_left @ mirror, atol=1e-12)
 
 
@@ -156,8 +156,8 @@ def test_a_longer_finger_stretches_its_samples_along_it(glove):
     longer = rest.positions.copy()
     tip = JOINTS.index("index-finger-tip")
     longer[tip] += [0.0, 0.01 * UPM, 0.0]      # the distal phalanx 1 cm longer
-    a = sk.place("samples", *sk.transforms(rest.names, rest.positions, rest.orientations, "left", UPM))
-    b = sk.place("samples", *sk.transforms(rest.names, longer, rest.orientations, "left", UPM))
+    a = sk.place("samples", sk.transforms(rest.names, rest.positions, rest.orientations, "left", UPM))
+    b = sk.place("samples", sk.transforms(rest.names, longer, rest.orientations, "left", UPM))
     distal = sk.sample_bone == BONE_NAMES.index("index-distal")
     base = rest.positions[JOINTS.index("index-finger-phalanx-distal"), 1]
     length = rest.positions[tip, 1] - base
@@ -180,8 +180,8 @@ def test_joint_sets_that_cannot_place_the_hand_name_the_problem(glove):
         sk.transforms(js.names, nan, js.orientations, "left", UPM)
     # another order of the same joints places the same samples
     order = np.random.default_rng(1).permutation(25)
-    a = sk.place("samples", *sk.transforms(js.names, js.positions, js.orientations, "left", UPM))
-    b = sk.place("samples", *sk.transforms([JOINTS[i] for i in order], js.positions[order], js.orientations[order],
+    a = sk.place("samples", sk.transforms(js.names, js.positions, js.orientations, "left", UPM))
+    b = sk.place("samples", sk.transforms([JOINTS[i] for i in order], js.positions[order], js.orientations[order],
                                            "left", UPM))
     np.testing.assert_allclose(a, b, atol=1e-15)
 

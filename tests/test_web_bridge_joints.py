@@ -63,7 +63,7 @@ def test_pages_get_the_articulated_hand_while_its_joints_drive():
     header, arrays = unpack_frame(rig.bridge.frame())
     assert header["hand_source"] == "joints"
     samples = arrays["hand_samples"].reshape(-1, 3)
-    placed = GLOVE.skeleton.place("samples", *GLOVE.skeleton.transforms(joints.names, joints.positions,
+    placed = GLOVE.skeleton.place("samples", GLOVE.skeleton.transforms(joints.names, joints.positions,
                                                                         joints.orientations, "left", upm))
     np.testing.assert_allclose(samples, placed, atol=1e-6)
     # the outline the page draws from the joints and the setup's pairs is the skeleton's

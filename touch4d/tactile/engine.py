@@ -77,9 +77,9 @@ class TactileEngine:
         joints that cannot place the hand."""
         g = self.glove
         if self.caster is None:
-            m, t = g.skeleton.transforms(joints.names, joints.positions, joints.orientations, joints.handedness,
-                                         g.units_per_metre)
-            return no_stimulus(g, g.skeleton.place("samples", m, t))
+            m = g.skeleton.transforms(joints.names, joints.positions, joints.orientations, joints.handedness,
+                                      g.units_per_metre)
+            return no_stimulus(g, g.skeleton.place("samples", m))
         return compute_joint_stimulus(g, self.caster, joints.names, joints.positions, joints.orientations,
                                       joints.handedness)
 

@@ -31,6 +31,7 @@ from .bones import BonesSection
 from .hand import FINGER_NAMES, Hand
 
 UNIT_TOLERANCE = 1e-3          # as touch4d.messages.hand: a tracker's float32 quaternion passes
+_N2_LOW, _N2_HIGH = (1.0 - UNIT_TOLERANCE) ** 2, (1.0 + UNIT_TOLERANCE) ** 2
 JOINT_INDEX = {name: i for i, name in enumerate(JOINTS)}
 WRIST = JOINT_INDEX["wrist"]
 
@@ -51,9 +52,10 @@ def finger_joints(finger: str) -> tuple[str, str, str, str]:
 BONE_PARTS = {"thumb": ("metacarpal", "proximal", "distal")}
 FINGER_PARTS = ("proximal", "intermediate", "distal")
 
-# (bone name, finger or None, joint at its base, joint at its end or None): the palm, then each
-# finger's three bones base to tip. Points bound to a bone move with the joint at its base.
-BONES: tuple[tuple[str, str | None, str, str | None], ...] = (("palm", None, "wrist", None),) + tuple(
+# (bone name, finger or None, joint at its base, joint at its end): the palm (from the wrist to the
+# middle finger's knuckle), then each finger's three bones base to tip. Points bound to a bone move
+# with the joint at its base, stretched along the bone as far as its end moved from its rest length.
+BONES: tuple[tuple[str, str, str | None, str], ...] = (("palm", None, "wrist", "middle-finger-phalanx-proximal"),) + tuple(
     (f"{f}-{part}", f, finger_joints(f)[k], finger_joints(f)[k + 1])
     for f in FINGER_NAMES for k, part in enumerate(BONE_PARTS.get(f, FINGER_PARTS))
 )
@@ -111,14 +113,36 @@ class JointSet:
                 "orientations": self.orientations.tolist(), "radii": self.radii.tolist()}
 
 
+def _quadratic_form() -> np.ndarray:
+    """C (16, 9) with R.ravel() = (q outer q).ravel() @ C for a unit quaternion q = (x, y, z, w): each
+    entry of the rotation matrix is a quadratic form of q (the 1 of the diagonal is x2+y2+z2+w2)."""
+    c = np.zeros((4, 4, 3, 3))
+    x, y, z, w = range(4)
+    for (i, j), terms in {
+        (0, 0): [(w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)], (1, 1): [(w, w, 1), (y, y, 1), (x, x, -1), (z, z, -1)],
+        (2, 2): [(w, w, 1), (z, z, 1), (x, x, -1), (y, y, -1)],
+        (0, 1): [(x, y, 2), (z, w, -2)], (1, 0): [(x, y, 2), (z, w, 2)],
+        (0, 2): [(x, z, 2), (y, w, 2)], (2, 0): [(x, z, 2), (y, w, -2)],
+        (1, 2): [(y, z, 2), (x, w, -2)], (2, 1): [(y, z, 2), (x, w, 2)],
+    }.items():
+        for a, b, k in terms:
+            c[a, b, i, j] += k
+    return c.reshape(16, 9)
+
+
+_QUADRATIC = _quadratic_form()
+# The same as the rows of a bone's (3, 4) map, [R | t] row by row with zeros where t goes, and a
+# 13th column, the squared norm x2+y2+z2+w2: one product gives every rotation and the check.
+_MAP_COLUMNS = np.zeros((16, 13))
+_MAP_COLUMNS[:, [0, 1, 2, 4, 5, 6, 8, 9, 10]] = _QUADRATIC
+_MAP_COLUMNS[:, 12] = np.eye(4).ravel()
+_OUTER_A, _OUTER_B = np.repeat(np.arange(4), 4), np.tile(np.arange(4), 4)   # q_a q_b, a * 4 + b
+_ONES3 = np.ones(3)
+
+
 def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4) x, y, z, w (vectorised closed form)."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, xw, yw, zw = x * y, x * z, y * z, x * w, y * w, z * w
-    return np.stack([1 - 2 * (yy + zz), 2 * (xy - zw), 2 * (xz + yw),
-                     2 * (xy + zw), 1 - 2 * (xx + zz), 2 * (yz - xw),
-                     2 * (xz - yw), 2 * (yz + xw), 1 - 2 * (xx + yy)], axis=-1).reshape(-1, 3, 3)
+    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4) x, y, z, w, in two array operations."""
+    return ((q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ _QUADRATIC).reshape(-1, 3, 3)
 
 
 def _joint_frame(direction: np.ndarray) -> np.ndarray:
@@ -187,15 +211,17 @@ class Skeleton:
         self.radii = radii
 
         self.bone_joint = np.array([JOINT_INDEX[b[2]] for b in BONES])
-        self.bone_end = np.array([JOINT_INDEX[b[3]] if b[3] else -1 for b in BONES])
-        ends = self.bone_end >= 0
-        self.finger_bones = np.flatnonzero(ends)
-        self.rest_lengths = np.linalg.norm(positions[self.bone_end[ends]] - positions[self.bone_joint[ends]], axis=1)
+        self.bone_end = np.array([JOINT_INDEX[b[3]] for b in BONES])
+        self._gather = np.r_[self.bone_joint, self.bone_end]      # one gather: the bases, then the ends
+        self._scales: dict = {}
+        self.rest_lengths = np.linalg.norm(positions[self.bone_end] - positions[self.bone_joint], axis=1)
 
         self.sample_bone = self.bone_of(hand, samples)
         self.sample_local = self.local(samples, self.sample_bone)
         self.motor_bone = self.sample_bone[np.asarray(motor_sample, dtype=int)]
         self.motor_local = self.local(motor_positions, self.motor_bone)
+        self._sample_aug, self._sample_pick = self._layout(self.sample_local, self.sample_bone)
+        self._motor_aug, self._motor_pick = self._layout(self.motor_local, self.motor_bone)
         self._names_cache: tuple[list, np.ndarray | None] = ([], None)
 
     @classmethod
@@ -220,6 +246,15 @@ class Skeleton:
             bone = np.where(closer, first + part, bone)
             best = np.where(closer, gap, best)
         return bone
+
+    @staticmethod
+    def _layout(local: np.ndarray, bone: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Local coordinates as columns with a 1 below (4, N), and where each point's screen
+        coordinates lie in the product (3 B, N) of the bones' maps with them, flattened (N, 3)."""
+        n = len(local)
+        aug = np.ascontiguousarray(np.r_[np.asarray(local, float).T, np.ones((1, n))])
+        rows = 3 * np.asarray(bone)[:, None] + np.arange(3)
+        return aug, rows * n + np.arange(n)[:, None]
 
     def local(self, points: np.ndarray, bone: np.ndarray) -> np.ndarray:
         """Hand-frame points (N, 3), metres, in the rest frames of their bones' base joints."""
@@ -273,39 +308,68 @@ class Skeleton:
         self._names_cache = (list(names), index)
         return index
 
-    def transforms(self, names, positions, orientations, handedness: str, units_per_metre: float):
-        """Per bone the linear map (B, 3, 3) and translation (B, 3) taking its points' local
-        coordinates (metres) to the screen; raises JointsError for joints that cannot be used."""
+    def transforms(self, names, positions, orientations, handedness: str, units_per_metre: float) -> np.ndarray:
+        """Every bone's map (B, 3, 4) of its points' local coordinates (metres) to the screen, [linear |
+        translation]; raises JointsError for joints that cannot be used.
+
+        The tactile loop's hot path, kept to a few array operations: one product gives every bone's
+        rotation (from its quaternion, normalised after) and the quaternions' norms for the check."""
         index = self.joint_indices(names)
         p = np.asarray(positions, dtype=float)
         q = np.asarray(orientations, dtype=float)
         if p.shape != (len(names), 3) or q.shape != (len(names), 4):
             raise JointsError(f"positions, orientations: expected ({len(names)}, 3) and ({len(names)}, 4), "
                               f"got {p.shape} and {q.shape}")
-        if index is not None:
-            p, q = p[index], q[index]
-        j = self.bone_joint
-        t, q = p[j], q[j]
-        norms = np.sqrt(np.einsum("ij,ij->i", q, q))
-        if not (np.isfinite(t).all() and np.all(np.abs(norms - 1.0) <= UNIT_TOLERANCE)):
-            bad = np.flatnonzero(~np.isfinite(t).all(axis=1) | ~(np.abs(norms - 1.0) <= UNIT_TOLERANCE))
-            raise JointsError(f"joint {JOINTS[j[bad[0]]]}: expected a finite position and a unit quaternion, got "
-                              f"{p[j[bad[0]]].tolist()} and {q[bad[0]].tolist()}")
-        m = quaternion_matrices(q / norms[:, None]) * units_per_metre
-        if handedness != self.handedness:
-            m[:, :, 0] *= -1.0          # the other hand: the glove mirrored in each bone's frame
-        fb = self.finger_bones
-        ends = p[self.bone_end[fb]] - t[fb]
-        stretch = np.sqrt(np.einsum("ij,ij->i", ends, ends)) / (units_per_metre * self.rest_lengths)
-        if not np.isfinite(stretch).all():
-            raise JointsError("positions: expected finite joint positions at every finger's bones")
-        m[fb, :, 2] *= stretch[:, None]   # a longer or shorter finger: its points stretched along the bone
-        return m, t
+        b = len(self.bone_joint)
+        gather = self._gather if index is None else index[self._gather]
+        pj = p.take(gather, axis=0)                   # the bones' base joints, then their ends
+        t = pj[:b]
+        ends = pj[b:] - t
+        lengths = np.sqrt((ends * ends) @ _ONES3)
+        qb = q.take(gather[:b], axis=0)
+        r = (qb.take(_OUTER_A, axis=1) * qb.take(_OUTER_B, axis=1)) @ _MAP_COLUMNS
+        n2 = r[:, 12].tolist()
+        if not (math.isfinite(sum(lengths.tolist())) and min(n2) >= _N2_LOW and max(n2) <= _N2_HIGH):
+            self._explain(t, pj[b:], qb, np.sqrt(n2))     # (a non-finite base joint makes its length NaN too)
+        # the rotations' columns: / |q|^2 normalises; metres to screen units; the other hand mirrored
+        # in each bone's frame; each bone's points stretched along it to its length now
+        scale = self._scale(handedness, units_per_metre) / r[:, 12:13]
+        scale[:, 2::4] *= lengths[:, None]
+        m = r[:, :12] * scale
+        m[:, 3::4] = t
+        return m.reshape(b, 3, 4)
 
-    def place(self, which: str, m: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """The samples ("samples") or motors ("motors") in the screen, from `transforms`."""
-        bone, local = (self.sample_bone, self.sample_local) if which == "samples" else (self.motor_bone, self.motor_local)
-        return t[bone] + np.einsum("nij,nj->ni", m[bone], local)
+    def _scale(self, handedness: str, units_per_metre: float) -> np.ndarray:
+        """Per bone the scales (B, 12) of its map's entries, row by row, before the stretch (z: per
+        rest length of the bone) and the normalisation."""
+        key = (handedness != self.handedness, units_per_metre)
+        scale = self._scales.get(key)
+        if scale is None:
+            column = np.full((len(self.bone_joint), 4), float(units_per_metre))
+            if key[0]:
+                column[:, 0] = -units_per_metre
+            column[:, 2] = 1.0 / self.rest_lengths       # times the length now (screen units)
+            column[:, 3] = 1.0                            # the translation, written after
+            scale = self._scales[key] = np.tile(column, (1, 3))
+        return scale
+
+    def _explain(self, t, ends, q, norms) -> None:
+        """Raise the JointsError that names the first joint that cannot be used."""
+        for k, bone in enumerate(BONES):
+            if not (np.isfinite(t[k]).all() and abs(norms[k] - 1.0) <= UNIT_TOLERANCE):
+                raise JointsError(f"joint {bone[2]}: expected a finite position and a unit quaternion, got "
+                                  f"{t[k].tolist()} and {q[k].tolist()}")
+        for k, bone in enumerate(BONES):
+            if not np.isfinite(ends[k]).all():
+                raise JointsError(f"joint {bone[3]}: expected a finite position, got {ends[k].tolist()}")
+        raise JointsError("positions: expected joints within a hand's reach of each other, got coordinates too "
+                          "large to compute with")
+
+    def place(self, which: str, m: np.ndarray) -> np.ndarray:
+        """The samples ("samples") or motors ("motors") in the screen, from `transforms`: one small
+        matrix product of every bone's map with every point, then each point's own bone picked."""
+        local, pick = (self._sample_aug, self._sample_pick) if which == "samples" else (self._motor_aug, self._motor_pick)
+        return (m.reshape(-1, 4) @ local).ravel().take(pick)
 
     def outline(self, joints_positions: np.ndarray) -> np.ndarray:
         """Segments (S, 2, 3) drawing a hand from its joints (WebXR order): each finger's chain from
@@ -366,10 +430,10 @@ class ViewHand:
         if not msg.valid:
             return None
         g = self.glove
-        m, t = g.skeleton.transforms(msg.names, msg.positions, msg.orientations, msg.handedness, g.units_per_metre)
+        m = g.skeleton.transforms(msg.names, msg.positions, msg.orientations, msg.handedness, g.units_per_metre)
         index = g.skeleton.joint_indices(msg.names)
         joints = np.asarray(msg.positions, float) if index is None else np.asarray(msg.positions, float)[index]
-        self.joints = PlacedHand("joints", g.skeleton.place("samples", m, t), outline_segments(joints), joints,
+        self.joints = PlacedHand("joints", g.skeleton.place("samples", m), outline_segments(joints), joints,
                                  float(msg.stamp))
         q = np.asarray(msg.orientations, float)[0 if index is None else index[WRIST]]
         self.wrist_orientation = q / np.linalg.norm(q)

@@ -82,8 +82,8 @@ def compute_joint_stimulus(glove: Glove, caster, names, positions, orientations,
     its bone (touch4d.tactile.skeleton), then eq. 1-7 as for a pose. Raises `JointsError` for
     joints that cannot place the hand."""
     skeleton = glove.skeleton
-    m, t = skeleton.transforms(names, positions, orientations, handedness, glove.units_per_metre)
-    return stimulus_at(glove, caster, skeleton.place("samples", m, t), alpha, beta)
+    m = skeleton.transforms(names, positions, orientations, handedness, glove.units_per_metre)
+    return stimulus_at(glove, caster, skeleton.place("samples", m), alpha, beta)
 
 
 def stimulus_at(glove: Glove, caster, positions: np.ndarray, alpha: float | None = None,
