@@ -72,6 +72,11 @@ def test_the_source_follows_the_joints_and_falls_back_to_the_pose(glove):
     bad.orientations[3] *= 2.0
     out, err = src.on_joints(bad)
     assert "thumb-phalanx-distal" in str(err) and index_on(glove, out[1]) and src.counts["bad_joints"] == 1
+    # joints lost long after the last pose (a tracker of joints alone): nothing stale is sent
+    src.on_joints(curled(glove, 101.0))
+    out, err = src.on_joints(HandJoints(handedness="left", names=[], positions=np.zeros((0, 3)),
+                                        orientations=np.zeros((0, 4)), radii=np.zeros(0), valid=False, stamp=101.01))
+    assert out is None and err is None and src.using == "pose"
 
 
 def spin_until(nodes, predicate, timeout=20.0):

@@ -147,8 +147,11 @@ class HandSource:
         return out, None
 
     def _fall_back(self):
-        self.joints_stamp = -np.inf
+        last_joints, self.joints_stamp = self.joints_stamp, -np.inf
         if self.using == "pose" or self.last_pose is None:
+            return None
+        if self.last_pose.stamp < last_joints - self.timeout_s:
+            self._use("pose")           # no pose of late: the next one drives (nothing stale meanwhile)
             return None
         self._use("pose")
         return self.engine.messages(self.last_pose)
