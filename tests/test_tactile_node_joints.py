@@ -68,6 +68,7 @@ def test_the_source_follows_the_joints_and_falls_back_to_the_pose(glove):
     assert src.using == "pose" and src.counts["switches"] == 4 and src.counts["joints_lost"] == 1
     # unusable joints: the error comes back, and the pose drives at once
     src.on_joints(curled(glove, 100.3))
+    assert src.on_pose(pose(100.3)) is None
     bad = curled(glove, 100.31)
     bad.orientations[3] *= 2.0
     out, err = src.on_joints(bad)
