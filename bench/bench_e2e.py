@@ -1,4 +1,4 @@
-"""End-to-end benchmark: `hand/pose` (or `hand/joints`) published -> its CAN duty frame on the bus, every node a process.
+"""End-to-end benchmark: `hand/pose` (or `hand/joints`) published -> its CAN duty frame, every node a process.
 
 The bench process runs the broker (a zmq proxy thread) and publishes `hand/pose`; `scene`,
 `tactile` and `motors` (emulated boards, `trace: true`) run as separate node processes. The motor
@@ -248,7 +248,8 @@ def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, windo
     span = published[-1] - published[0]
     w = min(window, span / 5)
     windows = (lat[src - published[0] < w], lat[src - published[0] >= span - w])
-    return {"rate": rate, "hand": hand, "joints_used": delta("tactile", "joints"), "published": len(published), "actual_rate": len(published) / wall,
+    return {"rate": rate, "hand": hand, "joints_used": delta("tactile", "joints"),
+            "published": len(published), "actual_rate": len(published) / wall,
             "traced": len(src), "lat": lat, "causes": causes, "cpu": cpu, "window": w, "windows": windows,
             "per_second": per_second, "tactile_part": tactile_part, "motors_part": motors_part}
 

@@ -1,11 +1,11 @@
 """Scripted tracker: a hand following a named path of config/paths.yaml, for demos, tests and benchmarks.
 
-Publishes `hand/pose` (screen coordinates) and `controller/state` (room, through the calibration)
-at `rate` Hz; with `fingers` (a shape or a motion of config/fingers.yaml: curl, point, spread, ...)
+Publishes `hand/pose` (screen coordinates) and `controller/state` (room, through the calibration) at
+`rate` Hz; with `fingers` (a shape or a motion of config/fingers.yaml: curl, point, spread, ...)
 also the glove hand's 25 WebXR joints on `hand/joints`, bent as the motion says, published just
-before the pose of the same tick with the same stamp. Tick k samples the path at t = start_s + k / rate, so the poses depend on the tick
-count only, never on timer jitter: every run publishes the same sequence. At the end of the path
-it starts over (`loop: true`) or stops publishing.
+before the pose of the same tick with the same stamp. Tick k samples the path at t = start_s + k /
+rate, so the poses depend on the tick count only, never on timer jitter: every run publishes the
+same sequence. At the end of the path it starts over (`loop: true`) or stops publishing.
 """
 from __future__ import annotations
 

@@ -34,7 +34,8 @@ def test_foxglove_draws_the_hand_where_its_joints_put_the_samples():
                     for _ in range(4):
                         client.pump({"foxglove/scene"})
                     updates = client.messages.get("foxglove/scene", [])
-                    if updates and protobuf_class(client.channel("foxglove/scene")).FromString(updates[-1]).entities[1].lines:
+                    scene = protobuf_class(client.channel("foxglove/scene")) if updates else None
+                    if updates and scene.FromString(updates[-1]).entities[1].lines:
                         break
     update = protobuf_class(client.channel("foxglove/scene")).FromString(client.messages["foxglove/scene"][-1])
     hand = {e.id: e for e in update.entities}["hand"]

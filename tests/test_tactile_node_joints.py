@@ -35,7 +35,8 @@ def pose(stamp, valid=True):
 
 
 def curled(glove, stamp):
-    return glove.skeleton.joint_set(WHERE, IDENTITY, glove.units_per_metre, HandShape(curl={"index": 1.0})).message(stamp)
+    shape = HandShape(curl={"index": 1.0})
+    return glove.skeleton.joint_set(WHERE, IDENTITY, glove.units_per_metre, shape).message(stamp)
 
 
 def index_on(glove, motors: MotorCommand) -> bool:
@@ -95,11 +96,9 @@ def test_the_node_switches_to_the_rigid_hand_without_a_gap_in_the_motor_commands
         probe = Node("probe", bus=bus, heartbeat=False)
         try:
             motors = collect(probe, "tactile/motors", MotorCommand)
-            scene_pub = probe.create_publisher("scene/state", type(box_scene()))
             joints_pub = probe.create_publisher("hand/joints", HandJoints)
             pose_pub = probe.create_publisher("hand/pose", HandPose)
-            scene_pub.publish(box_scene())
-            spin_until((tactile, probe), lambda: tactile.engine.caster is not None)
+            tactile.engine.set_scene(box_scene())       # (the scene node's part is tested elsewhere)
             period, t0 = 0.01, time.monotonic()
             k = 0
 

@@ -55,7 +55,8 @@ FINGER_PARTS = ("proximal", "intermediate", "distal")
 # (bone name, finger or None, joint at its base, joint at its end): the palm (from the wrist to the
 # middle finger's knuckle), then each finger's three bones base to tip. Points bound to a bone move
 # with the joint at its base, stretched along the bone as far as its end moved from its rest length.
-BONES: tuple[tuple[str, str, str | None, str], ...] = (("palm", None, "wrist", "middle-finger-phalanx-proximal"),) + tuple(
+BONES: tuple[tuple[str, str | None, str, str], ...] = (
+    ("palm", None, "wrist", "middle-finger-phalanx-proximal"),) + tuple(
     (f"{f}-{part}", f, finger_joints(f)[k], finger_joints(f)[k + 1])
     for f in FINGER_NAMES for k, part in enumerate(BONE_PARTS.get(f, FINGER_PARTS))
 )
@@ -182,7 +183,6 @@ class Skeleton:
         positions[WRIST], radii[WRIST] = wrist, hand.palm_half[2]
         frames[WRIST] = _joint_frame(np.array([0.0, 1.0, 0.0]))
         self.fractions = {}
-        self.finger_radius = {}
         for name in FINGER_NAMES:
             if name in fingers:
                 f = fingers[name]
@@ -193,7 +193,6 @@ class Skeleton:
                 tip = base + length * np.array([math.sin(math.radians(angle)), math.cos(math.radians(angle)), 0.0])
             fractions = np.asarray(bones.fractions(name))
             self.fractions[name] = fractions
-            self.finger_radius[name] = radius
             frame = _joint_frame(tip - base)
             at = np.r_[0.0, np.cumsum(fractions)]
             at[-1] = 1.0
@@ -368,20 +367,18 @@ class Skeleton:
     def place(self, which: str, m: np.ndarray) -> np.ndarray:
         """The samples ("samples") or motors ("motors") in the screen, from `transforms`: one small
         matrix product of every bone's map with every point, then each point's own bone picked."""
-        local, pick = (self._sample_aug, self._sample_pick) if which == "samples" else (self._motor_aug, self._motor_pick)
+        if which == "samples":
+            local, pick = self._sample_aug, self._sample_pick
+        else:
+            local, pick = self._motor_aug, self._motor_pick
         return (m.reshape(-1, 4) @ local).ravel().take(pick)
-
-    def outline(self, joints_positions: np.ndarray) -> np.ndarray:
-        """Segments (S, 2, 3) drawing a hand from its joints (WebXR order): each finger's chain from
-        its metacarpal to its tip, the wrist to each metacarpal, and across the knuckles."""
-        return outline_segments(joints_positions)
 
 
 def _outline_pairs() -> np.ndarray:
     pairs = []
     for name in FINGER_NAMES:
         p = joint_prefix(name)
-        chain = [f"{p}metacarpal", *finger_joints(name)[1:]] if name == "thumb" else [f"{p}metacarpal", *finger_joints(name)]
+        chain = [f"{p}metacarpal", *finger_joints(name)[1 if name == "thumb" else 0:]]
         chain = [JOINT_INDEX[c] for c in chain]
         pairs.append((WRIST, chain[0]))
         pairs += list(zip(chain, chain[1:]))

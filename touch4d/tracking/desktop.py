@@ -1,12 +1,13 @@
 """A hand steered by keyboard and mouse (the renderer window's `ui/input`), integrated step by step.
 
-Keys (held): a/d move the hand along -x/+x, q/e along -y/+y, w/s along -z/+z (into / out of
-the screen); the arrows turn it (left/right about y, up/down about x), z/c roll it about z;
-left_shift slows everything to a quarter; space holds the trigger. n, r, p hold the controller's
-'menu' (next object), 'grip' (reset) and 'trackpad' (projection) buttons; pressing h brings the
-hand home. Fingers: hold 1 .. 5 to curl the thumb .. little finger, f to make a fist, v to spread
-them (they straighten again when released). Mouse drags hold the trigger: with the left button they turn the hand (and so the
-selected object's yz/zx planes), with the right button they move it in x/y (the xw/yw planes).
+Keys (held): a/d move the hand along -x/+x, q/e along -y/+y, w/s along -z/+z (into / out of the
+screen); the arrows turn it (left/right about y, up/down about x), z/c roll it about z; left_shift
+slows everything to a quarter; space holds the trigger. n, r, p hold the controller's 'menu' (next
+object), 'grip' (reset) and 'trackpad' (projection) buttons; pressing h brings the hand home.
+Fingers: hold 1 .. 5 to curl the thumb .. little finger, f to make a fist, v to spread them (they
+straighten again when released). Mouse drags hold the trigger: with the left button they turn the
+hand (and so the selected object's yz/zx planes), with the right button they move it in x/y (the
+xw/yw planes).
 """
 from __future__ import annotations
 

@@ -6,11 +6,11 @@ made of changes, and at most one "frame" per tick with the latest transforms and
 
 Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state`, and the tracked glove
 hand's joints on `hand/joints` (just before the pose of the same instant, with its stamp; the other
-hand's on `hand/joints/other`) from the page that holds the tracker role (the last to start an immersive session, else the first
-to send input). Fail safe: when that page closes, hides, loses tracking or falls silent for
-`stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
-node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
-except while its page is only silent.
+hand's on `hand/joints/other`) from the page that holds the tracker role (the last to start an
+immersive session, else the first to send input). Fail safe: when that page closes, hides, loses
+tracking or falls silent for `stale_s`, the hand is published invalid at once and then every
+`invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
+(within 100 ms); the controller too, except while its page is only silent.
 """
 from __future__ import annotations
 
