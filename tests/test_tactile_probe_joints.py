@@ -85,3 +85,23 @@ def test_probe_joints_file_mistakes_are_named(capsys, scene_file, tmp_path):
     assert "positions[0]" in capsys.readouterr().err
     assert main(["tactile", "probe", "--scene", str(scene_file)]) == 2
     assert "--joints" in capsys.readouterr().err
+
+
+def test_the_right_hand_is_the_glove_mirrored_and_feels_the_mirrored_object(capsys, scene_file, tmp_path):
+    """The right hand at x = +0.34 in the tilted tesseract feels what the left glove feels at x = -0.34
+    in the mirror image of that scene (the tesseract turned +20 degrees in xw, not -20)."""
+    right = tmp_path / "right.json"
+    right.write_text(json.dumps(run_json(capsys, "hand", "joints", "--handedness", "right", "--curl", "index=0.5",
+                                         "--position", "0.34", "-0.18", "0")))
+    left = tmp_path / "left.json"
+    left.write_text(json.dumps(run_json(capsys, "hand", "joints", "--curl", "index=0.5",
+                                        "--position", "-0.34", "-0.18", "0")))
+    mirrored_scene = tmp_path / "mirrored.yaml"
+    mirrored_scene.write_text(scene_file.read_text().replace("[[xw, -20]]", "[[xw, 20]]"))
+    a = run_json(capsys, "tactile", "probe", "--scene", str(scene_file), "--joints", str(right), "--json")
+    b = run_json(capsys, "tactile", "probe", "--scene", str(mirrored_scene), "--joints", str(left), "--json")
+    pa = np.array([x["position"] for x in a["samples"]])
+    pb = np.array([x["position"] for x in b["samples"]])
+    np.testing.assert_allclose(pa, pb * [-1, 1, 1], atol=1e-12)
+    np.testing.assert_allclose([m["V"] for m in a["motors"]], [m["V"] for m in b["motors"]], atol=1e-9)
+    assert max(m["V"] for m in a["motors"]) > 0.3

@@ -69,6 +69,9 @@ def register(subparsers) -> None:
     joints.add_argument("--curl", action="append", default=[], metavar="FINGER=C",
                         help=f"bend a finger, 0 (straight) .. 1 (fist): {', '.join(FINGER_NAMES)} or all; repeatable")
     joints.add_argument("--spread", type=_unit, default=0.0, metavar="S", help="spread the fingers, 0 .. 1")
+    joints.add_argument("--handedness", choices=("left", "right"),
+                        help="the hand (default: the glove's, left for config/glove.yaml); the other one is the "
+                             "glove mirrored")
     joints.add_argument("--position", nargs=3, type=float, metavar=("X", "Y", "Z"), default=[0.0, 0.0, 0.0],
                         help="the hand's origin (palm centre) in screen coordinates (default 0 0 0)")
     joints.add_argument("--orientation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
@@ -82,7 +85,8 @@ def run_joints(args) -> int:
     if args.flat and (args.curl or args.spread):
         raise ConfigError(COMMAND_LINE, "--flat", "straight fingers, without --curl or --spread")
     position, orientation = check_pose(args.position, args.orientation)
-    joints = glove.skeleton.joint_set(position, orientation, glove.units_per_metre, _shape(args.curl, args.spread))
+    joints = glove.skeleton.joint_set(position, orientation, glove.units_per_metre, _shape(args.curl, args.spread),
+                                      args.handedness)
     print(json.dumps(joints.to_json()))
     return 0
 

@@ -261,15 +261,23 @@ class Skeleton:
         return np.einsum("nji,nj->ni", self.rest_frames[j], np.asarray(points, float) - self.rest_positions[j])
 
     # ---- joint sets ---------------------------------------------------------------------------------
-    def joint_set(self, position, orientation, units_per_metre: float, shape: HandShape | None = None) -> JointSet:
+    def joint_set(self, position, orientation, units_per_metre: float, shape: HandShape | None = None,
+                  handedness: str | None = None) -> JointSet:
         """The glove's hand at a pose (screen position, unit quaternion hand -> screen), its fingers
-        bent as `shape` says (default straight), as the joint set a hand tracker would publish."""
+        bent as `shape` says (default straight), as the joint set a hand tracker would publish; as
+        the other hand (`handedness`), the glove's mirrored in the hand frame's x."""
         positions, frames = self.shaped(shape) if shape is not None else (self.rest_positions, self.rest_frames)
+        handedness = handedness or self.handedness
+        if handedness != self.handedness:
+            # mirrored: x -> -x; each joint keeps -z along its bone and +y out of the back, so its
+            # x axis turns round (a right-handed frame): columns -M x, M y, M z = M R M
+            mirror = np.diag([-1.0, 1.0, 1.0])
+            positions, frames = positions @ mirror, mirror @ frames @ mirror
         r = Rotation.from_quat(np.asarray(orientation, dtype=float))
         world = r.as_matrix()
         out_pos = np.asarray(position, dtype=float) + units_per_metre * positions @ world.T
         out_q = (r * Rotation.from_matrix(frames)).as_quat(canonical=True)
-        return JointSet(tuple(JOINTS), out_pos, out_q, self.radii * units_per_metre, self.handedness)
+        return JointSet(tuple(JOINTS), out_pos, out_q, self.radii * units_per_metre, handedness)
 
     def shaped(self, shape: HandShape) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions (25, 3) and frames (25, 3, 3), hand frame, metres, with the fingers bent:
