@@ -1,4 +1,5 @@
-"""touch4d.messages: one class per topic type; msgpack on the wire with numpy arrays kept intact.
+"""touch4d.messages: one class per topic type, each declared once (messages/base.py); msgpack on the
+wire with numpy arrays kept intact; the header every message carries in messages/header.py.
 
 See docs/contracts.md for the table of topics and fields.
 """

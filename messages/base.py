@@ -1,428 +1,494 @@
-"""The message base class: typed fields, a header on every message, checked decoding."""
-from __future__ import annotations
+"""Messages as msgspec Structs: each type declared once, as a class of typed, documented fields.
 
-import dataclasses
-import math
+    class HandPose(Message):
+        position: Array(3) = doc("hand origin in screen units")
+        orientation: Array(4) = doc("unit quaternion (x, y, z, w)", default=IDENTITY)
+        valid: bool = doc("false while tracking is lost")
+
+        def check(self):            # rules across fields, on publish and on decode
+            ...
+
+A field's type says what it holds: `Float` (finite) or `float`, `int`, `bool`, `str`, `Literal[...]`,
+`list[str]`, `list[int]`, `Map`, `Array(shape..., dtype=, finite=)` (a numpy array), `list[Array(...)]`
+or `Records(...)` (a list of maps, e.g. a scene's objects). Every field may be left out when a
+message is made (it then holds its `default`, or its type's zero); on the wire every field is
+present but an `optional` one, which is left out while it holds its default (`recorded_stamp`).
+
+One code path: msgspec's C encoder and decoder do the msgpack (arrays: messages/codec.py) and check
+the plain fields of a payload; the arrays, records and the class's `check()` are checked in Python,
+by the same functions when publishing and when decoding. Anything wrong is a MessageError naming
+the type and the field.
+"""
+import re
+import sys
 import time
-from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar
+import typing
+from typing import Annotated, Any, Callable, ClassVar, Literal, NamedTuple
 
+import msgspec
 import numpy as np
 
-from .codec import CodecError, pack, unpack
+from touch4d.errors import Touch4dError
+
+from .codec import CodecError, _ext_hook, encode_plain
+from .header import DOCS as HEADER_DOCS
+from .header import Finite, Header
+
+__all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
+           "decoder"]
 
 
-class MessageError(ValueError):
-    """A payload that is not a valid message; the text names the type, the field and the problem."""
+class MessageError(Touch4dError, ValueError):
+    """A payload or message that is not a valid message; the text names the type, the field and the problem."""
 
 
-# ---- field kinds ---------------------------------------------------------------------------------
+Float = Finite                 # a finite number (NaN and infinities refused); `float` takes them
+Map = dict[str, Any]           # a map with string keys and plain values (numbers, strings, lists, maps)
 
 
-class Kind:
-    """How one field is checked and coerced; `check` returns the clean value or raises ValueError."""
-
-    def coerce(self, value):
-        return value
-
-    def check(self, value):
-        return value
-
-    def default(self):
-        return None
+# ---- field types that msgspec checks only in part: arrays and records ------------------------------
 
 
-class Float(Kind):
-    def __init__(self, finite: bool = True):
-        self.finite = finite
+class ArraySpec:
+    """A numpy array field: dtype kind ('f' float, 'i' int, 'b' bool) and shape (None: any length)."""
 
-    def coerce(self, value):
-        return float(value)
+    def __init__(self, shape: tuple[int | None, ...], dtype: str, finite: bool):
+        self.shape, self.dtype, self.finite = shape, np.dtype(dtype), finite
+        self.kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
+        self.check_finite = finite and self.dtype.kind == "f"
+        self.text = "x".join("N" if n is None else str(n) for n in shape) or "scalar"
+        self.fixed = {i: n for i, n in enumerate(shape) if n is not None}   # the lengths that are given
+        self.check = self._checker()
 
-    def check(self, value):
-        if value.__class__ is not float:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"expected a number, got {type(value).__name__}")
-            value = float(value)
-        if self.finite and not math.isfinite(value):
-            raise ValueError(f"expected a finite number, got {value}")
-        return value
+    def _checker(self) -> Callable[[Any], None]:
+        """check(value): raises ValueError unless `value` is such an array (a closure: this runs per message)."""
+        want, kinds, fixed, finite, ndarray = self.shape, self.kinds, self.fixed.items(), self.check_finite, np.ndarray
 
-    def default(self):
-        return 0.0
+        def check(value) -> None:
+            if value.__class__ is not ndarray and not isinstance(value, ndarray):
+                raise ValueError(f"expected a numpy array, got {type(value).__name__}")
+            if value.dtype.kind not in kinds:
+                raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
+            shape = value.shape
+            if shape != want and (len(shape) != len(want) or any(shape[i] != n for i, n in fixed)):
+                raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+            if finite:
+                if value.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
+                    total = sum(value.tolist() if value.ndim == 1 else value.ravel().tolist())
+                else:
+                    flat = value.reshape(-1)
+                    total = np.dot(flat, flat)
+                # a finite sum (of squares) proves every value finite; only a non-finite one needs the look
+                if total - total != 0.0 and not np.isfinite(value).all():
+                    raise ValueError("expected finite values, got NaN or infinity")
+        return check
 
-
-class Int(Kind):
-    def coerce(self, value):
-        return int(value)
-
-    def check(self, value):
-        if value.__class__ is not int:
-            raise ValueError(f"expected an integer, got {type(value).__name__}")
-        return value
-
-    def default(self):
-        return 0
-
-
-class Bool(Kind):
-    def check(self, value):
-        if not isinstance(value, bool):
-            raise ValueError(f"expected true or false, got {type(value).__name__}")
-        return value
-
-    def default(self):
-        return False
-
-
-class Str(Kind):
-    def __init__(self, choices: tuple[str, ...] | None = None):
-        self.choices = choices
-
-    def check(self, value):
-        if not isinstance(value, str):
-            raise ValueError(f"expected a string, got {type(value).__name__}")
-        if self.choices is not None and value not in self.choices:
-            raise ValueError(f"expected one of {', '.join(self.choices)}, got {value!r}")
-        return value
-
-    def default(self):
-        return self.choices[0] if self.choices else ""
-
-
-class StrList(Kind):
-    def coerce(self, value):
-        return list(value)
-
-    def check(self, value):
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise ValueError("expected a list of strings")
-        return value
-
-    def default(self):
-        return []
-
-
-class IntList(Kind):
-    def coerce(self, value):
-        return [int(v) for v in value]
-
-    def check(self, value):
-        if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-            raise ValueError("expected a list of integers")
-        return value
-
-    def default(self):
-        return []
-
-
-class Map(Kind):
-    """A map with string keys and plain values (numbers, strings, bools, lists)."""
-
-    def coerce(self, value):
-        return dict(value)
-
-    def check(self, value):
-        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
-            raise ValueError("expected a map with string keys")
-        return value
-
-    def default(self):
-        return {}
-
-
-def _all_finite(value: np.ndarray) -> bool:
-    if value.size <= 16:  # poses, quaternions: plain floats are quicker than a numpy reduction
-        return all(map(math.isfinite, value.ravel().tolist()))
-    # A finite sum proves every value finite; only a non-finite sum needs the element-wise look.
-    return math.isfinite(value.sum()) or bool(np.isfinite(value).all())
-
-
-class Array(Kind):
-    """A numpy array of a dtype kind ('f' float, 'i' int, 'b' bool) and a shape; None is any length."""
-
-    def __init__(self, shape: tuple[int | None, ...], dtype: str = "f8", finite: bool = True, default=None):
-        self.shape = shape
-        self.dtype = np.dtype(dtype)
-        self.finite = finite
-        self._default = default
-        self._kinds = "iu" if self.dtype.kind in "iu" else self.dtype.kind
-        self._check_finite = finite and self.dtype.kind == "f"
-
-    def coerce(self, value):
+    def coerce(self, value) -> np.ndarray:
+        if value.__class__ is np.ndarray and value.dtype.kind == self.dtype.kind:
+            return value
         arr = np.asarray(value)
         if arr.dtype != self.dtype and not (arr.dtype.kind == self.dtype.kind and arr.dtype.kind in "fiu"):
-            arr = arr.astype(self.dtype)
+            arr = arr.astype(self.dtype)   # float32 stays float32; a list of ints becomes float64
         return arr
 
-    def check(self, value):
-        if value.__class__ is not np.ndarray and not isinstance(value, np.ndarray):
-            raise ValueError(f"expected a numpy array, got {type(value).__name__}")
-        if value.dtype.kind not in self._kinds:
-            raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
-        shape = value.shape
-        if shape != self.shape and (
-            len(shape) != len(self.shape) or any(w is not None and w != g for w, g in zip(self.shape, shape))
-        ):
-            want = "x".join("N" if n is None else str(n) for n in self.shape) or "scalar"
-            raise ValueError(f"expected shape {want}, got {'x'.join(map(str, shape)) or 'scalar'}")
-        if self._check_finite and not _all_finite(value):
-            raise ValueError("expected finite values, got NaN or infinity")
-        return value
-
-    def default(self):
-        if self._default is not None:
-            return np.array(self._default, dtype=self.dtype)
+    def zero(self) -> np.ndarray:
         return np.zeros([n or 0 for n in self.shape], dtype=self.dtype)
 
 
-class Records(Kind):
-    """A list of maps, each checked against its own field kinds (e.g. the objects of a scene)."""
+def Array(*shape: int | None, dtype: str = "f8", finite: bool = True):  # noqa: N802 - read as a type
+    """A numpy array field: `Array(3)` a 3-vector, `Array(None, 3)` N x 3, `finite=False` lets NaN in."""
+    return Annotated[np.ndarray, ArraySpec(shape, dtype, finite)]
 
-    def __init__(self, fields: dict[str, Kind], optional: tuple[str, ...] = ()):
-        self.fields = fields
-        self.optional = optional
 
-    def coerce(self, value):
-        out = []
-        for item in value:
-            item = dict(item)
-            for key, kind in self.fields.items():
-                if key in item:
-                    item[key] = kind.coerce(item[key])
-            out.append(item)
-        return out
+class RecordsSpec:
+    """A list of maps, each with typed keys (some optional); other keys are let through."""
 
-    def check(self, value):
+    def __init__(self, fields: dict[str, Any], optional: tuple[str, ...]):
+        self.fields, self.optional = fields, optional
+        self.checks = {key: _checker(tp) for key, tp in fields.items()}
+        self.coerces = {key: c for key, tp in fields.items() if (c := _coercer(tp)) is not None}
+
+    def check(self, value) -> None:
         if not isinstance(value, list):
             raise ValueError(f"expected a list, got {type(value).__name__}")
         for index, item in enumerate(value):
             if not isinstance(item, dict):
                 raise ValueError(f"[{index}]: expected a map, got {type(item).__name__}")
-            for key, kind in self.fields.items():
+            for key, check in self.checks.items():
                 if key not in item:
                     if key in self.optional:
                         continue
                     raise ValueError(f"[{index}].{key}: missing")
                 try:
-                    item[key] = kind.check(item[key])
+                    check(item[key])
                 except ValueError as exc:
-                    raise ValueError(f"[{index}].{key}: {exc}") from None
-        return value
+                    raise ValueError(f"[{index}].{key}{_sep(exc)}{exc}") from None
 
-    def default(self):
-        return []
-
-
-class ArrayList(Kind):
-    """A list of arrays of one kind (e.g. the half-space tables of a union's parts)."""
-
-    def __init__(self, item: Array):
-        self.item = item
-
-    def coerce(self, value):
-        return [self.item.coerce(v) for v in value]
-
-    def check(self, value):
-        if not isinstance(value, list):
-            raise ValueError(f"expected a list, got {type(value).__name__}")
-        for index, item in enumerate(value):
-            try:
-                self.item.check(item)
-            except ValueError as exc:
-                raise ValueError(f"[{index}]: {exc}") from None
-        return value
-
-    def default(self):
-        return []
+    def coerce(self, value) -> list:
+        return [{k: self.coerces[k](v) if k in self.coerces else v for k, v in dict(item).items()}
+                for item in value]
 
 
-def spec(kind: Kind, doc: str, *, optional: bool = False):
-    """Declare a message field: its kind (checked on decode) and what it means (units, frame).
-
-    An `optional` (scalar) field may be absent from a payload, meaning its default, and is left out
-    of the payload while it holds its default: payloads without it stay valid and byte-identical."""
-    metadata = {"kind": kind, "doc": doc, "optional": optional}
-    default = kind.default()
-    if default.__class__ in (float, int, bool, str):   # immutable: shared, and no call per message made
-        return field(default=default, metadata=metadata)
-    return field(default_factory=kind.default, metadata=metadata)
+def Records(*, optional: tuple[str, ...] = (), **fields):  # noqa: N802 - read as a type
+    """A list of maps whose keys have these types, e.g. `Records(name=str, size=Float, optional=("size",))`."""
+    return Annotated[list[dict[str, Any]], RecordsSpec(fields, optional)]
 
 
-# ---- the message base class ------------------------------------------------------------------------
-
-TYPES: dict[str, type[Message]] = {}
+# ---- per type: check (publishing, and what msgspec leaves), coerce and zero (making a message) -----
 
 
-@dataclass(kw_only=True)
-class Message:
-    """Base of all messages: the header, encoding to msgpack bytes and checked decoding."""
+def _spec(tp):
+    """The ArraySpec or RecordsSpec of an annotated type, or None."""
+    if typing.get_origin(tp) is Annotated:
+        return next((m for m in tp.__metadata__ if isinstance(m, (ArraySpec, RecordsSpec))), None)
+    return None
+
+
+_FIELD_PATH = re.compile(r"[A-Za-z_]\w*(\[\d+\])*(\.\w+(\[\d+\])*)*: ")
+
+
+def _sep(exc: Exception) -> str:
+    return "" if str(exc).startswith("[") else ": "   # list items read as objects[2].size: ...
+
+
+def _checker(tp) -> Callable[[Any], None]:
+    """A function raising ValueError (saying what was expected) for a value not of type `tp`: what
+    publishing checks, as msgspec does when decoding."""
+    spec = _spec(tp)
+    if spec is not None:
+        return spec.check
+    if tp is Finite or tp is float:
+        finite = tp is Finite
+
+        def check_float(v):
+            if v.__class__ is not float and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ValueError(f"expected a number, got {type(v).__name__}")
+            if finite and v - v != 0:
+                raise ValueError(f"expected a finite number, got {v}")
+        return check_float
+    if tp is int:
+        def check_int(v):
+            if v.__class__ is not int:
+                raise ValueError(f"expected an integer, got {type(v).__name__}")
+        return check_int
+    if tp is bool:
+        def check_bool(v):
+            if v.__class__ is not bool:
+                raise ValueError(f"expected true or false, got {type(v).__name__}")
+        return check_bool
+    if tp is str:
+        def check_str(v):
+            if not isinstance(v, str):
+                raise ValueError(f"expected a string, got {type(v).__name__}")
+        return check_str
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        choices = frozenset(args)
+
+        def check_choice(v):
+            if v.__class__ is not str or v not in choices:
+                raise ValueError(f"expected one of {', '.join(args)}, got {v!r}")
+        return check_choice
+    if origin is list and args[0] in (str, int):
+        item, what = args[0], "strings" if args[0] is str else "integers"
+
+        def check_list(v):
+            if v.__class__ is not list or not all(x.__class__ is item for x in v):
+                raise ValueError(f"expected a list of {what}")
+        return check_list
+    if origin is list:
+        check_item = _checker(args[0])
+
+        def check_items(v):
+            if not isinstance(v, list):
+                raise ValueError(f"expected a list, got {type(v).__name__}")
+            for index, x in enumerate(v):
+                try:
+                    check_item(x)
+                except ValueError as exc:
+                    raise ValueError(f"[{index}]: {exc}") from None
+        return check_items
+    if origin is dict:
+        def check_map(v):
+            if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
+                raise ValueError("expected a map with string keys")
+        return check_map
+    raise TypeError(f"a message field cannot be of type {tp!r}")
+
+
+def _coercer(tp) -> Callable[[Any], Any] | None:
+    """What making a message does to a value given for a field of type `tp` (None: nothing): a list
+    becomes an array, an int a float."""
+    spec = _spec(tp)
+    if spec is not None:
+        return spec.coerce
+    if tp is Finite or tp is float:
+        return lambda v: v if v.__class__ is float else float(v)
+    if tp is int:
+        return lambda v: v if v.__class__ is int else int(v)
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is list and args[0] is int:
+        return lambda v: [int(x) for x in v]
+    if origin is list and _spec(args[0]) is not None:
+        item = _spec(args[0]).coerce
+        return lambda v: [item(x) for x in v]
+    if origin is list:
+        return list
+    if origin is dict:
+        return dict
+    return None
+
+
+def _zero(tp) -> Callable[[], Any] | Any:
+    """A field's value when a message is made without it: a value, or a function making a fresh one."""
+    spec = _spec(tp)
+    if isinstance(spec, ArraySpec):
+        return spec.zero
+    if isinstance(spec, RecordsSpec):
+        return list
+    if tp is Finite or tp is float:
+        return 0.0
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return typing.get_args(tp)[0]
+    if origin in (list, dict):
+        return origin
+    return {int: 0, bool: False, str: ""}[tp]
+
+
+def _needs_check_after_decode(tp) -> bool:
+    """Whether msgspec's decoding leaves part of a field's check undone (arrays and records)."""
+    return _spec(tp) is not None or (typing.get_origin(tp) is list and _spec(typing.get_args(tp)[0]) is not None)
+
+
+# ---- declarations ------------------------------------------------------------------------------------
+
+
+class doc(NamedTuple):  # noqa: N801 - read as a declaration: field: type = doc("...")
+    """What a message field means (units, frame), and optionally its default when a message is made
+    without it; an `optional` field may be missing from a payload and is left out while at its default."""
+
+    text: str
+    default: Any = None
+    optional: bool = False
+
+
+class Field(NamedTuple):
+    """One field of a message type, as its class declares it."""
+
+    name: str
+    type: Any
+    doc: str
+    optional: bool
+    default: Any                              # a value, or a function making one (arrays, lists, maps)
+    check: Callable[[Any], None]              # raises ValueError saying what was expected
+    coerce: Callable[[Any], Any] | None
+
+
+TYPES: dict[str, type["Message"]] = {}
+
+
+class MessageMeta(msgspec.StructMeta):
+    """Makes each message class a tagged msgspec Struct of its declared fields and registers it."""
+
+    def __new__(mcls, name, bases, namespace, **kwargs):
+        if not any(isinstance(base, MessageMeta) for base in bases):   # Message itself
+            return super().__new__(mcls, name, bases, namespace, **kwargs)
+        type_name = namespace.get("TYPE", name)
+        module = vars(sys.modules[namespace["__module__"]])
+        types = {n: eval(t, module, dict(namespace)) if isinstance(t, str) else t  # noqa: S307 - the module's
+                 for n, t in namespace.get("__annotations__", {}).items()}      # own annotations, as typing does
+        docs: dict[str, doc] = {}
+        for field_name, tp in types.items():
+            declared = namespace.get(field_name)
+            if not isinstance(declared, doc):
+                raise TypeError(f"{name}.{field_name}: declare it as `{field_name}: TYPE = doc(\"what it means\")`")
+            _checker(tp)   # a type no message can carry: TypeError, now
+            docs[field_name] = declared
+            del namespace[field_name]   # required in every payload (msgspec: no default) ...
+            if declared.optional:       # ... but an optional field: msgspec leaves it out while at its default
+                namespace[field_name] = _zero(tp) if declared.default is None else declared.default
+                if callable(namespace[field_name]) or isinstance(namespace[field_name], (list, dict, np.ndarray)):
+                    raise TypeError(f"{name}.{field_name}: only a number, bool or string field may be optional")
+        # On the wire the array fields follow the others, as earlier versions wrote them: the same bytes.
+        namespace["__annotations__"] = dict(sorted(types.items(), key=lambda t: isinstance(_spec(t[1]), ArraySpec)))
+        cls = super().__new__(mcls, name, bases, namespace, **{"tag": type_name, "kw_only": True, **kwargs})
+        cls.TYPE = type_name
+        inherited = {f.name: f for base in bases for f in getattr(base, "FIELDS", ())}
+        fields = []
+        for info in msgspec.structs.fields(cls):   # header first, then each class's fields
+            if info.name in inherited:
+                fields.append(inherited[info.name])
+                continue
+            declared = docs.get(info.name) or doc(HEADER_DOCS[info.name], optional=not info.required)
+            coerce = _coercer(info.type)
+            if declared.optional:
+                default = info.default     # that very object: msgspec leaves out only it (see `_encode`)
+            elif declared.default is None:
+                default = _zero(info.type)
+            else:
+                value = coerce(declared.default) if coerce else declared.default
+                default = (lambda v=value: v.copy()) if isinstance(value, (np.ndarray, list, dict)) else value
+            fields.append(Field(info.name, info.type, declared.text, declared.optional, default,
+                                _checker(info.type), coerce))
+        order = [*inherited, *types]
+        fields.sort(key=lambda f: order.index(f.name) if f.name in order else -1)   # -1: the header
+        cls.FIELDS = tuple(fields)   # as declared (docs, schemas); the wire has the arrays last
+        cls._plain_defaults = {f.name: f.default for f in fields if not callable(f.default)}
+        cls._made_defaults = tuple((f.name, f.default) for f in fields if callable(f.default))
+        cls._coerce = {f.name: f.coerce for f in fields if f.coerce is not None}
+        cls._checks = tuple((f.name, f.check) for f in fields)
+        cls._body_checks = tuple((f.name, f.check) for f in fields if f.name not in HEADER_DOCS)
+        cls._after_decode = tuple((f.name, f.check) for f in fields if _needs_check_after_decode(f.type))
+        cls._optional = tuple((f.name, f.default) for f in fields if f.optional)
+        cls._overrides_check = cls.check is not Message.check
+        cls._decode = msgspec.msgpack.Decoder(cls, ext_hook=_ext_hook).decode
+        TYPES[type_name] = cls
+        _union.clear()
+        return cls
+
+    def __call__(cls, **values):
+        """A new message: every field not given holds its default; given values are coerced to the
+        field's type (a list to an array, an int to a float); nothing is checked before publishing."""
+        coerce = cls._coerce
+        for name, value in values.items():
+            if name in coerce:
+                try:
+                    values[name] = coerce[name](value)
+                except (TypeError, ValueError) as exc:
+                    raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
+        for name, make in cls._made_defaults:
+            if name not in values:
+                values[name] = make()
+        return _make(cls, **{**cls._plain_defaults, **values})
+
+
+_make = msgspec.StructMeta.__call__
+
+
+class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=True, forbid_unknown_fields=True):
+    """Base of all messages: the header (messages/header.py), encoding, checking and decoding."""
 
     TYPE: ClassVar[str] = ""
+    FIELDS: ClassVar[tuple[Field, ...]] = ()
 
-    stamp: float = spec(Float(), "wall-clock time the message was made, seconds (time.time()); set on publish")
-    seq: int = spec(Int(), "per-topic, per-publisher sequence number from 0; a gap means a drop; set on publish")
-    source_stamp: float = spec(
-        Float(), "stamp of the hand/pose this message was derived from (= stamp for originating messages)"
-    )
-    recorded_stamp: float = spec(
-        Float(), "stamp this message had when it was recorded, kept when a replay re-stamps it; 0 = live",
-        optional=True,
-    )
-
-    def __init_subclass__(cls, **kwargs):
-        super().__init_subclass__(**kwargs)
-        if "TYPE" not in cls.__dict__:
-            cls.TYPE = cls.__name__
-        TYPES[cls.TYPE] = cls
-
-    def __post_init__(self):
-        (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).coerce(self)   # each kind's coerce
-
-    @classmethod
-    def prepare(cls) -> None:
-        """Generate the class's fast paths now (about 10 ms) rather than on its first message, which
-        would then reach its subscribers late, and the dozen behind it with it."""
-        if "_FAST" not in cls.__dict__:
-            _fast_paths(cls)
-
-    @classmethod
-    def _fields(cls) -> tuple[dataclasses.Field, ...]:
-        cached = cls.__dict__.get("_FIELDS_CACHE")
-        if cached is None:
-            cached = tuple(f for f in dataclasses.fields(cls) if "kind" in f.metadata)
-            cls._FIELDS_CACHE = cached
-        return cached
+    def check(self) -> None:
+        """Rules across fields (equal lengths, unit quaternions): raise ValueError; subclasses override."""
 
     @classmethod
     def field_docs(cls) -> dict[str, str]:
         """Each field's documentation (units, frame), e.g. for log schemas and `topic echo`."""
-        return {f.name: f.metadata["doc"] for f in cls._fields()}
-
-    def to_dict(self) -> dict[str, Any]:
-        out = {"type": self.TYPE}
-        for name, _ in self._checks():
-            out[name] = getattr(self, name)
-        for name, default in self._optional():
-            if out[name] == default:
-                del out[name]
-        return out
+        return {f.name: f.doc for f in cls.FIELDS}
 
     def validate(self) -> None:
-        """Check every field (types, shapes, finiteness) and the message's own rules."""
-        try:
-            if (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).validate(self):
-                return
-        except (KeyError, TypeError, ValueError):
-            pass  # the checks below say what is wrong
-        for name, check in self._checks():
-            try:
-                check(getattr(self, name))
-            except ValueError as exc:
-                raise MessageError(_where(self.TYPE, name, exc)) from None
-        try:
-            self.check()
-        except ValueError as exc:
-            raise MessageError(f"{self.TYPE}: {exc}") from None
+        """Check every field (types, shapes, finiteness) and the message's own rules (`check`)."""
+        s, q, t, r = self.stamp, self.seq, self.source_stamp, self.recorded_stamp
+        # the header as it nearly always is, at one look (any other value: each field's own check)
+        usual = (s.__class__ is float and t.__class__ is float and r.__class__ is float and q.__class__ is int
+                 and s - s == 0.0 and t - t == 0.0 and r - r == 0.0)
+        _checked(self, self._body_checks if usual else self._checks)
 
-    def check(self) -> None:
-        """Rules across fields (equal lengths, unit quaternions); subclasses override."""
+    def to_dict(self) -> dict[str, Any]:
+        """The message as the map it is sent as (an optional field at its default left out)."""
+        out = {"type": self.TYPE}
+        optional = dict(self._optional)
+        for name in self.__struct_fields__:   # in wire order
+            value = getattr(self, name)
+            if not (name in optional and value == optional[name]):
+                out[name] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "Message":
+        """A checked message of this class from a map (with or without its "type")."""
+        return decode(encode_plain({**data, "type": cls.TYPE}), cls)
 
     def encode(self) -> bytes:
-        payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).encode(self)
-        return pack(self.to_dict()) if payload is None else payload
+        """The msgpack payload of the message as it is (not checked: see `publish_payload`)."""
+        try:
+            return self._encode()
+        except (TypeError, ValueError, OverflowError) as exc:   # e.g. an object in a map field
+            raise MessageError(f"{self.TYPE}: cannot encode: {exc}") from None
 
-    def stamp_for_publish(self, seq: int) -> None:
-        """Fill the header as a publisher sends it: `stamp` (if 0) now, `source_stamp` (if 0) the
-        stamp (an originating message), `seq` the publisher's number for it."""
-        if not self.stamp:
-            self.stamp = time.time()
-        if not self.source_stamp:
-            self.source_stamp = self.stamp
-        self.seq = seq
+    def _encode(self) -> bytes:
+        for name, default in self._optional:
+            # msgspec leaves a field out only while it holds its default object itself
+            value = getattr(self, name)
+            if value is not default and value == default:
+                setattr(self, name, default)
+        return encode_plain(self)
 
     def publish_payload(self, seq: int) -> bytes:
-        """The payload a publisher sends: validated, stamped (`stamp_for_publish`) and encoded, in
-        one generated pass where it can. Raises MessageError if a field is invalid or cannot be
-        encoded; the header (stamp, source_stamp, seq) is then left as it was."""
+        """The payload a publisher sends: checked (`validate`), stamped (`stamp` now if 0, `source_stamp`
+        the stamp if 0: a message that originates) as number `seq`, and encoded. Raises MessageError if
+        a field is invalid or cannot be encoded; the header is then left as it was."""
+        self.validate()
+        header = self.stamp, self.source_stamp, self.seq
+        stamp = header[0] or time.time()
+        self.stamp, self.source_stamp, self.seq = stamp, header[1] or stamp, seq
         try:
-            payload = (type(self).__dict__.get("_FAST") or _fast_paths(type(self))).publish(self, seq)
-        except (KeyError, TypeError, ValueError):
-            payload = None  # the reference below says what is wrong
-        if payload is None:
-            self.validate()
-            header = (self.stamp, self.source_stamp, self.seq)
-            self.stamp_for_publish(seq)
-            try:
-                payload = self.encode()
-            except (TypeError, ValueError, OverflowError) as exc:   # e.g. an object in a map field
-                self.stamp, self.source_stamp, self.seq = header     # nothing is sent
-                raise MessageError(f"{self.TYPE}: cannot encode: {exc}") from None
-        return payload
+            return self._encode()
+        except (TypeError, ValueError, OverflowError) as exc:   # e.g. an object in a map field
+            self.stamp, self.source_stamp, self.seq = header   # nothing is sent
+            raise MessageError(f"{self.TYPE}: cannot encode: {exc}") from None
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Message:
-        """Build and fully check a message of this class from a decoded map."""
-        msg = cls.__new__(cls)
-        fields = cls._checks()
-        absent = 0
-        for name, check in fields:
-            try:
-                value = data[name]
-            except KeyError:
-                default = dict(cls._optional()).get(name, _REQUIRED)
-                if default is _REQUIRED:
-                    raise MessageError(f"{cls.TYPE}.{name}: missing") from None
-                object.__setattr__(msg, name, default)
-                absent += 1
-                continue
-            try:
-                object.__setattr__(msg, name, check(value))
-            except ValueError as exc:
-                raise MessageError(_where(cls.TYPE, name, exc)) from None
-        if len(data) != len(fields) - absent + ("type" in data):
-            unknown = set(data) - {name for name, _ in fields} - {"type"}
-            raise MessageError(f"{cls.TYPE}: unknown field(s) {', '.join(sorted(map(str, unknown)))}")
-        try:
+
+# ---- decoding -----------------------------------------------------------------------------------------
+
+_union: dict[str, Callable] = {}   # the decoder of any registered type; remade when a type is declared
+
+
+def _decode_any(payload: bytes) -> Message:
+    decode_any = _union.get("decode")
+    if decode_any is None:
+        decode_any = _union["decode"] = msgspec.msgpack.Decoder(
+            typing.Union[tuple(TYPES.values())], ext_hook=_ext_hook).decode   # noqa: UP007
+    return decode_any(payload)
+
+
+def _checked(msg: Message, checks: tuple) -> Message:
+    """`msg` once its fields pass `checks` ((name, check) pairs) and it passes its class's `check()`;
+    else a MessageError naming the type and the field. The one place both publishing and decoding
+    check a message (after decoding, only what msgspec leaves: arrays and records)."""
+    name = ""
+    try:
+        for name, check in checks:
+            check(getattr(msg, name))
+        name = None
+        if msg._overrides_check:
             msg.check()
-        except ValueError as exc:
-            raise MessageError(f"{cls.TYPE}: {exc}") from None
-        return msg
-
-    @classmethod
-    def _optional(cls) -> tuple[tuple[str, Any], ...]:
-        """(name, default) of the optional fields, which payloads may leave out."""
-        cached = cls.__dict__.get("_OPTIONAL_CACHE")
-        if cached is None:
-            cached = tuple((f.name, f.metadata["kind"].default()) for f in cls._fields() if f.metadata.get("optional"))
-            cls._OPTIONAL_CACHE = cached
-        return cached
-
-    @classmethod
-    def _checks(cls) -> tuple[tuple[str, Any], ...]:
-        cached = cls.__dict__.get("_CHECKS_CACHE")
-        if cached is None:
-            cached = tuple((f.name, f.metadata["kind"].check) for f in cls._fields())
-            cls._CHECKS_CACHE = cached
-        return cached
+    except MessageError:
+        raise
+    except ValueError as exc:
+        text = str(exc)
+        if name is not None:
+            raise MessageError(f"{msg.TYPE}.{name}{_sep(exc)}{text}") from None
+        # the class's rule: "field: ..." or "objects[2].size: ..." reads TYPE.field: ...
+        raise MessageError(f"{msg.TYPE}{'.' if _FIELD_PATH.match(text) else ': '}{text}") from None
+    return msg
 
 
-_REQUIRED = object()
+def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
+    """`decode(payload, expected)` as one function, made once (a subscription's)."""
+    decode_one, checks = expected._decode, expected._after_decode
+
+    def decode_expected(payload: bytes) -> Message:
+        try:
+            msg = decode_one(payload)
+        except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+            raise _error(exc, payload, expected) from None
+        return _checked(msg, checks)
+
+    return decode_expected
 
 
-def _fast_paths(cls):
-    """The class's generated fast paths (messages/compiled.py), made on first use: @dataclass has
-    not yet made the fields when __init_subclass__ runs."""
-    from .compiled import compile_class
-
-    fast = cls._FAST = compile_class(cls)
-    return fast
-
-
-def _where(type_name: str, field_name: str, exc: Exception) -> str:
-    text = str(exc)
-    sep = "" if text.startswith("[") else ": "  # list items read as objects[2].size: ...
-    return f"{type_name}.{field_name}{sep}{text}"
+def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
+    """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
+    try:
+        msg = expected._decode(payload) if expected is not None else _decode_any(payload)
+    except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+        raise _error(exc, payload, expected) from None
+    return _checked(msg, msg._after_decode)
 
 
 def encode(msg: Message) -> bytes:
@@ -430,54 +496,50 @@ def encode(msg: Message) -> bytes:
     return msg.encode()
 
 
-def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
-    """`decode(payload, expected)` as one function made once (a subscription's): the class's
-    generated decode first, without looking it up per message."""
-    fast = (expected.__dict__.get("_FAST") or _fast_paths(expected)).decode
-    name = expected.TYPE
-
-    def decode_expected(payload: bytes) -> Message:
-        if TYPES.get(name) is expected:
-            try:
-                msg = fast(payload)
-            except Exception:  # noqa: BLE001 - whatever it is, decode() says what is wrong
-                msg = None
-            if msg is not None:
-                return msg
-        return _decode_reference(payload, expected)
-
-    return decode_expected
-
-
-def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
-    """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
-    if expected is not None and TYPES.get(expected.TYPE) is expected:
-        try:
-            msg = (expected.__dict__.get("_FAST") or _fast_paths(expected)).decode(payload)
-        except Exception:  # noqa: BLE001 - whatever it is, the checks below say what is wrong
-            msg = None
-        if msg is not None:
-            return msg
-    return _decode_reference(payload, expected)
-
-
-def _decode_reference(payload: bytes, expected: type[Message] | None) -> Message:
-    """decode() by the reference code, which names what is wrong."""
-    try:
-        data = unpack(payload)
-    except CodecError as exc:
-        raise MessageError(str(exc)) from None
-    if not isinstance(data, dict):
-        raise MessageError(f"expected a message map, got {type(data).__name__}")
-    name = data.get("type")
+def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> MessageError:
+    """msgspec's or the codec's complaint about a payload as a MessageError naming type and field."""
+    if isinstance(exc, CodecError):
+        return MessageError(str(exc))
+    if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
+        return MessageError(f"not a msgpack payload: {exc}")
+    found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
+    text, key, path = found.group(1), found.group(2), found.group(3) or ""
+    if not path and text.startswith("Expected `object`"):
+        return MessageError(f"expected a message map, got {text.rpartition('got ')[2].strip('`')}")
+    name = _type_of(payload)
     cls = TYPES.get(name) if isinstance(name, str) else None
-    if cls is None:
-        raise MessageError(f"unknown message type {name!r}")
-    if expected is not None and cls is not expected:
-        raise MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
-    del data["type"]
+    if path == "type" or cls is None or (expected is not None and cls is not expected):
+        if cls is None:
+            return MessageError(f"unknown message type {name!r}")
+        return MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
+    if text.startswith("Object missing required field"):
+        return MessageError(f"{cls.TYPE}.{text.split('`')[1]}: missing")
+    if text.startswith("Object contains unknown field"):
+        return MessageError(f"{cls.TYPE}: unknown field(s) {text.split('`')[1]}")
+    field = next((f for f in cls.FIELDS if f.name == path.split(".")[0].split("[")[0]), None)
+    if field is not None and typing.get_origin(field.type) is Literal and text.startswith("Invalid enum value"):
+        text = f"expected one of {', '.join(typing.get_args(field.type))}, got {text.split(' ', 3)[3]}"
+    elif "1.7976931348623157e+308" in text:
+        text = "expected a finite number"
+    elif text.startswith("Expected `"):   # as publishing says it: "expected a number, got str"
+        want, _, got = text[len("Expected `"):].partition("`, got `")
+        text = f"expected {_WIRE_NAMES.get(want, want)}, got {_WIRE_NAMES.get(got.strip('`'), got.strip('`'))}"
+    else:
+        text = text[0].lower() + text[1:]
+    if key:
+        text = f"keys: {text}"
+    return MessageError(f"{cls.TYPE}.{path}: {text}" if path else f"{cls.TYPE}: {text}")
+
+
+_WIRE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+               "array": "a list", "object": "a map", "numpy.ndarray": "a numpy array", "null": "nil"}
+
+
+def _type_of(payload: bytes):
+    """The "type" of a payload that failed to decode (for the error's text), or None."""
     try:
-        msg = (cls.__dict__.get("_FAST") or _fast_paths(cls)).from_dict(data)
-    except (KeyError, TypeError, ValueError):
-        msg = None  # from_dict says what is wrong
-    return cls.from_dict(data) if msg is None else msg
+        from .header import peek_any
+        found = peek_any(payload)
+    except Exception:  # noqa: BLE001 - only for an error's text
+        return None
+    return found[0] if found else None

@@ -1,16 +1,17 @@
 """msgpack wire form of messages: numpy arrays travel as an ext type that keeps dtype and shape.
 
 msgspec's C encoder and decoder do the msgpack; this module adds the array ext type. Decoded arrays
-are read-only views into the payload (no copy); an encoded array is copied once, into the payload.
+are read-only views into the payload (no copy).
 """
 from __future__ import annotations
 
 import math
 import struct
-from functools import lru_cache
 
 import msgspec
 import numpy as np
+
+from touch4d.errors import Touch4dError
 
 NDARRAY_EXT = 1
 _ALLOWED_KINDS = "biuf"  # bool, signed, unsigned, float: never object arrays from the wire
@@ -19,13 +20,12 @@ _LAYOUTS: dict[bytes, tuple] = {}   # array header -> (dtype, shape, count, nbyt
 _MAX_LAYOUTS = 1024                 # varying shapes (e.g. batches) must not grow it without bound
 
 
-class CodecError(ValueError):
+class CodecError(Touch4dError, ValueError):
     """The bytes are not a msgpack payload of ours."""
 
 
-@lru_cache(maxsize=256)
-def _header(dtype_str: str, shape: tuple[int, ...]) -> bytes:
-    dt = dtype_str.encode()
+def _header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    dt = dtype.str.encode()
     return struct.pack(f"<B{len(dt)}sB{len(shape)}I", len(dt), dt, len(shape), *shape)
 
 
@@ -41,32 +41,36 @@ def ext_prefix(code: int, size: int) -> bytes:
     return struct.pack(">BIB", 0xC9, size, code)
 
 
-@lru_cache(maxsize=256)
-def _array_prefix(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
-    header = _header(dtype.str, shape)
-    return ext_prefix(NDARRAY_EXT, len(header) + math.prod(shape) * dtype.itemsize) + header
-
-
-def _raw(arr: np.ndarray):
-    """The array's bytes as a buffer: the array's own memory when C-contiguous (no copy)."""
-    if arr.dtype.kind not in _ALLOWED_KINDS:
-        raise TypeError(f"cannot send a numpy array of dtype {arr.dtype}")
-    return arr.data if arr.flags.c_contiguous else arr.tobytes()
-
-
-def array_parts(arr: np.ndarray) -> tuple[bytes, object]:
-    """An array as msgpack in two pieces to join into a payload: the ext prefix with the array
-    header, and the raw bytes (see `_raw`), so the data is copied once, into the payload."""
-    raw = _raw(arr)
-    return _array_prefix(arr.dtype, arr.shape), raw
+_PREFIXES: dict[tuple, bytes] = {}   # (dtype, shape) -> msgpack ext prefix and array header
+_SMALL = 512                         # bytes: a smaller array is copied by tobytes(), quicker than a view
 
 
 def _default(obj):
+    """msgspec's hook for what it cannot encode itself: a numpy array becomes the ext value, written
+    as it is (msgspec.Raw)."""
+    if obj.__class__ is np.ndarray:
+        prefix = _PREFIXES.get((obj.dtype, obj.shape))
+        if prefix is None:
+            prefix = _prefix(obj)
+        # tobytes: C order whatever the strides; a large C-contiguous array's own memory, not copied twice
+        return msgspec.Raw(prefix + (obj.data if obj.nbytes > _SMALL and obj.flags.c_contiguous else obj.tobytes()))
     if isinstance(obj, np.ndarray):
-        return msgspec.msgpack.Ext(NDARRAY_EXT, b"".join((_header(obj.dtype.str, obj.shape), _raw(obj))))
+        return _default(np.asarray(obj))
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"cannot encode {type(obj).__name__}")
+
+
+def _prefix(obj: np.ndarray) -> bytes:
+    """The ext value's start for an array of this dtype and shape: msgpack's ext prefix, our array header."""
+    if obj.dtype.kind not in _ALLOWED_KINDS:
+        raise TypeError(f"cannot send a numpy array of dtype {obj.dtype}")
+    header = _header(obj.dtype, obj.shape)
+    prefix = ext_prefix(NDARRAY_EXT, len(header) + obj.nbytes) + header
+    if len(_PREFIXES) >= _MAX_LAYOUTS:
+        _PREFIXES.clear()
+    _PREFIXES[(obj.dtype, obj.shape)] = prefix
+    return prefix
 
 
 def _layout(header: bytes) -> tuple:
@@ -76,7 +80,7 @@ def _layout(header: bytes) -> tuple:
         raise CodecError(f"array dtype {dtype} is not allowed")
     shape = struct.unpack_from(f"<{header[1 + n]}I", header, 2 + n)
     count = math.prod(shape)
-    return dtype, shape, count, count * dtype.itemsize
+    return dtype, None if len(shape) == 1 else shape, count, count * dtype.itemsize   # None: 1-D, no reshape
 
 
 def _ext_hook(code: int, data: memoryview):
@@ -85,7 +89,7 @@ def _ext_hook(code: int, data: memoryview):
     try:
         n = data[0]
         offset = 2 + n + 4 * data[1 + n]
-        header = bytes(data[:offset])
+        header = data[:offset].tobytes()
         layout = _LAYOUTS.get(header)
         if layout is None:
             if len(header) != offset:
@@ -100,9 +104,10 @@ def _ext_hook(code: int, data: memoryview):
         raise CodecError(f"malformed array: {exc}") from None
     dtype, shape, count, need = layout
     if len(data) - offset != need:
-        raise CodecError(f"array of shape {shape} and dtype {dtype} needs {need} bytes, got {len(data) - offset}")
+        raise CodecError(f"array of shape {shape or (count,)} and dtype {dtype} needs {need} bytes, "
+                         f"got {len(data) - offset}")
     arr = np.frombuffer(data, dtype, count, offset)   # a view: the payload's bytes stay alive with it
-    return arr if len(shape) == 1 else arr.reshape(shape)
+    return arr if shape is None else arr.reshape(shape)
 
 
 # msgspec's Encoder and Decoder hold no state between calls: one of each serves every thread.

@@ -1,13 +1,10 @@
 """Tracker messages: the hand in screen coordinates, the controller in the room."""
-from __future__ import annotations
-
 import math
-from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from .base import Array, Bool, Float, Message, Str, StrList, spec
-
+from .base import Array, Float, Message, doc
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
 
@@ -18,30 +15,27 @@ def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float =
         raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
 
 
-@dataclass(kw_only=True)
 class HandPose(Message):
     """Where the glove hand is, already in the 3D screen's coordinates (topic hand/pose)."""
 
-    position: np.ndarray = spec(Array((3,)), "hand origin in screen units; the screen spans [-1, 1]^3")
-    orientation: np.ndarray = spec(
-        Array((4,), default=IDENTITY), "unit quaternion (x, y, z, w) rotating the hand's frame into the screen's frame"
-    )
-    valid: bool = spec(Bool(), "false while tracking is lost: consumers treat the hand as absent")
+    position: Array(3) = doc("hand origin in screen units; the screen spans [-1, 1]^3")
+    orientation: Array(4) = doc("unit quaternion (x, y, z, w) rotating the hand's frame into the screen's frame",
+                                default=IDENTITY)
+    valid: bool = doc("false while tracking is lost: consumers treat the hand as absent")
 
     def check(self):
         if self.valid:
             check_unit_quaternion(self.orientation)
 
 
-@dataclass(kw_only=True)
 class ControllerState(Message):
     """The motion controller held in the glove hand, in room coordinates (topic controller/state)."""
 
-    position: np.ndarray = spec(Array((3,)), "controller position in the room frame, metres")
-    orientation: np.ndarray = spec(Array((4,), default=IDENTITY), "unit quaternion (x, y, z, w), controller frame -> room frame")
-    trigger: float = spec(Float(), "trigger travel, 0 (released) to 1 (fully pressed)")
-    buttons: list = spec(StrList(), "names of the buttons held, e.g. 'menu', 'grip', 'trackpad'")
-    valid: bool = spec(Bool(), "false while tracking is lost")
+    position: Array(3) = doc("controller position in the room frame, metres")
+    orientation: Array(4) = doc("unit quaternion (x, y, z, w), controller frame -> room frame", default=IDENTITY)
+    trigger: Float = doc("trigger travel, 0 (released) to 1 (fully pressed)")
+    buttons: list[str] = doc("names of the buttons held, e.g. 'menu', 'grip', 'trackpad'")
+    valid: bool = doc("false while tracking is lost")
 
     def check(self):
         if not 0.0 <= self.trigger <= 1.0:
@@ -53,19 +47,19 @@ class ControllerState(Message):
 HANDEDNESS = ("right", "left")
 
 
-@dataclass(kw_only=True)
 class HandJoints(Message):
     """Every tracked joint of a hand, in the 3D screen's coordinates (topic hand/joints), so that a
     session's articulated hand is recorded (and can later carry samples on the fingers)."""
 
-    handedness: str = spec(Str(HANDEDNESS), "which hand")
-    names: list = spec(StrList(), "joint names, in the order of the arrays (WebXR's: wrist, thumb-metacarpal ... pinky-finger-tip)")
-    positions: np.ndarray = spec(Array((None, 3)), "joint centres in screen units")
-    orientations: np.ndarray = spec(
-        Array((None, 4)), "unit quaternions (x, y, z, w), joint frame -> screen frame; WebXR joint axes: "
-                          "-z along the bone toward the finger tip, +y out of the back of the hand")
-    radii: np.ndarray = spec(Array((None,)), "joint radii (centre to skin) in screen units")
-    valid: bool = spec(Bool(), "false while the hand is not tracked: the arrays are then empty or stale")
+    handedness: Literal[HANDEDNESS] = doc("which hand")
+    names: list[str] = doc("joint names, in the order of the arrays (WebXR's: wrist, thumb-metacarpal ... "
+                           "pinky-finger-tip)")
+    positions: Array(None, 3) = doc("joint centres in screen units")
+    orientations: Array(None, 4) = doc(
+        "unit quaternions (x, y, z, w), joint frame -> screen frame; WebXR joint axes: -z along the bone toward "
+        "the finger tip, +y out of the back of the hand")
+    radii: Array(None) = doc("joint radii (centre to skin) in screen units")
+    valid: bool = doc("false while the hand is not tracked: the arrays are then empty or stale")
 
     def check(self):
         n = len(self.names)

@@ -1,45 +1,32 @@
 """Scene messages: every object of the 4D scene and how it is projected (topic scene/state)."""
-from __future__ import annotations
-
-from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from .base import Array, ArrayList, Float, Int, Map, Message, Records, Str, spec
+from .base import Array, Float, Map, Message, Records, doc
 
 PROJECTIONS = ("orthographic", "perspective")
 SCENE_COMMANDS = ("next", "select", "reset", "projection")
 
-SCENE_OBJECT = Records(
-    {
-        "name": Str(),
-        "shape": Str(),
-        "params": Map(),
-        "size": Float(),
-        "position": Array((4,)),
-        "orientation": Array((4, 4)),
-        "color": Array((4,)),
-        "parts": ArrayList(Array((None, 5))),
-    },
-    optional=("params", "parts"),
+SceneObject = Records(
+    name=str, shape=str, params=Map, size=Float, position=Array(4), orientation=Array(4, 4), color=Array(4),
+    parts=list[Array(None, 5)], optional=("params", "parts"),
 )
 
 
-@dataclass(kw_only=True)
 class SceneState(Message):
     """The whole 4D scene; published on every change and at a low steady rate for late joiners."""
 
-    objects: list = spec(
-        SCENE_OBJECT,
+    objects: SceneObject = doc(
         "objects: name; shape (catalog name or 'custom'); params (catalog parameters); size (scale of "
         "the local coordinates); position (4,) world; orientation (4,4) orthogonal, local -> world; "
         "color (4,) RGBA 0..1; parts: local half-spaces [n1,n2,n3,n4,d] (n.x <= d) of each convex part, "
         "only for 'custom' shapes",
     )
-    projection: str = spec(Str(PROJECTIONS), "how the 4D world is projected to the 3D screen")
-    eye_distance: float = spec(Float(), "perspective eye on the w axis at w = -eye_distance, screen units")
-    selected: int = spec(Int(), "index of the object the controller rotates (-1: the whole scene)")
-    revision: int = spec(Int(), "bumps on every change of the scene, so consumers rebuild only then")
+    projection: Literal[PROJECTIONS] = doc("how the 4D world is projected to the 3D screen")
+    eye_distance: Float = doc("perspective eye on the w axis at w = -eye_distance, screen units")
+    selected: int = doc("index of the object the controller rotates (-1: the whole scene)")
+    revision: int = doc("bumps on every change of the scene, so consumers rebuild only then")
 
     def check(self):
         for index, obj in enumerate(self.objects):
@@ -56,9 +43,8 @@ class SceneState(Message):
             raise ValueError(f"selected: expected -1..{len(self.objects) - 1}, got {self.selected}")
 
 
-@dataclass(kw_only=True)
 class SceneCommand(Message):
     """A request to the scene node (topic scene/command): next/select object, reset, projection."""
 
-    command: str = spec(Str(SCENE_COMMANDS), "what to do")
-    argument: str = spec(Str(), "select: object name or index; projection: orthographic|perspective|toggle")
+    command: Literal[SCENE_COMMANDS] = doc("what to do")
+    argument: str = doc("select: object name or index; projection: orthographic|perspective|toggle")

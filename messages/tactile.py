@@ -1,28 +1,19 @@
 """Tactile messages: the stimulus at every sample point, and one intensity per motor."""
-from __future__ import annotations
-
-from dataclasses import dataclass
-
-import numpy as np
-
-from .base import Array, Float, Message, StrList, spec
+from .base import Array, Float, Message, doc
 
 
-@dataclass(kw_only=True)
 class TactileField(Message):
     """The stimulus at every sample point of the hand (topic tactile/field; paper eq. 1, 2, 7)."""
 
-    positions: np.ndarray = spec(Array((None, 3)), "sample points c_i in screen coordinates")
-    l: np.ndarray = spec(  # noqa: E741 - the paper's name
-        Array((None,), finite=False),
+    positions: Array(None, 3) = doc("sample points c_i in screen coordinates")
+    l: Array(None, finite=False) = doc(  # noqa: E741 - the paper's name
         "l_i, distance from the sample to the object's front along the ray (eq. 7), screen units; "
-        "NaN where the ray misses or the sample is outside the screen",
-    )
-    s: np.ndarray = spec(Array((None,)), "s_i, normalised relative strength (eq. 1), 0..1")
-    h: np.ndarray = spec(Array((None,)), "h_i, strength after the sharpness adjustment (eq. 2)")
-    alpha: float = spec(Float(), "gradient constant of eq. 1, per screen unit")
-    beta: float = spec(Float(), "reducing constant of eq. 2, 0..1")
-    gamma: float = spec(Float(), "intensity per unit strength, eq. 3")
+        "NaN where the ray misses or the sample is outside the screen")
+    s: Array(None) = doc("s_i, normalised relative strength (eq. 1), 0..1")
+    h: Array(None) = doc("h_i, strength after the sharpness adjustment (eq. 2)")
+    alpha: Float = doc("gradient constant of eq. 1, per screen unit")
+    beta: Float = doc("reducing constant of eq. 2, 0..1")
+    gamma: Float = doc("intensity per unit strength, eq. 3")
 
     def check(self):
         n = len(self.positions)
@@ -31,12 +22,11 @@ class TactileField(Message):
                 raise ValueError(f"{name}: expected {n} values, one per sample, got {len(getattr(self, name))}")
 
 
-@dataclass(kw_only=True)
 class MotorCommand(Message):
     """One intensity per motor (topic tactile/motors; paper eq. 3, V_i = gamma h_i)."""
 
-    names: list = spec(StrList(), "motor names, as in the glove config")
-    intensity: np.ndarray = spec(Array((None,)), "V_i per motor, >= 0; the motor node maps it to PWM duty")
+    names: list[str] = doc("motor names, as in the glove config")
+    intensity: Array(None) = doc("V_i per motor, >= 0; the motor node maps it to PWM duty")
 
     def check(self):
         if len(self.names) != len(self.intensity):

@@ -16,18 +16,18 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
 from touch4d.bus import Node, Param
 from touch4d.bus.config import is_loopback
-from touch4d.errors import Unavailable
+from touch4d.errors import Touch4dError, Unavailable
 from touch4d.log.schema import message_schema, to_jsonable
+from touch4d.messages import HandJoints, decoder
 from touch4d.messages.codec import CodecError, unpack
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import PoseError, place
-from touch4d.tactile.skeleton import JointsError, ViewHand
+from touch4d.tactile.skeleton import ViewHand
 
 SCENE_TOPIC = "foxglove/scene"
 FRAME = "screen"
@@ -75,6 +75,7 @@ class FoxgloveNode(Node):
         self.scene = _Served(SceneUpdateChannel(SCENE_TOPIC, context=self.context))
         self.field: tuple[float, np.ndarray] | None = None  # (when, s per sample) of the latest tactile/field
         self.joints = ViewHand(self.glove)                  # the articulated hand while hand/joints drives
+        self._joints_decoder = decoder(HandJoints)
         for topic in p["topics"] or [""]:
             self.create_raw_subscription(topic, self.on_message)
         if not is_loopback(p["host"]):
@@ -104,7 +105,7 @@ class FoxgloveNode(Node):
         if topic == "tactile/field":
             self._on_field(data, now)
         elif topic == "hand/joints":
-            self._on_joints(data)
+            self._on_joints(payload)
         elif topic == "hand/pose" and self._due(self.scene, now):
             self._send_scene(data, now)
         if served.channel.has_sinks() and self._due(served, now):
@@ -126,14 +127,10 @@ class FoxgloveNode(Node):
         if s.shape == (len(self.glove.samples),):
             self.field = (now, s)
 
-    def _on_joints(self, data: dict) -> None:
+    def _on_joints(self, payload: bytes) -> None:
         try:
-            msg = SimpleNamespace(valid=bool(data.get("valid")), names=list(data.get("names") or []),
-                                  positions=np.asarray(data.get("positions"), float),
-                                  orientations=np.asarray(data.get("orientations"), float),
-                                  handedness=data.get("handedness"), stamp=float(data.get("stamp", 0.0)))
-            self.joints.on_joints(msg)
-        except (JointsError, TypeError, ValueError) as exc:
+            self.joints.on_joints(self._joints_decoder(payload))
+        except Touch4dError as exc:        # MessageError, JointsError: the rigid hand is drawn meanwhile
             self.warn_once(("hand/joints", str(exc)), f"hand/joints not drawn: {exc}")
 
     def _send_scene(self, data: dict, now: float) -> None:

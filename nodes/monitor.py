@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from touch4d import glovefile
 from touch4d.bus import Node, Param
 from touch4d.bus.node import HEARTBEAT_TOPIC
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
@@ -14,11 +15,16 @@ class Monitor(Node):
     """Watches the whole bus and prints what a user wants to see while the demo runs."""
 
     default_name = "monitor"
-    PARAMS = {"period": Param(1.0, "seconds between status lines", unit="s", above=0)}
+    PARAMS = {
+        "period": Param(1.0, "seconds between status lines", unit="s", above=0),
+        "glove": Param("config/glove.yaml", "the glove file (a motor above its touch_threshold is touched)",
+                       path="glove file"),
+    }
 
     def setup(self) -> None:
         period = self.params["period"]
-        self.status = StackStatus(window=max(2.0, 2 * period))
+        glove, _ = glovefile.load(self.params["glove"])
+        self.status = StackStatus(window=max(2.0, 2 * period), touch_threshold=glove.touch_threshold)
         self.create_raw_subscription("", self.on_any)
         # What it watches is optional: a stack without motors is no fault of the monitor's.
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True, optional=True)

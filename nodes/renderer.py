@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from touch4d.bus import Node, Param
+from touch4d.errors import Touch4dError
 from touch4d.messages import HandJoints, HandPose, InputEvents, MotorCommand, SceneState, TactileField
 from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
@@ -126,7 +127,7 @@ class RendererNode(Node):
         try:
             if self.view.set_scene(msg):
                 self.counts["scenes_built"] += 1
-        except (ValueError, TypeError, KeyError) as exc:   # MessageError, GeometryError, odd params
+        except Touch4dError as exc:   # MessageError, GeometryError: a scene that cannot be drawn
             self.counts["bad_scenes"] += 1
             self.warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn, "
                                             f"keeping the last good scene: {exc}")
@@ -135,14 +136,14 @@ class RendererNode(Node):
         self._received["pose"] += 1
         try:
             self.view.set_hand(msg)
-        except ValueError as exc:
+        except Touch4dError as exc:   # PoseError: a pose that cannot be placed
             self.counts["bad_poses"] += 1
             self.warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
 
     def on_joints(self, msg: HandJoints) -> None:
         try:
             self.view.set_joints(msg)
-        except ValueError as exc:      # JointsError: drawn as the rigid pose meanwhile
+        except Touch4dError as exc:   # JointsError: drawn as the rigid pose meanwhile
             self.counts["bad_joints"] = self.counts.get("bad_joints", 0) + 1
             self.warn_once(f"joints:{exc}", f"hand/joints not drawn: {exc}")
 
@@ -150,7 +151,7 @@ class RendererNode(Node):
         self._received["field"] += 1
         try:
             self.view.set_field(msg)
-        except ValueError as exc:
+        except Touch4dError as exc:   # MessageError: a field that cannot be drawn
             self.counts["bad_fields"] += 1
             self.warn_once(f"field:{exc}", f"tactile/field ignored: {exc}")
 

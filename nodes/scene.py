@@ -11,7 +11,7 @@ import os
 import time
 
 from touch4d.bus import Node, Param
-from touch4d.errors import ConfigError
+from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
@@ -77,7 +77,7 @@ class SceneNode(Node):
     def on_command(self, msg: SceneCommand) -> None:
         try:
             changed = self.control.command(msg.command, msg.argument)
-        except ValueError as exc:
+        except Touch4dError as exc:   # SceneCommandError
             self.log.warning("scene/command ignored: %s", exc)
             return
         self.changed(changed)

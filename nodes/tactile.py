@@ -14,6 +14,7 @@ and `beta` (override the glove's), `projection` ("scene": follow the scene; "ort
 from __future__ import annotations
 
 from touch4d.bus import Node, Param
+from touch4d.errors import Touch4dError
 from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, TactileField
 from touch4d.tactile.engine import PROJECTION_CHOICES, HandSource, TactileEngine
 from touch4d.tactile.glove import check_alpha, check_beta, load_glove
@@ -57,7 +58,7 @@ class TactileNode(Node):
     def on_scene(self, msg: SceneState) -> None:
         try:
             rebuilt = self.engine.set_scene(msg)
-        except (ValueError, TypeError, KeyError) as exc:   # MessageError, GeometryError, odd params
+        except Touch4dError as exc:   # MessageError, GeometryError: a scene that cannot be built
             self.counts["bad_scenes"] += 1
             self.warn_once(str(exc), f"scene/state revision {msg.revision} cannot be built, keeping the "
                                      f"last good scene: {exc}")

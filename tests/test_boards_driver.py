@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -357,7 +358,7 @@ def test_duties_follow_time_without_input_as_if_computed_every_tick(tmp_path):
     from touch4d.boards.duty import ThermalState, thermal_limit
 
     cfg = dataclasses.replace(CFG, stop_hold_s=0.3,
-                              thermal=dataclasses.replace(CFG.thermal, max_on_s=0.4, cool_s=0.25))
+                              thermal=msgspec.structs.replace(CFG.thermal, max_on_s=0.4, cool_s=0.25))
     d = MotorDriver(cfg, GloveProtocol(cfg), now=T0)
     period = 1 / cfg.refresh_hz
     state, last_command, stop_until = ThermalState.initial(30), None, -np.inf
@@ -423,7 +424,7 @@ def test_idle_refresh_rate_default_follows_the_board_watchdog(can, want):
 @pytest.mark.parametrize("can, expected", [
     ({"idle_refresh_hz": 10.0}, ">= 20"),                  # 100 ms between frames: one loss trips a board
     ({"idle_refresh_hz": 300.0}, "<= can.refresh_hz"),
-    ({"idle_refresh_hz": "slow"}, "float"),
+    ({"idle_refresh_hz": "slow"}, "finite number > 0, got 'slow'"),
 ])
 def test_bad_idle_refresh_rate_names_the_key(can, expected):
     data = {"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}],

@@ -132,7 +132,7 @@ def test_a_node_marked_realtime_runs_with_sched_fifo_when_permitted(tmp_path):
 
 
 @pytest.mark.parametrize("role, entry, expected", [
-    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a positive number"]),
+    ("scene", "{node: scene, params: {scene: 'BAD'}}", ["bad-scene.yaml", "objects[0].size", "a finite number > 0, got -1"]),
     ("tactile", "{node: tactile, params: {glove: no-such-glove.yaml}}",
      ["nodes.tactile.params.glove", "an existing glove file", "no-such-glove.yaml", "looked in"]),
 ])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from touch4d.messages import (
-    TOPIC_TYPES, TYPES, ControllerState, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
+    TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
     MotorStatus, MotorTrace, SceneCommand, SceneState, Stop, TactileField, decode, encode,
 )
 from touch4d.messages.codec import pack
@@ -20,6 +20,8 @@ def scene_object(**over):
 EXAMPLES = [
     HandPose(position=[0.1, -0.2, 0.3], orientation=[0, 0, 0.6, 0.8], valid=True, stamp=12.5, seq=3, source_stamp=12.5),
     ControllerState(position=[1, 2, 3], orientation=[0, 0, 0, 1], trigger=0.7, buttons=["menu"], valid=True),
+    HandJoints(handedness="left", names=["wrist", "index-finger-tip"], positions=np.zeros((2, 3)),
+               orientations=[[0, 0, 0, 1], [0, 0, 0.6, 0.8]], radii=[0.02, 0.01], valid=True),
     SceneState(objects=[scene_object(), scene_object(shape="custom", parts=[np.ones((6, 5))])],
                projection="perspective", eye_distance=3.0, selected=1, revision=7),
     SceneCommand(command="projection", argument="toggle"),

@@ -2,6 +2,7 @@
 the last good scene through one it cannot build."""
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -121,13 +122,13 @@ def test_view_builds_a_scenes_geometry_once_until_its_shapes_or_colours_change()
     view = SceneView(None, show=Show(frame=False, hand=False, tactile=False, status=False))
     assert view.set_scene(msg)
     layer = view.frame().scene
-    assert not view.set_scene(SceneState(**{**msg.__dict__, "revision": msg.revision + 1}))
+    assert not view.set_scene(msgspec.structs.replace(msg, revision=msg.revision + 1))
     assert view.frame().scene is layer and view.geometry_builds == 1
-    moved = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "position": np.array([0.1, 0, 0, 1.5])}]})
+    moved = msgspec.structs.replace(msg, objects=[{**msg.objects[0], "position": np.array([0.1, 0, 0, 1.5])}])
     assert view.set_scene(moved)
     assert view.frame().scene is not layer and view.frame().scene.geometry is layer.geometry
     assert view.frame().scene.transforms[0, 4].tolist() == pytest.approx([0.1, 0, 0, 1.5])
-    recoloured = SceneState(**{**msg.__dict__, "objects": [{**msg.objects[0], "color": np.array([1.0, 0, 0, 1])}]})
+    recoloured = msgspec.structs.replace(msg, objects=[{**msg.objects[0], "color": np.array([1.0, 0, 0, 1])}])
     assert view.set_scene(recoloured) and view.frame().scene.geometry is not layer.geometry
     assert view.geometry_builds == 2
 

@@ -55,7 +55,7 @@ def test_custom_shapes_also_go_under_shape(kind, value):
 
 @pytest.mark.parametrize("shape, key", [
     ({"vertices": TESSERACT, "halfspaces": SIMPLEX_HALFSPACES}, "objects[0].shape"),
-    ({"vertex": TESSERACT}, "objects[0].shape"),
+    ({"vertex": TESSERACT}, "objects[0].shape.vertex"),
     ({}, "objects[0].shape"),
     ({"vertices": "cube"}, "objects[0].shape.vertices"),
 ])

@@ -43,7 +43,7 @@ def test_wrong_type_and_range_name_expected_and_got():
     e = error({"objects": [{"visible": "yes"}]})
     assert e.key == "objects[0].visible" and e.expected == "true or false" and e.got == "yes"
     e = error({"objects": [{"position": [1, 2]}]})
-    assert e.key == "objects[0].position" and "length 4" in e.expected
+    assert e.key == "objects[0].position" and e.expected == "a list of 4 numbers" and e.got == [1, 2]
 
 
 def test_missing_required_key():

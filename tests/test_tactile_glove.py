@@ -60,8 +60,8 @@ def test_default_motors_at_the_papers_places_with_fixed_boards(glove):
     z = glove.motor_positions[:, 2]
     assert (z[:5] < 0).all() and (z[5:10] > 0).all()
     assert all((z[i] < 0) == ("front" in names[i]) for i in range(10, 30))
-    assert [b["id"] for b in glove.can["boards"]] == [1, 2, 3, 4]
-    assert glove.can["interface"] == "virtual" and glove.can["refresh_hz"] == 200
+    assert [b.id for b in glove.can.boards] == [1, 2, 3, 4]
+    assert glove.can.interface == "virtual" and glove.can.refresh_hz == 200
 
 
 def test_each_motor_is_bound_to_its_nearest_sample(glove):
@@ -81,7 +81,7 @@ def test_variant_gloves_are_config_changes(file, samples, motors, boards):
     g = load_glove(ROOT / file)
     assert samples[0] <= len(g.samples) <= samples[1]
     assert len(g.motor_names) == motors == len(set(g.motor_names))
-    assert len(g.can["boards"]) == boards
+    assert len(g.can.boards) == boards
     assert len(set(zip(g.motor_board.tolist(), g.motor_channel.tolist()))) == motors
 
 
@@ -110,17 +110,21 @@ _DELETE = object()
 
 
 @pytest.mark.parametrize("path, value, key, words", [
-    ("alpha", _DELETE, "alpha", "present"),
+    ("alpha", _DELETE, "alpha", "the tactile model needs"),
     ("alpha", -1.0, "alpha", "> 0"),
     ("beta", 1.5, "beta", "0..1"),
-    ("gamma", "loud", "gamma", "finite number"),
+    ("gamma", "loud", "gamma", "finite number > 0, got 'loud'"),
     ("screen_edge_m", 0, "screen_edge_m", "> 0"),
     ("grid.n", 1, "grid.n", "integer >= 2"),
     ("grid.n", [9, 9], "grid.n", "list of 3"),
-    ("hand.palm.width", _DELETE, "hand.palm.width", "present"),
+    ("hand.palm.width", _DELETE, "hand.palm.width", "required"),
     ("hand.palm.thickness", 0.5, "hand.palm.thickness", "<= hand.palm.width"),
     ("hand.fingers.2.radius", -0.01, "hand.fingers[2].radius", "> 0"),
     ("hand.fingers.0.name", "pinky", "hand.fingers[0].name", "thumb"),
+    ("hand.fingers.0.name", "thum", "hand.fingers[0].name", "did you mean 'thumb'?"),
+    ("touch_threshold", 1.5, "touch_threshold", "an intensity in 0..1, got 1.5"),
+    ("can.duty", {"start": 0.9}, "can.duty.start", "<= can.duty.max (0.8)"),
+    ("can.refresh_hz", float("nan"), "can.refresh_hz", "a finite number"),
     ("hand.fingers.1.base", [0.0], "hand.fingers[1].base", "list of 2"),
     ("motors", [], "motors", "list"),
     ("motors.3.position", [0, 0], "motors[3].position", "list of 3"),
@@ -135,11 +139,11 @@ _DELETE = object()
     ("can.boards.0.id", 200, "can.boards[0].id", "1..127"),
     ("can.boards.0.channels", 9, "can.boards[0].channels", "1..8"),
     # typos are named, not silently ignored
-    ("gama", 2.0, "gama", "one of screen_edge_m"),
-    ("grid.m", 9, "grid.m", "one of n"),
-    ("hand.palm.widht", 0.09, "hand.palm.widht", "one of width"),
-    ("hand.fingers.3.lenght", 0.07, "hand.fingers[3].lenght", "one of name"),
-    ("motors.2.chanel", 3, "motors[2].chanel", "one of name"),
+    ("gama", 2.0, "gama", "did you mean 'gamma'?"),
+    ("grid.m", 9, "grid.m", "one of the keys n"),
+    ("hand.palm.widht", 0.09, "hand.palm.widht", "did you mean 'width'?"),
+    ("hand.fingers.3.lenght", 0.07, "hand.fingers[3].lenght", "did you mean 'length'?"),
+    ("motors.2.chanel", 3, "motors[2].chanel", "did you mean 'channel'?"),
     ("can.bitrat", 250000, "can.bitrat", "one of"),
 ])
 def test_mistakes_name_file_key_and_expectation(data, path, value, key, words):

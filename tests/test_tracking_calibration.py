@@ -73,7 +73,7 @@ def test_default_file_loads_with_the_glove_screen_size():
 @pytest.mark.parametrize("text, key", [
     ("screen: {center_m: [0, 1], edge_m: 0.5}", "screen.center_m"),
     ("screen: {center_m: [0, 1, 0], edge_m: -1}", "screen.edge_m"),
-    ("screen: {center_m: [0, 1, 0], edge_m: 0.5, rotation_deg: [[q, 10]]}", "screen.rotation_deg[0]"),
+    ("screen: {center_m: [0, 1, 0], edge_m: 0.5, rotation_deg: [[q, 10]]}", "screen.rotation_deg[0][0]"),
     ("hand_in_controller: {}", "screen"),
     ("screen: [1, 2]", "screen"),
 ])
@@ -92,10 +92,10 @@ def test_missing_file_is_a_config_error(tmp_path):
 
 @pytest.mark.parametrize("value", [0.0, -90.0, float("nan"), float("inf"), 1500.0, True, "90"])
 def test_node_rates_must_be_finite_and_in_range(value):
-    from touch4d.tracking.config import MAX_TRACKER_RATE, positive_parameter
-    with pytest.raises(ConfigError) as err:
-        positive_parameter(value, "launch.yaml", "rate", MAX_TRACKER_RATE, "Hz")
-    assert err.value.key == "rate" and "(0, 1000] Hz" in str(err.value) and "launch.yaml" in str(err.value)
-    assert positive_parameter(1000, "launch.yaml", "rate", MAX_TRACKER_RATE) == 1000.0
-    with pytest.raises(ConfigError, match="a finite number > 0"):
-        positive_parameter(float("inf"), "launch.yaml", "move_speed")
+    from touch4d.bus.params import Param
+    from touch4d.tracking.config import MAX_TRACKER_RATE
+    rate = Param(90.0, "poses per second", unit="Hz", above=0, max=MAX_TRACKER_RATE)
+    with pytest.raises(ValueError) as err:
+        rate.check(value)
+    assert str(err.value) == "a finite number > 0 and <= 1000 (Hz)" and err.value.got is value
+    assert rate.check(1000) == 1000.0 and isinstance(rate.check(1000), float)

@@ -20,8 +20,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import yaml
-
+from touch4d import schema
 from touch4d.defaults import FOLDERS, ROOT as DEFAULTS
 from touch4d.errors import ConfigError
 
@@ -73,13 +72,6 @@ def _folder_of(named_in) -> Path | None:
 
 
 def read_yaml(path, what: str = "config file"):
-    """The parsed contents of a YAML file; an unreadable file or bad YAML names the file (key '(file)')."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(path, "(file)", f"a readable {what}", got=exc.strerror or str(exc)) from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "(file)", "valid YAML", got=" ".join(str(exc).split())) from None
+    """The parsed contents of a YAML file; an unreadable file or bad YAML names the file (a syntax
+    error whole, with its line and column: see touch4d.schema)."""
+    return schema.read_yaml(path, what)

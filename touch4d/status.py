@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 
 NODE_TIMEOUT = 3.5  # s without a heartbeat after which a node counts as gone (they beat every second)
@@ -24,6 +25,7 @@ class StackStatus:
     latencies: deque = field(default_factory=lambda: deque(maxlen=2000))   # (arrival, pose -> command)
     frame_latencies: deque = field(default_factory=lambda: deque(maxlen=2000))  # (arrival, pose -> CAN frame)
     touched: int = 0
+    touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # the glove file's: a motor above it is touched
     motors: int = 0
     boards_online: int | None = None
     boards: int | None = None
@@ -38,7 +40,7 @@ class StackStatus:
             times.popleft()
 
     def on_motors(self, msg: MotorCommand, now: float) -> None:
-        self.touched = int(np.count_nonzero(msg.intensity > 0))
+        self.touched = int(np.count_nonzero(msg.intensity > self.touch_threshold))
         self.motors = len(msg.intensity)
         if msg.source_stamp > 0:
             # Stamped by the tactile node when it published: the monitor's own wake-up (it runs at

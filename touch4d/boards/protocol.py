@@ -14,6 +14,7 @@ import can
 import cantools
 
 from touch4d.boards.config import GloveCan
+from touch4d.errors import Touch4dError
 from touch4d.boards.dbc import (
     DUTY_LEVELS, FAULT_FLAGS, NMT_COMMANDS, NMT_STATES, OUTPUT_STATES, build_database,
 )
@@ -32,7 +33,7 @@ FAULT_NAMES = tuple(_snake(f) for f in FAULT_FLAGS)
 DECODED_KEPT = 4096  # decoded frames kept: a steady board repeats its 256 duty frames, its status a few
 
 
-class FrameError(ValueError):
+class FrameError(Touch4dError, ValueError):
     """A frame with a known id that does not follow the protocol (length, flags, values).
 
     `reason` names the fault as the boards count it: 'error_frame', 'bad_frame_type' (remote or

@@ -7,14 +7,16 @@ XPUB port (`sub_port`). Binding is loopback-only unless the file names another a
 from __future__ import annotations
 
 import ipaddress
-import json
 import os
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
+from typing import Annotated
 
+import msgspec
 import zmq
 import zmq.auth
 
-from touch4d.configfile import COMMAND_LINE, PathNotFound, read_yaml, resolve_path
+from touch4d import schema
+from touch4d.configfile import COMMAND_LINE, PathNotFound, resolve_path
 from touch4d.errors import ConfigError, Touch4dError
 
 # The launcher hands its node processes the bus (endpoints, client keys) as JSON in ENV_VAR; a user
@@ -26,6 +28,36 @@ DEFAULT_NAME = "config/bus.yaml"
 
 class BusUnreachable(Touch4dError):
     """No broker answered at the configured endpoints."""
+
+
+Port = Annotated[int, msgspec.Meta(ge=0, le=65535, description="a TCP port (0..65535; 0 = any free port)")]
+
+
+class BrokerSection(msgspec.Struct, forbid_unknown_fields=True):
+    bind: str = "127.0.0.1"        # address the broker binds (loopback only unless `curve` is given)
+    pub_port: Port = 7710          # publishers connect here (the broker's XSUB)
+    sub_port: Port = 7711          # subscribers connect here (the broker's XPUB)
+
+
+class CurveSection(msgspec.Struct, forbid_unknown_fields=True):
+    """Key files (made by `touch4d bus keygen`), found relative to the bus config file."""
+
+    server_public: str | None = None       # every machine
+    server_secret: str | None = None       # the broker's machine only
+    client_secret: str | None = None       # this machine's own key pair
+    authorized: str | list[str] = []       # the broker's machine: public key files or folders allowed to connect
+
+
+class BusFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A bus config file (config/bus.yaml); every default of the bus is here."""
+
+    broker: BrokerSection = msgspec.field(default_factory=BrokerSection)
+    connect: str = "127.0.0.1"     # the broker's address as seen from this machine
+    hwm: Annotated[int, msgspec.Meta(gt=0, description="a positive integer (messages queued per peer)")] = 10000
+    curve: CurveSection | None = None
+
+
+_DEFAULT = BusFile()
 
 
 @dataclass(frozen=True)
@@ -44,11 +76,11 @@ class CurveKeys:
 class BusConfig:
     """Where the broker binds and where nodes find it. Port 0 means "any free port" (broker side)."""
 
-    bind_host: str = "127.0.0.1"
-    connect_host: str = "127.0.0.1"
-    pub_port: int = 7710
-    sub_port: int = 7711
-    hwm: int = 10000
+    bind_host: str = _DEFAULT.broker.bind
+    connect_host: str = _DEFAULT.connect
+    pub_port: int = _DEFAULT.broker.pub_port
+    sub_port: int = _DEFAULT.broker.sub_port
+    hwm: int = _DEFAULT.hwm
     curve: CurveKeys | None = None
     source: str = field(default="<defaults>", compare=False)
 
@@ -75,16 +107,17 @@ class BusConfig:
         return replace(self, curve=replace(self.curve, server_secret=None, authorized=()))
 
     def to_json(self) -> str:
-        data = asdict(self)
-        return json.dumps(data)
+        """This config as the JSON the launcher hands its nodes (`from_json` reads it back)."""
+        return msgspec.json.encode(self).decode()
 
     @classmethod
     def from_json(cls, text: str) -> "BusConfig":
-        data = json.loads(text)
-        curve = data.pop("curve", None)
-        if curve is not None:
-            curve = CurveKeys(**{**curve, "authorized": tuple(curve.get("authorized", ()))})
-        return cls(**data, curve=curve)
+        """A config from `to_json`'s text; a ConfigError naming $TOUCH4D_LAUNCH_BUS if it is not one."""
+        try:
+            return msgspec.json.decode(text, type=cls)
+        except msgspec.DecodeError as exc:   # a ValidationError too
+            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
+                              got=str(exc)) from None
 
     def client_socket_options(self, sock: zmq.Socket) -> None:
         """Make `sock` a CURVE client of the broker, when keys are configured."""
@@ -110,11 +143,6 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-_TOP_KEYS = {"broker", "connect", "hwm", "curve"}
-_BROKER_KEYS = {"bind", "pub_port", "sub_port"}
-_CURVE_KEYS = {"server_public", "server_secret", "client_secret", "authorized"}
-
-
 def load_bus_config(path: str | os.PathLike | None = None, named_in=COMMAND_LINE, key: str = "--bus") -> BusConfig:
     """Read a bus config file, found by `resolve_path` (`named_in` and `key` say where it was named);
     without one, config/bus.yaml (yours, else the packaged one), else the loopback defaults."""
@@ -125,64 +153,50 @@ def load_bus_config(path: str | os.PathLike | None = None, named_in=COMMAND_LINE
             return BusConfig()
     else:
         path = resolve_path(path, named_in, key=key, what="bus config file")
-    return parse_bus_config(read_yaml(path, "bus config file") or {}, path)
+    return parse_bus_config(schema.read_yaml(path, "bus config file"), path)
 
 
 def parse_bus_config(data, path) -> BusConfig:
     """Check and convert the mapping of a bus config file; its key files are found by `resolve_path`
     (the current directory first, then the folder of `path`)."""
-    _mapping(data, path, "(top level)", _TOP_KEYS)
-    broker = data.get("broker") or {}
-    _mapping(broker, path, "broker", _BROKER_KEYS)
-    bind = _typed(broker.get("bind", "127.0.0.1"), str, path, "broker.bind", "a host address")
-    connect = _typed(data.get("connect", "127.0.0.1"), str, path, "connect", "the broker's host address")
-    pub_port = _port(broker.get("pub_port", 7710), path, "broker.pub_port")
-    sub_port = _port(broker.get("sub_port", 7711), path, "broker.sub_port")
-    hwm = _typed(data.get("hwm", 10000), int, path, "hwm", "a positive int (messages queued per peer)")
-    if hwm <= 0:
-        raise ConfigError(path, "hwm", "a positive int", got=hwm)
+    spec = schema.convert({} if data is None else data, BusFile, path)
+    bind, connect = spec.broker.bind, spec.connect
     curve = None
-    if data.get("curve") is not None:
-        curve = _curve(data["curve"], path)
+    if spec.curve is not None:
+        curve = _curve(spec.curve, path)
     elif not is_loopback(bind):
-        raise ConfigError(path, "curve", f"CurveZMQ keys, because broker.bind {bind!r} is not loopback")
+        schema.fail(path, "curve", f"CurveZMQ keys, because broker.bind {bind!r} is not loopback")
     elif not is_loopback(connect):
-        raise ConfigError(path, "curve", f"CurveZMQ keys, because the broker at {connect!r} is on another machine")
-    return BusConfig(bind, connect, pub_port, sub_port, hwm, curve, source=str(path))
+        schema.fail(path, "curve", f"CurveZMQ keys, because the broker at {connect!r} is on another machine")
+    return BusConfig(bind, connect, spec.broker.pub_port, spec.broker.sub_port, spec.hwm, curve, source=str(path))
 
 
-def _curve(data, path) -> CurveKeys:
-    _mapping(data, path, "curve", _CURVE_KEYS)
+def _curve(spec: CurveSection, path) -> CurveKeys:
     if not zmq.has("curve"):
-        raise ConfigError(path, "curve", "a libzmq built with CURVE support")
-    if "server_public" not in data:
-        raise ConfigError(path, "curve.server_public", "the broker's public key file")
-    server_public, _ = _read_cert(data["server_public"], path, "curve.server_public", secret=False)
+        schema.fail(path, "curve", "a libzmq built with CURVE support")
+    if spec.server_public is None:
+        schema.fail(path, "curve.server_public", "the broker's public key file")
+    server_public, _ = _read_cert(spec.server_public, path, "curve.server_public", secret=False)
     server_secret = client_public = client_secret = None
-    if data.get("server_secret") is not None:
-        _, server_secret = _read_cert(data["server_secret"], path, "curve.server_secret", secret=True)
-    if data.get("client_secret") is not None:
-        client_public, client_secret = _read_cert(data["client_secret"], path, "curve.client_secret", secret=True)
+    if spec.server_secret is not None:
+        _, server_secret = _read_cert(spec.server_secret, path, "curve.server_secret", secret=True)
+    if spec.client_secret is not None:
+        client_public, client_secret = _read_cert(spec.client_secret, path, "curve.client_secret", secret=True)
     authorized: list[str] = []
-    entries = data.get("authorized") or []
-    if isinstance(entries, str):
-        entries = [entries]
-    if not isinstance(entries, list):
-        raise ConfigError(path, "curve.authorized", "a list of public key files or folders", got=entries)
+    entries = [spec.authorized] if isinstance(spec.authorized, str) else spec.authorized
     for i, entry in enumerate(entries):
         key = f"curve.authorized[{i}]"
-        target = resolve_path(_typed(entry, str, path, key, "a key file or folder"), path, key=key,
-                              what="public key file or folder")
+        target = resolve_path(entry, path, key=key, what="public key file or folder")
         files = sorted(target.glob("*.key")) if target.is_dir() else [target]
         for file in files:
             authorized.append(_read_cert(str(file), path, key, secret=False)[0])
     if server_secret is not None and not authorized:
-        raise ConfigError(path, "curve.authorized", "at least one client public key allowed to connect")
+        schema.fail(path, "curve.authorized", "at least one client public key allowed to connect")
     return CurveKeys(server_public, server_secret, client_public, client_secret, tuple(authorized))
 
 
-def _read_cert(name, path, key: str, secret: bool) -> tuple[str, str | None]:
-    file = resolve_path(_typed(name, str, path, key, "a key file path"), path, key=key, what="key file")
+def _read_cert(name: str, path, key: str, secret: bool) -> tuple[str, str | None]:
+    file = resolve_path(name, path, key=key, what="key file")
     try:
         public, private = zmq.auth.load_certificate(file)
     except (OSError, ValueError) as exc:
@@ -190,28 +204,6 @@ def _read_cert(name, path, key: str, secret: bool) -> tuple[str, str | None]:
     if secret and private is None:
         raise ConfigError(path, key, "a secret key file (*.key_secret)", got=str(file))
     return public.decode(), private.decode() if private else None
-
-
-def _mapping(value, path, key: str, allowed: set[str]) -> None:
-    if not isinstance(value, dict):
-        raise ConfigError(path, key, "a mapping", got=value)
-    for name in value:
-        if name not in allowed:
-            where = name if key == "(top level)" else f"{key}.{name}"
-            raise ConfigError(path, where, f"one of {sorted(allowed)}", got=name)
-
-
-def _typed(value, kind, path, key: str, expected: str):
-    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise ConfigError(path, key, expected, got=value)
-    return value
-
-
-def _port(value, path, key: str) -> int:
-    value = _typed(value, int, path, key, "a TCP port (0..65535; 0 = any free port)")
-    if not 0 <= value <= 65535:
-        raise ConfigError(path, key, "a TCP port (0..65535)", got=value)
-    return value
 
 
 def user_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
@@ -230,9 +222,5 @@ def resolve_bus_config(path: str | os.PathLike | None = None) -> BusConfig:
     started), else `user_bus_config`."""
     text = os.environ.get(ENV_VAR) if path is None else None
     if text:
-        try:
-            return BusConfig.from_json(text)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
-                              got=str(exc)) from None
+        return BusConfig.from_json(text)
     return user_bus_config(path)

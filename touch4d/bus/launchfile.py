@@ -22,19 +22,35 @@ exists, and every parameter is one the node declares (`PARAMS`), with a valid va
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any
 
-import yaml
+import msgspec
 
+from touch4d import schema
 from touch4d.bus import registry
 from touch4d.bus.params import check_params, suggest
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-_FILE_KEYS = {"include", "nodes"}
-_NODE_KEYS = {"node", "params", "params_for", "respawn", "respawn_delay", "realtime"}
+
+class NodeEntry(msgspec.Struct, forbid_unknown_fields=True):
+    """One role of a launch file, as written; a key left out keeps what an included file set."""
+
+    node: Annotated[str, msgspec.Meta(description="a node name (`touch4d node list`) or a module path")] | None = None
+    params: dict[str, Any] | None = None
+    params_for: dict[str, dict[str, Any]] | None = None   # node module -> its parameters in this role
+    respawn: bool | None = None
+    respawn_delay: Annotated[float, msgspec.Meta(ge=0, le=schema.FINITE_MAX, description="seconds >= 0")] | None = None
+    realtime: bool | None = None
+
+
+class LaunchFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A launch file, as written (see the module doc)."""
+
+    include: str | list[str] = []
+    nodes: dict[str, NodeEntry] = {}
 
 
 @dataclass
@@ -91,82 +107,45 @@ def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...])
     if path in stack:
         raise ConfigError(stack[-1], "include", "no include cycle", got=str(path))
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except OSError as exc:
         where = stack[-1] if stack else COMMAND_LINE
-        raise ConfigError(where, "include" if stack else "launch file", "a readable launch file", got=f"{path} ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "(file)", "valid YAML", got=str(exc)) from None
-    data = {} if data is None else data
-    if not isinstance(data, dict):
-        raise ConfigError(path, "(top level)", "a mapping with 'include' and 'nodes'", got=data)
-    for key in data:
-        if key not in _FILE_KEYS:
-            raise ConfigError(path, str(key), f"one of {sorted(_FILE_KEYS)}", got=key)
-    includes = data.get("include") or []
-    if isinstance(includes, str):
-        includes = [includes]
-    if not isinstance(includes, list):
-        raise ConfigError(path, "include", "a list of launch file paths", got=includes)
+        raise ConfigError(where, "include" if stack else "launch file", "a readable launch file",
+                          got=f"{path} ({exc.strerror})") from None
+    data = schema.parse_yaml(text, path)
+    spec = schema.convert({} if data is None else data, LaunchFile, path)
+    includes = [spec.include] if isinstance(spec.include, str) else spec.include
     for i, inc in enumerate(includes):
-        if not isinstance(inc, str):
-            raise ConfigError(path, f"include[{i}]", "a launch file path", got=inc)
         _merge_file(resolve_path(inc, path, key=f"include[{i}]", what="launch file"), nodes, (*stack, path))
-    entries = data.get("nodes") or {}
-    if not isinstance(entries, dict):
-        raise ConfigError(path, "nodes", "a mapping of role -> node", got=entries)
-    for role, entry in entries.items():
-        _merge_node(path, str(role), entry, nodes)
+    for role, entry in spec.nodes.items():
+        _merge_node(path, role, entry, nodes)
 
 
-def _merge_node(path: Path, role: str, entry, nodes: dict[str, NodeSpec]) -> None:
+def _merge_node(path: Path, role: str, entry: NodeEntry, nodes: dict[str, NodeSpec]) -> None:
     where = f"nodes.{role}"
     _check_role(path, where, role)
-    if not isinstance(entry, dict):
-        raise ConfigError(path, where, "a mapping with 'node' and optional 'params', 'respawn', 'respawn_delay'", got=entry)
-    for key in entry:
-        if key not in _NODE_KEYS:
-            raise ConfigError(path, f"{where}.{key}", f"one of {sorted(_NODE_KEYS)}", got=key)
     spec = nodes.get(role) or NodeSpec(role, source=str(path))
-    if "node" in entry:
-        if not isinstance(entry["node"], str):
-            raise ConfigError(path, f"{where}.node", "a node name (`touch4d node list`) or a module path",
-                              got=entry["node"])
-        if spec.module is not None and spec.module != entry["node"]:
-            _swap(spec, entry["node"])  # the params belong to the node this file replaces
-        spec.module = entry["node"]
+    if entry.node is not None:
+        if spec.module is not None and spec.module != entry.node:
+            _swap(spec, entry.node)  # the params belong to the node this file replaces
+        spec.module = entry.node
         spec.source = str(path)
-    if "params" in entry:
-        params = entry["params"] or {}
-        if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
-            raise ConfigError(path, f"{where}.params", "a mapping of parameter names to values", got=params)
-        spec.params = {**spec.params, **params}
-        spec.param_sources.update({k: (str(path), f"{where}.params.{k}") for k in params})
+    if entry.params is not None:
+        spec.params = {**spec.params, **entry.params}
+        spec.param_sources.update({k: (str(path), f"{where}.params.{k}") for k in entry.params})
         spec.source = str(path)
-    if "params_for" in entry:
-        table = entry["params_for"] or {}
-        if not isinstance(table, dict) or not all(
-            isinstance(k, str) and isinstance(v, dict) for k, v in table.items()
-        ):
-            raise ConfigError(path, f"{where}.params_for", "a mapping of node module -> parameters", got=table)
-        for module, params in table.items():
+    if entry.params_for is not None:
+        for module, params in entry.params_for.items():
             node_class = _load_node(path, f"{where}.params_for.{module}", module)
             check_params(node_class.PARAMS, params, lambda name, expected, got, m=module: ConfigError(
                 path, f"{where}.params_for.{m}.{name}", expected, got=got), f"node {module}")
-        spec.params_for = {**spec.params_for, **{k: dict(v) for k, v in table.items()}}
-    if "respawn" in entry:
-        if not isinstance(entry["respawn"], bool):
-            raise ConfigError(path, f"{where}.respawn", "true or false", got=entry["respawn"])
-        spec.respawn = entry["respawn"]
-    if "realtime" in entry:
-        if not isinstance(entry["realtime"], bool):
-            raise ConfigError(path, f"{where}.realtime", "true or false", got=entry["realtime"])
-        spec.realtime = entry["realtime"]
-    if "respawn_delay" in entry:
-        delay = entry["respawn_delay"]
-        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not 0 <= delay < math.inf:
-            raise ConfigError(path, f"{where}.respawn_delay", "seconds >= 0", got=delay)
-        spec.respawn_delay = float(delay)
+        spec.params_for = {**spec.params_for, **{k: dict(v) for k, v in entry.params_for.items()}}
+    if entry.respawn is not None:
+        spec.respawn = entry.respawn
+    if entry.realtime is not None:
+        spec.realtime = entry.realtime
+    if entry.respawn_delay is not None:
+        spec.respawn_delay = entry.respawn_delay
     nodes[role] = spec
 
 
@@ -197,9 +176,9 @@ def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "t
         spec = nodes[role]
         if dot:
             try:
-                value = yaml.safe_load(text) if text else ""
-            except yaml.YAMLError as exc:
-                raise ConfigError(COMMAND_LINE, arg, "a YAML value", got=str(exc)) from None
+                value = schema.parse_yaml(text) if text else ""
+            except ConfigError as exc:   # the YAML problem whole, on one line
+                raise ConfigError(COMMAND_LINE, arg, "a YAML value", got=text, detail=exc.detail) from None
             spec.params = {**spec.params, param: value}
             spec.param_sources = {**spec.param_sources, param: (COMMAND_LINE, arg)}
         elif text == "none":

@@ -262,7 +262,6 @@ class Node:
     def create_publisher(self, topic: str, msg_type: type[Message]) -> Publisher:
         _check_topic(topic)
         self._publishes.add(topic)
-        msg_type.prepare()   # the codec is made here, not in the loop's first message
         return Publisher(self, topic, msg_type)
 
     def create_raw_publisher(self, topic: str) -> RawPublisher:
@@ -279,7 +278,6 @@ class Node:
         backlog is skipped: only the newest queued message is handled (the rest count as dropped).
         `optional`: the node does not expect a publisher (commands, stops; see the monitor)."""
         _check_topic(topic)
-        msg_type.prepare()
         sub = Subscription(topic, msg_type, callback, latest_only, optional=optional)
         key = topic.encode()
         self._subs.setdefault(key, []).append(sub)

@@ -13,15 +13,20 @@ the same function, so both say the same thing:
 """
 from __future__ import annotations
 
-import difflib
-import math
+import typing
 from dataclasses import dataclass
-from typing import Any, Callable
+from functools import cached_property
+from typing import Annotated, Any, Callable
+
+import msgspec
+
+from touch4d import schema
 
 _TYPES = (bool, int, float, str, list, dict)
 _TYPE_TEXT = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list",
               dict: "a mapping"}
 _PLURAL = {bool: "booleans", int: "integers", float: "finite numbers", str: "strings", list: "lists", dict: "mappings"}
+_ITEMS = {bool: bool, int: int, float: schema.Finite, str: str, list: list, dict: dict}
 
 
 @dataclass(frozen=True)
@@ -96,29 +101,32 @@ class Param:
             text += ", or null"
         return text
 
+    @cached_property
+    def annotation(self):
+        """The parameter as a msgspec type: what `check` converts a value to (touch4d.schema's layer)."""
+        kind = self.kind
+        bounds = {}
+        if kind in (int, float):
+            bounds = {k: v for k, v in (("gt", self.above), ("ge", self.min), ("le", self.max)) if v is not None}
+            if kind is float and self.finite:
+                if "gt" not in bounds:
+                    bounds.setdefault("ge", -schema.FINITE_MAX)
+                bounds.setdefault("le", schema.FINITE_MAX)
+        elif kind is list and self.length is not None:
+            bounds = {"min_length": self.length, "max_length": self.length}
+        base = list[_ITEMS[self.items]] if kind is list and self.items is not None else kind
+        annotation = Annotated[base, msgspec.Meta(**bounds)] if bounds else base
+        return typing.Optional[annotation] if self.default is None else annotation
+
     def check(self, value) -> Any:
         """`value` converted to the parameter's type (an int for a float parameter becomes a float);
-        raises ValueError(describe()) when it is not valid."""
-        if value is None and self.default is None:
-            return None
-        kind = self.kind
-        if not _is(value, kind):
-            raise ValueError(self.describe())
-        if kind is float:
-            value = float(value)
-            if self.finite and not math.isfinite(value):
-                raise ValueError(self.describe())
+        raises schema.Invalid (a ValueError) whose text is describe() when it is not valid."""
+        try:
+            value = msgspec.convert(value, self.annotation, strict=True)
+        except msgspec.ValidationError:
+            raise schema.Invalid(self.describe(), value) from None
         if self.choices and value not in self.choices:
-            raise ValueError(self.describe())
-        if kind in (int, float) and not _in_bounds(value, self.above, self.min, self.max):
-            raise ValueError(self.describe())
-        if kind is list:
-            if self.length is not None and len(value) != self.length:
-                raise ValueError(self.describe())
-            if self.items is not None and not all(_is(v, self.items) and _finite(v) for v in value):
-                raise ValueError(self.describe())
-            if self.items is float:
-                value = [float(v) for v in value]
+            raise schema.Invalid(self.describe(), value, choices=self.choices)
         return value
 
     def to_dict(self) -> dict:
@@ -126,29 +134,10 @@ class Param:
         return {"type": self.kind.__name__, "default": self.default, "doc": self.doc, "valid": self.describe()}
 
 
-def _is(value, kind: type) -> bool:
-    if kind is bool:
-        return isinstance(value, bool)
-    if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if kind is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    return isinstance(value, kind)
-
-
-def _finite(value) -> bool:
-    return not isinstance(value, float) or math.isfinite(value)
-
-
-def _in_bounds(value, above, low, high) -> bool:
-    return ((above is None or value > above) and (low is None or value >= low)
-            and (high is None or value <= high))
-
-
 def suggest(name: str, choices) -> str:
     """' (did you mean 'x'?)' for the closest of `choices`, or ''."""
-    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
+    hint = schema.did_you_mean(str(name), choices)
+    return f" ({hint})" if hint else ""
 
 
 def check_params(declared: dict[str, Param], given: dict, error: Callable[[str, str, Any], Exception],
@@ -166,6 +155,7 @@ def check_params(declared: dict[str, Param], given: dict, error: Callable[[str, 
             continue
         try:
             values[name] = param.check(given[name])
-        except ValueError as exc:
-            raise error(name, f"{exc} for parameter '{name}' of {owner}", given[name]) from None
+        except schema.Invalid as exc:
+            hint = f" ({exc.hint})" if exc.hint else ""
+            raise error(name, f"{exc} for parameter '{name}' of {owner}{hint}", given[name]) from None
     return values

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 
 import numpy as np
-import yaml
 
+from touch4d import schema
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
@@ -52,13 +52,18 @@ def _list(args) -> int:
 
 def _info(args) -> int:
     if args.name not in list_shapes():
-        raise ConfigError("(command line)", "NAME", f"a catalog shape ({', '.join(list_shapes())})", got=args.name)
+        schema.fail("(command line)", "NAME", f"a catalog shape ({', '.join(list_shapes())})", got=args.name,
+                    choices=list_shapes())
     params = {}
     for item in args.param:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError("(command line)", "--param", "KEY=VALUE", got=item)
-        params[key] = yaml.safe_load(value)
+        try:
+            params[key] = schema.parse_yaml(value)
+        except ConfigError as exc:   # the YAML problem whole, on one line
+            raise ConfigError("(command line)", "--param", "KEY=VALUE with a YAML value", got=item,
+                              detail=exc.detail) from None
     try:
         shape = get_shape(args.name, **params)
     except GeometryError as exc:

@@ -11,8 +11,10 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
+from touch4d.errors import Touch4dError
 
-class GeometryError(ValueError):
+
+class GeometryError(Touch4dError, ValueError):
     """Input that does not describe a bounded, full-dimensional convex 4-polytope."""
 
 

@@ -18,13 +18,17 @@ Every mistake is a ConfigError naming the file and the key (`objects[0].color`),
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
 from PIL import ImageColor
 
-from touch4d.configfile import read_yaml, resolve_path
-from touch4d.errors import ConfigError
+from touch4d import schema
+from touch4d.configfile import resolve_path
+from touch4d.schema import Finite, Positive
 
 from .polytope import GeometryError, Polytope
 from .raycast import RayCaster
@@ -39,8 +43,6 @@ PALETTE = np.array([
     [0.30, 0.65, 1.00, 1.0], [1.00, 0.55, 0.20, 1.0], [0.40, 0.85, 0.40, 1.0],
     [0.90, 0.35, 0.60, 1.0], [0.95, 0.85, 0.30, 1.0], [0.60, 0.50, 0.95, 1.0],
 ])
-OBJECT_KEYS = {"name", "shape", "params", "vertices", "halfspaces", "parts", "size", "position", "rotation", "color"}
-TOP_KEYS = {"objects", "projection", "eye_distance", "description", "selected"}
 
 _custom_cache: dict[bytes, list[Polytope]] = {}
 _part_cache: dict[tuple[str, bytes], np.ndarray] = {}   # (kind, rows) of a custom part -> its half-spaces
@@ -120,16 +122,22 @@ class Scene:
 
         objects = []
         for i, m in enumerate(msg.objects):
-            try:
+            try:   # the map's fields, as the message codec left them (plain values and arrays)
+                shape = str(m["shape"])
+                params = msgspec.convert(m.get("params") or {}, ShapeParams, strict=True)
                 obj = SceneObject(
-                    name=str(m["name"]), shape=str(m["shape"]), params=dict(m.get("params") or {}),
+                    name=str(m["name"]), shape=shape, params=params,
                     size=float(m["size"]), position=np.asarray(m["position"], dtype=np.float64).reshape(4),
                     orientation=np.asarray(m["orientation"], dtype=np.float64).reshape(4, 4),
                     color=np.asarray(m["color"], dtype=np.float64).reshape(4),
-                    custom_parts=[np.asarray(h, dtype=np.float64) for h in m["parts"]] if m["shape"] == "custom" else None,
+                    custom_parts=[np.asarray(h, dtype=np.float64).reshape(-1, 5) for h in m["parts"]]
+                    if shape == "custom" else None,
                 )
-                obj.local_parts()
             except (KeyError, ValueError, TypeError) as exc:
+                raise MessageError(f"SceneState.objects[{i}]: {exc}") from exc
+            try:
+                obj.local_parts()
+            except GeometryError as exc:
                 raise MessageError(f"SceneState.objects[{i}]: {exc}") from exc
             objects.append(obj)
         return cls(objects=objects, projection=msg.projection, eye_distance=float(msg.eye_distance),
@@ -138,6 +146,35 @@ class Scene:
     def copy(self) -> "Scene":
         return replace(self, objects=[replace(o, position=o.position.copy(), orientation=o.orientation.copy())
                                       for o in self.objects])
+
+
+def scene_digest(msg, touch_only: bool = False) -> bytes:
+    """The one digest of a `scene/state` message: everything in its objects, the projection and the
+    eye distance (all but `selected` and `revision`; with `touch_only`, names and colours too, which
+    the hand cannot feel). Equal digests draw (or touch) the same scene, so a repeated message (the
+    scene node repeats it for late joiners) or a new selection rebuilds nothing."""
+    skipped = ("name", "color") if touch_only else ()
+    digest = hashlib.blake2b(digest_size=16)
+    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}".encode())
+
+    def add(value) -> None:
+        if isinstance(value, dict):
+            for k in sorted(value, key=str):
+                if k in skipped:
+                    continue
+                digest.update(f"<{k}>".encode())
+                add(value[k])
+        elif isinstance(value, (list, tuple)):
+            digest.update(f"[{len(value)}".encode())
+            for item in value:
+                add(item)
+        elif isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype}{value.shape}".encode() + np.ascontiguousarray(value).tobytes())
+        else:
+            digest.update(repr(value).encode())
+
+    add(msg.objects)
+    return digest.digest()
 
 
 def _custom_polytopes(parts) -> list[Polytope]:
@@ -149,105 +186,105 @@ def _custom_polytopes(parts) -> list[Polytope]:
 
 # ---- scene files ---------------------------------------------------------------------------------
 
+ShapeParams = dict[str, str | int | float]   # a catalog shape's parameters (their ranges: shapes.py)
+Row4 = Annotated[tuple[Finite, Finite, Finite, Finite], msgspec.Meta(description="a list of 4 numbers")]
+Row5 = Annotated[tuple[Finite, Finite, Finite, Finite, Finite], msgspec.Meta(description="a list of 5 numbers")]
+Rows4 = Annotated[list[Row4], msgspec.Meta(min_length=1)]
+Rows5 = Annotated[list[Row5], msgspec.Meta(min_length=1)]
+Step = Annotated[tuple[str, Finite], msgspec.Meta(description="a pair [plane, degrees] such as [xw, 30]")]
+
+
+class PartSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """One convex part of a custom shape: its vertices or its half-spaces [n1, n2, n3, n4, d]."""
+
+    vertices: Rows4 | None = None
+    halfspaces: Rows5 | None = None
+
+    def __post_init__(self):
+        if (self.vertices is None) == (self.halfspaces is None):
+            raise schema.Invalid("a mapping with one key, vertices or halfspaces",
+                                 got=[k for k in ("vertices", "halfspaces") if getattr(self, k) is not None] or None)
+
+
+class CustomShape(PartSpec, forbid_unknown_fields=True):
+    """A custom shape: one convex part (vertices or half-spaces) or a union of `parts`."""
+
+    parts: Annotated[list[PartSpec], msgspec.Meta(min_length=1)] | None = None
+
+    def __post_init__(self):
+        given = [k for k in CUSTOM_KINDS if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise schema.Invalid("a catalog name, or a mapping with one of vertices, halfspaces, parts",
+                                 got=given or None)
+
+
+class ObjectSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """One object of a scene file, as written (see the module doc)."""
+
+    name: str | None = None
+    shape: str | CustomShape | None = None
+    params: ShapeParams = {}
+    vertices: Rows4 | None = None
+    halfspaces: Rows5 | None = None
+    parts: Annotated[list[PartSpec], msgspec.Meta(min_length=1)] | None = None
+    size: Positive = 1.0
+    position: Row4 = (0.0, 0.0, 0.0, 0.0)
+    rotation: list[Step] = []
+    color: str | list[Finite] | None = None
+
+
+class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A scene file, as written (see the module doc)."""
+
+    objects: Annotated[list[ObjectSpec], msgspec.Meta(min_length=1, description="a non-empty list of objects")]
+    projection: Literal["orthographic", "perspective"] = "orthographic"
+    eye_distance: Positive = DEFAULT_EYE_DISTANCE
+    description: str = ""
+    selected: int = 0
+
 
 def load_scene(path) -> Scene:
     """Read and check a YAML scene file (found by `resolve_path`); a bad file raises ConfigError naming
     the file, key and reason."""
     path = resolve_path(path, what="scene file")
-    return parse_scene(read_yaml(path, "scene file"), path)
+    return parse_scene(schema.read_yaml(path, "scene file"), path)
 
 
 def parse_scene(data, file=None) -> Scene:
     """A Scene from the parsed YAML mapping `data` (errors name `file`)."""
-    if not isinstance(data, dict):
-        raise ConfigError(file, "(top level)", "a mapping with 'objects'", got=type(data).__name__)
-    _known_keys(file, "", data, TOP_KEYS)
-    if not isinstance(data.get("description", ""), str):
-        raise ConfigError(file, "description", "a line of text", got=data["description"])
-    projection = data.get("projection", "orthographic")
-    if projection not in ("orthographic", "perspective"):
-        raise ConfigError(file, "projection", "orthographic or perspective", got=projection)
-    eye = _number(file, "eye_distance", data.get("eye_distance", DEFAULT_EYE_DISTANCE), positive=True)
-    items = data.get("objects")
-    if not isinstance(items, list) or not items:
-        raise ConfigError(file, "objects", "a non-empty list of objects", got=items)
-    objects = [_object(file, f"objects[{i}]", item, i) for i, item in enumerate(items)]
-    selected = data.get("selected", 0)
-    if isinstance(selected, bool) or not isinstance(selected, int) or not -1 <= selected < len(objects):
-        raise ConfigError(file, "selected", f"an object index -1..{len(objects) - 1}", got=selected)
-    return Scene(objects=objects, projection=projection, eye_distance=eye, selected=selected)
+    spec = schema.convert(data, SceneFile, file)
+    objects = [_object(file, f"objects[{i}]", item, i) for i, item in enumerate(spec.objects)]
+    if not -1 <= spec.selected < len(objects):
+        schema.fail(file, "selected", f"an object index -1..{len(objects) - 1}", got=spec.selected)
+    return Scene(objects=objects, projection=spec.projection, eye_distance=spec.eye_distance, selected=spec.selected)
 
 
-def _number(file, key, value, positive=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ConfigError(file, key, "a number", got=value)
-    if positive and value <= 0:
-        raise ConfigError(file, key, "a positive number", got=value)
-    return float(value)
-
-
-def _vector(file, key, value, sizes) -> np.ndarray:
-    if not isinstance(value, list) or len(value) not in sizes:
-        raise ConfigError(file, key, f"a list of {' or '.join(map(str, sizes))} numbers", got=value)
-    return np.array([_number(file, f"{key}[{i}]", v) for i, v in enumerate(value)])
-
-
-def _matrix(file, key, value, width) -> np.ndarray:
-    if not isinstance(value, list) or not value:
-        raise ConfigError(file, key, f"a list of rows of {width} numbers", got=value)
-    return np.array([_vector(file, f"{key}[{i}]", row, (width,)) for i, row in enumerate(value)])
-
-
-def _object(file, key, item, index) -> SceneObject:
-    if not isinstance(item, dict):
-        raise ConfigError(file, key, "a mapping with shape, size, position, rotation, color", got=item)
-    _known_keys(file, f"{key}.", item, OBJECT_KEYS)
-    given = [k for k in ("shape", *CUSTOM_KINDS) if k in item]
+def _object(file, key, item: ObjectSpec, index) -> SceneObject:
+    given = [k for k in ("shape", *CUSTOM_KINDS) if getattr(item, k) is not None]
     if len(given) != 1:
-        raise ConfigError(file, key, "exactly one of shape, vertices, halfspaces, parts", got=given or None)
-    size = _number(file, f"{key}.size", item.get("size", 1.0), positive=True)
-    position = _vector(file, f"{key}.position", item.get("position", [0, 0, 0, 0]), (4,))
-    color = _color(file, f"{key}.color", item.get("color", PALETTE[index % len(PALETTE)].tolist()))
-    orientation = _rotation(file, f"{key}.rotation", item.get("rotation", []))
-    params = item.get("params", {})
-    if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
-        raise ConfigError(file, f"{key}.params", "a mapping of shape parameter names to values", got=params)
-    custom = None
-    shape = item.get("shape")
-    if isinstance(shape, dict) and (len(shape) != 1 or next(iter(shape)) not in CUSTOM_KINDS):
-        raise ConfigError(file, f"{key}.shape", "a catalog name, or a mapping with one of vertices, halfspaces, "
-                          "parts", got=shape)
-    if params and (isinstance(shape, dict) or "shape" not in item):
-        raise ConfigError(file, f"{key}.params", "no params for a shape given by vertices/half-spaces", got=params)
-    if isinstance(shape, dict):                        # a custom shape written under `shape:`
-        kinds = list(shape)
-        custom = _custom(file, f"{key}.shape", kinds[0], shape[kinds[0]])
-    elif "shape" in item:
-        if not isinstance(shape, str) or shape not in list_shapes():
-            raise ConfigError(file, f"{key}.shape", f"a catalog shape ({', '.join(list_shapes())}) or a mapping "
-                              "with one of vertices, halfspaces, parts", got=shape)
-        if any(not isinstance(v, (str, int, float)) for v in params.values()):
-            raise ConfigError(file, f"{key}.params", f"a name or a number for each parameter of {shape}", got=params)
+        schema.fail(file, key, "exactly one of shape, vertices, halfspaces, parts", got=given or None)
+    color = _color(file, f"{key}.color", item.color if item.color is not None else PALETTE[index % len(PALETTE)].tolist())
+    orientation = _rotation(file, f"{key}.rotation", item.rotation)
+    shape, params = item.shape, item.params
+    if params and not isinstance(shape, str):
+        schema.fail(file, f"{key}.params", "no params for a shape given by vertices/half-spaces", got=params)
+    if isinstance(shape, CustomShape):                 # a custom shape written under `shape:`
+        custom = _custom(file, f"{key}.shape", shape)
+    elif isinstance(shape, str):
+        if shape not in list_shapes():
+            schema.fail(file, f"{key}.shape", f"a catalog shape ({', '.join(list_shapes())}) or a mapping with one "
+                        "of vertices, halfspaces, parts", got=shape, choices=list_shapes())
         try:
             get_shape(shape, **params)
         except GeometryError as exc:
-            raise ConfigError(file, f"{key}.params", f"valid parameters for {shape}", got=str(exc)) from None
+            schema.fail(file, f"{key}.params", f"valid parameters for {shape}", got=str(exc))
+        custom = None
     else:
-        custom = _custom(file, key, given[0], item[given[0]])
-    if custom is not None:
-        shape = "custom"
-    name = item.get("name", f"{shape}{index}")
-    if not isinstance(name, str):
-        raise ConfigError(file, f"{key}.name", "a string", got=name)
-    return SceneObject(name=name, shape=shape, params=dict(params), size=size, position=position,
+        custom = _custom(file, key, item)
+    name = item.name if item.name is not None else f"{'custom' if custom is not None else shape}{index}"
+    return SceneObject(name=name, shape="custom" if custom is not None else shape, params=dict(params),
+                       size=item.size, position=np.array(item.position, dtype=np.float64),
                        orientation=orientation, color=color, custom_parts=custom)
-
-
-def _known_keys(file, prefix: str, mapping: dict, allowed: set[str]) -> None:
-    """Refuse a key that is not in `allowed` (whatever its type), naming it."""
-    unknown = sorted((k for k in mapping if k not in allowed), key=str)
-    if unknown:
-        raise ConfigError(file, f"{prefix}{unknown[0]}", f"one of the keys {', '.join(sorted(allowed))}")
 
 
 def _color(file, key, value) -> np.ndarray:
@@ -257,38 +294,34 @@ def _color(file, key, value) -> np.ndarray:
         try:
             rgba = ImageColor.getrgb(value.strip())
         except ValueError:
-            raise ConfigError(file, key, COLOR_FORMS, got=value) from None
+            schema.fail(file, key, COLOR_FORMS, got=value, choices=ImageColor.colormap)
         color = np.array(rgba, dtype=np.float64) / 255.0
-    elif isinstance(value, list) and len(value) in (3, 4):
-        color = np.array([_number(file, f"{key}[{i}]", v) for i, v in enumerate(value)])
+    elif len(value) in (3, 4):
+        color = np.array(value, dtype=np.float64)
         if np.any((color < 0) | (color > 1)):
-            raise ConfigError(file, key, f"{COLOR_FORMS} (list components between 0 and 1)", got=value)
+            schema.fail(file, key, f"{COLOR_FORMS} (list components between 0 and 1)", got=value)
     else:
-        raise ConfigError(file, key, COLOR_FORMS, got=value)
+        schema.fail(file, key, COLOR_FORMS, got=value)
     return np.r_[color, 1.0] if len(color) == 3 else color
 
 
-def _custom(file, key, kind, value) -> list[np.ndarray]:
+def _custom(file, key, spec: PartSpec) -> list[np.ndarray]:
     """A custom shape (vertices, halfspaces or parts, at `key`) -> the local half-spaces of its parts."""
-    if kind == "parts":
-        if not isinstance(value, list) or not value:
-            raise ConfigError(file, f"{key}.parts", "a non-empty list of {vertices: ...} or {halfspaces: ...}", got=value)
-        return [_part(file, f"{key}.parts[{j}]", spec) for j, spec in enumerate(value)]
-    return [_part(file, key, {kind: value})]
+    if spec.parts is not None:
+        return [_part(file, f"{key}.parts[{j}]", part) for j, part in enumerate(spec.parts)]
+    return [_part(file, key, spec)]
 
 
-def _part(file, key, spec) -> np.ndarray:
+def _part(file, key, spec: PartSpec) -> np.ndarray:
     """One convex part given by vertices or half-spaces -> its local (K,5) half-spaces."""
-    if not isinstance(spec, dict) or len(spec) != 1 or next(iter(spec)) not in ("vertices", "halfspaces"):
-        raise ConfigError(file, key, "a mapping with one key, vertices or halfspaces", got=spec)
-    kind, value = next(iter(spec.items()))
-    rows = _matrix(file, f"{key}.{kind}", value, 4 if kind == "vertices" else 5)
+    kind = "vertices" if spec.vertices is not None else "halfspaces"
+    rows = np.array(getattr(spec, kind), dtype=np.float64)
     cache_key = (kind, rows.tobytes())
     if cache_key not in _part_cache:                 # a hull takes tens of ms: build each part once
         try:
             poly = Polytope.from_vertices(rows) if kind == "vertices" else Polytope.from_halfspaces(rows)
         except GeometryError as exc:
-            raise ConfigError(file, f"{key}.{kind}", "a bounded convex 4-polytope", got=str(exc)) from None
+            schema.fail(file, f"{key}.{kind}", "a bounded convex 4-polytope", got=str(exc))
         halfspaces = np.array(poly.halfspaces)
         halfspaces.setflags(write=False)             # shared by every scene that has this part
         _part_cache[cache_key] = halfspaces
@@ -296,14 +329,10 @@ def _part(file, key, spec) -> np.ndarray:
 
 
 def _rotation(file, key, steps) -> np.ndarray:
-    if not isinstance(steps, list):
-        raise ConfigError(file, key, "a list of [plane, degrees] such as [[xw, 30], [yz, 10]]", got=steps)
-    for i, step in enumerate(steps):
-        if not isinstance(step, list) or len(step) != 2:
-            raise ConfigError(file, f"{key}[{i}]", "a pair [plane, degrees]", got=step)
+    for i, (plane, _degrees) in enumerate(steps):
         try:
-            plane_axes(step[0])
+            plane_axes(plane)
         except ValueError:
-            raise ConfigError(file, f"{key}[{i}]", "a plane of two axes among x, y, z, w (e.g. xw)", got=step[0]) from None
-        _number(file, f"{key}[{i}]", step[1])
-    return rotation_from_list(steps)
+            schema.fail(file, f"{key}[{i}]", "a plane of two axes among x, y, z, w (e.g. xw)", got=plane,
+                        choices=[a + b for a in "xyzw" for b in "xyzw" if a < b])
+    return rotation_from_list([list(step) for step in steps])

@@ -14,9 +14,11 @@ import struct
 
 import msgpack
 
-_HEADER = frozenset({"stamp", "seq", "source_stamp", "recorded_stamp"})
+from touch4d.messages.header import NAMES, RECORDED_STAMP, SEQ, SOURCE_STAMP, STAMP
+
+_HEADER = frozenset(NAMES)
 _FLOAT64 = struct.Struct(">d")
-_RECORDED_KEY = msgpack.packb("recorded_stamp")
+_RECORDED_KEY = msgpack.packb(RECORDED_STAMP)
 
 
 def _float64(value: float) -> bytes:
@@ -62,23 +64,23 @@ def restamp(payload: bytes, now: float, seq: int) -> bytes | None:
         length, body, found = header_spans(payload)
     except Exception:  # noqa: BLE001 - msgpack raises many types for bytes that are not one map
         return None
-    if "stamp" not in found or not _is_time(found["stamp"][2]):
+    if STAMP not in found or not _is_time(found[STAMP][2]):
         return None
-    recorded = float(found["stamp"][2])
-    edits = [found["stamp"][:2] + (_float64(now),)]
-    if "seq" in found:
-        edits.append(found["seq"][:2] + (msgpack.packb(seq),))
-    if "source_stamp" in found and _is_time(found["source_stamp"][2]):
+    recorded = float(found[STAMP][2])
+    edits = [found[STAMP][:2] + (_float64(now),)]
+    if SEQ in found:
+        edits.append(found[SEQ][:2] + (msgpack.packb(seq),))
+    if SOURCE_STAMP in found and _is_time(found[SOURCE_STAMP][2]):
         # now - (stamp - source_stamp): exactly `now` for a message that originates (source = stamp)
-        edits.append(found["source_stamp"][:2] + (_float64(now - (recorded - found["source_stamp"][2])),))
+        edits.append(found[SOURCE_STAMP][:2] + (_float64(now - (recorded - found[SOURCE_STAMP][2])),))
     header = payload[:body]
-    if "recorded_stamp" not in found:
+    if RECORDED_STAMP not in found:
         # right after the header values: where the encoder puts it, so the bytes are as it would make them
         at = max(end for _, end, _ in found.values())
         edits.append((at, at, _RECORDED_KEY + _float64(recorded)))
         header = _map_header(length + 1)
-    elif not _is_time(found["recorded_stamp"][2]):
-        edits.append(found["recorded_stamp"][:2] + (_float64(recorded),))
+    elif not _is_time(found[RECORDED_STAMP][2]):
+        edits.append(found[RECORDED_STAMP][:2] + (_float64(recorded),))
     edits.sort(key=lambda edit: edit[:2])
     out, pos = [header], body
     for start, end, data in edits:

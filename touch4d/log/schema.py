@@ -2,19 +2,20 @@
 
 One schema per message type goes into every log, so `mcap info` and Foxglove can show the fields;
 exports fill in the optional header fields a payload leaves out, so every row has the same columns.
-Known types (`touch4d.messages.TYPES`) get a schema from their field kinds and docs; anything else
+Known types (`touch4d.messages.TYPES`) get a schema from their field types and docs; anything else
 gets one inferred from a sample message.
 """
 from __future__ import annotations
 
 import base64
 import math
+import typing
 from typing import Any
 
 import numpy as np
 
 from touch4d.messages import TYPES
-from touch4d.messages import base as kinds
+from touch4d.messages import base as fields
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 MSGPACK_NOTE = "msgpack map; numpy arrays are msgpack ext type 1 holding [dtype.str, shape, raw bytes]"
@@ -37,30 +38,28 @@ def _array_schema(ndim: int, dtype: np.dtype, shape=None) -> dict:
     return item
 
 
-def kind_schema(kind: kinds.Kind) -> dict:
-    """The JSON schema of one field kind of `touch4d.messages.base`."""
-    if isinstance(kind, kinds.Float):
-        return {"type": "number"} if kind.finite else {"type": ["number", "null"]}
-    if isinstance(kind, kinds.Bool):
-        return {"type": "boolean"}
-    if isinstance(kind, kinds.Int):
-        return {"type": "integer"}
-    if isinstance(kind, kinds.Str):
-        return {"type": "string", "enum": list(kind.choices)} if kind.choices else {"type": "string"}
-    if isinstance(kind, kinds.StrList):
-        return {"type": "array", "items": {"type": "string"}}
-    if isinstance(kind, kinds.IntList):
-        return {"type": "array", "items": {"type": "integer"}}
-    if isinstance(kind, kinds.Map):
-        return {"type": "object"}
-    if isinstance(kind, kinds.Array):
-        return _array_schema(len(kind.shape), kind.dtype, kind.shape)
-    if isinstance(kind, kinds.Records):
-        props = {name: kind_schema(k) for name, k in kind.fields.items()}
-        required = [name for name in kind.fields if name not in kind.optional]
+def type_schema(tp) -> dict:
+    """The JSON schema of a message field's type (see `touch4d.messages.base`)."""
+    spec = fields._spec(tp)
+    if isinstance(spec, fields.ArraySpec):
+        return _array_schema(len(spec.shape), spec.dtype, spec.shape)
+    if isinstance(spec, fields.RecordsSpec):
+        props = {name: type_schema(t) for name, t in spec.fields.items()}
+        required = [name for name in spec.fields if name not in spec.optional]
         return {"type": "array", "items": {"type": "object", "properties": props, "required": required}}
-    if isinstance(kind, kinds.ArrayList):
-        return {"type": "array", "items": kind_schema(kind.item)}
+    if tp is fields.Float:
+        return {"type": "number"}
+    if tp is float:
+        return {"type": ["number", "null"]}
+    if tp in (bool, int, str):
+        return {"type": {bool: "boolean", int: "integer", str: "string"}[tp]}
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Literal:
+        return {"type": "string", "enum": list(args)}
+    if origin is list:
+        return {"type": "array", "items": type_schema(args[0])}
+    if origin is dict:
+        return {"type": "object"}
     return {}
 
 
@@ -93,11 +92,10 @@ def message_schema(type_name: str, sample: dict | None = None) -> dict:
         if cls.__doc__:
             schema["description"] = cls.__doc__.strip().splitlines()[0]
         props = dict(_HEADER)
-        docs = cls.field_docs()
-        for f in cls._fields():
-            props[f.name] = {**kind_schema(f.metadata["kind"]), "description": docs[f.name]}
+        for f in cls.FIELDS:
+            props[f.name] = {**type_schema(f.type), "description": f.doc}
         schema["properties"] = props
-        optional = {name for name, _ in cls._optional()}
+        optional = {f.name for f in cls.FIELDS if f.optional}
         schema["required"] = [name for name in props if name not in optional]
     elif isinstance(sample, dict):
         schema["properties"] = {str(k): value_schema(v) for k, v in sample.items()}
@@ -108,10 +106,10 @@ def with_optional_fields(data: Any) -> Any:
     """A decoded message map with the optional fields of its type filled in where absent (their default:
     recorded_stamp 0 for a live message), each in its declared place, so exported rows share columns."""
     cls = TYPES.get(data.get("type")) if isinstance(data, dict) and isinstance(data.get("type"), str) else None
-    missing = {name: default for name, default in cls._optional() if name not in data} if cls else None
+    missing = {f.name: f.default for f in cls.FIELDS if f.optional and f.name not in data} if cls else None
     if not missing:
         return data
-    names = [f.name for f in cls._fields()]
+    names = [f.name for f in cls.FIELDS]
     out = {}
     for key, value in data.items():
         out[key] = value

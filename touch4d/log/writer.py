@@ -9,18 +9,16 @@ are read (msgspec skips the rest), so recording costs little beyond the mcap wri
 from __future__ import annotations
 
 import json
-import math
 import os
-import sys
 import time
 from collections import Counter
-from typing import IO, Annotated, Iterable
+from typing import IO, Iterable
 
-import msgpack
 import msgspec
 from mcap.writer import CompressionType, Writer
 
 from touch4d.messages.codec import CodecError, unpack
+from touch4d.messages.header import peek, peek_any, peek_fast
 
 from .gaps import SeqGaps
 from .reader import LogFileError
@@ -32,56 +30,7 @@ SCHEMA_ENCODING = "jsonschema"
 RECORDING_METADATA = "touch4d.recording"
 
 
-_HEADER_KEYS = ("type", "stamp", "seq")
-
-
-class _Header(msgspec.Struct):
-    """The header keys of a message map as the recorder reads them (a finite stamp >= 0, a seq >= 0);
-    msgspec steps over every other field without decoding it."""
-
-    type: str
-    stamp: Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)] = 0.0
-    seq: Annotated[int, msgspec.Meta(ge=0)] = -1
-
-
-_decode_header = msgspec.msgpack.Decoder(_Header).decode
-
-
-def peek_header(payload: bytes) -> tuple[str, float, int] | None:
-    """(type, stamp, seq) of a payload without decoding the rest; None if it is not a message map.
-
-    A stamp that is not a finite number >= 0 reads 0.0, a seq that is not an integer >= 0 reads -1."""
-    try:
-        header = _decode_header(payload)  # the recorder's hot path: one C call
-    except msgspec.DecodeError:  # odd values, cut short, bytes after the map: looked at key by key
-        return _peek_any(payload)
-    return header.type, header.stamp, header.seq
-
-
-def _peek_any(payload: bytes) -> tuple[str, float, int] | None:
-    """`peek_header` for payloads of any shape, with msgpack's streaming unpacker."""
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
-    unpacker.feed(payload)
-    data: dict = {}
-    try:
-        for _ in range(unpacker.read_map_header()):
-            key = unpacker.unpack()
-            if isinstance(key, str) and key in _HEADER_KEYS:
-                data[key] = unpacker.unpack()
-            else:
-                unpacker.skip()
-    except msgpack.OutOfData:
-        pass  # cut short: the keys before the cut
-    except Exception:  # noqa: BLE001 - any garbage: recorded as is, counted as malformed
-        return None
-    if not isinstance(data.get("type"), str):
-        return None
-    stamp, seq = data.get("stamp"), data.get("seq")
-    if isinstance(stamp, bool) or not isinstance(stamp, (int, float)) or not math.isfinite(stamp) or stamp < 0:
-        stamp = 0.0
-    if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
-        seq = -1
-    return data["type"], float(stamp), seq
+peek_header = peek   # (type, stamp, seq) of a payload; the header is touch4d.messages.header's
 
 
 class WallClock:
@@ -133,7 +82,7 @@ class LogWriter:
     def write_many(self, messages: Iterable[tuple[str, bytes, int]]) -> None:
         """Record (topic, payload, log_time) messages in order: the recorder's hot path, kept lean so
         that recording costs little beyond the mcap writer's own work."""
-        decode, channels, counts, gaps_add = _decode_header, self._channels, self._counts, self.gaps.add
+        decode, channels, counts, gaps_add = peek_fast, self._channels, self._counts, self.gaps.add
         add_message = self._mcap.add_message
         size, last = 0, self.last_time
         try:
@@ -142,7 +91,7 @@ class LogWriter:
                     header = decode(payload)
                     type_name, stamp, seq = header.type, header.stamp, header.seq
                 except msgspec.DecodeError:
-                    header = _peek_any(payload)
+                    header = peek_any(payload)
                     if header is None:
                         self.malformed[topic] += 1
                         header = ("", 0.0, -1)

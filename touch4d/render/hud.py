@@ -148,8 +148,8 @@ def text_image(lines: list[str], size: int = 14, color=(230, 230, 235, 255),
     return np.asarray(image)
 
 
-def touched_motors(names: list[str], intensity: np.ndarray, threshold: float = 0.05) -> list[str]:
-    """Names of the motors driven above `threshold`, strongest first."""
+def touched_motors(names: list[str], intensity: np.ndarray, threshold: float) -> list[str]:
+    """Names of the motors driven above `threshold` (the glove's touch_threshold), strongest first."""
     intensity = np.asarray(intensity, dtype=float)
     order = np.argsort(-intensity, kind="stable")
     return [names[i] for i in order if intensity[i] > threshold]

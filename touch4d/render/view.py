@@ -2,13 +2,13 @@
 GL-free frames that any backend draws."""
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 
-from touch4d.geometry.scene import Scene
-from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, TactileField
+from touch4d.geometry.scene import Scene, scene_digest
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
+from touch4d.messages import HandJoints, HandPose, MessageError, MotorCommand, SceneState, TactileField
 from touch4d.tactile.glove import Glove
 from touch4d.tactile.pose import check_pose, place, quaternion_matrix
 from touch4d.tactile.skeleton import ViewHand, quaternion_matrices
@@ -18,29 +18,6 @@ from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_i
 from .scene_geometry import SceneGeometry, object_transforms
 
 BACKGROUND = (0.04, 0.04, 0.06, 1.0)
-
-
-def scene_digest(msg: SceneState) -> bytes:
-    """A digest of everything in a scene message that is drawn (all but `selected` and `revision`)."""
-    digest = hashlib.blake2b(digest_size=16)
-    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}".encode())
-
-    def add(value) -> None:
-        if isinstance(value, dict):
-            for k in sorted(value, key=str):
-                digest.update(f"<{k}>".encode())
-                add(value[k])
-        elif isinstance(value, (list, tuple)):
-            digest.update(f"[{len(value)}".encode())
-            for item in value:
-                add(item)
-        elif isinstance(value, np.ndarray):
-            digest.update(f"{value.dtype}{value.shape}".encode() + np.ascontiguousarray(value).tobytes())
-        else:
-            digest.update(repr(value).encode())
-
-    add(msg.objects)
-    return digest.digest()
 
 
 @dataclass
@@ -65,7 +42,7 @@ class SceneView:
     """Holds the last good state of every input and turns it into a `Frame`. The scene's geometry is
     built once per revision of its shapes and colours; a scene that only moved gets new transforms.
 
-    Setters raise (ValueError subclasses) on input they cannot use and then keep the previous state,
+    Setters raise (MessageError, GeometryError, PoseError) on input they cannot use and then keep the previous state,
     so a caller that catches keeps drawing the last good picture.
     """
 
@@ -126,7 +103,7 @@ class SceneView:
 
     def set_field(self, msg: TactileField) -> None:
         if len(msg.positions) == 0:
-            raise ValueError("tactile/field: expected at least one sample")
+            raise MessageError("TactileField.positions: expected at least one sample to draw")
         self.field = msg
 
     def set_motors(self, msg: MotorCommand) -> None:
@@ -189,7 +166,8 @@ class SceneView:
             names = ", ".join(o.name for o in self.scene.objects[:4]) + (" ..." if len(self.scene.objects) > 4 else "")
             lines.append(f"scene: {names or 'empty'} ({self.scene.projection})")
         if self.motors is not None:
-            touched = touched_motors(self.motors.names, self.motors.intensity)
+            threshold = self.glove.touch_threshold if self.glove is not None else DEFAULT_TOUCH_THRESHOLD
+            touched = touched_motors(self.motors.names, self.motors.intensity, threshold)
             shown = ", ".join(touched[:6]) + (f" +{len(touched) - 6}" if len(touched) > 6 else "")
             lines.append(f"touched motors: {len(touched)} {shown}".rstrip())
         return lines or ["waiting for scene/state"]

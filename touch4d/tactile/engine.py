@@ -7,11 +7,9 @@ node wires this to topics; tests drive it directly.
 """
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
-from touch4d.geometry.scene import Scene
+from touch4d.geometry.scene import Scene, scene_digest
 from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, TactileField
 
 from .glove import Glove
@@ -36,16 +34,16 @@ class TactileEngine:
         self.glove = glove.with_constants(alpha=alpha, beta=beta)
         self.projection = projection
         self.caster = None
-        self.scene_key: bytes | None = None
+        self.scene_key: tuple | None = None   # (scene_digest, projection) of the adopted scene
         self.builds = 0
 
     def set_scene(self, msg: SceneState) -> bool:
         """Adopt a scene; rebuild the RayCaster only if what can be touched changed. True if rebuilt.
 
-        Raises (MessageError, GeometryError: ValueErrors) for a scene that cannot be built; the
+        Raises (MessageError, GeometryError: Touch4dErrors) for a scene that cannot be built; the
         previous scene is then kept.
         """
-        key = scene_key(msg, self.projection)
+        key = (scene_digest(msg, touch_only=True), self.projection)
         if key == self.scene_key:
             return False
         scene = Scene.from_message(msg)
@@ -161,16 +159,3 @@ class HandSource:
             self.using = source
             self.counts["switches"] += 1
 
-
-def scene_key(msg: SceneState, projection: str = "scene") -> bytes:
-    """A digest of everything in a scene message that changes what the hand touches (not colours)."""
-    digest = hashlib.blake2b(digest_size=16)
-    mode = msg.projection if projection == "scene" else projection
-    digest.update(f"{mode}|{float(msg.eye_distance) if mode == 'perspective' else 0.0}".encode())
-    for obj in msg.objects:
-        digest.update(repr((obj.get("shape"), sorted((obj.get("params") or {}).items()), obj.get("size"))).encode())
-        for name in ("position", "orientation"):
-            digest.update(np.ascontiguousarray(obj.get(name), dtype=np.float64).tobytes())
-        for part in obj.get("parts") or []:
-            digest.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
-    return digest.digest()

@@ -1,27 +1,27 @@
 """The glove model: sample points on a parametric hand, motors bound to samples, stimulus constants.
 
-`load_glove(path)` reads and checks a glove file (config/glove.yaml); every mistake, an unknown
-key (a typo) included, raises `ConfigError` naming the file, the key and what was expected. The
-`can:` section and the motors' names, boards and channels are checked by `touch4d.boards.config`,
-so the tactile and motor nodes accept exactly the same glove files.
+`load_glove(path)` reads a glove file once (declared in touch4d.glovefile, so the tactile and motor
+nodes accept exactly the same files); every mistake, an unknown key (a typo) included, raises
+`ConfigError` naming the file, the key and what was expected. This module builds the hand, its
+samples and the motor bindings from the file's tactile part.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from touch4d.configfile import read_yaml, resolve_path
-from touch4d.errors import ConfigError
-from touch4d.boards.config import DEFAULT_GLOVE, glove_can_from_mapping
+from touch4d import glovefile, schema
+from touch4d.configfile import CONFIG_DIR
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD, Beta, CanSection, GloveFile
+from touch4d.schema import Positive
 
-from .bones import BonesSection, read_bones
 from .hand import FINGER_NAMES, Hand
 
-TOP_KEYS = ("screen_edge_m", "grid", "hand", "alpha", "beta", "gamma", "motors", "can", "bones")
+DEFAULT_GLOVE = CONFIG_DIR / "glove.yaml"
+TACTILE_KEYS = ("screen_edge_m", "grid", "hand", "alpha", "beta", "gamma")
 
 
 @dataclass(frozen=True)
@@ -40,8 +40,9 @@ class Glove:
     alpha: float
     beta: float
     gamma: float
-    can: dict = field(default_factory=dict)
-    bones: BonesSection = field(default_factory=BonesSection)   # where the finger joints lie (bones.py)
+    touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # a motor driven above this counts as touched
+    can: CanSection = field(default_factory=CanSection)   # the boards' part, as the file gave it
+    bones: glovefile.Bones = field(default_factory=glovefile.Bones)   # where the finger joints lie
 
     @cached_property
     def skeleton(self):
@@ -65,28 +66,32 @@ class Glove:
 
 def load_glove(path: str | Path | None = None) -> Glove:
     """Read a glove file (default: config/glove.yaml) and build its samples and motor bindings."""
-    path = resolve_path(path if path is not None else "config/glove.yaml", what="glove file")
-    return glove_from_dict(read_yaml(path, "glove file"), path)
+    data, path = glovefile.load(path)
+    return glove_from_file(data, path)
 
 
 def glove_from_dict(data, path="<input>") -> Glove:
     """Build a `Glove` from the parsed contents of a glove file."""
-    r = _Reader(path)
-    root = r.mapping(data, "(top level)", TOP_KEYS)
-    screen_edge_m = r.number(root, "screen_edge_m", positive=True)
-    counts = _grid_counts(r, r.mapping(r.get(root, "grid"), "grid", ("n",)))
-    hand = _hand(r, r.mapping(r.get(root, "hand"), "hand", ("palm", "fingers")))
-    alpha = check_alpha(r.get(root, "alpha"), path, "alpha")
-    beta = check_beta(r.get(root, "beta"), path, "beta")
-    gamma = check_gamma(r.get(root, "gamma"), path, "gamma")
-    # Names, boards and channels are the boards package's: one set of rules for both readers.
-    can_cfg = glove_can_from_mapping(root, path)
+    return glove_from_file(glovefile.convert(data, path), path)
 
+
+def glove_from_file(data: GloveFile, path="<input>") -> Glove:
+    """The tactile part of a checked glove file: the hand, its samples and where each motor binds."""
+    for key in TACTILE_KEYS:
+        if getattr(data, key) is None:
+            schema.fail(path, key, "a value (the tactile model needs screen_edge_m, grid, hand, alpha, beta, gamma)")
+    for i, finger in enumerate(data.hand.fingers):
+        if finger.name not in FINGER_NAMES:
+            schema.fail(path, f"hand.fingers[{i}].name", f"one of {', '.join(FINGER_NAMES)}", got=finger.name,
+                        choices=FINGER_NAMES)
+    palm = schema.to_builtins(data.hand.palm)
+    hand = Hand.from_sizes(palm, [{**schema.to_builtins(f), "base": list(f.base)} for f in data.hand.fingers])
+    counts = data.grid.counts
     samples = hand.grid_samples(counts)
     if len(samples) == 0:
-        raise ConfigError(path, "grid.n", "a grid that leaves sample points inside the hand", got=counts)
-    names = list(can_cfg.motor_names)
-    positions = _motor_positions(r, root["motors"])
+        schema.fail(path, "grid.n", "a grid that leaves sample points inside the hand", got=data.grid.n)
+    names = [m.name for m in data.motors]
+    positions = np.array([m.position for m in data.motors], dtype=float)
 
     distance = np.linalg.norm(positions[:, None, :] - samples[None, :, :], axis=2)
     motor_sample = np.argmin(distance, axis=1)
@@ -95,120 +100,28 @@ def glove_from_dict(data, path="<input>") -> Glove:
     far = np.flatnonzero(distance[np.arange(len(names)), motor_sample] > reach)
     if len(far):
         k = int(far[0])
-        raise ConfigError(path, f"motors[{k}].position",
-                          f"a point on the hand, within {reach:.4f} m of a sample point",
-                          got=positions[k].tolist())
+        schema.fail(path, f"motors[{k}].position", f"a point on the hand, within {reach:.4f} m of a sample point",
+                    got=positions[k].tolist())
     return Glove(
-        path=str(path), screen_edge_m=screen_edge_m, hand=hand, samples=samples,
+        path=str(path), screen_edge_m=data.screen_edge_m, hand=hand, samples=samples,
         motor_names=names, motor_positions=positions, motor_sample=motor_sample,
-        motor_board=np.array(can_cfg.motor_board, dtype=int), motor_channel=np.array(can_cfg.motor_channel, dtype=int),
-        alpha=alpha, beta=beta, gamma=gamma, can=dict(root.get("can") or {}),
-        bones=read_bones(root.get("bones"), path),
+        motor_board=np.array([m.board for m in data.motors], dtype=int),
+        motor_channel=np.array([m.channel for m in data.motors], dtype=int),
+        alpha=data.alpha, beta=data.beta, gamma=data.gamma, touch_threshold=data.touch_threshold, can=data.can,
+        bones=data.bones,
     )
 
 
 def check_alpha(value, path, key) -> float:
-    return _Reader(path).scalar(value, key, positive=True)
+    """A value for alpha (eq. 1), checked as the glove file's."""
+    return schema.convert(value, Positive, path, key)
 
 
 def check_beta(value, path, key) -> float:
-    beta = _Reader(path).scalar(value, key)
-    if not 0.0 <= beta <= 1.0:
-        raise ConfigError(path, key, "a number in 0..1 (paper eq. 2)", got=value)
-    return beta
+    """A value for beta (eq. 2), checked as the glove file's."""
+    return schema.convert(value, Beta, path, key)
 
 
 def check_gamma(value, path, key) -> float:
-    return _Reader(path).scalar(value, key, positive=True)
-
-
-def _grid_counts(r: "_Reader", grid: dict) -> tuple[int, int, int]:
-    n = r.get(grid, "n", "grid.n")
-    values = n if isinstance(n, list) else [n, n, n]
-    if len(values) != 3 or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in values):
-        raise ConfigError(r.path, "grid.n", "an integer >= 2, or a list of 3 of them", got=n)
-    return tuple(values)
-
-
-def _hand(r: "_Reader", hand: dict) -> Hand:
-    palm = r.mapping(r.get(hand, "palm", "hand.palm"), "hand.palm", ("width", "length", "thickness"))
-    palm_sizes = {k: r.number(palm, k, positive=True, where="hand.palm") for k in ("width", "length", "thickness")}
-    if palm_sizes["thickness"] > palm_sizes["width"]:  # the rounded sides need width >= thickness (hand.py)
-        raise ConfigError(r.path, "hand.palm.thickness", f"a number <= hand.palm.width ({palm_sizes['width']:g})",
-                          got=palm_sizes["thickness"])
-    fingers = r.get(hand, "fingers", "hand.fingers")
-    if not isinstance(fingers, list) or not fingers:
-        raise ConfigError(r.path, "hand.fingers", "a list of fingers (thumb .. little)", got=fingers)
-    made = []
-    for i, f in enumerate(fingers):
-        where = f"hand.fingers[{i}]"
-        f = r.mapping(f, where, ("name", "base", "angle_deg", "length", "radius"))
-        name = r.get(f, "name", f"{where}.name")
-        if name not in FINGER_NAMES:
-            raise ConfigError(r.path, f"{where}.name", f"one of {', '.join(FINGER_NAMES)}", got=name)
-        made.append({
-            "name": name,
-            "base": r.vector(r.get(f, "base", f"{where}.base"), f"{where}.base", 2),
-            "angle_deg": r.number(f, "angle_deg", where=where),
-            "length": r.number(f, "length", positive=True, where=where),
-            "radius": r.number(f, "radius", positive=True, where=where),
-        })
-    names = [f["name"] for f in made]
-    if len(set(names)) != len(names):
-        raise ConfigError(r.path, "hand.fingers", "each finger named once", got=names)
-    return Hand.from_sizes(palm_sizes, made)
-
-
-def _motor_positions(r: "_Reader", motors: list) -> np.ndarray:
-    """Each motor's position on the hand (metres); the list itself was checked by glove_can_from_mapping."""
-    positions = []
-    for i, m in enumerate(motors):
-        where = f"motors[{i}]"
-        r.mapping(m, where, ("name", "position", "board", "channel"))
-        positions.append(r.vector(r.get(m, "position", f"{where}.position"), f"{where}.position", 3))
-    return np.array(positions, dtype=float)
-
-
-class _Reader:
-    """Typed reads from parsed YAML that raise ConfigError naming the file and key."""
-
-    def __init__(self, path):
-        self.path = path
-
-    def get(self, mapping: dict, key: str, where: str | None = None):
-        if key not in mapping:
-            raise ConfigError(self.path, where or key, "this key to be present")
-        return mapping[key]
-
-    def mapping(self, value, where: str, keys: tuple[str, ...] | None = None) -> dict:
-        """`value` as a mapping; with `keys`, any other key (a typo) is named."""
-        if not isinstance(value, dict):
-            raise ConfigError(self.path, where, "a mapping", got=value)
-        unknown = [k for k in value if k not in keys] if keys is not None else []
-        if unknown:
-            prefix = "" if where.startswith("(") else f"{where}."
-            raise ConfigError(self.path, f"{prefix}{unknown[0]}", f"one of {', '.join(keys)}", got=unknown[0])
-        return value
-
-    def scalar(self, value, key: str, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ConfigError(self.path, key, "a finite number", got=value)
-        if positive and not value > 0:
-            raise ConfigError(self.path, key, "a number > 0", got=value)
-        return float(value)
-
-    def number(self, mapping: dict, key: str, positive: bool = False, where: str | None = None) -> float:
-        full = f"{where}.{key}" if where else key
-        return self.scalar(self.get(mapping, key, full), full, positive)
-
-    def integer(self, mapping: dict, key: str, where: str, low: int | None = None) -> int:
-        full = f"{where}.{key}"
-        value = self.get(mapping, key, full)
-        if isinstance(value, bool) or not isinstance(value, int) or (low is not None and value < low):
-            raise ConfigError(self.path, full, "an integer" + (f" >= {low}" if low is not None else ""), got=value)
-        return value
-
-    def vector(self, value, where: str, size: int) -> list[float]:
-        if not isinstance(value, list) or len(value) != size:
-            raise ConfigError(self.path, where, f"a list of {size} numbers", got=value)
-        return [self.scalar(v, where) for v in value]
+    """A value for gamma (eq. 3), checked as the glove file's."""
+    return schema.convert(value, Positive, path, key)

@@ -27,7 +27,9 @@ from touch4d.errors import Touch4dError
 from touch4d.messages import HandJoints
 from touch4d.tracking.webxr import JOINTS
 
-from .bones import BonesSection
+from touch4d.glovefile import Bones
+
+from .bones import fractions as bone_fractions
 from .hand import FINGER_NAMES, Hand
 
 UNIT_TOLERANCE = 1e-3          # as touch4d.messages.hand: a tracker's float32 quaternion passes
@@ -168,7 +170,7 @@ def _rot_y(deg: float) -> np.ndarray:
 class Skeleton:
     """The glove's rest joint set (hand frame, metres) and its samples and motors bound to bones."""
 
-    def __init__(self, hand: Hand, bones: BonesSection, samples: np.ndarray, motor_positions: np.ndarray,
+    def __init__(self, hand: Hand, bones: Bones, samples: np.ndarray, motor_positions: np.ndarray,
                  motor_sample: np.ndarray):
         fingers = {f.name: f for f in hand.fingers}
         thumb = fingers.get("thumb")
@@ -191,7 +193,7 @@ class Skeleton:
                 (bx, by), angle, length, radius = _DEFAULT_FINGERS[name]
                 base = np.array([bx, by, 0.0])
                 tip = base + length * np.array([math.sin(math.radians(angle)), math.cos(math.radians(angle)), 0.0])
-            fractions = np.asarray(bones.fractions(name))
+            fractions = np.asarray(bone_fractions(bones, name))
             self.fractions[name] = fractions
             frame = _joint_frame(tip - base)
             at = np.r_[0.0, np.cumsum(fractions)]

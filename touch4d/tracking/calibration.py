@@ -13,36 +13,69 @@ import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from touch4d import schema
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
+from touch4d.schema import Finite, Positive
 
 from . import quaternion
-from .config import CONFIG_DIR, get_map, get_number, get_vector, read_yaml
+from .config import CONFIG_DIR
 
 DEFAULT_CALIBRATION = CONFIG_DIR / "calibration.yaml"
 AXES = ("x", "y", "z")
 
 
+Vec3 = Annotated[tuple[Finite, Finite, Finite], msgspec.Meta(description="a list of 3 finite numbers")]
+AxisStep = Annotated[tuple[Literal["x", "y", "z"], Finite],
+                     msgspec.Meta(description="[axis, degrees] with axis one of x, y, z")]
+Steps = Annotated[list[AxisStep], msgspec.Meta(description="a list of [axis, degrees] steps, axis one of x, y, z")]
+
+
 def rotation_from_steps(steps, file=None, key: str = "rotation_deg") -> Rotation:
     """A rotation from [[axis, degrees], ...] applied in order (the first step acts first)."""
-    if not isinstance(steps, list):
-        raise ConfigError(file, key, "a list of [axis, degrees] steps, axis one of x, y, z", got=steps)
+    return _steps(schema.convert(list(steps) if isinstance(steps, tuple) else steps, Steps, file, key))
+
+
+def _steps(steps) -> Rotation:
     rot = Rotation.identity()
-    for index, step in enumerate(steps):
-        if (
-            not isinstance(step, (list, tuple))
-            or len(step) != 2
-            or step[0] not in AXES
-            or isinstance(step[1], bool)
-            or not isinstance(step[1], (int, float))
-        ):
-            raise ConfigError(file, f"{key}[{index}]", "[axis, degrees] with axis one of x, y, z", got=step)
-        rot = Rotation.from_euler(step[0], float(step[1]), degrees=True) * rot
+    for axis, degrees in steps:
+        rot = Rotation.from_euler(axis, float(degrees), degrees=True) * rot
     return rot
+
+
+class ScreenSection(msgspec.Struct, forbid_unknown_fields=True):
+    center_m: Vec3                       # screen centre in the room, metres
+    edge_m: Positive                     # the screen cube's edge, metres
+    rotation_deg: Steps = []             # screen axes -> room axes
+
+
+class HandMount(msgspec.Struct, forbid_unknown_fields=True):
+    """Where the glove hand sits in a tracked device's frame."""
+
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    rotation_deg: Steps = []
+
+
+class Placement(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    """Where a headset's re-centre puts the screen: ahead of the eyes and below them, metres."""
+
+    distance_m: Positive = 0.45
+    below_eye_m: Finite = 0.35
+
+
+class CalibrationFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A calibration file (config/calibration.yaml), as written."""
+
+    screen: ScreenSection
+    hand_in_controller: HandMount = msgspec.field(default_factory=HandMount)
+    hand_in_grip: HandMount = msgspec.field(default_factory=HandMount)
+    placement: Placement = msgspec.field(default_factory=Placement)
 
 
 @dataclass(frozen=True)
@@ -122,39 +155,27 @@ def yaw_of(quat) -> float:
 HAND_KEYS = ("hand_in_controller", "hand_in_grip")
 
 
+def read_calibration_file(path=None) -> tuple[CalibrationFile, Path]:
+    """The calibration file at `path` (default config/calibration.yaml), checked, and its path."""
+    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
+    return schema.load(path, CalibrationFile, "calibration file"), path
+
+
 def load_calibration(path=None, hand: str = "hand_in_controller") -> Calibration:
     """Read config/calibration.yaml (or `path`); a bad file stops with the file, key and what was expected.
     `hand` names the section placing the glove hand on the tracked device (one of HAND_KEYS)."""
-    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
-    data = read_yaml(path)
-    screen = get_map(data, "screen", path)
-    hand_map = get_map(data, hand, path, default={})
+    data, _ = read_calibration_file(path)
+    mount = getattr(data, hand)
     return Calibration(
-        center_m=get_vector(screen, "center_m", path, 3, "screen."),
-        screen_rotation=rotation_from_steps(screen.get("rotation_deg", []), path, "screen.rotation_deg"),
-        edge_m=get_number(screen, "edge_m", path, "screen.", positive=True),
-        hand_offset_m=get_vector(hand_map, "position_m", path, 3, f"{hand}.", default=[0, 0, 0]),
-        hand_rotation=rotation_from_steps(hand_map.get("rotation_deg", []), path, f"{hand}.rotation_deg"),
+        center_m=np.array(data.screen.center_m, dtype=float), screen_rotation=_steps(data.screen.rotation_deg),
+        edge_m=data.screen.edge_m,
+        hand_offset_m=np.array(mount.position_m, dtype=float), hand_rotation=_steps(mount.rotation_deg),
     )
-
-
-@dataclass(frozen=True)
-class Placement:
-    """Where a headset's re-centre puts the screen: ahead of the eyes and below them, metres."""
-
-    distance_m: float = 0.45
-    below_eye_m: float = 0.35
 
 
 def load_placement(path=None) -> Placement:
     """The `placement:` section of a calibration file (defaults when absent)."""
-    path = resolve_path(path if path is not None else "config/calibration.yaml", what="calibration file")
-    section = get_map(read_yaml(path), "placement", path, default={})
-    default = Placement()
-    return Placement(
-        distance_m=get_number(section, "distance_m", path, "placement.", default=default.distance_m, positive=True),
-        below_eye_m=get_number(section, "below_eye_m", path, "placement.", default=default.below_eye_m),
-    )
+    return read_calibration_file(path)[0].placement
 
 
 def save_screen_placement(path, calibration: Calibration) -> None:

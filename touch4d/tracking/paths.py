@@ -12,15 +12,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Annotated, Literal, Union
 
+import msgspec
 import numpy as np
 
+from touch4d import schema
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
+from touch4d.schema import Finite, Fraction, NonNegative, Positive
 
 from . import quaternion
-from .calibration import rotation_from_steps
-from .config import CONFIG_DIR, get_map, get_number, get_vector, read_yaml
+from .calibration import Steps, Vec3, _steps
+from .config import CONFIG_DIR
 
 DEFAULT_PATHS = CONFIG_DIR / "paths.yaml"
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -153,71 +157,85 @@ def _canonical(q) -> np.ndarray:
 # ---- config ------------------------------------------------------------------------------------
 
 
-def path_from_config(spec: dict, file=None, where: str = "") -> object:
+class _Path(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
+    rotation_deg: Steps = []             # hand -> screen
+    trigger: Fraction = 0.0              # the controller's trigger, held along the path
+
+
+class SweepSpec(_Path, tag="sweep", kw_only=True):
+    start: Vec3
+    end: Vec3
+    duration_s: Positive
+
+
+class PressSpec(_Path, tag="press", kw_only=True):
+    target: Vec3
+    approach: Vec3 = (0.0, 0.0, 1.0)
+    distance: Positive
+    move_s: Positive
+    dwell_s: NonNegative = 1.0
+
+
+class OrbitSpec(_Path, tag="orbit", kw_only=True):
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: Positive
+    period_s: Positive
+    plane: Literal["xy", "yx", "xz", "zx", "yz", "zy"] = "xy"
+
+
+class HoldSpec(_Path, tag="hold", kw_only=True):
+    position: Vec3
+    duration_s: Positive = 1.0
+
+
+class KeyframeSpec(msgspec.Struct, forbid_unknown_fields=True):
+    t: Finite
+    position: Vec3
+    rotation_deg: Steps | None = None    # default: the path's
+    trigger: Fraction = 0.0
+    buttons: list[str] = []
+
+
+class WaypointsSpec(_Path, tag="waypoints", kw_only=True):
+    keyframes: Annotated[list[KeyframeSpec], msgspec.Meta(min_length=1, description="a non-empty list of {t, position, ...}")]
+
+
+PathSpec = Union[SweepSpec, PressSpec, OrbitSpec, HoldSpec, WaypointsSpec]
+
+
+class PathsFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A paths file (config/paths.yaml): named paths."""
+
+    paths: dict[str, PathSpec]
+
+
+def path_from_config(spec, file=None, where: str = "") -> object:
     """Build a path from one entry of paths.yaml; errors name the file and the key."""
-    if not isinstance(spec, dict):
-        raise ConfigError(file, where.rstrip("."), "a map with a 'kind'", got=spec)
-    kind = spec.get("kind")
-    q = rotation_from_steps(spec.get("rotation_deg", []), file, where + "rotation_deg").as_quat()
-    trigger = _trigger(spec, file, where)
+    key = where.rstrip(".")
+    if not isinstance(spec, (SweepSpec, PressSpec, OrbitSpec, HoldSpec, WaypointsSpec)):
+        spec = schema.convert(spec, PathSpec, file, key)
+    q = _steps(spec.rotation_deg).as_quat()
     try:
-        if kind == "sweep":
-            return sweep(get_vector(spec, "start", file, 3, where), get_vector(spec, "end", file, 3, where),
-                         get_number(spec, "duration_s", file, where, positive=True), q, trigger)
-        if kind == "press":
-            return press(get_vector(spec, "target", file, 3, where),
-                         get_vector(spec, "approach", file, 3, where, default=[0, 0, 1]),
-                         get_number(spec, "distance", file, where, positive=True),
-                         get_number(spec, "move_s", file, where, positive=True),
-                         get_number(spec, "dwell_s", file, where, default=1.0), q)
-        if kind == "orbit":
-            return Orbit(get_vector(spec, "center", file, 3, where, default=[0, 0, 0]),
-                         get_number(spec, "radius", file, where, positive=True),
-                         get_number(spec, "period_s", file, where, positive=True),
-                         str(spec.get("plane", "xy")), q, trigger)
-        if kind == "hold":
-            return Hold(get_vector(spec, "position", file, 3, where),
-                        get_number(spec, "duration_s", file, where, default=1.0, positive=True), q, trigger)
-        if kind == "waypoints":
-            return Waypoints(_keyframes(spec, q, file, where))
-    except ValueError as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(file, where.rstrip("."), "a valid path", got=str(exc)) from None
-    raise ConfigError(file, where + "kind", "one of waypoints, sweep, press, orbit, hold", got=kind)
-
-
-def _trigger(spec: dict, file, where: str) -> float:
-    value = get_number(spec, "trigger", file, where, default=0.0)
-    if not 0.0 <= value <= 1.0:
-        raise ConfigError(file, where + "trigger", "a number in 0..1", got=value)
-    return value
-
-
-def _keyframes(spec: dict, q: np.ndarray, file, where: str) -> list[Keyframe]:
-    frames = spec.get("keyframes")
-    if not isinstance(frames, list) or not frames:
-        raise ConfigError(file, where + "keyframes", "a non-empty list of {t, position, ...}", got=frames)
-    out = []
-    for index, frame in enumerate(frames):
-        at = f"{where}keyframes[{index}]."
-        if not isinstance(frame, dict):
-            raise ConfigError(file, at.rstrip("."), "a map {t, position}", got=frame)
-        buttons = frame.get("buttons", [])
-        if not isinstance(buttons, list) or not all(isinstance(b, str) for b in buttons):
-            raise ConfigError(file, at + "buttons", "a list of button names", got=buttons)
-        frame_q = rotation_from_steps(frame["rotation_deg"], file, at + "rotation_deg").as_quat() \
-            if "rotation_deg" in frame else q
-        out.append(Keyframe(get_number(frame, "t", file, at), get_vector(frame, "position", file, 3, at),
-                            frame_q, _trigger(frame, file, at), tuple(buttons)))
-    return out
+        if isinstance(spec, SweepSpec):
+            return sweep(spec.start, spec.end, spec.duration_s, q, spec.trigger)
+        if isinstance(spec, PressSpec):
+            return press(spec.target, spec.approach, spec.distance, spec.move_s, spec.dwell_s, q)
+        if isinstance(spec, OrbitSpec):
+            return Orbit(spec.center, spec.radius, spec.period_s, spec.plane, q, spec.trigger)
+        if isinstance(spec, HoldSpec):
+            return Hold(spec.position, spec.duration_s, q, spec.trigger)
+        return Waypoints([Keyframe(k.t, np.array(k.position, dtype=float),
+                                   _steps(k.rotation_deg).as_quat() if k.rotation_deg is not None else q,
+                                   k.trigger, tuple(k.buttons)) for k in spec.keyframes])
+    except ValueError as exc:           # a path the kinds refuse (keyframe times, a zero approach)
+        raise ConfigError(file, key, "a valid path", got=str(exc)) from None
 
 
 def load_paths(path=None) -> dict[str, object]:
     """Every named path of config/paths.yaml (or `path`)."""
     path = resolve_path(path if path is not None else "config/paths.yaml", what="paths file")
-    entries = get_map(read_yaml(path), "paths", path)
-    return {str(name): path_from_config(spec, path, f"paths.{name}.") for name, spec in entries.items()}
+    entries = schema.load(path, PathsFile, "paths file").paths
+    return {name: path_from_config(spec, path, f"paths.{name}.") for name, spec in entries.items()}
 
 
 def load_path(name: str, path=None):
@@ -225,5 +243,5 @@ def load_path(name: str, path=None):
     file = resolve_path(path if path is not None else "config/paths.yaml", what="paths file")
     paths = load_paths(file)
     if name not in paths:
-        raise ConfigError(file, f"paths.{name}", f"one of {', '.join(sorted(paths))}", got=name)
+        schema.fail(file, f"paths.{name}", f"one of {', '.join(sorted(paths))}", got=name, choices=paths)
     return paths[name]

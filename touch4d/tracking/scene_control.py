@@ -9,20 +9,42 @@ select the next object, reset the scene or switch the projection.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
+import msgspec
 import numpy as np
-from touch4d.errors import ConfigError
+
+from touch4d import schema
+from touch4d.errors import Touch4dError
+from touch4d.schema import Finite
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene
 from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
 
 from . import quaternion
 from .calibration import Calibration
-from .config import finite_parameter
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
 ROTATE_TARGETS = ("object", "scene")
 BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
+
+
+class SceneCommandError(Touch4dError, ValueError):
+    """A scene/command the scene cannot carry out (an unknown command, a bad argument): says what was expected."""
+
+
+class Gains(msgspec.Struct, forbid_unknown_fields=True):
+    """The scene node's `gains` parameter (defaults: ControlConfig's)."""
+
+    translation: Finite | None = None
+    rotation: Finite | None = None
+
+
+class Spin(msgspec.Struct, forbid_unknown_fields=True):
+    """The scene node's `spin` parameter: turn by itself in `plane` at `deg_per_s`."""
+
+    plane: str
+    deg_per_s: Finite = 10.0
 
 
 @dataclass(frozen=True)
@@ -41,30 +63,22 @@ class ControlConfig:
     def from_params(cls, gains: dict, trigger_threshold: float, buttons: dict, rotate: str, spin: dict,
                     source: str = "scene parameters") -> "ControlConfig":
         """Check the scene node's parameters; errors name the parameter and what was expected."""
-        unknown = set(gains) - {"translation", "rotation"}
-        if unknown:
-            raise ConfigError(source, f"gains.{sorted(unknown)[0]}", "only 'translation' and 'rotation'")
-        t_gain = finite_parameter(gains.get("translation", cls.translation_gain), source, "gains.translation")
-        r_gain = finite_parameter(gains.get("rotation", cls.rotation_gain), source, "gains.rotation")
-        threshold = finite_parameter(trigger_threshold, source, "trigger_threshold")
+        g = schema.convert(gains, Gains, source, "gains")
+        t_gain = cls.translation_gain if g.translation is None else g.translation
+        r_gain = cls.rotation_gain if g.rotation is None else g.rotation
+        threshold = schema.convert(trigger_threshold, Finite, source, "trigger_threshold")
         if not 0.0 < threshold <= 1.0:
-            raise ConfigError(source, "trigger_threshold", "a number in (0, 1]", got=threshold)
-        for button, command in buttons.items():
-            if command not in BUTTON_COMMANDS:
-                raise ConfigError(source, f"buttons.{button}", f"one of {', '.join(BUTTON_COMMANDS)}", got=command)
-        if rotate not in ROTATE_TARGETS:
-            raise ConfigError(source, "rotate", "object or scene", got=rotate)
+            schema.fail(source, "trigger_threshold", "a number in (0, 1]", got=threshold)
+        schema.convert(buttons, dict[str, Literal[BUTTON_COMMANDS]], source, "buttons")
+        rotate = schema.convert(rotate, Literal[ROTATE_TARGETS], source, "rotate")
         plane, rate = None, 0.0
         if spin:
-            unknown = set(spin) - {"plane", "deg_per_s"}
-            if unknown:
-                raise ConfigError(source, f"spin.{sorted(unknown)[0]}", "only 'plane' and 'deg_per_s'")
-            plane = spin.get("plane")
+            sp = schema.convert(spin, Spin, source, "spin")
             try:
-                plane_axes(plane)
+                plane_axes(sp.plane)
             except ValueError:
-                raise ConfigError(source, "spin.plane", f"a rotation plane ({', '.join(PLANES)})", got=plane) from None
-            rate = finite_parameter(spin.get("deg_per_s", 10.0), source, "spin.deg_per_s")
+                schema.fail(source, "spin.plane", f"a rotation plane ({', '.join(PLANES)})", got=sp.plane, choices=PLANES)
+            plane, rate = sp.plane, sp.deg_per_s
         return cls(t_gain, r_gain, threshold, dict(buttons), rotate, plane, rate)
 
 
@@ -134,7 +148,7 @@ class SceneControl:
     def command(self, name: str, argument: str = "") -> bool:
         """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle].
 
-        A bad command or argument raises ValueError saying what was expected.
+        A bad command or argument raises SceneCommandError saying what was expected.
         """
         if name == "next":
             return self._select(self._next_index())
@@ -148,7 +162,7 @@ class SceneControl:
             return True
         if name == "projection":
             return self._projection(argument)
-        raise ValueError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
 
     def _next_index(self) -> int:
         order = list(range(len(self.scene.objects))) + [-1]
@@ -168,7 +182,7 @@ class SceneControl:
         except ValueError:
             index = None
         if index is None or not 0 <= index < len(names):
-            raise ValueError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
+            raise SceneCommandError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
                              f"or 'scene', got {argument!r}")
         return index
 
@@ -187,7 +201,7 @@ class SceneControl:
         elif argument in PROJECTIONS:
             target = argument
         else:
-            raise ValueError(f"projection: expected {', '.join(PROJECTIONS)} or toggle, got {argument!r}")
+            raise SceneCommandError(f"projection: expected {', '.join(PROJECTIONS)} or toggle, got {argument!r}")
         if target == self.scene.projection:
             return False
         self.scene.projection = target

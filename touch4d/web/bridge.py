@@ -23,6 +23,7 @@ from typing import Callable
 
 import numpy as np
 
+from touch4d.errors import Touch4dError
 from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
@@ -174,7 +175,7 @@ class WebBridge:
         try:
             if not self.view.set_scene(msg):
                 return
-        except (ValueError, TypeError, KeyError) as exc:     # MessageError, GeometryError, odd parameters
+        except Touch4dError as exc:     # MessageError, GeometryError: a scene that cannot be drawn
             self._warn_once(f"scene:{exc}", f"scene/state revision {msg.revision} cannot be drawn: {exc}")
             return
         geometry = self.view.layer.geometry

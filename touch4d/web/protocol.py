@@ -34,9 +34,13 @@ from __future__ import annotations
 import json
 import math
 import struct
+from typing import Annotated, Literal, Union
 
+import msgspec
 import numpy as np
 
+from touch4d import schema
+from touch4d.errors import ConfigError, Touch4dError
 from touch4d.tracking.webxr import JOINTS, XR_STANDARD_BUTTONS, XRSource
 
 ARRAY_DTYPES = ("f4", "u4", "i4", "u2", "u1")
@@ -50,12 +54,15 @@ BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b)
 _LEN = struct.Struct("<I")
 
 
-class PageError(ValueError):
-    """A page message that is dropped; `cause` is its counter's name: malformed, oversized or non_finite."""
+class PageError(Touch4dError, ValueError):
+    """A page message that is dropped; `cause` is its counter's name: malformed, oversized or non_finite.
+    A message of the wrong shape names its `field` (e.g. sources[0].grip), what was `expected` and what
+    it `got`."""
 
-    def __init__(self, cause: str, detail: str):
+    def __init__(self, cause: str, detail: str, field: str | None = None, expected: str | None = None, got=None):
         super().__init__(detail)
         self.cause = cause
+        self.field, self.expected, self.got = field, expected, got
 
 
 # ---- node -> page ----------------------------------------------------------------------------------
@@ -109,6 +116,66 @@ def _align(n: int) -> int:
 # ---- page -> node ----------------------------------------------------------------------------------
 
 
+# JSON cannot carry NaN or infinity; a number too big for a double (1e999) is refused by the decoder.
+Pose = Annotated[tuple[float, float, float, float, float, float, float],
+                 msgspec.Meta(description="a pose [x, y, z, qx, qy, qz, qw]")]
+Joint = Annotated[tuple[float, float, float, float, float, float, float, float],
+                  msgspec.Meta(description="a joint [x, y, z, qx, qy, qz, qw, radius]")]
+
+
+def _check_quaternion(pose, key: str) -> None:
+    norm = math.sqrt(sum(v * v for v in pose[3:7]))
+    if abs(norm - 1.0) > QUAT_TOLERANCE:
+        raise schema.Invalid(f"a unit quaternion (norm {norm:.4g})", list(pose), key)
+
+
+class SourceMessage(msgspec.Struct, forbid_unknown_fields=True):
+    handedness: Literal["right", "left", "none"]
+    trigger: Annotated[float, msgspec.Meta(ge=0, le=1)]
+    buttons: list[Literal[tuple(sorted(BUTTON_NAMES))]]
+    grip: Pose | None = None
+    joints: Annotated[list[Joint], msgspec.Meta(min_length=len(JOINTS), max_length=len(JOINTS))] | None = None
+
+    def __post_init__(self):
+        if self.grip is not None:
+            _check_quaternion(self.grip, "grip")
+        for k, joint in enumerate(self.joints or ()):
+            _check_quaternion(joint, f"joints[{k}]")
+            if joint[7] < 0:
+                raise schema.Invalid("a radius >= 0", joint[7], f"joints[{k}][7]")
+
+
+class InputMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="input"):
+    time: Annotated[float, msgspec.Meta(ge=0)]
+    tracking: bool
+    sources: Annotated[list[SourceMessage], msgspec.Meta(max_length=MAX_SOURCES)]
+    head: Pose | None = None
+
+    def __post_init__(self):
+        if self.head is not None:
+            _check_quaternion(self.head, "head")
+
+
+class RecenterMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="recenter"):
+    head: Pose
+
+    def __post_init__(self):
+        _check_quaternion(self.head, "head")
+
+
+class SessionMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="session"):
+    mode: Literal["immersive", "inline"]
+    active: bool
+
+
+class StatsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="stats"):
+    fps: Annotated[float, msgspec.Meta(ge=0, le=1000)]
+
+
+PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage]
+_DECODER = msgspec.json.Decoder(PageMessage)
+
+
 def _reject_constant(name: str):
     raise PageError("non_finite", f"{name} is not a number")
 
@@ -126,102 +193,47 @@ def parse_page_message(data: str | bytes) -> dict:
     if len(data.encode()) > MAX_PAGE_MESSAGE:
         raise PageError("oversized", f"more than {MAX_PAGE_MESSAGE} bytes")
     try:
-        msg = json.loads(data, parse_constant=_reject_constant)
-    except PageError:
-        raise
-    except (ValueError, RecursionError) as exc:
-        raise PageError("malformed", f"not JSON: {exc}") from None
-    if not isinstance(msg, dict):
-        raise PageError("malformed", f"expected a JSON object, got {type(msg).__name__}")
-    kind = msg.get("type")
-    if kind not in PAGE_TYPES:
-        raise PageError("malformed", f"type: expected one of {', '.join(PAGE_TYPES)}, got {kind!r}")
-    if kind == "input":
-        return {"type": "input", "time": _number(msg, "time", 0.0, math.inf),
-                "tracking": _bool(msg, "tracking"), "head": _pose(msg.get("head"), "head", optional=True),
-                "sources": _sources(msg.get("sources"))}
-    if kind == "recenter":
-        return {"type": "recenter", "head": _pose(msg.get("head"), "head")}
-    if kind == "session":
-        mode = msg.get("mode")
-        if mode not in ("immersive", "inline"):
-            raise PageError("malformed", f"mode: expected immersive or inline, got {mode!r}")
-        return {"type": "session", "mode": mode, "active": _bool(msg, "active")}
-    return {"type": "stats", "fps": _number(msg, "fps", 0.0, 1000.0)}
+        msg = _DECODER.decode(data)
+    except msgspec.ValidationError as exc:      # (a DecodeError too: first)
+        raise _shape_error(data, exc) from None
+    except msgspec.DecodeError as exc:
+        raise _syntax_error(data, exc) from None
+    if isinstance(msg, InputMessage):
+        return {"type": "input", "time": msg.time, "tracking": msg.tracking, "head": _array(msg.head),
+                "sources": [XRSource(s.handedness, _array(s.grip), s.trigger, tuple(dict.fromkeys(s.buttons)),
+                                     None if s.joints is None else np.array(s.joints, dtype=float))
+                            for s in msg.sources]}
+    if isinstance(msg, RecenterMessage):
+        return {"type": "recenter", "head": _array(msg.head)}
+    if isinstance(msg, SessionMessage):
+        return {"type": "session", "mode": msg.mode, "active": msg.active}
+    return {"type": "stats", "fps": msg.fps}
 
 
-def _number(msg: dict, key: str, lo: float, hi: float) -> float:
-    value = msg.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PageError("malformed", f"{key}: expected a number, got {type(value).__name__}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise PageError("non_finite", f"{key}: not finite")
-    if not lo <= value <= hi:
-        raise PageError("malformed", f"{key}: expected {lo:g}..{hi:g}, got {value:g}")
-    return value
+def _array(pose) -> np.ndarray | None:
+    return None if pose is None else np.array(pose, dtype=float)
 
 
-def _bool(msg: dict, key: str) -> bool:
-    value = msg.get(key)
-    if not isinstance(value, bool):
-        raise PageError("malformed", f"{key}: expected true or false, got {type(value).__name__}")
-    return value
-
-
-def _floats(value, shape: tuple[int, ...], where: str) -> np.ndarray:
-    """A nested JSON list of numbers of exactly `shape` as float64, every value finite."""
+def _syntax_error(data: str, exc: msgspec.DecodeError) -> PageError:
+    """Not JSON: NaN or Infinity (which JavaScript's JSON.stringify never writes) count as non_finite."""
     try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise PageError("malformed", f"{where}: expected numbers of shape {shape}") from None
-    if arr.shape != shape:
-        raise PageError("malformed", f"{where}: expected shape {shape}, got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise PageError("non_finite", f"{where}: not finite")
-    # np.array turns true/false and numeric strings into numbers: only real JSON numbers pass.
-    flat = value if len(shape) == 1 else [x for row in value for x in row]
-    if not all(type(x) in (int, float) for x in flat):
-        raise PageError("malformed", f"{where}: expected numbers only")
-    return arr
+        json.loads(data, parse_constant=_reject_constant)
+    except PageError as non_finite:
+        return non_finite
+    except (ValueError, RecursionError):
+        pass
+    return PageError("malformed", f"not JSON: {exc}")
 
 
-def _pose(value, where: str, optional: bool = False) -> np.ndarray | None:
-    if value is None and optional:
-        return None
-    pose = _floats(value, (7,), where)
-    _check_quaternion(pose[3:7], where)
-    return pose
-
-
-def _check_quaternion(q: np.ndarray, where: str) -> None:
-    norm = math.sqrt(float(q @ q))
-    if abs(norm - 1.0) > QUAT_TOLERANCE:
-        raise PageError("malformed", f"{where}: quaternion norm {norm:.4g}, expected 1")
-
-
-def _sources(value) -> list[XRSource]:
-    if not isinstance(value, list) or len(value) > MAX_SOURCES:
-        raise PageError("malformed", f"sources: expected a list of at most {MAX_SOURCES}")
-    out = []
-    for i, item in enumerate(value):
-        where = f"sources[{i}]"
-        if not isinstance(item, dict):
-            raise PageError("malformed", f"{where}: expected an object")
-        handedness = item.get("handedness")
-        if handedness not in HANDEDNESS:
-            raise PageError("malformed", f"{where}.handedness: expected one of {', '.join(HANDEDNESS)}")
-        grip = _pose(item.get("grip"), f"{where}.grip", optional=True)
-        trigger = _number(item, "trigger", 0.0, 1.0)
-        buttons = item.get("buttons")
-        if not isinstance(buttons, list) or not all(b in BUTTON_NAMES for b in buttons):
-            raise PageError("malformed", f"{where}.buttons: expected names among {', '.join(sorted(BUTTON_NAMES))}")
-        joints = item.get("joints")
-        if joints is not None:
-            joints = _floats(joints, (len(JOINTS), 8), f"{where}.joints")
-            for k in range(len(JOINTS)):
-                _check_quaternion(joints[k, 3:7], f"{where}.joints[{k}]")
-            if (joints[:, 7] < 0).any():
-                raise PageError("malformed", f"{where}.joints: negative radius")
-        out.append(XRSource(handedness, grip, trigger, tuple(dict.fromkeys(buttons)), joints))
-    return out
+def _shape_error(data: str, exc: msgspec.ValidationError) -> PageError:
+    """A message of the wrong shape: its field, what was expected and what it got."""
+    try:
+        raw = msgspec.json.decode(data)
+    except (msgspec.DecodeError, RecursionError):
+        raw = None
+    err: ConfigError = schema.error_of(exc, raw, PageMessage)
+    text = f"{err.key}: expected {err.expected}" + ("" if err.got is None else f", got {err.got!r}"[:120])
+    if err.hint:
+        text += f" ({err.hint})"
+    cause = "non_finite" if str(exc).startswith("Number out of range") else "malformed"
+    return PageError(cause, text, err.key, err.expected, err.got)

@@ -61,7 +61,8 @@ const link = new Link((message) => {
     if (scene) scene.setGeometry(message);
   } else if (header.kind === 'frame') {
     state.frame = header;
-    state.motorsOn = message.arrays.intensity.filter((v) => v > 0.05).length;
+    const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
+    state.motorsOn = message.arrays.intensity.filter((v) => v > threshold).length;
     if (scene) scene.setFrame(message);
     if (hud) hud.update(message);
   }
