@@ -171,7 +171,8 @@ class Skeleton:
     """The glove's rest joint set (hand frame, metres) and its samples and motors bound to bones."""
 
     def __init__(self, hand: Hand, bones: Bones, samples: np.ndarray, motor_positions: np.ndarray,
-                 motor_sample: np.ndarray):
+                 motor_sample: np.ndarray, units_per_metre: float = 4.0):
+        self.units_per_metre = float(units_per_metre)     # the glove's scale, at which points are kept
         fingers = {f.name: f for f in hand.fingers}
         thumb = fingers.get("thumb")
         # The glove's hand is a left hand when its thumb lies at +x (x = y cross z, y along the
@@ -214,20 +215,22 @@ class Skeleton:
         self.bone_joint = np.array([JOINT_INDEX[b[2]] for b in BONES])
         self.bone_end = np.array([JOINT_INDEX[b[3]] for b in BONES])
         self._gather = np.r_[self.bone_joint, self.bone_end]      # one gather: the bases, then the ends
-        self._scales: dict = {}
         self.rest_lengths = np.linalg.norm(positions[self.bone_end] - positions[self.bone_joint], axis=1)
+        self._inv_rest2 = 1.0 / (self.units_per_metre * self.rest_lengths) ** 2
 
         self.sample_bone = self.bone_of(hand, samples)
         self.sample_local = self.local(samples, self.sample_bone)
         self.motor_bone = self.sample_bone[np.asarray(motor_sample, dtype=int)]
         self.motor_local = self.local(motor_positions, self.motor_bone)
-        self._sample_aug, self._sample_pick = self._layout(self.sample_local, self.sample_bone)
-        self._motor_aug, self._motor_pick = self._layout(self.motor_local, self.motor_bone)
+        # local coordinates in screen units for placing (each bone's map is then a rotation)
+        self._sample_aug, self._sample_pick = self._layout(self.sample_local * self.units_per_metre, self.sample_bone)
+        self._motor_aug, self._motor_pick = self._layout(self.motor_local * self.units_per_metre, self.motor_bone)
         self._names_cache: tuple[list, np.ndarray | None] = ([], None)
 
     @classmethod
     def of(cls, glove) -> "Skeleton":
-        return cls(glove.hand, glove.bones, glove.samples, glove.motor_positions, glove.motor_sample)
+        return cls(glove.hand, glove.bones, glove.samples, glove.motor_positions, glove.motor_sample,
+                   glove.units_per_metre)
 
     # ---- binding ------------------------------------------------------------------------------------
     def bone_of(self, hand: Hand, points: np.ndarray) -> np.ndarray:
@@ -318,8 +321,8 @@ class Skeleton:
         return index
 
     def transforms(self, names, positions, orientations, handedness: str, units_per_metre: float) -> np.ndarray:
-        """Every bone's map (B, 3, 4) of its points' local coordinates (metres) to the screen, [linear |
-        translation]; raises JointsError for joints that cannot be used.
+        """Every bone's map (B, 3, 4) of its points' local coordinates (screen units at the glove's
+        scale) to the screen, [linear | translation]; raises JointsError for joints that cannot be used.
 
         The tactile loop's hot path, kept to a few array operations: one product gives every bone's
         rotation (from its quaternion, normalised after) and the quaternions' norms for the check."""
@@ -334,33 +337,21 @@ class Skeleton:
         pj = p.take(gather, axis=0)                   # the bones' base joints, then their ends
         t = pj[:b]
         ends = pj[b:] - t
-        lengths = np.sqrt((ends * ends) @ _ONES3)
+        # each bone's length now over its rest length (both in screen units: the glove's scale)
+        stretch = np.sqrt(((ends * ends) @ _ONES3) * self._inv_rest2)
         qb = q.take(gather[:b], axis=0)
         r = (qb.take(_OUTER_A, axis=1) * qb.take(_OUTER_B, axis=1)) @ _MAP_COLUMNS
         n2 = r[:, 12].tolist()
-        if not (math.isfinite(sum(lengths.tolist())) and min(n2) >= _N2_LOW and max(n2) <= _N2_HIGH):
+        if not (math.isfinite(sum(stretch.tolist())) and min(n2) >= _N2_LOW and max(n2) <= _N2_HIGH):
             self._explain(t, pj[b:], qb, np.sqrt(n2))     # (a non-finite base joint makes its length NaN too)
-        # the rotations' columns: / |q|^2 normalises; metres to screen units; the other hand mirrored
-        # in each bone's frame; each bone's points stretched along it to its length now
-        scale = self._scale(handedness, units_per_metre) / r[:, 12:13]
-        scale[:, 2::4] *= lengths[:, None]
-        m = r[:, :12] * scale
+        m = r[:, :12] / r[:, 12:13]                   # / |q|^2: the rotations normalised
+        m[:, 2::4] *= stretch[:, None]                # each bone's points stretched along it (its z)
+        if handedness != self.handedness:
+            m[:, 0::4] *= -1.0                        # the other hand: mirrored in each bone's frame
+        if units_per_metre != self.units_per_metre:   # another scale than the glove's (rare)
+            m[:, [0, 1, 4, 5, 8, 9]] *= units_per_metre / self.units_per_metre
         m[:, 3::4] = t
         return m.reshape(b, 3, 4)
-
-    def _scale(self, handedness: str, units_per_metre: float) -> np.ndarray:
-        """Per bone the scales (B, 12) of its map's entries, row by row, before the stretch (z: per
-        rest length of the bone) and the normalisation."""
-        key = (handedness != self.handedness, units_per_metre)
-        scale = self._scales.get(key)
-        if scale is None:
-            column = np.full((len(self.bone_joint), 4), float(units_per_metre))
-            if key[0]:
-                column[:, 0] = -units_per_metre
-            column[:, 2] = 1.0 / self.rest_lengths       # times the length now (screen units)
-            column[:, 3] = 1.0                            # the translation, written after
-            scale = self._scales[key] = np.tile(column, (1, 3))
-        return scale
 
     def _explain(self, t, ends, q, norms) -> None:
         """Raise the JointsError that names the first joint that cannot be used."""
