@@ -47,7 +47,7 @@ class FoxgloveNode(Node):
     default_name = "foxglove"
     PARAMS = {
         "host": Param("127.0.0.1", "address to serve on (not loopback: the bus is visible, unauthenticated)"),
-        "port": Param(8765, "WebSocket port (0 = any free port)", min=0, max=65535),
+        "port": Param(8765, "WebSocket port (0 = any free port)", min=0, max=65535, port=True),
         "topics": Param([], "the topics to serve ([] = every topic)", items=str),
         "max_rate": Param(100.0, "at most this many messages per second per topic (0 = every one)", unit="Hz",
                           min=0),

@@ -7,6 +7,7 @@ import time
 from touch4d import glovefile
 from touch4d.bus import Node, Param
 from touch4d.bus.node import HEARTBEAT_TOPIC
+from touch4d.bus.topology import shared_text
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 from touch4d.status import StackStatus
 
@@ -49,4 +50,7 @@ class Monitor(Node):
         self.status.on_heartbeat(msg, time.time())
 
     def on_timer(self) -> None:
-        print(self.status.line(time.time()), flush=True)
+        now = time.time()
+        for topic, nodes in self.status.shared(now).items():
+            self.warn_once(("shared", topic, tuple(nodes)), shared_text(topic, nodes))
+        print(self.status.line(now), flush=True)

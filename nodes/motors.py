@@ -61,18 +61,18 @@ class MotorsNode(Node):
         "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
     }
 
-    def __init__(self, bus_factory=None, **kwargs):
-        self._bus_factory = bus_factory   # tests: a python-can bus to use instead of opening one
+    # A python-can bus to use instead of opening the glove's channel (tests: set it between
+    # `MotorsNode(..., start=False)` and `start()`, or on a subclass).
+    can_bus_factory = None
+
+    def setup(self) -> None:
+        p = self.params
         self.emulator = None
-        self.tracing = False
         self._trace_pending: float | None = None   # source_stamp of the command whose duties are not all sent
         self._trace_stamps: list[float] = []
         self._trace_times: list[float] = []
         self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
-        super().__init__(**kwargs)
-
-    def setup(self) -> None:
-        p = self.params
+        self.tracing = p["trace"]
         cfg = load_glove_can(p["glove"] or None)
         cfg = dataclasses.replace(cfg, interface=p["interface"] or cfg.interface, channel=p["channel"] or cfg.channel)
         self.cfg = cfg
@@ -83,7 +83,7 @@ class MotorsNode(Node):
             self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
             self.add_cleanup(self.emulator.stop)
         self.link = CanLink(cfg.interface, cfg.channel, cfg.bitrate, cfg.send_timeout_s,
-                            bus=self._bus_factory() if self._bus_factory else None)
+                            bus=self.can_bus_factory() if self.can_bus_factory else None)
         self.add_cleanup(self.link.close)
         fault = self.link.ensure_open()
         if fault:
@@ -95,9 +95,9 @@ class MotorsNode(Node):
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
-        self.tracing = p["trace"]
         if self.tracing:
-            self._counters.update(trace_traced=0, trace_unchanged=0, trace_superseded=0)
+            for name in ("trace_traced", "trace_unchanged", "trace_superseded"):
+                self.count(name, 0)   # in the heartbeat from the start, 0 until it happens
             self.trace_pub = self.create_publisher("motors/trace", MotorTrace)
             self.create_timer(TRACE_PERIOD_S, self.publish_trace)
         self.log.info("%d motors on %d boards, %s channel %s at %d bit/s; bus load %.1f %% worst case%s",
@@ -121,11 +121,11 @@ class MotorsNode(Node):
             self._pace(now)
             return
         if self._trace_pending is not None:
-            self._counters["trace_superseded"] += 1
+            self.count("trace_superseded")
         self._trace_pending = None
         outs = self.driver.outgoing(now)
         if not outs and self.driver.duties_on_bus():
-            self._counters["trace_unchanged"] += 1
+            self.count("trace_unchanged")
             return
         self._trace_pending = msg.source_stamp
         self._send_frames(outs, now)
@@ -135,7 +135,7 @@ class MotorsNode(Node):
         now = time.monotonic()
         self.log.warning("stop from %s: %s", msg.origin or "?", msg.reason or "-")
         if self._trace_pending is not None:
-            self._counters["trace_superseded"] += 1   # a stop replaces it with zero duties
+            self.count("trace_superseded")   # a stop replaces it with zero duties
             self._trace_pending = None
         self._stop_all(now)
         self.publish_status()
@@ -200,7 +200,7 @@ class MotorsNode(Node):
         if self._trace_pending is not None and outs and self.driver.duties_on_bus():
             self._trace_stamps.append(self._trace_pending)
             self._trace_times.append(self._last_sent_at)
-            self._counters["trace_traced"] += 1
+            self.count("trace_traced")
             self._trace_pending = None
 
     def publish_trace(self) -> None:

@@ -33,7 +33,7 @@ class WebXRNode(Node):
     default_name = "webxr"
     PARAMS = {
         "host": Param("127.0.0.1", "address to serve on; beyond loopback: https and a token"),
-        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535),
+        "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535, port=True),
         "token": Param("auto", "'auto' (random, only beyond loopback) or a token of your own"),
         "tls": Param("auto", "https: auto (beyond loopback), on, off", choices=("auto", "on", "off")),
         "cert_dir": Param("", "where the self-signed certificate is kept ('' = ~/.config/touch4d/webxr-tls)"),
@@ -102,6 +102,8 @@ class WebXRNode(Node):
             raise self.param_error("port", f"a port free on {host}", got=f"{p['port']} ({exc.strerror or exc})") \
                 from None
         self.add_cleanup(self.server.stop)
+        self.add_stats(lambda: {**self.bridge.counts, "page_refused": self.server.refused,
+                                "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1)})
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
@@ -131,13 +133,6 @@ class WebXRNode(Node):
                           path)
         except (OSError, ConfigError) as exc:
             self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
-
-    def stats_flat(self) -> dict:
-        out = super().stats_flat()
-        if hasattr(self, "server"):
-            out.update(self.bridge.counts, page_refused=self.server.refused, pages=len(self.bridge.pages),
-                       page_fps=round(self.bridge.page_fps(), 1))
-        return out
 
     def on_shutdown(self) -> None:
         if self.publishers:

@@ -43,7 +43,9 @@ class Chain:
         self.broker_up = True
         self.channel = channel or f"safety-{uuid.uuid4().hex}"
         self.node = MotorsNode(params={"glove": str(glove), "channel": self.channel, "emulate": True},
-                               bus=self.bus, bus_factory=bus_factory, heartbeat=False)
+                               bus=self.bus, heartbeat=False, start=False)
+        self.node.can_bus_factory = bus_factory
+        self.node.start()
         self.emu = self.node.emulator
         self.names = list(self.node.cfg.motor_names)
         self.tester = Node("tester", bus=self.bus, heartbeat=False)

@@ -108,6 +108,22 @@ def test_tools_say_when_no_broker_answers(monkeypatch):
         node_list(bus, duration=1.0, out=io.StringIO())
 
 
+def test_topic_pub_without_a_broker_is_one_clear_error_and_no_warning(tmp_path, monkeypatch, capsys, caplog):
+    from touch4d.bus import introspect
+    from touch4d.bus.testing import free_port
+    from touch4d.cli import main
+
+    monkeypatch.setattr(introspect, "CONNECT_TIMEOUT", 0.5)
+    bus_file = tmp_path / "bus.yaml"
+    port = free_port()
+    bus_file.write_text(f"broker: {{pub_port: {port}, sub_port: {free_port()}}}\n")
+    assert main(["topic", "pub", "safety/stop", "{reason: test, origin: me}", "--bus", str(bus_file)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [f"touch4d topic: no broker at tcp://127.0.0.1:{port} (bus config: "
+                                         f"{bus_file}); is `touch4d launch` running?"]
+    assert [r.getMessage() for r in caplog.records if r.levelname in ("WARNING", "ERROR")] == []
+
+
 def test_echo_on_a_topic_nobody_publishes_says_so_within_two_seconds_and_lists_the_live_topics(live_bus):
     out, err = io.StringIO(), io.StringIO()
     assert topic_echo("example/pos", live_bus, duration=2.0, out=out, err=err) == 0

@@ -447,3 +447,44 @@ def test_a_node_process_freezes_its_start_up_heap_and_still_frees_later_garbage(
     words = done.stdout.split()
     assert words[0] == "frozen" and int(words[1]) > 10000, done.stdout   # modules, codecs, the node itself
     assert words[2:] == ["cycle", "freed", "True"], done.stdout   # the collector still frees what comes later
+
+
+class Counting(Node):
+    """Publishes and subscribes in setup, before it is connected; counts and adds stats publicly."""
+
+    def setup(self):
+        self.connected_in_setup = self.connected
+        self.heard = []
+        self.create_subscription("c/in", HandPose, self.heard.append)
+        self.create_publisher("c/early", HandPose).publish(pose(3.0))   # held until connected
+        self.count("widgets", 0)
+        self.add_stats(lambda: {"queue": 7})
+
+    def on_widget(self):
+        self.count("widgets", 2)
+
+
+def test_setup_runs_before_connecting_and_what_it_publishes_or_subscribes_works_once_started():
+    with running_broker() as bus, Node("probe", bus=bus) as probe:
+        early = collect(probe, "c/early", HandPose)
+        beats = collect(probe, "node/heartbeat", Heartbeat)
+        node = Counting("counting", bus=bus, start=False)
+        assert not hasattr(node, "heard") and not node.connected   # constructed, not yet set up
+        node.start()
+        try:
+            assert node.connected_in_setup is False and node.connected
+            probe.create_publisher("c/in", HandPose).publish(pose(5.0))   # setup's subscription is in force
+            wait_until(lambda: node.heard, timeout=10, spin=node)
+            wait_until(lambda: early, timeout=10, spin=probe)
+            assert node.heard[0].position[0] == 5.0 and early[0].position[0] == 3.0
+            node.on_widget()
+            node.on_widget()
+            end = time.monotonic() + 10
+            while not [b for b in beats if b.node == "counting" and b.stats.get("widgets") == 4]:
+                assert time.monotonic() < end, "no heartbeat with the counter"
+                node.spin_once(0.02)
+                probe.spin_once(0.02)
+            beat = [b for b in beats if b.node == "counting"][-1]
+            assert beat.stats["queue"] == 7 and beat.stats["errors"] == 0
+        finally:
+            node.shutdown()

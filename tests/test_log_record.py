@@ -210,6 +210,7 @@ def test_no_broker_is_a_clear_error(tmp_path):
     dead = BusConfig(pub_port=1, sub_port=1)
     with pytest.raises(Touch4dError, match="no bus broker forwarded messages at tcp://127.0.0.1:1"):
         Recorder(dead, tmp_path / "none.mcap").start(timeout=0.3)
+    assert list(tmp_path.iterdir()) == []   # no empty log left behind (`touch4d record` exits 2, no file)
 
 
 def test_unwritable_output_is_a_clear_error(tmp_path):

@@ -38,7 +38,9 @@ class Rig:
     def __init__(self, bus, glove=TEST_GLOVE, bus_factory=None, channel=None, **params):
         self.channel = channel or f"motors-{uuid.uuid4().hex}"
         self.node = MotorsNode(params={"glove": str(glove), "channel": self.channel, "emulate": True,
-                                       "status_hz": 20.0, **params}, bus=bus, bus_factory=bus_factory)
+                                       "status_hz": 20.0, **params}, bus=bus, start=False)
+        self.node.can_bus_factory = bus_factory
+        self.node.start()
         self.tester = Node("tester", bus=bus, heartbeat=False)
         self.status: list[MotorStatus] = []
         self.tester.create_subscription("motors/status", MotorStatus, self.status.append)

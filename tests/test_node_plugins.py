@@ -75,7 +75,11 @@ def test_node_list_shows_where_each_node_comes_from(installed, monkeypatch):
     rows = {line.split()[0]: line for line in done.stdout.splitlines()}
     assert "entry point of touch4d-example-plugin 0.1.0 (touch4d_example_plugin.wave)" in rows["wave"]
     assert "A hand sweeping along x" in rows["wave"]
-    assert rows["scripted"].split()[1] == "touch4d"
+    assert rows["scripted"].split()[3] == "touch4d"
+    # One row per node, its other name shown as an alias; no plugin node called shadowed when none is.
+    assert rows["desktop"].startswith("desktop (alias desktop_tracker)") and "desktop_tracker" not in rows
+    assert rows["scripted"].startswith("scripted (alias scripted_tracker)") and "scripted_tracker" not in rows
+    assert "not listed" not in done.stdout
     info = subprocess.run([sys.executable, "-m", "touch4d.cli", "node", "info", "wave"], capture_output=True,
                           text=True, timeout=60)
     assert "amplitude: a finite number > 0 (screen units); default 0.5" in info.stdout
@@ -92,3 +96,29 @@ def test_a_plugin_nodes_parameters_are_checked_before_launch(installed, tmp_path
     assert "a finite number >= -1 and <= 1 (screen units) for parameter 'depth' of node wave" in str(err.value)
     with pytest.raises(ConfigError, match="did you mean 'wave'"):
         load_launch(launch_file(tmp_path, "wav"))
+
+
+def test_a_plugin_node_named_like_a_built_in_one_is_reported_shadowed_and_only_then(monkeypatch):
+    from touch4d.bus import registry
+    from touch4d.bus.registry import NodeKind
+
+    mine = NodeKind("scene", "touch4d.nodes.scene", "touch4d")
+    theirs = NodeKind("scene", "mylab.scene", "entry point of mylab 1.0")
+    wave = NodeKind("wave", "mylab.wave", "entry point of mylab 1.0")
+    # Fresh objects on every call, as importlib.metadata makes them: equal, never identical.
+    monkeypatch.setattr(registry, "_registered", lambda: [NodeKind(*vars(k).values()) for k in (wave, theirs, mine)])
+    assert registry.available()["scene"] == mine and registry.available()["wave"] == wave
+    assert registry.shadowed() == [theirs]
+
+
+def test_every_node_module_is_registered_as_an_entry_point():
+    """A node added to nodes/ without its line in pyproject.toml could not be launched by name."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    declared = tomllib.loads((root / "pyproject.toml").read_text())["project"]["entry-points"]["touch4d.nodes"]
+    modules = {p.stem for p in (root / "nodes").glob("*.py") if not p.stem.startswith("_")}
+    assert modules <= {v.rsplit(".", 1)[-1].partition(":")[0] for v in declared.values()}
+    from touch4d.bus import registry
+
+    assert {n: k.target for n, k in registry.built_in().items()} == declared   # the installation is current

@@ -79,3 +79,15 @@ def test_the_line_says_which_hand_the_tactile_node_follows():
                               stats={"hand_joints": 0}), 2.0)
     assert "rigid hand (hand/pose)" in st.line(now=2.5)
     assert "rigid hand" not in st.line(now=10.0)     # the tactile node has gone
+
+
+def test_an_input_published_by_two_nodes_is_named_with_both_but_not_an_optional_one():
+    from touch4d.status import StackStatus
+
+    s = StackStatus()
+    for hb in (beat("tracker", ["hand/pose", "safety/stop"]), beat("tracker2", ["hand/pose", "safety/stop"]),
+               beat("tactile", ["tactile/motors"], ["hand/pose", "safety/stop?"]), beat("rec", [], ["*"])):
+        s.on_heartbeat(hb, 100.0)
+    assert s.shared(100.0) == {"hand/pose": ["tracker", "tracker2"]}
+    assert "several publishers: hand/pose (tracker, tracker2)" in s.line(100.0)
+    assert s.shared(100.0 + 10) == {}   # gone nodes publish nothing

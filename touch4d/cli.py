@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
-import signal
 import sys
 
 from touch4d.errors import Touch4dError
+from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout  # the reader of our output went away: stop quietly
 
 # Each module has `register(subparsers)`; sub-commands set `func(args) -> int` on their parser.
 # The commands each registers are listed so that a command imports only its own part (the
@@ -53,20 +52,6 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         silence_stdout()
         return EXIT_PIPE_CLOSED
-
-
-# The reader of our output went away (`touch4d shape list | head`): stop quietly, with the status a
-# Unix tool killed by SIGPIPE has, and no traceback.
-EXIT_PIPE_CLOSED = 128 + signal.SIGPIPE
-
-
-def silence_stdout() -> None:
-    """Point standard output at /dev/null after its reader left, so no later write or flush fails."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, sys.stdout.fileno())
-    finally:
-        os.close(devnull)
 
 
 def _main(argv: list[str] | None) -> int:

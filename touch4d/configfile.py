@@ -17,6 +17,7 @@ A path found nowhere is a `PathNotFound` (a ConfigError) that names every place 
 """
 from __future__ import annotations
 
+import difflib
 import os
 from pathlib import Path
 
@@ -29,12 +30,28 @@ COMMAND_LINE = "command line"
 
 
 class PathNotFound(ConfigError):
-    """A path that is in none of the places `resolve_path` looks; `places` lists them in order."""
+    """A path that is in none of the places `resolve_path` looks; `places` lists them in order (each
+    once), `near` the names of existing files in those folders that are close to the one given."""
 
     def __init__(self, source, key: str, what: str, path, places: list[Path]):
-        super().__init__(source, key, f"an existing {what}", got=str(path))
+        self.near = _near_names(path, places)
+        hint = f"did you mean {' or '.join(repr(n) for n in self.near)}?" if self.near else None
+        super().__init__(source, key, f"an existing {what}", got=str(path),
+                         detail="looked in " + ", ".join(str(p) for p in places), hint=hint)
         self.places = places
-        self.args = (f"{self.args[0]}; looked in: " + ", ".join(str(p) for p in places),)
+
+
+def _near_names(path, places: list[Path]) -> list[str]:
+    """`path` with its last part replaced by close names found beside any place looked (a typo)."""
+    given = Path(path)
+    names: set[str] = set()
+    for place in places:
+        try:
+            names.update(p.name for p in place.parent.iterdir())
+        except OSError:
+            continue
+    close = difflib.get_close_matches(given.name, sorted(names - {given.name}), n=1, cutoff=0.75)
+    return [str(given.with_name(name)) for name in close]
 
 
 def resolve_path(path, named_in=None, *, key: str = "(file)", what: str = "file") -> Path:
@@ -57,10 +74,23 @@ def resolve_path(path, named_in=None, *, key: str = "(file)", what: str = "file"
             places.append(base / given)
         if given.parts and given.parts[0] in FOLDERS and ".." not in given.parts:
             places.append((DEFAULTS / given).resolve())
+    places = _once(places)
     for place in places:
         if place.exists():
             return place
     raise PathNotFound(named_in if named_in is not None else path, key, what, path, places)
+
+
+def _once(places: list[Path]) -> list[Path]:
+    """The places without repeats: in a checkout the packaged defaults are the current directory's
+    own config/ and launch/ (links), looked in once."""
+    seen, out = set(), []
+    for place in places:
+        real = place.resolve()
+        if real not in seen:
+            seen.add(real)
+            out.append(place)
+    return out
 
 
 def _folder_of(named_in) -> Path | None:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
+from touch4d.bus.topology import shared_inputs
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 
 NODE_TIMEOUT = 3.5  # s without a heartbeat after which a node counts as gone (they beat every second)
@@ -77,6 +78,10 @@ class StackStatus:
                 waiting.setdefault(topic, []).append(hb.node)
         return {t: sorted(names) for t, names in sorted(waiting.items())}
 
+    def shared(self, now: float) -> dict[str, list[str]]:
+        """Inputs two or more live nodes publish: topic -> the publishers (touch4d.bus.topology)."""
+        return shared_inputs(hb for heard, hb in self.nodes.values() if now - heard <= NODE_TIMEOUT)
+
     def rate(self, topic: str, now: float) -> float:
         times = self.arrivals.get(topic)
         if not times:
@@ -113,6 +118,9 @@ class StackStatus:
         parts.append(f"{what} p50 {lat[0]:.1f} ms p99 {lat[1]:.1f} ms" if lat else f"{what} -")
         if self.boards is not None:
             parts.append(f"boards {self.boards_online}/{self.boards} online, CAN load {100 * self.bus_load:.0f}%")
+        shared = self.shared(now)
+        if shared:
+            parts.append("several publishers: " + ", ".join(f"{t} ({', '.join(n)})" for t, n in shared.items()))
         missing = self.unpublished(now)
         if missing:
             parts.append("no publisher: " + ", ".join(f"{t} ({', '.join(n)})" for t, n in missing.items()))

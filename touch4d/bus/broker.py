@@ -14,8 +14,10 @@ import threading
 import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
+from touch4d.bus import transport
 from touch4d.bus.config import BusConfig
-from touch4d.bus.realtime import bus_context, raise_thread_priority
+from touch4d.bus.realtime import raise_thread_priority
+from touch4d.bus.transport import bus_context
 from touch4d.errors import ConfigError
 
 log = logging.getLogger("touch4d.bus.broker")
@@ -60,26 +62,23 @@ class Broker:
             self._auth = ThreadAuthenticator(self.context)
             self._auth.start()
             self._auth.configure_curve_callback(ZAP_DOMAIN, credentials_provider=_AllowList(curve.authorized))
-        frontend = self.context.socket(zmq.XSUB)
-        backend = self.context.socket(zmq.XPUB)
-        for sock in (frontend, backend):
-            sock.linger = 0
-            sock.sndhwm = cfg.hwm
-            sock.rcvhwm = cfg.hwm
-            if curve is not None:
-                sock.curve_server = True
-                sock.curve_secretkey = curve.server_secret.encode()
-                sock.zap_domain = ZAP_DOMAIN.encode()
-        try:
-            frontend.bind(cfg.bind_endpoint(cfg.pub_port))
-            backend.bind(cfg.bind_endpoint(cfg.sub_port))
-        except zmq.ZMQError as exc:
-            frontend.close()
-            backend.close()
-            self._stop_auth()
-            raise ConfigError(cfg.source, "broker", f"free ports to bind on {cfg.bind_host}", got=str(exc)) from None
+        frontend = transport.server_socket(self.context, zmq.XSUB, cfg, ZAP_DOMAIN.encode())
+        backend = transport.server_socket(self.context, zmq.XPUB, cfg, ZAP_DOMAIN.encode())
+        for sock, port, key in ((frontend, cfg.pub_port, "broker.pub_port"), (backend, cfg.sub_port, "broker.sub_port")):
+            try:
+                sock.bind(cfg.bind_endpoint(port))
+            except zmq.ZMQError as exc:
+                frontend.close()
+                backend.close()
+                self._stop_auth()
+                if exc.errno == zmq.EADDRINUSE:
+                    raise ConfigError(cfg.source, key, f"a free port on {cfg.bind_host}", got=port, detail=(
+                        f"in use (another touch4d launch or broker?): join the running broker with --no-broker, "
+                        f"or give this one other ports with --bus FILE (a bus config with broker: "
+                        f"{{pub_port: ..., sub_port: ...}})")) from None
+                raise ConfigError(cfg.source, key, f"a port to bind on {cfg.bind_host}", got=port, detail=str(exc)) from None
         # Subscribe to everything: publishers then forward all topics to the broker at once.
-        frontend.send(b"\x01")
+        frontend.send(transport.SUBSCRIBE_ALL)
         self._frontend, self._backend = frontend, backend
         self._control = self.context.socket(zmq.PAIR)
         self._control.bind(self._control_endpoint)

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from touch4d.bus.config import resolve_bus_config, user_bus_config
-from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.configfile import COMMAND_LINE, PathNotFound, resolve_path
 from touch4d.errors import ConfigError
 
 DEFAULT_LAUNCH = "launch/demo.yaml"   # yours (a copy in the current directory), else the packaged one
@@ -89,13 +89,28 @@ def launch_file_path(name: str):
     wins when it exists; the name is then found like any path, yours first, else the packaged one)."""
     given = Path(name)
     if len(given.parts) == 1 and not given.suffix and not given.exists():
-        name = f"launch/{name}.yaml"
+        try:
+            return resolve_path(f"launch/{name}.yaml", COMMAND_LINE, key="launch file", what="launch file")
+        except PathNotFound as exc:
+            near = [Path(n).stem for n in exc.near]   # `dmeo`: did you mean 'demo'?
+            raise ConfigError(COMMAND_LINE, "launch file", "a launch file: a path, or the name of one in launch/ "
+                              f"({', '.join(_launch_names()) or 'none found'})", got=name, detail=exc.detail,
+                              hint=f"did you mean {' or '.join(repr(n) for n in near)}?" if near else None) from None
     return resolve_path(name, COMMAND_LINE, key="launch file", what="launch file")
+
+
+def _launch_names() -> list[str]:
+    """The bare names `touch4d launch NAME` takes: launch/*.yaml here and packaged."""
+    from touch4d.defaults import ROOT
+
+    return sorted({p.stem for folder in (Path("launch"), ROOT / "launch") if folder.is_dir()
+                   for p in folder.glob("*.yaml")})
 
 
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
     from touch4d.bus.launchfile import load_launch
+    from touch4d.bus.preflight import check_launch
 
     files = [i for i in args.items if ":=" not in i]
     overrides = [i for i in args.items if ":=" in i]
@@ -103,6 +118,7 @@ def _launch(args) -> int:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
     nodes = load_launch(path, overrides)
+    check_launch(nodes)   # every file found and every port free before any node starts
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
                     ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
@@ -142,24 +158,26 @@ def _node_list(args) -> int:
 
         node_list(resolve_bus_config(args.bus), args.duration)
         return 0
-    from touch4d.bus.registry import available, entry_points
+    from touch4d.bus.registry import aliases, available, shadowed
 
     kinds = available()
-    shadowed = [k for name, k in entry_points().items() if kinds[name] is not k]
-    width = max(len(name) for name in kinds)
+    names = aliases(kinds)
     rows = []
-    for name, kind in sorted(kinds.items()):
+    for name, others in sorted(names.items()):
+        kind = kinds[name]
         origin = "touch4d" if kind.origin == "touch4d" else f"{kind.origin} ({kind.target})"
         try:
             doc = (kind.load().__doc__ or "").strip().splitlines()[:1]
         except Exception as exc:  # noqa: BLE001 - another package's node may fail to import: say so, go on
             doc = [f"cannot be imported: {type(exc).__name__}: {exc}"]
-        rows.append((name, origin, doc[0] if doc else ""))
+        label = name + (f" (alias {', '.join(others)})" if others else "")
+        rows.append((label, origin, doc[0] if doc else ""))
+    width = max(len(r[0]) for r in rows)
     owidth = max(len(r[1]) for r in rows)
     print(f"{'node'.ljust(width)}  {'from'.ljust(owidth)}  what")
-    for name, origin, doc in rows:
-        print(f"{name.ljust(width)}  {origin.ljust(owidth)}  {doc}")
-    for kind in shadowed:
+    for label, origin, doc in rows:
+        print(f"{label.ljust(width)}  {origin.ljust(owidth)}  {doc}")
+    for kind in shadowed():
         print(f"(not listed: '{kind.name}' of the {kind.origin} ({kind.target}): a built-in node has that name; "
               f"launch it as node: {kind.target})")
     print("Any importable module holding a Node class also launches by its path, e.g. node: mylab.nodes.my_tracker.")

@@ -119,16 +119,6 @@ class BusConfig:
             raise ConfigError(f"${ENV_VAR}", "(value)", "a bus config as JSON (set by touch4d launch)",
                               got=str(exc)) from None
 
-    def client_socket_options(self, sock: zmq.Socket) -> None:
-        """Make `sock` a CURVE client of the broker, when keys are configured."""
-        if self.curve is None:
-            return
-        if not (self.curve.client_public and self.curve.client_secret):
-            raise ConfigError(self.source, "curve.client_secret", "this machine's key pair (touch4d bus keygen)")
-        sock.curve_serverkey = self.curve.server_public.encode()
-        sock.curve_publickey = self.curve.client_public.encode()
-        sock.curve_secretkey = self.curve.client_secret.encode()
-
 
 def _host(host: str) -> str:
     return f"[{host}]" if ":" in host else host

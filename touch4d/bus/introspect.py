@@ -11,8 +11,10 @@ from collections import defaultdict
 
 import numpy as np
 import yaml
+import zmq
 
-from touch4d.bus.config import BusConfig, BusUnreachable
+from touch4d.bus import transport
+from touch4d.bus.config import BusConfig, BusUnreachable, resolve_bus_config
 from touch4d.bus.node import HEARTBEAT_TOPIC, Node
 from touch4d.bus.params import suggest
 from touch4d.errors import ConfigError
@@ -24,12 +26,18 @@ SILENCE_NOTICE = 1.5   # seconds of silence on a topic after which echo/hz say w
 
 
 def _tool(bus: BusConfig | None, what: str) -> Node:
-    node = Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=CONNECT_TIMEOUT)
-    if not node.connected:
-        node.shutdown()
-        raise BusUnreachable(f"no broker at {node.bus.pub_endpoint} (bus config: {node.bus.source}); "
-                             "is `touch4d launch` running?")
-    return node
+    """A short-lived node on the bus; BusUnreachable (the one error, no warning before it) when no
+    broker answers within CONNECT_TIMEOUT."""
+    bus = bus if bus is not None else resolve_bus_config()
+    context = zmq.Context.instance()
+    probe = transport.publisher(context, bus)
+    try:
+        if not transport.await_broker(probe, CONNECT_TIMEOUT):
+            raise BusUnreachable(f"no broker at {bus.pub_endpoint} (bus config: {bus.source}); "
+                                 "is `touch4d launch` running?")
+    finally:
+        probe.close(linger=0)
+    return Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=CONNECT_TIMEOUT)
 
 
 def _spin(node: Node, duration: float | None, done=lambda: False, each=lambda: None) -> None:

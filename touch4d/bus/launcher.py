@@ -5,8 +5,10 @@ are told to die with the launcher. On Ctrl+C, SIGTERM or the end of `--duration`
 SIGTERM, has STOP_GRACE seconds to run `on_shutdown` and exit, and is then killed.
 
 Each node tells the launcher when it is built (a byte on a pipe, see touch4d.bus.process). A node
-that exits before that failed to start (a bad scene, a missing glove file...): unless its launch
+that exits before that failed to start (a bad scene, SteamVR not running...): unless its launch
 entry says `respawn`, the whole launch stops and exits non-zero, the node's error the last line.
+(Files and ports are checked before, by touch4d.bus.preflight.) While it runs, the launcher reads
+the nodes' heartbeats and warns once when two nodes publish a topic another node waits for.
 """
 from __future__ import annotations
 
@@ -20,12 +22,21 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import zmq
+
+from touch4d.bus import transport
 from touch4d.bus.broker import Broker
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
+from touch4d.bus.node import HEARTBEAT_TOPIC
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
+from touch4d.bus.topology import shared_inputs, shared_text
+from touch4d.errors import ConfigError
+from touch4d.messages import Heartbeat, MessageError, decode
+from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout
 
 STOP_GRACE = 1.5
+BEAT_TIMEOUT = 3.5   # s without a heartbeat after which a node no longer counts as publishing
 _MAX_RESPAWN_DELAY = 5.0
 _COLORS = ("36", "33", "35", "32", "34", "31", "96", "93", "95", "92")
 
@@ -68,6 +79,9 @@ class Launcher:
         self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
+        self._watch: zmq.Socket | None = None      # heartbeats: which node publishes what
+        self._beats: dict[str, tuple[float, Heartbeat]] = {}
+        self._warned_shared: set[tuple[str, tuple[str, ...]]] = set()
 
     # ---- output ------------------------------------------------------------------------------
 
@@ -81,8 +95,6 @@ class Launcher:
             self.out.flush()
         except BrokenPipeError:
             # Whoever read the output is gone (`touch4d launch | head`): stop every node cleanly.
-            from touch4d.cli import silence_stdout
-
             silence_stdout()
             self.out = open(os.devnull, "wb")
             self._output_closed = True
@@ -215,6 +227,7 @@ class Launcher:
             if broker:
                 self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
+            self._open_watch(endpoints)
             for child in self.children.values():
                 self._spawn(child)
             self.say(f"started {len(self.children)} node(s): "
@@ -236,12 +249,12 @@ class Launcher:
             self._selector.close()
             os.close(wake_r)
             os.close(wake_w)
+            if self._watch is not None:
+                self._watch.close(linger=0)
             if broker:
                 broker.stop()
         failed = [c.spec.role for c in self.children.values() if c.failed]
         if self._output_closed:
-            from touch4d.cli import EXIT_PIPE_CLOSED
-
             return EXIT_PIPE_CLOSED
         if self._start_failure is not None:
             line, code = self._start_failure
@@ -265,6 +278,7 @@ class Launcher:
                 self._stop_reason = f"--duration {self.duration:g} s"
                 break
             self._pump(0.2 if end is None else min(0.2, end - now))
+            self._check_publishers()
             for child in self.children.values():
                 if child.proc is not None and child.proc.poll() is not None:
                     self._reap(child)
@@ -273,6 +287,35 @@ class Launcher:
                     self._spawn(child)
             if self.children and not self._running() and not any(c.restart_at for c in self.children.values()):
                 self._stop_reason = "every node has exited"
+
+    def _open_watch(self, endpoints: BusConfig) -> None:
+        """Listen to the nodes' heartbeats (what each publishes) to warn about shared inputs."""
+        try:
+            self._watch = transport.subscriber(zmq.Context.instance(), endpoints.for_clients(),
+                                               topics=[HEARTBEAT_TOPIC.encode()])
+        except ConfigError:
+            self._watch = None   # no client keys on this machine: nothing to listen with
+
+    def _check_publishers(self) -> None:
+        """Warn once per topic that two nodes publish and a node waits for (touch4d.bus.topology)."""
+        if self._watch is None:
+            return
+        now = time.monotonic()
+        while True:
+            try:
+                frames = self._watch.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            try:
+                beat = decode(frames[-1], Heartbeat)
+            except MessageError:
+                continue
+            self._beats[beat.node] = (now, beat)
+        live = [beat for heard, beat in self._beats.values() if now - heard <= BEAT_TIMEOUT]
+        for topic, nodes in shared_inputs(live).items():
+            if (topic, tuple(nodes)) not in self._warned_shared:
+                self._warned_shared.add((topic, tuple(nodes)))
+                self.say(f"warning: {shared_text(topic, nodes)}")
 
     def _pump(self, timeout: float) -> None:
         for key, _ in self._selector.select(max(timeout, 0)):

@@ -1,34 +1,33 @@
-"""The node runtime: publishers, subscriptions, timers, parameters, heartbeats, clean shutdown.
+"""The node runtime: publishers, subscriptions, timers, parameters, counters, heartbeats, clean shutdown.
 
 A node class declares its parameters (`PARAMS`, see touch4d.bus.params) and builds itself in
-`setup()`; the base class checks the parameters, opens the sockets, calls `setup` and, whatever
-happens, closes everything again in `shutdown` (also when `setup` raises).
+`setup()`. Construction and activation are apart: the constructor checks the parameters and makes
+the sockets; `start()` (which the constructor calls unless `start=False`) runs `setup`, then
+connects to the broker, confirms every subscription `setup` made with one slow-joiner sync and
+sends what `setup` published. Whatever happens, `shutdown` closes everything again (also when
+`setup` raises).
 
-One thread runs everything (callbacks, timers, `on_shutdown`), so node code needs no locks.
-Each node has one publishing socket (an XPUB connected to the broker's XSUB, which tells it when
-the broker has subscribed, i.e. when publishing starts to reach the broker) and one SUB socket.
-
-Slow joiner: `create_subscription` returns only once the broker applies the subscription. After
-subscribing, the node publishes a probe on a private `_bus/sync/...` topic it subscribed to last,
-through the broker, until the probe comes back; subscriptions on one connection are applied in
-order, so every message the broker forwards after that point reaches this node.
+One thread runs everything (callbacks, timers, `on_shutdown`): the node's executor
+(touch4d.bus.executor), so node code needs no locks. Each node has one publishing socket and one
+SUB socket, made and synchronised by touch4d.bus.transport; a subscription made after `start`
+returns only once the broker applies it (the transport's `sync`).
 """
 from __future__ import annotations
 
 import logging
-import math
 import os
-import socket
 import time
 import uuid
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar
 
 import zmq
 
+from touch4d.bus import transport
 from touch4d.bus.config import BusConfig, resolve_bus_config
+from touch4d.bus.executor import Executor, Timer
 from touch4d.bus.params import Param, check_params
+from touch4d.bus.transport import INTERNAL_PREFIX
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, Message, MessageError, decoder
@@ -36,8 +35,6 @@ from touch4d.messages import Heartbeat, Message, MessageError, decoder
 HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
 _HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
-MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
-INTERNAL_PREFIX = b"_bus/"  # topics of the runtime itself, never delivered to callbacks
 _MAX_BATCH = 4096
 _SNDMORE, _NOBLOCK, _RCVMORE = zmq.SNDMORE, zmq.NOBLOCK, zmq.RCVMORE
 _MAX_LOGGED_CAUSES = 200
@@ -98,19 +95,6 @@ class Subscription:
 
 
 @dataclass
-class Timer:
-    """Calls `callback()` every `period` seconds on the node's thread, until cancelled."""
-
-    period: float
-    callback: Callable[[], Any]
-    next_due: float
-    cancelled: bool = False
-
-    def cancel(self) -> None:
-        self.cancelled = True
-
-
-@dataclass
 class _TopicState:
     last_seq: int | None = None
     stale_since_last: int = 0
@@ -139,7 +123,10 @@ class Node:
         heartbeat: bool = True,
         connect_timeout: float = 5.0,
         context: zmq.Context | None = None,
+        start: bool = True,
     ):
+        """Check the parameters and make the sockets; then `start()` unless `start=False` (set
+        attributes a test needs, e.g. a device to use, between the two)."""
         self.name = role or name or self.default_name
         self.kind = kind or type(self).__module__.rsplit(".", 1)[-1]
         self._params_source = params_source
@@ -148,18 +135,20 @@ class Node:
         self.params: dict[str, Any] = check_params(self.PARAMS, given, self.param_error, f"node {self.kind}")
         for pname, param in self.PARAMS.items():
             if param.path and self.params[pname]:  # "" or null: no file (the node's default, if any)
+                # The launcher hands absolute paths (found against the file that set each one);
+                # a node run alone finds a relative one here, the same way.
                 source, key = self.param_where(pname)
                 self.params[pname] = resolve_path(self.params[pname], source, key=key, what=param.path_what)
         self.bus = bus if bus is not None else resolve_bus_config()
         self.log = logging.getLogger(self.name)
         self.pid = os.getpid()
         self.connect_timeout = connect_timeout
+        self.connected = False
         self._warned: dict = {}
         self._cleanups: list[Callable[[], Any]] = []
         self._set_up = False
-        # One shared context per process: a node left to the garbage collector then only has its
-        # sockets closed, never a context terminated from a finalizer (which can block forever).
-        self._ctx = context or zmq.Context.instance()
+        self._started = False
+        self._heartbeat = heartbeat
         self._seq: dict[bytes, int] = {}  # next seq per published topic = messages published on it
         self._publishes: set[str] = set()
         self._subs: dict[bytes, list[Subscription]] = {}
@@ -167,51 +156,63 @@ class Node:
         self._latest_only_topics: set[bytes] = set()
         self._zmq_topics: set[bytes] = set()
         self._topics: dict[bytes, _TopicState] = {}
-        self._timers: list[Timer] = []
-        self._next_due = -math.inf   # when the next timer is due (kept by _run_timers)
         self._pending: list[list[bytes]] = []
+        self._held: list[tuple[bytes, bytes]] = []   # published before start() connected
         self._logged: set = set()
-        self._counters = {"errors": 0}
-        self._sync_count = 0
+        self._counters: dict[str, int] = {"errors": 0}
+        self._stat_sources: list[Callable[[], dict]] = []
         self._uid = uuid.uuid4().hex[:12]
-        self._stopping = False
         self._closed = False
         self._shutdown_called = False
-        self._calls: deque = deque()  # (callback, args) handed over by other threads
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._wake_w.setblocking(False)
+        # One shared context per process: a node left to the garbage collector then only has its
+        # sockets closed, never a context terminated from a finalizer (which can block forever).
+        ctx = context or zmq.Context.instance()
+        # The publisher lingers: on_shutdown's last messages (e.g. a stop) reach the broker.
+        self._pub = transport.publisher(ctx, self.bus, connect=False, linger=1000)
+        try:
+            self._sub = transport.subscriber(ctx, self.bus, connect=False)
+        except BaseException:
+            self._pub.close(linger=0)
+            raise
+        self.executor = Executor(on_error=self._callback_failed)
+        self.executor.add_reader(self._sub, self._on_messages)
+        self.executor.add_reader(self._pub, self._on_broker)
+        self._send_payload = self._hold   # until start() has connected
+        if start:
+            self.start()
 
-        self._pub = self._ctx.socket(zmq.XPUB)
-        self._sub = self._ctx.socket(zmq.SUB)
-        for sock in (self._pub, self._sub):
-            sock.sndhwm = self.bus.hwm
-            sock.rcvhwm = self.bus.hwm
-            sock.linger = 0
-            try:
-                self.bus.client_socket_options(sock)
-            except Exception:
-                self._pub.close()
-                self._sub.close()
-                raise
-        self._pub.linger = 1000  # lets on_shutdown's last messages (e.g. a stop) reach the broker
-        self._pub.connect(self.bus.pub_endpoint)
-        self._sub.connect(self.bus.sub_endpoint)
-        self._poller = zmq.Poller()
-        self._poller.register(self._sub, zmq.POLLIN)
-        self._poller.register(self._pub, zmq.POLLIN)
-        self._poller.register(self._wake_r, zmq.POLLIN)
-        self.connected = self._await_broker()
-        self._heartbeat_pub = None
-        if heartbeat:
-            self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
-            self._timers.append(Timer(HEARTBEAT_PERIOD, self._send_heartbeat, time.monotonic()))
+    def start(self) -> "Node":
+        """Activate the node: `setup()`, then connect to the broker (up to `connect_timeout`), confirm
+        the subscriptions `setup` made, send what it published meanwhile and start the heartbeat.
+        If `setup` raises, `shutdown` runs and the error propagates."""
+        if self._started:
+            return self
+        self._started = True
         try:
             self.setup()
+            self._set_up = True
+            self._connect()
         except BaseException:
             self.shutdown()  # a node that cannot start leaves no socket, thread or device open
             raise
-        self._set_up = True
+        return self
+
+    def _connect(self) -> None:
+        self._pub.connect(self.bus.pub_endpoint)
+        self._sub.connect(self.bus.sub_endpoint)
+        self.connected = transport.await_broker(self._pub, self.connect_timeout)
+        if not self.connected:
+            self.log.warning("broker not reached at %s within %.1f s; messages published before it "
+                             "connects are lost", self.bus.pub_endpoint, self.connect_timeout)
+        if self._zmq_topics:
+            self._sync()   # one probe for every subscription setup made
+        del self._send_payload   # publishing goes straight to the socket from now on
+        held, self._held = self._held, []
+        for topic, payload in held:
+            self._send_payload(topic, payload)
+        if self._heartbeat:
+            self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
+            self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat, first_due=time.monotonic())
 
     # ---- what subclasses write -----------------------------------------------------------------
 
@@ -297,21 +298,25 @@ class Node:
         return sub
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
-        if not period > 0:
-            raise ValueError(f"timer period must be > 0 s, got {period}")
-        timer = Timer(float(period), callback, time.monotonic() + period)
-        self._timers.append(timer)
-        self._next_due = min(self._next_due, timer.next_due)
-        return timer
+        """Call `callback()` every `period` seconds (fixed rate) on the node's thread."""
+        return self.executor.create_timer(period, callback)
 
     def set_timer_period(self, timer: Timer, period: float) -> None:
         """Change a timer's period; a shorter one takes effect at once (the next tick at most
         `period` from now), a longer one after the tick already due."""
-        if not period > 0:
-            raise ValueError(f"timer period must be > 0 s, got {period}")
-        timer.period = float(period)
-        timer.next_due = min(timer.next_due, time.monotonic() + timer.period)
-        self._next_due = min(self._next_due, timer.next_due)
+        self.executor.set_timer_period(timer, period)
+
+    # ---- counters ----------------------------------------------------------------------------
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Add `n` to the node's counter `name` (created at 0 on first use; `count(name, 0)` declares
+        it): sent in every heartbeat's stats and shown by `touch4d node list --live`."""
+        self._counters[name] = self._counters.get(name, 0) + n
+
+    def add_stats(self, source: Callable[[], dict]) -> None:
+        """Add what `source()` returns (name -> number, e.g. a server's connected clients) to every
+        heartbeat's stats; called on the node's thread once per heartbeat."""
+        self._stat_sources.append(source)
 
     @property
     def stats(self) -> dict[str, dict]:
@@ -319,7 +324,8 @@ class Node:
         return {key.decode(): state.stats for key, state in self._topics.items()}
 
     def stats_flat(self) -> dict[str, int]:
-        """Totals plus "topic:counter" entries, as sent in the heartbeat."""
+        """Totals plus "topic:counter" entries, the node's counters (`count`) and added stats
+        (`add_stats`), as sent in the heartbeat."""
         out: dict[str, int] = {"received": 0, "dropped": 0, "malformed": 0, "gaps": 0}
         for topic, counters in self.stats.items():
             for name, value in counters.items():
@@ -327,70 +333,39 @@ class Node:
                 out[f"{topic}:{name}"] = value
         out["published"] = sum(n for t, n in self._seq.items() if t != _HEARTBEAT_KEY)
         out.update(self._counters)
+        for source in self._stat_sources:
+            out.update(source())
         return out
 
     # ---- spinning ----------------------------------------------------------------------------
 
     def spin_once(self, timeout: float = 0.1) -> int:
         """Wait up to `timeout` s for messages or a due timer and handle them; returns how many."""
-        handled = self._run_timers() + self._run_calls()
-        if self._pending:
-            pending, self._pending = self._pending, []
-            handled += self._dispatch(pending)
-        if handled or self._stopping:
-            timeout = 0.0
-        elif self._next_due - time.monotonic() < timeout:
-            timeout = max(0.0, self._next_due - time.monotonic())
-        # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
-        events = self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0)
-        for sock, _ in events:
-            if sock is self._sub:
-                handled += self._dispatch(self._drain())
-            elif sock is self._pub:
-                self._drain_subscriptions()
-            else:
-                try:
-                    self._wake_r.recv(4096)
-                except BlockingIOError:
-                    pass
-        return handled + self._run_calls() + self._run_timers()
+        return self.executor.spin_once(timeout)
 
     def spin(self, duration: float | None = None) -> None:
         """Handle messages and timers until `request_shutdown()` (or for `duration` seconds)."""
-        end = None if duration is None else time.monotonic() + duration
-        while not self._stopping:
-            left = 0.1 if end is None else end - time.monotonic()
-            if left <= 0:
-                break
-            self.spin_once(min(left, 0.1))
+        self.executor.spin(duration)
 
     def call_soon_threadsafe(self, callback: Callable, *args) -> None:
         """Run `callback(*args)` on the node's thread at its next spin; safe from any thread (e.g. a
         server's event loop handing over what a client sent). The poll wakes at once."""
-        self._calls.append((callback, args))
-        try:
-            self._wake_w.send(b"c")
-        except OSError:
-            pass
+        self.executor.call_soon_threadsafe(callback, *args)
 
     def request_shutdown(self) -> None:
         """Ask `spin` to return; safe from signal handlers and other threads."""
-        self._stopping = True
-        try:
-            self._wake_w.send(b"x")
-        except OSError:
-            pass
+        self.executor.request_shutdown()
 
     @property
     def stopping(self) -> bool:
-        return self._stopping
+        return self.executor.stopping
 
     def shutdown(self) -> None:
         """Call `on_shutdown` once (if set up), then the cleanups, then close the sockets (flushing
         what was published)."""
         if self._closed:
             return
-        self._stopping = True
+        self.executor.request_shutdown()
         if not self._shutdown_called:
             self._shutdown_called = True
             steps = ([self.on_shutdown] if self._set_up else []) + self._cleanups[::-1]
@@ -403,8 +378,7 @@ class Node:
         self._closed = True
         self._sub.close(linger=0)
         self._pub.close()
-        self._wake_r.close()
-        self._wake_w.close()
+        self.executor.close()
 
     close = shutdown
 
@@ -432,59 +406,42 @@ class Node:
         self._seq[topic] = self._seq.get(topic, 0) + 1
         self._send_payload(topic, payload)
 
-    def _await_broker(self) -> bool:
-        """Wait until the broker subscribes to this node's publisher (so publishing reaches it)."""
-        deadline = time.monotonic() + self.connect_timeout
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or not self._pub.poll(int(left * 1000)):
-                self.log.warning("broker not reached at %s within %.1f s; messages published before it "
-                                 "connects are lost", self.bus.pub_endpoint, self.connect_timeout)
-                return False
-            if self._pub.recv() == b"\x01":
-                return True
+    def _hold(self, topic: bytes, payload: bytes) -> None:
+        """`_send_payload` until `start` connects: keep the message (up to the bus's queue limit)."""
+        if len(self._held) < self.bus.hwm:
+            self._held.append((topic, payload))
 
-    def _drain_subscriptions(self) -> None:
-        """Read the subscriptions the broker forwards; its subscribe-all means it (re)connected."""
-        while True:
-            try:
-                if self._pub.recv(zmq.NOBLOCK) == b"\x01" and not self.connected:
-                    self.connected = True
-                    self.log.info("broker reached at %s", self.bus.pub_endpoint)
-            except zmq.Again:
-                return
+    def _on_messages(self) -> int:
+        return self._dispatch(self._drain())
+
+    def _on_broker(self) -> int:
+        """The broker's subscribe-all on the publisher: it (re)connected."""
+        if transport.drain_broker_subscriptions(self._pub) and not self.connected:
+            self.connected = True
+            self.log.info("broker reached at %s", self.bus.pub_endpoint)
+        return 0
 
     def _subscribe(self, key: bytes) -> None:
         if key in self._zmq_topics:
             return
         self._zmq_topics.add(key)
         self._sub.subscribe(key)
-        self._sync()
+        if self._set_up:
+            self._sync()   # made after start: in force once this returns
 
     def _sync(self) -> None:
-        """Block until the broker has applied this node's subscriptions (see the module doc)."""
+        """Block until the broker has applied this node's subscriptions (touch4d.bus.transport.sync)."""
         if not self.connected:
             return  # nothing to confirm with; ZeroMQ subscribes again once the broker is there
-        self._sync_count += 1
-        token = b"_bus/sync/%s/%d" % (self._uid.encode(), self._sync_count)
-        self._sub.subscribe(token)
-        deadline = time.monotonic() + self.connect_timeout
-        interval = 0.002
-        try:
-            while time.monotonic() < deadline:
-                self._pub.send_multipart((token, b""))
-                until = time.monotonic() + interval
-                while (left := until - time.monotonic()) > 0 and self._sub.poll(int(left * 1000) + 1):
-                    frames = self._sub.recv_multipart()
-                    if frames[0] == token:
-                        return
-                    if not frames[0].startswith(INTERNAL_PREFIX):
-                        self._pending.append(frames)
-                interval = min(interval * 2, 0.1)
+        if not transport.sync(self._sub, self._pub, self.connect_timeout, owner=self._uid, other=self._pending.append):
             self.log.warning("subscription not confirmed by the broker at %s within %.1f s",
                              self.bus.sub_endpoint, self.connect_timeout)
-        finally:
-            self._sub.unsubscribe(token)
+        if self._pending:
+            self.executor.call_soon(self._dispatch_pending)
+
+    def _dispatch_pending(self) -> None:
+        pending, self._pending = self._pending, []
+        self._dispatch(pending)
 
     def _drain(self) -> list[list[bytes]]:
         """Everything queued on the SUB socket now (up to _MAX_BATCH messages)."""
@@ -611,44 +568,6 @@ class Node:
         if key not in self._logged and len(self._logged) < _MAX_LOGGED_CAUSES:
             self._logged.add(key)
             self.log.warning("dropped a malformed message on %s: %s", topic.decode(errors="replace"), cause)
-
-    def _run_calls(self) -> int:
-        ran = 0
-        while self._calls:
-            callback, args = self._calls.popleft()
-            self._call(callback, args, getattr(callback, "__name__", "call_soon_threadsafe"))
-            ran += 1
-        return ran
-
-    def _run_timers(self) -> int:
-        """Run the due timers; keeps `_next_due`, when the next one is due, for `spin_once`'s wait."""
-        ran = 0
-        now = time.monotonic()
-        if now < self._next_due or self._stopping:
-            return 0   # the common case of a spin woken by a message: nothing due
-        next_due, cancelled = math.inf, False
-        timers = list(self._timers)   # a copy: a callback may create timers
-        for timer in timers:
-            if timer.cancelled:
-                cancelled = True
-                continue
-            if timer.next_due <= now and not self._stopping:
-                # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the
-                # next spins, so a 1 kHz timer averages 1 kHz; after a stall of more than
-                # MAX_CATCH_UP the missed ticks are skipped rather than fired in a burst.
-                timer.next_due += timer.period
-                if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
-                    timer.next_due = now + timer.period
-                self._call(timer.callback, (), timer)
-                ran += 1
-            if timer.next_due < next_due:   # cancelled by its own callback: a wake for nothing
-                next_due = timer.next_due
-        if len(self._timers) != len(timers):   # created by a callback
-            next_due = min([next_due] + [t.next_due for t in self._timers[len(timers):]])
-        if cancelled:
-            self._timers = [t for t in self._timers if not t.cancelled]
-        self._next_due = next_due
-        return ran
 
     def _send_heartbeat(self) -> None:
         self._heartbeat_pub.publish(Heartbeat(

@@ -37,7 +37,8 @@ class Param:
     values, `items` and `length` constrain lists, `path` marks a file and says what it is ("glove
     file"): the node gets it found by touch4d.configfile.resolve_path (the current directory, the
     launch file's folder, the packaged defaults) as a Path. A default of None makes the parameter
-    optional (null allowed).
+    optional (null allowed). `port` marks a TCP port the node serves on; `touch4d launch` checks
+    paths and ports before it starts any node (touch4d.bus.preflight).
     """
 
     default: Any
@@ -52,6 +53,7 @@ class Param:
     length: int | None = None
     path: bool | str = False
     finite: bool = True
+    port: bool = False   # a TCP port the node serves on (on its `host` parameter, if any): the launcher checks it is free
 
     def __post_init__(self):
         kind = self.kind

@@ -1,20 +1,22 @@
-"""Which node a launch file's `node:` names: a module of touch4d.nodes, an entry point another
-installed package declares in the group `touch4d.nodes`, or a module path.
+"""Which node a launch file's `node:` names: an entry point of the group `touch4d.nodes` (touch4d
+declares its own nodes there, in its pyproject.toml, like any other package), or a module path.
 
-    node: scripted                       # touch4d/nodes/scripted.py (a built-in node)
+    node: scripted                       # touch4d's: scripted = "touch4d.nodes.scripted_tracker"
     node: leap                           # [project.entry-points."touch4d.nodes"] leap = "mylab.nodes.leap_tracker"
     node: mylab.nodes.leap_tracker       # any importable module (or "module:Class")
 
 A node module holds one Node subclass (or names it `NODE = Class` when it holds several or
-re-exports one). Built-in names come first, then entry points, then module paths.
+re-exports one). touch4d's names come first, then other packages', then module paths. Two names
+for one module are aliases (`scripted` and `scripted_tracker`).
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.metadata
 import importlib.util
 import inspect
-import pkgutil
+import sys
 from dataclasses import dataclass
 
 from touch4d.bus.params import suggest
@@ -80,26 +82,67 @@ def node_class_of(module):
     return found[0]
 
 
-def built_in() -> dict[str, NodeKind]:
-    import touch4d.nodes
+def _registered() -> list[NodeKind]:
+    """Every entry point of the group, in install order: touch4d's own nodes and other packages'."""
+    return list(_scan(tuple(sys.path)))
 
-    return {m.name: NodeKind(m.name, f"touch4d.nodes.{m.name}", BUILT_IN)
-            for m in pkgutil.iter_modules(touch4d.nodes.__path__) if not m.name.startswith("_")}
+
+@functools.lru_cache(maxsize=4)
+def _scan(path: tuple[str, ...]) -> tuple[NodeKind, ...]:
+    """The entry points installed on `path` (scanning the installed packages takes tens of ms: a
+    launch asks once per node, so the answer is kept while sys.path stays the same)."""
+    found = []
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = getattr(ep, "dist", None)
+        if dist is not None and _normal(dist.name) == BUILT_IN:
+            origin = BUILT_IN
+        else:
+            origin = f"entry point of {dist.name} {dist.version}" if dist is not None else "entry point"
+        found.append(NodeKind(ep.name, ep.value.replace(" ", ""), origin))
+    return tuple(found)
+
+
+def _normal(dist_name: str) -> str:
+    return dist_name.lower().replace("_", "-").replace(".", "-")
+
+
+def built_in() -> dict[str, NodeKind]:
+    """touch4d's own nodes (its entry points), by name."""
+    return {k.name: k for k in _registered() if k.origin == BUILT_IN}
 
 
 def entry_points() -> dict[str, NodeKind]:
-    found = {}
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        dist = getattr(ep, "dist", None)
-        origin = f"entry point of {dist.name} {dist.version}" if dist is not None else "entry point"
-        found.setdefault(ep.name, NodeKind(ep.name, ep.value.replace(" ", ""), origin))
+    """Other packages' nodes, by name (the first installed wins a name two declare)."""
+    found: dict[str, NodeKind] = {}
+    for kind in _registered():
+        if kind.origin != BUILT_IN:
+            found.setdefault(kind.name, kind)
     return found
 
 
 def available() -> dict[str, NodeKind]:
-    """Every node that can be named by its short name: built-ins, then entry points (a name a
-    built-in already has is shadowed and left out)."""
+    """Every node that can be named by its short name: touch4d's, then other packages' (a name
+    touch4d already has is shadowed and left out: see `shadowed`)."""
     return {**entry_points(), **built_in()}
+
+
+def shadowed() -> list[NodeKind]:
+    """Other packages' nodes whose name a node of touch4d already has (launch them by module path)."""
+    mine = built_in()
+    return [k for name, k in entry_points().items() if name in mine and mine[name] != k]
+
+
+def aliases(kinds: dict[str, NodeKind]) -> dict[str, list[str]]:
+    """Names that launch the same node, grouped: the shortest name -> the others (`desktop` ->
+    [`desktop_tracker`]); a name without aliases maps to []."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for name, kind in kinds.items():
+        groups.setdefault((kind.target, kind.origin), []).append(name)
+    out = {}
+    for names in groups.values():
+        first, *others = sorted(names, key=lambda n: (len(n), n))
+        out[first] = sorted(others)
+    return out
 
 
 def find(ref: str) -> NodeKind:
@@ -128,6 +171,9 @@ def _not_found(ref, why: str = "", names=None) -> str:
            f"mylab.nodes.my_tracker"
     if why:
         text += f" ({why})"
+    if not any(k.origin == BUILT_IN for k in names.values()):
+        text += ("; touch4d's own nodes are not registered in this installation (its metadata predates "
+                 "them): reinstall it with `pip install -e .` or ./dev")
     return text + suggest(ref, names)
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import select
 import signal
 import socket
 import subprocess
@@ -38,6 +39,7 @@ from typing import Callable, Iterator
 from touch4d.bus.broker import Broker
 from touch4d.bus.config import ENV_VAR, BusConfig, CurveKeys
 from touch4d.bus.node import Node
+from touch4d.bus.process import READY_FD_ENV
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -87,6 +89,7 @@ class ProcessOutput:
 
     def __init__(self, proc: subprocess.Popen):
         self.proc = proc
+        self.started = False   # node_process: the node said it is started
         self.lines: list[str] = []
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._read, daemon=True)
@@ -131,9 +134,9 @@ class ProcessOutput:
         return self.proc.pid
 
 
-def _start(cmd: list[str], env: dict[str, str]) -> ProcessOutput:
+def _start(cmd: list[str], env: dict[str, str], pass_fds: tuple[int, ...] = ()) -> ProcessOutput:
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            env=env, cwd=REPO, start_new_session=True)
+                            env=env, cwd=REPO, start_new_session=True, pass_fds=pass_fds)
     return ProcessOutput(proc)
 
 
@@ -156,12 +159,23 @@ def _finish(out: ProcessOutput, stop_signal: int, grace: float) -> None:
 
 @contextmanager
 def node_process(module: str, bus: BusConfig, name: str | None = None, params: dict | None = None,
-                 grace: float = 5.0, realtime: bool = False) -> Iterator[ProcessOutput]:
+                 grace: float = 5.0, realtime: bool = False, start_timeout: float = 60.0) -> Iterator[ProcessOutput]:
     """Run node `module` (a name as in launch files, or a module path) as its own process on `bus`;
-    SIGTERM then kill on exit."""
+    yields once the node is started (set up, connected, its subscriptions in force: it says so on
+    the pipe the launcher also uses) or has exited, at most `start_timeout` s; SIGTERM then kill on exit."""
     cmd = [sys.executable, "-u", "-m", "touch4d.bus", module, "--name", name or module,
            "--params", json.dumps(params or {}), *(["--realtime"] if realtime else [])]
-    out = _start(cmd, bus_env(bus))
+    ready_r, ready_w = os.pipe()
+    try:
+        out = _start(cmd, bus_env(bus, **{READY_FD_ENV: str(ready_w)}), pass_fds=(ready_w,))
+    finally:
+        os.close(ready_w)
+    try:
+        # A byte when started; end of file when the process exits first (or never, after the timeout).
+        readable = select.select([ready_r], [], [], start_timeout)[0]
+        out.started = bool(readable) and os.read(ready_r, 1) == b"1"
+    finally:
+        os.close(ready_r)
     try:
         yield out
     finally:

@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 
 import zmq
 
+from touch4d.bus import transport
 from touch4d.bus.config import BusConfig
-from touch4d.bus.node import INTERNAL_PREFIX
+from touch4d.bus.realtime import raise_thread_priority
+from touch4d.bus.transport import INTERNAL_PREFIX, bus_context
 from touch4d.errors import Touch4dError
 
-from touch4d.bus.realtime import bus_context, raise_thread_priority
 from .writer import LogWriter, WallClock
 
 
@@ -102,17 +103,25 @@ class Recorder:
         self.received = 0
 
     def start(self, timeout: float = 5.0) -> None:
-        """Open the file, subscribe, start the threads; returns once the broker forwards to us."""
-        self._writer = LogWriter(self.path, chunk_size=self.chunk_size)
-        sock = self._context.socket(zmq.SUB)
-        sock.linger = 0
-        sock.rcvhwm = 0  # unbounded: a slow disk queues messages in memory, never drops them
-        self.bus.client_socket_options(sock)
-        for topic in self.topics or [""]:
-            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
-        sock.connect(self.bus.sub_endpoint)
+        """Open the file, subscribe, start the threads; returns once the broker forwards to us.
+
+        No broker within `timeout`: a Touch4dError, and the file is removed again (none is left)."""
+        existed = os.path.lexists(self.path)
+        self._writer = LogWriter(self.path, chunk_size=self.chunk_size)   # an unwritable path fails first
+        sock = transport.subscriber(self._context, self.bus, hwm=0,  # unbounded: a slow disk queues, never drops
+                                    topics=[t.encode() for t in self.topics or [""]])
         self._started = time.monotonic()
-        early = self._sync(sock, timeout)
+        try:
+            early = self._sync(sock, timeout)
+        except BaseException:
+            sock.close(linger=0)
+            self._writer.close()
+            self._writer = None
+            if not existed:
+                os.unlink(self.path)
+            if self._own_context:
+                self._context.term()
+            raise
         self._queue.extend(early)
         self.received += len(early)
         self._threads = [threading.Thread(target=self._receive, args=(sock,), name="recorder-receive", daemon=True),
@@ -121,36 +130,20 @@ class Recorder:
             thread.start()
 
     def _sync(self, sock: zmq.Socket, timeout: float) -> list[tuple[str, bytes, int]]:
-        """Send a probe through the broker until it comes back: from then on nothing is missed.
-
-        Returns the messages that arrived meanwhile (they are recorded too)."""
-        token = b"_bus/sync/recorder/%d/%d" % (os.getpid(), id(self))
-        sock.setsockopt(zmq.SUBSCRIBE, token)
-        pub = self._context.socket(zmq.XPUB)
-        pub.linger = 0
-        self.bus.client_socket_options(pub)
-        pub.connect(self.bus.pub_endpoint)
+        """The transport's slow-joiner sync: from its return on nothing is missed. Returns the
+        messages that arrived meanwhile (they are recorded too)."""
         early: list[tuple[str, bytes, int]] = []
-        deadline = time.monotonic() + timeout
-        interval = 0.002
+
+        def keep(frames: list[bytes]) -> None:
+            if _wanted(frames[0], self._wanted):
+                early.append((self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", self._clock()))
+
+        pub = transport.publisher(self._context, self.bus)
         try:
-            while time.monotonic() < deadline:
-                pub.send_multipart([token, b""])
-                until = time.monotonic() + interval
-                while (left := until - time.monotonic()) > 0 and sock.poll(int(left * 1000) + 1):
-                    frames = sock.recv_multipart()
-                    if frames[0] == token:
-                        return early
-                    if _wanted(frames[0], self._wanted):
-                        early.append((self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", self._clock()))
-                interval = min(interval * 2, 0.1)
+            if transport.sync(sock, pub, timeout, owner="recorder", other=keep):
+                return early
         finally:
-            sock.setsockopt(zmq.UNSUBSCRIBE, token)
             pub.close(linger=0)
-        sock.close(linger=0)
-        self._writer.close()
-        if self._own_context:
-            self._context.term()
         raise Touch4dError(f"recorder: no bus broker forwarded messages at {self.bus.sub_endpoint} "
                            f"within {timeout:.0f} s (is one running?)")
 

@@ -21,12 +21,14 @@ from typing import Callable, Iterator
 
 import zmq
 
+from touch4d.bus import transport
 from touch4d.bus.config import BusConfig
 from touch4d.errors import Touch4dError
 
 from .reader import LogFileError, LogMessage, LogReader
 from .restamp import restamp
-from touch4d.bus.realtime import bus_context, raise_thread_priority, reset_thread_priority
+from touch4d.bus.realtime import raise_thread_priority, reset_thread_priority
+from touch4d.bus.transport import bus_context
 from .summary import LogSummary, indexed_summary, summarize
 
 
@@ -254,17 +256,12 @@ class BusSender:
                  realtime: bool = True) -> None:
         self._own_context = context is None
         self._context = context or bus_context(realtime)
-        # An XPUB (it sends like a PUB) sees the broker's subscription arrive: then nothing is lost.
-        self._sock = self._context.socket(zmq.XPUB)
-        self._sock.linger = 1000
-        self._sock.sndhwm = 0
-        bus.client_socket_options(self._sock)
-        self._sock.connect(bus.pub_endpoint)
-        if not self._sock.poll(int(timeout * 1000), zmq.POLLIN):
+        # The transport's publisher sees the broker's subscription arrive: then nothing is lost.
+        self._sock = transport.publisher(self._context, bus, hwm=0, linger=1000)
+        if not transport.await_broker(self._sock, timeout):
             self.close(linger=0)
             raise Touch4dError(f"no bus broker answered at {bus.pub_endpoint} within {timeout:.0f} s "
                                f"(start one with `touch4d launch` or the bus broker command)")
-        self._sock.recv()
 
     def __call__(self, topic: str, payload: bytes) -> None:
         self._sock.send_multipart([topic.encode(), payload], copy=len(payload) < 4096)

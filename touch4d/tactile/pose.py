@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from touch4d.errors import Touch4dError
-from touch4d.tracking.quaternion import to_matrix as quaternion_matrix  # one closed form, shared with tracking
+from touch4d.geometry.quaternion import to_matrix as quaternion_matrix  # one closed form, shared with tracking
 
 UNIT_TOLERANCE = 1e-3  # as touch4d.messages.hand: a tracker's float32 quaternion passes
 

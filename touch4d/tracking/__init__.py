@@ -7,5 +7,4 @@ fingers       finger motions (curl, point, spread ...), pure functions of time (
 vr            OpenVR poses and buttons -> touch4d values
 outputs       the hand/pose and controller/state messages every tracker publishes
 scene_control the scene node's logic: controller motion -> 4D rotation (paper §4.4), commands
-quaternion    single-pose quaternion helpers in numpy
 """

@@ -24,7 +24,7 @@ from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.schema import Finite, Positive
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .config import CONFIG_DIR
 
 DEFAULT_CALIBRATION = CONFIG_DIR / "calibration.yaml"

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from touch4d.geometry import quaternion
 from touch4d.tactile.hand import FINGER_NAMES
 from touch4d.tactile.skeleton import HandShape
 
-from . import quaternion
 from .paths import PathSample
 
 MOVE_KEYS = {"d": (0, 1.0), "a": (0, -1.0), "e": (1, 1.0), "q": (1, -1.0), "s": (2, 1.0), "w": (2, -1.0)}

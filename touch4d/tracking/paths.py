@@ -22,7 +22,7 @@ from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.schema import Finite, Fraction, NonNegative, Positive
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .calibration import Steps, Vec3, _steps
 from .config import CONFIG_DIR
 

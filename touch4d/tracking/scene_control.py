@@ -21,7 +21,7 @@ from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, p
 from touch4d.geometry.scene import Scene
 from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .calibration import Calibration
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import quaternion
+from touch4d.geometry import quaternion
 
 BUTTON_IDS = {"menu": 1, "grip": 2, "trackpad": 32, "trigger": 33}
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from touch4d.messages import ControllerState, HandJoints, HandPose
 
-from . import quaternion
+from touch4d.geometry import quaternion
 from .calibration import Calibration
 
 HAND_SOURCES = ("controller", "hand")

@@ -144,7 +144,8 @@ class WebBridge:
         camera = OrbitCamera()
         fields = {
             "tracker": self.config.tracker, "hand": self.config.hand, "hand_source": self.config.hand_source,
-            "motor_names": list(g.motor_names), "cube_center": list(cube.center), "cube_half": cube.half,
+            "motor_names": list(g.motor_names), "touch_threshold": g.touch_threshold,
+            "cube_center": list(cube.center), "cube_half": cube.half,
             "camera": {"yaw": camera.yaw, "pitch": camera.pitch, "distance": camera.distance,
                        "target": [float(v) for v in camera.target], "fov": camera.fov},
             "style": dataclasses.asdict(self.view.style),

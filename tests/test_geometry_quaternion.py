@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from touch4d.tracking import quaternion as qt
+from touch4d.geometry import quaternion as qt
 
 RNG = np.random.default_rng(11)
 PAIRS = [(Rotation.random(random_state=RNG), Rotation.random(random_state=RNG)) for _ in range(50)]

@@ -1,0 +1,186 @@
+"""The executor: one thread's loop of timers, socket readers and calls handed over by other threads.
+
+A node owns one (`node.executor`); it registers its sockets as readers and its timers, and
+`spin_once` waits for whichever comes first. Everything runs on the thread that spins, so node code
+needs no locks. A callback that raises is handed to `on_error(where, exc)` (inside the `except`, so
+a traceback can be logged) and the loop goes on.
+"""
+from __future__ import annotations
+
+import math
+import socket
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import zmq
+
+MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
+
+
+@dataclass
+class Timer:
+    """Calls `callback()` every `period` seconds on the executor's thread, until cancelled."""
+
+    period: float
+    callback: Callable[[], Any]
+    next_due: float
+    cancelled: bool = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+def _reraise(where, exc: Exception) -> None:
+    raise exc
+
+
+class Executor:
+    """Timers, readers (a socket or file descriptor -> a callback returning how much it handled)
+    and thread-safe calls, run by `spin_once` / `spin`."""
+
+    def __init__(self, on_error: Callable[[Any, Exception], None] = _reraise):
+        self.on_error = on_error
+        self.timers: list[Timer] = []
+        self._next_due = -math.inf   # when the next timer is due (kept by run_timers)
+        self._calls: deque = deque()  # (callback, args) handed over by other threads, or queued by this one
+        self._readers: dict = {}
+        self._poller = zmq.Poller()
+        self._stopping = False
+        self._closed = False
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._poller.register(self._wake_r, zmq.POLLIN)
+
+    # ---- what runs ---------------------------------------------------------------------------
+
+    def add_reader(self, sock, callback: Callable[[], int]) -> None:
+        """Call `callback()` when `sock` (a ZeroMQ socket or a file descriptor) is readable."""
+        self._readers[sock] = callback
+        self._poller.register(sock, zmq.POLLIN)
+
+    def create_timer(self, period: float, callback: Callable[[], Any], first_due: float | None = None) -> Timer:
+        if not period > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period}")
+        timer = Timer(float(period), callback, time.monotonic() + period if first_due is None else first_due)
+        self.timers.append(timer)
+        self._next_due = min(self._next_due, timer.next_due)
+        return timer
+
+    def set_timer_period(self, timer: Timer, period: float) -> None:
+        """Change a timer's period; a shorter one takes effect at once (the next tick at most
+        `period` from now), a longer one after the tick already due."""
+        if not period > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period}")
+        timer.period = float(period)
+        timer.next_due = min(timer.next_due, time.monotonic() + timer.period)
+        self._next_due = min(self._next_due, timer.next_due)
+
+    def call_soon(self, callback: Callable, *args) -> None:
+        """Run `callback(*args)` at the next spin; from the executor's own thread."""
+        self._calls.append((callback, args))
+
+    def call_soon_threadsafe(self, callback: Callable, *args) -> None:
+        """Run `callback(*args)` at the next spin; safe from any thread. The poll wakes at once."""
+        self._calls.append((callback, args))
+        self._wake(b"c")
+
+    def request_shutdown(self) -> None:
+        """Ask `spin` to return; safe from signal handlers and other threads."""
+        self._stopping = True
+        self._wake(b"x")
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping
+
+    # ---- spinning ----------------------------------------------------------------------------
+
+    def spin_once(self, timeout: float = 0.1) -> int:
+        """Wait up to `timeout` s for a reader or a due timer and handle them; returns how many."""
+        handled = self.run_timers() + self.run_calls()
+        if handled or self._stopping:
+            timeout = 0.0
+        elif self._next_due - time.monotonic() < timeout:
+            timeout = max(0.0, self._next_due - time.monotonic())
+        # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
+        events = self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0)
+        for sock, _ in events:
+            reader = self._readers.get(sock)
+            if reader is not None:
+                handled += reader()
+            else:
+                try:
+                    self._wake_r.recv(4096)
+                except BlockingIOError:
+                    pass
+        return handled + self.run_calls() + self.run_timers()
+
+    def spin(self, duration: float | None = None) -> None:
+        """Spin until `request_shutdown()` (or for `duration` seconds)."""
+        end = None if duration is None else time.monotonic() + duration
+        while not self._stopping:
+            left = 0.1 if end is None else end - time.monotonic()
+            if left <= 0:
+                break
+            self.spin_once(min(left, 0.1))
+
+    def run_calls(self) -> int:
+        ran = 0
+        while self._calls:
+            callback, args = self._calls.popleft()
+            try:
+                callback(*args)
+            except Exception as exc:  # noqa: BLE001 - a failing callback must not stop the loop
+                self.on_error(getattr(callback, "__name__", "call_soon_threadsafe"), exc)
+            ran += 1
+        return ran
+
+    def run_timers(self) -> int:
+        """Run the due timers; keeps `_next_due`, when the next one is due, for `spin_once`'s wait."""
+        now = time.monotonic()
+        if now < self._next_due or self._stopping:
+            return 0   # the common case of a spin woken by a message: nothing due
+        ran = 0
+        next_due, cancelled = math.inf, False
+        timers = list(self.timers)   # a copy: a callback may create timers
+        for timer in timers:
+            if timer.cancelled:
+                cancelled = True
+                continue
+            if timer.next_due <= now and not self._stopping:
+                # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the
+                # next spins, so a 1 kHz timer averages 1 kHz; after a stall of more than
+                # MAX_CATCH_UP the missed ticks are skipped rather than fired in a burst.
+                timer.next_due += timer.period
+                if now - timer.next_due > max(MAX_CATCH_UP, 2 * timer.period):
+                    timer.next_due = now + timer.period
+                try:
+                    timer.callback()
+                except Exception as exc:  # noqa: BLE001 - a failing timer must not stop the loop
+                    self.on_error(timer, exc)
+                ran += 1
+            if timer.next_due < next_due:   # cancelled by its own callback: a wake for nothing
+                next_due = timer.next_due
+        if len(self.timers) != len(timers):   # created by a callback
+            next_due = min([next_due] + [t.next_due for t in self.timers[len(timers):]])
+        if cancelled:
+            self.timers = [t for t in self.timers if not t.cancelled]
+        self._next_due = next_due
+        return ran
+
+    def close(self) -> None:
+        """Stop and release the wake-up pipe (the readers' sockets are their owners' to close)."""
+        self._stopping = True
+        if not self._closed:
+            self._closed = True
+            self._wake_r.close()
+            self._wake_w.close()
+
+    def _wake(self, byte: bytes) -> None:
+        try:
+            self._wake_w.send(byte)
+        except OSError:
+            pass
