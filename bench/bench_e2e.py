@@ -58,7 +58,7 @@ from touch4d.boards.protocol import GloveProtocol
 from touch4d.messages import HandJoints, HandPose, Heartbeat, MotorCommand, MotorTrace
 from touch4d.tactile.engine import TactileEngine
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import HandShape
 from touch4d.tracking.paths import Orbit
 
 REPO = Path(__file__).resolve().parents[1]

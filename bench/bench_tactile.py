@@ -27,7 +27,7 @@ from touch4d.geometry.rotation import rotation_from_list
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import quaternion_matrix
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import HandShape
 from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 
 TARGET_MS = 0.5

@@ -43,6 +43,8 @@ class TactileNode(Node):
         beta = None if p["beta"] is None else check_beta(p["beta"], *self.param_where("beta"))
         self.engine = TactileEngine(load_glove(p["glove"] or None), alpha=alpha, beta=beta, projection=p["projection"])
         self.hand = HandSource(self.engine, p["joints_timeout_s"], self.counts)
+        # in every heartbeat: the counters, and which hand drives (1: the joints, 0: the pose)
+        self.add_stats(lambda: {**self.counts, "hand_joints": int(self.hand.using == "joints")})
         self.field_pub = self.create_publisher("tactile/field", TactileField)
         self.motor_pub = self.create_publisher("tactile/motors", MotorCommand)
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
@@ -101,12 +103,6 @@ class TactileNode(Node):
         if field is not None:
             self.field_pub.publish(field)
         self.motor_pub.publish(motors)
-
-    def stats_flat(self) -> dict:
-        out = super().stats_flat()
-        if hasattr(self, "hand"):
-            out.update(self.counts, hand_joints=int(self.hand.using == "joints"))
-        return out
 
     def on_shutdown(self) -> None:
         self.log.info("handled %d pose(s), %d joint set(s): %s", self.counts["poses"], self.counts["joints"],

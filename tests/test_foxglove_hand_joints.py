@@ -10,7 +10,8 @@ from websockets.sync.client import connect
 from touch4d.bus import Node
 from touch4d.bus.testing import free_port, node_process, running_broker
 from touch4d.messages import HandJoints, HandPose
-from touch4d.tactile.skeleton import HandShape, outline_segments
+from touch4d.hands import HandShape
+from touch4d.tactile.skeleton import outline_segments
 
 pytestmark = pytest.mark.timeout(120)
 

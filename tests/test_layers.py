@@ -31,7 +31,7 @@ def package_of(module: str) -> str | None:
         return None
     if "cli" in parts[1:3]:   # touch4d.cli, touch4d.bus.cli and what they hold
         return COMMANDS
-    if len(parts) == 1 or parts[1] in {"errors", "stdio", "configfile", "schema", "glovefile", "defaults"}:
+    if len(parts) == 1 or parts[1] in {"errors", "stdio", "configfile", "schema", "glovefile", "hands", "defaults"}:
         return FOUNDATION
     return "touch4d." + parts[1]
 

@@ -9,7 +9,7 @@ from touch4d.render.hud import TactileCube, amplitude_colors
 from touch4d.render.offscreen import OffscreenRenderer
 from touch4d.render.view import SceneView, Show
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import HandShape
 
 SIZE = (320, 320)
 FACE_ON = OrbitCamera(yaw=0.0, pitch=0.0, distance=4.0, target=np.zeros(3), ortho=True)

@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from touch4d.errors import ConfigError
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import glove_from_dict, load_glove
-from touch4d.tactile.skeleton import BONE_NAMES, JOINTS, HandShape, JointsError
+from touch4d.hands import HandShape
+from touch4d.tactile.skeleton import BONE_NAMES, JOINTS, JointsError
 from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 from touch4d.configfile import read_yaml, resolve_path
 

@@ -12,7 +12,7 @@ from touch4d.messages import HandJoints, HandPose, MotorCommand
 from touch4d.nodes.tactile import TactileNode
 from touch4d.tactile.engine import HandSource, TactileEngine
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import HandShape
 
 WHERE = np.array([0.0, -0.1, 0.0])
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])

@@ -4,7 +4,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from test_web_bridge import GLOVE, Rig
-from touch4d.tactile.skeleton import HandShape, outline_segments
+from touch4d.hands import HandShape
+from touch4d.tactile.skeleton import outline_segments
 from touch4d.web.protocol import unpack_frame
 
 

@@ -11,15 +11,14 @@ import msgspec
 
 import numpy as np
 
+from touch4d import schema
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
-
-from touch4d import schema
+from touch4d.hands import FINGER_NAMES, HandShape
 
 from .glove import load_glove
-from .hand import FINGER_NAMES
-from .skeleton import HandShape, JointsError
+from .skeleton import JointsError
 from .stimulus import Stimulus, compute_joint_stimulus, compute_stimulus
 
 

@@ -25,9 +25,9 @@ from scipy.spatial.transform import Rotation
 
 from touch4d.errors import Touch4dError
 from touch4d.messages import HandJoints
-from touch4d.tracking.webxr import JOINTS
 
 from touch4d.glovefile import Bones
+from touch4d.hands import WEBXR_JOINTS as JOINTS, HandShape
 
 from .bones import fractions as bone_fractions
 from .hand import FINGER_NAMES, Hand
@@ -82,17 +82,6 @@ _METACARPAL_AT = 0.15    # a finger's metacarpal joint: this fraction of the way
 
 class JointsError(Touch4dError, ValueError):
     """A joint set that cannot place the hand: names the field (names, positions, ...) and the problem."""
-
-
-@dataclass(frozen=True)
-class HandShape:
-    """How the fingers bend: `curl` per finger 0 (straight) .. 1 (fist), `spread` 0 (together) .. 1."""
-
-    curl: dict = field(default_factory=dict)     # finger name -> 0..1 (missing: 0)
-    spread: float = 0.0
-
-    def of(self, finger: str) -> float:
-        return float(self.curl.get(finger, 0.0))
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from touch4d.geometry import quaternion
-from touch4d.tactile.hand import FINGER_NAMES
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import FINGER_NAMES, HandShape
 
 from .paths import PathSample
 

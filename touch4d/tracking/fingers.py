@@ -26,8 +26,7 @@ import msgspec
 
 from touch4d import schema
 from touch4d.configfile import resolve_path
-from touch4d.tactile.hand import FINGER_NAMES
-from touch4d.tactile.skeleton import HandShape
+from touch4d.hands import FINGER_NAMES, HandShape
 
 from .paths import smoothstep
 
