@@ -10,8 +10,9 @@ and keeps its coordinates in that bone's joint frame, so a tracked joint set pla
 where its bone is: one rigid transform per bone, applied to all of the bone's points at once.
 
 A joint set of straight fingers at a pose gives exactly the rigid hand at that pose (tested to
-1e-9), so the rigid hand is the special case. A finger bone may be longer or shorter than the
-glove's (another person's hand): its points are stretched along it to fit. A joint set of the
+1e-9), so the rigid hand is the special case. A bone may be longer or shorter than the glove's
+(another person's hand): its points are stretched along it to fit (the palm along the wrist's
+axis, by the wrist-to-middle-knuckle distance). A joint set of the
 other hand (WebXR's `handedness`) is the glove's hand mirrored: every point's x in its bone frame
 changes sign, so the glove's thumb samples stay on the thumb.
 """
