@@ -19,6 +19,8 @@ the plain fields of a payload; the arrays, records and the class's `check()` are
 by the same functions when publishing and when decoding. Anything wrong is a MessageError naming
 the type and the field.
 """
+import itertools
+import math
 import re
 import sys
 import time
@@ -32,7 +34,7 @@ from touch4d.errors import Touch4dError
 
 from .codec import CodecError, _ext_hook, encode_plain
 from .header import DOCS as HEADER_DOCS
-from .header import Finite, Header
+from .header import Finite, Header, peek_any
 
 __all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
            "decoder"]
@@ -62,7 +64,8 @@ class ArraySpec:
 
     def _checker(self) -> Callable[[Any], None]:
         """check(value): raises ValueError unless `value` is such an array (a closure: this runs per message)."""
-        want, kinds, fixed, finite, ndarray = self.shape, self.kinds, self.fixed.items(), self.check_finite, np.ndarray
+        want, ndim, kinds, finite, ndarray = self.shape, len(self.shape), self.kinds, self.check_finite, np.ndarray
+        fixed, dot, isfinite = tuple(self.fixed.items()), np.dot, math.isfinite
 
         def check(value) -> None:
             if value.__class__ is not ndarray and not isinstance(value, ndarray):
@@ -70,18 +73,27 @@ class ArraySpec:
             if value.dtype.kind not in kinds:
                 raise ValueError(f"expected dtype kind '{self.dtype.kind}' ({self.dtype}), got {value.dtype}")
             shape = value.shape
-            if shape != want and (len(shape) != len(want) or any(shape[i] != n for i, n in fixed)):
-                raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+            if shape != want:
+                if len(shape) != ndim:
+                    raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape)) or 'scalar'}")
+                for i, n in fixed:
+                    if shape[i] != n:
+                        raise ValueError(f"expected shape {self.text}, got {'x'.join(map(str, shape))}")
             if finite:
+                # A finite sum (of squares) proves every value finite; only a non-finite one needs the look.
                 if value.size <= 16:   # poses, quaternions: plain floats are quicker than numpy
                     total = sum(value.tolist() if value.ndim == 1 else value.ravel().tolist())
                 else:
                     flat = value.reshape(-1)
-                    total = np.dot(flat, flat)
-                # a finite sum (of squares) proves every value finite; only a non-finite one needs the look
-                if total - total != 0.0 and not np.isfinite(value).all():
+                    total = dot(flat, flat)
+                if not isfinite(total) and not np.isfinite(value).all():
                     raise ValueError("expected finite values, got NaN or infinity")
-        return check
+
+        def check_vector(value) -> None:   # a pose's vectors, the usual case at one look
+            if not (value.__class__ is ndarray and value.shape == want and value.dtype.kind in kinds
+                    and isfinite(sum(value.tolist()))):
+                check(value)   # the whole rule: says what is wrong, if anything
+        return check_vector if finite and ndim == 1 and want[0] is not None and want[0] <= 16 else check
 
     def coerce(self, value) -> np.ndarray:
         if value.__class__ is np.ndarray and value.dtype.kind == self.dtype.kind:
@@ -190,10 +202,12 @@ def _checker(tp) -> Callable[[Any], None]:
                 raise ValueError(f"expected one of {', '.join(args)}, got {v!r}")
         return check_choice
     if origin is list and args[0] in (str, int):
-        item, what = args[0], "strings" if args[0] is str else "integers"
+        items, what = itertools.repeat(args[0]), "strings" if args[0] is str else "integers"
+        bools = itertools.repeat(bool)
 
-        def check_list(v):
-            if v.__class__ is not list or not all(x.__class__ is item for x in v):
+        def check_list(v):   # map(isinstance, ...): a loop in C (a list of names is checked per message)
+            if (v.__class__ is not list or not all(map(isinstance, v, items))
+                    or (what == "integers" and any(map(isinstance, v, bools)))):
                 raise ValueError(f"expected a list of {what}")
         return check_list
     if origin is list:
@@ -350,24 +364,29 @@ class MessageMeta(msgspec.StructMeta):
     def __call__(cls, **values):
         """A new message: every field not given holds its default; given values are coerced to the
         field's type (a list to an array, an int to a float); nothing is checked before publishing."""
-        coerce = cls._coerce
-        for name, value in values.items():
-            if name in coerce:
-                try:
-                    values[name] = coerce[name](value)
-                except (TypeError, ValueError) as exc:
-                    raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
+        coerce, fields = cls._coerce, cls._plain_defaults.copy()
+        name = ""
+        try:
+            for name, value in values.items():
+                c = coerce.get(name)
+                fields[name] = value if c is None else c(value)
+        except (TypeError, ValueError) as exc:
+            raise MessageError(f"{cls.TYPE}.{name}: {exc}") from None
         for name, make in cls._made_defaults:
-            if name not in values:
-                values[name] = make()
-        return _make(cls, **{**cls._plain_defaults, **values})
+            if name not in fields:
+                fields[name] = make()
+        return _make(cls, **fields)
 
 
 _make = msgspec.StructMeta.__call__
 
 
-class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=True, forbid_unknown_fields=True):
-    """Base of all messages: the header (messages/header.py), encoding, checking and decoding."""
+class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=True, forbid_unknown_fields=True,
+              gc=False):
+    """Base of all messages: the header (messages/header.py), encoding, checking and decoding.
+
+    gc=False: the garbage collector does not track messages (made and dropped at 1 kHz, they would
+    only make its collections longer); a message is data and never part of a reference cycle."""
 
     TYPE: ClassVar[str] = ""
     FIELDS: ClassVar[tuple[Field, ...]] = ()
@@ -475,7 +494,7 @@ def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
     def decode_expected(payload: bytes) -> Message:
         try:
             msg = decode_one(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+        except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
             raise _error(exc, payload, expected) from None
         return _checked(msg, checks)
 
@@ -486,7 +505,7 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     """Payload bytes -> a checked message; raises MessageError saying exactly what is wrong."""
     try:
         msg = expected._decode(payload) if expected is not None else _decode_any(payload)
-    except (msgspec.ValidationError, msgspec.DecodeError, CodecError) as exc:
+    except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
         raise _error(exc, payload, expected) from None
     return _checked(msg, msg._after_decode)
 
@@ -500,6 +519,8 @@ def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> Me
     """msgspec's or the codec's complaint about a payload as a MessageError naming type and field."""
     if isinstance(exc, CodecError):
         return MessageError(str(exc))
+    if isinstance(exc, UnicodeDecodeError):   # msgspec decodes map keys itself, and raises this for bad UTF-8
+        return MessageError(f"not a message: a string that is not UTF-8 ({exc.reason} at byte {exc.start})")
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
         return MessageError(f"not a msgpack payload: {exc}")
     found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
@@ -537,9 +558,5 @@ _WIRE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false"
 
 def _type_of(payload: bytes):
     """The "type" of a payload that failed to decode (for the error's text), or None."""
-    try:
-        from .header import peek_any
-        found = peek_any(payload)
-    except Exception:  # noqa: BLE001 - only for an error's text
-        return None
+    found = peek_any(payload)
     return found[0] if found else None

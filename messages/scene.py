@@ -6,7 +6,7 @@ import numpy as np
 from .base import Array, Float, Map, Message, Records, doc
 
 PROJECTIONS = ("orthographic", "perspective")
-SCENE_COMMANDS = ("next", "select", "reset", "projection")
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", "pause", "play", "step")   # the last three: physics
 
 SceneObject = Records(
     name=str, shape=str, params=Map, size=Float, position=Array(4), orientation=Array(4, 4), color=Array(4),
@@ -44,7 +44,9 @@ class SceneState(Message):
 
 
 class SceneCommand(Message):
-    """A request to the scene node (topic scene/command): next/select object, reset, projection."""
+    """A request to the scene node (topic scene/command): next/select object, reset, projection, or load a
+    whole scene (argument: scene-file text, YAML, as touch4d.geometry.scene.parse_scene reads it)."""
 
     command: Literal[SCENE_COMMANDS] = doc("what to do")
-    argument: str = doc("select: object name or index; projection: orthographic|perspective|toggle")
+    argument: str = doc("select: object name or index; projection: orthographic|perspective|toggle; "
+                        "load: the scene file's text; step: how many physics steps (default 1)")

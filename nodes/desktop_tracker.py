@@ -88,3 +88,9 @@ class DesktopTracker(Node):
                                                          self.hand.shape).message(hand.stamp))
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

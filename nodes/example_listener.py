@@ -45,3 +45,9 @@ class ExampleListener(Node):
         self.log.info("heard %d message(s)", self.heard)
         if self.stop_pub is not None:
             self.stop_pub.publish(Stop(reason="listener shutting down", origin=self.name))
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

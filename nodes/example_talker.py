@@ -39,3 +39,9 @@ class ExampleTalker(Node):
             valid=True,
         ))
         self.sent += 1
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

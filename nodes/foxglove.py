@@ -174,3 +174,9 @@ class FoxgloveNode(Node):
                                      color=m.Color(r=0.95, g=0.85, b=0.75, a=alpha))]
         hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres, lines=bones)
         return m.SceneUpdate(entities=[screen, hand])
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -54,3 +54,9 @@ class Monitor(Node):
         for topic, nodes in self.status.shared(now).items():
             self.warn_once(("shared", topic, tuple(nodes)), shared_text(topic, nodes))
         print(self.status.line(now), flush=True)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -8,7 +8,10 @@ this process), `board_emulator` (which: `python`, the reference, or `firmware`, 
 core built for this machine), `status_hz` (motors/status rate), `trace` (publish `motors/trace`,
 below).
 
-Fail safe: whatever breaks, the motors end off. A command's age is taken from its own
+Fail safe: whatever breaks, the motors end off. The broker's death turns them off at the next
+refresh tick (its connection closes; counted as `broker_lost`). A process stalled between deciding
+a tick's duties and sending them (SIGSTOP, swapping) decides them again before they go out
+(`stalled`), so a command fresh when it arrived is not sent seconds later. A command's age is taken from its own
 `source_stamp` (the hand pose it came from), so one delayed by a stall anywhere upstream never
 turns a motor on: older than the glove's `can.command_max_age_s` (default `watchdog_s`) it counts
 as `stale_command` and turns every motor off. This assumes the clocks of the machines in the
@@ -18,6 +21,9 @@ A `safety/stop` is momentary by default: commands resume `can.stop_hold_s` (1 s)
 receive side raised, and shutdown always sends NMT STOP and zero duty.
 While every motor is off and the boards have been sent so, the refresh slows to the glove's
 `can.idle_refresh_hz` (an idle node costs little); a command goes out at once and speeds it up.
+A running study gates the motors (`study/trial`, touch4d.study.gate): in a visual trial, between
+trials and after the end every duty is 0; the last gate holds if the study node dies, and
+`study_gate: closed` keeps a motor node (re)started mid-study off until the study's next message.
 
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
@@ -33,15 +39,18 @@ import math
 import time
 
 import numpy as np
+import zmq
 
 from touch4d.bus import Node, Param
+from touch4d.bus.broker import BrokerWatch
 from touch4d.boards.busload import check_bus_load
 from touch4d.boards.config import load_glove_can
 from touch4d.boards.driver import MotorDriver, Outgoing
 from touch4d.boards.emulator import EMULATORS, make_glove_emulator
 from touch4d.boards.link import CAN_ERR_BUSOFF, CanLink
 from touch4d.boards.protocol import FrameError, GloveProtocol
-from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop
+from touch4d.messages import MotorCommand, MotorStatus, MotorTrace, Stop, StudyTrial
+from touch4d.study.gate import GATE_START, StudyGate
 
 WARN_PERIOD_S = 5.0  # a repeating fault is logged at most this often (it is always counted)
 TRACE_PERIOD_S = 0.05  # motors/trace batches
@@ -59,6 +68,8 @@ class MotorsNode(Node):
         "board_emulator": Param("python", "which board emulator runs with emulate", choices=tuple(sorted(EMULATORS))),
         "status_hz": Param(10.0, "motors/status messages per second", unit="Hz", above=0),
         "trace": Param(False, "publish motors/trace (when each command's frames were sent)"),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
     }
 
     # A python-can bus to use instead of opening the glove's channel (tests: set it between
@@ -72,6 +83,7 @@ class MotorsNode(Node):
         self._trace_stamps: list[float] = []
         self._trace_times: list[float] = []
         self._last_sent_at = 0.0                  # wall clock when the last accepted duty frame's send returned
+        self._last_command: MotorCommand | None = None
         self.tracing = p["trace"]
         cfg = load_glove_can(p["glove"] or None)
         cfg = dataclasses.replace(cfg, interface=p["interface"] or cfg.interface, channel=p["channel"] or cfg.channel)
@@ -79,6 +91,8 @@ class MotorsNode(Node):
         self.load = check_bus_load(cfg)
         self.protocol = GloveProtocol(cfg)
         self.driver = MotorDriver(cfg, self.protocol, now=time.monotonic())
+        # Frames decided longer ago than this are decided again before they go out (see _send_frames).
+        self._stall_s = 0.5 * cfg.watchdog_s
         if p["emulate"]:
             self.emulator = make_glove_emulator(p["board_emulator"], cfg).start()
             self.add_cleanup(self.emulator.stop)
@@ -93,6 +107,13 @@ class MotorsNode(Node):
         self.status_pub = self.create_publisher("motors/status", MotorStatus)
         self.create_subscription("tactile/motors", MotorCommand, self.on_command, latest_only=True)
         self.create_subscription("safety/stop", Stop, self.on_stop, optional=True)
+        # The broker's death is seen at once (its connection closes): every motor off then, rather
+        # than a watchdog period after the last command that got through.
+        self.broker_watch = BrokerWatch(self.bus, grace=0.0, context=zmq.Context.instance())   # the node's
+        self.add_cleanup(self.broker_watch.close)
+        self._broker_down = False
+        self.gate = StudyGate(p["study_gate"])
+        self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
         if self.tracing:
@@ -105,11 +126,14 @@ class MotorsNode(Node):
                       100 * self.load.fraction, f" ({p['board_emulator']} emulated boards)" if self.emulator else "")
 
     def on_command(self, msg: MotorCommand) -> None:
+        self._last_command = msg
         now = time.monotonic()
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
         errors = self.driver.errors
         stale, future = errors["stale_command"], errors["command_from_future"]
-        self.driver.command(msg.names, msg.intensity, now, age=age)
+        # A study's condition may hold the motors off (a visual trial, between trials): every duty 0.
+        intensity = msg.intensity if self.gate.motors else np.zeros(len(msg.intensity))
+        self.driver.command(msg.names, intensity, now, age=age)
         if errors["stale_command"] != stale:
             self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
                                             f"{self.cfg.command_max_age_s} s): every motor off")
@@ -140,6 +164,22 @@ class MotorsNode(Node):
         self._stop_all(now)
         self.publish_status()
 
+    def on_trial(self, msg: StudyTrial) -> None:
+        """Follow the study's gate at once: when it closes every motor goes off now, when it opens the
+        latest command (if still fresh) goes out now, not at the next one."""
+        if not self.gate.update(msg):
+            return
+        if self.gate.motors:
+            last = self._last_command
+            if last is not None and time.time() - last.source_stamp < (self.cfg.command_max_age_s or math.inf):
+                self.on_command(last)
+            return
+        now = time.monotonic()
+        names = self.cfg.motor_names
+        self.driver.command(names, np.zeros(len(names)), now, age=0.0)
+        self._send_frames(self.driver.outgoing(now), now)
+        self._pace(now)
+
     def _stop_all(self, now: float) -> None:
         """NMT STOP first (highest priority frame), then zero duty to every board."""
         stop = self.driver.stop(now)
@@ -155,6 +195,11 @@ class MotorsNode(Node):
 
     def on_refresh(self) -> None:
         now = time.monotonic()
+        down = self.broker_watch.lost(now) is not None
+        if down and not self._broker_down:
+            self.driver.silence(now)
+            self._can_fault("broker_lost", f"the broker at {self.broker_watch.endpoint} went away: every motor off")
+        self._broker_down = down
         try:
             self._receive_frames(now)
             for event in self.driver.check_boards(now):
@@ -188,6 +233,11 @@ class MotorsNode(Node):
     def _send_frames(self, outs: list[Outgoing], now: float) -> None:
         duty_sent = False
         for out in outs:
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # This process stalled (SIGSTOP, swapping, a debugger) between deciding these duties
+                # at `now` and sending them: the command they carry may be long stale. Decide again.
+                self._decide_again()
+                break
             fault = self.link.send(out.msg)
             if fault is None:
                 duty_sent = duty_sent or out.board != 0
@@ -195,6 +245,10 @@ class MotorsNode(Node):
             else:
                 self.driver.failed(out, fault)
                 self._can_warn(fault, self.link.last_error)
+            if out.board != 0 and time.monotonic() - now > self._stall_s:
+                # ... or in the instant before the frame left: correct it at once.
+                self._decide_again()
+                break
         if duty_sent and self.tracing:
             self._last_sent_at = time.time()   # just after the last accepted duty frame's send returned
         if self._trace_pending is not None and outs and self.driver.duties_on_bus():
@@ -202,6 +256,12 @@ class MotorsNode(Node):
             self._trace_times.append(self._last_sent_at)
             self.count("trace_traced")
             self._trace_pending = None
+
+    def _decide_again(self) -> None:
+        """Every board's duties decided afresh and sent now (after a stall of this process)."""
+        self.driver.errors["stalled"] += 1
+        now = time.monotonic()
+        self._send_frames(self.driver.outgoing(now, refresh=True, force=True), now)
 
     def publish_trace(self) -> None:
         """The commands traced since the last batch, on motors/trace."""
@@ -231,3 +291,8 @@ class MotorsNode(Node):
         self._stop_all(time.monotonic())
         self.publish_status()
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

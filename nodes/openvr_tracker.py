@@ -77,3 +77,9 @@ def connect():
     except Exception as exc:  # noqa: BLE001 - openvr raises its own error classes per init failure
         raise Unavailable(NO_STEAMVR.format(error=str(exc) or type(exc).__name__)) from None
     return openvr, system
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

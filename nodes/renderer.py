@@ -13,6 +13,9 @@ backend ("gpu": per-pixel ray test in shaders; "clip": the paper's clip units on
 gpu, or clip on a software rasteriser such as llvmpipe; gpu falls back to clip on a GL context that
 cannot run it), fill_alpha, centre_alpha, clip,
 show_frame, show_tactile, show_status.
+
+A running study (`study/trial`) gates what is drawn (touch4d.study.gate: no object in a touch trial
+or between trials) and puts its question and answer keys (1..9) at the top left.
 """
 from __future__ import annotations
 
@@ -24,12 +27,14 @@ import numpy as np
 
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
-from touch4d.messages import HandJoints, HandPose, InputEvents, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandJoints, HandPose, InputEvents, MotorCommand, SceneState, StudyTrial, TactileField
 from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
 from touch4d.render.context import RenderError, frame_files, save_png
 from touch4d.render.frame import Style
+from touch4d.render.hud import study_overlay
 from touch4d.render.view import BACKGROUND, SceneView, Show
+from touch4d.study.gate import GATE_START, StudyGate
 from touch4d.tactile.glove import load_glove
 
 
@@ -57,6 +62,8 @@ class RendererNode(Node):
         "show_frame": Param(True, "draw the screen's frame"),
         "show_tactile": Param(True, "draw the hand's tactile field"),
         "show_status": Param(True, "draw the status text"),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
     }
 
     def setup(self) -> None:
@@ -119,6 +126,8 @@ class RendererNode(Node):
         self.create_subscription("hand/joints", HandJoints, self.on_joints, latest_only=True, optional=True)
         self.create_subscription("tactile/field", TactileField, self.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
+        self.gate = StudyGate(p["study_gate"])
+        self.create_subscription("study/trial", StudyTrial, self.gate.update, latest_only=True, optional=True)
         self.create_timer(1.0 / rate, self.on_frame)
 
     # ---- inputs: keep the last good state ----------------------------------------------------------
@@ -164,7 +173,7 @@ class RendererNode(Node):
         self._update_rates()
         status = [f"renderer {self._fps:.0f} fps | scene {self._rates['scene']:.1f} Hz, "
                   f"pose {self._rates['pose']:.0f} Hz, field {self._rates['field']:.0f} Hz"]
-        frame = self.view.frame(status)
+        frame = self.study_frame(self.view.frame(status))
         if self.window is not None:
             if self.window.is_closing:
                 self.request_shutdown()
@@ -183,6 +192,15 @@ class RendererNode(Node):
         self.counts["frames"] += 1
         if self.max_frames and self.counts["frames"] >= self.max_frames:
             self.request_shutdown()
+
+    def study_frame(self, frame):
+        """A running study's gate and prompt: no object drawn where its condition hides them (the
+        screen's frame and the hand stay), the question and its keys above the status."""
+        if not self.gate.objects:
+            frame.scene = None
+        if self.gate.trial is not None:
+            frame.overlay = study_overlay(self.gate.trial, frame.overlay)
+        return frame
 
     def _read_window(self, size) -> np.ndarray:
         raw = self.window.ctx.screen.read(viewport=(0, 0, *size), components=4, alignment=1)
@@ -212,3 +230,9 @@ class RendererNode(Node):
 
 def _nth(n: int) -> str:
     return "" if n == 1 else f"{n}th "
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -74,3 +74,8 @@ class ReplayNode(Node):
         self.replayer.stop()
         self.thread.join(timeout=5.0)
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -1,7 +1,8 @@
 """Scene node: holds the 4D scene, turns it with the controller (paper §4.4), publishes `scene/state`.
 
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
-skipping a backlog loses no rotation) and `scene/command`. Publishes `scene/state` on every change,
+skipping a backlog loses no rotation) and `scene/command` (`load` with a scene file's text replaces
+the whole scene: how a study shows each trial's stimulus). Publishes `scene/state` on every change,
 at most `max_rate` times a second, and every 1/`rate` s for late joiners. The calibration file is
 read again when it changes (a headset re-centring the screen turns the controller's axes with it).
 """
@@ -15,7 +16,7 @@ from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
 from touch4d.tracking.calibration import load_calibration
-from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ControlConfig, SceneControl
+from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ROTATE_TARGETS, ControlConfig, SceneControl
 
 
 class SceneNode(Node):
@@ -31,7 +32,7 @@ class SceneNode(Node):
         "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
         "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
         "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> scene command"),
-        "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
+        "rotate": Param("object", "what the controller turns (none: nothing)", choices=ROTATE_TARGETS),
         "spin": Param({}, "turn by itself: {plane: xw, deg_per_s: 6}"),
     }
 
@@ -77,8 +78,8 @@ class SceneNode(Node):
     def on_command(self, msg: SceneCommand) -> None:
         try:
             changed = self.control.command(msg.command, msg.argument)
-        except Touch4dError as exc:   # SceneCommandError
-            self.log.warning("scene/command ignored: %s", exc)
+        except Touch4dError as exc:   # SceneCommandError, or (ConfigError) a bad scene to load: the scene stays
+            self.log.warning("scene/command %s ignored: %s", msg.command, exc)
             return
         self.changed(changed)
 
@@ -100,3 +101,8 @@ class SceneNode(Node):
         self.dirty = False
         self.last_publish = time.monotonic()
 
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -82,3 +82,8 @@ class ScriptedTracker(Node):
                               source_stamp=stamp)
         shape = self.motion.looped(t * self.params["finger_speed"])
         return g.skeleton.joint_set(sample.position, sample.orientation, g.units_per_metre, shape).message(stamp)
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

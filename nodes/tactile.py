@@ -13,13 +13,16 @@ and `beta` (override the glove's), `projection` ("scene": follow the scene; "ort
 """
 from __future__ import annotations
 
+import time
+
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
-from touch4d.messages import HandJoints, HandPose, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandJoints, HandPose, MotorCommand, PhysicsContacts, SceneState, TactileField
 from touch4d.tactile.engine import PROJECTION_CHOICES, HandSource, TactileEngine
 from touch4d.tactile.glove import check_alpha, check_beta, load_glove
 from touch4d.tactile.pose import PoseError
 from touch4d.tactile.skeleton import JOINTS_TIMEOUT_S
+from touch4d.tactile.transient import TransientBank
 
 
 class TactileNode(Node):
@@ -34,6 +37,7 @@ class TactileNode(Node):
         "joints": Param(True, "follow the fingers: hand/joints drives while fresh (else the rigid hand/pose)"),
         "joints_timeout_s": Param(JOINTS_TIMEOUT_S, "joint sets older than this against the poses are stale: the rigid "
                                   "hand takes over", unit="s", above=0, max=1.0),
+        "transients": Param(True, "a short burst on the motors touching objects that physics says collided"),
     }
 
     def setup(self) -> None:
@@ -52,6 +56,9 @@ class TactileNode(Node):
             # optional: a tracker without hand tracking publishes poses only
             self.create_subscription("hand/joints", HandJoints, self.on_joints, latest_only=True, optional=True)
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
+        self.transients = TransientBank()
+        if p["transients"]:
+            self.create_subscription("physics/contacts", PhysicsContacts, self.on_contacts, optional=True)
         g = self.engine.glove
         self.log.info("%d samples, %d motors (%s); alpha %g, beta %g, gamma %g; projection: %s; hand: %s",
                       len(g.samples), len(g.motor_names), g.path, g.alpha, g.beta, g.gamma, p["projection"],
@@ -100,10 +107,22 @@ class TactileNode(Node):
         if out is None:
             return
         field, motors = out
+        if self.transients.active:
+            hits = self.engine.last_stimulus.hit[self.engine.glove.motor_sample]
+            motors.intensity = self.transients.apply(motors.intensity, hits, time.monotonic())
         if field is not None:
             self.field_pub.publish(field)
         self.motor_pub.publish(motors)
 
+    def on_contacts(self, msg: PhysicsContacts) -> None:
+        self.transients.add(msg.a, msg.b, msg.speeds, time.monotonic())
+
     def on_shutdown(self) -> None:
         self.log.info("handled %d pose(s), %d joint set(s): %s", self.counts["poses"], self.counts["joints"],
                       self.counts)
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

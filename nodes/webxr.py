@@ -6,7 +6,9 @@ what the scene is made of, then per tick only transforms and tactile values). Wi
 true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
 grip or from hand tracking: `hand_source`), `controller/state` and the tracked hands' joints
 (`hand/joints`: the glove hand, which the tactile node follows; `hand/joints/other`: the other).
-The page draws the articulated hand while `hand/joints` drives.
+The page draws the articulated hand while `hand/joints` drives. A running study (`study/trial`)
+shows its question in the page, hides objects where its condition says so, and the page's answers
+(controller buttons, or the page's own) go out on `study/response`.
 
 Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
 reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a
@@ -18,11 +20,13 @@ from pathlib import Path
 
 from touch4d.bus import Node, Param
 from touch4d.errors import ConfigError
-from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
+                              StudyResponse, StudyTrial, TactileField)
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
 from touch4d.web import access
+from touch4d.study.gate import GATE_START
 from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.server import PageServer
 
@@ -50,6 +54,9 @@ class WebXRNode(Node):
         "save_calibration": Param(True, "store a re-centred screen in the calibration file"),
         "glove": Param("config/glove.yaml", "the glove file", path="glove file"),
         "rate": Param(90.0, "frames sent to the pages per second, at most", unit="Hz", above=0, max=240),
+        "max_pages": Param(64, "pages connected at once; one more is refused (HTTP 503)", min=1, max=10000),
+        "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
+                            choices=GATE_START),
         "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
                          above=0, max=0.09),
     }
@@ -70,10 +77,11 @@ class WebXRNode(Node):
 
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
-                              recenter_button=p["recenter_button"], stale_s=p["stale_s"])
-        self.publishers = {}
+                              recenter_button=p["recenter_button"], stale_s=p["stale_s"],
+                              study_gate=p["study_gate"])
+        self.publishers = {"study/response": self.create_publisher("study/response", StudyResponse)}
         if p["tracker"]:
-            self.publishers = {"hand/pose": self.create_publisher("hand/pose", HandPose),
+            self.publishers |= {"hand/pose": self.create_publisher("hand/pose", HandPose),
                                "controller/state": self.create_publisher("controller/state", ControllerState),
                                "hand/joints": self.create_publisher("hand/joints", HandJoints),
                                "hand/joints/other": self.create_publisher("hand/joints/other", HandJoints)}
@@ -83,8 +91,9 @@ class WebXRNode(Node):
                                 send=lambda conn, data: self.server.send(conn, data),
                                 save_calibration=self._save_calibration)
         # The server's thread hands every event to this node's thread (one thread runs the bridge).
-        self.server = PageServer(host, p["port"], self.token, ssl_context,
-                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn),
+        self.server = PageServer(host, p["port"], self.token, ssl_context, max_pages=p["max_pages"],
+                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
+                                                                                   self.server.peer(conn)),
                                  on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
                                      self.bridge.page_message, conn, data, arrival),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
@@ -95,6 +104,7 @@ class WebXRNode(Node):
         self.create_subscription("tactile/field", TactileField, self.bridge.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.bridge.on_motors, latest_only=True)
         self.create_subscription("motors/status", MotorStatus, self.bridge.on_status, latest_only=True)
+        self.create_subscription("study/trial", StudyTrial, self.bridge.on_trial, latest_only=True, optional=True)
         self.create_timer(1.0 / p["rate"], self.bridge.tick)
         try:
             bound = self.server.start()
@@ -103,6 +113,7 @@ class WebXRNode(Node):
                 from None
         self.add_cleanup(self.server.stop)
         self.add_stats(lambda: {**self.bridge.counts, "page_refused": self.server.refused,
+                                "page_over_limit": self.server.over_limit,
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1)})
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
@@ -135,6 +146,12 @@ class WebXRNode(Node):
             self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
 
     def on_shutdown(self) -> None:
-        if self.publishers:
+        if "hand/pose" in self.publishers:
             self.bridge.owner = None
             self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go
+
+
+if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does
+    from touch4d.bus.process import main_for_module
+
+    main_for_module(__spec__.name)

@@ -16,7 +16,7 @@ def test_a_timer_keeps_its_rate_and_a_failing_one_is_reported_without_stopping_t
     elapsed = time.monotonic() - start
     # Fixed rate: late ticks are made up, never more than the period allows (a stall of a loaded
     # machine may skip some, so only the upper bound is tight).
-    assert elapsed / 0.01 / 2 <= len(ticks) <= elapsed / 0.01 + 1
+    assert elapsed / 0.01 / 3 <= len(ticks) <= elapsed / 0.01 + 1
     assert failures and all(w is bad and msg == "division by zero" for w, msg in failures)
     assert len(failures) >= 4
     ex.close()

@@ -36,7 +36,8 @@ def touch4d(cwd: Path, *args: str) -> str:
 def on_loopback(path: Path, pub: int, sub: int) -> None:
     """The LAN address of the README's files -> loopback, on free ports."""
     text = path.read_text().replace("192.168.50.1", "127.0.0.1")
-    path.write_text(text.replace("pub_port: 7710", f"pub_port: {pub}").replace("sub_port: 7711", f"sub_port: {sub}"))
+    assert "pub_port" not in text and text.count("broker:\n") == 1    # the default ports, which the tests avoid
+    path.write_text(text.replace("broker:\n", f"broker:\n  pub_port: {pub}\n  sub_port: {sub}\n"))
 
 
 @pytest.mark.parametrize("pc_paths", ["relative", "absolute"])

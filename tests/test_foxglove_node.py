@@ -148,3 +148,22 @@ def test_a_port_in_use_is_a_clear_error():
 
         with pytest.raises(ConfigError, match=rf"key 'port': expected a free port on 127.0.0.1.*got {port}"):
             FoxgloveNode(params={"port": port}, bus=bus, heartbeat=False)
+
+
+def test_a_client_offering_only_the_older_subprotocol_is_refused_as_the_readme_says():
+    """foxglove-sdk 0.30 speaks `foxglove.sdk.v1` only: a client offering only `foxglove.websocket.v1`
+    (Lichtblick, older Foxglove) gets HTTP 400. The README says so; when the SDK accepts it, say that."""
+    import foxglove
+    from websockets.exceptions import InvalidStatus
+
+    server = foxglove.start_server(name="touch4d", host="127.0.0.1", port=0, context=foxglove.Context())
+    try:
+        with pytest.raises(InvalidStatus, match="400"):
+            with connect(f"ws://127.0.0.1:{server.port}", subprotocols=["foxglove.websocket.v1"], open_timeout=10):
+                pass
+        with connect(f"ws://127.0.0.1:{server.port}", subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+            assert json.loads(ws.recv(timeout=10))["op"] == "serverInfo"
+    finally:
+        server.stop()
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "`foxglove.websocket.v1`" in readme and "Lichtblick" in readme

@@ -24,6 +24,9 @@ def layer_table() -> dict[str, set[str]]:
     return table
 
 
+TABLE = layer_table()
+
+
 def package_of(module: str) -> str | None:
     """The layer a module belongs to: a package of the table, the foundation or the commands."""
     parts = module.split(".")
@@ -31,9 +34,12 @@ def package_of(module: str) -> str | None:
         return None
     if "cli" in parts[1:3]:   # touch4d.cli, touch4d.bus.cli and what they hold
         return COMMANDS
-    if len(parts) == 1 or parts[1] in {"errors", "stdio", "configfile", "schema", "glovefile", "hands", "defaults"}:
+    if len(parts) == 1 or parts[1] == "defaults":
         return FOUNDATION
-    return "touch4d." + parts[1]
+    name = "touch4d." + parts[1]
+    if (ROOT / "touch4d" / f"{parts[1]}.py").exists() and name not in TABLE:
+        return FOUNDATION   # a module at the top of touch4d/ (errors, configfile, schema, ...) unless listed
+    return name
 
 
 def module_name(path: Path) -> str:

@@ -5,7 +5,8 @@ import pytest
 
 from touch4d.messages import (
     TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
-    MotorStatus, MotorTrace, SceneCommand, SceneState, Stop, TactileField, decode, encode,
+    MotorStatus, MotorTrace, PhysicsContacts, PhysicsInput, SceneCommand, SceneState, Stop, StudyCommand, StudyResponse,
+    StudyTrial, TactileField, decode, encode,
 )
 from touch4d.messages.codec import pack
 
@@ -34,6 +35,15 @@ EXAMPLES = [
     MotorTrace(source_stamps=[1.0, 2.0], frame_times=[1.001, 2.002]),
     Heartbeat(node="tactile", pid=42, kind="tactile", publishes=["tactile/field"], subscribes=[], stats={"received": 3}),
     InputEvents(keys_down=["w"], pressed=["space"], mouse=[10, 20], mouse_delta=[1, -1], buttons=[1], scroll=0.5),
+    PhysicsContacts(names=["floor", "cube"], a=np.array([0, -1]), b=np.array([1, 1]), points=np.zeros((2, 4)),
+                    normals=[[0, 1, 0, 0], [1, 0, 0, 0]], impulses=[0.01, 0.002], speeds=[1.2, 0.3], step=7, time=0.007),
+    PhysicsInput(step=12, kind="controller", args={"position": [0.0, 1.2, -0.4], "orientation": [0, 0, 0, 1],
+                                                   "trigger": 1.0, "buttons": ["menu"], "valid": True}),
+    StudyTrial(study="paper", participant="P01", phase="stimulus", index=4, total=40, block=1, trial=2, practice=False,
+               task="front", kind="front-element", condition="touch", stimulus="edge", prompt="What is in front?",
+               options=["face", "edge", "vertex"], onset=100.25, time_limit_s=20.0, message=""),
+    StudyResponse(index=4, response="edge", source="controller", stamp=101.5),
+    StudyCommand(command="pause", reason="the participant asked"),
 ]
 
 
@@ -134,3 +144,13 @@ def test_recorded_stamp_is_an_optional_header_field_left_out_of_live_messages():
         decode(msgpack.packb({**plain, "recorded_stamp": "x"}))
     with pytest.raises(MessageError, match="HandPose.valid: missing"):  # required fields stay required
         decode(msgpack.packb({k: v for k, v in plain.items() if k != "valid"}))
+
+
+def test_a_key_that_is_not_utf8_is_a_message_error():
+    """Found by fuzzing: a map key with a byte that is not UTF-8 raised UnicodeDecodeError, not MessageError."""
+    payload = (b"\x86\xa4ty\xa9e\xacMotorCommand\xa5stamp\xcb\x00\x00\x00\x00\x00*\x00\x00\xa3seq\x00"
+               b"\xacsource_stamp\xcb\x00\xde\x00\x00\x00\x00\x00\x00\xa5names\x92\xa1a\xa1b\xa9intensit"
+               b"\xd6\xc7\x19\x01\x03<f8\x01\x02\x00\x00")
+    for expected in (HandPose, MotorCommand):
+        with pytest.raises(MessageError):
+            decode(payload, expected)

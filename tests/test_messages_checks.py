@@ -374,7 +374,7 @@ class _Normalised(Message):
     """A message whose check() normalises an array: what it sends is the normalised one."""
 
     TYPE = "test_checks.Normalised"
-    q: Array(4) = doc("a quaternion, made unit length")
+    q: "Array(4)" = doc("a quaternion, made unit length")   # as `from __future__ import annotations` has it
 
     def check(self):
         self.q = self.q / float(np.linalg.norm(self.q))

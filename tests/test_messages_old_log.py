@@ -40,8 +40,10 @@ def assert_same(got, want, where: str) -> None:
         assert type(got) is type(want) and got == want, (where, got, want)
 
 
-def test_the_log_holds_every_topic_type():
-    assert {topic for topic, *_ in MESSAGES} == set(TOPIC_TYPES)
+def test_the_log_holds_every_topic_type_of_its_time():
+    """The log was recorded before the study and physics topics existed; it holds every other one."""
+    later = {"study/trial", "study/response", "study/command", "physics/contacts", "physics/journal"}
+    assert {topic for topic, *_ in MESSAGES} == set(TOPIC_TYPES) - later
 
 
 def test_every_message_of_the_old_log_decodes_to_its_values():

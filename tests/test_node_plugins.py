@@ -83,6 +83,10 @@ def test_node_list_shows_where_each_node_comes_from(installed, monkeypatch):
     info = subprocess.run([sys.executable, "-m", "touch4d.cli", "node", "info", "wave"], capture_output=True,
                           text=True, timeout=60)
     assert "amplitude: a finite number > 0 (screen units); default 0.5" in info.stdout
+    info = subprocess.run([sys.executable, "-m", "touch4d.cli", "node", "info", "desktop_tracker"],
+                          capture_output=True, text=True, timeout=60)
+    assert info.stdout.startswith("desktop_tracker: touch4d.nodes.desktop_tracker.DesktopTracker (touch4d); "
+                                  "also named desktop\n")
 
 
 def test_a_plugin_nodes_parameters_are_checked_before_launch(installed, tmp_path, monkeypatch):

@@ -72,3 +72,16 @@ def test_fail_suggests_a_near_choice():
     with pytest.raises(ConfigError) as info:
         schema.fail("f.yaml", "objects[0].shape", "a catalog shape", got="tesseract4", choices=["tesseract", "24-cell"])
     assert "did you mean 'tesseract'?" in str(info.value)
+
+
+def test_numpy_numbers_convert_like_the_python_ones_yaml_gives():
+    import numpy as np
+    got = schema.convert({"objects": [{"size": np.float64(2.5), "position": np.arange(4.0)}]}, File, "f.yaml")
+    assert got.objects[0].size == 2.5 and got.objects[0].position == (0.0, 1.0, 2.0, 3.0)
+    e = error({"objects": [{"size": np.float64(-1)}]})
+    assert e.key == "objects[0].size" and e.got == -1.0
+
+
+def test_a_misspelt_required_key_is_named_as_written():
+    e = error({"objcts": [{}]})
+    assert e.key == "objcts" and "did you mean 'objects'?" in str(e) and "objects, mode" in e.expected

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 import yaml
 
-from touch4d import glovefile
+from touch4d import glovefile, schema
 from touch4d.boards.config import load_glove_can
 from touch4d.bus.config import BusFile, load_bus_config
 from touch4d.bus.launchfile import load_launch
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.polytope import GeometryError
 from touch4d.geometry.scene import Scene, SceneObject, load_scene
+from touch4d.study.design import load_study
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.paths import load_paths
@@ -29,6 +30,9 @@ CALIBRATION_TEXT = "screen:\n  center_m: [0, 1.2, -0.45]\n  edge_m: 0.5\n"
 PATHS_TEXT = "paths:\n  p:\n    kind: hold\n    position: [0, 0, 0]\n"
 LAUNCH_TEXT = "nodes:\n  talker:\n    node: example_talker\n    respawn: false\n"
 BUS_TEXT = "broker:\n  pub_port: 7710\nhwm: 100\n"
+STUDY_TEXT = ("name: s\ntime_limit_s: 20\ntasks:\n  - id: t\n    kind: look-alikes\n    prompt: '?'\n"
+              "    options: [convex, flat]\n    stimuli:\n      - {answer: convex, scene: config/scenes/convex-front.yaml}\n"
+              "      - {answer: flat, scene: config/scenes/flat-front.yaml}\n")
 
 # Each reader, a good file, a bad line replacing a good one (the same indent), and what the error says.
 READERS = {
@@ -44,6 +48,7 @@ READERS = {
               "a finite number", None),
     "launch": (load_launch, LAUNCH_TEXT, "    respawn: false", "    respawn: 'yes'", "nodes.talker.respawn",
                "true or false", "yes"),
+    "study": (load_study, STUDY_TEXT, "time_limit_s: 20", "time_limit_s: -1", "time_limit_s", "a finite number > 0", -1),
 }
 
 
@@ -160,8 +165,8 @@ def test_the_packaged_glove_file_shows_the_declared_defaults_and_sets_none_of_th
     for key, value in shown.items():
         assert value == declared[key], key
     assert set(yaml.safe_load(GLOVE_TEXT)["can"]) == {"boards"}          # nothing repeated, only the hardware
-    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == glovefile.GloveFile.__struct_defaults__[
-        glovefile.GloveFile.__struct_fields__.index("touch_threshold") - 1] == glovefile.DEFAULT_TOUCH_THRESHOLD
+    least = glovefile.convert({"motors": [{"name": "m", "position": [0, 0, 0], "board": 1, "channel": 0}]})
+    assert commented_defaults(GLOVE_TEXT, None)["touch_threshold"] == least.touch_threshold == 0.05
 
 
 def test_the_packaged_bus_file_shows_the_declared_defaults_and_sets_none_of_them():
@@ -254,3 +259,25 @@ def test_the_webxr_bridge_counts_bad_pages_and_scenes_but_a_bug_surfaces(monkeyp
     monkeypatch.setattr(SceneGeometry, "build", classmethod(lambda cls, s: (_ for _ in ()).throw(TypeError("bug"))))
     with pytest.raises(TypeError, match="bug"):
         bridge.on_scene(scene_message("24-cell"))
+
+
+def test_the_glove_file_is_read_once_into_the_parts_tactile_and_boards_own(monkeypatch):
+    import subprocess
+    import sys
+
+    from touch4d.boards.config import glove_can
+    from touch4d.tactile.glove import glove_from_file
+
+    reads = []
+    real = schema.read_yaml
+    monkeypatch.setattr(schema, "read_yaml", lambda *a, **k: reads.append(a) or real(*a, **k))
+    load_glove()
+    assert len(reads) == 1
+    data, path = glovefile.load(None)
+    tactile, boards = glove_from_file(data, path), glove_can(data, path)
+    assert tuple(tactile.motor_names) == boards.motor_names
+    assert tuple(tactile.motor_board) == boards.motor_board and tuple(tactile.motor_channel) == boards.motor_channel
+    for module, other in (("touch4d.tactile.glove", "touch4d.boards"), ("touch4d.boards.config", "touch4d.tactile")):
+        code = f"import sys, {module}; print(sorted(m for m in sys.modules if m.startswith('{other}')))"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+        assert out.strip() == "[]", (module, out)

@@ -157,16 +157,51 @@ def test_view_only_pages_publish_nothing():
     assert rig.published == [] and rig.bridge.counts["page_ignored"] == 1
 
 
-def test_only_the_tracker_page_drives_the_hand_and_the_last_immersive_session_takes_over():
+def test_a_second_page_cannot_drive_while_the_first_tracks_and_is_told_so_not_silently(caplog):
     rig = Rig()
-    for conn in (1, 2):
-        rig.bridge.connected(conn)
-    rig.input(1)
-    rig.input(2)
-    assert len(rig.topic("hand/pose")) == 1 and rig.bridge.counts["page_ignored"] == 1
+    rig.bridge.connected(1, "192.168.1.20:50000")
+    rig.bridge.connected(2, "192.168.1.66:50001")
+    rig.input(1, grip=(0.05, 1.2, -0.45, 0, 0, 0, 1))
+    # The second page (same token) enters VR and sends a hand elsewhere: refused while page 1 tracks.
     rig.bridge.page_message(2, '{"type": "session", "mode": "immersive", "active": true}', rig.clock.t)
-    rig.input(2)
-    assert rig.bridge.owner == 2 and len(rig.topic("hand/pose")) == 2
+    with caplog.at_level("WARNING", logger="touch4d.web.bridge"):
+        for _ in range(3):
+            rig.clock.t += 0.01
+            rig.input(2, grip=(-0.05, 1.2, -0.45, 0, 0, 0, 1))
+            rig.input(1, grip=(0.05, 1.2, -0.45, 0, 0, 0, 1))
+    poses = rig.topic("hand/pose")
+    assert len(poses) == 4 and all(np.allclose(p.position, [0.2, 0.0, 0.0]) for p in poses)   # page 1's only
+    assert rig.bridge.counts["page_not_driver"] == 3
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "192.168.1.66" in warned[0] and "192.168.1.20" in warned[0]
+    told = [frame for conn, frame in rig.sent if conn == 2 and frame[0]["kind"] == "driver"]
+    assert len(told) == 1 and told[0][0]["driver"] is False and told[0][0]["by"] == "192.168.1.20:50000"
+    # Re-centring from the other page is refused too.
+    rig.bridge.page_message(2, json.dumps({"type": "recenter", "head": [0, 1.6, 0, 0, 0, 0, 1]}), rig.clock.t)
+    assert rig.bridge.counts["recentred"] == 0 and rig.bridge.counts["page_not_driver"] == 4
+
+
+@pytest.mark.parametrize("how", ["tracking lost", "silent", "session end", "close"])
+def test_when_the_driving_page_stops_tracking_another_takes_over(how):
+    rig = Rig()
+    rig.bridge.connected(1, "a")
+    rig.bridge.connected(2, "b")
+    rig.input(1)
+    if how == "tracking lost":
+        rig.input(1, tracking=False)
+    elif how == "silent":
+        rig.clock.t += 0.051   # stale_s
+    elif how == "session end":
+        rig.bridge.page_message(1, '{"type": "session", "mode": "immersive", "active": false}', rig.clock.t)
+    else:
+        rig.bridge.closed(1)
+    rig.input(2, grip=(-0.05, 1.2, -0.45, 0, 0, 0, 1))
+    assert rig.bridge.owner == 2 and rig.bridge.counts["page_not_driver"] == 0
+    assert np.allclose(rig.topic("hand/pose")[-1].position, [-0.2, 0.0, 0.0]) and rig.topic("hand/pose")[-1].valid
+    assert [frame[0]["driver"] for conn, frame in rig.sent if conn == 2 and frame[0]["kind"] == "driver"] == [True]
+    if how != "close":   # and the first page, back, waits its turn
+        rig.input(1)
+        assert rig.bridge.owner == 2 and rig.bridge.counts["page_not_driver"] == 1
 
 
 @pytest.mark.parametrize("how", ["close", "hide", "tracking lost", "silent", "session end"])

@@ -1,6 +1,6 @@
 """touch4d as a new user installs it: the wheel built from the sources (without a setuptools
 warning), installed into a fresh venv, and run from an empty directory — launch, render, tactile
-probe, record and replay find their defaults in the installed package, not in this checkout.
+probe, record, replay and study find their defaults in the installed package, not in this checkout.
 
 The venv borrows this environment's third-party packages (a .pth line) instead of downloading them
 again; touch4d itself comes only from the wheel, which the first test proves."""
@@ -114,6 +114,14 @@ def test_tactile_probe_and_render_from_an_empty_directory(wheel_env):
     assert blue.sum() > 50
 
 
+def test_the_papers_study_is_packaged_and_planned_from_an_empty_directory(wheel_env):
+    out = run(wheel_env, "touch4d", "study", "check", "config/studies/paper.yaml")
+    assert str(wheel_env["site"] / "touch4d/defaults/config/studies/paper.yaml") in out and "213 trials" in out
+    plan = json.loads(run(wheel_env, "touch4d", "study", "plan", "config/studies/paper.yaml", "--participant", "P01",
+                          "--json"))
+    assert plan["condition_order"] == ["visual", "touch", "visual+touch"] and len(plan["trials"]) == 213
+
+
 def test_launch_record_and_replay_from_an_empty_directory(wheel_env):
     work, frames = wheel_env["work"], wheel_env["tmp"] / "frames"
     launch = start(wheel_env, "touch4d", "launch", "--duration", "120", "renderer.rate:=5",
@@ -146,3 +154,17 @@ def test_launch_record_and_replay_from_an_empty_directory(wheel_env):
 
 def count(path: Path, topic: str) -> int:
     return sum(1 for _ in LogReader(path).messages({topic}))
+
+
+def test_the_firmware_core_from_a_wheel_says_what_to_do_and_builds_from_a_named_checkout(wheel_env):
+    args = ["touch4d", "glove", "emulate", "--firmware", "--duration", "0.3", "--channel", f"wheel-fw-{os.getpid()}"]
+    done = subprocess.run(args, cwd=wheel_env["work"], env=wheel_env["env"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    for words in ("wheel ships no firmware sources", "source checkout", "TOUCH4D_FIRMWARE_DIR=", "board_emulator: python"):
+        assert words in done.stderr, done.stderr
+    # The installed package, with a checkout's sources named: the core is built there and runs.
+    env = {**wheel_env["env"], "TOUCH4D_FIRMWARE_DIR": str(REPO / "firmware")}
+    done = subprocess.run(args, cwd=wheel_env["work"], env=env, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "emulating boards [1, 2, 3, 4] (firmware)" in done.stdout

@@ -19,6 +19,8 @@ PARTS = {
     "touch4d.log.cli": ("record", "replay", "log"),
     "touch4d.boards.cli": ("glove",),
     "touch4d.defaults.cli": ("config",),
+    "touch4d.study.cli": ("study",),
+    "touch4d.physics.cli": ("physics",),
 }
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
+import numpy as np
 import yaml
 
 from touch4d.errors import ConfigError, Touch4dError
@@ -89,10 +90,28 @@ def load(path, type_: type[T], what: str = "file") -> T:
 def convert(data: Any, type_: type[T], file=None, key: str = "") -> T:
     """`data` (as YAML or JSON gives it) as `type_`; a mismatch is a ConfigError naming the key path
     below `key`, what was expected and what was there, with a did-you-mean for an unknown key."""
+    data = plain(data)
     try:
         return msgspec.convert(data, type_, strict=True)
     except msgspec.ValidationError as exc:
         raise error_of(exc, data, type_, file, key) from None
+
+
+def plain(value, _memo: dict | None = None) -> Any:
+    """`value` with numpy scalars and arrays (which a caller may pass for numbers and lists) as the
+    Python numbers and lists a YAML file gives. Shared parts (YAML aliases) are converted once, so
+    an alias bomb (9^9 items once expanded) costs what its text costs."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    if not isinstance(value, (dict, list, tuple)):
+        return value
+    memo = {} if _memo is None else _memo
+    if id(value) not in memo:
+        if isinstance(value, dict):
+            memo[id(value)] = {k: plain(v, memo) for k, v in value.items()}
+        else:
+            memo[id(value)] = [plain(v, memo) for v in value]
+    return memo[id(value)]
 
 
 class Invalid(Touch4dError, ValueError):
@@ -181,17 +200,18 @@ def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
     unknown = _UNKNOWN.match(text)
     if unknown:
         name = unknown.group("name")
-        tagged = _tagged(type_)
-        if tagged:                          # the member of a tagged union that `value` names
-            tag_field = tagged[0].__struct_config__.tag_field
-            tag = value.get(tag_field) if found and isinstance(value, dict) else None
-            type_ = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
-        allowed = struct_fields(type_)
+        allowed = _keys(type_, value if found else None)
         expected = f"one of the keys {', '.join(allowed)}" if allowed else "no such key"
         return ConfigError(file, join(key, name), expected, got=None, hint=did_you_mean(name, allowed))
     missing = _MISSING.match(text)
     if missing:
         name = missing.group("name")
+        if found and isinstance(value, dict):   # a required key misspelt: name the misspelling
+            allowed = _keys(type_, value)
+            for given in value:
+                if isinstance(given, str) and given not in allowed and did_you_mean(given, [name]):
+                    return ConfigError(file, join(key, given), f"one of the keys {', '.join(allowed)}",
+                                       hint=did_you_mean(given, [name]))
         field = _walk({}, type_, f".{name}", "")[3]
         choices = _choices(field)
         what = _description(field) or _fixed_tuple(field) or (f"one of {', '.join(map(str, choices))}" if choices
@@ -358,6 +378,18 @@ def _walk(data, type_, path: str, key: str):
             except (KeyError, IndexError, TypeError):
                 data, found = None, False
     return key, data, found, type_
+
+
+def _keys(type_, value) -> tuple[str, ...]:
+    """The keys a mapping of `type_` may hold: a Struct's fields; for a tagged union, the tag field
+    and the fields of the member `value` names (else of the first)."""
+    tagged = _tagged(type_)
+    if not tagged:
+        return struct_fields(type_)
+    tag_field = tagged[0].__struct_config__.tag_field
+    tag = value.get(tag_field) if isinstance(value, dict) else None
+    member = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
+    return (tag_field, *struct_fields(member))
 
 
 def _tagged(type_) -> list:

@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
 from touch4d.bus.topology import shared_inputs
+from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
 
 NODE_TIMEOUT = 3.5  # s without a heartbeat after which a node counts as gone (they beat every second)

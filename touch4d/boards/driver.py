@@ -190,6 +190,13 @@ class MotorDriver:
         self.intensity = values
         self.last_command_at = now
 
+    def silence(self, now: float) -> None:
+        """The commands' source is gone (the broker died): every motor off now, as the watchdog
+        would after `watchdog_s`; the next command turns them on again."""
+        self.intensity = np.zeros(len(self.names))
+        self.last_command_at = None
+        self._valid_until = -np.inf
+
     def stop(self, now: float) -> can.Message:
         """Safety stop: every duty 0 and commands ignored for stop_hold_s (inf: until restart);
         returns the NMT STOP to send first."""

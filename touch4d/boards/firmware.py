@@ -12,6 +12,7 @@ from __future__ import annotations
 import ctypes
 import fcntl
 import hashlib
+import os
 import shutil
 import subprocess
 import sys
@@ -27,7 +28,10 @@ from touch4d.boards.emulator import HARDWARE_FAULTS, MALFORMED, GloveEmulator
 from touch4d.boards.protocol import FAULT_NAMES
 from touch4d.errors import Touch4dError
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+FIRMWARE_ENV = "TOUCH4D_FIRMWARE_DIR"
+# The C sources sit in a checkout's firmware/; a wheel has none, so $TOUCH4D_FIRMWARE_DIR may name a
+# checkout's firmware/ folder (the core for this machine is then built there, in its build/).
+FIRMWARE_DIR = Path(os.environ.get(FIRMWARE_ENV) or Path(__file__).resolve().parents[2] / "firmware")
 BUILD_DIR = FIRMWARE_DIR / "build"
 # What `build` makes -> the Makefile's goal: the shared library and self-test for this machine, the
 # self-test for the Cortex-M3 (QEMU), the STM32F103 image.
@@ -53,8 +57,14 @@ def build(cfg: GloveCan, target: str = "host") -> Path:
     if target not in TARGETS:
         raise ValueError(f"firmware target {target!r}: expected one of {sorted(TARGETS)}")
     if not (FIRMWARE_DIR / "Makefile").is_file():
-        raise FirmwareBuildError(f"{FIRMWARE_DIR}: the firmware sources are not there (the firmware core runs "
-                                 "from a source checkout of touch4d)")
+        where = f"${FIRMWARE_ENV} names {FIRMWARE_DIR}, which" if os.environ.get(FIRMWARE_ENV) else \
+            f"{FIRMWARE_DIR} is not there: an installed wheel ships no firmware sources, and this installation"
+        raise FirmwareBuildError(
+            f"the firmware core is built from the boards' C sources, and {where} has no firmware/Makefile. "
+            f"Either run from a source checkout (git clone the repository; ./dev installs it and the compilers), "
+            f"or keep this installation and set {FIRMWARE_ENV}=/path/to/checkout/firmware to build the core for "
+            "this machine there (needs make and gcc). The Python emulator (board_emulator: python, the "
+            "default; `touch4d glove emulate` without --firmware) needs neither")
     tools = ["make", "gcc"] + (["arm-none-eabi-gcc"] if target != "host" else [])
     missing = [t for t in tools if shutil.which(t) is None]
     if missing:

@@ -10,9 +10,11 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import time
 
 import zmq
 from zmq.auth.thread import ThreadAuthenticator
+from zmq.utils.monitor import recv_monitor_message
 
 from touch4d.bus import transport
 from touch4d.bus.config import BusConfig
@@ -144,3 +146,55 @@ class Broker:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+class BrokerWatch:
+    """Whether the broker a launch relies on is still there.
+
+    It holds one connection to the broker's subscriber side (subscribed to nothing) and watches it with
+    a ZeroMQ socket monitor: when the broker dies, its kernel closes the connection and the monitor
+    says so at once. `lost(now)` names the broker once the connection has been down `grace` seconds
+    (ZeroMQ reconnects by itself, so a broker back within `grace` is no loss). A broker not yet up
+    (started after the launch) is waited for, not lost.
+    """
+
+    # Connected = the ZMTP (and CURVE) handshake done: a broker that refuses this machine's key is
+    # never "there", so it is not reported as gone (the nodes say why they cannot connect).
+    EVENTS = zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
+
+    def __init__(self, bus: BusConfig, grace: float = 1.0, context: zmq.Context | None = None):
+        self.endpoint = bus.sub_endpoint
+        self.grace = grace
+        self._own_context = context is None
+        self.context = context or zmq.Context()
+        try:
+            self.sock = transport.subscriber(self.context, bus, connect=False)   # raises without client keys
+        except BaseException:
+            if self._own_context:
+                self.context.term()
+            raise
+        self.monitor = self.sock.get_monitor_socket(self.EVENTS)
+        self.sock.connect(self.endpoint)
+        self.connected = False
+        self.down_since: float | None = None
+
+    def lost(self, now: float | None = None) -> str | None:
+        """None while the broker is there (or not yet seen), else what happened to it."""
+        now = time.monotonic() if now is None else now
+        while self.monitor.poll(0):
+            event = recv_monitor_message(self.monitor)["event"]
+            if event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self.connected, self.down_since = True, None
+            elif event == zmq.EVENT_DISCONNECTED and self.connected:
+                self.connected, self.down_since = False, now
+        if self.down_since is not None and now - self.down_since >= self.grace:
+            return (f"the broker at {self.endpoint} went away (its connection closed {now - self.down_since:.1f} s "
+                    "ago and did not come back)")
+        return None
+
+    def close(self) -> None:
+        self.sock.disable_monitor()
+        self.monitor.close(linger=0)
+        self.sock.close(linger=0)
+        if self._own_context:
+            self.context.term()

@@ -185,7 +185,7 @@ def _node_list(args) -> int:
 
 
 def _node_info(args) -> int:
-    from touch4d.bus.registry import NodeNotFound, find
+    from touch4d.bus.registry import NodeNotFound, available, find
 
     try:
         kind = find(args.node)
@@ -193,7 +193,9 @@ def _node_info(args) -> int:
     except NodeNotFound as exc:
         raise ConfigError("command line", "node", exc.expected, got=exc.got) from None
     doc = (node_class.__doc__ or "").strip().splitlines()
-    print(f"{kind.name}: {node_class.__module__}.{node_class.__qualname__} ({kind.origin})")
+    others = [n for n, k in available().items() if k.target == kind.target and k.origin == kind.origin and n != kind.name]
+    print(f"{kind.name}: {node_class.__module__}.{node_class.__qualname__} ({kind.origin})"
+          + (f"; also named {', '.join(sorted(others))}" if others else ""))
     if doc:
         print(f"  {doc[0]}")
     if not node_class.PARAMS:

@@ -13,6 +13,7 @@ import numpy as np
 import yaml
 import zmq
 
+from touch4d import schema
 from touch4d.bus import transport
 from touch4d.bus.config import BusConfig, BusUnreachable, resolve_bus_config
 from touch4d.bus.node import HEARTBEAT_TOPIC, Node
@@ -226,9 +227,10 @@ def build_message(topic: str, text: str, type_name: str | None = None) -> Messag
     if cls is None:
         raise ConfigError("command line", "--type", f"the message type, since {topic!r} is not a standard topic")
     try:
-        fields = yaml.safe_load(text) if text.strip() else {}
-    except yaml.YAMLError as exc:
-        raise ConfigError("command line", "YAML", f"a YAML mapping of {cls.TYPE} fields", got=str(exc)) from None
+        fields = schema.parse_yaml(text) if text.strip() else {}
+    except ConfigError as exc:   # the YAML problem whole, on one line
+        raise ConfigError("command line", "YAML", f"a YAML mapping of {cls.TYPE} fields", got=text,
+                          detail=exc.detail) from None
     if not isinstance(fields, dict):
         raise ConfigError("command line", "YAML", f"a mapping of {cls.TYPE} fields", got=fields)
     try:

@@ -9,6 +9,8 @@ that exits before that failed to start (a bad scene, SteamVR not running...): un
 entry says `respawn`, the whole launch stops and exits non-zero, the node's error the last line.
 (Files and ports are checked before, by touch4d.bus.preflight.) While it runs, the launcher reads
 the nodes' heartbeats and warns once when two nodes publish a topic another node waits for.
+A broker that goes away (killed, or the other machine's with `--no-broker`) stops the launch the
+same way, named in the last line: the nodes' shutdown sends the boards NMT STOP.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from pathlib import Path
 import zmq
 
 from touch4d.bus import transport
-from touch4d.bus.broker import Broker
+from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
 from touch4d.bus.node import HEARTBEAT_TOPIC
@@ -79,6 +81,8 @@ class Launcher:
         self._output_closed = False
         self._selector = selectors.DefaultSelector()
         self._env: dict[str, str] = {}
+        self._broker_lost = lambda: None
+        self._broker_gone: str | None = None
         self._watch: zmq.Socket | None = None      # heartbeats: which node publishes what
         self._beats: dict[str, tuple[float, Heartbeat]] = {}
         self._warned_shared: set[tuple[str, tuple[str, ...]]] = set()
@@ -214,6 +218,11 @@ class Launcher:
         endpoints = broker.start() if broker else self.bus
         self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
                      "PYTHONUNBUFFERED": "1"}
+        try:
+            watch = BrokerWatch(endpoints.for_clients())   # a broker that dies stops the launch, named
+            self._broker_lost = watch.lost
+        except ConfigError:
+            watch = None   # no client keys on this machine: nothing to watch with
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_r, False)
         os.set_blocking(wake_w, False)
@@ -249,6 +258,8 @@ class Launcher:
             self._selector.close()
             os.close(wake_r)
             os.close(wake_w)
+            if watch is not None:
+                watch.close()
             if self._watch is not None:
                 self._watch.close(linger=0)
             if broker:
@@ -260,6 +271,9 @@ class Launcher:
             line, code = self._start_failure
             self.say(f"stopped: {line}")   # the cause, last, where the user looks
             return code
+        if self._broker_gone:
+            self.say(f"stopped: {self._broker_gone}")   # the cause, last, where the user looks
+            return 1
         if failed:
             self.say(f"stopped; node(s) that failed: {', '.join(failed)}")
             return 1
@@ -278,6 +292,10 @@ class Launcher:
                 self._stop_reason = f"--duration {self.duration:g} s"
                 break
             self._pump(0.2 if end is None else min(0.2, end - now))
+            gone = self._broker_lost()
+            if gone:
+                self._broker_gone = self._stop_reason = gone
+                break
             self._check_publishers()
             for child in self.children.values():
                 if child.proc is not None and child.proc.poll() is not None:

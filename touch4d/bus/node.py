@@ -94,6 +94,23 @@ class Subscription:
             self.decode = decoder(self.msg_type)
 
 
+class _Held:
+    """Where a node's messages go before it is connected: kept whole (up to `limit`, like the
+    socket's queue), sent once `start` has connected."""
+
+    def __init__(self, limit: int):
+        self.limit = limit
+        self.messages: list[list[bytes]] = []
+        self._partial: list[bytes] = []
+
+    def send(self, frame: bytes, flags: int = 0) -> None:
+        self._partial.append(frame)
+        if not flags & _SNDMORE:
+            if len(self.messages) < self.limit:
+                self.messages.append(self._partial)
+            self._partial = []
+
+
 @dataclass
 class _TopicState:
     last_seq: int | None = None
@@ -157,7 +174,6 @@ class Node:
         self._zmq_topics: set[bytes] = set()
         self._topics: dict[bytes, _TopicState] = {}
         self._pending: list[list[bytes]] = []
-        self._held: list[tuple[bytes, bytes]] = []   # published before start() connected
         self._logged: set = set()
         self._counters: dict[str, int] = {"errors": 0}
         self._stat_sources: list[Callable[[], dict]] = []
@@ -177,7 +193,9 @@ class Node:
         self.executor = Executor(on_error=self._callback_failed)
         self.executor.add_reader(self._sub, self._on_messages)
         self.executor.add_reader(self._pub, self._on_broker)
-        self._send_payload = self._hold   # until start() has connected
+        # What publishing writes to: a holder until start() has connected, then the socket. (An
+        # attribute swapped, never deleted: the instance keeps its fast attribute lookups.)
+        self._out: zmq.Socket | _Held = _Held(self.bus.hwm)
         if start:
             self.start()
 
@@ -206,10 +224,9 @@ class Node:
                              "connects are lost", self.bus.pub_endpoint, self.connect_timeout)
         if self._zmq_topics:
             self._sync()   # one probe for every subscription setup made
-        del self._send_payload   # publishing goes straight to the socket from now on
-        held, self._held = self._held, []
-        for topic, payload in held:
-            self._send_payload(topic, payload)
+        held, self._out = self._out, self._pub   # publishing goes straight to the socket from now on
+        for frames in held.messages:
+            self._pub.send_multipart(frames)
         if self._heartbeat:
             self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
             self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat, first_due=time.monotonic())
@@ -399,17 +416,13 @@ class Node:
     def _send_payload(self, topic: bytes, payload: bytes) -> None:
         """Send one message; the caller has counted it in `_seq`."""
         # Two sends, not send_multipart: its per-frame Python work costs more than the ZeroMQ calls.
-        self._pub.send(topic, _SNDMORE)
-        self._pub.send(payload)
+        out = self._out
+        out.send(topic, _SNDMORE)
+        out.send(payload)
 
     def _send_raw(self, topic: bytes, payload: bytes) -> None:
         self._seq[topic] = self._seq.get(topic, 0) + 1
         self._send_payload(topic, payload)
-
-    def _hold(self, topic: bytes, payload: bytes) -> None:
-        """`_send_payload` until `start` connects: keep the message (up to the bus's queue limit)."""
-        if len(self._held) < self.bus.hwm:
-            self._held.append((topic, payload))
 
     def _on_messages(self) -> int:
         return self._dispatch(self._drain())

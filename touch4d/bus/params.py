@@ -123,8 +123,12 @@ class Param:
     def check(self, value) -> Any:
         """`value` converted to the parameter's type (an int for a float parameter becomes a float);
         raises schema.Invalid (a ValueError) whose text is describe() when it is not valid."""
+        if isinstance(value, (list, dict)) and not _small(value):
+            # A parameter goes to its node as JSON on the command line: a YAML alias bomb (lists of
+            # aliases, billions of values once expanded) would take minutes here and then fail there.
+            raise schema.Invalid(f"{self.describe()} of at most {MAX_VALUES} values in all", value)
         try:
-            value = msgspec.convert(value, self.annotation, strict=True)
+            value = msgspec.convert(schema.plain(value), self.annotation, strict=True)
         except msgspec.ValidationError:
             raise schema.Invalid(self.describe(), value) from None
         if self.choices and value not in self.choices:
@@ -134,6 +138,26 @@ class Param:
     def to_dict(self) -> dict:
         """The declaration as plain data (for `touch4d node info --json`)."""
         return {"type": self.kind.__name__, "default": self.default, "doc": self.doc, "valid": self.describe()}
+
+
+MAX_VALUES = 100_000   # values in a list or mapping parameter, nested ones included
+
+
+def _small(value, limit: int = MAX_VALUES) -> bool:
+    """Whether `value` holds at most `limit` values, nested ones counted as often as they appear
+    (a walk that stops at the limit, so a structure that repeats itself costs no more)."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > limit:
+            return False
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return True
 
 
 def suggest(name: str, choices) -> str:

@@ -143,5 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     return run_node(node_class, rest)
 
 
+def main_for_module(module: str) -> None:
+    """`python -m touch4d.nodes.NAME [node args]`: a node module run as a script runs its node (and
+    exits with its code) instead of declaring the class and exiting 0 having done nothing."""
+    sys.exit(main([module, *sys.argv[1:]]))
+
+
 if __name__ == "__main__":
     sys.exit(main())

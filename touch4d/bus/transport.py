@@ -32,8 +32,8 @@ SYNC_PREFIX = INTERNAL_PREFIX + b"sync/"
 SUBSCRIBE_ALL = b"\x01"            # what an XPUB receives when the broker's XSUB subscribes to everything
 _tokens = itertools.count(1)
 
-__all__ = ["INTERNAL_PREFIX", "SYNC_PREFIX", "bus_context", "publisher", "subscriber", "client_socket",
-           "server_socket", "await_broker", "sync", "sync_token", "is_internal"]
+__all__ = ["INTERNAL_PREFIX", "SUBSCRIBE_ALL", "SYNC_PREFIX", "await_broker", "bus_context", "client_socket",
+           "drain_broker_subscriptions", "publisher", "server_socket", "subscriber", "sync", "sync_token"]
 
 
 def client_socket(context: zmq.Context, kind: int, bus: BusConfig, *, hwm: int | None = None,
@@ -144,7 +144,3 @@ def sync(sub: zmq.Socket, pub: zmq.Socket, timeout: float, *, owner: str = "clie
         return False
     finally:
         sub.unsubscribe(token)
-
-
-def is_internal(topic: bytes) -> bool:
-    return topic.startswith(INTERNAL_PREFIX)

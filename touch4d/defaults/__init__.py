@@ -1,5 +1,5 @@
-"""The defaults that ship with touch4d: `config/` (glove, gloves, scenes, bus, paths, calibration,
-the DBC) and `launch/` (launch files), found with importlib.resources.
+"""The defaults that ship with touch4d: `config/` (glove, gloves, scenes, studies, bus, paths,
+calibration, the DBC) and `launch/` (launch files), found with importlib.resources.
 
 In the repository `config` and `launch` here are links to the top-level folders of the same names,
 so the files exist once; a wheel holds copies. `touch4d config copy DIR` copies them out for

@@ -14,7 +14,7 @@ KINDS = ("*.yaml", "*.dbc")
 
 def register(subparsers) -> None:
     config = subparsers.add_parser("config", help="the packaged defaults: list, where a path resolves, copy to edit",
-                                   description="The launch files, scenes, gloves and bus files that ship with touch4d.")
+                                   description="The launch files, scenes, gloves, studies and bus files that ship with touch4d.")
     sub = config.add_subparsers(dest="config_command", metavar="ACTION")
     config.set_defaults(func=lambda args: config.print_help() or 2)
     p = sub.add_parser("list", help="every packaged default, and which of them a file of yours shadows here")

@@ -203,6 +203,24 @@ class Polytope:
         return cls(vertices, normals, offsets, topology)
 
 
+def not_corners(points, polytope: Polytope) -> list[tuple[int, str]]:
+    """The given points that are not corners of `polytope` (built from them), each with where it lies.
+
+    `from_vertices` takes the convex hull, so a point pushed in (a dent) or inside is dropped without
+    a word; a scene file refuses such a list rather than touch a shape its author did not give.
+    Returns (index, "inside the hull" | "on the hull's boundary but not a corner").
+    """
+    points = np.asarray(points, dtype=np.float64)
+    scale = float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1)))
+    tol = 1e-6 * scale
+    dist = np.linalg.norm(points[:, None, :] - polytope.vertices[None, :, :], axis=2).min(axis=1)
+    out = []
+    for i in np.nonzero(dist > tol)[0]:
+        inside = np.all(polytope.normals @ points[i] < polytope.offsets - tol)
+        out.append((int(i), "inside the hull" if inside else "on the hull's boundary but not a corner"))
+    return out
+
+
 def _cyclic(vertices: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The vertex indices of a planar convex polygon, sorted by angle around its centre."""
     pts = vertices[idx]

@@ -13,6 +13,8 @@ Scene file (YAML)::
         position: [0, 0, 0, 1.5]
         rotation: [[xw, 30], [yz, 10]]  # world = R_yz(10) R_xw(30) local + position
         color: "#3399ff"              # [r, g, b] or [r, g, b, a] in 0..1, #rrggbb, #rrggbbaa or a CSS name
+        physics: {mass: 1.0}          # optional: rigid-body physics of the object (touch4d.physics.config)
+    physics: {gravity: [0, -9.81, 0, 0]}   # optional: the scene's (docs/physics.md)
 
 Every mistake is a ConfigError naming the file and the key (`objects[0].color`), never a traceback.
 """
@@ -26,11 +28,12 @@ import msgspec
 import numpy as np
 from PIL import ImageColor
 
-from touch4d import schema
+from touch4d import errors, schema
 from touch4d.configfile import resolve_path
 from touch4d.schema import Finite, Positive
 
-from .polytope import GeometryError, Polytope
+from .physics_keys import ObjectPhysics, ScenePhysics
+from .polytope import GeometryError, Polytope, not_corners
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
 from .shapes import get_shape, list_shapes
@@ -231,6 +234,7 @@ class ObjectSpec(msgspec.Struct, forbid_unknown_fields=True):
     position: Row4 = (0.0, 0.0, 0.0, 0.0)
     rotation: list[Step] = []
     color: str | list[Finite] | None = None
+    physics: ObjectPhysics | None = None          # read by touch4d.physics (docs/physics.md)
 
 
 class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
@@ -241,6 +245,7 @@ class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
     eye_distance: Positive = DEFAULT_EYE_DISTANCE
     description: str = ""
     selected: int = 0
+    physics: ScenePhysics | None = None           # read by touch4d.physics (docs/physics.md)
 
 
 def load_scene(path) -> Scene:
@@ -322,10 +327,25 @@ def _part(file, key, spec: PartSpec) -> np.ndarray:
             poly = Polytope.from_vertices(rows) if kind == "vertices" else Polytope.from_halfspaces(rows)
         except GeometryError as exc:
             schema.fail(file, f"{key}.{kind}", "a bounded convex 4-polytope", got=str(exc))
+        if kind == "vertices":
+            _all_corners(file, f"{key}.vertices", rows, poly)
         halfspaces = np.array(poly.halfspaces)
         halfspaces.setflags(write=False)             # shared by every scene that has this part
         _part_cache[cache_key] = halfspaces
     return _part_cache[cache_key]
+
+
+def _all_corners(file, key, rows, poly) -> None:
+    """Refuse a vertex list whose hull drops some of its points (a dent, an inner point): the shape
+    touched would not be the one written. A concave shape is a union of convex `parts:`."""
+    dropped = not_corners(rows, poly)
+    if dropped:
+        where = "; ".join(f"[{i}] {[float(f'{v:.6g}') for v in rows[i]]} lies {how}" for i, how in dropped[:5])
+        more = f" (and {len(dropped) - 5} more)" if len(dropped) > 5 else ""
+        raise errors.ConfigError(file, key, "the corners of one convex shape (each point a vertex of their convex hull)",
+                          detail=f"{len(dropped)} of {len(rows)} points would be dropped: {where}{more}",
+                          hint="a concave shape is a union of convex pieces: give them under `parts:` "
+                               "as [{vertices: ...}, {vertices: ...}]")
 
 
 def _rotation(file, key, steps) -> np.ndarray:

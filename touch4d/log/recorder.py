@@ -7,6 +7,7 @@ recorder killed with SIGKILL leaves a file from which everything older than that
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import threading
@@ -193,8 +194,17 @@ class Recorder:
                         break
                     time.sleep(0.01)
         except Exception as exc:  # noqa: BLE001 - disk full, I/O error: stop and say so, never hang
-            self.error = f"writing {self.path}: {type(exc).__name__}: {exc}"
+            self.error = self._write_error(exc)
             self._stopping.set()
+
+    def _write_error(self, exc: Exception) -> str:
+        """What went wrong writing, and where the part already written is."""
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            cause = f"no room left ({exc.strerror})"
+        else:
+            cause = f"{type(exc).__name__}: {exc}"
+        return (f"writing {self.path}: {cause}; recording stopped after {_size(self._writer.bytes)} of messages. "
+                f"What was written before is in the file: `touch4d log recover {self.path}` makes it a complete log")
 
     def report(self) -> RecordingReport:
         w = self._writer
@@ -202,7 +212,7 @@ class Recorder:
         return RecordingReport(
             self.path, counts, w.gaps.report() if w else {}, {k: v for k, v in (w.malformed if w else {}).items() if v},
             [t for t in self.topics if t not in counts], time.monotonic() - self._started if self._started else 0.0,
-            w.bytes if w else 0, self.error)
+            w.bytes if w else 0, error=self.error)
 
     def stop(self) -> RecordingReport:
         """Stop receiving, write everything queued, close the file with its metadata; the report."""
@@ -215,9 +225,12 @@ class Recorder:
         if self._writer is not None:
             try:
                 self._writer.close(report.metadata())
-                report.file_bytes = os.path.getsize(self.path)
             except OSError as exc:
                 report.error = report.error or f"closing {self.path}: {exc}"
+            try:
+                report.file_bytes = os.path.getsize(self.path)
+            except OSError:
+                pass
         return report
 
     def wait(self, timeout: float | None = None) -> bool:

@@ -153,3 +153,33 @@ def touched_motors(names: list[str], intensity: np.ndarray, threshold: float) ->
     intensity = np.asarray(intensity, dtype=float)
     order = np.argsort(-intensity, kind="stable")
     return [names[i] for i in order if intensity[i] > threshold]
+
+
+PROMPT_SIZE = 22
+
+
+def study_lines(trial, keys: list[str] | None = None) -> list[str]:
+    """What a participant reads for a `study/trial` message: the question and the keys that answer it
+    (`keys`, one per option; default 1, 2, ...) in a trial, else the line of its phase (break, pause,
+    end); nothing between trials. The WebXR page shows the same lines with its controller's buttons."""
+    if trial.phase == "stimulus":
+        head = f"Trial {trial.index + 1} of {trial.total}" + (" (practice)" if trial.practice else "")
+        labels = keys or [str(k) for k in range(1, len(trial.options) + 1)]
+        answers = "   ".join(f"{key}: {option}" for key, option in zip(labels, trial.options))
+        return [head, trial.prompt, answers]
+    return [trial.message] if trial.message else []
+
+
+def study_overlay(trial, below: np.ndarray | None = None) -> np.ndarray | None:
+    """The study's lines in large type, above the status overlay `below` (if any)."""
+    lines = study_lines(trial)
+    if not lines:
+        return below
+    top = text_image(lines, size=PROMPT_SIZE, background=(0, 0, 0, 190))
+    if below is None:
+        return top
+    width = max(top.shape[1], below.shape[1])
+    out = np.zeros((top.shape[0] + below.shape[0], width, 4), np.uint8)
+    out[:top.shape[0], :top.shape[1]] = top
+    out[top.shape[0]:, :below.shape[1]] = below
+    return out

@@ -85,6 +85,7 @@ class TactileEngine:
         """The field (None when the hand cannot place the samples) and the motor command for a pose
         or a valid joint set."""
         st = self.joint_stimulus(pose) if isinstance(pose, HandJoints) else self.stimulus(pose)
+        self.last_stimulus = st                  # the hits, for contact transients (tactile.transient)
         return self._messages(st, pose.source_stamp or pose.stamp)
 
     def _messages(self, st: Stimulus, source: float) -> tuple[TactileField | None, MotorCommand]:

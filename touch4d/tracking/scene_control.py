@@ -16,16 +16,16 @@ import numpy as np
 
 from touch4d import schema
 from touch4d.errors import Touch4dError
-from touch4d.schema import Finite
+from touch4d.schema import Finite, parse_yaml
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
-from touch4d.geometry.scene import Scene
+from touch4d.geometry.scene import Scene, parse_scene
 from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
 
 from touch4d.geometry import quaternion
 from .calibration import Calibration
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
-ROTATE_TARGETS = ("object", "scene")
+ROTATE_TARGETS = ("object", "scene", "none")   # none: the controller turns nothing (a study's fixed stimuli)
 BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
 
 
@@ -55,7 +55,8 @@ class ControlConfig:
     rotation_gain: float = 1.0         # radians of yz/zx/xy rotation per radian the controller turns
     trigger_threshold: float = 0.5     # trigger travel above which the controller holds the object
     buttons: dict = field(default_factory=lambda: dict(DEFAULT_BUTTONS))  # button -> command
-    rotate: str = "object"             # "object": the selected one; "scene": everything, about its centre
+    rotate: str = "object"             # "object": the selected one; "scene": everything, about its centre;
+                                       # "none": nothing
     spin_plane: str | None = None      # slow automatic rotation (the demo's turning hypercube)
     spin_deg_per_s: float = 0.0
 
@@ -106,7 +107,7 @@ class SceneControl:
             if command is not None:
                 changed |= self.command(command)
         self._held = now
-        if not valid or trigger < self.config.trigger_threshold:
+        if not valid or trigger < self.config.trigger_threshold or self.config.rotate == "none":
             self._grab = None
             return changed
         position = np.asarray(position_m, dtype=float)
@@ -146,7 +147,8 @@ class SceneControl:
     # ---- commands ------------------------------------------------------------------------------
 
     def command(self, name: str, argument: str = "") -> bool:
-        """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle].
+        """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle]
+        | load SCENE-FILE-TEXT.
 
         A bad command or argument raises SceneCommandError saying what was expected.
         """
@@ -162,7 +164,21 @@ class SceneControl:
             return True
         if name == "projection":
             return self._projection(argument)
+        if name == "load":
+            return self.load(argument)
         raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+
+    def load(self, text: str, source: str = "scene/command load") -> bool:
+        """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it. A bad
+        scene raises ConfigError (a Touch4dError) naming `source` and the key, and the scene stays."""
+        scene = parse_scene(parse_yaml(text, source), source)
+        if self.config.rotate == "scene":
+            scene.selected = -1
+        scene.revision = self.scene.revision + 1
+        self.scene = scene
+        self._initial = scene.copy()
+        self._grab = None
+        return True
 
     def _next_index(self) -> int:
         order = list(range(len(self.scene.objects))) + [-1]

@@ -6,11 +6,20 @@ made of changes, and at most one "frame" per tick with the latest transforms and
 
 Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state`, and the tracked glove
 hand's joints on `hand/joints` (just before the pose of the same instant, with its stamp; the other
-hand's on `hand/joints/other`) from the page that holds the tracker role (the last to start an
-immersive session, else the first to send input). Fail safe: when that page closes, hides, loses
+hand's on `hand/joints/other`) from the one page that drives the hand. The rule: a page drives from
+its first tracked input while no other page drives, and keeps driving until it stops tracking
+(closes, hides, ends its session, loses tracking or falls silent for `stale_s`); only then may
+another page take over. Meanwhile another page's input and re-centring are refused, never silently:
+counted (`page_not_driver`), logged once per page with its address, and the page is told (a "driver"
+frame). Every change of driver is logged. Fail safe: when the driving page closes, hides, loses
 tracking or falls silent for `stale_s`, the hand is published invalid at once and then every
 `invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
 (within 100 ms); the controller too, except while its page is only silent.
+
+A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
+(touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
+"response" publishes `study/response`, stamped with the page's clock mapped to this machine's. While
+a trial runs, the re-centre button answers instead of re-centring.
 """
 from __future__ import annotations
 
@@ -24,13 +33,15 @@ from typing import Callable
 import numpy as np
 
 from touch4d.errors import Touch4dError
-from touch4d.messages import ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, TactileField
+from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
+                              StudyResponse, StudyTrial, TactileField)
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.glsl import shader_source
-from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton
+from touch4d.render.hud import AMPLITUDE_RGB, AMPLITUDE_STOPS, TactileCube, hand_skeleton, study_lines
 from touch4d.render.scene_geometry import SceneGeometry, data_rows
 from touch4d.render.view import SceneView
+from touch4d.study.gate import StudyGate
 from touch4d.tactile.glove import Glove
 from touch4d.tactile.skeleton import OUTLINE_PAIRS, JointsError, ViewHand
 from touch4d.tracking import webxr
@@ -44,7 +55,11 @@ log = logging.getLogger(__name__)
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
                 "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
-                 "page_connections", "recentred")
+                 "page_unresponsive", "page_not_driver", "page_connections", "recentred", "study_answers")
+# A study's answers from the controller: the k-th of these buttons picks the k-th option (A, B, the
+# thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
+ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
+BUTTON_LABELS = {"a": "A", "b": "B", "thumbstick": "stick", "squeeze": "grip", "touchpad": "pad"}
 
 
 @dataclass(frozen=True)
@@ -58,6 +73,7 @@ class BridgeConfig:
     recenter_button: str = "a"          # on the controller: re-centre the screen in front of the user
     stale_s: float = 0.05               # tracker page silent this long -> invalid poses
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
+    study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
 
 
 class ClockMap:
@@ -85,12 +101,19 @@ class ClockMap:
 @dataclass
 class _Page:
     conn: int
+    peer: str = ""                   # its address, to name it in the log
     clock: ClockMap = dataclasses.field(default_factory=ClockMap)
     mode: str = "inline"
     last_input: float = 0.0          # arrival of its last input (node clock)
     tracking: bool = False
     buttons: frozenset = frozenset()
+    answer_held: frozenset = frozenset()   # answer buttons held at its last input (any controller)
     fps: float = 0.0
+
+
+def _shown(trial: StudyTrial) -> tuple:
+    """What of a study/trial the pages show (its repeats change nothing)."""
+    return (trial.phase, trial.index, trial.condition, trial.prompt, tuple(trial.options), trial.message)
 
 
 class WebBridge:
@@ -109,7 +132,8 @@ class WebBridge:
         self.now = now
         self.counts = {name: 0 for name in PAGE_COUNTERS}
         self.pages: dict[int, _Page] = {}
-        self.owner: int | None = None
+        self.owner: int | None = None       # the page that drives the hand, or last drove it
+        self._refused: set[int] = set()     # pages already told another one drives
         self._logged: set[str] = set()
         self._invalid_at = -np.inf          # when invalid poses were last published (node clock)
         self._was_live = False
@@ -132,6 +156,7 @@ class WebBridge:
         self._dirty = False
         self._last_frame: bytes | None = None
         self._frame_count = 0
+        self.gate = StudyGate(config.study_gate)
 
     # ---- bus -> pages ----------------------------------------------------------------------------
 
@@ -227,6 +252,23 @@ class WebBridge:
         self._boards = [{"id": b["id"], "online": b["online"], "state": b["state"]} for b in msg.boards]
         self._dirty = True
 
+    def on_trial(self, msg: StudyTrial) -> None:
+        """A study's state: the pages show its prompt and hide objects where its condition says so."""
+        previous = self.gate.trial
+        self.gate.update(msg)
+        if previous is None or _shown(previous) != _shown(msg):
+            self._dirty = True
+
+    def study_fields(self) -> dict:
+        trial = self.gate.trial
+        if trial is None:
+            return {"draw_objects": self.gate.objects, "study": None}
+        return {"draw_objects": self.gate.objects,
+                "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
+                          "options": list(trial.options), "message": trial.message, "practice": trial.practice,
+                          "buttons": list(ANSWER_BUTTONS[:len(trial.options)]),
+                          "lines": study_lines(trial, [BUTTON_LABELS[b] for b in ANSWER_BUTTONS])}}
+
     def frame(self) -> bytes | None:
         """The per-tick frame when something changed since the last one (else None)."""
         if not self._dirty:
@@ -234,7 +276,8 @@ class WebBridge:
         self._dirty = False
         self._frame_count += 1
         fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards,
-                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now()}
+                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now(),
+                  **self.study_fields()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
         articulated = self._joints.current() if self._hand_valid else None
@@ -262,8 +305,8 @@ class WebBridge:
 
     # ---- connections -----------------------------------------------------------------------------
 
-    def connected(self, conn: int) -> None:
-        self.pages[conn] = _Page(conn)
+    def connected(self, conn: int, peer: str = "") -> None:
+        self.pages[conn] = _Page(conn, peer or "?")
         self.counts["page_connections"] += 1
         self.send(conn, self.setup_frame())
         if self._geometry_frame is not None:
@@ -273,6 +316,7 @@ class WebBridge:
 
     def closed(self, conn: int) -> None:
         self.pages.pop(conn, None)
+        self._refused.discard(conn)
         if conn == self.owner:
             self.owner = None
             self.check_tracking(self.now())
@@ -293,29 +337,91 @@ class WebBridge:
         kind = msg["type"]
         if kind == "session":
             page.mode = msg["mode"] if msg["active"] else "inline"
-            if msg["mode"] == "immersive" and msg["active"] and self.config.tracker:
-                self.owner = conn
-            elif not msg["active"] and conn == self.owner:
-                self.owner = None
+            if not msg["active"] and conn == self.owner:
                 page.tracking = False
                 self.check_tracking(arrival)
         elif kind == "stats":
             page.fps = msg["fps"]
         elif kind == "recenter":
-            self.recenter(msg["head"])
+            if self._may_drive(page, arrival):
+                self.recenter(msg["head"])
         elif kind == "input":
             self._input(page, msg, arrival)
+        elif kind == "response":
+            if self._may_drive(page, arrival):   # a second page cannot answer for the participant
+                self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival))
+
+    def _answer(self, index: int, option: str, source: str, stamp: float) -> None:
+        """A study answer goes on the bus as given; the study node takes the first valid one per trial."""
+        self.counts["study_answers"] += 1
+        self.publish("study/response", StudyResponse(index=index, response=option, source=source, stamp=stamp))
+
+    def _answer_buttons(self, page: _Page, msg: dict, stamp: float) -> frozenset:
+        """Newly pressed answer buttons of any controller answer the trial shown (or end a break).
+        Returns the buttons they used, which do nothing else."""
+        held = frozenset(b for s in msg["sources"] for b in s.buttons if b in ANSWER_BUTTONS)
+        pressed, page.answer_held = held - page.answer_held, held
+        trial = self.gate.trial
+        if trial is None or not pressed or trial.phase not in ("stimulus", "break"):
+            return frozenset()
+        if trial.phase == "break":
+            self._answer(trial.index, "", "controller", stamp)
+            return pressed
+        for k, button in enumerate(ANSWER_BUTTONS[:len(trial.options)]):
+            if button in pressed:
+                self._answer(trial.index, trial.options[k], "controller", stamp)
+                return pressed
+        return frozenset()
+
+    # ---- who drives the hand ---------------------------------------------------------------------
+
+    def driving(self, now: float) -> int | None:
+        """The page that drives the hand now: the owner while it tracks and is not silent."""
+        page = self.pages.get(self.owner) if self.owner is not None else None
+        if page is not None and page.tracking and now - page.last_input <= self.config.stale_s:
+            return page.conn
+        return None
+
+    def _may_drive(self, page: _Page, now: float) -> bool:
+        """Whether this page's input may drive the hand; a refusal is counted, logged and told."""
+        driver = self.driving(now)
+        if driver is None or driver == page.conn:
+            return True
+        self.counts["page_not_driver"] += 1
+        if page.conn not in self._refused:
+            self._refused.add(page.conn)
+            other = self.pages[driver]
+            log.warning("page %d (%s) sent input while page %d (%s) drives the hand: refused until that page "
+                        "stops tracking", page.conn, page.peer, other.conn, other.peer)
+            self.send(page.conn, pack_frame("driver", {"driver": False, "by": other.peer}))
+        return False
+
+    def _take(self, page: _Page) -> None:
+        """Make `page` the owner (it may now drive); log and tell it."""
+        if self.owner == page.conn:
+            return
+        before = self.pages.get(self.owner) if self.owner is not None else None
+        self.owner = page.conn
+        self._refused.discard(page.conn)
+        if before is not None:
+            log.info("page %d (%s) drives the hand now (page %d, %s, stopped tracking)", page.conn, page.peer,
+                     before.conn, before.peer)
+        self.send(page.conn, pack_frame("driver", {"driver": True, "by": page.peer}))
 
     def _input(self, page: _Page, msg: dict, arrival: float) -> None:
+        stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
+        # Only the page that drives the hand (or any page while none drives) answers a study's trials.
+        may_answer = (page.tracking or msg["tracking"]) and self.driving(arrival) in (None, page.conn)
+        answered = self._answer_buttons(page, msg, stamp) if may_answer else frozenset()
         if not self.config.tracker:
             self.counts["page_ignored"] += 1
             return
-        if self.owner is None:
-            self.owner = page.conn
-        if page.conn != self.owner:
-            self.counts["page_ignored"] += 1
+        if not msg["tracking"] and page.conn != self.owner:
+            self.counts["page_ignored"] += 1   # no hand to drive with (a desktop page being hidden)
             return
-        stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
+        if not self._may_drive(page, arrival):
+            return
+        self._take(page)
         page.last_input = arrival
         page.tracking = msg["tracking"]
         by_side = {s.handedness: s for s in msg["sources"]}
@@ -339,7 +445,7 @@ class WebBridge:
         if not pose.valid:
             self._invalid_at = arrival
         held = frozenset(control_side.buttons) if control_side is not None else frozenset()
-        if self.config.recenter_button in held - page.buttons and msg["head"] is not None:
+        if self.config.recenter_button in held - page.buttons - answered and msg["head"] is not None:
             self.recenter(msg["head"])
         page.buttons = held
 

@@ -14,7 +14,9 @@ dtype is one of ARRAY_DTYPES ("f4", "u4", "i4", "u2", "u1"). Kinds:
 - "geometry", once per change of what the scene is made of: `SceneGeometry`'s data textures and
   vertex arrays (touch4d.render.scene_geometry, the GPU backend's bytes);
 - "frame", at most once per tick: the objects' transforms texture (96 bytes per object), the
-  projection, the hand's pose, h and "touched" per sample, the motors' intensities and duties;
+  projection, the hand's pose, h and "touched" per sample, the motors' intensities and duties, and
+  while a study runs `study` (its phase, trial index and total, prompt, options, message) and
+  `draw_objects` (false: the study's condition hides every object; touch4d.study.gate);
 - "calibration", after a re-centre: the screen's new placement in the room.
 
 Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinity (rejected here):
@@ -23,8 +25,11 @@ Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinit
     {"type": "recenter", "head": pose}
     {"type": "session", "mode": "immersive"|"inline", "active": bool}
     {"type": "stats", "fps": number}
+    {"type": "response", "index": int, "option": str, "time": ms}
 
-where `time` is the page's clock (performance.timeOrigin + performance.now(), ms) when it read the
+where a "response" answers a study's trial `index` with one of its options from the page's own
+buttons (a tap in a desktop or headset browser; controller buttons arrive with "input");
+`time` is the page's clock (performance.timeOrigin + performance.now(), ms) when it read the
 poses, a pose is [x, y, z, qx, qy, qz, qw] (metres, local-floor space), and a source is
 {"handedness": "right"|"left"|"none", "grip": pose|null, "trigger": 0..1, "buttons": [name, ...],
 "joints": [[x, y, z, qx, qy, qz, qw, radius] x 25]|null}.
@@ -48,14 +53,16 @@ MAX_PAGE_MESSAGE = 16384          # bytes: an input message with two tracked han
 MAX_SOURCES = 4
 QUAT_TOLERANCE = 1e-2             # |q| - 1 allowed in a page's quaternion (float32 poses)
 WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
-PAGE_TYPES = ("input", "recenter", "session", "stats")
+PAGE_TYPES = ("input", "recenter", "session", "stats", "response")
+MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
 BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b)
 _LEN = struct.Struct("<I")
 
 
 class PageError(Touch4dError, ValueError):
-    """A page message that is dropped; `cause` is its counter's name: malformed, oversized or non_finite.
+    """A page message that is dropped; `cause` is its counter's name: malformed, oversized, non_finite
+    or unresponsive (a page that answered no ping).
     A message of the wrong shape names its `field` (e.g. sources[0].grip), what was `expected` and what
     it `got`."""
 
@@ -172,7 +179,13 @@ class StatsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type",
     fps: Annotated[float, msgspec.Meta(ge=0, le=1000)]
 
 
-PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage]
+class ResponseMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="response"):
+    index: Annotated[int, msgspec.Meta(ge=0, lt=2**31)]
+    option: Annotated[str, msgspec.Meta(max_length=MAX_OPTION)]
+    time: Annotated[float, msgspec.Meta(ge=0)]
+
+
+PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage]
 _DECODER = msgspec.json.Decoder(PageMessage)
 
 
@@ -184,6 +197,8 @@ def parse_page_message(data: str | bytes) -> dict:
     """A page's text message -> a checked map (see the module doc); PageError says why not. `data`
     may also be the WebSocket error that ended a connection (1009: a message too big to receive)."""
     if isinstance(data, BaseException):
+        if isinstance(data, TimeoutError):   # answered no ping: a page that does not read, or is gone
+            raise PageError("unresponsive", f"WebSocket closed: {data}")
         too_big = getattr(data, "code", None) == WS_MESSAGE_TOO_BIG
         raise PageError("oversized" if too_big else "malformed", f"WebSocket error: {data}")
     if isinstance(data, bytes):
@@ -207,6 +222,8 @@ def parse_page_message(data: str | bytes) -> dict:
         return {"type": "recenter", "head": _array(msg.head)}
     if isinstance(msg, SessionMessage):
         return {"type": "session", "mode": msg.mode, "active": msg.active}
+    if isinstance(msg, ResponseMessage):
+        return {"type": "response", "index": msg.index, "option": msg.option, "time": msg.time}
     return {"type": "stats", "fps": msg.fps}
 
 

@@ -30,7 +30,8 @@ log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(str(resources.files("touch4d.web") / "static"))
 WS_MAX_MESSAGE = 1 << 20     # larger WebSocket messages close the connection (the page reconnects)
-WS_HEARTBEAT_S = 2.0         # a page that answers no ping within this is closed
+WS_HEARTBEAT_S = 2.0         # a page that answers no ping within this is closed (it does not read)
+MAX_PAGES = 64               # pages connected at once: one more is refused (HTTP 503)
 REFUSED = ("touch4d: this page needs the token that the webxr node printed (its URL or QR code in "
            "the terminal where touch4d runs).\n")
 
@@ -38,8 +39,9 @@ REFUSED = ("touch4d: this page needs the token that the webxr node printed (its 
 class _Client:
     """One page's WebSocket and what waits to be sent to it."""
 
-    def __init__(self, ws: web.WebSocketResponse):
+    def __init__(self, ws: web.WebSocketResponse, peer: str = ""):
         self.ws = ws
+        self.peer = peer     # the page's address (host:port), to name it in the log
         self.queue: collections.deque = collections.deque()
         self.latest: bytes | None = None
         self.wake = asyncio.Event()
@@ -49,7 +51,7 @@ class _Client:
 class PageServer:
     """HTTP + WebSocket server for the WebXR page, running until `stop()`."""
 
-    def __init__(self, host: str, port: int, token: str | None, ssl_context=None,
+    def __init__(self, host: str, port: int, token: str | None, ssl_context=None, max_pages: int = MAX_PAGES,
                  on_connect: Callable[[int], None] = lambda conn: None,
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None, static_dir: Path = STATIC_DIR):
@@ -57,6 +59,8 @@ class PageServer:
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
         self.static_dir = Path(static_dir)
         self.refused = 0
+        self.max_pages = max_pages
+        self.over_limit = 0      # connections refused because max_pages pages were connected
         self.clients: dict[int, _Client] = {}
         self._ids = itertools.count(1)
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -92,6 +96,11 @@ class PageServer:
         """Queue a frame for one page (in order, never dropped)."""
         if self._loop is not None:
             self._loop.call_soon_threadsafe(self._enqueue, conn, data, False, True)
+
+    def peer(self, conn: int) -> str:
+        """The address (host:port) of a connected page; '' once it has gone."""
+        client = self.clients.get(conn)
+        return client.peer if client is not None else ""
 
     def broadcast(self, data: bytes, latest: bool = False) -> None:
         """Queue a frame for every page; `latest` frames replace an unsent one."""
@@ -165,10 +174,18 @@ class PageServer:
         if origin is not None and urlsplit(origin).netloc != request.host:
             self.refused += 1
             return web.Response(status=403, text="touch4d: WebSocket from another origin refused\n")
+        if len(self.clients) >= self.max_pages:
+            # Each page costs a setup frame and a send queue: a flood of connections must not take
+            # the node's memory or its thread. A page that does not read is closed by the heartbeat.
+            self.over_limit += 1
+            return web.Response(status=503, text=f"touch4d: {self.max_pages} pages are connected already "
+                                                 "(the webxr node's max_pages); close one and reload\n")
         ws = web.WebSocketResponse(max_msg_size=WS_MAX_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
         await ws.prepare(request)
         conn = next(self._ids)
-        client = self.clients[conn] = _Client(ws)
+        transport_peer = request.transport.get_extra_info("peername") if request.transport else None
+        peer = f"{transport_peer[0]}:{transport_peer[1]}" if transport_peer else (request.remote or "?")
+        client = self.clients[conn] = _Client(ws, peer)
         sender = asyncio.ensure_future(self._sender(client))
         self.on_connect(conn)
         try:

@@ -7,6 +7,7 @@ import { InputReader } from './input.js';
 import { Hud } from './hud.js';
 import { SceneRenderer } from './scene.js';
 import { Orbit } from './orbit.js';
+import { StudyButtons, StudyPanel } from './study.js';
 import { fromPose, multiply, perspective } from './mat.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
@@ -19,9 +20,11 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
+  study: null, drawObjects: true, answers: 0, panel: [],
 });
 
-let hud = null, scene = null, orbit = null;   // made when the node's setup frame (with the shaders) arrives
+// made when the node's setup frame (with the shaders) arrives
+let hud = null, scene = null, orbit = null, panel = null;
 let screenModel = null;   // screen units -> the room, from the setup frame
 
 if (!gl) {
@@ -37,6 +40,12 @@ function place(header) {
   screenModel = fromPose(header.screen_center, header.screen_rotation, header.screen_edge / 2);
 }
 
+// The page's own answer buttons; the controller's go with the input messages.
+const buttons = new StudyButtons(document.getElementById('study'), (index, option) => {
+  link.send({ type: 'response', index, option, time: performance.timeOrigin + performance.now() });
+  state.answers++;
+});
+
 const link = new Link((message) => {
   const { header } = message;
   if (header.kind === 'setup') {
@@ -48,6 +57,7 @@ const link = new Link((message) => {
         // the GPU renderer's shaders, compiled here as GLSL ES 3.00
         scene = new SceneRenderer(gl, header.shaders, header.style, message.arrays.cell_palette);
         hud = new Hud(gl, header.shaders);
+        panel = new StudyPanel(gl);
       } catch (error) {
         state.error = String(error);
         statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
@@ -59,12 +69,23 @@ const link = new Link((message) => {
   } else if (header.kind === 'geometry') {
     state.geometry = header.key;
     if (scene) scene.setGeometry(message);
+  } else if (header.kind === 'driver') {
+    state.otherDriver = header.driver ? null : header.by;   // another page drives the hand: say so
+    showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
     const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
     state.motorsOn = message.arrays.intensity.filter((v) => v > threshold).length;
     if (scene) scene.setFrame(message);
     if (hud) hud.update(message);
+    // a running study: its question, and whether its condition lets objects be drawn
+    state.study = header.study || null;
+    state.drawObjects = header.draw_objects !== false;
+    if (panel) {
+      panel.update(state.study);
+      state.panel = panel.lines;
+    }
+    buttons.update(state.study);
   }
 }, (connected) => { state.connected = connected; });
 
@@ -76,13 +97,14 @@ function drawWorld(framebuffer, size, viewport, projection, view, model) {
   if (!scene || !hud) return;
   const mvp = multiply(projection, multiply(view, model));
   const scale = Math.hypot(model[0], model[1], model[2]);   // room metres per screen unit
-  scene.draw(framebuffer, size, viewport, mvp);
+  if (state.drawObjects) scene.draw(framebuffer, size, viewport, mvp);
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
   gl.viewport(...viewport);
   gl.disable(gl.DEPTH_TEST);
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
   hud.draw(mvp, (scale * projection[5] * viewport[3]) / 2, viewport);
+  if (panel) panel.draw(mvp);
 }
 
 function clear(framebuffer, width, height) {
@@ -111,7 +133,8 @@ function showStatus() {
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
   const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
-  const hand = f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
+  const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
+    : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
                                            : 'touch4d: connecting to the node…';
 }

@@ -1,0 +1,166 @@
+"""Physics node: the scene node with 4D rigid-body physics (`scene:=physics`).
+
+Publishes `scene/state` as the scene node does (the bodies where physics has them, at `publish_rate`
+while anything moves, every 1/`rate` s for late joiners) and `physics/contacts` (contact points that
+struck harder than `contact_speed`, and the hand starting a push). Subscribes `hand/pose` (the hand pushes
+what it feels, touch4d.physics.push), `controller/state` (the trigger plus controller motion
+turns the selected object, paper §4.4; buttons run commands) and `scene/command` (the scene node's
+commands, and pause, play, step [N]). The world steps at the scene's fixed rate (1 kHz by default),
+as many steps as the clock says are due at each tick: the steps themselves never depend on the clock
+(touch4d.physics.session journals them).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from touch4d.bus import Node, Param
+from touch4d.errors import Touch4dError
+from touch4d.geometry.scene import load_scene
+from touch4d.messages import ControllerState, HandPose, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
+from touch4d.physics.config import load_physics
+from touch4d.physics.kernels import C_A, C_B, C_LAMBDA, C_NX, C_PX, C_SPEED
+from touch4d.physics.session import DEFAULT_BUTTONS, PhysicsSession, entry_to_map, split_buttons
+from touch4d.tactile.glove import load_glove
+from touch4d.tracking.calibration import load_calibration
+from touch4d.tracking.scene_control import ControlConfig
+
+
+class PhysicsNode(Node):
+    """The scene with 4D physics: bodies fall, collide and slide; the controller still turns them."""
+
+    default_name = "scene"
+    PARAMS = {
+        "scene": Param("config/scenes/physics-drop.yaml", "the scene file (with physics keys)", path="scene file"),
+        "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
+        "rate": Param(2.0, "scene/state repeats for late joiners", unit="Hz", above=0, max=1000),
+        "publish_rate": Param(60.0, "scene/state while anything moves (the renderer's rate)", unit="Hz", above=0,
+                              max=1000),
+        "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
+        "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
+        "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> command (next, reset, projection, pause, step)"),
+        "rotate": Param("object", "what the controller turns", choices=("object", "scene")),
+        "paused": Param(False, "start paused (scene/command play or step to run)"),
+        "max_steps": Param(200, "most steps per tick: a slower machine runs slow motion rather than stall", min=1),
+        "glove": Param("config/glove.yaml", "the glove whose samples push (as they feel)", path="glove file"),
+        "push_rate": Param(40.0, "how fast a pushed object takes up the hand's speed (0: the hand pushes nothing)",
+                           unit="1/s", min=0),
+        "contact_speed": Param(0.05, "closing speed from which a contact is an event on physics/contacts",
+                               unit="screen units/s", min=0),
+    }
+
+    def setup(self) -> None:
+        p = self.params
+        try:
+            scene_buttons, physics_buttons = split_buttons(p["buttons"])
+        except ValueError as exc:
+            raise self.param_error("buttons", str(exc)) from None
+        config = ControlConfig.from_params(gains=p["gains"], trigger_threshold=p["trigger_threshold"],
+                                           buttons=scene_buttons, rotate=p["rotate"], spin={},
+                                           source=self.param_where("gains")[0])
+        glove = load_glove(p["glove"]) if p["push_rate"] > 0 else None
+        self.session = PhysicsSession(load_scene(p["scene"]), load_physics(p["scene"]),
+                                      load_calibration(p["calibration"]), config, physics_buttons, paused=p["paused"],
+                                      glove=glove, push_rate=p["push_rate"])
+        self.dt = self.session.world.dt
+        self.counts = {"steps": 0, "late_steps": 0, "contact_events": 0, "bad_commands": 0}
+        self.pub = self.create_publisher("scene/state", SceneState)
+        self.contacts_pub = self.create_publisher("physics/contacts", PhysicsContacts)
+        self.journal_pub = self.create_publisher("physics/journal", PhysicsInput)
+        self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
+        self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
+        if glove is not None:
+            self.create_subscription("hand/pose", HandPose, self.on_hand, latest_only=True)
+        self.published_revision = -1
+        self.start: float | None = None       # the clock starts at the first tick, not during set-up
+        self.clock_steps = 0
+        self.create_timer(1.0 / p["publish_rate"], self.tick)
+        self.create_timer(1.0 / p["rate"], self.publish)
+        # what a replay needs to rebuild this node (touch4d physics replay), repeated for late recorders
+        self.start_args = {"scene": str(p["scene"]), "calibration": str(p["calibration"]), "glove": str(p["glove"]),
+                           "push_rate": float(p["push_rate"]), "gains": dict(p["gains"]),
+                           "trigger_threshold": float(p["trigger_threshold"]), "buttons": dict(p["buttons"]),
+                           "rotate": str(p["rotate"])}
+        self.create_timer(1.0 / p["rate"], self.publish_start)
+        self.publish_start()
+        self.publish()
+        w = self.session.world
+        self.log.info("scene %s: %d bodies (%d static), %g Hz steps, gravity %s%s", p["scene"], len(w.names),
+                      int(w.static.sum()), 1.0 / self.dt, w.gravity.tolist(), ", paused" if p["paused"] else "")
+
+    def on_controller(self, msg: ControllerState) -> None:
+        self.session.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid)
+        self.flush_journal()
+
+    def publish_start(self) -> None:
+        self.journal_pub.publish(PhysicsInput(step=0, kind="start", args=self.start_args))
+
+    def flush_journal(self) -> None:
+        """Publish the journal's new entries (a recording of them replays to the same states), then forget them."""
+        for entry in self.session.journal:
+            self.journal_pub.publish(PhysicsInput(step=entry.step, kind=entry.kind, args=entry_to_map(entry)))
+        self.session.journal.clear()
+
+    def on_hand(self, msg: HandPose) -> None:
+        try:
+            self.session.on_hand(msg.position, msg.orientation, msg.valid)
+        except Touch4dError as exc:      # a pose the tactile model refuses (PoseError): no push from it
+            self.warn_once(str(exc), f"hand/pose ignored: {exc}")
+        self.flush_journal()
+
+    def on_command(self, msg: SceneCommand) -> None:
+        try:
+            self.session.command(msg.command, msg.argument)
+        except ValueError as exc:
+            self.counts["bad_commands"] += 1
+            self.log.warning("scene/command ignored: %s", exc)
+        self.flush_journal()
+
+    def tick(self) -> None:
+        """Run the steps the clock says are due, then publish what moved and what struck."""
+        if self.start is None:
+            self.start = time.monotonic()
+        due = int((time.monotonic() - self.start) / self.dt) - self.clock_steps
+        if due > self.params["max_steps"]:
+            self.counts["late_steps"] += due - self.params["max_steps"]
+            self.warn_once("late", f"physics falls behind the clock: at most {self.params['max_steps']} steps per "
+                                   "tick, the rest dropped (slow motion)", every=10.0)
+            due = self.params["max_steps"]
+        self.clock_steps += due
+        before = self.session.state.steps
+        contacts = self.session.advance(max(due, 0))
+        self.counts["steps"] += self.session.state.steps - before
+        self.publish_contacts(contacts)
+        self.flush_journal()
+        if self.session.control.scene.revision != self.published_revision:
+            self.publish()
+
+    def publish_contacts(self, contacts) -> None:
+        rows = [c.rows[(c.rows[:, C_SPEED] < -self.params["contact_speed"]) & (c.rows[:, C_LAMBDA] > 0)]
+                for c in contacts]
+        rows = [r[:, :C_SPEED + 1] for r in rows if len(r)]
+        for body, point, normal, impulse, speed in self.session.hand_events:    # the hand starts a push
+            if speed > self.params["contact_speed"]:
+                row = np.zeros(C_SPEED + 1)
+                row[C_A], row[C_B], row[C_LAMBDA], row[C_SPEED] = -1, body, impulse, -speed
+                row[C_PX:C_PX + 4], row[C_NX:C_NX + 4] = point, normal
+                rows.append(row[None])
+        self.session.hand_events.clear()
+        if not rows:
+            return
+        hits = np.concatenate(rows)
+        self.counts["contact_events"] += len(hits)
+        s = self.session.state
+        self.contacts_pub.publish(PhysicsContacts(
+            names=list(self.session.world.names), a=hits[:, C_A].astype(np.int64), b=hits[:, C_B].astype(np.int64),
+            points=hits[:, C_PX:C_PX + 4].copy(), normals=hits[:, C_NX:C_NX + 4].copy(),
+            impulses=hits[:, C_LAMBDA].copy(), speeds=-hits[:, C_SPEED], step=int(s.steps), time=float(s.time)))
+
+    def publish(self) -> None:
+        self.pub.publish(self.session.message())
+        self.published_revision = self.session.control.scene.revision
+
+    def on_shutdown(self) -> None:
+        self.log.info("%d steps (%.3f s simulated): %s", self.session.state.steps, self.session.state.time, self.counts)
+

@@ -1,0 +1,229 @@
+"""The analysis recovers known effects from synthetic trial tables drawn with known probabilities;
+information transfer matches its closed forms."""
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.special import ndtr
+
+from touch4d.cli import main
+from touch4d.study.analysis import analyze, cell_summary, fit_psychometric, load, psychometric
+from touch4d.study.infotransfer import information_transfer
+from touch4d.study.table import COLUMNS, write_rows
+
+CONDITIONS = ("visual", "touch", "visual+touch")
+
+
+def synthetic(rng, participants, trials, p_correct, *, task="looks", options=("a", "b", "c"), spread=0.0):
+    """Rows of a trials.csv: each participant answers `trials` trials per condition, correct with
+    probability p_correct[condition] (on the logit scale shifted by a participant effect of sd `spread`),
+    otherwise one of the other options at random."""
+    rows = []
+    for i in range(participants):
+        shift = rng.normal(0, spread)
+        for c, condition in enumerate(CONDITIONS):
+            p = 1 / (1 + math.exp(-(math.log(p_correct[condition] / (1 - p_correct[condition])) + shift)))
+            for t in range(trials):
+                answer = options[rng.integers(len(options))]
+                correct = rng.random() < p
+                response = answer if correct else rng.choice([o for o in options if o != answer])
+                rows.append(row(f"P{i + 1:02d}", c, t, task, "look-alikes", condition, answer, answer, response,
+                                math.nan, rt=float(rng.lognormal(1.0, 0.3))))
+    return rows
+
+
+def row(participant, block, trial, task, kind, condition, stimulus, answer, response, level, rt=2.0, practice=False):
+    timed_out = response is None
+    return {"participant": participant, "session": "1", "block": block, "trial": trial, "index": block * 1000 + trial,
+            "practice": practice, "task": task, "kind": kind, "condition": condition, "stimulus": stimulus,
+            "level": level, "transform": "[]", "answer": answer, "response": "" if timed_out else response,
+            "correct": (not timed_out) and response == answer, "rt_s": math.nan if timed_out else rt,
+            "timed_out": timed_out, "time_touching_s": 1.0, "mean_intensity": 0.3, "path_length": 0.5,
+            "onset_stamp": 0.0, "response_stamp": rt, "seed": 0}
+
+
+def write_sessions(tmp_path, rows):
+    for participant in sorted({r["participant"] for r in rows}):
+        write_rows(tmp_path / participant / "trials.csv", [r for r in rows if r["participant"] == participant])
+    return tmp_path
+
+
+# ---- accuracy and intervals -----------------------------------------------------------------------------
+
+
+def test_accuracy_per_cell_recovers_the_generating_probabilities(tmp_path):
+    truth = {"visual": 0.4, "touch": 0.8, "visual+touch": 0.9}
+    rows = synthetic(np.random.default_rng(1), 8, 60, truth)
+    rows.append(row("P01", 0, 999, "looks", "look-alikes", "visual", "a", "a", "b", math.nan, practice=True))
+    data = load(write_sessions(tmp_path, rows))
+    assert len(data) == 8 * 60 * 3                      # the practice trial is left out
+    result = analyze(data, bootstrap=0, tests=False)
+    for condition, p in truth.items():
+        cell = result["tasks"]["looks"][condition]
+        assert cell["n"] == 480
+        assert abs(cell["accuracy"] - p) < 3 * math.sqrt(p * (1 - p) / 480)
+        assert cell["ci95"][0] < p < cell["ci95"][1]
+        assert cell["chance"] == pytest.approx(1 / 3)
+        rt = data.loc[data["condition"] == condition, "rt_s"]
+        assert cell["rt_s"] == pytest.approx(np.median(rt))
+        assert cell["rt_iqr_s"] == pytest.approx(list(np.percentile(rt, [25, 75])))
+    assert result["tasks"]["looks"]["visual"]["p_above_chance"] < 0.05
+    counts = np.array(result["confusion"]["looks"]["touch"]["counts"])
+    assert counts.sum() == 480 and np.trace(counts) == result["tasks"]["looks"]["touch"]["correct"]
+
+
+def test_wilson_intervals_cover_the_true_accuracy_about_95_percent_of_the_time():
+    rng = np.random.default_rng(7)
+    p, n, runs = 0.7, 40, 400
+    hits = 0
+    for _ in range(runs):
+        correct = rng.random(n) < p
+        cell = pd.DataFrame({"correct": correct, "timed_out": False, "rt_s": 1.0, "participant": "P01",
+                             "time_touching_s": 0.0, "mean_intensity": 0.0, "path_length": 0.0})
+        low, high = cell_summary(cell, 0.5)["ci95"]
+        hits += low <= p <= high
+    assert 0.92 <= hits / runs <= 0.98                  # 0.95 +- 2.7 standard errors of 400 runs
+
+
+def test_timeouts_count_as_wrong_and_have_their_own_column(tmp_path):
+    rows = [row("P01", 0, t, "looks", "look-alikes", "touch", "a", "a", "a" if t < 6 else None, math.nan)
+            for t in range(10)]
+    result = analyze(load(write_sessions(tmp_path, rows)), bootstrap=0, tests=False)
+    cell = result["tasks"]["looks"]["touch"]
+    assert (cell["accuracy"], cell["timed_out"]) == (0.6, 4)
+    assert result["confusion"]["looks"]["touch"]["responses"] == ["a", "(timed out)"]
+
+
+# ---- psychometric function ------------------------------------------------------------------------------
+
+
+def tilt_rows(rng, pse, sigma, lapse, per_level, condition="touch", participant="P01"):
+    rows = []
+    for level in (-16, -8, -4, -2, 2, 4, 8, 16):
+        p = lapse / 2 + (1 - lapse) * ndtr((level - pse) / sigma)
+        for t in range(per_level):
+            answer = "right" if level > 0 else "left"
+            response = "right" if rng.random() < p else "left"
+            rows.append(row(participant, 0, t, "tilt", "tilt", condition, f"tilt{level:+d}", answer, response,
+                            float(level)))
+    return rows
+
+
+def test_the_psychometric_fit_recovers_threshold_pse_and_lapse():
+    rng = np.random.default_rng(3)
+    data = pd.DataFrame(tilt_rows(rng, pse=1.0, sigma=4.0, lapse=0.04, per_level=150))
+    data["timed_out"] = False
+    fit = psychometric(data, bootstrap=60, seed=1)
+    assert fit["positive"] == "right"
+    assert fit["threshold_deg"] == pytest.approx(0.6745 * 4.0, abs=0.35)
+    assert fit["pse_deg"] == pytest.approx(1.0, abs=0.5)
+    assert fit["lapse"] < 0.1
+    low, high = fit["ci95"]["threshold_deg"]
+    assert low < 0.6745 * 4.0 < high and high - low < 1.5
+
+
+def test_a_steeper_observer_gets_a_lower_threshold():
+    rng = np.random.default_rng(4)
+    for sigma in (1.5, 6.0):
+        rows = tilt_rows(rng, 0.0, sigma, 0.0, 80)
+        level = np.array([r["level"] for r in rows])
+        positive = np.array([r["response"] == "right" for r in rows], dtype=float)
+        assert fit_psychometric(level, positive)["sigma_deg"] == pytest.approx(sigma, rel=0.3)
+
+
+# ---- the effect of condition --------------------------------------------------------------------------------
+
+
+def test_the_tests_detect_a_planted_condition_effect(tmp_path):
+    rows = synthetic(np.random.default_rng(11), 10, 40, {"visual": 0.45, "touch": 0.75, "visual+touch": 0.8},
+                     spread=0.5)
+    test = analyze(load(write_sessions(tmp_path, rows)), bootstrap=0)["tests"]["looks"]
+    assert test["reference"] == "visual"
+    assert test["gee"]["p"] < 1e-3 and test["gee"]["df"] == 2
+    assert test["gee"]["effects"]["touch"]["log_odds"] > 0.5
+    assert test["mixed"]["effects"]["touch"]["credible"] and test["mixed"]["effects"]["visual+touch"]["credible"]
+
+
+def test_the_tests_find_no_effect_where_none_was_planted(tmp_path):
+    rows = synthetic(np.random.default_rng(12), 10, 40, {c: 0.7 for c in CONDITIONS}, spread=0.5)
+    test = analyze(load(write_sessions(tmp_path, rows)), bootstrap=0)["tests"]["looks"]
+    assert test["gee"]["p"] > 0.05
+    assert not any(e["credible"] for e in test["mixed"]["effects"].values())
+
+
+# ---- information transfer ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [2, 3, 8])
+def test_information_transfer_of_a_perfect_identification_is_log2_n(n):
+    assert information_transfer(np.eye(n) * 7) == pytest.approx(math.log2(n))
+
+
+def test_information_transfer_of_answers_unrelated_to_the_stimulus_is_zero():
+    assert information_transfer(np.full((3, 3), 5)) == pytest.approx(0.0, abs=1e-12)
+    assert information_transfer(np.outer([1, 2, 3], [4, 1, 1])) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_information_transfer_of_a_symmetric_binary_channel():
+    e = 0.2   # 1 - H(e) bits
+    expected = 1 + e * math.log2(e) + (1 - e) * math.log2(1 - e)
+    assert information_transfer([[80, 20], [20, 80]]) == pytest.approx(expected)
+
+
+# ---- the command ----------------------------------------------------------------------------------------------
+
+
+def test_analyze_prints_json_with_the_agreed_names_and_writes_a_report(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    rows = synthetic(rng, 3, 12, {"visual": 0.4, "touch": 0.8, "visual+touch": 0.9})
+    rows += tilt_rows(rng, 0.0, 3.0, 0.0, 6, participant="P02")
+    write_sessions(tmp_path, rows)
+    assert main(["study", "analyze", str(tmp_path), "--json", "--bootstrap", "20"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    cell = out["tasks"]["looks"]["touch"]
+    assert {"accuracy", "n", "ci95", "rt_s"} <= set(cell) and cell["n"] == 36
+    assert out["psychometric"]["tilt"]["touch"]["threshold_deg"] > 0
+    report = (tmp_path / "report.html").read_text()
+    assert out["report"] == str(tmp_path / "report.html")
+    assert report.count("<img") >= 4 and "data:image/png;base64," in report
+    # one session folder, or its trials.csv, is analysed alone
+    assert main(["study", "analyze", str(tmp_path / "P02" / "trials.csv"), "--json", "--no-report",
+                 "--bootstrap", "0"]) == 0
+    assert json.loads(capsys.readouterr().out)["participants"] == ["P02"]
+
+
+def test_analyze_names_a_folder_without_tables(tmp_path, capsys):
+    assert main(["study", "analyze", str(tmp_path)]) == 2
+    assert "trials.csv" in capsys.readouterr().err
+
+
+def test_a_table_without_the_columns_is_named(tmp_path, capsys):
+    (tmp_path / "trials.csv").write_text("participant,correct\nP01,1\n")
+    assert main(["study", "analyze", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "trials.csv") in err and "missing" in err and COLUMNS[1] in err
+
+
+def test_each_participant_gets_a_threshold_of_their_own():
+    rng = np.random.default_rng(8)
+    rows = tilt_rows(rng, 0.0, 1.5, 0.0, 40, participant="P01") + tilt_rows(rng, 0.0, 6.0, 0.0, 40, participant="P02")
+    data = pd.DataFrame(rows)
+    data["timed_out"] = False
+    own = psychometric(data, bootstrap=0)["threshold_by_participant"]
+    assert own["P01"] == pytest.approx(0.6745 * 1.5, rel=0.4) and own["P02"] == pytest.approx(0.6745 * 6.0, rel=0.4)
+
+
+def test_a_bad_cell_names_file_line_and_column(tmp_path, capsys):
+    rows = synthetic(np.random.default_rng(1), 1, 3, {c: 0.5 for c in CONDITIONS})
+    write_sessions(tmp_path, rows)
+    path = tmp_path / "P01" / "trials.csv"
+    lines = path.read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[COLUMNS.index("correct")] = "yes"
+    lines[3] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["study", "analyze", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "line 4, column correct" in err and "'yes'" in err

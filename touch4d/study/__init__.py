@@ -1,0 +1,22 @@
+"""Studies: measure what touch adds to vision, with many participants (paper §6-7), and predict the
+outcome with model observers before anyone is recruited.
+
+- `design`: study files (config/studies/*.yaml): tasks, stimuli, conditions, repetitions, practice,
+  breaks, time limits, the run constraint; `load_study(path)`.
+- `plan`: a participant's session from (study, participant id) alone: `plan_session`,
+  `quick_plan` (`--quick`: one repetition per task x condition cell, i.e. every stimulus once per
+  condition, no practice), `condition_order`, `participant_index`, `participant_ids(n)`; `Trial`.
+- `stimuli`: a trial's scene (`trial_scene`) and the same as a scene-file mapping (`scene_mapping`);
+  `stimulus_scene(study, task, stimulus, level, transform)` for any stimulus.
+- `observer`: `ModelObserver(glove, study, noise=, visual_noise=, lapse=, seed=)` with `explore(trial,
+  rng)` and `respond(trial, patterns | None, scene | None, rng)`; `every_sample_glove(glove)`.
+- `simulate`: the offline simulation (no bus) into session folders; `table`: trials.csv (`COLUMNS`,
+  `read_trials`); `analysis`: `touch4d study analyze`; `infotransfer`: bits from a confusion matrix
+  and predicted per glove.
+
+Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
+it: every `break_every` trials within a block, never before a block's first); the model observer's
+constructor also takes `exploration`, `train_scenes`, `train_positions` and `view_scenes` (how much
+it is trained: fewer for a quick run); `trial_row`-style writers use `table.COLUMNS`, the one
+declaration of the trials.csv columns that the analysis reads.
+"""

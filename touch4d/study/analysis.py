@@ -1,0 +1,601 @@
+"""The analysis of a study's trials (`touch4d study analyze DIR`): what touch adds, with intervals.
+
+Per task x condition (practice trials left out): accuracy with its 95% Wilson interval and a
+binomial test against chance, answer times (median, IQR), the confusion matrix and the information
+it transfers (bits). Per tilt task and condition: a psychometric function, P(answering the option of
+positive tilts) = lapse/2 + (1 - lapse) Phi((level - pse) / sigma), fitted by maximum likelihood,
+with percentile-bootstrap intervals; threshold = the tilt answered correctly 75% of the time (lapses
+aside), sigma Phi^-1(0.75). Per task, the effect of condition: a GEE logistic model (participants as
+clusters, exchangeable correlation) with a joint Wald test, and a mixed-effects logistic model
+(condition fixed, participant random; statsmodels' BinomialBayesMixedGLM, variational Bayes).
+Statistics are statsmodels', scipy's and pandas'; plots matplotlib's.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import warnings
+
+import numpy as np
+from scipy.stats import norm
+
+from touch4d.errors import Touch4dError, Unavailable
+
+from .design import KINDS
+from .infotransfer import information_transfer
+from .table import read_trials
+
+CONDITION_ORDER = ("visual", "touch", "visual+touch")
+TIMED_OUT = "(timed out)"
+
+
+class AnalysisError(Touch4dError):
+    """Trials that cannot be analysed as asked (says why)."""
+
+
+def _require():
+    try:
+        import pandas  # noqa: F401
+        import scipy  # noqa: F401
+        import statsmodels  # noqa: F401
+    except ImportError as exc:
+        raise Unavailable(f"the analysis needs {exc.name}: pip install 'touch4d[study]'") from None
+
+
+def load(where):
+    """The trials at or below `where`, practice trials left out."""
+    _require()
+    data = read_trials(where)
+    return data[~data["practice"]].reset_index(drop=True)
+
+
+def conditions_in(data) -> list[str]:
+    """The conditions present, in the usual order (visual, touch, visual+touch), others after."""
+    present = list(dict.fromkeys(data["condition"]))
+    return [c for c in CONDITION_ORDER if c in present] + [c for c in present if c not in CONDITION_ORDER]
+
+
+def tasks_in(data) -> list[str]:
+    """The tasks present, in the order of their kinds (front element, look-alikes, tilt), then by id."""
+    kinds = {k: i for i, k in enumerate(KINDS)}
+    first = data.drop_duplicates("task")
+    return [str(t) for t in sorted(first["task"], key=lambda t: (
+        kinds.get(first.loc[first["task"] == t, "kind"].iloc[0], len(kinds)), str(t)))]
+
+
+def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) -> dict:
+    """Everything the report shows, as plain data (JSON-ready)."""
+    _require()
+    if len(data) == 0:
+        raise AnalysisError("no trials to analyse (only practice trials, or empty tables)")
+    conditions = conditions_in(data)
+    tasks = tasks_in(data)
+    result = {
+        "trials": int(len(data)), "participants": sorted(map(str, data["participant"].unique())),
+        "conditions": conditions, "tasks": {}, "cells": [], "confusion": {}, "psychometric": {}, "tests": {},
+        "by_participant": [],
+    }
+    for task in tasks:
+        rows = data[data["task"] == task]
+        chance = 1.0 / rows["answer"].nunique()
+        result["tasks"][task] = {}
+        result["confusion"][task] = {}
+        for condition in conditions:
+            cell = rows[rows["condition"] == condition]
+            if len(cell) == 0:
+                continue
+            summary = cell_summary(cell, chance)
+            confusion = confusion_matrix(cell)
+            summary["information_bits"] = information_transfer(confusion.to_numpy())
+            summary["max_bits"] = math.log2(max(2, cell["answer"].nunique()))
+            result["tasks"][task][condition] = summary
+            result["cells"].append({"task": task, "condition": condition, **summary})
+            result["confusion"][task][condition] = {
+                "answers": list(confusion.index), "responses": list(confusion.columns),
+                "counts": confusion.to_numpy().astype(int).tolist()}
+            for participant, own in cell.groupby("participant"):
+                result["by_participant"].append({"task": task, "condition": condition, "participant": str(participant),
+                                                 "n": int(len(own)), "accuracy": float(own["correct"].mean())})
+        if (rows["kind"] == "tilt").any():
+            result["psychometric"][task] = {
+                condition: psychometric(rows[rows["condition"] == condition], bootstrap=bootstrap, seed=seed)
+                for condition in conditions if (rows["condition"] == condition).any()}
+        if tests:
+            result["tests"][task] = condition_tests(rows, conditions)
+    return result
+
+
+def cell_summary(cell, chance: float) -> dict:
+    """Accuracy (Wilson 95% interval, binomial test against chance), answer times, exploration."""
+    from scipy.stats import binomtest
+    from statsmodels.stats.proportion import proportion_confint
+
+    n, k = int(len(cell)), int(cell["correct"].sum())
+    low, high = proportion_confint(k, n, alpha=0.05, method="wilson")
+    answered = cell.loc[~cell["timed_out"], "rt_s"].dropna()
+    quartiles = answered.quantile([0.25, 0.5, 0.75]).tolist() if len(answered) else [math.nan] * 3
+    return {
+        "accuracy": k / n, "n": n, "correct": k, "ci95": [float(low), float(high)], "chance": chance,
+        "p_above_chance": float(binomtest(k, n, chance, alternative="greater").pvalue),
+        "rt_s": _num(quartiles[1]), "rt_iqr_s": [_num(quartiles[0]), _num(quartiles[2])],
+        "timed_out": int(cell["timed_out"].sum()), "participants": int(cell["participant"].nunique()),
+        "time_touching_s": _num(cell["time_touching_s"].median()),
+        "mean_intensity": _num(cell["mean_intensity"].mean()),
+        "path_length": _num(cell["path_length"].median()),
+    }
+
+
+def confusion_matrix(cell):
+    """Counts of each response (columns; timed-out trials as their own column) per correct answer (rows)."""
+    import pandas as pd
+
+    responses = cell["response"].where(~cell["timed_out"] & (cell["response"] != ""), TIMED_OUT)
+    table = pd.crosstab(cell["answer"], responses)
+    labels = list(dict.fromkeys(sorted(cell["answer"].unique()) + sorted(set(responses) - {TIMED_OUT})))
+    columns = labels + ([TIMED_OUT] if TIMED_OUT in set(responses) else [])
+    return table.reindex(index=sorted(cell["answer"].unique()), columns=columns, fill_value=0)
+
+
+# ---- psychometric function --------------------------------------------------------------------------
+
+LAPSE_MAX = 0.2
+
+
+def psychometric_curve(level, pse: float, sigma: float, lapse: float):
+    """P(answering the positive option) at a signed level."""
+    from scipy.special import ndtr
+
+    return lapse / 2.0 + (1.0 - lapse) * ndtr((np.asarray(level, dtype=float) - pse) / sigma)
+
+
+def fit_psychometric(level, positive) -> dict:
+    """Maximum-likelihood pse, sigma and lapse (0..0.2) of `psychometric_curve` for trials at signed
+    `level` answered positive (1) or not (0): the binomial log-likelihood maximised by scipy (L-BFGS-B)."""
+    from scipy.optimize import minimize
+    from scipy.special import ndtr, xlogy
+
+    level = np.asarray(level, dtype=float)
+    positive = np.asarray(positive, dtype=float)
+    levels, where = np.unique(level, return_inverse=True)
+    n = np.bincount(where, minlength=len(levels)).astype(float)
+    k = np.bincount(where, weights=positive, minlength=len(levels))
+    spread = max(float(np.std(level)), 1e-3)
+
+    def nll(theta):
+        pse, log_sigma, lapse = theta
+        p = lapse / 2.0 + (1.0 - lapse) * ndtr((levels - pse) / (spread * np.exp(log_sigma)))
+        p = np.clip(p, 1e-12, 1.0 - 1e-12)
+        return -float(np.sum(xlogy(k, p) + xlogy(n - k, 1.0 - p)))
+
+    bounds = [(levels.min() - spread, levels.max() + spread), (math.log(1e-3), math.log(50.0)), (0.0, LAPSE_MAX)]
+    best = None
+    for start in ((0.0, math.log(0.3), 0.02), (0.0, math.log(0.05), 0.02), (0.0, math.log(2.0), 0.1)):
+        fit = minimize(nll, np.array(start), method="L-BFGS-B", bounds=bounds)
+        if best is None or fit.fun < best.fun:
+            best = fit
+    pse, log_sigma, lapse = best.x
+    sigma = spread * math.exp(log_sigma)
+    return {"pse_deg": float(pse), "sigma_deg": sigma, "lapse": float(lapse), "threshold_deg": sigma * _Z75,
+            "slope_per_deg": (1.0 - lapse) * _PHI0 / sigma}
+
+
+_Z75 = float(norm.ppf(0.75))      # 75% correct lies 0.674 sigma from the pse
+_PHI0 = float(norm.pdf(0.0))      # the slope of Phi at the pse, per sigma
+_PSYCHOMETRIC_KEYS = ("pse_deg", "threshold_deg", "sigma_deg", "slope_per_deg", "lapse")
+
+
+def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
+    """The psychometric fit of one tilt task x condition, with percentile-bootstrap 95% intervals
+    (scipy.stats.bootstrap, trials resampled)."""
+    from scipy.stats import bootstrap as scipy_bootstrap
+
+    cell = cell[~cell["timed_out"] & cell["level"].notna()]
+    if len(cell) < 4 or cell["level"].nunique() < 2:
+        return {"error": "too few trials or levels for a psychometric fit", "n": int(len(cell))}
+    positive_option = _positive_option(cell)
+    level = cell["level"].to_numpy(float)
+    positive = (cell["response"] == positive_option).to_numpy(float)
+    fit = fit_psychometric(level, positive)
+    out = {**fit, "positive": positive_option, "n": int(len(cell))}
+    levels = np.unique(level)
+    # A threshold past the largest level shown is no measurement of one: the answers barely follow the level.
+    out["within_range"] = bool(fit["threshold_deg"] <= np.abs(levels).max())
+    out["levels"] = levels.tolist()
+    out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
+    out["trials_per_level"] = [int((level == x).sum()) for x in levels]
+    # Each participant's own threshold (no interval): what a paired comparison across conditions takes.
+    own = {}
+    for participant, rows in cell.groupby("participant"):
+        lv = rows["level"].to_numpy(float)
+        if len(rows) >= 4 and len(np.unique(lv)) >= 2:
+            f = fit_psychometric(lv, (rows["response"] == positive_option).to_numpy(float))
+            own[str(participant)] = f["threshold_deg"] if f["threshold_deg"] <= np.abs(levels).max() else None
+    out["threshold_by_participant"] = own
+    if bootstrap > 0:
+        def statistic(lv, pos):
+            if len(np.unique(lv)) < 2:
+                return np.full(len(_PSYCHOMETRIC_KEYS), np.nan)
+            f = fit_psychometric(lv, pos)
+            return np.array([f[key] for key in _PSYCHOMETRIC_KEYS])
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            boot = scipy_bootstrap((level, positive), statistic, paired=True, vectorized=False,
+                                   n_resamples=bootstrap, method="percentile", confidence_level=0.95,
+                                   random_state=np.random.default_rng(seed))
+        out["ci95"] = {key: [float(boot.confidence_interval.low[i]), float(boot.confidence_interval.high[i])]
+                       for i, key in enumerate(_PSYCHOMETRIC_KEYS)}
+        out["bootstrap"] = bootstrap
+    return out
+
+
+def _positive_option(cell) -> str:
+    """The option that positive levels answer (the correct answer of the positive-level trials)."""
+    answers = cell.loc[cell["level"] > 0, "answer"]
+    if answers.empty:
+        raise AnalysisError(f"task {cell['task'].iloc[0]}: no trial with a positive level to tell the options apart")
+    return str(answers.mode().iloc[0])
+
+
+# ---- the effect of condition --------------------------------------------------------------------------
+
+
+def condition_tests(rows, conditions: list[str]) -> dict:
+    """GEE (joint Wald test of condition, odds ratios against the reference) and the mixed-effects
+    logistic model, for one task. Reference: visual where present (the effect of adding touch)."""
+    present = [c for c in conditions if (rows["condition"] == c).any()]
+    if len(present) < 2:
+        return {"error": "one condition only: nothing to compare"}
+    reference = "visual" if "visual" in present else present[0]
+    frame = rows[["participant", "condition", "correct"]].copy()
+    frame["correct"] = frame["correct"].astype(float)
+    frame["participant"] = frame["participant"].astype(str)
+    out = {"reference": reference}
+    if frame["participant"].nunique() < 2:
+        out["gee"] = {"error": "one participant: a test across participants needs two or more"}
+        out["mixed"] = {"error": "one participant: a random effect needs two or more"}
+        return out
+    formula = f"correct ~ C(condition, Treatment(reference={reference!r}))"
+    out["gee"] = _gee(frame, formula, reference)
+    out["mixed"] = _mixed(frame, formula, reference)
+    return out
+
+
+def _term_name(name: str, reference: str) -> str:
+    """`C(condition, Treatment(...))[T.touch]` -> `touch`."""
+    return name.split("[T.", 1)[1].rstrip("]") if "[T." in name else name
+
+
+def _gee(frame, formula: str, reference: str) -> dict:
+    import statsmodels.api as sm
+    import statsmodels.formula.api as smf
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            model = smf.gee(formula, groups="participant", data=frame, family=sm.families.Binomial(),
+                            cov_struct=sm.cov_struct.Exchangeable())
+            fit = model.fit()
+            terms = fit.wald_test_terms(skip_single=False, scalar=True)
+            ci, pvalues = fit.conf_int(), fit.pvalues         # computed lazily: inside, so warnings are kept
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            return {"error": f"GEE failed: {exc}"}
+    table = terms.table
+    row = [name for name in table.index if name.startswith("C(condition")]
+    wald = table.loc[row[0]] if row else None
+    effects = {}
+    for name in fit.params.index:
+        if name.startswith("C(condition"):
+            effects[_term_name(name, reference)] = {
+                "log_odds": float(fit.params[name]), "ci95": [float(ci.loc[name, 0]), float(ci.loc[name, 1])],
+                "odds_ratio": float(math.exp(fit.params[name])) if abs(fit.params[name]) < 700 else math.inf,
+                "p": float(pvalues[name])}
+    clusters = frame["participant"].nunique()
+    note = (f"only {clusters} participants: GEE's robust errors are too small with fewer than about 10"
+            if clusters < 10 else None)
+    return {
+        "test": "GEE logistic, exchangeable within participant; joint Wald test of condition",
+        "chi2": float(wald["statistic"]) if wald is not None else math.nan,
+        "df": int(wald["df_constraint"]) if wald is not None else 0,
+        "p": float(wald["pvalue"]) if wald is not None else math.nan,
+        "effects": effects, "warnings": sorted({str(w.message).splitlines()[0] for w in caught})[:5],
+        **({"note": note} if note else {}),
+    }
+
+
+def _mixed(frame, formula: str, reference: str) -> dict:
+    from statsmodels.genmod.bayes_mixed_glm import BinomialBayesMixedGLM
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            model = BinomialBayesMixedGLM.from_formula(formula, {"participant": "0 + C(participant)"}, frame)
+            fit = model.fit_vb()
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            return {"error": f"mixed model failed: {exc}"}
+    effects = {}
+    for name, mean, sd in zip(model.exog_names, fit.fe_mean, fit.fe_sd):
+        if name.startswith("C(condition"):
+            effects[_term_name(name, reference)] = {
+                "log_odds": float(mean), "sd": float(sd),
+                "ci95": [float(mean - 1.959964 * sd), float(mean + 1.959964 * sd)],
+                "credible": bool(mean - 1.959964 * sd > 0 or mean + 1.959964 * sd < 0)}
+    return {
+        "test": "mixed-effects logistic (BinomialBayesMixedGLM, variational Bayes): condition fixed, "
+                "participant random",
+        "effects": effects, "participant_sd": float(np.exp(fit.vcp_mean[0])) if len(fit.vcp_mean) else math.nan,
+        "warnings": sorted({str(w.message).splitlines()[0] for w in caught})[:5],
+    }
+
+
+def _num(value) -> float | None:
+    value = float(value)
+    return None if math.isnan(value) else value
+
+
+# ---- text and HTML ------------------------------------------------------------------------------------
+
+
+def summary_text(result: dict) -> str:
+    """A terminal summary: accuracy with intervals, answer times, psychometric thresholds, tests."""
+    lines = [f"{result['trials']} trials, {len(result['participants'])} participants "
+             f"({', '.join(result['participants'][:8])}{' ...' if len(result['participants']) > 8 else ''})"]
+    lines.append(f"{'task':<12} {'condition':<13} {'n':>5} {'accuracy':>8}  {'95% CI':<15} {'chance':>6} "
+                 f"{'bits':>5} {'rt median':>9}")
+    for cell in result["cells"]:
+        lo, hi = cell["ci95"]
+        rt = f"{cell['rt_s']:.2f} s" if cell["rt_s"] is not None else "-"
+        lines.append(f"{cell['task']:<12} {cell['condition']:<13} {cell['n']:>5} {cell['accuracy']:>8.3f}  "
+                     f"[{lo:.3f}, {hi:.3f}]  {cell['chance']:>6.3f} {cell['information_bits']:>5.2f} {rt:>9}")
+    for task, fits in result["psychometric"].items():
+        for condition, fit in fits.items():
+            if "error" in fit:
+                lines.append(f"{task} {condition}: {fit['error']}")
+                continue
+            if not fit["within_range"]:
+                lines.append(f"{task} {condition}: no threshold within the levels shown (answers barely follow the "
+                             f"level; fitted {fit['threshold_deg']:.3g} deg, lapse {fit['lapse']:.3f})")
+                continue
+            ci = fit.get("ci95", {}).get("threshold_deg")
+            interval = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
+            lines.append(f"{task} {condition}: threshold {fit['threshold_deg']:.2f} deg{interval}, "
+                         f"pse {fit['pse_deg']:+.2f} deg, lapse {fit['lapse']:.3f}")
+    for task, test in result["tests"].items():
+        gee = test.get("gee", {})
+        if "p" in gee:
+            lines.append(f"{task}: condition effect (GEE Wald chi2({gee['df']}) = {gee['chi2']:.2f}, "
+                         f"p = {gee['p']:.3g}; reference {test['reference']})"
+                         + (f"; {gee['note']}" if gee.get("note") else ""))
+        elif "error" in test or "error" in gee:
+            lines.append(f"{task}: {test.get('error') or gee.get('error')}")
+    return "\n".join(lines)
+
+
+def figure_accuracy(result: dict, ax=None):
+    """Accuracy per task and condition with 95% intervals and the chance level (a matplotlib Figure)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(result["tasks"])
+    conditions = result["conditions"]
+    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.6)) if ax is None else (ax.figure, ax)
+    width = 0.8 / max(1, len(conditions))
+    colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
+    for j, condition in enumerate(conditions):
+        xs, ys, err = [], [], [[], []]
+        for i, task in enumerate(tasks):
+            cell = result["tasks"][task].get(condition)
+            if cell is None:
+                continue
+            xs.append(i + (j - (len(conditions) - 1) / 2) * width)
+            ys.append(cell["accuracy"])
+            err[0].append(max(0.0, cell["accuracy"] - cell["ci95"][0]))   # Wilson's ends may round past it
+            err[1].append(max(0.0, cell["ci95"][1] - cell["accuracy"]))
+        ax.bar(xs, ys, width * 0.92, yerr=err, capsize=3, label=condition, color=colors.get(condition))
+    for i, task in enumerate(tasks):
+        chance = next(iter(result["tasks"][task].values()))["chance"]
+        ax.hlines(chance, i - 0.45, i + 0.45, colors="k", linestyles="dashed", linewidth=1)
+    ax.set_xticks(range(len(tasks)), tasks)
+    ax.set_ylim(0, 1.2)
+    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.set_ylabel("proportion correct (95% CI)")
+    ax.set_title(f"accuracy, {len(result['participants'])} participants (95% Wilson CI; dashed: chance)", fontsize=10)
+    ax.legend(loc="upper center", ncol=len(conditions), fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig
+
+
+def figure_psychometric(result: dict, task: str, ax=None):
+    """The psychometric data and fits of a tilt task, one curve per condition."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fits = result["psychometric"][task]
+    fig, ax = plt.subplots(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
+    colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
+    for condition, fit in fits.items():
+        if "error" in fit:
+            continue
+        levels = np.asarray(fit["levels"])
+        ax.plot(levels, fit["p_positive"], "o", color=colors.get(condition), label=condition)
+        grid = np.linspace(levels.min(), levels.max(), 200)
+        ax.plot(grid, psychometric_curve(grid, fit["pse_deg"], fit["sigma_deg"], fit["lapse"]),
+                color=colors.get(condition))
+    positive = next((f["positive"] for f in fits.values() if "positive" in f), "positive")
+    ax.set_xlabel(f"{task} level (degrees)")
+    ax.set_ylabel(f"P(answer '{positive}')")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("psychometric functions (ML fit with lapses)", fontsize=10)
+    ax.legend(fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig
+
+
+def figure_summary(result: dict):
+    """Accuracy per task and condition beside the first tilt task's psychometric functions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tilt = next(iter(result["psychometric"]), None)
+    width = 1.9 + 1.9 * len(result["tasks"])
+    if tilt is None:
+        return figure_accuracy(result)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
+    figure_accuracy(result, ax=left)
+    figure_psychometric(result, tilt, ax=right)
+    fig.tight_layout()
+    return fig
+
+
+def figure_confusions(result: dict):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(result["confusion"])
+    conditions = result["conditions"]
+    fig, axes = plt.subplots(len(tasks), len(conditions), figsize=(3.0 * len(conditions), 2.6 * len(tasks)),
+                             squeeze=False)
+    for i, task in enumerate(tasks):
+        for j, condition in enumerate(conditions):
+            ax = axes[i][j]
+            table = result["confusion"][task].get(condition)
+            if table is None:
+                ax.axis("off")
+                continue
+            counts = np.asarray(table["counts"], dtype=float)
+            rates = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+            ax.imshow(rates, vmin=0, vmax=1, cmap="Blues")
+            ax.set_xticks(range(len(table["responses"])), table["responses"], rotation=45, fontsize=7, ha="right")
+            ax.set_yticks(range(len(table["answers"])), table["answers"], fontsize=7)
+            for (r, c), value in np.ndenumerate(counts):
+                ax.text(c, r, int(value), ha="center", va="center", fontsize=7,
+                        color="white" if rates[r, c] > 0.6 else "black")
+            ax.set_title(f"{task}, {condition}", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def figure_times(data):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    conditions = conditions_in(data)
+    tasks = tasks_in(data)
+    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.4))
+    groups, labels = [], []
+    for task in tasks:
+        for condition in conditions:
+            rt = data.loc[(data["task"] == task) & (data["condition"] == condition) & ~data["timed_out"], "rt_s"]
+            groups.append(rt.dropna().to_numpy())
+            labels.append(f"{task}\n{condition}")
+    ax.boxplot(groups, showfliers=False)
+    ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=6)
+    ax.set_ylabel("answer time (s)")
+    fig.tight_layout()
+    return fig
+
+
+def _png(fig) -> str:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def report_html(result: dict, data, title: str = "touch4d study") -> str:
+    """A self-contained HTML report (plots embedded as PNG) of `analyze`'s result."""
+    import pandas as pd
+
+    esc = html.escape
+    cells = pd.DataFrame(result["cells"])
+    if not cells.empty:
+        cells["95% CI"] = cells["ci95"].map(lambda c: f"[{c[0]:.3f}, {c[1]:.3f}]")
+        cells["RT IQR (s)"] = cells["rt_iqr_s"].map(
+            lambda c: "-" if c[0] is None else f"[{c[0]:.2f}, {c[1]:.2f}]")
+        cells = cells[["task", "condition", "n", "accuracy", "95% CI", "chance", "p_above_chance",
+                       "information_bits", "rt_s", "RT IQR (s)", "timed_out", "time_touching_s",
+                       "mean_intensity", "path_length"]]
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>",
+             "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+             "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
+             "img{max-width:100%}</style></head><body>",
+             f"<h1>{esc(title)}</h1>",
+             f"<p>{result['trials']} trials (practice left out) from {len(result['participants'])} participants: "
+             f"{esc(', '.join(result['participants']))}.</p>",
+             "<h2>Accuracy</h2>", f"<img alt='accuracy' src='data:image/png;base64,{_png(figure_accuracy(result))}'>",
+             cells.to_html(index=False, float_format=lambda v: f"{v:.3g}", na_rep="-") if not cells.empty else ""]
+    for task in result["psychometric"]:
+        parts.append(f"<h2>Psychometric function: {esc(task)}</h2>")
+        parts.append(f"<img alt='psychometric {esc(task)}' "
+                     f"src='data:image/png;base64,{_png(figure_psychometric(result, task))}'>")
+        rows = []
+        for condition, fit in result["psychometric"][task].items():
+            if "error" in fit:
+                rows.append({"condition": condition, "note": fit["error"]})
+                continue
+            row = {"condition": condition, "n": fit["n"]}
+            for key in _PSYCHOMETRIC_KEYS:
+                ci = fit.get("ci95", {}).get(key)
+                row[key] = f"{fit[key]:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
+            rows.append(row)
+        parts.append(pd.DataFrame(rows).to_html(index=False, na_rep=""))
+        own = pd.DataFrame({c: f.get("threshold_by_participant", {}) for c, f in result["psychometric"][task].items()})
+        if not own.empty:
+            parts.append("<p>Threshold (degrees) per participant; - where it lies beyond the levels shown:</p>")
+            parts.append(own.sort_index().to_html(float_format=lambda v: f"{v:.2f}", na_rep="-"))
+    parts.append("<h2>Effect of condition</h2>")
+    for task, test in result["tests"].items():
+        parts.append(f"<h3>{esc(task)}</h3>")
+        if "error" in test:
+            parts.append(f"<p>{esc(test['error'])}</p>")
+            continue
+        gee, mixed = test.get("gee", {}), test.get("mixed", {})
+        if "p" in gee:
+            parts.append(f"<p>{esc(gee['test'])}: chi2({gee['df']}) = {gee['chi2']:.2f}, p = {gee['p']:.3g} "
+                         f"(reference: {esc(test['reference'])}).</p>")
+        rows = []
+        for name, effect in gee.get("effects", {}).items():
+            mixed_effect = mixed.get("effects", {}).get(name, {})
+            rows.append({"condition vs " + test["reference"]: name,
+                         "GEE log odds [95% CI]": f"{effect['log_odds']:.2f} [{effect['ci95'][0]:.2f}, "
+                                                  f"{effect['ci95'][1]:.2f}]",
+                         "GEE p": f"{effect['p']:.3g}",
+                         "mixed model log odds [95% CrI]": (f"{mixed_effect['log_odds']:.2f} "
+                                                            f"[{mixed_effect['ci95'][0]:.2f}, "
+                                                            f"{mixed_effect['ci95'][1]:.2f}]")
+                         if mixed_effect else "-"})
+        if rows:
+            parts.append(pd.DataFrame(rows).to_html(index=False))
+        for label, part in (("GEE", gee), ("mixed model", mixed)):
+            if part.get("error"):
+                parts.append(f"<p>{label}: {esc(part['error'])}</p>")
+                continue
+            if part.get("note"):
+                parts.append(f"<p><small>{label}: {esc(part['note'])}</small></p>")
+            if part.get("warnings"):
+                parts.append(f"<p><small>{label} warnings: {esc('; '.join(part['warnings']))}</small></p>")
+    parts.append("<h2>Confusion matrices</h2>")
+    parts.append(f"<img alt='confusions' src='data:image/png;base64,{_png(figure_confusions(result))}'>")
+    parts.append("<h2>Answer times</h2>")
+    parts.append(f"<img alt='times' src='data:image/png;base64,{_png(figure_times(data))}'>")
+    if result["by_participant"]:
+        table = pd.DataFrame(result["by_participant"]).pivot_table(
+            index="participant", columns=["task", "condition"], values="accuracy")
+        parts.append("<h2>Accuracy per participant</h2>")
+        parts.append(table.to_html(float_format=lambda v: f"{v:.2f}", na_rep="-"))
+    parts.append("</body></html>")
+    return "\n".join(parts)

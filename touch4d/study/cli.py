@@ -1,0 +1,305 @@
+"""`touch4d study`: check a study file, plan a participant's session, run a study (simulated
+participants offline, or through the full stack), analyse its trials."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import time
+from pathlib import Path
+
+from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.errors import ConfigError, Unavailable
+
+
+
+def register(subparsers) -> None:
+    study = subparsers.add_parser("study", help="studies with many participants: check, plan, run, analyze",
+                                  description="Measure what touch adds to vision: study files, participants' "
+                                              "plans, simulated participants and the analysis.")
+    sub = study.add_subparsers(dest="study_command", metavar="SUBCOMMAND")
+    study.set_defaults(func=lambda args: (study.print_help(), 2)[1])
+
+    check = sub.add_parser("check", help="check a study file and summarise it",
+                           description="Read a study file (and every scene it names); print what a session holds.")
+    check.add_argument("file", metavar="FILE", help="study file (YAML), e.g. config/studies/paper.yaml")
+    check.set_defaults(func=run_check)
+
+    plan = sub.add_parser("plan", help="one participant's trials, in order",
+                          description="The condition order and every trial of a participant's session, from the "
+                                      "study and the participant id alone (P01, P02 ... take the counterbalancing "
+                                      "rows in turn).")
+    plan.add_argument("study", metavar="STUDY", help="study file")
+    plan.add_argument("--participant", required=True, metavar="ID", help="participant id, e.g. P01")
+    plan.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    plan.add_argument("--json", action="store_true", help="print JSON (a stable interface for scripts)")
+    plan.set_defaults(func=run_plan)
+
+    run = sub.add_parser("run", help="run a study: simulated participants, or a participant through the stack",
+                         description="--simulate --participants N: N model observers (P01 ...) answer every "
+                                     "trial; --offline runs them on the library alone (no bus), else through the "
+                                     "full stack. --participant ID: a real participant's session.")
+    run.add_argument("study", metavar="STUDY", help="study file")
+    run.add_argument("items", nargs="*", metavar="ROLE:=NODE",
+                     help="full stack: launch overrides, as for touch4d launch (tracker:=webxr, renderer:=none, "
+                          "study.iti_s:=1, ...)")
+    who = run.add_mutually_exclusive_group(required=True)
+    who.add_argument("--simulate", action="store_true", help="simulated participants (model observers)")
+    who.add_argument("--participant", metavar="ID", help="a participant's session through the full stack")
+    run.add_argument("--participants", type=_count, default=6, metavar="N", help="simulated participants (default 6)")
+    run.add_argument("--seed", type=int, default=0, metavar="S", help="the simulation's seed (default 0)")
+    run.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    run.add_argument("--out", required=True, metavar="DIR", help="output folder: one session folder per participant")
+    run.add_argument("--offline", action="store_true", help="simulate on the library alone, without a bus")
+    sim = run.add_argument_group("model observers (--simulate)")
+    sim.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    sim.add_argument("--every-sample", action="store_true",
+                     help="a motor at every sample point of the glove (the finest actuator resolution)")
+    sim.add_argument("--noise", type=_nonnegative, default=0.08, metavar="X",
+                     help="sensory noise on each motor, in units of full drive (default 0.08)")
+    sim.add_argument("--visual-noise", type=_nonnegative, default=0.5, metavar="X",
+                     help="noise on the view's features (default 0.5)")
+    sim.add_argument("--lapse", type=_probability, default=0.03, metavar="P", help="lapse rate (default 0.03)")
+    sim.add_argument("--spread", type=_nonnegative, default=0.25, metavar="X",
+                     help="between-participant spread of the noise, sd of its log (default 0.25)")
+    run.set_defaults(func=run_run)
+
+    transfer = sub.add_parser("transfer", help="bits one touch tells about each task's stimuli, with a glove",
+                              description="Before recruiting anyone: the information transferred (bits, "
+                                          "maximum-likelihood from the confusion matrix) per task by an observer "
+                                          "trained on the glove's motor patterns at random hand positions, "
+                                          "tested on new scenes and positions.")
+    transfer.add_argument("study", metavar="STUDY", help="study file")
+    transfer.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    transfer.add_argument("--every-sample", action="store_true",
+                          help="also a motor at every sample point of the glove, side by side")
+    transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
+    transfer.add_argument("--noise", type=_nonnegative, default=0.08, metavar="X",
+                          help="sensory noise on each motor, in units of full drive (default 0.08)")
+    transfer.add_argument("--scenes", type=_count, default=20, metavar="N",
+                          help="jittered scenes per stimulus, half of them held out (default 20)")
+    transfer.add_argument("--positions", type=_count, default=16, metavar="N",
+                          help="hand positions per scene (default 16)")
+    transfer.add_argument("--seed", type=int, default=0, metavar="S")
+    transfer.add_argument("--json", action="store_true", help="print JSON")
+    transfer.set_defaults(func=run_transfer)
+
+    analyze = sub.add_parser("analyze", help="analyse a study's trials (accuracy, times, psychometric fit, tests)",
+                             description="DIR holds session folders, each with trials.csv (or is one, or is a "
+                                         "trials.csv). Prints a summary (or JSON) and writes an HTML report.")
+    analyze.add_argument("dir", metavar="DIR", help="folder of sessions, a session folder or a trials.csv")
+    analyze.add_argument("--json", action="store_true", help="print the results as JSON")
+    analyze.add_argument("--report", metavar="FILE", help="HTML report (default: DIR/report.html)")
+    analyze.add_argument("--no-report", action="store_true", help="write no HTML report")
+    analyze.add_argument("--plot", metavar="FILE", help="also save the summary plot (accuracy, psychometric functions) "
+                                                     "as an image, e.g. results.png")
+    analyze.add_argument("--bootstrap", type=_count0, default=200, metavar="N",
+                         help="bootstrap resamples for the psychometric intervals (default 200; 0: none)")
+    analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
+    analyze.set_defaults(func=run_analyze)
+
+
+def _study(path):
+    from .design import DEFAULT_STUDY, load_study
+
+    return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
+
+
+def run_check(args) -> int:
+    from .plan import order_table, plan_session, quick_plan
+
+    study = _study(args.file)
+    trials = plan_session(study, "P01")
+    main = [t for t in trials if not t.practice]
+    print(f"{study.path}: study '{study.name}' is valid")
+    if study.description:
+        print(f"  {study.description.strip()}")
+    rows = order_table(study)
+    print(f"  conditions: {', '.join(study.conditions)} ({study.counterbalancing()} counterbalancing: "
+          f"{len(rows)} orders; participants in multiples of {len(rows)} balance them)")
+    for task in study.tasks:
+        names = task.stimulus_names()
+        count = sum(t.task == task.id for t in main)
+        print(f"  task {task.id} ({task.kind}): {len(names)} stimuli ({', '.join(names)}), options "
+              f"{'/'.join(task.options)}, {study.repetitions_of(task)} repetitions: {count} trials")
+    estimate = sum(t.time_limit_s for t in trials)
+    print(f"  a session: {len(trials)} trials ({len(trials) - len(main)} practice) in {len(study.conditions)} blocks, "
+          f"at most {estimate / 60:.0f} min of trials at the time limit; --quick: {len(quick_plan(study, 'P01'))} trials")
+    return 0
+
+
+def run_plan(args) -> int:
+    import msgspec
+
+    from .plan import condition_order, participant_index, plan_session, quick_plan
+
+    study = _study(args.study)
+    trials = quick_plan(study, args.participant) if args.quick else plan_session(study, args.participant)
+    order = condition_order(study, args.participant)
+    if args.json:
+        out = {"study": study.name, "study_file": study.path, "participant": args.participant,
+               "row": participant_index(study, args.participant), "condition_order": order,
+               "trials": msgspec.to_builtins(trials)}
+        print(json.dumps(_clean(out)))
+        return 0
+    print(f"{study.name}, participant {args.participant} (counterbalancing row "
+          f"{participant_index(study, args.participant)}): {' -> '.join(order)}")
+    print(f"{'index':>5} {'block':>5} {'trial':>5}  {'condition':<13} {'task':<12} {'stimulus':<10} {'answer':<8} "
+          f"jitter (deg)")
+    for t in trials:
+        jitter = " ".join(f"{p}{d:+.1f}" for p, d in t.transform)
+        flags = (" practice" if t.practice else "") + (" [break before]" if t.break_before else "")
+        print(f"{t.index:>5} {t.block:>5} {t.trial:>5}  {t.condition:<13} {t.task:<12} {t.stimulus:<10} "
+              f"{t.answer:<8} {jitter}{flags}")
+    return 0
+
+
+def run_run(args) -> int:
+    if args.offline and args.items:
+        raise ConfigError(COMMAND_LINE, args.items[0], "no launch overrides with --offline (no stack runs)")
+    if args.simulate and args.offline:
+        return run_offline(args)
+    if args.offline:
+        raise ConfigError(COMMAND_LINE, "--offline", "--simulate with --offline (a participant needs the stack)")
+    return run_full_stack(args)
+
+
+def run_offline(args) -> int:
+    """Simulated participants on the library alone (touch4d.study.simulate)."""
+    from touch4d.tactile import load_glove
+
+    from .observer import ModelObserver, every_sample_glove
+    from .plan import participant_ids
+    from .simulate import simulate_study
+
+    study = _study(args.study)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    if args.every_sample:
+        glove = every_sample_glove(glove)
+    started = time.perf_counter()
+    # --quick checks every cell quickly: a lighter-trained observer (its accuracy is not the point)
+    training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
+    observer = ModelObserver(glove, study, noise=args.noise, visual_noise=args.visual_noise, lapse=args.lapse,
+                             seed=args.seed, **training)
+    folders = simulate_study(study, participant_ids(args.participants), args.out, glove=glove, seed=args.seed,
+                             quick=args.quick, spread=args.spread, observer=observer, echo=print)
+    print(f"{len(folders)} simulated sessions in {time.perf_counter() - started:.1f} s under {args.out}; "
+          f"next: touch4d study analyze {args.out}")
+    return 0
+
+
+def run_full_stack(args) -> int:
+    """A study through the bus: a participant's session, or simulated participants (touch4d.study.session)."""
+    try:
+        session = importlib.import_module("touch4d.study.session")
+    except ModuleNotFoundError as exc:
+        if exc.name != "touch4d.study.session":
+            raise
+        raise Unavailable("running a study through the full stack needs touch4d.study.session; "
+                          "--simulate --offline runs simulated participants without it") from None
+    study_path = resolve_path(args.study, COMMAND_LINE, key="STUDY", what="study file")
+    if args.simulate:
+        observer = [f"tracker.noise:={args.noise}", f"tracker.lapse:={args.lapse}"]
+        return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
+                                      seed=args.seed, quick=args.quick)
+    return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick)
+
+
+def run_transfer(args) -> int:
+    from touch4d.tactile import load_glove
+
+    from .infotransfer import predicted_transfer
+    from .observer import every_sample_glove
+
+    study = _study(args.study)
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    gloves = [glove] + ([every_sample_glove(glove)] if args.every_sample else [])
+    tasks = [study.task(t).id for t in args.task] if args.task else [t.id for t in study.tasks]
+    results = [predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
+                                  seed=args.seed) for task in tasks for g in gloves]
+    if args.json:
+        print(json.dumps(_clean({"study": study.name, "glove": glove.path, "noise": args.noise, "results": results})))
+        return 0
+    print(f"{study.name}: information transferred by one touch ({glove.path}; noise {args.noise} per motor)")
+    print(f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>5} {'accuracy':>8}")
+    for r in results:
+        print(f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>5.2f} {r['accuracy']:>8.2f}")
+    return 0
+
+
+def run_analyze(args) -> int:
+    from .analysis import analyze, load, report_html, summary_text
+
+    data = load(args.dir)
+    result = analyze(data, bootstrap=args.bootstrap, seed=args.seed)
+    report = None
+    if not args.no_report:
+        where = Path(args.dir)
+        report = Path(args.report) if args.report else (where if where.is_dir() else where.parent) / "report.html"
+        report.write_text(report_html(result, data, title=f"touch4d study: {args.dir}"))
+        result["report"] = str(report)
+    if args.plot:
+        from .analysis import figure_summary
+
+        figure_summary(result).savefig(args.plot, dpi=110)
+        result["plot"] = str(args.plot)
+    if args.json:
+        print(json.dumps(_clean(result)))
+    else:
+        print(summary_text(result))
+        if report is not None:
+            print(f"report: {report}")
+    return 0
+
+
+def _clean(value):
+    """JSON-ready: NaN and infinities as null (JSON has no such numbers)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
+        return _clean(value.item())
+    return value
+
+
+def _count(text: str) -> int:
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+    return value
+
+
+def _count0(text: str) -> int:
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+
+
+def _probability(text: str) -> float:
+    value = _nonnegative(text)
+    if value > 1:
+        raise argparse.ArgumentTypeError(f"expected a number in 0..1, got {text}")
+    return value
+

@@ -1,0 +1,245 @@
+"""Study files (config/studies/*.yaml): tasks, their stimuli and response options, conditions,
+repetitions, practice, breaks, time limits, the run constraint and the study's seed.
+
+Declared once as msgspec Structs and read with `touch4d.schema`, so a mistake is a ConfigError
+naming the file, the key path, what was expected and what was there, as for a scene file::
+
+    name: paper
+    conditions: [visual, touch, visual+touch]
+    counterbalance: all          # all orders (default while there are <= 6), or latin
+    repetitions: 4               # per stimulus per condition
+    practice: 3                  # flagged trials at the start of each block
+    break_every: 24              # a pause offered every 24 trials
+    time_limit_s: 20
+    max_run: 3                   # never more than 3 trials in a row with the same correct answer
+    seed: 20260101
+    tasks:
+      - id: front
+        kind: front-element
+        prompt: What is in front?
+        options: [face, edge, vertex]
+        jitter_deg: 3
+        stimuli:
+          - {answer: face, scene: config/scenes/hypercube-face.yaml}
+      - id: tilt
+        kind: tilt
+        prompt: Which way is the front cell tilted?
+        options: [left, right]
+        scene: config/scenes/hypercube.yaml
+        plane: xw
+        angles_deg: [2, 4, 8, 16]     # each with both signs: +a answers `positive`, -a the other
+        positive: right
+
+Scene paths are found like every path (`touch4d.configfile.resolve_path`, relative to the study
+file first, then the packaged `config/`).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+
+from touch4d import schema
+from touch4d.configfile import resolve_path
+from touch4d.geometry.rotation import PLANES, plane_axes
+
+CONDITIONS = ("visual", "touch", "visual+touch")
+KINDS = ("front-element", "look-alikes", "tilt")
+DEFAULT_STUDY = "config/studies/paper.yaml"
+ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
+
+Name = Annotated[str, msgspec.Meta(min_length=1, pattern=r"^[A-Za-z0-9_.+-]+$",
+                                    description="a name of letters, digits and _ . + - (no spaces)")]
+Count = Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")]
+Positive = Annotated[int, msgspec.Meta(ge=1, description="an integer >= 1")]
+Seconds = schema.Positive
+Degrees = Annotated[float, msgspec.Meta(ge=0, le=45, description="an angle in degrees, 0..45")]
+Tilt = Annotated[float, msgspec.Meta(gt=0, le=45, description="an angle in degrees, > 0 and <= 45")]
+
+
+class StimulusSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    """One stimulus of a task: its correct answer and the scene that shows it."""
+
+    answer: str
+    scene: str
+    name: Name | None = None            # the stimulus's name in tables (default: the answer)
+
+    @property
+    def label(self) -> str:
+        return self.name or self.answer
+
+
+class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    """A task: what is asked (prompt, options), how the stimuli vary (jitter), and its stimuli: listed
+    (front-element, look-alikes) or generated from angles (tilt)."""
+
+    id: Name
+    kind: Literal["front-element", "look-alikes", "tilt"]
+    prompt: str
+    options: Annotated[list[Name], msgspec.Meta(min_length=2)]
+    stimuli: list[StimulusSpec] = []
+    jitter_deg: Degrees = 0.0           # each jitter plane turned by a uniform angle in [-jitter, +jitter]
+    jitter_planes: list[str] = msgspec.field(default_factory=lambda: list(PLANES))
+    repetitions: Positive | None = None  # per stimulus per condition (default: the study's)
+    time_limit_s: Seconds | None = None  # default: the study's
+    # tilt only: the untilted scene, the plane of the tilt, the angles (each shown with both signs)
+    # and the option that a positive angle answers (the other option answers a negative one)
+    scene: str | None = None
+    plane: str = "xw"
+    angles_deg: list[Tilt] = []
+    positive: str | None = None
+
+    def stimulus_names(self) -> list[str]:
+        """The task's stimuli by name, in file order (tilt: -largest .. -smallest, +smallest .. +largest)."""
+        if self.kind == "tilt":
+            return [tilt_name(-a) for a in sorted(self.angles_deg, reverse=True)] + \
+                   [tilt_name(a) for a in sorted(self.angles_deg)]
+        return [s.label for s in self.stimuli]
+
+    def levels(self) -> list[float]:
+        """The signed tilt levels (degrees) of a tilt task, in stimulus order; [] otherwise."""
+        if self.kind != "tilt":
+            return []
+        return [-a for a in sorted(self.angles_deg, reverse=True)] + sorted(self.angles_deg)
+
+    def answer_of(self, level: float) -> str:
+        """The correct option for a signed tilt level."""
+        positive = self.positive or self.options[0]
+        negative = next(o for o in self.options if o != positive)
+        return positive if level > 0 else negative
+
+
+class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
+    """A study file. `path` (set by `load_study`) is the file it came from, for errors and paths."""
+
+    name: Name
+    tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
+    description: str = ""
+    conditions: Annotated[list[Literal["visual", "touch", "visual+touch"]], msgspec.Meta(min_length=1)] = \
+        msgspec.field(default_factory=lambda: list(CONDITIONS))
+    counterbalance: Literal["latin", "all"] | None = None
+    repetitions: Positive = 1
+    practice: Count = 0
+    break_every: Count = 0              # 0: no breaks but between blocks
+    time_limit_s: Seconds = 30.0
+    max_run: Positive = 3
+    seed: Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")] = 0
+
+    @property
+    def path(self) -> str:
+        return self.__dict__.get("_path", "<input>")
+
+    def task(self, task_id: str) -> Task:
+        for task in self.tasks:
+            if task.id == task_id:
+                return task
+        schema.fail(self.path, "tasks", f"a task with id {task_id!r}", got=task_id,
+                    choices=[t.id for t in self.tasks])
+
+    def counterbalancing(self) -> str:
+        """`all` or `latin`: the file's choice, else all orders when there are few."""
+        if self.counterbalance:
+            return self.counterbalance
+        return "all" if math.factorial(len(self.conditions)) <= ALL_ORDERS_UP_TO else "latin"
+
+    def repetitions_of(self, task: Task) -> int:
+        return task.repetitions or self.repetitions
+
+    def time_limit_of(self, task: Task) -> float:
+        return task.time_limit_s or self.time_limit_s
+
+
+def replace_study(study: Study, **fields) -> Study:
+    """A copy of `study` with some fields replaced, still knowing its file (for paths and errors)."""
+    out = msgspec.structs.replace(study, **fields)
+    out.__dict__["_path"] = study.path
+    return out
+
+
+def tilt_name(level: float) -> str:
+    """The stimulus name of a signed tilt level: tilt+8, tilt-2.5."""
+    return f"tilt{level:+g}"
+
+
+def load_study(path=None) -> Study:
+    """Read and check a study file (default: the paper's study), found by `resolve_path`."""
+    path = resolve_path(path if path is not None else DEFAULT_STUDY, what="study file")
+    return parse_study(schema.read_yaml(path, "study file"), path)
+
+
+def parse_study(data, file=None) -> Study:
+    """A Study from the parsed YAML `data`; every problem a ConfigError naming `file` and the key."""
+    study = schema.convert(data, Study, file)
+    study.__dict__["_path"] = str(file) if file is not None else "<input>"
+    _check(study, file)
+    return study
+
+
+def scene_path(study: Study, key: str, path: str) -> Path:
+    """The file a study names at `key` (relative to the study file first)."""
+    named_in = Path(study.path) if study.path != "<input>" else None
+    return resolve_path(path, named_in, key=key, what="scene file")
+
+
+def _check(study: Study, file) -> None:
+    """What no type expresses: unique ids and conditions, answers among options, a tilt's generator."""
+    from touch4d.geometry.scene import load_scene
+
+    if len(set(study.conditions)) != len(study.conditions):
+        schema.fail(file, "conditions", "each condition once", got=list(study.conditions))
+    ids = [t.id for t in study.tasks]
+    for i, task in enumerate(study.tasks):
+        key = f"tasks[{i}]"
+        if ids.index(task.id) != i:
+            schema.fail(file, f"{key}.id", "a task id not used by an earlier task", got=task.id)
+        if len(set(task.options)) != len(task.options):
+            schema.fail(file, f"{key}.options", "each option once", got=list(task.options))
+        for j, plane in enumerate(task.jitter_planes):
+            try:
+                plane_axes(plane)
+            except ValueError:
+                schema.fail(file, f"{key}.jitter_planes[{j}]", "a rotation plane (two of x, y, z, w)", got=plane,
+                            choices=PLANES)
+        if task.kind == "tilt":
+            for name in ("stimuli",):
+                if getattr(task, name):
+                    schema.fail(file, f"{key}.{name}", "no listed stimuli for a tilt task (it makes them from "
+                                "scene, plane and angles_deg)", got="a list")
+            if task.scene is None:
+                schema.fail(file, f"{key}.scene", "the untilted scene of a tilt task (a scene file)")
+            if not task.angles_deg:
+                schema.fail(file, f"{key}.angles_deg", "a non-empty list of tilt angles in degrees (each shown "
+                            "with both signs)")
+            if len(set(task.angles_deg)) != len(task.angles_deg):
+                schema.fail(file, f"{key}.angles_deg", "each angle once", got=list(task.angles_deg))
+            if len(task.options) != 2:
+                schema.fail(file, f"{key}.options", "two options for a tilt task (a two-alternative choice)",
+                            got=list(task.options))
+            try:
+                plane_axes(task.plane)
+            except ValueError:
+                schema.fail(file, f"{key}.plane", "a rotation plane (two of x, y, z, w)", got=task.plane,
+                            choices=PLANES)
+            if task.positive is not None and task.positive not in task.options:
+                schema.fail(file, f"{key}.positive", f"one of the options ({', '.join(task.options)})",
+                            got=task.positive, choices=task.options)
+            load_scene(scene_path(study, f"{key}.scene", task.scene))
+            continue
+        for name in ("scene", "angles_deg", "positive"):
+            if getattr(task, name):
+                schema.fail(file, f"{key}.{name}", f"no {name} for a {task.kind} task (tilt tasks only)",
+                            got=getattr(task, name))
+        if len(task.stimuli) < 2:
+            schema.fail(file, f"{key}.stimuli", "at least two stimuli (answer and scene each)",
+                        got=len(task.stimuli))
+        labels = [s.label for s in task.stimuli]
+        for j, stim in enumerate(task.stimuli):
+            if stim.answer not in task.options:
+                schema.fail(file, f"{key}.stimuli[{j}].answer", f"one of the options ({', '.join(task.options)})",
+                            got=stim.answer, choices=task.options)
+            if labels.index(stim.label) != j:
+                schema.fail(file, f"{key}.stimuli[{j}].name", "a stimulus name not used by an earlier stimulus "
+                            "(give `name:` to tell two of the same answer apart)", got=stim.label)
+            load_scene(scene_path(study, f"{key}.stimuli[{j}].scene", stim.scene))

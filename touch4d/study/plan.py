@@ -1,0 +1,245 @@
+"""A participant's session, planned from (study, participant id) alone: the condition order
+(counterbalanced across participants), the trials of each block shuffled under the run constraint,
+each trial's jitter and seed. Pure: the same inputs give the same plan on every machine.
+
+Participant ids are strings. `P01`, `P02`, ... (a letter P, any case, then a number) are rows 0,
+1, ... of the counterbalancing table, so consecutive participants get consecutive orders; any other
+id takes the row of a stable hash (the first 8 bytes of its SHA-256, big-endian) modulo the rows.
+A participant's random stream is `numpy.random.SeedSequence([study.seed, that hash])`.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+import re
+
+import msgspec
+import numpy as np
+
+from touch4d import schema
+
+from .design import Study, Task, replace_study, tilt_name
+
+_NUMBERED = re.compile(r"^[Pp](\d+)$")
+_MAX_SHUFFLES = 10_000
+
+
+class Trial(msgspec.Struct, frozen=True):
+    """One trial of a session, everything a runner needs to show it and score the answer."""
+
+    index: int                   # 0.. over the session, practice included
+    block: int                   # 0.. (one block per condition)
+    trial: int                   # 0.. within its block, practice included
+    practice: bool
+    task: str
+    kind: str
+    condition: str
+    stimulus: str                # e.g. face, tilt+8
+    answer: str                  # the correct option
+    options: list[str]
+    prompt: str
+    level: float                 # signed tilt (degrees) of a tilt trial, NaN otherwise
+    transform: list[tuple[str, float]]   # the jitter: [plane, degrees], applied in order
+    time_limit_s: float
+    seed: int                    # this trial's own seed (jitter drawn from it; observers use it)
+    break_before: bool = False   # a pause is offered before this trial (break_every; not before a block's first)
+
+
+def participant_hash(participant: str) -> int:
+    """A stable 64-bit number for an id (first 8 bytes of its SHA-256)."""
+    return int.from_bytes(hashlib.sha256(str(participant).encode()).digest()[:8], "big")
+
+
+def participant_index(study: Study, participant: str) -> int:
+    """The row of the counterbalancing table for `participant`: P01 -> 0, P02 -> 1, ...; other ids by
+    a stable hash; always modulo the number of rows."""
+    rows = len(order_table(study))
+    numbered = _NUMBERED.match(str(participant))
+    if numbered and int(numbered.group(1)) >= 1:
+        return (int(numbered.group(1)) - 1) % rows
+    return participant_hash(participant) % rows
+
+
+def order_table(study: Study) -> list[list[str]]:
+    """Every row of the counterbalancing: all orders (lexicographic in the file's order of conditions)
+    or a balanced Latin square (Williams design: n rows for even n, 2n for odd n)."""
+    conditions = list(study.conditions)
+    if study.counterbalancing() == "all":
+        return [list(order) for order in itertools.permutations(conditions)]
+    return [[conditions[k] for k in row] for row in balanced_latin_square(len(conditions))]
+
+
+def balanced_latin_square(n: int) -> list[list[int]]:
+    """Williams' balanced Latin square: each item once per row and column, and each ordered pair of
+    neighbours equally often (once for even n; for odd n the square is followed by its mirror)."""
+    first, low, high = [], 0, n - 1
+    for j in range(n):                  # 0, 1, n-1, 2, n-2, ...
+        if j == 0:
+            first.append(0)
+            low = 1
+        elif j % 2 == 1:
+            first.append(low)
+            low += 1
+        else:
+            first.append(high)
+            high -= 1
+    rows = [[(x + r) % n for x in first] for r in range(n)]
+    if n % 2 == 1:
+        rows += [row[::-1] for row in rows]
+    return rows
+
+
+def condition_order(study: Study, participant: str) -> list[str]:
+    """The conditions in the order `participant` meets them (one block each)."""
+    return list(order_table(study)[participant_index(study, participant)])
+
+
+def participant_seed(study: Study, participant: str) -> np.random.SeedSequence:
+    """The random stream of (study, participant)."""
+    return np.random.SeedSequence([int(study.seed), participant_hash(participant)])
+
+
+def plan_session(study: Study, participant: str) -> list[Trial]:
+    """Every trial of `participant`'s session, in order: per block (condition) the practice trials,
+    then each task's stimuli x repetitions, shuffled so that no more than `max_run` trials in a row
+    share a correct answer (over practice and main trials alike)."""
+    order = condition_order(study, participant)
+    block_seeds = participant_seed(study, participant).spawn(len(order))
+    trials: list[Trial] = []
+    for block, (condition, seed) in enumerate(zip(order, block_seeds)):
+        rng = np.random.default_rng(seed)
+        items = [(task, stim, level, answer) for task in study.tasks
+                 for stim, level, answer in _stimuli(task) for _ in range(study.repetitions_of(task))]
+        sequence = _practice(items, study.practice, study.max_run, rng)
+        start = len(sequence)
+        last = sequence[-1][3] if sequence else None
+        run = _tail_run([it[3] for it in sequence])
+        main = constrained_shuffle(items, study.max_run, rng, key=lambda it: it[3], last=last, run=run,
+                                   file=study.path)
+        for position, item in enumerate(sequence + main):
+            trials.append(_trial(study, len(trials), block, position, position < start, condition, item, rng))
+    return trials
+
+
+def quick_plan(study: Study, participant: str) -> list[Trial]:
+    """A quick session (`--quick`): one repetition per task x condition cell, i.e. every stimulus once
+    per condition, no practice, otherwise as `plan_session` (same order, constraint and seeds)."""
+    tasks = [msgspec.structs.replace(t, repetitions=1) for t in study.tasks]
+    return plan_session(replace_study(study, tasks=tasks, repetitions=1, practice=0), participant)
+
+
+def participant_ids(n: int) -> list[str]:
+    """P01, P02, ... Pnn: the ids of n participants, in counterbalancing order."""
+    width = max(2, len(str(n)))
+    return [f"P{k:0{width}d}" for k in range(1, n + 1)]
+
+
+def _practice(items: list, count: int, max_run: int, rng: np.random.Generator) -> list:
+    """`count` practice trials drawn at random from a block's items, one by one among those whose
+    answer keeps runs within `max_run`."""
+    out: list = []
+    for _ in range(count):
+        run = _tail_run([it[3] for it in out]) if out else 0
+        allowed = [it for it in items if not (out and it[3] == out[-1][3] and run >= max_run)]
+        out.append(allowed[int(rng.integers(len(allowed)))])
+    return out
+
+
+def _stimuli(task: Task) -> list[tuple[str, float, str]]:
+    """(name, level, answer) of each stimulus of a task."""
+    if task.kind == "tilt":
+        return [(tilt_name(level), float(level), task.answer_of(level)) for level in task.levels()]
+    return [(s.label, math.nan, s.answer) for s in task.stimuli]
+
+
+def _trial(study: Study, index: int, block: int, position: int, practice: bool, condition: str, item,
+           rng: np.random.Generator) -> Trial:
+    task, stimulus, level, answer = item
+    seed = int(rng.integers(0, 2**63 - 1))
+    transform = draw_jitter(task, np.random.default_rng(seed))
+    every = study.break_every
+    return Trial(index=index, block=block, trial=position, practice=practice, task=task.id, kind=task.kind,
+                 condition=condition, stimulus=stimulus, answer=answer, options=list(task.options),
+                 prompt=task.prompt, level=level, transform=transform, time_limit_s=study.time_limit_of(task),
+                 seed=seed, break_before=bool(every and position > 0 and position % every == 0))
+
+
+def draw_jitter(task: Task, rng: np.random.Generator) -> list[tuple[str, float]]:
+    """A task's small random turn: each jitter plane by a uniform angle in [-jitter_deg, +jitter_deg]
+    (degrees, rounded to 0.001 so that a written plan reproduces it exactly)."""
+    if task.jitter_deg <= 0:
+        return []
+    return [(plane, round(float(rng.uniform(-task.jitter_deg, task.jitter_deg)), 3)) for plane in task.jitter_planes]
+
+
+def stimuli_of(task: Task) -> list[tuple[str, float, str]]:
+    """(name, level, answer) of each stimulus of a task, in the task's order."""
+    return _stimuli(task)
+
+
+def constrained_shuffle(items: list, max_run: int, rng: np.random.Generator, *, key, last=None, run: int = 0,
+                        file=None) -> list:
+    """`items` in a random order in which no more than `max_run` neighbours share `key(item)`; `last`
+    and `run` continue a run from before the first item. Draws item by item among those allowed (an
+    answer weighted by how many of it remain) and starts again on a dead end; an impossible demand
+    is a ConfigError naming `max_run`."""
+    if not items:
+        return []
+    keys = [key(it) for it in items]
+    counts: dict = {}
+    for k in keys:
+        counts[k] = counts.get(k, 0) + 1
+    most = max(counts.values())
+    # The most frequent answer needs a different one between its runs of max_run.
+    if most > max_run * (len(items) - most + 1):
+        schema.fail(file, "max_run", f"a run limit the block can meet ({most} of {len(items)} trials share an "
+                    f"answer: max_run >= {math.ceil(most / (len(items) - most + 1))})", got=max_run)
+    by_key: dict = {}
+    for it, k in zip(items, keys):
+        by_key.setdefault(k, []).append(it)
+    names = list(by_key)
+    for _ in range(_MAX_SHUFFLES):
+        pools = {k: [by_key[k][i] for i in rng.permutation(len(by_key[k]))] for k in names}
+        out, prev, length = [], last, run
+        while len(out) < len(items):
+            left = {k: len(pools[k]) for k in names if pools[k]}
+            total = sum(left.values())
+            allowed = [k for k in left if not (k == prev and length >= max_run)]
+            # Only answers after which the rest can still be ordered (keeps dead ends rare).
+            choices = [k for k in allowed if _feasible(left, k, prev, length, max_run)] or allowed
+            if not choices:
+                break
+            weights = np.array([left[k] for k in choices], dtype=float)
+            pick = choices[int(rng.choice(len(choices), p=weights / weights.sum()))]
+            out.append(pools[pick].pop())
+            length = length + 1 if pick == prev else 1
+            prev = pick
+        if len(out) == len(items):
+            return out
+    schema.fail(file, "max_run", "a run limit a random order can meet", got=max_run)
+
+
+def _feasible(left: dict, pick, prev, length: int, max_run: int) -> bool:
+    """Whether, after `pick` is placed, every answer's remaining trials can still be separated: an
+    answer needs one other trial between runs of max_run (less room for the run in progress)."""
+    after = dict(left)
+    after[pick] -= 1
+    run = length + 1 if pick == prev else 1
+    total = sum(after.values())
+    for k, n in after.items():
+        others = total - n
+        room = max_run * others + (max_run - run if k == pick else max_run)
+        if n > room:
+            return False
+    return True
+
+
+def _tail_run(keys: list) -> int:
+    """How many of the last `keys` are equal to the last one."""
+    run = 0
+    for k in reversed(keys):
+        if k != keys[-1]:
+            break
+        run += 1
+    return run

@@ -1,0 +1,86 @@
+"""trials.csv, the tidy table of a study: one row per trial, the same columns whoever writes it (a
+session through the full stack, or the offline simulation), read back for the analysis.
+
+A study's output is a folder of session folders (`OUT/P01/trials.csv`, ...); `find_tables` accepts
+that folder, one session folder, or a trials.csv itself.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+from touch4d.errors import ConfigError
+
+COLUMNS = ("participant", "session", "block", "trial", "index", "practice", "task", "kind", "condition", "stimulus",
+           "level", "transform", "answer", "response", "correct", "rt_s", "timed_out", "time_touching_s",
+           "mean_intensity", "path_length", "onset_stamp", "response_stamp", "seed")
+TRIALS = "trials.csv"
+
+
+def write_rows(path, rows: list[dict]) -> None:
+    """Write a whole trials.csv (header and rows, columns in order)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(COLUMNS)
+    for row in rows:
+        writer.writerow([_cell(row[c]) for c in COLUMNS])
+    path.write_text(buf.getvalue())
+
+
+def _cell(value) -> str:
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return "" if value is None else str(value)
+
+
+def find_tables(where) -> list[Path]:
+    """Every trials.csv at or below `where` (a folder of sessions, a session, or a trials.csv), sorted."""
+    where = Path(where)
+    if where.is_file():
+        return [where]
+    if not where.is_dir():
+        raise ConfigError("command line", "DIR", "a folder of session folders, a session folder or a trials.csv",
+                          got=str(where))
+    found = sorted(where.rglob(TRIALS))
+    if not found:
+        raise ConfigError("command line", "DIR", f"a folder with at least one {TRIALS} (in it or below it)",
+                          got=str(where))
+    return found
+
+
+def read_trials(where):
+    """The trials of every table at or below `where` as one pandas DataFrame (typed columns; `source`
+    names the file of each row). A table without the columns is a ConfigError naming it."""
+    import pandas as pd
+
+    frames = []
+    for path in find_tables(where):
+        try:
+            frame = pd.read_csv(path, dtype={"participant": str, "session": str, "response": str, "answer": str,
+                                             "stimulus": str, "task": str, "condition": str},
+                                keep_default_na=False, na_values={"level": [""], "rt_s": [""],
+                                                                  "response_stamp": [""]})
+        except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as exc:
+            raise ConfigError(path, "(file)", "a trials.csv table", got=str(exc).splitlines()[0]) from None
+        missing = [c for c in COLUMNS if c not in frame.columns]
+        if missing:
+            raise ConfigError(path, "(header)", f"the trials.csv columns {', '.join(COLUMNS)}",
+                              got=f"missing {', '.join(missing)}")
+        for name in ("practice", "correct", "timed_out"):
+            flags = pd.to_numeric(frame[name], errors="coerce")
+            bad = ~flags.isin([0, 1])
+            if bad.any():
+                line = int(bad.to_numpy().nonzero()[0][0]) + 2
+                raise ConfigError(path, f"line {line}, column {name}", "0 or 1", got=frame[name][bad].iloc[0])
+            frame[name] = flags.astype(bool)
+        for name in ("level", "rt_s", "time_touching_s", "mean_intensity", "path_length"):
+            frame[name] = pd.to_numeric(frame[name], errors="coerce")    # empty: not measured (NaN)
+        frame["source"] = str(path)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
