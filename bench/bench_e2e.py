@@ -1,4 +1,4 @@
-"""End-to-end benchmark: `hand/pose` published -> its CAN duty frame on the bus, every node a process.
+"""End-to-end benchmark: `hand/pose` (or `hand/joints`) published -> its CAN duty frame, every node a process.
 
 The bench process runs the broker (a zmq proxy thread) and publishes `hand/pose`; `scene`,
 `tactile` and `motors` (emulated boards, `trace: true`) run as separate node processes. The motor
@@ -16,11 +16,18 @@ tactile node's latest-only subscription, skipped by the motor node's, superseded
 driver held back a board's change frame (a board gets a change frame at most every half refresh
 period), "no frame needed" (its duties were already on the bus), and lost (the rest).
 
+The articulated hand (`--hand joints`, or `both`, the default: the rigid pose, then the joints):
+the bench publishes the 25 WebXR joints of the glove's hand curling its fingers (a fist and back
+each second) just before the pose of the same instant with the same stamp, as a hand-tracking
+tracker does; the tactile node places every sample on its bone from the joints (the pose is
+superseded) and the latency runs from that stamp. Its baseline is the same plain calls with the
+joints.
+
 Backlog: the p50 latency of the last window of a rate's run over that of the first (`--window`,
 60 s; a fifth of the run when shorter). Target at 1 kHz over 5 minutes (`--seconds 300 --rates
 1000`): within 1.1x.
 
-    .venv/bin/python bench/bench_e2e.py [--seconds 6] [--rates 90 1000] [--window 60]
+    .venv/bin/python bench/bench_e2e.py [--seconds 6] [--rates 90 1000] [--window 60] [--hand both|pose|joints]
 """
 from __future__ import annotations
 
@@ -48,9 +55,10 @@ from touch4d.boards.config import DEFAULT_GLOVE, load_glove_can
 from touch4d.boards.driver import MotorDriver
 from touch4d.boards.emulator import GloveEmulator
 from touch4d.boards.protocol import GloveProtocol
-from touch4d.messages import HandPose, Heartbeat, MotorCommand, MotorTrace
+from touch4d.messages import HandJoints, HandPose, Heartbeat, MotorCommand, MotorTrace
 from touch4d.tactile.engine import TactileEngine
 from touch4d.tactile.glove import load_glove
+from touch4d.hands import HandShape
 from touch4d.tracking.paths import Orbit
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,9 +76,29 @@ def bench_glove(tmp: Path) -> Path:
     return path
 
 
-def pose_at(t: float) -> HandPose:
+def pose_at(t: float, stamp: float = 0.0) -> HandPose:
     s = PATH.sample(t)
-    return HandPose(position=s.position, orientation=s.orientation, valid=True)
+    return HandPose(position=s.position, orientation=s.orientation, valid=True, stamp=stamp, source_stamp=stamp)
+
+
+class JointPath:
+    """The glove's hand on PATH curling its fingers (straight -> fist -> straight each second), as the
+    joint sets a hand tracker would publish: made once per millisecond of the cycle, before timing."""
+
+    def __init__(self, glove):
+        self.glove = glove
+        self.sets = []
+        for k in range(1000):
+            t = k / 1000.0
+            s = PATH.sample(t)
+            curl = 0.5 - 0.5 * math.cos(2 * math.pi * t)
+            js = glove.skeleton.joint_set(s.position, s.orientation, glove.units_per_metre,
+                                          HandShape(curl={f: curl for f in ("thumb", "index", "middle", "ring",
+                                                                            "little")}))
+            self.sets.append(js)
+
+    def at(self, t: float, stamp: float = 0.0) -> HandJoints:
+        return self.sets[int(round(t * 1000)) % 1000].message(stamp)
 
 
 def ms(a) -> str:
@@ -79,8 +107,9 @@ def ms(a) -> str:
 
 # ---- baseline: the same pipeline as plain calls in one process ------------------------------------
 
-def baseline(glove_file: Path, count: int) -> np.ndarray:
-    """Seconds per pose: stimulus -> motor command -> duty frames encoded and sent on a virtual bus."""
+def baseline(glove_file: Path, count: int, joints: JointPath | None = None) -> np.ndarray:
+    """Seconds per pose (or joint set): stimulus -> motor command -> duty frames encoded and sent on a
+    virtual bus."""
     glove, cfg = load_glove(glove_file), load_glove_can(glove_file)
     cfg = dataclasses.replace(cfg, channel=f"bench-e2e-{uuid.uuid4().hex}")
     engine = TactileEngine(glove)
@@ -93,7 +122,7 @@ def baseline(glove_file: Path, count: int) -> np.ndarray:
     times = np.empty(count)
     try:
         for k in range(count):
-            pose = pose_at(k * 0.001)
+            pose = pose_at(k * 0.001) if joints is None else joints.at(k * 0.001)
             t0 = time.perf_counter()
             _, motors = engine.messages(pose)
             now = (k + 1) * step
@@ -113,9 +142,11 @@ def baseline(glove_file: Path, count: int) -> np.ndarray:
 class Probe:
     """The bench's node: publishes poses, collects traces and heartbeats."""
 
-    def __init__(self, bus):
+    def __init__(self, bus, joints: JointPath):
         self.node = Node("bench", bus=bus, heartbeat=False)
         self.pub = self.node.create_publisher("hand/pose", HandPose)
+        self.joints_pub = self.node.create_publisher("hand/joints", HandJoints)
+        self.joints = joints
         self.traces: list[MotorTrace] = []
         self.beats: dict[str, Heartbeat] = {}
         self.commands: dict[float, float] = {}   # source_stamp -> stamp of tactile/motors, to split the latency
@@ -142,8 +173,9 @@ class Probe:
                    timeout, spin=self.node)
         return {n: dict(self.beats[n].stats) for n in NODES}
 
-    def run(self, rate: float, seconds: float) -> np.ndarray:
-        """Publish poses at `rate` for `seconds` (absolute schedule); returns their stamps."""
+    def run(self, rate: float, seconds: float, hand: str = "pose") -> np.ndarray:
+        """Publish poses (with `hand` "joints", each just after the joint set of its instant, the same
+        stamp) at `rate` for `seconds` (absolute schedule); returns their stamps."""
         stamps = []
         period = 1.0 / rate
         start = time.perf_counter()
@@ -158,9 +190,11 @@ class Probe:
                 else:
                     self.node.spin_once(0)
                     time.sleep(max(0.0, due - time.perf_counter()))
-            msg = pose_at(k * period)
-            self.pub.publish(msg)
-            stamps.append(msg.stamp)
+            stamp = time.time()
+            if hand == "joints":
+                self.joints_pub.publish(self.joints.at(k * period, stamp))
+            self.pub.publish(pose_at(k * period, stamp))
+            stamps.append(stamp)
             k += 1
         return np.array(stamps)
 
@@ -180,13 +214,13 @@ def idle_cpu(probe: Probe, pids: dict[str, int], seconds: float) -> dict[str, fl
     return out
 
 
-def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, window: float) -> dict:
+def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, window: float, hand: str = "pose") -> dict:
     before = probe.fresh_stats()
     probe.traces.clear()
     probe.commands.clear()
     cpu0 = {n: cpu_seconds(p) for n, p in pids.items()}
     wall0 = time.monotonic()
-    published = probe.run(rate, seconds)
+    published = probe.run(rate, seconds, hand)
     wall = time.monotonic() - wall0
     cpu = {n: (cpu_seconds(p) - cpu0[n]) / wall for n, p in pids.items()}
     probe.settle(0.5)   # the last batches of the trace
@@ -202,7 +236,8 @@ def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, windo
         return after[node].get(key, 0) - before[node].get(key, 0)
 
     causes = {
-        "tactile latest-only skip": delta("tactile", "hand/pose:dropped"),
+        # with joints, a pose is superseded by the joint set of its instant: only a skipped joint set is lost
+        "tactile latest-only skip": delta("tactile", "hand/pose:dropped" if hand == "pose" else "hand/joints:dropped"),
         "motors latest-only skip": delta("motors", "tactile/motors:dropped"),
         "superseded (change held back)": delta("motors", "trace_superseded"),
         "no frame needed (unchanged)": delta("motors", "trace_unchanged"),
@@ -213,20 +248,22 @@ def phase(probe: Probe, pids: dict[str, int], rate: float, seconds: float, windo
     span = published[-1] - published[0]
     w = min(window, span / 5)
     windows = (lat[src - published[0] < w], lat[src - published[0] >= span - w])
-    return {"rate": rate, "published": len(published), "actual_rate": len(published) / wall,
+    return {"rate": rate, "hand": hand, "joints_used": delta("tactile", "joints"),
+            "published": len(published), "actual_rate": len(published) / wall,
             "traced": len(src), "lat": lat, "causes": causes, "cpu": cpu, "window": w, "windows": windows,
             "per_second": per_second, "tactile_part": tactile_part, "motors_part": motors_part}
 
 
 def report(res: dict, base: np.ndarray) -> None:
     lat, n = res["lat"], res["published"]
-    print(f"\n== {res['rate']:.0f} Hz poses ({res['actual_rate']:.0f}/s achieved, {n} published) ==")
+    what = "poses" if res["hand"] == "pose" else f"joint sets (+ poses; {res['joints_used']} joint sets computed)"
+    print(f"\n== {res['rate']:.0f} Hz {what} ({res['actual_rate']:.0f}/s achieved, {n} published) ==")
     if len(lat) == 0:
         print("  no pose reached the bus")
         return
     p50, p99 = np.percentile(lat, 50), np.percentile(lat, 99)
     b50, b99 = np.percentile(base, 50), np.percentile(base, 99)
-    print(f"  latency pose -> last duty frame on the bus   p50 {ms(p50)} ms   p99 {ms(p99)} ms   max {ms(lat.max())} ms")
+    print(f"  latency {res['hand']:6s} -> last duty frame on the bus p50 {ms(p50)} ms   p99 {ms(p99)} ms   max {ms(lat.max())} ms")
     print(f"  plain calls in one process (baseline)        p50 {ms(b50)} ms   p99 {ms(b99)} ms")
     print(f"  ratio e2e / plain                            p50 {p50 / b50:7.1f} x   p99 {p99 / b99:7.1f} x")
     for label, part in (("pose -> tactile/motors published", res["tactile_part"]),
@@ -268,6 +305,8 @@ def main():
     parser.add_argument("--rates", type=float, nargs="+", default=[90.0, 1000.0])
     parser.add_argument("--baseline-count", type=int, default=3000)
     parser.add_argument("--window", type=float, default=60.0, help="seconds of the first and last windows compared")
+    parser.add_argument("--hand", choices=("both", "pose", "joints"), default="both",
+                        help="the rigid hand/pose, the articulated hand/joints, or both in turn")
     parser.add_argument("--no-realtime", dest="realtime", action="store_false",
                         help="run tactile and motors at normal priority (the demo gives them SCHED_FIFO)")
     args = parser.parse_args()
@@ -278,7 +317,9 @@ def main():
     print(f"tactile and motors at {'real-time (SCHED_FIFO, when permitted)' if args.realtime else 'normal'} priority")
     with tempfile.TemporaryDirectory(prefix="bench-e2e-") as tmp:
         glove = bench_glove(Path(tmp))
-        base = baseline(glove, args.baseline_count)
+        joint_path = JointPath(load_glove(glove))
+        hands = ("pose", "joints") if args.hand == "both" else (args.hand,)
+        bases = {h: baseline(glove, args.baseline_count, joint_path if h == "joints" else None) for h in hands}
         channel = f"bench-e2e-{uuid.uuid4().hex}"
         with running_broker() as bus, \
                 node_process("scene", bus, params={"scene": str(SCENE)}) as scene, \
@@ -287,7 +328,7 @@ def main():
                                                     "emulate": True, "trace": True},
                              realtime=args.realtime) as motors:
             pids = {"scene": scene.pid, "tactile": tactile.pid, "motors": motors.pid, "bench+broker": os.getpid()}
-            probe = Probe(bus)
+            probe = Probe(bus, joint_path)
             try:
                 # warm up: until poses come back as traced frames (every node up, the scene known)
                 deadline = time.monotonic() + 30
@@ -299,15 +340,17 @@ def main():
                 probe.settle(0.3)
                 idle = idle_cpu(probe, pids, 4.0)
                 gc.freeze()   # this process's own collections then stay short however long the run
-                results = [phase(probe, pids, rate, args.seconds, args.window) for rate in args.rates]
+                results = [phase(probe, pids, rate, args.seconds, args.window, hand) for hand in hands
+                           for rate in args.rates]
             finally:
                 probe.node.shutdown()
         load1 = os.getloadavg()
         print("\nidle, no poses (CPU, share of one core): " + "  ".join(f"{k} {100 * v:5.1f} %" for k, v in idle.items()))
         for res in results:
-            report(res, base)
+            report(res, bases[res["hand"]])
         print(f"\nload average at end: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}")
-        print("targets: p99 < 5 ms at 90 Hz; at 1 kHz no growing backlog (latency per second flat, nothing lost)")
+        print("targets: p99 < 5 ms at 90 Hz, poses and joints alike; at 1 kHz no growing backlog (latency per second "
+              "flat, nothing lost)")
 
 
 if __name__ == "__main__":

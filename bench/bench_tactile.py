@@ -7,6 +7,12 @@ Targets: under 0.5 ms per pose against the 120-cell (a 1 kHz tactile loop); the 
 fast as the plain expression for small objects (5-cell, tesseract) and within 1.2x of it for large
 ones (120-cell, 20 objects), i.e. a speed-up >= 1.0 and >= 0.83.
 
+Then the articulated hand: `compute_joint_stimulus` for a WebXR joint set (25 joints, every sample
+placed by its bone, joints checked) beside `compute_stimulus` for the rigid pose, on the same poses
+and scenes: a straight joint set (the rigid hand's samples: what placing by bones costs; target
+within 1.2x of the rigid hand) and one with the fingers bent (the samples elsewhere, so the ray
+casting does other work too).
+
     .venv/bin/python bench/bench_tactile.py [--calls 2000]
 """
 from __future__ import annotations
@@ -21,9 +27,11 @@ from touch4d.geometry.rotation import rotation_from_list
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import quaternion_matrix
-from touch4d.tactile.stimulus import compute_stimulus
+from touch4d.hands import HandShape
+from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 
 TARGET_MS = 0.5
+JOINTS_TARGET = 1.2
 
 
 def one_object(shape: str) -> Scene:
@@ -88,6 +96,19 @@ def per_call_ms(fn, positions, quats, repeats: int = 5) -> tuple[float, float]:
     return best_cpu * 1e3, best_wall * 1e3
 
 
+def interleaved_ms(fns, positions, quats, repeats: int = 7) -> list[tuple[float, float]]:
+    """As `per_call_ms` for several functions, their passes in turn: [(CPU ms, wall ms)] per function."""
+    best = [[np.inf, np.inf] for _ in fns]
+    for _ in range(repeats):
+        for k, fn in enumerate(fns):
+            wall, cpu = time.perf_counter(), time.process_time()
+            for p, q in zip(positions, quats):
+                fn(p, q)
+            best[k][0] = min(best[k][0], (time.process_time() - cpu) / len(positions) * 1e3)
+            best[k][1] = min(best[k][1], (time.perf_counter() - wall) / len(positions) * 1e3)
+    return [tuple(b) for b in best]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=1000, help="poses per timed pass")
@@ -126,8 +147,50 @@ def main(argv=None) -> int:
     verdict = "meets" if result_120 < TARGET_MS else "MISSES"
     print(f"120-cell: {result_120:.4f} ms CPU per pose, {verdict} the {TARGET_MS} ms target "
           f"({TARGET_MS / result_120:.1f}x headroom)")
+    joints_vs_rigid(glove, positions, quats)
     return 0
 
+
+def joints_vs_rigid(glove, positions, quats) -> None:
+    """The articulated hand beside the rigid hand, same poses: a straight joint set (the same sample
+    places, so the cost of placing by bones alone) and one with the fingers bent (where the samples
+    go changes the ray casting's work too)."""
+    rng = np.random.default_rng(7)
+    upm = glove.units_per_metre
+    straight, bent = [], []
+    for p, q in zip(positions, quats):
+        shape = HandShape(curl={f: float(c) for f, c in zip(("thumb", "index", "middle", "ring", "little"),
+                                                            rng.uniform(0, 1, 5))}, spread=float(rng.uniform()))
+        for out, js in ((straight, glove.skeleton.joint_set(p, q, upm)),
+                        (bent, glove.skeleton.joint_set(p, q, upm, shape))):
+            out.append((list(js.names), js.positions, js.orientations, js.handedness))
+    print("\narticulated hand: WebXR joint sets (25 joints) beside the rigid pose, ms per call; ratio to the rigid")
+    print(f"{'scene':<12} {'joints, straight':>18} {'joints, bent':>18} {'rigid ms':>18} {'straight':>8} "
+          f"{'bent':>6}  target (straight)")
+    for label, scene in (("tesseract", one_object("tesseract")), ("120-cell", one_object("120-cell")),
+                         ("20 objects", twenty_objects())):
+        caster = scene.ray_caster()
+
+        def jointed(sets):
+            index = iter(range(10 ** 9))
+
+            def call(p, q):
+                names, jp, jq, hand = sets[next(index) % len(sets)]
+                return compute_joint_stimulus(glove, caster, names, jp, jq, hand).V
+            return call
+
+        def rigid(p, q):
+            return compute_stimulus(glove, caster, p, q).V
+
+        for k in range(20):     # the straight set is the rigid hand: the same intensities
+            np.testing.assert_allclose(jointed(straight[k:])(positions[k], quats[k]), rigid(positions[k], quats[k]),
+                                       atol=1e-9)
+        # passes taken in turn (best of 7 each), so a change in the machine's load hits all three alike
+        (ms_s, wall_s), (ms_b, wall_b), (ms_r, wall_r) = interleaved_ms(
+            (jointed(straight), jointed(bent), rigid), positions, quats)
+        ratio = ms_s / ms_r
+        print(f"{label:<12} {ms_s:>8.4f} ({wall_s:.4f}) {ms_b:>8.4f} ({wall_b:.4f}) {ms_r:>8.4f} ({wall_r:.4f}) "
+              f"{ratio:>7.2f}x {ms_b / ms_r:>5.2f}x  <= {JOINTS_TARGET:.1f}x {'met' if ratio <= JOINTS_TARGET else 'MISSED'}")
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -14,6 +14,7 @@ from .tactile import MotorCommand, TactileField
 TOPIC_TYPES: dict[str, type[Message]] = {
     "hand/pose": HandPose,
     "hand/joints": HandJoints,
+    "hand/joints/other": HandJoints,
     "controller/state": ControllerState,
     "scene/state": SceneState,
     "scene/command": SceneCommand,

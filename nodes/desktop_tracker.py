@@ -1,6 +1,8 @@
 """Desktop tracker: the hand and the controller's trigger steered from the renderer window's `ui/input`.
 
-Keys and mouse as in touch4d.tracking.desktop; publishes `hand/pose` and `controller/state` at `rate` Hz.
+Keys and mouse as in touch4d.tracking.desktop; publishes `hand/pose` and `controller/state` at `rate` Hz,
+and (`joints`: true) the glove hand's 25 WebXR joints on `hand/joints`, its fingers curled by keys
+1 .. 5 (thumb .. little), f (fist) and v (spread), just before the pose of the same instant.
 Without a window nothing steers it: it says so at start when there is no display, and once when no
 `ui/input` has come within `input_timeout` seconds (a headless or missing renderer).
 """
@@ -10,7 +12,8 @@ import os
 import time
 
 from touch4d.bus import Node, Param
-from touch4d.messages import ControllerState, HandPose, InputEvents
+from touch4d.messages import ControllerState, HandJoints, HandPose, InputEvents
+from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.config import MAX_TRACKER_RATE
 from touch4d.tracking.desktop import DesktopConfig, DesktopHand
@@ -33,18 +36,26 @@ class DesktopTracker(Node):
                            above=0),
         "calibration": Param("config/calibration.yaml", "room -> screen calibration", path="calibration file"),
         "input_timeout": Param(5.0, "warn when no ui/input came within this time", unit="s", above=0),
+        "joints": Param(True, "publish hand/joints: the fingers curl with keys 1 .. 5, f, v"),
+        "curl_speed": Param(_DEFAULTS.curl_speed, "a finger curls fully in 1 / curl_speed seconds", unit="1/s",
+                            above=0),
+        "glove": Param("config/glove.yaml", "the glove whose hand the joints are", path="glove file"),
     }
 
     def setup(self) -> None:
         p = self.params
         self.rate = p["rate"]
-        config = DesktopConfig(**{k: p[k] for k in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move")},
+        config = DesktopConfig(**{k: p[k] for k in ("move_speed", "turn_speed_deg", "drag_turn", "drag_move",
+                                                     "curl_speed")},
                                home=tuple(p["home"]))
         self.calibration = load_calibration(p["calibration"])
         self.input_timeout = p["input_timeout"]
         self.hand = DesktopHand(config)
         self.hand_pub = self.create_publisher("hand/pose", HandPose)
         self.controller_pub = self.create_publisher("controller/state", ControllerState)
+        self.glove = load_glove(p["glove"]) if p["joints"] else None
+        if self.glove is not None:
+            self.joints_pub = self.create_publisher("hand/joints", HandJoints)
         self.create_subscription("ui/input", InputEvents, self.on_input)
         self.create_timer(1.0 / self.rate, self.tick)
         self.started = time.monotonic()
@@ -56,7 +67,8 @@ class DesktopTracker(Node):
                              "xvfb-run -a touch4d launch tracker:=desktop (a virtual display)")
         else:
             self.log.info("steer the hand from the renderer window: a/d q/e w/s move, arrows z/c turn, space "
-                          "or a mouse drag holds the trigger, n/r/p next/reset/projection, h home")
+                          "or a mouse drag holds the trigger, n/r/p next/reset/projection, h home; 1-5 curl the "
+                          "thumb .. little finger, f a fist, v spread")
 
     def on_input(self, msg: InputEvents) -> None:
         self.heard_input = True
@@ -70,6 +82,10 @@ class DesktopTracker(Node):
                              self.input_timeout)
         sample = self.hand.step(1.0 / self.rate, time.monotonic())
         hand, controller = from_hand(sample, self.calibration)
+        if self.glove is not None:
+            g = self.glove
+            self.joints_pub.publish(g.skeleton.joint_set(sample.position, sample.orientation, g.units_per_metre,
+                                                         self.hand.shape).message(hand.stamp))
         self.hand_pub.publish(hand)
         self.controller_pub.publish(controller)
 

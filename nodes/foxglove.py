@@ -5,7 +5,8 @@ the same schemas and JSON form as `touch4d log export --format foxglove` (touch4
 arrays such as `tactile/motors.intensity` and `tactile/field.s` plot by index and `motors/status`
 shows as it is. `foxglove/scene` adds 3D scene entities (foxglove.SceneUpdate, frame `screen`):
 the screen, a cube of edge 2 around the origin, and the hand, its sample points placed by the
-latest `hand/pose` and coloured by the latest `tactile/field` (grey: nothing felt, red: full).
+latest `hand/pose` (or, while they drive, by `hand/joints`: every sample on its bone, and the
+joints' skeleton drawn) and coloured by the latest `tactile/field` (grey: nothing felt, red: full).
 
 Serves on loopback by default: the protocol has no authentication, so another `host` shows the bus
 to anyone who reaches that address. Needs `pip install 'touch4d[foxglove]'`.
@@ -20,11 +21,13 @@ import numpy as np
 
 from touch4d.bus import Node, Param
 from touch4d.bus.config import is_loopback
-from touch4d.errors import Unavailable
+from touch4d.errors import Touch4dError, Unavailable
 from touch4d.log.schema import message_schema, to_jsonable
+from touch4d.messages import HandJoints, decoder
 from touch4d.messages.codec import CodecError, unpack
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import PoseError, place
+from touch4d.tactile.skeleton import ViewHand
 
 SCENE_TOPIC = "foxglove/scene"
 FRAME = "screen"
@@ -71,6 +74,8 @@ class FoxgloveNode(Node):
         self.served: dict[str, _Served] = {}
         self.scene = _Served(SceneUpdateChannel(SCENE_TOPIC, context=self.context))
         self.field: tuple[float, np.ndarray] | None = None  # (when, s per sample) of the latest tactile/field
+        self.joints = ViewHand(self.glove)                  # the articulated hand while hand/joints drives
+        self._joints_decoder = decoder(HandJoints)
         for topic in p["topics"] or [""]:
             self.create_raw_subscription(topic, self.on_message)
         if not is_loopback(p["host"]):
@@ -83,7 +88,7 @@ class FoxgloveNode(Node):
         if self.params["topics"] and topic not in self.params["topics"]:
             return  # a subscription is a prefix: hand/pose also brings hand/pose_replayed
         served = self.served.get(topic)
-        scene = topic in ("hand/pose", "tactile/field") and self.scene.channel.has_sinks()
+        scene = topic in ("hand/pose", "hand/joints", "tactile/field") and self.scene.channel.has_sinks()
         if served is not None and not scene and not served.channel.has_sinks():
             return  # nobody watches: no decoding, no JSON
         try:
@@ -99,6 +104,8 @@ class FoxgloveNode(Node):
         now = time.monotonic()
         if topic == "tactile/field":
             self._on_field(data, now)
+        elif topic == "hand/joints":
+            self._on_joints(payload)
         elif topic == "hand/pose" and self._due(self.scene, now):
             self._send_scene(data, now)
         if served.channel.has_sinks() and self._due(served, now):
@@ -120,17 +127,29 @@ class FoxgloveNode(Node):
         if s.shape == (len(self.glove.samples),):
             self.field = (now, s)
 
-    def _send_scene(self, data: dict, now: float) -> None:
+    def _on_joints(self, payload: bytes) -> None:
         try:
-            points = place(self.glove.samples, self.glove.units_per_metre, data.get("position"),
-                           data.get("orientation"))
-        except PoseError as exc:
-            self.warn_once(("hand/pose", str(exc)), f"hand/pose not drawn: {exc}")
-            return
-        s = self.field[1] if self.field is not None and now - self.field[0] <= FIELD_MAX_AGE_S else None
-        self.scene.channel.log(self._scene_update(points, s, bool(data.get("valid", True))))
+            self.joints.on_joints(self._joints_decoder(payload))
+        except Touch4dError as exc:        # MessageError, JointsError: the rigid hand is drawn meanwhile
+            self.warn_once(("hand/joints", str(exc)), f"hand/joints not drawn: {exc}")
 
-    def _scene_update(self, points: np.ndarray, s: np.ndarray | None, valid: bool):
+    def _send_scene(self, data: dict, now: float) -> None:
+        self.joints.on_pose(float(data.get("stamp", 0.0)))
+        articulated = self.joints.current() if data.get("valid", True) else None
+        outline = None
+        if articulated is not None:
+            points, outline = articulated.samples, articulated.outline
+        else:
+            try:
+                points = place(self.glove.samples, self.glove.units_per_metre, data.get("position"),
+                               data.get("orientation"))
+            except PoseError as exc:
+                self.warn_once(("hand/pose", str(exc)), f"hand/pose not drawn: {exc}")
+                return
+        s = self.field[1] if self.field is not None and now - self.field[0] <= FIELD_MAX_AGE_S else None
+        self.scene.channel.log(self._scene_update(points, s, bool(data.get("valid", True)), outline))
+
+    def _scene_update(self, points: np.ndarray, s: np.ndarray | None, valid: bool, outline: np.ndarray | None = None):
         """The screen (a wire cube) and the hand (a sphere per sample point) as one SceneUpdate."""
         m = self.fox.messages
         corners = [np.array([(i >> 2) & 1, (i >> 1) & 1, i & 1]) * 2.0 - 1.0 for i in range(8)]
@@ -147,7 +166,13 @@ class FoxgloveNode(Node):
                                      size=size, color=m.Color(r=0.5 + 0.5 * f, g=0.5 - 0.5 * f, b=0.5 - 0.5 * f,
                                                               a=alpha))
                    for (x, y, z), f in zip(points.tolist(), felt.tolist())]
-        hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres)
+        bones = []
+        if outline is not None:
+            bones = [m.LinePrimitive(type=m.LinePrimitiveLineType.LineList, thickness=2.0, scale_invariant=True,
+                                     points=[m.Point3(x=float(x), y=float(y), z=float(z))
+                                             for x, y, z in np.asarray(outline).reshape(-1, 3).tolist()],
+                                     color=m.Color(r=0.95, g=0.85, b=0.75, a=alpha))]
+        hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres, lines=bones)
         return m.SceneUpdate(entities=[screen, hand])
 
 

@@ -1,4 +1,4 @@
-"""Renderer node: draws `scene/state`, `hand/pose`, `tactile/field` and `tactile/motors` (paper §4.3, Fig. 17).
+"""Renderer node: draws `scene/state`, `hand/pose` or `hand/joints` (the articulated hand), `tactile/field`
 
 With a display it opens a window (moderngl-window, glfw) with an orbit camera and publishes the
 window's keyboard and mouse as `ui/input` for the desktop tracker. Without one (no DISPLAY, or
@@ -27,7 +27,7 @@ import numpy as np
 
 from touch4d.bus import Node, Param
 from touch4d.errors import Touch4dError
-from touch4d.messages import HandPose, InputEvents, MotorCommand, SceneState, StudyTrial, TactileField
+from touch4d.messages import HandJoints, HandPose, InputEvents, MotorCommand, SceneState, StudyTrial, TactileField
 from touch4d.render.backends import DEFAULT_BACKEND, backend_names
 from touch4d.render.camera import OrbitCamera, parse_camera
 from touch4d.render.context import RenderError, frame_files, save_png
@@ -123,6 +123,7 @@ class RendererNode(Node):
 
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.on_pose, latest_only=True)
+        self.create_subscription("hand/joints", HandJoints, self.on_joints, latest_only=True, optional=True)
         self.create_subscription("tactile/field", TactileField, self.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors, latest_only=True)
         self.gate = StudyGate(p["study_gate"])
@@ -147,6 +148,13 @@ class RendererNode(Node):
         except Touch4dError as exc:   # PoseError: a pose that cannot be placed
             self.counts["bad_poses"] += 1
             self.warn_once(f"pose:{exc}", f"hand/pose ignored: {exc}")
+
+    def on_joints(self, msg: HandJoints) -> None:
+        try:
+            self.view.set_joints(msg)
+        except Touch4dError as exc:   # JointsError: drawn as the rigid pose meanwhile
+            self.counts["bad_joints"] = self.counts.get("bad_joints", 0) + 1
+            self.warn_once(f"joints:{exc}", f"hand/joints not drawn: {exc}")
 
     def on_field(self, msg: TactileField) -> None:
         self._received["field"] += 1

@@ -2,7 +2,7 @@
 
 `touch4d launch demo.yaml tracker:=replay tracker.file:=session.mcap` drives live tactile, renderer
 and motor nodes with a recorded hand. Parameters: `file` (required), `topics` (default the
-tracker's: hand/pose, controller/state; [] = every topic in the log), `rate`, `loop`, `start`
+tracker's: hand/joints, hand/pose, controller/state; [] = every topic in the log), `rate`, `loop`, `start`
 (seconds), `remap` ({from: to}) and `restamp` (default true: live nodes downstream see fresh
 stamps and seq, as from a live tracker, and the recorded stamp in `recorded_stamp`; false sends
 the recorded bytes unchanged, which a live motor node drops as stale).
@@ -16,7 +16,7 @@ from touch4d.bus import Node, Param
 from touch4d.log.reader import LogReader
 from touch4d.log.replay import BusSender, Plan, Replayer, ReplayOptions
 
-TRACKER_TOPICS = ["hand/pose", "controller/state"]
+TRACKER_TOPICS = ["hand/joints", "hand/pose", "controller/state"]
 
 
 class ReplayNode(Node):

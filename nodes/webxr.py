@@ -4,9 +4,11 @@ Serves the page (touch4d/web/static) and a WebSocket to it; sends the page `scen
 `hand/pose`, `tactile/field`, `tactile/motors` and `motors/status` (geometry once per change of
 what the scene is made of, then per tick only transforms and tactile values). With `tracker:
 true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
-grip or from hand tracking: `hand_source`), `controller/state` and `hand/joints`. A running study
-(`study/trial`) shows its question in the page, hides objects where its condition says so, and the
-page's answers (controller buttons, or the page's own) go out on `study/response`.
+grip or from hand tracking: `hand_source`), `controller/state` and the tracked hands' joints
+(`hand/joints`: the glove hand, which the tactile node follows; `hand/joints/other`: the other).
+The page draws the articulated hand while `hand/joints` drives. A running study (`study/trial`)
+shows its question in the page, hides objects where its condition says so, and the page's answers
+(controller buttons, or the page's own) go out on `study/response`.
 
 Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
 reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a
@@ -81,7 +83,8 @@ class WebXRNode(Node):
         if p["tracker"]:
             self.publishers |= {"hand/pose": self.create_publisher("hand/pose", HandPose),
                                "controller/state": self.create_publisher("controller/state", ControllerState),
-                               "hand/joints": self.create_publisher("hand/joints", HandJoints)}
+                               "hand/joints": self.create_publisher("hand/joints", HandJoints),
+                               "hand/joints/other": self.create_publisher("hand/joints/other", HandJoints)}
         self.bridge = WebBridge(config, load_glove(p["glove"]), load_calibration(p["calibration"], "hand_in_grip"),
                                 load_placement(p["calibration"]), publish=self._publish,
                                 broadcast=lambda data, latest: self.server.broadcast(data, latest),
@@ -96,6 +99,8 @@ class WebXRNode(Node):
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
         self.create_subscription("scene/state", SceneState, self.bridge.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.bridge.on_hand_pose, latest_only=True)
+        self.create_subscription("hand/joints", HandJoints, self.bridge.on_hand_joints, latest_only=True,
+                                 optional=True)
         self.create_subscription("tactile/field", TactileField, self.bridge.on_field, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.bridge.on_motors, latest_only=True)
         self.create_subscription("motors/status", MotorStatus, self.bridge.on_status, latest_only=True)

@@ -151,7 +151,7 @@ def test_an_undeclared_parameter_names_the_role_the_node_and_its_parameters():
     text = str(err)
     assert err.file == "command line" and err.key == "tracker.rat:=5" and err.got == "rat"
     assert "node scripted (role 'tracker' of " + DEMO + ")" in text
-    assert "one of: calibration, loop, path, paths, rate, start_s" in text and "did you mean 'rate'?" in text
+    assert "one of: calibration, finger_speed, fingers, fingers_file, glove, loop, path, paths, rate, start_s" in text and "did you mean 'rate'?" in text
 
 
 def test_an_undeclared_parameter_in_a_file_names_the_file_and_key(tmp_path):

@@ -67,6 +67,20 @@ def test_topics_that_nodes_wait_for_and_nobody_publishes_are_named_with_the_wait
     assert st.unpublished(18.0) == {"hand/pose": ["tactile"], "scene/state": ["renderer", "tactile"]}
 
 
+def test_the_line_says_which_hand_the_tactile_node_follows():
+    from touch4d.messages import Heartbeat
+
+    st = StackStatus(window=2.0)
+    assert "hand (" not in st.line(now=1.0) and "fingers" not in st.line(now=1.0)
+    st.on_heartbeat(Heartbeat(node="tactile", pid=1, kind="tactile", publishes=[], subscribes=[],
+                              stats={"hand_joints": 1}), 1.0)
+    assert "fingers tracked (hand/joints)" in st.line(now=1.5)
+    st.on_heartbeat(Heartbeat(node="tactile", pid=1, kind="tactile", publishes=[], subscribes=[],
+                              stats={"hand_joints": 0}), 2.0)
+    assert "rigid hand (hand/pose)" in st.line(now=2.5)
+    assert "rigid hand" not in st.line(now=10.0)     # the tactile node has gone
+
+
 def test_an_input_published_by_two_nodes_is_named_with_both_but_not_an_optional_one():
     from touch4d.status import StackStatus
 

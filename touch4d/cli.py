@@ -14,7 +14,7 @@ from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout  # the reader of our 
 PARTS = {
     "touch4d.bus.cli": ("launch", "topic", "node", "bus"),
     "touch4d.geometry.cli": ("shape", "scene"),
-    "touch4d.tactile.cli": ("tactile",),
+    "touch4d.tactile.cli": ("tactile", "hand"),
     "touch4d.render.cli": ("render",),
     "touch4d.log.cli": ("record", "replay", "log"),
     "touch4d.boards.cli": ("glove",),

@@ -88,6 +88,30 @@ class Motor(msgspec.Struct, forbid_unknown_fields=True):
     channel: int
 
 
+BoneFraction = Annotated[float, msgspec.Meta(gt=0, lt=1, description="a fraction of the finger, 0..1")]
+BoneFractions = Annotated[tuple[BoneFraction, BoneFraction, BoneFraction],
+                          msgspec.Meta(description="three fractions of the finger's length, base to tip")]
+
+
+class Bones(msgspec.Struct, forbid_unknown_fields=True):
+    """Where the finger joints lie (the articulated hand, touch4d.tactile.skeleton): per finger its
+    three bones' lengths as fractions of its capsule, base to tip (adding up to 1); `wrist` [x, y]
+    metres. Each key optional: a finger not named gets touch4d.tactile.bones' human proportions."""
+
+    wrist: Point2 | None = None
+    thumb: BoneFractions | None = None
+    index: BoneFractions | None = None
+    middle: BoneFractions | None = None
+    ring: BoneFractions | None = None
+    little: BoneFractions | None = None
+
+    def __post_init__(self):
+        for finger in ("thumb", "index", "middle", "ring", "little"):
+            given = getattr(self, finger)
+            if given is not None and abs(sum(given) - 1.0) > 1e-6:
+                raise schema.Invalid("three fractions of the finger's length adding up to 1", list(given), finger)
+
+
 # ---- the motor boards' part ----------------------------------------------------------------------
 
 
@@ -205,6 +229,7 @@ class GloveFile(msgspec.Struct, forbid_unknown_fields=True):
     touch_threshold: Annotated[float, msgspec.Meta(ge=0, lt=1, description="an intensity in 0..1")] = \
         DEFAULT_TOUCH_THRESHOLD
     can: CanSection = msgspec.field(default_factory=CanSection)
+    bones: Bones = msgspec.field(default_factory=Bones)
 
     def __post_init__(self):
         """Every motor on a board and channel that exist, each channel and name used once."""

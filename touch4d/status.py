@@ -99,9 +99,19 @@ class StackStatus:
         p50, p99 = np.percentile(recent, [50, 99])
         return 1e3 * float(p50), 1e3 * float(p99)
 
+    def hand_source(self, now: float) -> str | None:
+        """Which hand a live tactile node follows (its heartbeat's `hand_joints`), or None."""
+        for heard, beat in self.nodes.values():
+            if now - heard <= NODE_TIMEOUT and "hand_joints" in beat.stats:
+                return "fingers tracked (hand/joints)" if beat.stats["hand_joints"] else "rigid hand (hand/pose)"
+        return None
+
     def line(self, now: float, topics: tuple[str, ...] = ("hand/pose", "scene/state", "tactile/motors")) -> str:
         parts = [f"{t} {self.rate(t, now):.0f} Hz" for t in topics]
         parts.append(f"touched {self.touched}/{self.motors} motors" if self.motors else "no motor command yet")
+        hand = self.hand_source(now)
+        if hand is not None:
+            parts.append(hand)
         frames = self.latency_ms(now, frames=True)
         lat = frames or self.latency_ms(now)
         what = "pose->CAN" if frames else "pose->motors"

@@ -8,9 +8,10 @@ import numpy as np
 
 from touch4d.geometry.scene import Scene, scene_digest
 from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
-from touch4d.messages import HandPose, MessageError, MotorCommand, SceneState, TactileField
+from touch4d.messages import HandJoints, HandPose, MessageError, MotorCommand, SceneState, TactileField
 from touch4d.tactile.glove import Glove
 from touch4d.tactile.pose import check_pose, place, quaternion_matrix
+from touch4d.tactile.skeleton import ViewHand, quaternion_matrices
 
 from .frame import Frame, SceneLayer, Style
 from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
@@ -58,6 +59,7 @@ class SceneView:
         self.field: TactileField | None = None
         self.motors: MotorCommand | None = None
         self._scene_key: bytes | None = None
+        self.joints = ViewHand(glove) if glove is not None else None   # the articulated hand, while it drives
 
     # ---- inputs -------------------------------------------------------------------------------------
     def set_scene(self, scene: Scene | SceneState) -> bool:
@@ -90,6 +92,14 @@ class SceneView:
             samples = place(self.glove.samples, upm, position, q)
             skeleton = place(hand_skeleton(self.glove.hand).reshape(-1, 3), upm, position, q)
         self.hand = _Hand(position, quaternion_matrix(q), samples, skeleton)
+        if self.joints is not None:
+            self.joints.on_pose(pose.stamp)
+
+    def set_joints(self, msg: HandJoints) -> None:
+        """Adopt a joint set: while it is fresh against the poses, the hand is drawn with its fingers
+        where the joints put them. Raises JointsError (a ValueError) for joints it cannot place."""
+        if self.joints is not None:
+            self.joints.on_joints(msg)
 
     def set_field(self, msg: TactileField) -> None:
         if len(msg.positions) == 0:
@@ -106,7 +116,14 @@ class SceneView:
         out = Frame(scene=self.layer)
         if self.show.frame:
             out.lines.append(screen_frame())
-        if self.show.hand and self.hand is not None:
+        articulated = self.joints.current() if self.joints is not None else None
+        if self.show.hand and articulated is not None:
+            h = self.field.h if self.field is not None else None
+            wrist = articulated.joints[0]
+            lines, pts = hand_geometry(articulated.samples, wrist, self._wrist_rotation(), h, articulated.outline)
+            out.lines.append(lines)
+            out.points.append(pts)
+        elif self.show.hand and self.hand is not None:
             h = self.field.h if self.field is not None else None
             samples = self.hand.samples if self.hand.samples is not None else np.zeros((0, 3))
             lines, pts = hand_geometry(samples, self.hand.position, self.hand.rotation, h, self.hand.skeleton)
@@ -117,6 +134,14 @@ class SceneView:
         if self.show.status:
             out.overlay = text_image(self.status_lines(status))
         return out
+
+    def _wrist_rotation(self) -> np.ndarray:
+        """The axes drawn at the wrist of the articulated hand: the hand frame (the wrist joint's
+        turned -90 degrees about x), or the pose's when the joints carry no orientation."""
+        q = self.joints.wrist_orientation
+        if q is None:
+            return self.hand.rotation if self.hand is not None else np.eye(3)
+        return quaternion_matrices(q[None])[0] @ np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
     def _tactile(self, out: Frame) -> None:
         f = self.field

@@ -1,17 +1,35 @@
-"""`touch4d tactile probe`: the stimulus for one hand pose against a scene file, as text or JSON."""
+"""`touch4d tactile probe`: the stimulus for one hand pose (or joint set) against a scene file, as text
+or JSON; `touch4d hand joints`: the joint set of the glove's hand at a pose, fingers straight or bent."""
 from __future__ import annotations
 
 import argparse
 import json
 import math
+from typing import Annotated, Literal
+
+import msgspec
 
 import numpy as np
 
+from touch4d import schema
 from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
+from touch4d.hands import FINGER_NAMES, HandShape
 
 from .glove import load_glove
-from .stimulus import Stimulus, compute_stimulus
+from .skeleton import JointsError
+from .stimulus import Stimulus, compute_joint_stimulus, compute_stimulus
+
+
+class JointsFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A joint set as `touch4d hand joints` prints it (WebXR's joints, screen units)."""
+
+    names: list[str]
+    positions: list[Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)]]
+    orientations: list[Annotated[list[float], msgspec.Meta(min_length=4, max_length=4)]]
+    radii: list[float] | None = None
+    handedness: Literal["left", "right"] | None = None
 
 
 def register(subparsers) -> None:
@@ -24,8 +42,11 @@ def register(subparsers) -> None:
                     "and the intensity per motor (paper eq. 1-7).")
     probe.add_argument("--scene", required=True, metavar="FILE", help="scene file (YAML)")
     probe.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
-    probe.add_argument("--position", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"),
+    probe.add_argument("--position", nargs=3, type=float, metavar=("X", "Y", "Z"),
                        help="the hand's origin (palm centre) in screen coordinates")
+    probe.add_argument("--joints", metavar="FILE",
+                       help="a joint set (JSON, as `touch4d hand joints` prints) in place of a rigid pose: "
+                            "every sample on its bone")
     probe.add_argument("--orientation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
                        default=[0.0, 0.0, 0.0, 1.0], help="unit quaternion, hand frame -> screen (default identity)")
     probe.add_argument("--alpha", type=_positive, metavar="A", help="gradient constant of eq. 1 (per screen unit)")
@@ -35,13 +56,83 @@ def register(subparsers) -> None:
     probe.add_argument("--json", action="store_true", help="print JSON (a stable interface for scripts)")
     probe.set_defaults(func=run_probe)
 
+    hand = subparsers.add_parser("hand", help="the glove's articulated hand (WebXR joints)")
+    hsub = hand.add_subparsers(dest="hand_command", metavar="SUBCOMMAND")
+    hand.set_defaults(func=lambda args: (hand.print_help(), 2)[1])
+    joints = hsub.add_parser(
+        "joints", help="the joint set of the glove's hand at a pose",
+        description="Print the WebXR joint set (25 joints: names, positions, orientations, radii, in screen "
+                    "units) of the glove's hand at a pose, its fingers straight (--flat) or bent (--curl).")
+    joints.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    joints.add_argument("--flat", action="store_true", help="straight fingers (the default; the rigid hand)")
+    joints.add_argument("--curl", action="append", default=[], metavar="FINGER=C",
+                        help=f"bend a finger, 0 (straight) .. 1 (fist): {', '.join(FINGER_NAMES)} or all; repeatable")
+    joints.add_argument("--spread", type=_unit, default=0.0, metavar="S", help="spread the fingers, 0 .. 1")
+    joints.add_argument("--handedness", choices=("left", "right"),
+                        help="the hand (default: the glove's, left for config/glove.yaml); the other one is the "
+                             "glove mirrored")
+    joints.add_argument("--position", nargs=3, type=float, metavar=("X", "Y", "Z"), default=[0.0, 0.0, 0.0],
+                        help="the hand's origin (palm centre) in screen coordinates (default 0 0 0)")
+    joints.add_argument("--orientation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
+                        default=[0.0, 0.0, 0.0, 1.0], help="unit quaternion, hand frame -> screen (default identity)")
+    joints.set_defaults(func=run_joints)
+
+
+def run_joints(args) -> int:
+    from .pose import check_pose
+    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    if args.flat and (args.curl or args.spread):
+        raise ConfigError(COMMAND_LINE, "--flat", "straight fingers, without --curl or --spread")
+    position, orientation = check_pose(args.position, args.orientation)
+    joints = glove.skeleton.joint_set(position, orientation, glove.units_per_metre, _shape(args.curl, args.spread),
+                                      args.handedness)
+    print(json.dumps(joints.to_json()))
+    return 0
+
+
+def _shape(curls: list[str], spread: float) -> HandShape:
+    curl = {}
+    for item in curls:
+        finger, _, value = item.partition("=")
+        try:
+            amount = float(value)
+        except ValueError:
+            amount = math.nan
+        if finger not in (*FINGER_NAMES, "all") or not 0.0 <= amount <= 1.0:
+            raise ConfigError(COMMAND_LINE, "--curl", f"FINGER=C with FINGER one of {', '.join(FINGER_NAMES)}, "
+                              "all, and C in 0..1", got=item)
+        curl.update({f: amount for f in FINGER_NAMES} if finger == "all" else {finger: amount})
+    return HandShape(curl=curl, spread=spread)
+
+
+def read_joints(path, glove):
+    """(names, positions, orientations, handedness) from a joint-set file (JSON or YAML)."""
+    data = schema.load(path, JointsFile, "joint set")
+    n = len(data.names)
+    for key in ("positions", "orientations"):
+        if len(getattr(data, key)) != n:
+            schema.fail(path, key, f"one entry per name ({n})", got=f"{len(getattr(data, key))} entries")
+    return (data.names, np.array(data.positions, float), np.array(data.orientations, float),
+            data.handedness or glove.skeleton.handedness)
+
 
 def run_probe(args) -> int:
     scene = load_scene(resolve_path(args.scene, COMMAND_LINE, key="--scene", what="scene file"))
     if args.projection != "scene":
         scene.projection = args.projection
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
-    st = compute_stimulus(glove, scene.ray_caster(), args.position, args.orientation, args.alpha, args.beta)
+    if (args.joints is None) == (args.position is None):
+        raise ConfigError(COMMAND_LINE, "--position", "either --position (a rigid pose) or --joints FILE")
+    if args.joints is not None:
+        path = resolve_path(args.joints, COMMAND_LINE, key="--joints", what="joint set file")
+        names, positions, orientations, handedness = read_joints(path, glove)
+        try:
+            st = compute_joint_stimulus(glove, scene.ray_caster(), names, positions, orientations, handedness,
+                                        args.alpha, args.beta)
+        except JointsError as exc:
+            raise ConfigError(path, "(file)", "a joint set that places the hand", got=str(exc)) from None
+    else:
+        st = compute_stimulus(glove, scene.ray_caster(), args.position, args.orientation, args.alpha, args.beta)
     if args.json:
         print(json.dumps(probe_report(glove.motor_names, glove.motor_sample, st)))
     else:

@@ -8,6 +8,7 @@ samples and the motor bindings from the file's tactile part.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,13 @@ class Glove:
     gamma: float
     touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # a motor driven above this counts as touched
     can: CanSection = field(default_factory=CanSection)   # the boards' part, as the file gave it
+    bones: glovefile.Bones = field(default_factory=glovefile.Bones)   # where the finger joints lie
+
+    @cached_property
+    def skeleton(self):
+        """The samples and motors bound to the hand's bones (touch4d.tactile.skeleton), built once."""
+        from .skeleton import Skeleton
+        return Skeleton.of(self)
 
     @property
     def units_per_metre(self) -> float:
@@ -100,6 +108,7 @@ def glove_from_file(data: GloveFile, path="<input>") -> Glove:
         motor_board=np.array([m.board for m in data.motors], dtype=int),
         motor_channel=np.array([m.channel for m in data.motors], dtype=int),
         alpha=data.alpha, beta=data.beta, gamma=data.gamma, touch_threshold=data.touch_threshold, can=data.can,
+        bones=data.bones,
     )
 
 

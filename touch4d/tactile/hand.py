@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-FINGER_NAMES = ("thumb", "index", "middle", "ring", "little")
+from touch4d.hands import FINGER_NAMES  # noqa: F401 - the glove file's finger names, re-exported
 
 
 @dataclass(frozen=True)

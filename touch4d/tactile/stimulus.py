@@ -73,9 +73,24 @@ def compute_stimulus(glove: Glove, caster, position, orientation, alpha: float |
     `caster` is the scene's RayCaster (orthographic or perspective, as it was built); alpha and
     beta default to the glove's. Raises `PoseError` for a bad pose.
     """
+    return stimulus_at(glove, caster, place(glove.samples, glove.units_per_metre, position, orientation), alpha, beta)
+
+
+def compute_joint_stimulus(glove: Glove, caster, names, positions, orientations, handedness: str,
+                           alpha: float | None = None, beta: float | None = None) -> Stimulus:
+    """The stimulus for a tracked hand's joints (WebXR's 25, screen units): every sample placed by
+    its bone (touch4d.tactile.skeleton), then eq. 1-7 as for a pose. Raises `JointsError` for
+    joints that cannot place the hand."""
+    skeleton = glove.skeleton
+    m = skeleton.transforms(names, positions, orientations, handedness, glove.units_per_metre)
+    return stimulus_at(glove, caster, skeleton.place("samples", m), alpha, beta)
+
+
+def stimulus_at(glove: Glove, caster, positions: np.ndarray, alpha: float | None = None,
+                beta: float | None = None) -> Stimulus:
+    """Eq. 1-7 for the glove's samples already placed in the screen (N, 3), however they were placed."""
     alpha = glove.alpha if alpha is None else alpha
     beta = glove.beta if beta is None else beta
-    positions = place(glove.samples, glove.units_per_metre, position, orientation)
     inside = inside_screen(positions)
     if inside.any():
         l, hit = caster.cast(positions)       # NaN and -1 on a miss

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from touch4d.hands import WEBXR_JOINTS
 from touch4d.messages import ControllerState, HandJoints, HandPose
 
 from touch4d.geometry import quaternion
@@ -27,19 +28,7 @@ from .calibration import Calibration
 HAND_SOURCES = ("controller", "hand")
 HANDS = ("right", "left")
 
-# The 25 joints of the WebXR Hand Input module, in its order.
-JOINTS = (
-    "wrist",
-    "thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal", "thumb-tip",
-    "index-finger-metacarpal", "index-finger-phalanx-proximal", "index-finger-phalanx-intermediate",
-    "index-finger-phalanx-distal", "index-finger-tip",
-    "middle-finger-metacarpal", "middle-finger-phalanx-proximal", "middle-finger-phalanx-intermediate",
-    "middle-finger-phalanx-distal", "middle-finger-tip",
-    "ring-finger-metacarpal", "ring-finger-phalanx-proximal", "ring-finger-phalanx-intermediate",
-    "ring-finger-phalanx-distal", "ring-finger-tip",
-    "pinky-finger-metacarpal", "pinky-finger-phalanx-proximal", "pinky-finger-phalanx-intermediate",
-    "pinky-finger-phalanx-distal", "pinky-finger-tip",
-)
+JOINTS = WEBXR_JOINTS    # the 25 joints of the WebXR Hand Input module, in its order
 WRIST = JOINTS.index("wrist")
 KNUCKLE = JOINTS.index("middle-finger-phalanx-proximal")
 

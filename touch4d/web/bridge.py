@@ -4,16 +4,17 @@ for them. The node wires it to its subscriptions, its timer and its server (one 
 Bus -> pages: a "setup" frame when a page connects, a "geometry" frame when what the scene is
 made of changes, and at most one "frame" per tick with the latest transforms and tactile values.
 
-Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state` and `hand/joints`
-from the one page that drives the hand. The rule: a page drives from its first tracked input while
-no other page drives, and keeps driving until it stops tracking (closes, hides, ends its session,
-loses tracking or falls silent for `stale_s`); only then may another page take over. Meanwhile
-another page's input and re-centring are refused, never silently: counted (`page_not_driver`),
-logged once per page with its address, and the page is told (a "driver" frame). Every change of
-driver is logged. Fail safe: when the driving page closes, hides, loses tracking or falls silent for
-`stale_s`, the hand is published invalid at once and then every `invalid_period_s`, so the tactile
-node commands zero and the motor node turns every motor off (within 100 ms); the controller too,
-except while its page is only silent.
+Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state`, and the tracked glove
+hand's joints on `hand/joints` (just before the pose of the same instant, with its stamp; the other
+hand's on `hand/joints/other`) from the one page that drives the hand. The rule: a page drives from
+its first tracked input while no other page drives, and keeps driving until it stops tracking
+(closes, hides, ends its session, loses tracking or falls silent for `stale_s`); only then may
+another page take over. Meanwhile another page's input and re-centring are refused, never silently:
+counted (`page_not_driver`), logged once per page with its address, and the page is told (a "driver"
+frame). Every change of driver is logged. Fail safe: when the driving page closes, hides, loses
+tracking or falls silent for `stale_s`, the hand is published invalid at once and then every
+`invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
+(within 100 ms); the controller too, except while its page is only silent.
 
 A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
 (touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
@@ -32,8 +33,8 @@ from typing import Callable
 import numpy as np
 
 from touch4d.errors import Touch4dError
-from touch4d.messages import (ControllerState, HandPose, MotorCommand, MotorStatus, SceneState, StudyResponse,
-                              StudyTrial, TactileField)
+from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
+                              StudyResponse, StudyTrial, TactileField)
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.glsl import shader_source
@@ -42,6 +43,7 @@ from touch4d.render.scene_geometry import SceneGeometry, data_rows
 from touch4d.render.view import SceneView
 from touch4d.study.gate import StudyGate
 from touch4d.tactile.glove import Glove
+from touch4d.tactile.skeleton import OUTLINE_PAIRS, JointsError, ViewHand
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
@@ -143,6 +145,8 @@ class WebBridge:
         self._scene: SceneState | None = None
         self._hand = np.array([0, 0, 0, 0, 0, 0, 1], np.float32)
         self._hand_valid = False
+        self._joints = ViewHand(glove)          # the articulated hand, drawn while its joints drive
+        self._joints_live = False               # this page's glove hand was last published tracked
         n, m = len(glove.samples), len(glove.motor_names)
         self._h = np.zeros(n, np.float32)
         self._touched = np.zeros(n, np.uint8)
@@ -177,6 +181,7 @@ class WebBridge:
             "samples": (g.samples * units).astype(np.float32),
             "skeleton": (hand_skeleton(g.hand) * units).astype(np.float32),
             "motor_sample": np.asarray(g.motor_sample, np.uint32),
+            "outline_pairs": OUTLINE_PAIRS.astype(np.uint32).ravel(),
             "cube_points": cube.layout(g.samples).astype(np.float32),
             "amplitude_stops": AMPLITUDE_STOPS.astype(np.float32),
             "amplitude_rgb": AMPLITUDE_RGB.astype(np.float32),
@@ -219,6 +224,15 @@ class WebBridge:
     def on_hand_pose(self, msg: HandPose) -> None:
         self._hand = np.r_[msg.position, msg.orientation].astype(np.float32)
         self._hand_valid = bool(msg.valid)
+        self._joints.on_pose(msg.stamp)
+        self._dirty = True
+
+    def on_hand_joints(self, msg: HandJoints) -> None:
+        """The articulated hand: drawn with its fingers while its joints are fresh (the tactile node's rule)."""
+        try:
+            self._joints.on_joints(msg)
+        except JointsError as exc:
+            self._warn_once(f"joints:{exc}", f"hand/joints not drawn: {exc}")
         self._dirty = True
 
     def on_field(self, msg: TactileField) -> None:
@@ -266,6 +280,13 @@ class WebBridge:
                   **self.study_fields()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
+        articulated = self._joints.current() if self._hand_valid else None
+        fields["hand_source"] = "pose"
+        if articulated is not None:
+            # the samples where their bones are, and the joints for the outline (screen units)
+            fields["hand_source"] = "joints"
+            arrays["hand_samples"] = articulated.samples.astype(np.float32).ravel()
+            arrays["hand_joints"] = articulated.joints.astype(np.float32).ravel()
         layer = self.view.layer
         if layer is not None:
             # the same texels the GPU backend writes into its t_objects texture
@@ -408,11 +429,18 @@ class WebBridge:
         control_side = by_side.get(self.config.controller_hand) if page.tracking else None
         pose = webxr.hand_pose(glove_side, self.config.hand_source, self.calibration, stamp)
         controller = webxr.controller_state(control_side, self.calibration, stamp)
-        self.publish("hand/pose", pose)
-        self.publish("controller/state", controller)
+        # the joints first: the tactile node then computes this instant once, from the joints
         for source in msg["sources"]:
             if page.tracking and source.joints is not None and source.handedness in webxr.HANDS:
-                self.publish("hand/joints", webxr.hand_joints(source, self.calibration, stamp))
+                glove_hand = source.handedness == self.config.hand
+                self.publish("hand/joints" if glove_hand else "hand/joints/other",
+                             webxr.hand_joints(source, self.calibration, stamp))
+        glove_tracked = glove_side is not None and glove_side.joints is not None
+        if self._joints_live and not glove_tracked:
+            self._joints_lost(stamp)
+        self._joints_live = glove_tracked
+        self.publish("hand/pose", pose)
+        self.publish("controller/state", controller)
         self._was_live = pose.valid
         if not pose.valid:
             self._invalid_at = arrival
@@ -436,9 +464,18 @@ class WebBridge:
         if self._was_live or now - self._invalid_at >= self.config.invalid_period_s:
             self._was_live = False
             self._invalid_at = now
+            if self._joints_live:
+                self._joints_live = False
+                self._joints_lost(0.0)
             self.publish("hand/pose", HandPose(position=np.zeros(3), valid=False))
             if not tracking:
                 self.publish("controller/state", ControllerState(position=np.zeros(3), valid=False))
+
+    def _joints_lost(self, stamp: float) -> None:
+        """The glove hand's joints are no longer tracked: say so at once (the tactile node falls back)."""
+        self.publish("hand/joints", HandJoints(handedness=self.config.hand, names=[], positions=np.zeros((0, 3)),
+                                               orientations=np.zeros((0, 4)), radii=np.zeros(0), valid=False,
+                                               stamp=stamp, source_stamp=stamp))
 
     # ---- calibration -----------------------------------------------------------------------------
 

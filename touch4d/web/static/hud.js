@@ -106,8 +106,19 @@ export class Hud {
       points.push(cube[3 * k], cube[3 * k + 1], cube[3 * k + 2], ...color,
                   CUBE_SIZE[0] + (CUBE_SIZE[1] - CUBE_SIZE[0]) * Math.min(Math.max(h[k], 0), 1));
     }
-    // the hand where the bus says it is
-    if (frame && frame.header.hand_valid) {
+    // the hand where the bus says it is: with its fingers where the joints put them while hand/joints
+    // drives (the node sends the samples and joints placed), else the rigid glove at the pose
+    if (frame && frame.header.hand_valid && frame.arrays.hand_samples) {
+      const p = frame.arrays.hand_samples, j = frame.arrays.hand_joints, pairs = a.outline_pairs;
+      for (let i = 0; i < pairs.length; i += 2) {
+        const u = 3 * pairs[i], v = 3 * pairs[i + 1];
+        segment(lines, [j[u], j[u + 1], j[u + 2]], [j[v], j[v + 1], j[v + 2]], HAND_COLOR);
+      }
+      for (let k = 0; k < n; k++) {
+        const color = touched[k] ? [...this.amplitude(h[k]), 0.95] : HAND_COLOR;
+        points.push(p[3 * k], p[3 * k + 1], p[3 * k + 2], ...color, SAMPLE_SIZE);
+      }
+    } else if (frame && frame.header.hand_valid) {
       const place = handTransform(frame.arrays.hand);
       const sk = a.skeleton;
       for (let i = 0; i < sk.length; i += 6) {

@@ -132,8 +132,9 @@ function showStatus() {
   if (state.error) return;
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
+  const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
   const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
-    : f && f.hand_valid ? ` · hand in · ${state.motorsOn} motors on` : ' · no hand';
+    : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
                                            : 'touch4d: connecting to the node…';
 }
