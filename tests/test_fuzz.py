@@ -103,6 +103,9 @@ def test_a_node_counts_every_payload_it_rejects_and_keeps_serving():
             raw.publish(probe)
             sub.spin_once(0.01)
         assert got
+        quiet = time.monotonic() + 0.3   # probes still in flight arrive before the count starts
+        while time.monotonic() < quiet:
+            sub.spin_once(0.01)
         n0, m0 = len(got), sub.stats_flat().get("hand/pose:malformed", 0)
         for payload in sent:
             raw.publish(payload)
