@@ -29,6 +29,7 @@ import numpy as np
 from touch4d.errors import ConfigError, Touch4dError
 
 from .plan import participant_hash
+from . import table
 from .table import COLUMNS, _cell
 
 MANIFEST = "manifest.json"
@@ -142,19 +143,10 @@ def _fsync_dir(path: Path) -> None:
 
 def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,
               response_stamp: float | None, measures: "Measures") -> dict:
-    """The table row of a planned trial (touch4d.study.plan.Trial) and what happened in it."""
-    timed_out = response is None
-    return {
-        "participant": participant, "session": session, "block": trial.block, "trial": trial.trial,
-        "index": trial.index, "practice": bool(trial.practice), "task": trial.task, "kind": trial.kind,
-        "condition": trial.condition, "stimulus": trial.stimulus, "level": float(trial.level),
-        "transform": json.dumps([[p, float(d)] for p, d in trial.transform]), "answer": trial.answer,
-        "response": "" if timed_out else response, "correct": (not timed_out) and response == trial.answer,
-        "rt_s": float("nan") if timed_out else response_stamp - onset, "timed_out": timed_out,
-        "time_touching_s": measures.time_touching_s, "mean_intensity": measures.mean_intensity,
-        "path_length": measures.path_length, "onset_stamp": onset,
-        "response_stamp": float("nan") if response_stamp is None else response_stamp, "seed": trial.seed,
-    }
+    """The table row of a trial run on the bus (table.trial_row with the measures taken on the bus)."""
+    return table.trial_row(trial, participant=participant, session=session, response=response, onset=onset,
+                           response_stamp=response_stamp, time_touching_s=measures.time_touching_s,
+                           mean_intensity=measures.mean_intensity, path_length=measures.path_length)
 
 
 # ---- exploration measures -----------------------------------------------------------------------------

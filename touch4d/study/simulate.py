@@ -25,7 +25,7 @@ from .design import Study
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
-from .table import TRIALS, write_rows
+from .table import TRIALS, trial_row, write_rows
 
 MANIFEST = "manifest.json"
 
@@ -86,7 +86,10 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
         if trial.break_before:
             clock += timing.break_s
         result = simulate_trial(own, glove, study, trial, seed=seed, timing=timing)
-        rows.append(_row(trial, participant, session, clock, result))
+        rows.append(trial_row(trial, participant=participant, session=session, response=result["response"],
+                              onset=clock, response_stamp=None if result["response"] is None else clock + result["rt_s"],
+                              time_touching_s=result["time_touching_s"], mean_intensity=result["mean_intensity"],
+                              path_length=result["path_length"]))
         clock += result["rt_s"] + timing.iti_s
     folder = Path(out) / participant
     write_rows(folder / TRIALS, rows)
@@ -118,22 +121,6 @@ def simulate_study(study: Study, participants: list[str], out, *, glove: Glove, 
             echo(f"{participant}: {folder / TRIALS}")
         folders.append(folder)
     return folders
-
-
-def _row(trial: Trial, participant: str, session: str, onset: float, result: dict) -> dict:
-    response = result["response"]
-    timed_out = response is None
-    return {
-        "participant": participant, "session": session, "block": trial.block, "trial": trial.trial,
-        "index": trial.index, "practice": bool(trial.practice), "task": trial.task, "kind": trial.kind,
-        "condition": trial.condition, "stimulus": trial.stimulus, "level": float(trial.level),
-        "transform": json.dumps([[p, float(d)] for p, d in trial.transform]), "answer": trial.answer,
-        "response": "" if timed_out else response, "correct": (not timed_out) and response == trial.answer,
-        "rt_s": math.nan if timed_out else result["rt_s"], "timed_out": timed_out,
-        "time_touching_s": result["time_touching_s"], "mean_intensity": result["mean_intensity"],
-        "path_length": result["path_length"], "onset_stamp": onset,
-        "response_stamp": math.nan if timed_out else onset + result["rt_s"], "seed": int(trial.seed),
-    }
 
 
 def _sha256(path) -> str | None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from pathlib import Path
 
@@ -84,3 +85,22 @@ def read_trials(where):
         frame["source"] = str(path)
         frames.append(frame)
     return pd.concat(frames, ignore_index=True)
+
+
+def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,
+              response_stamp: float | None, time_touching_s: float, mean_intensity: float,
+              path_length: float) -> dict:
+    """The table row of a planned trial (touch4d.study.plan.Trial) and what happened in it: the one
+    place a row is made, for sessions on the bus and offline simulations alike."""
+    timed_out = response is None
+    return {
+        "participant": participant, "session": session, "block": trial.block, "trial": trial.trial,
+        "index": trial.index, "practice": bool(trial.practice), "task": trial.task, "kind": trial.kind,
+        "condition": trial.condition, "stimulus": trial.stimulus, "level": float(trial.level),
+        "transform": json.dumps([[p, float(d)] for p, d in trial.transform]), "answer": trial.answer,
+        "response": "" if timed_out else response, "correct": (not timed_out) and response == trial.answer,
+        "rt_s": math.nan if timed_out else response_stamp - onset, "timed_out": timed_out,
+        "time_touching_s": time_touching_s, "mean_intensity": mean_intensity, "path_length": path_length,
+        "onset_stamp": onset, "response_stamp": math.nan if response_stamp is None else response_stamp,
+        "seed": int(trial.seed),
+    }
