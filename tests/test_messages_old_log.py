@@ -14,7 +14,7 @@ from touch4d.messages import TOPIC_TYPES, TYPES, decode, decoder
 
 DATA = Path(__file__).parent / "data" / "logs"
 sys.path.insert(0, str(DATA))
-from all_types import MESSAGES  # noqa: E402
+from all_types import MESSAGES, value  # noqa: E402
 
 LOG = DATA / "all_types.mcap"
 
@@ -82,16 +82,6 @@ def test_the_old_log_replays_with_its_values_and_new_stamps():
                 assert_same(getattr(msg, name), want, f"{topic}.{name}")
 
 
-def value(v):
-    """all_types.py's literal form as the value a node would put in a message."""
-    if isinstance(v, tuple):
-        dtype, shape, values = v
-        return np.array(values, dtype=dtype).reshape(shape)
-    if isinstance(v, dict):
-        return {k: value(x) for k, x in v.items()}
-    if isinstance(v, list):
-        return [value(x) for x in v]
-    return v
 
 
 def test_the_same_messages_published_today_are_the_same_bytes():

@@ -15,6 +15,20 @@ def arr(dtype: str, shape: tuple, values: list) -> tuple:
 
 
 # (topic, log time in ns, type, every field of the decoded message, header included)
+def value(v):
+    """A literal below as the value a node would put in a message (tuples made by `arr` become arrays)."""
+    import numpy as np
+
+    if isinstance(v, tuple):
+        dtype, shape, values = v
+        return np.array(values, dtype=dtype).reshape(shape)
+    if isinstance(v, dict):
+        return {k: value(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [value(x) for x in v]
+    return v
+
+
 MESSAGES = [
     ("hand/pose", T_NS + 1_000_000, "HandPose", {
         "stamp": T + 0.001, "seq": 0, "source_stamp": T + 0.001, "recorded_stamp": 0.0,

@@ -7,24 +7,14 @@ The committed log was made by the message code of its day; it is not remade by t
 import sys
 from pathlib import Path
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from all_types import MESSAGES  # noqa: E402
+from all_types import MESSAGES, value  # noqa: E402
 
 from touch4d.log.writer import LogWriter  # noqa: E402
 from touch4d.messages import TYPES  # noqa: E402
 
 
-def value(v):
-    if isinstance(v, tuple):
-        dtype, shape, values = v
-        return np.array(values, dtype=dtype).reshape(shape)
-    if isinstance(v, dict):
-        return {k: value(x) for k, x in v.items()}
-    if isinstance(v, list):
-        return [value(x) for x in v]
-    return v
 
 
 with LogWriter(sys.argv[1]) as log:
