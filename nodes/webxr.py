@@ -25,7 +25,7 @@ from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorComman
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
-from touch4d.web import access
+from touch4d.web import access, tls
 from touch4d.study.gate import GATE_START
 from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.server import PageServer
@@ -71,9 +71,9 @@ class WebXRNode(Node):
             access.new_token() if p["token"] == "auto" else p["token"])
         ssl_context, fingerprint = None, None
         if p["tls"] == "on" or (p["tls"] == "auto" and not loopback):
-            cert, key, fingerprint = access.ensure_certificate(
-                Path(p["cert_dir"]) if p["cert_dir"] else access.DEFAULT_CERT_DIR, access.lan_addresses(host))
-            ssl_context = access.server_ssl_context(cert, key)
+            cert, key, fingerprint = tls.ensure_certificate(
+                Path(p["cert_dir"]) if p["cert_dir"] else tls.DEFAULT_CERT_DIR, access.lan_addresses(host))
+            ssl_context = tls.server_ssl_context(cert, key)
 
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],

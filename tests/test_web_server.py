@@ -14,7 +14,8 @@ import pytest
 from touch4d.bus import Node
 from touch4d.bus.testing import collect, free_port, node_process, running_broker, wait_until
 from touch4d.messages import ControllerState, HandPose, Heartbeat
-from touch4d.web.access import ensure_certificate, is_loopback, page_url, qr_text, server_ssl_context
+from touch4d.web.access import is_loopback, page_url, qr_text
+from touch4d.web.tls import ensure_certificate, server_ssl_context
 from touch4d.web.protocol import unpack_frame
 from touch4d.web.server import PageServer
 

@@ -2,7 +2,7 @@
 // screen placed in the room) or inline in a desktop browser (mouse orbit). In a headset it is also
 // the tracker when the node says so: each XR frame first sends what is tracked, then draws.
 
-import { Link } from './net.js';
+import { Link, forgetToken } from './net.js';
 import { InputReader } from './input.js';
 import { Hud } from './hud.js';
 import { SceneRenderer } from './scene.js';
@@ -46,6 +46,7 @@ const buttons = new StudyButtons(document.getElementById('study'), (index, optio
   state.answers++;
 });
 
+forgetToken();
 const link = new Link((message) => {
   const { header } = message;
   if (header.kind === 'setup') {
