@@ -282,10 +282,10 @@ def test_garbage_on_the_socket_is_counted_and_survived(browser, stack):
             ws.onopen = () => {
                 ws.send('{not json');
                 ws.send('{"type": "input", "time": 1, "tracking": true, "head": [NaN, 1, 0, 0, 0, 0, 1], "sources": []}');
-                ws.send('{"type": "input", "junk": "' + 'x'.repeat(40000) + '"}');
                 ws.send(new Uint8Array([0, 255, 1, 2]));
                 ws.send(JSON.stringify({type: 'input', time: 1, tracking: true, head: null,
                                         sources: [{handedness: 'right', grip: [0, 1, 0, 0, 0, 0, 5], trigger: 0, buttons: [], joints: null}]}));
+                ws.send('{"type": "input", "junk": "' + 'x'.repeat(40000) + '"}');   // over the limit: closes it
                 setTimeout(() => { ws.close(); done(); }, 200);
             };
         })""")

@@ -2,8 +2,7 @@
 since a headset's browser grants WebXR only to a secure context (https, or http on localhost).
 
 The private key is written so that no other user can read it at any moment and no planted symlink
-can redirect it: a new file (O_EXCL | O_NOFOLLOW, mode 0600) in a directory of mode 0700, then
-renamed over the old one (`os.replace` replaces a symlink itself, never its target). A key reused
+can redirect it (touch4d.atomic: a new file of mode 0600, then renamed), in a directory of mode 0700. A key reused
 must be a regular file of this user's, readable by nobody else; if not, a new pair is made.
 """
 from __future__ import annotations
@@ -11,7 +10,6 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import os
-import secrets
 import ssl
 import stat
 from pathlib import Path
@@ -21,6 +19,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
+from touch4d.atomic import write_atomic
 from touch4d.errors import ConfigError
 
 CERT_DAYS = 365
@@ -58,27 +57,10 @@ def ensure_certificate(directory: Path, addresses: list[str]) -> tuple[Path, Pat
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
             .add_extension(x509.ExtendedKeyUsage([x509.oid.ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
             .sign(key, hashes.SHA256()))
-    write_private(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+    write_atomic(key_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                                               serialization.NoEncryption()), 0o600)
-    write_private(cert_path, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_atomic(cert_path, cert.public_bytes(serialization.Encoding.PEM), 0o644)
     return cert_path, key_path, fingerprint(cert)
-
-
-def write_private(path: Path, data: bytes, mode: int = 0o600) -> None:
-    """Write `path` whole or not at all: a new file beside it (never an existing one, never through a
-    symlink) created with `mode`, then renamed over it."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(8)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, mode)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def _private_directory(directory: Path) -> None:

@@ -71,7 +71,7 @@ const link = new Link((message) => {
     state.geometry = header.key;
     if (scene) scene.setGeometry(message);
   } else if (header.kind === 'driver') {
-    state.otherDriver = header.driver ? null : header.by;   // another page drives the hand: say so
+    state.otherDriver = !header.driver;   // another page drives the hand: say so
     showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
@@ -134,7 +134,7 @@ function showStatus() {
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
   const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
-  const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
+  const hand = state.otherDriver ? ' · another page drives the hand'
     : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
                                            : 'touch4d: connecting to the node…';
