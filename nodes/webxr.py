@@ -166,7 +166,7 @@ class WebXRNode(Node):
             where = f"the token file {p['token_file']}"
         why = access.check_token(token) if token else "a token"
         if why is not None:
-            raise self.param_error("token", f"in {where}: {why}", got=p["token"])
+            raise self.param_error("token", f"in {where}: {why}", got=None)
         return token
 
     def _publish(self, topic: str, msg) -> None:

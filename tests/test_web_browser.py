@@ -347,6 +347,16 @@ def test_beyond_loopback_a_page_without_the_token_is_refused(browser, tmp_path):
             response = page.goto(f"https://127.0.0.1:{port}/?token={token}")
             assert response.status == 200
             wait_connected(page)
+            # the token was traded for a cookie no script can read, and left the address bar and history
+            assert token not in page.url and page.evaluate("document.cookie") == ""
+            page.go_back()
+            page.go_forward()                             # the entry of the tokened link, as history kept it
+            assert token not in page.url and token not in page.evaluate("location.href")
+            (cookie,) = context.cookies()
+            assert cookie["httpOnly"] and cookie["secure"] and cookie["sameSite"] == "Strict"
+            assert cookie["value"] != token
+            assert page.reload().status == 200            # the cookie alone lets the page in again
+            wait_connected(page)
         finally:
             context.close()
 
