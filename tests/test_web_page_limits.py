@@ -212,3 +212,37 @@ def test_a_page_cannot_use_up_the_warnings_of_another(caplog):
     assert any(t.startswith("hand/joints not drawn") for t in texts)   # and so are the node's own
     assert rig.bridge.counts["page_malformed"] == 101
 
+
+
+# ---- reaction times ---------------------------------------------------------------------------------
+
+
+def test_a_page_clock_that_claims_too_much_is_flagged_in_the_table():
+    """The page first claims its clock is 100 s ahead, then answers 3 s after onset with a time that
+    makes 0.15 s of it: the table keeps the arrival beside the stamp and flags the row."""
+    from touch4d.study.design import load_study
+    from touch4d.study.plan import quick_plan
+    from touch4d.study.table import trial_row
+
+    planned = quick_plan(load_study(REPO / "config/studies/paper.yaml"), "P01")[0]
+    rows = {}
+    for name, claim, lie in (("honest", 0.0, 0.0), ("lying", 100.0, 2.85)):
+        rig = Rig(tracker=True)
+        rig.bridge.connected(1)
+        rig.input(1, page_time=rig.clock.t + claim)
+        rig.bridge.on_trial(trial())
+        onset = rig.clock.t
+        rig.clock.t += 3.0
+        rig.bridge.page_message(1, json.dumps({"type": "response", "index": 3, "option": "edge",
+                                               "time": 1000.0 * (rig.clock.t + claim - lie)}), rig.clock.t)
+        (answer,) = [m for t, m in rig.published if t == "study/response"]
+        assert answer.received == onset + 3.0
+        rows[name] = trial_row(planned, participant="P01", session="1", response="edge", onset=onset,
+                               response_stamp=answer.stamp, time_touching_s=0.0, mean_intensity=0.0,
+                               path_length=0.0, response_received=answer.received)
+    assert rows["honest"]["rt_s"] == pytest.approx(3.0) and rows["honest"]["clock_suspect"] is False
+    assert rows["lying"]["rt_s"] == pytest.approx(0.15) and rows["lying"]["clock_suspect"] is True
+    assert rows["lying"]["response_received"] - rows["lying"]["onset_stamp"] == pytest.approx(3.0)
+    timed_out = trial_row(planned, participant="P01", session="1", response=None, onset=1.0, response_stamp=None,
+                          time_touching_s=0.0, mean_intensity=0.0, path_length=0.0)
+    assert np.isnan(timed_out["response_received"]) and timed_out["clock_suspect"] is False
