@@ -102,16 +102,20 @@ def test_the_gate_exchanges_a_link_for_a_strict_cookie():
                 cookie = first[2][0].split(";")[0].split("=", 1)[1]
                 async with s.get(f"{base}/", headers={"Cookie": f"touch4d={cookie}"}) as r:
                     again = r.status, await r.text(), r.headers.getall("Set-Cookie", [])
+                other = access.issue("experimenter")
+                async with s.get(f"{base}/?token={other}", headers={"Cookie": f"touch4d={cookie}"}) as r:
+                    switched = await r.text()                # a link opened in that browser: its holder
                 access.revoke("P01")
                 async with s.get(f"{base}/", headers={"Cookie": f"touch4d={cookie}"}) as r:
                     after = r.status
                 async with s.get(f"{base}/?token={token}") as r:
                     after_link = r.status
-            return refused, open_file, first, again, after, after_link
+            return refused, open_file, first, again, after, after_link, switched
         finally:
             await runner.cleanup()
 
-    refused, open_file, first, again, after, after_link = asyncio.run(go())
+    refused, open_file, first, again, after, after_link, switched = asyncio.run(go())
+    assert switched == "hello experimenter"
     assert refused[0] == 403 and "link" in refused[1] and open_file == 200
     status, text, set_cookie = first
     assert status == 200 and text == "hello P01" and len(set_cookie) == 1
@@ -122,3 +126,14 @@ def test_the_gate_exchanges_a_link_for_a_strict_cookie():
     assert again == (200, "hello P01", [])          # the cookie alone lets in, and no new one is set
     assert after == 403 and after_link == 403
     assert gate.refused == 3
+
+
+def test_a_holder_keeps_a_bounded_number_of_cookies_and_a_link_names_its_own_holder():
+    access = Access()
+    token = access.issue("P01")
+    cookies = [access.exchange(token)[1] for _ in range(100)]      # a page reloaded 100 times with its link
+    alive = [c for c in cookies if access.session_holder(c) == "P01"]
+    assert alive == cookies[-16:]
+    access.issue("P02", ttl=1e-9)                                  # expired before anyone used it
+    access.issue("P03")
+    assert "P02" not in access.holders()

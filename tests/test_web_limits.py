@@ -4,6 +4,7 @@ answer, connections that send nothing or trickle, too many from one address, mes
 page limit, pages that never read, and a revoked holder's open page."""
 import asyncio
 import json
+import logging
 import time
 
 import aiohttp
@@ -86,6 +87,14 @@ def test_every_answer_carries_the_security_headers_and_no_banner(serve):
         assert "connect-src 'self';" in csp and "ws:" not in csp and "frame-ancestors 'none'" in csp
         assert headers["x-content-type-options"] == "nosniff" and headers["referrer-policy"] == "no-referrer"
         assert headers["cache-control"] == "no-store"
+
+
+def test_a_malformed_request_is_answered_and_counted_not_logged_with_a_traceback(serve, caplog):
+    server, port = serve()
+    with caplog.at_level(logging.DEBUG):
+        answer = asyncio.run(raw(port, b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX: " + b"a" * 9000 + b"\r\n\r\n"))
+    assert status_of(answer) == 400
+    assert not [r for r in caplog.records if r.exc_info] and server.counts()["page_bad_request"] == 1
 
 
 def test_a_connection_that_sends_nothing_or_trickles_is_closed(serve):

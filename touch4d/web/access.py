@@ -38,6 +38,7 @@ from touch4d.bus.config import is_loopback  # noqa: F401  (the bus's rule: 127.0
 TOKEN_BYTES = 16                                  # 128 bits
 MIN_TOKEN_CHARS = 22                              # base64url characters carrying 128 bits (6 bits each)
 TOKEN_CHARS = re.compile(r"[A-Za-z0-9_-]+")       # what secrets.token_urlsafe gives, safe in a URL
+MAX_COOKIES = 16                                  # per holder (browsers, reloads): the oldest goes first
 COOKIE = "touch4d"
 HOLDER = web.RequestKey("holder", str)             # request[HOLDER]: who the gate let in (None: an open path)
 REFUSED = ("touch4d: this page needs its link (the URL with a token, or its QR code, that you were given); "
@@ -94,9 +95,12 @@ class Access:
             raise ValueError(f"token for {holder!r}: {why}")
         if ttl is not None and not ttl > 0:
             raise ValueError(f"ttl for {holder!r}: a number of seconds > 0, got {ttl!r}")
-        expires = float("inf") if ttl is None else self.now() + ttl
+        now = self.now()
+        expires = float("inf") if ttl is None else now + ttl
         with self._lock:
-            self._grants = {d: g for d, g in self._grants.items() if g.session or g.holder != holder}
+            # the holder's previous token goes, and every grant past its time
+            self._grants = {d: g for d, g in self._grants.items()
+                            if (g.session or g.holder != holder) and g.expires > now}
             self._grants[_digest(token)] = _Grant(holder, expires, False)
         return token
 
@@ -120,11 +124,15 @@ class Access:
 
     def exchange(self, token: str | None) -> tuple[str, str, float] | None:
         """A link's token -> (holder, cookie value, expiry) for a browser to keep; None if the token
-        is not valid. The cookie expires with the token and is revoked with its holder."""
+        is not valid. The cookie expires with the token and is revoked with its holder; a holder
+        keeps its last MAX_COOKIES cookies."""
         with self._lock:
             grant = self._valid(token, session=False)
             if grant is None:
                 return None
+            cookies = [d for d, g in self._grants.items() if g.session and g.holder == grant.holder]
+            for digest in cookies[:max(0, len(cookies) - MAX_COOKIES + 1)]:
+                del self._grants[digest]    # the oldest (a dict keeps the order of insertion)
             cookie = new_token()
             self._grants[_digest(cookie)] = _Grant(grant.holder, grant.expires, True)
             return grant.holder, cookie, grant.expires
@@ -177,7 +185,7 @@ class CookieGate:
     async def middleware(self, request: web.Request, handler):
         holder, cookie = self.holder(request), None
         token = request.query.get("token")
-        if token is not None and holder is None:
+        if token is not None:              # a link opened: its holder, whoever the browser was before
             exchanged = self.access.exchange(token)
             if exchanged is not None:
                 holder, cookie, expires = exchanged

@@ -33,6 +33,7 @@ from typing import Callable, Iterable
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from .access import HOLDER, Access, CookieGate, is_loopback, lan_addresses
 from .inbox import MAX_INPUT_HZ, Inbox
@@ -148,6 +149,20 @@ class _Guard(asyncio.Protocol):
         self.inner.connection_lost(exc)
 
 
+class _BadRequests(logging.Filter):
+    """aiohttp logs each malformed request with a traceback: a client could fill the log. Counted instead."""
+
+    def __init__(self):
+        super().__init__()
+        self.count = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], HttpProcessingError):
+            self.count += 1
+            return False
+        return True
+
+
 class PageServer:
     """HTTP + WebSocket server for the WebXR page, running until `stop()`."""
 
@@ -180,6 +195,10 @@ class PageServer:
         self.send_overflow = 0      # pages closed: they did not take what was sent to them
         self.inputs_replaced = 0    # of closed pages: inputs superseded by a newer one (paced)
         self.flooded = 0            # of closed pages: other messages over their rate, dropped
+        self.bad_requests = _BadRequests()   # malformed HTTP requests (answered 400 by aiohttp)
+        self._http_log = logging.Logger("touch4d.web.server.http")
+        self._http_log.parent = log
+        self._http_log.addFilter(self.bad_requests)
         self.clients: dict[int, _Client] = {}
         self._per_address: collections.Counter = collections.Counter()
         self._guards: dict = {}
@@ -258,6 +277,7 @@ class PageServer:
         return {"page_refused": self.refused, "page_over_limit": self.over_limit,
                 "page_wrong_host": self.refused_host, "page_over_address": self.over_address,
                 "page_header_timeout": self.header_timeouts, "page_send_overflow": self.send_overflow,
+                "page_bad_request": self.bad_requests.count,
                 "page_inputs_replaced": self.inputs_replaced + sum(c.inbox.replaced for c in list(self.clients.values())),
                 "page_flooded": self.flooded + sum(c.inbox.dropped for c in list(self.clients.values()))}
 
@@ -287,7 +307,8 @@ class PageServer:
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_static("/static/", self.static_dir, follow_symlinks=False)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, keepalive_timeout=KEEPALIVE_S)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, keepalive_timeout=KEEPALIVE_S,
+                                     logger=self._http_log)
         await self._runner.setup()
         handler = self._runner.server
         self._listener = await asyncio.get_running_loop().create_server(
