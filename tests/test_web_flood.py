@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 
 import aiohttp
-import numpy as np
 import pytest
 
 from touch4d.bus import Node

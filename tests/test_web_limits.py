@@ -3,7 +3,6 @@ clients, bounded in count and time): Host names it does not serve, the security 
 answer, connections that send nothing or trickle, too many from one address, messages over the
 page limit, pages that never read, and a revoked holder's open page."""
 import asyncio
-import json
 import logging
 import time
 

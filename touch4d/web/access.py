@@ -22,7 +22,6 @@ a headset on the LAN can reach, and the token a user provides (`check_token`: 12
 from __future__ import annotations
 
 import hashlib
-import hmac
 import re
 import secrets
 import socket
@@ -57,11 +56,6 @@ def check_token(token: str) -> str | None:
     if len(token) < MIN_TOKEN_CHARS:
         return f"at least {MIN_TOKEN_CHARS} characters (128 bits), got {len(token)}"
     return None
-
-
-def token_matches(given: str | None, token: str) -> bool:
-    """Constant-time comparison (no timing hint about the token's characters)."""
-    return given is not None and hmac.compare_digest(given.encode(), token.encode())
 
 
 def _digest(secret: str) -> bytes:
