@@ -75,9 +75,13 @@ def test_a_host_name_it_does_not_serve_gets_nothing_page_or_socket(serve):
 
 def test_every_answer_carries_the_security_headers_and_no_banner(serve):
     _, port = serve()
-    for path, method, expected in (("/", "GET", 200), ("/nothing", "GET", 404), ("/", "POST", 405),
-                                   ("/static/main.js", "GET", 200), ("/static/none.js", "GET", 404)):
-        answer = asyncio.run(raw(port, f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+    _, gated = serve(access=Access())
+    for port, path, method, host, expected in (
+            (port, "/", "GET", "127.0.0.1", 200), (port, "/nothing", "GET", "127.0.0.1", 404),
+            (port, "/", "POST", "127.0.0.1", 405), (port, "/static/main.js", "GET", "127.0.0.1", 200),
+            (port, "/static/none.js", "GET", "127.0.0.1", 404), (port, "/", "GET", "attacker.example", 421),
+            (gated, "/", "GET", "127.0.0.1", 403), (gated, "/ws", "GET", "127.0.0.1", 403)):
+        answer = asyncio.run(raw(port, f"{method} {path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
                                        "Connection: close\r\nContent-Length: 0\r\n\r\n".encode()))
         headers = headers_of(answer)
         assert status_of(answer) == expected, (path, method)
