@@ -220,3 +220,31 @@ def test_a_revoked_holder_loses_its_open_page_and_the_others_keep_theirs(serve):
     assert holders == ["P01", "P02"]
     assert kind in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
     assert alive == {"P01": False, "P02": True}
+
+
+@pytest.mark.parametrize("tls", [False, True])
+def test_a_page_outlives_the_header_timeout(serve, tmp_path, tls):
+    """The header timeout bounds a request's header, not the WebSocket that follows it."""
+    import ssl
+
+    from touch4d.web.tls import ensure_certificate, server_ssl_context
+
+    context, client = None, True                                      # (True: aiohttp's default checks)
+    if tls:
+        cert, key, _ = ensure_certificate(tmp_path, ["127.0.0.1"])
+        context, client = server_ssl_context(cert, key), ssl.create_default_context(cafile=str(cert))
+    received = []
+    server, port = serve(header_timeout_s=0.3, ssl_context=context,
+                         on_message=lambda conn, data, arrival: received.append(data))
+
+    async def page():
+        scheme = "https" if tls else "http"
+        async with aiohttp.ClientSession() as session, \
+                session.ws_connect(f"{scheme}://127.0.0.1:{port}/ws", ssl=client) as ws:
+            await asyncio.sleep(1.0)                                  # over three header timeouts
+            await ws.send_str('{"type": "stats", "fps": 60}')
+            await asyncio.sleep(0.2)
+            return ws.closed
+
+    assert asyncio.run(page()) is False
+    assert received == ['{"type": "stats", "fps": 60}'] and server.header_timeouts == 0
