@@ -14,7 +14,8 @@ the address bar (history.replaceState), so it stays out of the browser's history
 proxy logs later; the page's files and its WebSocket go with the cookie. A request with neither a
 valid token nor a valid cookie gets 403 (paths under `open_prefixes` excepted). Tokens and cookies
 are kept as SHA-256 digests (a dict lookup, no timing hint about the secret). Thread-safe: a study
-may issue and revoke from any thread; `on_revoke(callback)` lets a server close a holder's pages.
+may issue and revoke from any thread; `on_revoke(callback)` lets a server close a holder's pages
+(an expiry refuses new loads and connections; a page already open stays until it closes or is revoked).
 
 Beyond the layer: the node's link (`page_url`), the QR code for a headset's camera, the addresses
 a headset on the LAN can reach, and the token a user provides (`check_token`: 128 bits at least).
