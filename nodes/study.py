@@ -196,11 +196,11 @@ class StudyNode(Node):
         self.onset = time.time()
         self.publish_trial(stamp=self.onset)     # its stamp is the onset every consumer sees
 
-    def _end_trial(self, response: str | None, stamp: float | None) -> None:
+    def _end_trial(self, response: str | None, stamp: float | None, received: float | None = None) -> None:
         trial, onset = self.current, self.onset
         end = stamp if stamp is not None else onset + trial.time_limit_s
         row = trial_row(trial, participant=self.params["participant"], session=self.params["session"],
-                        response=response, onset=onset, response_stamp=stamp,
+                        response=response, onset=onset, response_stamp=stamp, response_received=received,
                         measures=self.measures.measure(onset, end))
         self.trials.write(row)                    # fsync'd before anything else happens
         self.remaining.pop(0)
@@ -222,7 +222,7 @@ class StudyNode(Node):
             self.counts["responses_ignored"] += 1
             return
         self.counts["responses"] += 1
-        self._end_trial(msg.response, msg.stamp)
+        self._end_trial(msg.response, msg.stamp, msg.received)
 
     def on_input(self, msg: InputEvents) -> None:
         for key in msg.pressed:

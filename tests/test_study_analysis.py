@@ -41,7 +41,7 @@ def row(participant, block, trial, task, kind, condition, stimulus, answer, resp
             "level": level, "transform": "[]", "answer": answer, "response": "" if timed_out else response,
             "correct": (not timed_out) and response == answer, "rt_s": math.nan if timed_out else rt,
             "timed_out": timed_out, "time_touching_s": 1.0, "mean_intensity": 0.3, "path_length": 0.5,
-            "onset_stamp": 0.0, "response_stamp": rt, "seed": 0}
+            "onset_stamp": 0.0, "response_stamp": rt, "seed": 0, "response_received": math.nan, "clock_suspect": False}
 
 
 def write_sessions(tmp_path, rows):

@@ -94,6 +94,9 @@ def test_two_trials_answered_with_the_controller_in_an_immersive_session(tmp_pat
         finally:
             watcher.shutdown()
     assert rows[2]["response"] == plan[2].options[-1] and float(rows[2]["rt_s"]) > 0
+    for row in rows:   # the arrival on this machine beside the page's stamp: an honest clock, not flagged
+        received = float(row["response_received"])
+        assert 0 <= received - float(row["response_stamp"]) < 1.0 and row["clock_suspect"] == "0"
     for k, (row, trial) in enumerate(zip(rows, plan[:2])):
         assert int(row["index"]) == trial.index and row["response"] == trial.options[(k + 1) % 2]
         assert row["timed_out"] == "0" and 0 < float(row["rt_s"]) < 30

@@ -142,11 +142,12 @@ def _fsync_dir(path: Path) -> None:
 
 
 def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,
-              response_stamp: float | None, measures: "Measures") -> dict:
+              response_stamp: float | None, measures: "Measures", response_received: float | None = None) -> dict:
     """The table row of a trial run on the bus (table.trial_row with the measures taken on the bus)."""
     return table.trial_row(trial, participant=participant, session=session, response=response, onset=onset,
                            response_stamp=response_stamp, time_touching_s=measures.time_touching_s,
-                           mean_intensity=measures.mean_intensity, path_length=measures.path_length)
+                           mean_intensity=measures.mean_intensity, path_length=measures.path_length,
+                           response_received=response_received)
 
 
 # ---- exploration measures -----------------------------------------------------------------------------

@@ -14,9 +14,15 @@ from pathlib import Path
 
 from touch4d.errors import ConfigError
 
+# When an answer reached touch4d (a page's: its arrival at the WebXR node, on this machine's clock),
+# beside its stamp (when it was given: a page's own clock, mapped); `clock_suspect` 1: the two differ
+# by more than an answer takes to arrive, so the page's clock claimed too much and `rt_s` is not to
+# be trusted. Tables written before these columns existed are read with them empty.
+ARRIVAL_COLUMNS = ("response_received", "clock_suspect")
+MAX_ANSWER_DELAY_S = 1.0
 COLUMNS = ("participant", "session", "block", "trial", "index", "practice", "task", "kind", "condition", "stimulus",
            "level", "transform", "answer", "response", "correct", "rt_s", "timed_out", "time_touching_s",
-           "mean_intensity", "path_length", "onset_stamp", "response_stamp", "seed")
+           "mean_intensity", "path_length", "onset_stamp", "response_stamp", "seed", *ARRIVAL_COLUMNS)
 TRIALS = "trials.csv"
 
 
@@ -66,21 +72,24 @@ def read_trials(where):
             frame = pd.read_csv(path, dtype={"participant": str, "session": str, "response": str, "answer": str,
                                              "stimulus": str, "task": str, "condition": str},
                                 keep_default_na=False, na_values={"level": [""], "rt_s": [""],
-                                                                  "response_stamp": [""]})
+                                                                  "response_stamp": [""], "response_received": [""]})
         except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as exc:
             raise ConfigError(path, "(file)", "a trials.csv table", got=str(exc).splitlines()[0]) from None
+        for name, empty in zip(ARRIVAL_COLUMNS, ("", 0)):
+            if name not in frame.columns:
+                frame[name] = empty
         missing = [c for c in COLUMNS if c not in frame.columns]
         if missing:
             raise ConfigError(path, "(header)", f"the trials.csv columns {', '.join(COLUMNS)}",
                               got=f"missing {', '.join(missing)}")
-        for name in ("practice", "correct", "timed_out"):
+        for name in ("practice", "correct", "timed_out", "clock_suspect"):
             flags = pd.to_numeric(frame[name], errors="coerce")
             bad = ~flags.isin([0, 1])
             if bad.any():
                 line = int(bad.to_numpy().nonzero()[0][0]) + 2
                 raise ConfigError(path, f"line {line}, column {name}", "0 or 1", got=frame[name][bad].iloc[0])
             frame[name] = flags.astype(bool)
-        for name in ("level", "rt_s", "time_touching_s", "mean_intensity", "path_length"):
+        for name in ("level", "rt_s", "time_touching_s", "mean_intensity", "path_length", "response_received"):
             frame[name] = pd.to_numeric(frame[name], errors="coerce")    # empty: not measured (NaN)
         frame["source"] = str(path)
         frames.append(frame)
@@ -89,10 +98,12 @@ def read_trials(where):
 
 def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,
               response_stamp: float | None, time_touching_s: float, mean_intensity: float,
-              path_length: float) -> dict:
+              path_length: float, response_received: float | None = None) -> dict:
     """The table row of a planned trial (touch4d.study.plan.Trial) and what happened in it: the one
-    place a row is made, for sessions on the bus and offline simulations alike."""
+    place a row is made, for sessions on the bus and offline simulations alike. `response_received`:
+    when the answer reached touch4d, if known (see ARRIVAL_COLUMNS)."""
     timed_out = response is None
+    received = None if timed_out or not response_received else float(response_received)
     return {
         "participant": participant, "session": session, "block": trial.block, "trial": trial.trial,
         "index": trial.index, "practice": bool(trial.practice), "task": trial.task, "kind": trial.kind,
@@ -103,4 +114,6 @@ def trial_row(trial, *, participant: str, session: str, response: str | None, on
         "time_touching_s": time_touching_s, "mean_intensity": mean_intensity, "path_length": path_length,
         "onset_stamp": onset, "response_stamp": math.nan if response_stamp is None else response_stamp,
         "seed": int(trial.seed),
+        "response_received": math.nan if received is None else received,
+        "clock_suspect": received is not None and abs(received - response_stamp) > MAX_ANSWER_DELAY_S,
     }
