@@ -227,3 +227,26 @@ def test_a_bad_cell_names_file_line_and_column(tmp_path, capsys):
     assert main(["study", "analyze", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "line 4, column correct" in err and "'yes'" in err
+
+
+def test_the_report_leaves_the_callers_matplotlib_backend_and_pyplot_alone(tmp_path):
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from touch4d.study.analysis import figure_summary, report_html
+
+    rng = np.random.default_rng(5)
+    rows = synthetic(rng, 2, 6, {"visual": 0.4, "touch": 0.8, "visual+touch": 0.9})
+    rows += tilt_rows(rng, 0.0, 3.0, 0.0, 4, participant="P02")
+    data = load(write_sessions(tmp_path, rows))
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")                    # a notebook user's choice, say
+    try:
+        figures = plt.get_fignums()
+        result = analyze(data, bootstrap=0, tests=False)
+        assert report_html(result, data).count("data:image/png;base64,") >= 3
+        figure_summary(result).savefig(tmp_path / "summary.png")
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == figures
+        assert (tmp_path / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    finally:
+        matplotlib.use(before)

@@ -182,6 +182,7 @@ def fit_psychometric(level, positive) -> dict:
 
 
 _Z75 = float(norm.ppf(0.75))      # 75% correct lies 0.674 sigma from the pse
+_Z975 = float(norm.ppf(0.975))    # a two-sided 95% interval: 1.96 standard deviations each side
 _PHI0 = float(norm.pdf(0.0))      # the slope of Phi at the pse, per sigma
 _PSYCHOMETRIC_KEYS = ("pse_deg", "threshold_deg", "sigma_deg", "slope_per_deg", "lapse")
 
@@ -320,8 +321,8 @@ def _mixed(frame, formula: str, reference: str) -> dict:
         if name.startswith("C(condition"):
             effects[_term_name(name, reference)] = {
                 "log_odds": float(mean), "sd": float(sd),
-                "ci95": [float(mean - 1.959964 * sd), float(mean + 1.959964 * sd)],
-                "credible": bool(mean - 1.959964 * sd > 0 or mean + 1.959964 * sd < 0)}
+                "ci95": [float(mean - _Z975 * sd), float(mean + _Z975 * sd)],
+                "credible": bool(mean - _Z975 * sd > 0 or mean + _Z975 * sd < 0)}
     return {
         "test": "mixed-effects logistic (BinomialBayesMixedGLM, variational Bayes): condition fixed, "
                 "participant random",
@@ -373,16 +374,20 @@ def summary_text(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _new_figure(rows: int = 1, columns: int = 1, *, figsize, **options):
+    """A Figure and its axes from matplotlib's object API: no pyplot, so the caller's backend (a
+    notebook's, say) is left as it was and no figure lingers in pyplot's registry."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, columns, **options)
+
+
 def figure_accuracy(result: dict, ax=None):
     """Accuracy per task and condition with 95% intervals and the chance level (a matplotlib Figure)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tasks = list(result["tasks"])
     conditions = result["conditions"]
-    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.6)) if ax is None else (ax.figure, ax)
+    fig, ax = _new_figure(figsize=(1.9 + 1.9 * len(tasks), 3.6)) if ax is None else (ax.figure, ax)
     width = 0.8 / max(1, len(conditions))
     colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
     for j, condition in enumerate(conditions):
@@ -411,13 +416,8 @@ def figure_accuracy(result: dict, ax=None):
 
 def figure_psychometric(result: dict, task: str, ax=None):
     """The psychometric data and fits of a tilt task, one curve per condition."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fits = result["psychometric"][task]
-    fig, ax = plt.subplots(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
+    fig, ax = _new_figure(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
     colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
     for condition, fit in fits.items():
         if "error" in fit:
@@ -439,16 +439,11 @@ def figure_psychometric(result: dict, task: str, ax=None):
 
 def figure_summary(result: dict):
     """Accuracy per task and condition beside the first tilt task's psychometric functions."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tilt = next(iter(result["psychometric"]), None)
     width = 1.9 + 1.9 * len(result["tasks"])
     if tilt is None:
         return figure_accuracy(result)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
+    fig, (left, right) = _new_figure(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
     figure_accuracy(result, ax=left)
     figure_psychometric(result, tilt, ax=right)
     fig.tight_layout()
@@ -456,15 +451,10 @@ def figure_summary(result: dict):
 
 
 def figure_confusions(result: dict):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tasks = list(result["confusion"])
     conditions = result["conditions"]
-    fig, axes = plt.subplots(len(tasks), len(conditions), figsize=(3.0 * len(conditions), 2.6 * len(tasks)),
-                             squeeze=False)
+    fig, axes = _new_figure(len(tasks), len(conditions), figsize=(3.0 * len(conditions), 2.6 * len(tasks)),
+                            squeeze=False)
     for i, task in enumerate(tasks):
         for j, condition in enumerate(conditions):
             ax = axes[i][j]
@@ -486,14 +476,9 @@ def figure_confusions(result: dict):
 
 
 def figure_times(data):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     conditions = conditions_in(data)
     tasks = tasks_in(data)
-    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.4))
+    fig, ax = _new_figure(figsize=(1.9 + 1.9 * len(tasks), 3.4))
     groups, labels = [], []
     for task in tasks:
         for condition in conditions:
@@ -508,11 +493,8 @@ def figure_times(data):
 
 
 def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
     return base64.b64encode(buf.getvalue()).decode()
 
 
