@@ -15,8 +15,9 @@ outcome with model observers before anyone is recruited.
   and predicted per glove.
 
 Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
-it: every `break_every` trials within a block, never before a block's first); the model observer's
-constructor also takes `exploration`, `train_scenes`, `train_positions` and `view_scenes` (how much
-it is trained: fewer for a quick run); `trial_row`-style writers use `table.COLUMNS`, the one
-declaration of the trials.csv columns that the analysis reads.
+it: every `break_every` trials within a block, never before a block's first nor with under half a
+stretch left before the block's end); the model observer's constructor also takes `exploration`,
+`train_scenes`, `train_positions` and `view_scenes` (how much it is trained: fewer for a quick run);
+`trial_row`-style writers use `table.COLUMNS`, the one declaration of the trials.csv columns that
+the analysis reads.
 """
