@@ -19,10 +19,10 @@ def register(subparsers) -> None:
     physics.set_defaults(func=lambda args: (physics.print_help(), 2)[1])
     sim = sub.add_parser(
         "simulate", help="run a scene's physics for a while and print the final state",
-        description="Step the scene's physics (the physics node's fixed step) for --duration seconds and print, "
-                    "per object, position, orientation (world = orientation @ (size * local) + position), "
-                    "velocity and angular velocity (degrees per second by plane), and the scene's total energy and "
-                    "angular momentum.")
+        description="Step the scene's physics (the physics node's fixed step) for --duration seconds and print "
+                    "the scene's total energy and angular momentum and, per moving object, its position, velocity "
+                    "and turning (angular velocity, degrees per second by plane). --json also gives every object's "
+                    "orientation (world = orientation @ (size * local) + position), static ones included.")
     sim.add_argument("scene", metavar="SCENE", help="scene file (YAML) with physics keys")
     sim.add_argument("--duration", type=_seconds, default=1.0, metavar="S", help="simulated seconds (default 1)")
     sim.add_argument("--rate", type=_positive, metavar="HZ", help="internal steps per second (default: the scene's)")
