@@ -68,6 +68,7 @@ class PhysicsSession:
                  glove=None, push_rate: float = 0.0):
         self.control = SceneControl(scene, calibration, config)
         self.world, self.initial = build_world(self.control.scene, physics)
+        self.control.fix(np.flatnonzero(self.world.static))     # a static body is never the controller's
         self.state = self.initial
         self.paused = paused
         self.single_steps = 0
@@ -225,6 +226,7 @@ class PhysicsSession:
 
         source = "scene/command load"
         self.world, self.initial = build_world(self.control.scene, parse_physics(parse_yaml(text, source), source))
+        self.control.fix(np.flatnonzero(self.world.static))
         self.state = self.initial
         self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
         self._turn_rate, self._turn_step = np.zeros(6), None
