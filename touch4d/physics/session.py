@@ -16,6 +16,7 @@ import numpy as np
 
 from touch4d.errors import ConfigError
 from touch4d.geometry.scene import Scene
+from touch4d.messages import PHYSICS_COMMANDS
 from touch4d.tracking.calibration import Calibration
 from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneCommandError, SceneControl
 
@@ -24,7 +25,6 @@ from .config import PhysicsConfig
 from .push import Touch, push_impulses, touch_from_stimulus
 from .world import Contacts, build_world, step, with_pose
 
-PHYSICS_COMMANDS = ("pause", "play", "step")
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection", "thumbstick": "pause"}
 MAX_SINGLE_STEPS = 100000
 

@@ -19,7 +19,7 @@ from touch4d.errors import Touch4dError
 from touch4d.schema import Finite, parse_yaml
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene, parse_scene
-from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
+from touch4d.messages import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS
 
 from touch4d.geometry import quaternion
 from .calibration import Calibration
@@ -183,6 +183,10 @@ class SceneControl:
             return self._projection(argument)
         if name == "load":
             return self.load(argument)
+        if name in PHYSICS_COMMANDS:
+            raise SceneCommandError(f"{name!r} is a physics command and the scene node runs no physics: run the "
+                                    f"physics node in its place (touch4d launch demo scene:=physics "
+                                    f"scene.scene:=config/scenes/physics-drop.yaml)")
         raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
 
     def load(self, text: str, source: str = "scene/command load") -> bool:
