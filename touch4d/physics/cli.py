@@ -34,6 +34,8 @@ def register(subparsers) -> None:
     sim.add_argument("--frame-size", default="480x400", metavar="WxH", help="size of each frame (default 480x400)")
     sim.add_argument("--camera", default="yaw=25,pitch=15,distance=5.2,target=0:-0.2:0",
                      help="orbit camera of the frames: yaw=DEG,pitch=DEG,distance=D,target=X:Y:Z")
+    sim.add_argument("--backend", choices=("gpu", "clip", "auto"), default="auto",
+                     help="the renderer's backend for --frames, as for touch4d render (default auto)")
     sim.set_defaults(func=run_simulate)
     rep = sub.add_parser(
         "replay", help="replay a recorded physics session from its journal and compare with its recorded states",
@@ -151,7 +153,7 @@ def draw_frames(scene, world, shots, args) -> None:
     size = parse_size(args.frame_size)
     camera = parse_camera(args.camera, OrbitCamera())
     view = SceneView(load_glove(None), Style(), Show(frame=True, tactile=False, status=False))
-    renderer = OffscreenRenderer(size, samples=4)
+    renderer = OffscreenRenderer(size, samples=4, backend=args.backend)
     images = []
     try:
         for t, state in shots:
