@@ -26,3 +26,21 @@ def test_the_help_promises_in_the_text_only_what_the_text_prints(tmp_path, capsy
             assert re.search(word, text), f"the help promises {word!r} in the text output"
     assert "orientation" in help_text.split("--json", 1)[1]       # where the orientation is
     assert "ball:" in text and "floor:" not in text                # per moving object
+
+
+def test_the_frames_are_drawn_by_the_backend_asked_and_both_draw_the_same_scene(tmp_path, capsys):
+    import numpy as np
+    from PIL import Image
+
+    images = {}
+    for backend in ("gpu", "clip"):
+        out = tmp_path / f"{backend}.png"
+        assert main(["physics", "simulate", "config/scenes/physics-drop.yaml", "--duration", "0.2", "--frames",
+                     str(out), "--frame-count", "2", "--frame-size", "160x120", "--backend", backend]) == 0
+        images[backend] = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    assert capsys.readouterr().err.count("wrote") == 2
+    lit = {k: image.sum(axis=2) > 60 for k, image in images.items()}
+    assert lit["gpu"].mean() > 0.05 and (lit["gpu"] == lit["clip"]).mean() > 0.97    # the same bodies, drawn
+    with pytest.raises(SystemExit):
+        main(["physics", "simulate", "config/scenes/physics-drop.yaml", "--frames", "x.png", "--backend", "vulkan"])
+    assert "invalid choice: 'vulkan'" in capsys.readouterr().err
