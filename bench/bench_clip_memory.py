@@ -1,11 +1,12 @@
 """Clip-unit build memory: a 120-cell beside the hollow-front object (80 small convex parts).
 
-Every part is padded to the scene's widest body (the 120-cell: 144 clip units, 600 vertices), and
-the pairs of overlapping parts number thousands; in one batch their plane values took 4.6 GB. The
-builder evaluates them in batches of at most `arrays.BATCH_FLOATS` values, each trimmed to its own
-bodies' widths. Figures: peak traced memory (tracemalloc) and time of one build, batched, beside
-the same build in one batch (the baseline: BATCH_FLOATS unbounded), in the same run.
-Run: .venv/bin/python bench/bench_clip_memory.py [--quick]   (--quick: the batched build only)
+The occluders' arrays pad every part to the scene's widest body (the 120-cell: 144 clip units, 600
+vertices), and the pairs of overlapping parts number thousands. The builder evaluates plane values
+in batches of at most `arrays.BATCH_FLOATS` values, each trimmed to its own bodies' clip units and
+vertices. Figures: peak traced memory (tracemalloc) and time of one build, beside the same build
+(1) in one batch and (2) in one batch over the padded arrays, as the builder once did (the baseline),
+in the same run. Run: .venv/bin/python bench/bench_clip_memory.py [--quick]  (--quick: no baseline,
+which needs about 5 GB)
 """
 from __future__ import annotations
 
@@ -19,6 +20,9 @@ import numpy as np
 from touch4d.geometry.rotation import rotation_from_list
 from touch4d.geometry.shapes import get_shape
 from touch4d.render.clip import Body, MeshBuilder, arrays
+from touch4d.render.clip.occluders import Occluders
+
+INIT = Occluders.__init__
 
 
 def bodies() -> list[Body]:
@@ -28,9 +32,18 @@ def bodies() -> list[Body]:
                   for p in get_shape("hollow-front").parts]
 
 
-def measure(limit: int) -> tuple[float, float]:
+def padded(init):
+    """Occluders that see every body as wide as the widest (no trimming): the baseline's arrays."""
+    def wrapped(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.n_planes[:], self.n_vertices[:] = self.planes.shape[1], self.vertices.shape[1]
+    return wrapped
+
+
+def measure(limit: int, trimmed: bool = True) -> tuple[float, float]:
     """(peak MB, seconds) of one fresh build with batches of at most `limit` values."""
     arrays.BATCH_FLOATS = limit
+    Occluders.__init__ = INIT if trimmed else padded(INIT)
     scene = bodies()
     tracemalloc.start()
     t = time.perf_counter()
@@ -42,13 +55,16 @@ def measure(limit: int) -> tuple[float, float]:
 
 
 def main() -> None:
-    batched = measure(arrays.BATCH_FLOATS)
+    limit = arrays.BATCH_FLOATS
     print(f"120-cell + hollow-front ({len(bodies())} bodies), one clip build (tracemalloc on: times are slow)")
-    print(f"  batched ({arrays.BATCH_FLOATS} values a batch): peak {batched[0]:7.0f} MB, {batched[1]:6.2f} s")
+    batched = measure(limit)
+    print(f"  batched ({limit} values a batch), trimmed: peak {batched[0]:7.0f} MB, {batched[1]:6.2f} s")
+    whole = measure(1 << 62)
+    print(f"  one batch, trimmed:                      peak {whole[0]:7.0f} MB, {whole[1]:6.2f} s")
     if "--quick" not in sys.argv:
-        whole = measure(1 << 62)
-        print(f"  one batch (baseline):                 peak {whole[0]:7.0f} MB, {whole[1]:6.2f} s")
-        print(f"  ratio batched / one batch: memory {batched[0] / whole[0]:.3f}, time {batched[1] / whole[1]:.2f}")
+        base = measure(1 << 62, trimmed=False)
+        print(f"  one batch, padded (baseline):            peak {base[0]:7.0f} MB, {base[1]:6.2f} s")
+        print(f"  ratio batched / baseline: memory {batched[0] / base[0]:.3f}, time {batched[1] / base[1]:.2f}")
 
 
 if __name__ == "__main__":

@@ -207,8 +207,8 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     out = {**fit, "positive": positive_option, "n": int(len(cell))}
     levels = np.unique(level)
     shown = np.abs(levels[levels != 0])
-    # A threshold outside the levels shown is no measurement of one, only a bound: past the largest the
-    # answers barely follow the level; below the smallest they were right at every level shown.
+    # A threshold outside the levels shown is no measurement of one: past the largest the answers barely
+    # follow the level; below the smallest it is the fitted curve's extrapolation.
     out["threshold_range"] = _threshold_range(fit["threshold_deg"], shown)
     out["within_range"] = out["threshold_range"] == "within"
     out["levels_shown_deg"] = [float(shown.min()), float(shown.max())]
@@ -382,16 +382,16 @@ def summary_text(result: dict) -> str:
     lines = [f"{result['trials']} trials, {len(result['participants'])} participants "
              f"({', '.join(result['participants'][:8])}{' ...' if len(result['participants']) > 8 else ''})"]
     lines.append(f"{'task':<12} {'condition':<13} {'n':>5} {'accuracy':>8}  {'95% CI':<15} {'chance':>6} "
-                 f"{'bits':>5} {'chance':>6} {'beyond':>6} {'rt median':>9}")
+                 f"{'bits':>5} {'shuffled':>8} {'beyond':>6} {'rt median':>9}")
     for cell in result["cells"]:
         lo, hi = cell["ci95"]
         rt = f"{cell['rt_s']:.2f} s" if cell["rt_s"] is not None else "-"
         lines.append(f"{cell['task']:<12} {cell['condition']:<13} {cell['n']:>5} {cell['accuracy']:>8.3f}  "
                      f"[{lo:.3f}, {hi:.3f}]  {cell['chance']:>6.3f} {cell['information_bits']:>5.2f} "
-                     f"{cell['information_chance_bits']:>6.2f} {cell['information_bits_beyond_chance']:>6.2f} {rt:>9}")
+                     f"{cell['information_chance_bits']:>8.2f} {cell['information_bits_beyond_chance']:>6.2f} {rt:>9}")
     if result["cells"]:
-        lines.append("bits: information transfer, biased upwards with few trials; chance: the mean bits of the same "
-                     "answers shuffled against the stimuli; beyond: bits less chance")
+        lines.append("bits: information transfer, biased upwards with few trials; shuffled: the mean bits of the same "
+                     "answers shuffled against the stimuli (what chance gives); beyond: bits less shuffled")
     for task, fits in result["psychometric"].items():
         for condition, fit in fits.items():
             if "error" in fit:
