@@ -306,7 +306,7 @@ def request(topic: str, message: Message, reply_topic: str, reply_type: type[Mes
     try:
         node.create_subscription(reply_topic, reply_type, replies.append)
         pub = node.create_publisher(topic, type(message))
-        _spin(node, 0.2)                   # the subscription in force before the request goes out
+        _spin(node, 0.2)                   # (in force once made); what came before the request is dropped
         replies.clear()
         pub.publish(message)
         _spin(node, timeout, lambda: done(replies))
