@@ -154,7 +154,9 @@ class SceneControl:
             obj = objects[self.scene.selected]
             obj.orientation = renormalize(r @ obj.orientation)
         else:
-            objects = [o for i, o in enumerate(objects) if i not in self.fixed] or objects
+            objects = [o for i, o in enumerate(objects) if i not in self.fixed]
+            if not objects:
+                return
             centre = np.mean([o.position for o in objects], axis=0)
             for obj in objects:
                 obj.position = centre + r @ (obj.position - centre)
@@ -187,7 +189,9 @@ class SceneControl:
             raise SceneCommandError(f"{name!r} is a physics command and the scene node runs no physics: run the "
                                     f"physics node in its place (touch4d launch demo scene:=physics "
                                     f"scene.scene:=config/scenes/physics-drop.yaml)")
-        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+        own = [c for c in SCENE_COMMANDS if c not in PHYSICS_COMMANDS]
+        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(own)} (and the physics "
+                                f"node's {', '.join(PHYSICS_COMMANDS)})")
 
     def load(self, text: str, source: str = "scene/command load") -> bool:
         """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it. A bad
