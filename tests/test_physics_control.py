@@ -137,3 +137,15 @@ def test_physics_commands_on_the_bus_are_logged_and_shown_and_none_taken_is_said
     assert re.search(r"scene/command step 5 at step \d+: paused at step \d+, 5 single steps due", log), log
     last = [line for line in log.splitlines() if "steps run" in line][-1]
     assert len(re.findall(r"\d+ steps", last)) == 1 and re.search(r"\d+ steps run \(\d+ more dropped", last), last
+
+
+def test_the_plain_scene_node_never_turns_a_static_floor_either():
+    from touch4d.bus.testing import running_broker
+    from touch4d.nodes.scene import SceneNode
+
+    with running_broker() as bus:
+        node = SceneNode(bus=bus, params={"scene": "config/scenes/physics-drop.yaml"}, heartbeat=False)
+        try:
+            assert node.control.scene.selected == 1 and node.control.fixed == {0}
+        finally:
+            node.shutdown()
