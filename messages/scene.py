@@ -6,7 +6,8 @@ import numpy as np
 from .base import Array, Float, Map, Message, Records, doc
 
 PROJECTIONS = ("orthographic", "perspective")
-SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", "pause", "play", "step")   # the last three: physics
+PHYSICS_COMMANDS = ("pause", "play", "step")      # only the physics node runs these
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", *PHYSICS_COMMANDS)
 
 SceneObject = Records(
     name=str, shape=str, params=Map, size=Float, position=Array(4), orientation=Array(4, 4), color=Array(4),

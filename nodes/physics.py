@@ -107,11 +107,17 @@ class PhysicsNode(Node):
         self.flush_journal()
 
     def on_command(self, msg: SceneCommand) -> None:
+        at = self.session.state.steps
         try:
             self.session.command(msg.command, msg.argument)
         except Touch4dError as exc:      # SceneCommandError, or (ConfigError) a bad scene to load: nothing changes
             self.counts["bad_commands"] += 1
             self.log.warning("scene/command ignored: %s", exc)
+        else:
+            s = self.session
+            said = msg.command + (f" {msg.argument}" if msg.argument and msg.command != "load" else "")
+            self.log.info("scene/command %s at step %d: %s at step %d%s", said, at, "paused" if s.paused else "running",
+                          s.state.steps, f", {s.single_steps} single steps due" if s.single_steps else "")
         self.flush_journal()
 
     def tick(self) -> None:
@@ -159,7 +165,9 @@ class PhysicsNode(Node):
         self.published_revision = self.session.control.scene.revision
 
     def on_shutdown(self) -> None:
-        self.log.info("%d steps (%.3f s simulated): %s", self.session.state.steps, self.session.state.time, self.counts)
+        c = self.counts                  # one count of steps: the world's own restarts at each reset
+        self.log.info("%d steps run (%d more dropped behind the clock), %d contact events, %d bad commands",
+                      c["steps"], c["late_steps"], c["contact_events"], c["bad_commands"])
 
 
 if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does

@@ -15,6 +15,7 @@ from touch4d.bus import Node, Param
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
+from touch4d.physics.config import load_physics
 from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ROTATE_TARGETS, ControlConfig, SceneControl
 
@@ -43,6 +44,8 @@ class SceneNode(Node):
                                            buttons=p["buttons"], rotate=p["rotate"], spin=p["spin"],
                                            source=self.param_where("spin")[0])
         self.control = SceneControl(load_scene(p["scene"]), load_calibration(p["calibration"]), config)
+        # a scene file's static bodies (a floor) are never the controller's, with or without physics
+        self.control.fix(i for i, o in enumerate(load_physics(p["scene"]).objects) if o.static)
         self.calibration_mtime = os.stat(p["calibration"]).st_mtime_ns
         self.create_timer(1.0, self.reload_calibration)
         self.dirty = False

@@ -146,6 +146,13 @@ def test_an_unknown_role_names_the_file_the_roles_and_the_closest():
     assert "did you mean 'scene'?" in str(launch_error(["scen:=scripted"]))
 
 
+def test_a_typo_of_a_role_removed_earlier_suggests_that_role_and_says_it_is_gone():
+    # `study run --simulate` removes the renderer before the user's overrides; the study has a recorder
+    text = str(launch_error(["renderer:=none", "rendrer:=none"], path=str(ROOT / "launch" / "study.yaml")))
+    assert "(did you mean 'renderer'? an earlier renderer:=none removed it)" in text
+    assert "recorder?" not in text and "'recorder'?" not in text
+
+
 def test_an_undeclared_parameter_names_the_role_the_node_and_its_parameters():
     err = launch_error(["tracker.rat:=5"])
     text = str(err)

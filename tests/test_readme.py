@@ -23,3 +23,10 @@ def test_every_config_and_launch_file_the_readme_names_exists(tmp_path, monkeypa
     assert len(names) > 10
     for name in sorted(names):
         resolve_path(name)
+
+
+def test_the_commands_before_the_simulated_study_table_name_its_seed():
+    seed = re.search(r"simulated participants \(seed (\d+), made by the commands above", README)
+    assert seed, "the simulated study's table says which seed made it"
+    commands = re.findall(r"touch4d study run \S+ --simulate --offline[^\n]*", README[:seed.start()])
+    assert commands and f"--seed {seed.group(1)}" in commands[-1]

@@ -10,7 +10,7 @@ from scipy.special import ndtr
 
 from touch4d.cli import main
 from touch4d.study.analysis import analyze, cell_summary, fit_psychometric, load, psychometric
-from touch4d.study.infotransfer import information_transfer
+from touch4d.study.infotransfer import information_transfer, transfer_beyond_chance
 from touch4d.study.table import COLUMNS, write_rows
 
 CONDITIONS = ("visual", "touch", "visual+touch")
@@ -172,6 +172,107 @@ def test_information_transfer_of_a_symmetric_binary_channel():
     assert information_transfer([[80, 20], [20, 80]]) == pytest.approx(expected)
 
 
+def test_three_trials_answered_three_ways_transfer_the_maximum_and_nothing_beyond_chance():
+    # every pairing of 3 stimuli with 3 distinct answers gives log2(3) bits, right or wrong
+    for table in (np.eye(3), np.eye(3)[[1, 2, 0]]):
+        out = transfer_beyond_chance(table)
+        assert out["bits"] == pytest.approx(math.log2(3))
+        assert out["chance_bits"] == pytest.approx(math.log2(3))
+        assert out["bits_beyond_chance"] == 0.0 and out["p"] == 1.0
+
+
+def test_the_chance_bits_of_unrelated_answers_match_millers_bias():
+    # answers independent of the stimulus: the estimate's bias is (r-1)(c-1) / (2 n ln 2) to first order
+    rng = np.random.default_rng(4)
+    n, rows, cols = 600, 3, 4
+    table = np.zeros((rows, cols), int)
+    np.add.at(table, (rng.integers(rows, size=n), rng.integers(cols, size=n)), 1)
+    out = transfer_beyond_chance(table, shuffles=4000)
+    assert out["chance_bits"] == pytest.approx((rows - 1) * (cols - 1) / (2 * n * math.log(2)), rel=0.15)
+    assert out["p"] > 0.01
+
+
+def test_a_real_identification_stands_above_chance():
+    out = transfer_beyond_chance(np.eye(3) * 10)
+    assert out["bits"] == pytest.approx(math.log2(3))
+    assert 0 < out["chance_bits"] < 0.2 and out["bits_beyond_chance"] > 1.3 and out["p"] < 0.001
+
+
+def test_a_threshold_below_the_smallest_or_above_the_largest_level_is_flagged():
+    from touch4d.study.analysis import summary_text
+
+    rng = np.random.default_rng(9)
+    sharp = pd.DataFrame(tilt_rows(rng, 0.0, 0.2, 0.0, 12, participant="P01")
+                         + tilt_rows(rng, 0.0, 0.2, 0.0, 12, participant="P02"))
+    flat = pd.DataFrame(tilt_rows(rng, 0.0, 400.0, 0.0, 12, participant="P01"))
+    for data in (sharp, flat):
+        data["timed_out"] = False
+    low, high = psychometric(sharp, bootstrap=0), psychometric(flat, bootstrap=0)
+    assert low["threshold_deg"] < 2 and low["threshold_range"] == "below" and not low["within_range"]
+    assert low["threshold_outside_by_participant"] == {"P01": "below", "P02": "below"}
+    assert all(0 < t < 2 for t in low["threshold_by_participant"].values())       # kept, flagged
+    assert high["threshold_by_participant"] == {"P01": None}
+    assert high["threshold_outside_by_participant"] == {"P01": "above"}
+    assert high["threshold_deg"] > 16 and high["threshold_range"] == "above" and not high["within_range"]
+    assert low["levels_shown_deg"] == [2.0, 16.0]
+    text = summary_text({"trials": 1, "participants": ["P01"], "cells": [], "tests": {},
+                         "psychometric": {"tilt": {"touch": low, "visual": high}}})
+    assert "below the smallest level shown, 2 deg" in text and "P01 below, P02 below" in text
+    assert "no threshold within the levels shown" in text and "the largest level, 16 deg" in text
+
+
+def perfectly_separated(tmp_path):
+    """Look-alikes answered all wrong by sight and all right by touch, by three participants."""
+    rows = []
+    for i in range(3):
+        for c, condition in enumerate(CONDITIONS):
+            for t, answer in enumerate(("a", "b", "c")):
+                response = {"a": "b", "b": "c", "c": "a"}[answer] if condition == "visual" else answer
+                rows.append(row(f"P{i + 1:02d}", c, t, "looks", "look-alikes", condition, answer, answer, response,
+                                math.nan))
+    return write_sessions(tmp_path, rows)
+
+
+def test_perfect_separation_reaches_the_terminal_and_the_json(tmp_path, capsys):
+    where = perfectly_separated(tmp_path)
+    assert main(["study", "analyze", str(where), "--no-report", "--bootstrap", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "not valid: perfect separation" in out
+    assert "warning: looks: perfect separation (visual all wrong, touch all correct, visual+touch all correct)" in out
+    assert main(["study", "analyze", str(where), "--json", "--no-report", "--bootstrap", "0"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["tests"]["looks"]["separation"] == {"visual": "all wrong", "touch": "all correct",
+                                                      "visual+touch": "all correct"}
+    assert any("perfect separation" in w for w in result["warnings"])
+    # 0 of 9 right by sight, yet a consistent confusion: the bits say so, beside what chance gives
+    cell = result["tasks"]["looks"]["visual"]
+    assert cell["accuracy"] == 0 and cell["information_bits"] == pytest.approx(math.log2(3))
+    assert 0 < cell["information_chance_bits"] < cell["information_bits"]
+    assert cell["information_bits_beyond_chance"] == pytest.approx(math.log2(3) - cell["information_chance_bits"])
+
+
+def test_the_report_names_its_columns_and_axes_and_writes_a_dash_for_what_is_missing(tmp_path):
+    from touch4d.study.analysis import figure_confusions, report_html
+
+    rng = np.random.default_rng(9)
+    rows = synthetic(rng, 2, 6, {"visual": 0.4, "touch": 0.8, "visual+touch": 0.9})
+    rows += tilt_rows(rng, 0.0, 0.2, 0.0, 6, participant="P01") + tilt_rows(rng, 0.0, 3.0, 0.0, 6, participant="P02")
+    data = load(write_sessions(tmp_path, rows))
+    result = analyze(data, bootstrap=0)
+    page = report_html(result, data)
+    assert "None" not in page and "nan" not in page
+    for raw in ("p_above_chance", "time_touching_s", "information_bits", "rt_s", "threshold_deg", "pse_deg"):
+        assert raw not in page
+    assert "<th>time touching, median (s)</th>" in page and "<th>p (above chance)</th>" in page
+    assert "(below 2)</td>" in page                         # P01's threshold, below the smallest level
+    assert "perfect separation" not in page
+    axes = [ax for ax in figure_confusions(result).axes if ax.get_title()]
+    assert axes and all(ax.get_xlabel() == "answer given" and ax.get_ylabel() == "truth (correct answer)"
+                        for ax in axes)
+    page = report_html(*(lambda d: (analyze(d, bootstrap=0), d))(load(perfectly_separated(tmp_path / "sep"))))
+    assert "warning: looks: perfect separation" in page
+
+
 # ---- the command ----------------------------------------------------------------------------------------------
 
 
@@ -227,3 +328,26 @@ def test_a_bad_cell_names_file_line_and_column(tmp_path, capsys):
     assert main(["study", "analyze", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "line 4, column correct" in err and "'yes'" in err
+
+
+def test_the_report_leaves_the_callers_matplotlib_backend_and_pyplot_alone(tmp_path):
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from touch4d.study.analysis import figure_summary, report_html
+
+    rng = np.random.default_rng(5)
+    rows = synthetic(rng, 2, 6, {"visual": 0.4, "touch": 0.8, "visual+touch": 0.9})
+    rows += tilt_rows(rng, 0.0, 3.0, 0.0, 4, participant="P02")
+    data = load(write_sessions(tmp_path, rows))
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")                    # a notebook user's choice, say
+    try:
+        figures = plt.get_fignums()
+        result = analyze(data, bootstrap=0, tests=False)
+        assert report_html(result, data).count("data:image/png;base64,") >= 3
+        figure_summary(result).savefig(tmp_path / "summary.png")
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == figures
+        assert (tmp_path / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    finally:
+        matplotlib.use(before)

@@ -147,3 +147,11 @@ def test_transfer_reports_bits_per_task_for_the_glove_and_the_every_sample_glove
     assert [(r["task"], r["motors"]) for r in out["results"]] == [("lookalikes", 30), ("lookalikes", 247)]
     for r in out["results"]:
         assert 0 < r["bits"] <= r["max_bits"] + 1e-9 and np.sum(r["confusion"]) == r["test_patterns"] == 3 * 2 * 6
+
+
+def test_the_transfer_table_rounds_the_bits_and_their_maximum_alike():
+    from touch4d.study.cli import transfer_table
+
+    perfect = {"task": "lookalikes", "motors": 30, "bits": math.log2(3), "max_bits": math.log2(3), "accuracy": 1.0}
+    row = transfer_table([perfect]).splitlines()[1].split()
+    assert row[2] == row[3] == "1.585"

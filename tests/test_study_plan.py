@@ -89,7 +89,9 @@ def test_a_session_holds_every_stimulus_repetitions_times_per_condition(paper):
         assert [t.trial for t in block] == list(range(len(block)))
         assert [t.index for t in block[1:]] == [t.index + 1 for t in block[:-1]]
         breaks = [t.trial for t in block if t.break_before]
-        assert breaks == list(range(paper.break_every, len(block), paper.break_every))
+        # every break_every trials, none with fewer than half a stretch left before the block's end
+        assert breaks == [p for p in range(paper.break_every, len(block), paper.break_every)
+                          if len(block) - p >= paper.break_every / 2]
 
 
 def test_tilt_trials_answer_by_the_sign_of_their_level(paper):
@@ -226,3 +228,15 @@ def test_a_bad_tilt_task_is_named(tmp_path):
     with pytest.raises(ConfigError) as info:
         parse_study({"name": "x", "tasks": [{**tilt, "positive": "left", "angles_deg": [2, 90]}]}, "s.yaml")
     assert info.value.key == "tasks[0].angles_deg[1]" and info.value.got == 90
+
+
+def test_no_break_comes_just_before_the_break_between_blocks(paper):
+    # 71 trials a block: every 34 would pause before trial 34 and again 3 trials before the block's end
+    study = replace_study(paper, break_every=34)
+    for block in range(3):
+        trials = [t for t in plan_session(study, "P01") if t.block == block]
+        assert len(trials) == 71
+        assert [t.trial for t in trials if t.break_before] == [34]
+    every24 = [t.trial for t in plan_session(replace_study(paper, break_every=24), "P01") if t.block == 0
+               and t.break_before]
+    assert every24 == [24, 48]               # 23 trials left after the second: half a stretch or more

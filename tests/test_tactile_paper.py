@@ -199,3 +199,18 @@ def test_perspective_distance_is_along_the_sight_line(glove):
     expected = np.sqrt((st.positions ** 2).sum(axis=1) + 9.0) / 3.0
     np.testing.assert_allclose(st.l, expected, atol=1e-9)
     assert st.h.argmax() == np.linalg.norm(st.positions, axis=1).argmin()
+
+
+def test_the_fig18a_scene_is_tilted_to_the_left_and_felt_stronger_on_the_right(glove):
+    # "If the cell is tilted slightly to the left, the stimulus becomes greater on the right" (Fig. 18a),
+    # with the hand where the README's first picture has it
+    from touch4d.geometry.scene import load_scene
+
+    path = "config/scenes/hypercube-tilted.yaml"
+    scene = load_scene(path)
+    st = compute_stimulus(glove, scene.ray_caster(), [-0.2, 0.0, 0.2], [0, 0, 0, 1.0])
+    assert st.touched.all()
+    slope = np.polyfit(st.positions[:, 0], st.h, 1)[0]          # stimulus per screen unit toward +x
+    assert slope > 0.1
+    for text in (open(path).read(), open("README.md").read().split("## ", 1)[0]):   # the file and the picture
+        assert "Fig. 18a" in text and "to the left" in text and "greater on the hand's right" in text

@@ -105,3 +105,11 @@ def test_the_right_hand_is_the_glove_mirrored_and_feels_the_mirrored_object(caps
     np.testing.assert_allclose(pa, pb * [-1, 1, 1], atol=1e-12)
     np.testing.assert_allclose([m["V"] for m in a["motors"]], [m["V"] for m in b["motors"]], atol=1e-9)
     assert max(m["V"] for m in a["motors"]) > 0.3
+
+
+def test_a_misspelt_finger_of_curl_gets_a_did_you_mean(capsys):
+    assert main(["hand", "joints", "--curl", "indx=1"]) == 2
+    err = capsys.readouterr().err
+    assert "'--curl'" in err and "got 'indx=1'" in err and "(did you mean 'index'?)" in err
+    assert main(["hand", "joints", "--curl", "index=2"]) == 2
+    assert "did you mean" not in capsys.readouterr().err          # the finger is right, the amount is not

@@ -295,3 +295,21 @@ def node_list(bus: BusConfig | None = None, duration: float = 2.5, out=None) -> 
         print(f"(no heartbeat within {duration:g} s)", file=out)
     return beats
 
+
+
+def request(topic: str, message: Message, reply_topic: str, reply_type: type[Message], done,
+            bus: BusConfig | None = None, timeout: float = 3.0) -> list[Message]:
+    """Publish `message` on `topic` once and collect what arrives on `reply_topic` (subscribed first, so
+    nothing is missed) until `done(replies)` or `timeout` s: what a command that waits for its effect needs."""
+    node = _tool(bus, "request")
+    replies: list[Message] = []
+    try:
+        node.create_subscription(reply_topic, reply_type, replies.append)
+        pub = node.create_publisher(topic, type(message))
+        _spin(node, 0.2)                   # (in force once made); what came before the request is dropped
+        replies.clear()
+        pub.publish(message)
+        _spin(node, timeout, lambda: done(replies))
+    finally:
+        node.shutdown()
+    return replies

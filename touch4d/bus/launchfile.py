@@ -156,6 +156,7 @@ def _check_role(source, key: str, role: str) -> None:
 
 def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "the launch file") -> None:
     """Apply `ROLE:=NODE`, `+ROLE:=NODE`, `ROLE:=none` and `ROLE.PARAM:=VALUE` to `nodes`, in order."""
+    removed: list[str] = []          # roles an earlier `ROLE:=none` took out: still what a typo may mean
     for arg in overrides:
         target, sep, text = arg.partition(":=")
         if not sep or not target:
@@ -171,8 +172,12 @@ def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "t
             nodes[role] = NodeSpec(role, module=text, source=COMMAND_LINE)
             continue
         if role not in nodes:
+            near = suggest(role, [*nodes, *removed])
+            gone = next((r for r in removed if f"'{r}'" in near), None)
+            if gone:
+                near = near[:-1] + f" an earlier {gone}:=none removed it)"
             raise ConfigError(COMMAND_LINE, arg, f"a role of {launch_file} (one of: {', '.join(nodes) or 'none'})"
-                              f"{suggest(role, nodes)}; +ROLE:=NODE adds a node", got=role)
+                              f"{near}; +ROLE:=NODE adds a node", got=role)
         spec = nodes[role]
         if dot:
             try:
@@ -183,6 +188,7 @@ def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "t
             spec.param_sources = {**spec.param_sources, param: (COMMAND_LINE, arg)}
         elif text == "none":
             del nodes[role]
+            removed.append(role)
         else:
             _load_node(COMMAND_LINE, arg, text)
             if spec.module != text:

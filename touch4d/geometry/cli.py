@@ -96,7 +96,13 @@ def _check(args) -> int:
         where = _on_screen(vertices, scene)
         outside += where is not None
         print(line + ("" if where is None else f"; {where}"))
-    selected = "the whole scene" if scene.selected < 0 else f"object {scene.selected}"
+    from touch4d.physics.config import load_physics
+    from touch4d.tracking.scene_control import controller_object
+
+    static = [i for i, o in enumerate(load_physics(path).objects) if o.static]
+    index = controller_object(scene.selected, static, len(scene.objects))
+    selected = ("the whole scene" if index < 0 else f"object {index} ({scene.objects[index].name})") + (
+        f"; never the static {', '.join(repr(scene.objects[i].name) for i in static)}" if static else "")
     print(f"ok{f', but {outside} object(s) cannot be seen or touched' if outside else ''}; the controller turns "
           f"{selected}")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 
 import numpy as np
 
@@ -19,10 +20,10 @@ def register(subparsers) -> None:
     physics.set_defaults(func=lambda args: (physics.print_help(), 2)[1])
     sim = sub.add_parser(
         "simulate", help="run a scene's physics for a while and print the final state",
-        description="Step the scene's physics (the physics node's fixed step) for --duration seconds and print, "
-                    "per object, position, orientation (world = orientation @ (size * local) + position), "
-                    "velocity and angular velocity (degrees per second by plane), and the scene's total energy and "
-                    "angular momentum.")
+        description="Step the scene's physics (the physics node's fixed step) for --duration seconds and print "
+                    "the scene's total energy and angular momentum and, per moving object, its position, velocity "
+                    "and turning (angular velocity, degrees per second by plane). --json also gives every object's "
+                    "orientation (world = orientation @ (size * local) + position), static ones included.")
     sim.add_argument("scene", metavar="SCENE", help="scene file (YAML) with physics keys")
     sim.add_argument("--duration", type=_seconds, default=1.0, metavar="S", help="simulated seconds (default 1)")
     sim.add_argument("--rate", type=_positive, metavar="HZ", help="internal steps per second (default: the scene's)")
@@ -33,6 +34,8 @@ def register(subparsers) -> None:
     sim.add_argument("--frame-size", default="480x400", metavar="WxH", help="size of each frame (default 480x400)")
     sim.add_argument("--camera", default="yaw=25,pitch=15,distance=5.2,target=0:-0.2:0",
                      help="orbit camera of the frames: yaw=DEG,pitch=DEG,distance=D,target=X:Y:Z")
+    sim.add_argument("--backend", choices=("gpu", "clip", "auto"), default="auto",
+                     help="the renderer's backend for --frames, as for touch4d render (default auto)")
     sim.set_defaults(func=run_simulate)
     rep = sub.add_parser(
         "replay", help="replay a recorded physics session from its journal and compare with its recorded states",
@@ -49,10 +52,13 @@ def register(subparsers) -> None:
     for name, text in (("pause", "pause the running physics node (again: go on)"), ("play", "go on after a pause"),
                        ("step", "run N steps of the paused physics node"), ("reset", "put every body back where "
                                                                                    "the scene file has it")):
-        cmd = sub.add_parser(name, help=text, description=f"{text[0].upper()}{text[1:]}: a scene/command on the bus.")
+        cmd = sub.add_parser(name, help=text, description=f"{text[0].upper()}{text[1:]}: a scene/command on the bus; "
+                                                          "waits for the physics node's journal to show it taken.")
         if name == "step":
             cmd.add_argument("count", nargs="?", type=int, default=1, metavar="N", help="how many steps (default 1)")
         cmd.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+        cmd.add_argument("--wait", type=_positive, default=3.0, metavar="S",
+                         help="seconds to wait for the physics node's journal to show the command (default 3)")
         cmd.set_defaults(func=run_command, command=name)
 
 
@@ -147,7 +153,7 @@ def draw_frames(scene, world, shots, args) -> None:
     size = parse_size(args.frame_size)
     camera = parse_camera(args.camera, OrbitCamera())
     view = SceneView(load_glove(None), Style(), Show(frame=True, tactile=False, status=False))
-    renderer = OffscreenRenderer(size, samples=4)
+    renderer = OffscreenRenderer(size, samples=4, backend=args.backend)
     images = []
     try:
         for t, state in shots:
@@ -242,13 +248,63 @@ def run_replay(args) -> int:
 
 
 def run_command(args) -> int:
-    """Send one scene/command (pause, play, step N, reset) to the physics node on the bus."""
+    """Send one scene/command (pause, play, step N, reset) to the physics node on the bus and wait for the
+    journal entries that show it taken; exit 1 when none came."""
     from touch4d.bus.config import resolve_bus_config
-    from touch4d.bus.introspect import topic_pub
+    from touch4d.bus.introspect import request
+    from touch4d.messages import PhysicsInput, SceneCommand
 
     argument = str(args.count) if args.command == "step" else ""
     if args.command == "step" and args.count < 1:
         raise ConfigError(COMMAND_LINE, "N", "a number of steps >= 1", got=args.count)
-    topic_pub("scene/command", json.dumps({"command": args.command, "argument": argument}),
-              resolve_bus_config(args.bus), count=1)
+    taken_at: list[float] = []
+
+    def done(got) -> bool:
+        """The journal shows the outcome, or the command was taken SETTLE_S ago and nothing more will show."""
+        if command_outcome(args.command, argument, got, final=False) is not None:
+            return True
+        if command_outcome(args.command, argument, got, final=True) is not None:
+            taken_at[:] = taken_at or [time.monotonic()]
+            return time.monotonic() - taken_at[0] > SETTLE_S
+        return False
+
+    entries = request("scene/command", SceneCommand(command=args.command, argument=argument), "physics/journal",
+                      PhysicsInput, done, resolve_bus_config(args.bus), timeout=args.wait)
+    outcome = command_outcome(args.command, argument, entries, final=True)
+    if outcome is None:
+        print(f"touch4d physics: no physics node took {args.command} within {args.wait:g} s (none on this bus, or it "
+              "refused the command: its log says why); the plain scene node runs no physics: "
+              "touch4d launch demo scene:=physics", file=sys.stderr)
+        return 1
+    print(f"physics node: {outcome}")
     return 0
+
+
+SETTLE_S = 1.0   # after a command is taken, how long no steps mean none will come (the node ticks at 50 Hz or more)
+
+
+def command_outcome(command: str, argument: str, entries, *, final: bool) -> str | None:
+    """What the physics node's journal entries (`physics/journal`, after the command was sent) show of the
+    command: a sentence once they show it, else None. `final`: no more will come (the wait is over), so
+    what has not happened will not (a pause that no steps followed holds)."""
+    taken = next((i for i, e in enumerate(entries) if e.kind == "command" and e.args.get("command") == command
+                  and str(e.args.get("argument", "")) == argument), None)
+    if taken is None:
+        return None
+    at = entries[taken].step
+    runs = [e for e in entries[taken + 1:] if e.kind == "run"]
+    ran = sum(int(e.args.get("steps", 0)) for e in runs)
+    if command == "reset":
+        return f"reset at step {at}: every body back where the scene file has it (step 0)"
+    if command == "step":
+        wanted = int(argument or 1)
+        if ran >= wanted:
+            return f"ran {wanted} step(s) from step {runs[0].step}: paused at step {runs[0].step + wanted}"
+        return f"took step {wanted} at step {at}; {ran} of them ran before the wait ended" if final else None
+    if command == "play":
+        if runs:
+            return f"running from step {runs[0].step}"
+        return f"took play at step {at}; no steps ran before the wait ended (still paused?)" if final else None
+    if runs:                                       # pause toggles: steps after it mean it went on
+        return f"pause toggles, and it was paused: running again from step {runs[0].step}"
+    return f"paused at step {at} (pause again or play to go on)" if final else None

@@ -16,6 +16,7 @@ import numpy as np
 
 from touch4d.errors import ConfigError
 from touch4d.geometry.scene import Scene
+from touch4d.messages import PHYSICS_COMMANDS
 from touch4d.tracking.calibration import Calibration
 from touch4d.tracking.scene_control import BUTTON_COMMANDS, ControlConfig, SceneCommandError, SceneControl
 
@@ -24,7 +25,6 @@ from .config import PhysicsConfig
 from .push import Touch, push_impulses, touch_from_stimulus
 from .world import Contacts, build_world, step, with_pose
 
-PHYSICS_COMMANDS = ("pause", "play", "step")
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection", "thumbstick": "pause"}
 MAX_SINGLE_STEPS = 100000
 
@@ -68,6 +68,7 @@ class PhysicsSession:
                  glove=None, push_rate: float = 0.0):
         self.control = SceneControl(scene, calibration, config)
         self.world, self.initial = build_world(self.control.scene, physics)
+        self.control.fix(np.flatnonzero(self.world.static))     # a static body is never the controller's
         self.state = self.initial
         self.paused = paused
         self.single_steps = 0
@@ -225,6 +226,7 @@ class PhysicsSession:
 
         source = "scene/command load"
         self.world, self.initial = build_world(self.control.scene, parse_physics(parse_yaml(text, source), source))
+        self.control.fix(np.flatnonzero(self.world.static))
         self.state = self.initial
         self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
         self._turn_rate, self._turn_step = np.zeros(6), None

@@ -12,11 +12,12 @@ outcome with model observers before anyone is recruited.
   rng)` and `respond(trial, patterns | None, scene | None, rng)`; `every_sample_glove(glove)`.
 - `simulate`: the offline simulation (no bus) into session folders; `table`: trials.csv (`COLUMNS`,
   `read_trials`); `analysis`: `touch4d study analyze`; `infotransfer`: bits from a confusion matrix
-  and predicted per glove.
+  (beside the bits its answers give shuffled) and predicted per glove.
 
 Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
-it: every `break_every` trials within a block, never before a block's first); the model observer's
-constructor also takes `exploration`, `train_scenes`, `train_positions` and `view_scenes` (how much
-it is trained: fewer for a quick run); `trial_row`-style writers use `table.COLUMNS`, the one
-declaration of the trials.csv columns that the analysis reads.
+it: every `break_every` trials within a block, never before a block's first nor with under half a
+stretch left before the block's end); the model observer's constructor also takes `exploration`,
+`train_scenes`, `train_positions` and `view_scenes` (how much it is trained: fewer for a quick run);
+`trial_row`-style writers use `table.COLUMNS`, the one declaration of the trials.csv columns that
+the analysis reads.
 """

@@ -24,7 +24,7 @@ from scipy.stats import norm
 from touch4d.errors import Touch4dError, Unavailable
 
 from .design import KINDS
-from .infotransfer import information_transfer
+from .infotransfer import transfer_beyond_chance
 from .table import read_trials
 
 CONDITION_ORDER = ("visual", "touch", "visual+touch")
@@ -88,7 +88,11 @@ def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) ->
                 continue
             summary = cell_summary(cell, chance)
             confusion = confusion_matrix(cell)
-            summary["information_bits"] = information_transfer(confusion.to_numpy())
+            transfer = transfer_beyond_chance(confusion.to_numpy(), seed=seed)
+            summary["information_bits"] = transfer["bits"]
+            summary["information_chance_bits"] = transfer["chance_bits"]
+            summary["information_bits_beyond_chance"] = transfer["bits_beyond_chance"]
+            summary["information_p"] = transfer["p"]
             summary["max_bits"] = math.log2(max(2, cell["answer"].nunique()))
             result["tasks"][task][condition] = summary
             result["cells"].append({"task": task, "condition": condition, **summary})
@@ -104,6 +108,7 @@ def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) ->
                 for condition in conditions if (rows["condition"] == condition).any()}
         if tests:
             result["tests"][task] = condition_tests(rows, conditions)
+    result["warnings"] = condition_test_warnings(result["tests"])
     return result
 
 
@@ -182,6 +187,7 @@ def fit_psychometric(level, positive) -> dict:
 
 
 _Z75 = float(norm.ppf(0.75))      # 75% correct lies 0.674 sigma from the pse
+_Z975 = float(norm.ppf(0.975))    # a two-sided 95% interval: 1.96 standard deviations each side
 _PHI0 = float(norm.pdf(0.0))      # the slope of Phi at the pse, per sigma
 _PSYCHOMETRIC_KEYS = ("pse_deg", "threshold_deg", "sigma_deg", "slope_per_deg", "lapse")
 
@@ -200,19 +206,27 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
     fit = fit_psychometric(level, positive)
     out = {**fit, "positive": positive_option, "n": int(len(cell))}
     levels = np.unique(level)
-    # A threshold past the largest level shown is no measurement of one: the answers barely follow the level.
-    out["within_range"] = bool(fit["threshold_deg"] <= np.abs(levels).max())
+    shown = np.abs(levels[levels != 0])
+    # A threshold outside the levels shown is no measurement of one: past the largest the answers barely
+    # follow the level; below the smallest it is the fitted curve's extrapolation.
+    out["threshold_range"] = _threshold_range(fit["threshold_deg"], shown)
+    out["within_range"] = out["threshold_range"] == "within"
+    out["levels_shown_deg"] = [float(shown.min()), float(shown.max())]
     out["levels"] = levels.tolist()
     out["p_positive"] = [float(positive[level == x].mean()) for x in levels]
     out["trials_per_level"] = [int((level == x).sum()) for x in levels]
     # Each participant's own threshold (no interval): what a paired comparison across conditions takes.
-    own = {}
+    own, outside = {}, {}
     for participant, rows in cell.groupby("participant"):
         lv = rows["level"].to_numpy(float)
         if len(rows) >= 4 and len(np.unique(lv)) >= 2:
             f = fit_psychometric(lv, (rows["response"] == positive_option).to_numpy(float))
-            own[str(participant)] = f["threshold_deg"] if f["threshold_deg"] <= np.abs(levels).max() else None
+            where = _threshold_range(f["threshold_deg"], shown)
+            own[str(participant)] = f["threshold_deg"] if where != "above" else None   # below: extrapolated
+            if where != "within":
+                outside[str(participant)] = where
     out["threshold_by_participant"] = own
+    out["threshold_outside_by_participant"] = outside
     if bootstrap > 0:
         def statistic(lv, pos):
             if len(np.unique(lv)) < 2:
@@ -229,6 +243,11 @@ def psychometric(cell, *, bootstrap: int = 200, seed: int = 0) -> dict:
                        for i, key in enumerate(_PSYCHOMETRIC_KEYS)}
         out["bootstrap"] = bootstrap
     return out
+
+
+def _threshold_range(threshold: float, shown) -> str:
+    """Where a threshold lies against the (unsigned, nonzero) levels shown: below, within or above."""
+    return "below" if threshold < shown.min() else "above" if threshold > shown.max() else "within"
 
 
 def _positive_option(cell) -> str:
@@ -260,7 +279,26 @@ def condition_tests(rows, conditions: list[str]) -> dict:
     formula = f"correct ~ C(condition, Treatment(reference={reference!r}))"
     out["gee"] = _gee(frame, formula, reference)
     out["mixed"] = _mixed(frame, formula, reference)
+    # A condition answered all right (or all wrong) separates the outcome perfectly: its log odds have no
+    # finite maximum-likelihood estimate, so the GEE's Wald test and odds ratios mean nothing.
+    accuracy = frame.groupby("condition")["correct"].mean()
+    separated = {c: "all correct" if accuracy[c] == 1 else "all wrong" for c in present if accuracy[c] in (0.0, 1.0)}
+    if separated:
+        out["separation"] = separated
     return out
+
+
+def condition_test_warnings(tests: dict) -> list[str]:
+    """Every warning of the tests of condition, one line each, naming the task and the model."""
+    lines = []
+    for task, test in tests.items():
+        if test.get("separation"):
+            cells = ", ".join(f"{c} {how}" for c, how in test["separation"].items())
+            lines.append(f"{task}: perfect separation ({cells}): the GEE's Wald test and odds ratios are not "
+                         f"estimates (its p means nothing); the mixed model's prior keeps its effects finite")
+        for label, key in (("GEE", "gee"), ("mixed model", "mixed")):
+            lines += [f"{task}: {label}: {w}" for w in test.get(key, {}).get("warnings", [])]
+    return lines
 
 
 def _term_name(name: str, reference: str) -> str:
@@ -320,8 +358,8 @@ def _mixed(frame, formula: str, reference: str) -> dict:
         if name.startswith("C(condition"):
             effects[_term_name(name, reference)] = {
                 "log_odds": float(mean), "sd": float(sd),
-                "ci95": [float(mean - 1.959964 * sd), float(mean + 1.959964 * sd)],
-                "credible": bool(mean - 1.959964 * sd > 0 or mean + 1.959964 * sd < 0)}
+                "ci95": [float(mean - _Z975 * sd), float(mean + _Z975 * sd)],
+                "credible": bool(mean - _Z975 * sd > 0 or mean + _Z975 * sd < 0)}
     return {
         "test": "mixed-effects logistic (BinomialBayesMixedGLM, variational Bayes): condition fixed, "
                 "participant random",
@@ -339,50 +377,74 @@ def _num(value) -> float | None:
 
 
 def summary_text(result: dict) -> str:
-    """A terminal summary: accuracy with intervals, answer times, psychometric thresholds, tests."""
+    """A terminal summary: accuracy with intervals, answer times, psychometric thresholds, tests and
+    what they cannot tell (chance's share of the bits, thresholds outside the levels, separation)."""
     lines = [f"{result['trials']} trials, {len(result['participants'])} participants "
              f"({', '.join(result['participants'][:8])}{' ...' if len(result['participants']) > 8 else ''})"]
     lines.append(f"{'task':<12} {'condition':<13} {'n':>5} {'accuracy':>8}  {'95% CI':<15} {'chance':>6} "
-                 f"{'bits':>5} {'rt median':>9}")
+                 f"{'bits':>5} {'shuffled':>8} {'beyond':>6} {'rt median':>9}")
     for cell in result["cells"]:
         lo, hi = cell["ci95"]
         rt = f"{cell['rt_s']:.2f} s" if cell["rt_s"] is not None else "-"
         lines.append(f"{cell['task']:<12} {cell['condition']:<13} {cell['n']:>5} {cell['accuracy']:>8.3f}  "
-                     f"[{lo:.3f}, {hi:.3f}]  {cell['chance']:>6.3f} {cell['information_bits']:>5.2f} {rt:>9}")
+                     f"[{lo:.3f}, {hi:.3f}]  {cell['chance']:>6.3f} {cell['information_bits']:>5.2f} "
+                     f"{cell['information_chance_bits']:>8.2f} {cell['information_bits_beyond_chance']:>6.2f} {rt:>9}")
+    if result["cells"]:
+        lines.append("bits: information transfer, biased upwards with few trials; shuffled: the mean bits of the same "
+                     "answers shuffled against the stimuli (what chance gives); beyond: bits less shuffled")
     for task, fits in result["psychometric"].items():
         for condition, fit in fits.items():
             if "error" in fit:
                 lines.append(f"{task} {condition}: {fit['error']}")
                 continue
-            if not fit["within_range"]:
-                lines.append(f"{task} {condition}: no threshold within the levels shown (answers barely follow the "
-                             f"level; fitted {fit['threshold_deg']:.3g} deg, lapse {fit['lapse']:.3f})")
-                continue
-            ci = fit.get("ci95", {}).get("threshold_deg")
-            interval = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
-            lines.append(f"{task} {condition}: threshold {fit['threshold_deg']:.2f} deg{interval}, "
-                         f"pse {fit['pse_deg']:+.2f} deg, lapse {fit['lapse']:.3f}")
+            lines.append(f"{task} {condition}: {threshold_text(fit)}")
+            outside = fit.get("threshold_outside_by_participant", {})
+            if outside:
+                low, high = fit["levels_shown_deg"]
+                lines.append(f"{task} {condition}: per participant outside the levels shown ({low:g} to {high:g} deg): "
+                             + ", ".join(f"{p} {where}" for p, where in sorted(outside.items())))
     for task, test in result["tests"].items():
         gee = test.get("gee", {})
         if "p" in gee:
             lines.append(f"{task}: condition effect (GEE Wald chi2({gee['df']}) = {gee['chi2']:.2f}, "
                          f"p = {gee['p']:.3g}; reference {test['reference']})"
+                         + ("; not valid: perfect separation (see the warnings)" if test.get("separation") else "")
                          + (f"; {gee['note']}" if gee.get("note") else ""))
         elif "error" in test or "error" in gee:
             lines.append(f"{task}: {test.get('error') or gee.get('error')}")
+    lines += [f"warning: {w}" for w in result.get("warnings", [])]
     return "\n".join(lines)
+
+
+def threshold_text(fit: dict) -> str:
+    """A psychometric fit's threshold in words, or the bound it gives when outside the levels shown."""
+    low, high = fit.get("levels_shown_deg", [math.nan, math.nan])
+    where = fit.get("threshold_range", "within" if fit["within_range"] else "above")
+    if where == "above":
+        return (f"no threshold within the levels shown (answers barely follow the level; fitted "
+                f"{fit['threshold_deg']:.3g} deg > the largest level, {high:g} deg; lapse {fit['lapse']:.3f})")
+    ci = fit.get("ci95", {}).get("threshold_deg")
+    interval = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
+    below = (f" (below the smallest level shown, {low:g} deg: extrapolated by the fitted curve, not measured)"
+             if where == "below" else "")
+    return (f"threshold {fit['threshold_deg']:.2f} deg{interval}{below}, pse {fit['pse_deg']:+.2f} deg, "
+            f"lapse {fit['lapse']:.3f}")
+
+
+def _new_figure(rows: int = 1, columns: int = 1, *, figsize, **options):
+    """A Figure and its axes from matplotlib's object API: no pyplot, so the caller's backend (a
+    notebook's, say) is left as it was and no figure lingers in pyplot's registry."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, columns, **options)
 
 
 def figure_accuracy(result: dict, ax=None):
     """Accuracy per task and condition with 95% intervals and the chance level (a matplotlib Figure)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tasks = list(result["tasks"])
     conditions = result["conditions"]
-    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.6)) if ax is None else (ax.figure, ax)
+    fig, ax = _new_figure(figsize=(1.9 + 1.9 * len(tasks), 3.6)) if ax is None else (ax.figure, ax)
     width = 0.8 / max(1, len(conditions))
     colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
     for j, condition in enumerate(conditions):
@@ -411,13 +473,8 @@ def figure_accuracy(result: dict, ax=None):
 
 def figure_psychometric(result: dict, task: str, ax=None):
     """The psychometric data and fits of a tilt task, one curve per condition."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fits = result["psychometric"][task]
-    fig, ax = plt.subplots(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
+    fig, ax = _new_figure(figsize=(5.2, 3.6)) if ax is None else (ax.figure, ax)
     colors = {"visual": "#5b8bd0", "touch": "#e08a3c", "visual+touch": "#5aa85a"}
     for condition, fit in fits.items():
         if "error" in fit:
@@ -439,16 +496,11 @@ def figure_psychometric(result: dict, task: str, ax=None):
 
 def figure_summary(result: dict):
     """Accuracy per task and condition beside the first tilt task's psychometric functions."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tilt = next(iter(result["psychometric"]), None)
     width = 1.9 + 1.9 * len(result["tasks"])
     if tilt is None:
         return figure_accuracy(result)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
+    fig, (left, right) = _new_figure(1, 2, figsize=(width + 4.6, 3.8), width_ratios=[width, 4.6])
     figure_accuracy(result, ax=left)
     figure_psychometric(result, tilt, ax=right)
     fig.tight_layout()
@@ -456,15 +508,10 @@ def figure_summary(result: dict):
 
 
 def figure_confusions(result: dict):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tasks = list(result["confusion"])
     conditions = result["conditions"]
-    fig, axes = plt.subplots(len(tasks), len(conditions), figsize=(3.0 * len(conditions), 2.6 * len(tasks)),
-                             squeeze=False)
+    fig, axes = _new_figure(len(tasks), len(conditions), figsize=(3.0 * len(conditions), 2.6 * len(tasks)),
+                            squeeze=False)
     for i, task in enumerate(tasks):
         for j, condition in enumerate(conditions):
             ax = axes[i][j]
@@ -480,20 +527,17 @@ def figure_confusions(result: dict):
             for (r, c), value in np.ndenumerate(counts):
                 ax.text(c, r, int(value), ha="center", va="center", fontsize=7,
                         color="white" if rates[r, c] > 0.6 else "black")
+            ax.set_xlabel("answer given", fontsize=7)
+            ax.set_ylabel("truth (correct answer)", fontsize=7)
             ax.set_title(f"{task}, {condition}", fontsize=8)
     fig.tight_layout()
     return fig
 
 
 def figure_times(data):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     conditions = conditions_in(data)
     tasks = tasks_in(data)
-    fig, ax = plt.subplots(figsize=(1.9 + 1.9 * len(tasks), 3.4))
+    fig, ax = _new_figure(figsize=(1.9 + 1.9 * len(tasks), 3.4))
     groups, labels = [], []
     for task in tasks:
         for condition in conditions:
@@ -507,13 +551,35 @@ def figure_times(data):
     return fig
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
+def _own_threshold(fit: dict, participant: str) -> str:
+    """One participant's threshold as the report shows it: the value, or the bound when outside the levels."""
+    where = fit.get("threshold_outside_by_participant", {}).get(participant)
+    low, high = fit["levels_shown_deg"]
+    value = fit["threshold_by_participant"][participant]
+    if where == "above":
+        return f"> {high:g}"
+    if value is None:
+        return "-"
+    return f"{value:.2f} (below {low:g})" if where == "below" else f"{value:.2f}"
 
+
+def _png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
     return base64.b64encode(buf.getvalue()).decode()
+
+
+# The cells' keys as the report's column headings say them.
+CELL_COLUMNS = {
+    "task": "task", "condition": "condition", "n": "trials", "accuracy": "accuracy", "95% CI": "95% CI",
+    "chance": "chance", "p_above_chance": "p (above chance)", "information_bits": "bits",
+    "information_chance_bits": "bits by chance", "information_bits_beyond_chance": "bits beyond chance",
+    "rt_s": "answer time, median (s)", "RT IQR (s)": "answer time, IQR (s)", "timed_out": "timed out",
+    "time_touching_s": "time touching, median (s)", "mean_intensity": "mean intensity",
+    "path_length": "hand path, median",
+}
+PSYCHOMETRIC_COLUMNS = {"pse_deg": "PSE (deg)", "threshold_deg": "threshold (deg)", "sigma_deg": "sigma (deg)",
+                        "slope_per_deg": "slope (per deg)", "lapse": "lapse rate"}
 
 
 def report_html(result: dict, data, title: str = "touch4d study") -> str:
@@ -526,9 +592,7 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
         cells["95% CI"] = cells["ci95"].map(lambda c: f"[{c[0]:.3f}, {c[1]:.3f}]")
         cells["RT IQR (s)"] = cells["rt_iqr_s"].map(
             lambda c: "-" if c[0] is None else f"[{c[0]:.2f}, {c[1]:.2f}]")
-        cells = cells[["task", "condition", "n", "accuracy", "95% CI", "chance", "p_above_chance",
-                       "information_bits", "rt_s", "RT IQR (s)", "timed_out", "time_touching_s",
-                       "mean_intensity", "path_length"]]
+        cells = cells[list(CELL_COLUMNS)].rename(columns=CELL_COLUMNS)
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
@@ -537,7 +601,10 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
              f"<p>{result['trials']} trials (practice left out) from {len(result['participants'])} participants: "
              f"{esc(', '.join(result['participants']))}.</p>",
              "<h2>Accuracy</h2>", f"<img alt='accuracy' src='data:image/png;base64,{_png(figure_accuracy(result))}'>",
-             cells.to_html(index=False, float_format=lambda v: f"{v:.3g}", na_rep="-") if not cells.empty else ""]
+             cells.to_html(index=False, float_format=lambda v: f"{v:.3g}", na_rep="-") if not cells.empty else "",
+             "<p><small>Bits: the information transferred (maximum likelihood), biased upwards with few trials; "
+             "bits by chance: their mean with the same answers shuffled against the stimuli (what answers that "
+             "carry nothing would show); bits beyond chance: the difference.</small></p>"]
     for task in result["psychometric"]:
         parts.append(f"<h2>Psychometric function: {esc(task)}</h2>")
         parts.append(f"<img alt='psychometric {esc(task)}' "
@@ -547,17 +614,25 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
             if "error" in fit:
                 rows.append({"condition": condition, "note": fit["error"]})
                 continue
-            row = {"condition": condition, "n": fit["n"]}
+            row = {"condition": condition, "trials": fit["n"]}
             for key in _PSYCHOMETRIC_KEYS:
                 ci = fit.get("ci95", {}).get(key)
-                row[key] = f"{fit[key]:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
+                row[PSYCHOMETRIC_COLUMNS[key]] = f"{fit[key]:.3g}" + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
+            row["note"] = "" if fit["within_range"] else threshold_text(fit)
             rows.append(row)
-        parts.append(pd.DataFrame(rows).to_html(index=False, na_rep=""))
-        own = pd.DataFrame({c: f.get("threshold_by_participant", {}) for c, f in result["psychometric"][task].items()})
+        parts.append(pd.DataFrame(rows).fillna("").to_html(index=False))
+        fits = {c: f for c, f in result["psychometric"][task].items() if "error" not in f}
+        own = pd.DataFrame({c: {p: _own_threshold(f, p) for p in f["threshold_by_participant"]}
+                            for c, f in fits.items()})
         if not own.empty:
-            parts.append("<p>Threshold (degrees) per participant; - where it lies beyond the levels shown:</p>")
-            parts.append(own.sort_index().to_html(float_format=lambda v: f"{v:.2f}", na_rep="-"))
+            low, high = next(iter(fits.values()))["levels_shown_deg"]
+            parts.append(f"<p>Threshold (degrees) per participant; outside the levels shown ({low:g} to {high:g}) "
+                         f"it is no measurement: below {low:g} the fitted curve's extrapolation, &gt; {high:g} where "
+                         f"the answers barely follow the level; - where too few trials:</p>")
+            parts.append(own.sort_index().fillna("-").to_html())
     parts.append("<h2>Effect of condition</h2>")
+    if result.get("warnings"):
+        parts.append("<ul>" + "".join(f"<li>warning: {esc(w)}</li>" for w in result["warnings"]) + "</ul>")
     for task, test in result["tests"].items():
         parts.append(f"<h3>{esc(task)}</h3>")
         if "error" in test:
@@ -583,11 +658,8 @@ def report_html(result: dict, data, title: str = "touch4d study") -> str:
         for label, part in (("GEE", gee), ("mixed model", mixed)):
             if part.get("error"):
                 parts.append(f"<p>{label}: {esc(part['error'])}</p>")
-                continue
-            if part.get("note"):
+            elif part.get("note"):
                 parts.append(f"<p><small>{label}: {esc(part['note'])}</small></p>")
-            if part.get("warnings"):
-                parts.append(f"<p><small>{label} warnings: {esc('; '.join(part['warnings']))}</small></p>")
     parts.append("<h2>Confusion matrices</h2>")
     parts.append(f"<img alt='confusions' src='data:image/png;base64,{_png(figure_confusions(result))}'>")
     parts.append("<h2>Answer times</h2>")

@@ -222,10 +222,16 @@ def run_transfer(args) -> int:
         print(json.dumps(_clean({"study": study.name, "glove": glove.path, "noise": args.noise, "results": results})))
         return 0
     print(f"{study.name}: information transferred by one touch ({glove.path}; noise {args.noise} per motor)")
-    print(f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>5} {'accuracy':>8}")
-    for r in results:
-        print(f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>5.2f} {r['accuracy']:>8.2f}")
+    print(transfer_table(results))
     return 0
+
+
+def transfer_table(results: list[dict]) -> str:
+    """`study transfer`'s table: bits and their maximum rounded alike (a perfect score reads x of x)."""
+    lines = [f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>6} {'accuracy':>8}"]
+    lines += [f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>6.3f} {r['accuracy']:>8.2f}"
+              for r in results]
+    return "\n".join(lines)
 
 
 def run_analyze(args) -> int:

@@ -122,7 +122,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     counterbalance: Literal["latin", "all"] | None = None
     repetitions: Positive = 1
     practice: Count = 0
-    break_every: Count = 0              # 0: no breaks but between blocks
+    break_every: Count = 0              # 0: no breaks but between blocks (none with < break_every/2 left)
     time_limit_s: Seconds = 30.0
     max_run: Positive = 3
     seed: Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")] = 0

@@ -24,6 +24,7 @@ import hashlib
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.special import log_softmax
 
 from touch4d.errors import ConfigError, Unavailable
 from touch4d.geometry.scene import Scene
@@ -135,9 +136,8 @@ class _Cue:
             truth = np.searchsorted(fit.classes_, answers[held])
 
             def loss(log_t):
-                z = logp / np.exp(log_t)
-                z = z - z.max(axis=1, keepdims=True)
-                return float(np.mean(np.log(np.exp(z).sum(axis=1)) - z[np.arange(len(z)), truth]))
+                z = log_softmax(logp / np.exp(log_t), axis=1)
+                return -float(np.mean(z[np.arange(len(z)), truth]))
 
             self.temperature = float(np.exp(minimize_scalar(loss, bounds=(-3.0, 7.0), method="bounded").x))
         self.model = classifier().fit(features, answers)
@@ -145,9 +145,7 @@ class _Cue:
 
     def log_posterior(self, features: np.ndarray) -> np.ndarray:
         """Summed (tempered) log posterior of each option over the rows of `features` (K, D)."""
-        z = self.model.predict_log_proba(np.atleast_2d(features)) / self.temperature
-        z = z - z.max(axis=1, keepdims=True)
-        z = z - np.log(np.exp(z).sum(axis=1, keepdims=True))
+        z = log_softmax(self.model.predict_log_proba(np.atleast_2d(features)) / self.temperature, axis=1)
         total = z.sum(axis=0)
         return np.array([total[c] if c is not None else -np.inf for c in self.columns])
 

@@ -117,9 +117,20 @@ def plan_session(study: Study, participant: str) -> list[Trial]:
         run = _tail_run([it[3] for it in sequence])
         main = constrained_shuffle(items, study.max_run, rng, key=lambda it: it[3], last=last, run=run,
                                    file=study.path)
+        breaks = break_positions(len(sequence) + len(main), study.break_every)
         for position, item in enumerate(sequence + main):
-            trials.append(_trial(study, len(trials), block, position, position < start, condition, item, rng))
+            trials.append(_trial(study, len(trials), block, position, position < start, condition, item, rng,
+                                 position in breaks))
     return trials
+
+
+def break_positions(length: int, every: int) -> set[int]:
+    """The positions in a block of `length` trials before which a pause is offered: every `every`
+    trials, never before the first, and not where fewer than half a stretch remain (the break between
+    blocks comes soon enough; 34 of 71 trials would otherwise pause 3 trials before it)."""
+    if every <= 0:
+        return set()
+    return {p for p in range(every, length, every) if 2 * (length - p) >= every}
 
 
 def quick_plan(study: Study, participant: str) -> list[Trial]:
@@ -154,15 +165,14 @@ def _stimuli(task: Task) -> list[tuple[str, float, str]]:
 
 
 def _trial(study: Study, index: int, block: int, position: int, practice: bool, condition: str, item,
-           rng: np.random.Generator) -> Trial:
+           rng: np.random.Generator, break_before: bool) -> Trial:
     task, stimulus, level, answer = item
     seed = int(rng.integers(0, 2**63 - 1))
     transform = draw_jitter(task, np.random.default_rng(seed))
-    every = study.break_every
     return Trial(index=index, block=block, trial=position, practice=practice, task=task.id, kind=task.kind,
                  condition=condition, stimulus=stimulus, answer=answer, options=list(task.options),
                  prompt=task.prompt, level=level, transform=transform, time_limit_s=study.time_limit_of(task),
-                 seed=seed, break_before=bool(every and position > 0 and position % every == 0))
+                 seed=seed, break_before=break_before)
 
 
 def draw_jitter(task: Task, rng: np.random.Generator) -> list[tuple[str, float]]:

@@ -99,8 +99,9 @@ def _shape(curls: list[str], spread: float) -> HandShape:
         except ValueError:
             amount = math.nan
         if finger not in (*FINGER_NAMES, "all") or not 0.0 <= amount <= 1.0:
+            hint = schema.did_you_mean(finger, (*FINGER_NAMES, "all")) if finger not in (*FINGER_NAMES, "all") else None
             raise ConfigError(COMMAND_LINE, "--curl", f"FINGER=C with FINGER one of {', '.join(FINGER_NAMES)}, "
-                              "all, and C in 0..1", got=item)
+                              "all, and C in 0..1", got=item, hint=hint)
         curl.update({f: amount for f in FINGER_NAMES} if finger == "all" else {finger: amount})
     return HandShape(curl=curl, spread=spread)
 

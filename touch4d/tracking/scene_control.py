@@ -19,7 +19,7 @@ from touch4d.errors import Touch4dError
 from touch4d.schema import Finite, parse_yaml
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene, parse_scene
-from touch4d.messages import PROJECTIONS, SCENE_COMMANDS
+from touch4d.messages import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS
 
 from touch4d.geometry import quaternion
 from .calibration import Calibration
@@ -83,6 +83,14 @@ class ControlConfig:
         return cls(t_gain, r_gain, threshold, dict(buttons), rotate, plane, rate)
 
 
+def controller_object(selected: int, fixed, count: int) -> int:
+    """The object the controller turns: `selected` unless it is fixed (a static body), then the first of
+    the `count` objects that is not, else -1 (the whole scene)."""
+    if selected < 0 or selected not in fixed:
+        return selected
+    return next((i for i in range(count) if i not in fixed), -1)
+
+
 class SceneControl:
     """The scene and what the controller does to it; every method returns whether the scene changed."""
 
@@ -95,6 +103,14 @@ class SceneControl:
         self._initial = self.scene.copy()
         self._grab: tuple[np.ndarray, np.ndarray] | None = None
         self._held: frozenset[str] = frozenset()
+        self.fixed: frozenset[int] = frozenset()    # objects the controller never turns (physics' static bodies)
+
+    def fix(self, indices) -> None:
+        """Objects the controller never turns (a static floor): never selected, `next` passes them by, the
+        whole scene turns without them; a selection on one moves to the first that may move."""
+        self.fixed = frozenset(int(i) for i in indices)
+        for scene in (self.scene, self._initial):
+            scene.selected = controller_object(scene.selected, self.fixed, len(scene.objects))
 
     # ---- controller ----------------------------------------------------------------------------
 
@@ -138,6 +154,9 @@ class SceneControl:
             obj = objects[self.scene.selected]
             obj.orientation = renormalize(r @ obj.orientation)
         else:
+            objects = [o for i, o in enumerate(objects) if i not in self.fixed]
+            if not objects:
+                return
             centre = np.mean([o.position for o in objects], axis=0)
             for obj in objects:
                 obj.position = centre + r @ (obj.position - centre)
@@ -166,7 +185,13 @@ class SceneControl:
             return self._projection(argument)
         if name == "load":
             return self.load(argument)
-        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(SCENE_COMMANDS)}")
+        if name in PHYSICS_COMMANDS:
+            raise SceneCommandError(f"{name!r} is a physics command and the scene node runs no physics: run the "
+                                    f"physics node in its place (touch4d launch demo scene:=physics "
+                                    f"scene.scene:=config/scenes/physics-drop.yaml)")
+        own = [c for c in SCENE_COMMANDS if c not in PHYSICS_COMMANDS]
+        raise SceneCommandError(f"unknown scene command {name!r}; expected one of {', '.join(own)} (and the physics "
+                                f"node's {', '.join(PHYSICS_COMMANDS)})")
 
     def load(self, text: str, source: str = "scene/command load") -> bool:
         """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it. A bad
@@ -177,11 +202,12 @@ class SceneControl:
         scene.revision = self.scene.revision + 1
         self.scene = scene
         self._initial = scene.copy()
+        self.fixed = frozenset()              # other objects: whoever fixed the old ones fixes the new
         self._grab = None
         return True
 
     def _next_index(self) -> int:
-        order = list(range(len(self.scene.objects))) + [-1]
+        order = [i for i in range(len(self.scene.objects)) if i not in self.fixed] + [-1]
         if len(order) <= 2:
             return self.scene.selected  # one object: it is the whole scene
         return order[(order.index(self.scene.selected) + 1) % len(order)]
@@ -191,15 +217,17 @@ class SceneControl:
         if argument in ("scene", "-1"):
             return -1
         names = [o.name for o in self.scene.objects]
-        if argument in names:
-            return names.index(argument)
         try:
-            index = int(argument)
+            index = names.index(argument) if argument in names else int(argument)
         except ValueError:
             index = None
         if index is None or not 0 <= index < len(names):
             raise SceneCommandError(f"select: expected an object index 0..{len(names) - 1}, a name ({', '.join(names)}) "
                              f"or 'scene', got {argument!r}")
+        if index in self.fixed:
+            movable = ", ".join(n for i, n in enumerate(names) if i not in self.fixed) or "none"
+            raise SceneCommandError(f"select: {names[index]!r} (object {index}) is static: the controller never turns "
+                                    f"it; expected one that moves ({movable}) or 'scene'")
         return index
 
     def _select(self, index: int) -> bool:

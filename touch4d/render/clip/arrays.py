@@ -39,6 +39,32 @@ def pad_width(v: np.ndarray, width: int) -> np.ndarray:
 
 
 
+# The most float64 values one batch of plane values holds (32 MB): a scene's widest body (a 120-cell's
+# 144 clip units, 600 vertices) times thousands of overlapping pairs would otherwise take gigabytes.
+BATCH_FLOATS = 1 << 22
+
+
+def batches(cost: np.ndarray, limit: int | None = None) -> list[np.ndarray]:
+    """The indices of items of `cost` floats each, in batches of at most `limit` floats (BATCH_FLOATS;
+    at least one item): cheap items together and dear ones together (sorted by cost), so that a batch
+    trimmed to its widest item wastes little."""
+    limit = BATCH_FLOATS if limit is None else limit
+    if len(cost) * int(cost.max(initial=0)) <= limit:
+        return [np.arange(len(cost))]                # the usual case: one batch, in order
+    order = np.argsort(cost, kind="stable")
+    ranked = np.maximum(cost.take(order), 1)
+    out, start = [], 0
+    while start < len(order):
+        # ranked ascends, so a batch costs its size times its last item
+        end = start + max(1, int(limit // ranked[start]))
+        end = min(end, len(order))
+        while end - start > 1 and (end - start) * ranked[end - 1] > limit:
+            end = start + max(1, (end - start) // 2)
+        out.append(order[start:end])
+        start = end
+    return out
+
+
 # One 4D point (4 float64) as a single opaque item: numpy gathers and scatters such items 2-4x faster
 # than rows of a (N, 4) float array, and the splitting loop moves little else.
 POINT = np.dtype((np.void, 4 * 8))

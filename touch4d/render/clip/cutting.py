@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import POINT, as_points, compress, extent, pad_width, short_axis_first, take_points
+from .arrays import POINT, as_points, batches, compress, extent, pad_width, short_axis_first, take_points
 from .occluders import TOUCH, Occluders, plane_values
 
 
@@ -17,8 +17,10 @@ def cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: Occlud
     item, b, rank = occ.candidates(*extent(v), body)
     # Drop pairs where the polygon lies outside one clip unit; keep each pair's straddled units.
     # A polygon lying on the outline's boundary counts as inside, so coplanar faces get hidden.
-    s = plane_values(occ.planes.take(b, axis=0), v.take(item, axis=0))
-    near = (s.min(axis=1) <= TOUCH).all(axis=0)
+    near = np.zeros(len(item), bool)
+    for rows in batches(occ.n_planes.take(b) * v.shape[1]):
+        s = plane_values(occ.planes_of(b.take(rows)), v.take(item.take(rows), axis=0))
+        near[rows] = (s.min(axis=1) <= TOUCH).all(axis=0)
     item, b = item[near], b[near]
     if len(item) == 0:
         return v, count, src
@@ -35,7 +37,7 @@ def cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: Occlud
         pair_of_src[item[at]] = np.nonzero(at)[0]
         pair = pair_of_src[work_src]
         act = pair >= 0
-        pv, pc, parent = _subtract(*compress(act, wv, wc), b[pair[act]], occ)
+        pv, pc, parent = _subtract_batched(*compress(act, wv, wc), b[pair[act]], occ)
         rest_v, rest_c, rest_src = compress(~act, wv, wc, work_src)
         wv = np.concatenate([pad_width(rest_v, pv.shape[1]), pad_width(pv, wv.shape[1])])
         wc = np.concatenate([rest_c, pc])
@@ -47,13 +49,26 @@ def cut_polygons(v: np.ndarray, count: np.ndarray, body: np.ndarray, occ: Occlud
             np.concatenate([count, wc]), np.concatenate([src, work_src]))
 
 
+def _subtract_batched(v, count, body, occ: Occluders):
+    """`_subtract` in batches of bounded memory (its plane values are polygons x vertices x units)."""
+    parts = [(_subtract(v.take(rows, axis=0), count.take(rows), body.take(rows), occ), rows)
+             for rows in batches(occ.n_planes.take(body) * v.shape[1])]
+    if len(parts) == 1:
+        (pv, pc, parent), rows = parts[0]
+        return pv, pc, rows.take(parent)
+    width = max(p[0][0].shape[1] for p in parts)
+    return (np.concatenate([pad_width(pv, width) for (pv, _, _), _ in parts]),
+            np.concatenate([pc for (_, pc, _), _ in parts]),
+            np.concatenate([rows.take(parent) for (_, _, parent), rows in parts]))
+
+
 def _subtract(v, count, body, occ: Occluders):
     """Pieces of each polygon outside `body`'s outline if it is behind the body there.
 
     Only the clip units that cross a polygon cut it, one after the other: piece j lies inside units
     1..j-1 and outside unit j; what is left is inside the outline. Returns (pieces, counts, parent
     index into the inputs)."""
-    planes = occ.planes.take(body, axis=0)
+    planes = occ.planes_of(body)
     s_all = plane_values(planes, v)                                           # (M, K, Q)
     low, high = s_all.min(axis=1), s_all.max(axis=1)                           # (M, Q)
     straddle = (high > TOUCH) & (low < -TOUCH)
@@ -163,7 +178,11 @@ def cut_segments(v: np.ndarray, body: np.ndarray, occ: Occluders):
         act = occluder >= 0
         if not act.any():
             continue
-        pv, parent = _subtract_segments(v.compress(act, axis=0), occluder[act], occ)
+        sv, sb = v.compress(act, axis=0), occluder[act]
+        done = [(_subtract_segments(sv.take(rows, axis=0), sb.take(rows), occ), rows)
+                for rows in batches(occ.n_planes.take(sb) * 2)]          # bounded memory, as for polygons
+        pv = np.concatenate([p for (p, _), _ in done])
+        parent = np.concatenate([rows.take(par) for (_, par), rows in done])
         rest_v, rest_src = compress(~act, v, src)
         v = np.concatenate([rest_v, pv])
         src = np.concatenate([rest_src, src[act][parent]])
@@ -173,7 +192,7 @@ def cut_segments(v: np.ndarray, body: np.ndarray, occ: Occluders):
 def _subtract_segments(v: np.ndarray, body: np.ndarray, occ: Occluders):
     """Cyrus-Beck: the part of each segment inside the body's outline, dropped where behind the body."""
     a, d = v[:, 0], v[:, 1] - v[:, 0]
-    s = plane_values(occ.planes.take(body, axis=0), v)              # (M, 2, Q): units along rows
+    s = plane_values(occ.planes_of(body), v)                        # (M, 2, Q): units along rows
     sa, sb = s[:, 0], s[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = sa / (sa - sb)

@@ -6,7 +6,7 @@ import numpy as np
 
 from touch4d.geometry import halfspace
 
-from .arrays import pad_width, short_axis_first
+from .arrays import batches, pad_width, short_axis_first
 from .place import DUMMY_PLANE
 
 TOUCH = 1e-9                 # screen units: closer to an outline than this counts as on it
@@ -25,7 +25,12 @@ class Occluders:
         self.front = np.zeros((n_bodies, c_width), bool)
         v_width = max(c["vertices"].shape[1] for _, c in clips)
         self.vertices = np.zeros((n_bodies, v_width, 4))
+        # Each body's own counts: the arrays are padded to the widest body's, which the cutting leaves out.
+        self.n_planes = np.ones(n_bodies, np.int64)
+        self.n_vertices = np.ones(n_bodies, np.int64)
         for ids, c in clips:
+            self.n_planes[ids] = c["planes"].shape[1]
+            self.n_vertices[ids] = c["vertices"].shape[1]
             self.vertices[ids] = pad_width(c["vertices"], v_width)
             self.planes[ids, :c["planes"].shape[1]] = c["planes"]
             self.normals[ids, :c["normals"].shape[1]] = c["normals"]
@@ -59,11 +64,11 @@ class Occluders:
         # Most overlapping boxes hold bodies whose outlines are apart: the first test settles those,
         # so the second direction and the depth test run on the few pairs left.
         v_i = self.vertices.take(i, axis=0)
-        in_j, apart = self._inside(v_i, j)
+        in_j, apart = self._inside(v_i, j, self.n_vertices.take(i))
         hides[i[apart], j[apart]] = hides[j[apart], i[apart]] = False
         i, j, v_i, in_j = i[~apart], j[~apart], v_i[~apart], in_j[~apart]
         v_j = self.vertices.take(j, axis=0)
-        in_i, apart = self._inside(v_j, i)
+        in_i, apart = self._inside(v_j, i, self.n_vertices.take(j))
         hides[i[apart], j[apart]] = hides[j[apart], i[apart]] = False
         i, j, v_i, v_j, in_i, in_j = i[~apart], j[~apart], v_i[~apart], v_j[~apart], in_i[~apart], in_j[~apart]
         total = (short_axis_first(v_i * in_j[..., None]).sum(axis=0)
@@ -78,12 +83,24 @@ class Occluders:
         hides[i[j_front], j[j_front]] = False
         return hides
 
-    def _inside(self, points: np.ndarray, body: np.ndarray):
-        """For points (Q, V, 4) and bodies (Q,): which project inside the body's outline (Q, V), and
-        whether all lie beyond one of its clip units (Q,), so the two outlines are apart."""
-        planes = self.planes.take(body, axis=0)
-        s = plane_values(planes, points)                                      # (M, V, Q)
-        return (s.max(axis=0) <= TOUCH).T, (s.min(axis=1) > TOUCH).any(axis=0)
+    def _inside(self, points: np.ndarray, body: np.ndarray, n_points: np.ndarray):
+        """For points (Q, V, 4) (padded by repeating the first; each row's own count `n_points`) and
+        bodies (Q,): which project inside the body's outline (Q, V), and whether all lie beyond one of
+        its clip units (Q,), so the two outlines are apart. In batches of bounded memory."""
+        inside, apart = np.zeros(points.shape[:2], bool), np.zeros(len(body), bool)
+        for rows in batches(self.n_planes.take(body) * n_points):
+            k = int(n_points.take(rows).max())
+            s = plane_values(self.planes_of(body.take(rows)), points.take(rows, axis=0)[:, :k])   # (M, k, rows)
+            inside[rows, :k] = (s.max(axis=0) <= TOUCH).T
+            inside[rows, k:] = inside[rows, :1]                      # the padding repeats the first point
+            apart[rows] = (s.min(axis=1) > TOUCH).any(axis=0)
+        return inside, apart
+
+    def planes_of(self, body: np.ndarray) -> np.ndarray:
+        """The clip units of each of `body` (M,) as (M, W, 4), W the most any of them has (the rest of
+        the scene-wide padding, planes every point is inside of, left out)."""
+        width = int(self.n_planes.take(body).max(initial=1))
+        return self.planes[:, :width].take(body, axis=0)
 
     def front_depth(self, body: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Depth v where the sight line through screen point u (Q,3) enters `body` (Q,): its front."""
