@@ -34,6 +34,8 @@ class StudyObserverNode(Node):
         "study": Param("config/studies/paper.yaml", "the study file", path="study file"),
         "participant": Param("", "the participant id the study node runs (the plan is the same)"),
         "quick": Param(False, "the study node's quick plan (touch4d.study.plan.quick_plan)"),
+        "order": Param(None, "the study node's counterbalancing row, from 1 (default: from the participant id)",
+                       type=int, min=1),
         "glove": Param("config/glove.yaml", "the glove file (the tactile node's)", path="glove file"),
         "seed": Param(None, "observer seed (default: from the participant id)", type=int),
         "noise": Param(0.08, "sensory noise on every motor, fraction of full drive", min=0),
@@ -50,7 +52,7 @@ class StudyObserverNode(Node):
             raise self.param_error("participant", "the participant id the study node runs, e.g. P01")
         self.study = load_study(p["study"])
         quick = quick_plan if p["quick"] else plan_session
-        self.plan = {t.index: t for t in quick(self.study, p["participant"])}
+        self.plan = {t.index: t for t in quick(self.study, p["participant"], p["order"])}
         seed = p["seed"] if p["seed"] is not None else participant_hash(p["participant"]) % 2**32
         self.observer = ModelObserver(load_glove(p["glove"]), self.study, noise=p["noise"], lapse=p["lapse"],
                                       seed=seed, train_scenes=p["train_scenes"],

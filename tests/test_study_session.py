@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from touch4d.errors import ConfigError
-from touch4d.study.session import (COLUMNS, SessionError, TrialMeasures, TrialsFile, next_segment, read_manifest,
-                                   write_manifest)
+from touch4d.study.manifest import read_manifest, start_manifest, write_manifest
+from touch4d.study.measures import TrialMeasures
+from touch4d.study.store import SessionError, TrialsFile, next_segment
+from touch4d.study.table import COLUMNS
 
 
 def row(index: int, **extra) -> dict:
@@ -134,7 +136,6 @@ def test_a_session_resumes_only_as_it_was_started(tmp_path):
     from touch4d.boards.dbc import dbc_text
     from touch4d.configfile import resolve_path
     from touch4d.study.design import load_study
-    from touch4d.study.session import start_manifest
 
     study_path = resolve_path("config/studies/paper.yaml")
     common = dict(study=load_study(study_path), study_path=study_path, session="1",

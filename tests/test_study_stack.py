@@ -19,7 +19,8 @@ from touch4d.log.reader import LogReader
 from touch4d.messages import Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
 from touch4d.study.design import load_study
 from touch4d.study.plan import condition_order, quick_plan
-from touch4d.study.session import COLUMNS, run_session
+from touch4d.study.session import run_session
+from touch4d.study.table import COLUMNS
 
 pytestmark = pytest.mark.timeout(180)
 

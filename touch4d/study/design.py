@@ -45,7 +45,8 @@ from touch4d import schema
 from touch4d.configfile import resolve_path
 from touch4d.geometry.rotation import PLANES, plane_axes
 
-CONDITIONS = ("visual", "touch", "visual+touch")
+from .conditions import CONDITIONS
+
 KINDS = ("front-element", "look-alikes", "tilt")
 DEFAULT_STUDY = "config/studies/paper.yaml"
 ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
@@ -117,7 +118,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     name: Name
     tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
     description: str = ""
-    conditions: Annotated[list[Literal["visual", "touch", "visual+touch"]], msgspec.Meta(min_length=1)] = \
+    conditions: Annotated[list[Literal[CONDITIONS]], msgspec.Meta(min_length=1)] = \
         msgspec.field(default_factory=lambda: list(CONDITIONS))
     counterbalance: Literal["latin", "all"] | None = None
     repetitions: Positive = 1

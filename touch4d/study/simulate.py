@@ -21,6 +21,7 @@ import numpy as np
 from touch4d.tactile import Glove
 
 from .design import Study
+from .gate import allowed
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
@@ -54,8 +55,8 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
     Returns the response (None: timed out), answer time and the exploration measures."""
     rng = np.random.default_rng([int(trial.seed), int(seed)])
     scene = trial_scene(study, trial)
-    touch = trial.condition != "visual"            # visual: motors held off
-    view = trial.condition != "touch"              # touch: nothing drawn
+    gate = allowed(trial.condition)                # visual: motors held off; touch: nothing drawn
+    touch, view = gate.motors, gate.objects
     positions = observer.explore(trial, rng)
     patterns = patterns_at(glove, scene, positions) if touch else None
     response = observer.respond(trial, patterns, scene if view else None, rng)

@@ -1,0 +1,91 @@
+"""A session's manifest.json: software version, study file and its sha256, participant, seeds,
+condition order, glove/calibration/DBC sha256, and one entry per start of the study node (its time,
+the trial it resumed at, its process); replaced atomically."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from pathlib import Path
+
+from touch4d.errors import ConfigError
+
+from .plan import participant_hash
+from .store import SessionError, fsync_dir
+
+MANIFEST = "manifest.json"
+
+
+def sha256_file(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def sha256_text(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+
+def software_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("touch4d")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def read_manifest(directory) -> dict:
+    path = Path(directory) / MANIFEST
+    if not path.exists():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(path, "(file)", "a readable manifest (JSON)", got=str(exc)) from None
+
+
+def write_manifest(directory, manifest: dict) -> None:
+    """Replace manifest.json atomically (written beside it, fsync'd, renamed)."""
+    path = Path(directory) / MANIFEST
+    tmp = path.with_suffix(".json.tmp")
+    with open(tmp, "w") as f:
+        json.dump(manifest, f, indent=2, sort_keys=False)
+        f.write("\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    fsync_dir(path.parent)
+
+
+def start_manifest(directory, *, study, study_path, participant: str, session: str, condition_order: list[str],
+                   trials: int, glove_path, calibration_path, dbc_text: str, resumed_at: int,
+                   quick: bool = False) -> dict:
+    """The manifest with this start of the study node added (`starts`); the first start also records
+    what the session is (study, hashes, order, seeds), a later one checks it is the same study."""
+    manifest = read_manifest(directory)
+    study_hash = sha256_file(study_path)
+    where = Path(directory) / MANIFEST
+    if manifest and manifest.get("study_sha256") != study_hash:
+        raise SessionError(f"{where}: this session ran study file sha256 "
+                           f"{manifest.get('study_sha256')}, {study_path} is now {study_hash}: use a new --out")
+    for key, value in (("participant", participant), ("quick", quick)):
+        if manifest and manifest.get(key) != value:
+            raise SessionError(f"{where}: this session ran with {key} {manifest.get(key)!r}, not {value!r}: "
+                               "resume it as it was, or use a new --out")
+    if not manifest:
+        manifest = {
+            "software": "touch4d", "version": software_version(), "study": study.name,
+            "study_file": str(study_path), "study_sha256": study_hash, "participant": participant,
+            "session": session, "study_seed": int(study.seed),
+            "seed": [int(study.seed), participant_hash(participant)],   # the plan's SeedSequence entropy
+            "condition_order": list(condition_order),
+            "trials": trials, "quick": quick,
+            "glove_file": str(glove_path), "glove_sha256": sha256_file(glove_path),
+            "calibration_file": str(calibration_path), "calibration_sha256": sha256_file(calibration_path),
+            "dbc_sha256": sha256_text(dbc_text), "starts": [],
+        }
+    manifest["starts"].append({"time": time.time(), "iso": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                               "resumed_at": resumed_at, "pid": os.getpid()})
+    write_manifest(directory, manifest)
+    return manifest
