@@ -302,6 +302,11 @@ class TrialMachine:
                           kind=t.kind, condition=t.condition, stimulus=t.stimulus, prompt=t.prompt,
                           options=list(t.options), onset=self.onset, time_limit_s=t.time_limit_s, **common)
 
+    @property
+    def scene_text(self) -> str | None:
+        """The scene-file text of the trial shown or about to be (what `LoadScene` last asked for)."""
+        return self._expected[2] if self._expected is not None else None
+
     def drain(self) -> list:
         """The events since the last drain, in order (and an empty outbox)."""
         events, self.outbox = self.outbox, []
