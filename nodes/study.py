@@ -19,6 +19,7 @@ repeated. At the end: phase `done` (motors gated off, nothing drawn) and a `safe
 """
 from __future__ import annotations
 
+import json
 import time
 
 from touch4d.boards.config import load_glove_can
@@ -44,6 +45,8 @@ class StudyNode(Node):
         "participant": Param("", "participant id (P01, P02, ... pick the counterbalancing rows in turn)"),
         "order": Param(None, "counterbalancing row, from 1 (default: from the participant id)", type=int, min=1),
         "session": Param("1", "session label written in every row"),
+        "simulation": Param("", "a simulation's settings as JSON, kept in the manifest (touch4d study run --simulate "
+                                "sets it; empty: a participant's session)"),
         "out": Param("study-data", "output directory; the session lives in OUT/PARTICIPANT/"),
         "quick": Param(False, "one repetition per task x condition cell, no practice (touch4d.study.plan.quick_plan)"),
         "glove": Param("config/glove.yaml", "the glove file (its touch_threshold; hashed in the manifest)",
@@ -61,6 +64,10 @@ class StudyNode(Node):
         p = self.params
         if not p["participant"]:
             raise self.param_error("participant", "a participant id, e.g. P01")
+        try:
+            simulation = json.loads(p["simulation"]) if p["simulation"] else None
+        except ValueError as exc:
+            raise self.param_error("simulation", "the simulation's settings as JSON, or empty", got=str(exc)) from None
         self.study = load_study(p["study"])
         quick = quick_plan if p["quick"] else plan_session
         self.plan = quick(self.study, p["participant"], p["order"])
@@ -80,7 +87,8 @@ class StudyNode(Node):
         start_manifest(self.directory, study=self.study, study_path=p["study"], participant=p["participant"],
                        session=p["session"], condition_order=order, trials=len(self.plan), glove_path=p["glove"],
                        calibration_path=p["calibration"], dbc_text=dbc_text(can),
-                       resumed_at=remaining[0].index if remaining else -1, quick=p["quick"])
+                       resumed_at=remaining[0].index if remaining else -1, quick=p["quick"],
+                       simulation=simulation)
         self.add_stats(lambda: {**self.machine.counts, "done": len(self.trials.rows), "trials": len(self.plan)})
 
         self.trial_pub = self.create_publisher("study/trial", StudyTrial)

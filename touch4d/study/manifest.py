@@ -6,15 +6,18 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 
 from touch4d.errors import ConfigError
 
 from .plan import participant_hash
+from .lock import LOCK
 from .store import SessionError, fsync_dir
 
 MANIFEST = "manifest.json"
+REPORT = "report.html"           # touch4d study analyze's default report, in the output folder
 
 
 def sha256_file(path) -> str:
@@ -60,16 +63,18 @@ def write_manifest(directory, manifest: dict) -> None:
 
 def start_manifest(directory, *, study, study_path, participant: str, session: str, condition_order: list[str],
                    trials: int, glove_path, calibration_path, dbc_text: str, resumed_at: int,
-                   quick: bool = False) -> dict:
+                   quick: bool = False, simulation: dict | None = None) -> dict:
     """The manifest with this start of the study node added (`starts`); the first start also records
-    what the session is (study, hashes, order, seeds), a later one checks it is the same study."""
+    what the session is (study, hashes, order, seeds, the simulation's settings or None for a
+    participant), a later one checks it is the same session."""
     manifest = read_manifest(directory)
     study_hash = sha256_file(study_path)
     where = Path(directory) / MANIFEST
     if manifest and manifest.get("study_sha256") != study_hash:
         raise SessionError(f"{where}: this session ran study file sha256 "
                            f"{manifest.get('study_sha256')}, {study_path} is now {study_hash}: use a new --out")
-    for key, value in (("participant", participant), ("quick", quick)):
+    for key, value in (("participant", participant), ("quick", quick), ("condition_order", list(condition_order)),
+                       ("simulation", simulation)):
         if manifest and manifest.get(key) != value:
             raise SessionError(f"{where}: this session ran with {key} {manifest.get(key)!r}, not {value!r}: "
                                "resume it as it was, or use a new --out")
@@ -80,7 +85,7 @@ def start_manifest(directory, *, study, study_path, participant: str, session: s
             "session": session, "study_seed": int(study.seed),
             "seed": [int(study.seed), participant_hash(participant)],   # the plan's SeedSequence entropy
             "condition_order": list(condition_order),
-            "trials": trials, "quick": quick,
+            "trials": trials, "quick": quick, "simulation": simulation,
             "glove_file": str(glove_path), "glove_sha256": sha256_file(glove_path),
             "calibration_file": str(calibration_path), "calibration_sha256": sha256_file(calibration_path),
             "dbc_sha256": sha256_text(dbc_text), "starts": [],
@@ -89,3 +94,50 @@ def start_manifest(directory, *, study, study_path, participant: str, session: s
                                "resumed_at": resumed_at, "pid": os.getpid()})
     write_manifest(directory, manifest)
     return manifest
+
+
+# ---- what a run may write into an output folder ---------------------------------------------------------
+
+
+def run_settings(manifest: dict) -> dict:
+    """What must agree for sessions to be analysed as one study: the study (name and sha256), `quick`,
+    and the simulation's settings (None: a participant's session)."""
+    return {"study": manifest.get("study"), "study_sha256": manifest.get("study_sha256"),
+            "quick": bool(manifest.get("quick", False)), "simulation": manifest.get("simulation")}
+
+
+def prepare_out(out, participants: list[str], settings: dict, *, overwrite: bool = False, echo=print) -> None:
+    """Check an output folder before a run writes `participants`' sessions with `settings`
+    (`run_settings`' keys). A session folder there that ran otherwise is refused (SessionError naming
+    it and what differs), unless it is one this run writes and `overwrite` is given: it is then
+    emptied. An old report.html is removed (it describes other data)."""
+    out = Path(out)
+    conflicts, replace = [], []
+    for path in sorted(out.glob(f"*/{MANIFEST}")):
+        theirs = run_settings(read_manifest(path.parent))
+        differ = [k for k in settings if theirs.get(k) != settings[k]]
+        if not differ:
+            continue
+        what = "; ".join(f"{k} {_short(theirs.get(k))}, this run {_short(settings[k])}" for k in differ)
+        (replace if overwrite and path.parent.name in participants else conflicts).append((path.parent, what))
+    if conflicts:
+        ours = all(folder.name in participants for folder, _ in conflicts)
+        raise SessionError(f"{out} holds sessions run otherwise than this run: "
+                           + "; ".join(f"{folder} ({what})" for folder, what in conflicts)
+                           + ("; use a new --out, or --overwrite to replace them" if ours else
+                              "; use a new --out (analysed together they would mix two studies)"))
+    for folder, what in replace:
+        for item in folder.iterdir():
+            if item.name != LOCK:
+                shutil.rmtree(item) if item.is_dir() else item.unlink()
+        echo(f"{folder}: replaced (--overwrite; it ran with {what})")
+    report = out / REPORT
+    if report.exists():
+        report.unlink()
+        echo(f"{report}: removed (it described the sessions before this run; touch4d study analyze {out} "
+             "writes a new one)")
+
+
+def _short(value) -> str:
+    text = json.dumps(value, sort_keys=True)
+    return text if len(text) <= 80 else text[:77] + "..."
