@@ -114,11 +114,10 @@ def prepare_out(out, participants: list[str], settings: dict, *, overwrite: bool
     out = Path(out)
     conflicts, replace = [], []
     for path in sorted(out.glob(f"*/{MANIFEST}")):
-        theirs = run_settings(read_manifest(path.parent))
-        differ = [k for k in settings if theirs.get(k) != settings[k]]
+        differ = _differences(run_settings(read_manifest(path.parent)), settings)
         if not differ:
             continue
-        what = "; ".join(f"{k} {_short(theirs.get(k))}, this run {_short(settings[k])}" for k in differ)
+        what = ", ".join(f"{k} {_short(a)} (this run: {_short(b)})" for k, a, b in differ)
         (replace if overwrite and path.parent.name in participants else conflicts).append((path.parent, what))
     if conflicts:
         ours = all(folder.name in participants for folder, _ in conflicts)
@@ -136,6 +135,18 @@ def prepare_out(out, participants: list[str], settings: dict, *, overwrite: bool
         report.unlink()
         echo(f"{report}: removed (it described the sessions before this run; touch4d study analyze {out} "
              "writes a new one)")
+
+
+def _differences(theirs: dict, ours: dict, prefix: str = "") -> list[tuple[str, object, object]]:
+    """(key, theirs, ours) for each setting that differs, a dict's keys one by one (simulation.noise)."""
+    out = []
+    for key in dict.fromkeys([*ours, *theirs]):
+        a, b = theirs.get(key), ours.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            out.append((prefix + key, a, b))
+    return out
 
 
 def _short(value) -> str:

@@ -103,8 +103,8 @@ def _refuse_repeats(data) -> None:
              for (p, s, b, t), files in groups]
     more = f" and {len(named) - 5} more" if len(named) > 5 else ""
     raise ConfigError(repeated["source"].iloc[0], "(rows)", "each (participant, session, block, trial) once",
-                      got="; ".join(named[:5]) + more,
-                      hint="one writer per session folder: run each session into its own --out")
+                      got=f"{len(named)} trial(s) more than once", detail="; ".join(named[:5]) + more,
+                      hint="two writers on one session folder, or one session in two tables: keep one of each")
 
 
 def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,
