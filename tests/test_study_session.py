@@ -129,6 +129,12 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
     assert all(spec.respawn for spec in nodes.values())
     person = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "007", tmp_path))
     assert person["tracker"].module == "desktop" and person["study"].params["participant"] == "007"
+    # a counterbalancing row and the simulation's settings reach the study node (and the observer's plan)
+    settings = {"mode": "full stack", "noise": 0.08, "tracker": ["tracker.pace:=0.1"]}
+    picked = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "bob", tmp_path, order=3,
+                                                         simulate=True, simulation=settings))
+    assert picked["study"].params["order"] == 3 and picked["tracker"].params["order"] == 3
+    assert json.loads(picked["study"].params["simulation"]) == settings
 
 
 def test_a_session_resumes_only_as_it_was_started(tmp_path):

@@ -138,7 +138,7 @@ def run_check(args) -> int:
 def run_plan(args) -> int:
     import msgspec
 
-    from .plan import condition_order, order_note, plan_session, quick_plan
+    from .plan import condition_order, order_note, order_table, plan_session, quick_plan
 
     study = _study(args.study)
     row = _row(study, args.participant, args.order)
@@ -146,11 +146,13 @@ def run_plan(args) -> int:
     order = condition_order(study, args.participant, args.order)
     if args.json:
         out = {"study": study.name, "study_file": study.path, "participant": args.participant,
-               "row": row, "condition_order": order, "order_note": order_note(study, args.participant, args.order),
+               "row": row, "order": row + 1, "condition_order": order,
+               "order_note": order_note(study, args.participant, args.order),
                "trials": msgspec.to_builtins(trials)}
         print(json.dumps(_clean(out)))
         return 0
-    print(f"{study.name}, participant {args.participant} (counterbalancing row {row}): {' -> '.join(order)}")
+    print(f"{study.name}, participant {args.participant} (counterbalancing row {row + 1} of "
+          f"{len(order_table(study))}, --order {row + 1}): {' -> '.join(order)}")
     note = order_note(study, args.participant, args.order)
     if note:
         print(f"note: {note}")

@@ -97,7 +97,7 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
             f"study.out:={text(out)}", f"study.session:={text(session)}", f"study.quick:={flag}",
             f"recorder.file:={text(next_segment(directory))}"]
     if order is not None:
-        args += [f"study.order:={int(order)}"] + ([f"tracker.order:={int(order)}"] if simulate else [])
+        args.append(f"study.order:={int(order)}")
     if simulation is not None:
         args.append(f"study.simulation:={text(json.dumps(simulation, sort_keys=True))}")
     if simulate:
@@ -107,6 +107,8 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
         args += [f"{role}:=none" for role in ("renderer", "monitor") if role not in named]
         if seed is not None:
             args.append(f"tracker.seed:={seed}")
+        if order is not None:
+            args.append(f"tracker.order:={int(order)}")     # the observer plans the same session
         if quick:   # a lighter-trained observer: the run checks the stack, not the observer's accuracy
             args += ["tracker.train_scenes:=4", "tracker.train_positions:=8", "tracker.view_scenes:=8"]
     return args
