@@ -141,3 +141,13 @@ def test_the_exit_status_of_a_run_is_the_worst_of_its_parts():
     assert worst_exit([1, 2]) == 2 and worst_exit([2, 1]) == 2       # not the first that failed
     assert worst_exit([0, -signal.SIGTERM]) == 128 + signal.SIGTERM
     assert worst_exit([]) == 0
+
+
+def test_analyze_refuses_sessions_that_ran_otherwise(tmp_path, capsys):
+    assert main([*OFFLINE, "--out", str(tmp_path / "a")]) == 0
+    assert main([*OFFLINE, "--out", str(tmp_path / "b"), "--noise", "0.2"]) == 0
+    (tmp_path / "b" / "P01").rename(tmp_path / "a" / "P02")     # a session of other noise beside the first
+    capsys.readouterr()
+    assert main(["study", "analyze", str(tmp_path / "a"), "--no-report"]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "a" / "P02") in err and "simulation.noise 0.2 where P01 has 0.08" in err

@@ -308,7 +308,10 @@ def run_transfer(args) -> int:
 
 def run_analyze(args) -> int:
     from .analysis import analyze, load, report_html, summary_text
+    from .manifest import check_one_study
+    from .table import find_tables
 
+    check_one_study(find_tables(args.dir))    # one study, run alike: never two mixed in one analysis
     data = load(args.dir)
     result = analyze(data, bootstrap=args.bootstrap, seed=args.seed)
     report = None

@@ -137,6 +137,27 @@ def prepare_out(out, participants: list[str], settings: dict, *, overwrite: bool
              "writes a new one)")
 
 
+def check_one_study(tables) -> None:
+    """Sessions analysed together must have run alike: a SessionError naming each trials.csv whose
+    manifest's `run_settings` differ from the first's (a table without a manifest is not checked)."""
+    first, odd = None, []
+    for table in tables:
+        folder = Path(table).parent
+        if not (folder / MANIFEST).exists():
+            continue
+        settings = run_settings(read_manifest(folder))
+        if first is None:
+            first = (folder, settings)
+            continue
+        differ = _differences(first[1], settings)
+        if differ:
+            odd.append(f"{folder} (" + ", ".join(f"{k} {_short(b)} where {first[0].name} has {_short(a)}"
+                                                 for k, a, b in differ) + ")")
+    if odd:
+        raise SessionError(f"these sessions ran otherwise than {first[0]}: " + "; ".join(odd)
+                           + "; analysed together they would mix two studies: analyse them apart")
+
+
 def _differences(theirs: dict, ours: dict, prefix: str = "") -> list[tuple[str, object, object]]:
     """(key, theirs, ours) for each setting that differs, a dict's keys one by one (simulation.noise)."""
     out = []
