@@ -163,7 +163,9 @@ def _differences(theirs: dict, ours: dict, prefix: str = "") -> list[tuple[str, 
     out = []
     for key in dict.fromkeys([*ours, *theirs]):
         a, b = theirs.get(key), ours.get(key)
-        if isinstance(a, dict) and isinstance(b, dict):
+        if isinstance(a, dict) and isinstance(b, dict) and a.get("mode") != b.get("mode"):
+            out.append((f"{prefix}{key}.mode", a.get("mode"), b.get("mode")))   # another kind: its mode says it
+        elif isinstance(a, dict) and isinstance(b, dict):
             out += _differences(a, b, f"{prefix}{key}.")
         elif a != b:
             out.append((prefix + key, a, b))
