@@ -13,6 +13,7 @@ from pathlib import Path
 from .store import SessionError
 
 LOCK = ".lock"
+WRITER_ENV = "TOUCH4D_SESSION_WRITER"   # pid of the run that holds the lock for the stack it launched
 
 
 class SessionLock:
@@ -24,14 +25,19 @@ class SessionLock:
         self.path = self.directory / LOCK
         self._fd: int | None = None
 
-    def acquire(self) -> "SessionLock":
+    def acquire(self, holder_ok: int | None = None) -> "SessionLock":
+        """Take the lock, or raise SessionError naming its holder. `holder_ok`: a pid whose lock is
+        this process's too (the study run that launched this node): then nothing is taken."""
         self.directory.mkdir(parents=True, exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = _holder(fd)
+            info = _info(fd)
             os.close(fd)
+            if holder_ok is not None and info.get("pid") == holder_ok:
+                return self
+            holder = _holder(info)
             raise SessionError(f"{self.directory}: another run writes this session folder ({holder}); one writer "
                                "at a time: wait for it to end or stop it, or use another --out") from None
         os.ftruncate(fd, 0)
@@ -52,12 +58,22 @@ class SessionLock:
         self.release()
 
 
-def _holder(fd: int) -> str:
-    """The locking process as its lock file says: pid, command and since when."""
+def writer_pid() -> int | None:
+    """The pid of the run that launched this process and holds its session folder (WRITER_ENV), if any."""
+    text = os.environ.get(WRITER_ENV, "")
+    return int(text) if text.isdigit() else None
+
+
+def _info(fd: int) -> dict:
     try:
         info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
     except (OSError, ValueError):
-        info = {}
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _holder(info: dict) -> str:
+    """The locking process as its lock file says: pid, command and since when."""
     if not info.get("pid"):
         return "a process that has not written its name yet"
     return f"pid {info['pid']}: {info.get('command', '?')}, since {info.get('since', '?')}"

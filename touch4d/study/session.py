@@ -18,7 +18,7 @@ import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
-from .lock import SessionLock
+from .lock import WRITER_ENV, SessionLock
 from .store import next_segment, session_dir
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -147,6 +147,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             echo(f"{participant}: pause with the Pause key (F9) or "
                  "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
+        env[WRITER_ENV] = str(os.getpid())     # this run holds the folder's lock: its study node writes under it
         cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, *bus_args, "--ready-file", str(ready)]
         watcher = None
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
