@@ -31,7 +31,7 @@ from touch4d.study.design import load_study
 from touch4d.study.machine import Announce, Finished, LoadScene, Paused, Resumed, TrialDone, TrialMachine
 from touch4d.study.lock import SessionLock, writer_pid
 from touch4d.study.manifest import start_manifest
-from touch4d.study.plan import condition_order, order_note, plan_session, quick_plan
+from touch4d.study.plan import condition_order, order_note, order_table, plan_session, quick_plan
 from touch4d.study.store import TrialsFile, session_dir
 from touch4d.study.table import TRIALS
 from touch4d.tactile.glove import load_glove
@@ -70,6 +70,9 @@ class StudyNode(Node):
         except ValueError as exc:
             raise self.param_error("simulation", "the simulation's settings as JSON, or empty", got=str(exc)) from None
         self.study = load_study(p["study"])
+        rows = len(order_table(self.study))
+        if p["order"] is not None and p["order"] > rows:
+            raise self.param_error("order", f"a counterbalancing row 1..{rows} of study {self.study.name}")
         quick = quick_plan if p["quick"] else plan_session
         self.plan = quick(self.study, p["participant"], p["order"])
         self.directory = session_dir(p["out"], p["participant"])
