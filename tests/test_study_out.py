@@ -107,7 +107,7 @@ def test_analyze_refuses_a_trial_written_twice_naming_it(tmp_path):
     assert main(["study", "analyze", str(tmp_path / "a"), "--no-report"]) == 2
 
 
-def test_an_id_outside_p01_is_told_its_row_and_order_picks_one(capsys):
+def test_an_id_outside_p01_is_told_its_row_and_order_picks_one(tmp_path, capsys):
     study = load_study("config/studies/paper.yaml")
     rows = order_table(study)
     assert main(["study", "plan", "paper", "--participant", "bob", "--quick"]) == 0
@@ -123,6 +123,12 @@ def test_an_id_outside_p01_is_told_its_row_and_order_picks_one(capsys):
     assert f"1..{len(rows)}" in capsys.readouterr().err
     assert main(["study", "plan", "paper", "--participant", "P01"]) == 0
     assert "note:" not in capsys.readouterr().out          # P01, P02, ... need no note
+    # a session resumes only in the order it ran: refused before any stack starts
+    (tmp_path / "bob").mkdir()
+    (tmp_path / "bob" / "manifest.json").write_text(json.dumps({"condition_order": rows[0]}))
+    assert main(["study", "run", "paper", "--participant", "bob", "--order", "2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert " -> ".join(rows[0]) in err and "--order it ran with" in err
 
 
 def test_a_study_is_found_by_its_name(tmp_path, monkeypatch, capsys):

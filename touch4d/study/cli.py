@@ -244,8 +244,8 @@ def run_full_stack(args) -> int:
                           "--simulate --offline runs simulated participants without it") from None
     from .design import study_file_path
     from .lock import SessionLock
-    from .manifest import prepare_out
-    from .plan import order_note, participant_ids
+    from .manifest import prepare_out, read_manifest
+    from .plan import condition_order, order_note, participant_ids
     from .store import session_dir
 
     study_path = study_file_path(args.study)
@@ -261,6 +261,12 @@ def run_full_stack(args) -> int:
         note = order_note(study, args.participant, args.order)
         if note:
             print(f"note: {note}")
+        ran = read_manifest(session_dir(args.out, args.participant)).get("condition_order")
+        planned = condition_order(study, args.participant, args.order)
+        if ran is not None and ran != planned:
+            raise ConfigError(COMMAND_LINE, "--order", f"the order this session ran ({' -> '.join(ran)}) to resume it",
+                              got=f"{args.order} ({' -> '.join(planned)})" if args.order else "none",
+                              hint="resume with the --order it ran with, or use a new --out")
     try:
         with ExitStack() as locks:
             for participant in participants:
