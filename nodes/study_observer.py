@@ -135,21 +135,21 @@ class StudyObserverNode(Node):
         k = len(self.patterns)
         pose = HandPose(position=np.asarray(self.positions[k], dtype=float), orientation=FACING.copy(), valid=True)
         self.pose_pub.publish(pose)
-        self.pending, self.sent_at, self.felt_at = pose.stamp, time.monotonic(), None
+        self.pending, self.sent_at, self.felt_at = pose.stamp, time.time(), None
 
     def on_motors(self, msg: MotorCommand) -> None:
         if self.trial is not None and self.felt_at is None and msg.source_stamp == self.pending:
             self.patterns.append(np.asarray(msg.intensity, dtype=float).copy())
-            self.felt_at = time.monotonic()
+            self.felt_at = time.time()
 
     def tick(self) -> None:
         if self.trial is None:
             return
         if self.answer is not None:
-            if time.time() >= self.answer[1]:     # the answer time, on the bus clock of the onset
+            if time.time() >= self.answer[1]:     # one clock, the bus clock: the onset is on it
                 self._give(self.answer[0])
             return
-        now = time.monotonic()
+        now = time.time()
         if self.felt_at is None:
             if now - self.sent_at >= RESEND_S:
                 self.counts["resent"] += 1
