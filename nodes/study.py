@@ -29,7 +29,7 @@ from touch4d.messages import (HandPose, InputEvents, MotorCommand, SceneCommand,
                               StudyResponse, StudyTrial)
 from touch4d.study.design import load_study
 from touch4d.study.machine import Announce, Finished, LoadScene, Paused, Resumed, TrialDone, TrialMachine
-from touch4d.study.lock import SessionLock, writer_pid
+from touch4d.study.lock import WRITER, SessionLock
 from touch4d.study.manifest import start_manifest
 from touch4d.study.plan import condition_order, order_note, order_table, plan_session, quick_plan
 from touch4d.study.store import TrialsFile, session_dir
@@ -76,8 +76,8 @@ class StudyNode(Node):
         quick = quick_plan if p["quick"] else plan_session
         self.plan = quick(self.study, p["participant"], p["order"])
         self.directory = session_dir(p["out"], p["participant"])
-        # one writer per session folder: this node, or the `study run` that launched it and holds the lock
-        self.add_cleanup(SessionLock(self.directory).acquire(holder_ok=writer_pid()).release)
+        # one writer of trials.csv: held as long as this process lives, even when its `study run` is gone
+        self.add_cleanup(SessionLock(self.directory, WRITER).acquire().release)
         self.trials = TrialsFile(self.directory / TRIALS)
         self.add_cleanup(self.trials.close)
         # one clock for the whole session: the bus clock, on which answers and poses are stamped

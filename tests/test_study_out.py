@@ -16,7 +16,7 @@ import pytest
 from touch4d.cli import main
 from touch4d.errors import ConfigError
 from touch4d.study.design import load_study, study_file_path
-from touch4d.study.lock import SessionLock
+from touch4d.study.lock import LOCK, WRITER, SessionLock
 from touch4d.study.plan import condition_order, order_table, participant_index
 from touch4d.study.session import worst_exit
 from touch4d.study.store import SessionError
@@ -27,12 +27,12 @@ pytestmark = pytest.mark.timeout(300)
 OFFLINE = ["study", "run", "paper", "--simulate", "--offline", "--quick", "--participants", "1"]
 
 
-def hold_lock(folder):
-    """Another process that takes the folder's lock and waits; returns it once it holds the lock."""
+def hold_lock(folder, name=LOCK):
+    """Another process that takes the folder's lock file `name` and waits; returns it once it holds it."""
     code = textwrap.dedent(f"""
         import sys, time
-        from touch4d.study.lock import SessionLock
-        with SessionLock({str(folder)!r}):
+        from touch4d.study.lock import LOCK, WRITER, SessionLock
+        with SessionLock({str(folder)!r}, {name!r}):
             print("held", flush=True)
             time.sleep(120)
     """)
@@ -61,6 +61,21 @@ def test_a_session_folder_has_one_writer_and_a_dead_writer_holds_nothing(tmp_pat
             SessionLock(folder).acquire()        # ... and one writer holds it again
     assert main([*OFFLINE, "--out", str(tmp_path)]) == 0
     assert (folder / "trials.csv").exists()
+
+
+def test_a_run_is_refused_while_a_study_node_of_a_killed_run_still_writes(tmp_path, capsys):
+    orphan = hold_lock(tmp_path / "P01", WRITER)      # as a study node whose `study run` was SIGKILLed
+    try:
+        assert main(["study", "run", "paper", "--participant", "P01", "--out", str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert str(tmp_path / "P01") in err and f"pid {orphan.pid}" in err and "trials.csv" in err
+        assert not (tmp_path / "P01" / "session-001.mcap").exists()           # no stack was started
+        assert main([*OFFLINE, "--out", str(tmp_path)]) == 2                   # nor does a simulation write
+    finally:
+        orphan.send_signal(signal.SIGKILL)
+        orphan.wait()
+    with SessionLock(tmp_path / "P01", WRITER):
+        pass                                          # free again once the orphan is gone
 
 
 def test_a_run_into_an_out_of_other_settings_is_refused_or_replaced_with_overwrite(tmp_path, capsys):

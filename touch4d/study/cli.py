@@ -193,7 +193,7 @@ def run_offline(args) -> int:
     """Simulated participants on the library alone (touch4d.study.simulate)."""
     from touch4d.tactile import load_glove
 
-    from .lock import SessionLock
+    from .lock import claim_session
     from .manifest import MANIFEST, prepare_out, sha256_file
     from .observer import every_sample_glove
     from .plan import participant_ids
@@ -209,7 +209,7 @@ def run_offline(args) -> int:
     participants = participant_ids(args.participants)
     with ExitStack() as locks:
         for participant in participants:
-            locks.enter_context(SessionLock(session_dir(args.out, participant)))
+            locks.enter_context(claim_session(session_dir(args.out, participant)))
         prepare_out(args.out, participants, _settings(study, args.quick, settings), overwrite=args.overwrite)
         again = [p for p in participants if (session_dir(args.out, p) / MANIFEST).exists()]
         if again:
@@ -243,7 +243,7 @@ def run_full_stack(args) -> int:
         raise Unavailable("running a study through the full stack needs touch4d.study.session; "
                           "--simulate --offline runs simulated participants without it") from None
     from .design import study_file_path
-    from .lock import SessionLock
+    from .lock import claim_session
     from .manifest import prepare_out, read_manifest
     from .plan import condition_order, order_note, participant_ids
     from .store import session_dir
@@ -270,7 +270,7 @@ def run_full_stack(args) -> int:
     try:
         with ExitStack() as locks:
             for participant in participants:
-                locks.enter_context(SessionLock(session_dir(args.out, participant)))
+                locks.enter_context(claim_session(session_dir(args.out, participant)))
             prepare_out(args.out, participants, _settings(study, args.quick, simulation), overwrite=args.overwrite)
             if args.simulate:
                 return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],

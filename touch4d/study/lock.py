@@ -1,6 +1,13 @@
-"""One writer per session folder: an exclusive `flock` on its `.lock` file, held while a run writes
-the folder. The kernel drops the lock when the holding process ends, however it ends, so a dead
-writer never holds a folder; the file keeps the holder's pid and command for the refusal."""
+"""One writer per session folder, with exclusive `flock`s the kernel drops when their process ends,
+however it ends (a dead writer never holds a folder); each lock file keeps its holder's pid and
+command for the refusal.
+
+- `.lock`: the run writing the folder (`touch4d study run`, an offline simulation) holds it for
+  its whole run: a second run is refused at once.
+- `.writer`: the study node appending trials.csv holds it. It outlives a run killed outright
+  (SIGKILL) whose stack ran on: `claim_session` checks it is free, so a new run is refused, naming
+  the node still writing, rather than starting a second writer.
+"""
 from __future__ import annotations
 
 import fcntl
@@ -13,33 +20,29 @@ from pathlib import Path
 from .store import SessionError
 
 LOCK = ".lock"
-WRITER_ENV = "TOUCH4D_SESSION_WRITER"   # pid of the run that holds the lock for the stack it launched
+WRITER = ".writer"
 
 
 class SessionLock:
-    """`with SessionLock(folder):` the folder's one writer, or a SessionError that names the folder and
-    the process writing it. Not inherited by child processes (the fd is close-on-exec)."""
+    """`with SessionLock(folder):` holds the folder's lock file `name`, or raises a SessionError that
+    names the folder and the process holding it. Not inherited by child processes (close-on-exec)."""
 
-    def __init__(self, directory):
+    def __init__(self, directory, name: str = LOCK):
         self.directory = Path(directory)
-        self.path = self.directory / LOCK
+        self.path = self.directory / name
         self._fd: int | None = None
 
-    def acquire(self, holder_ok: int | None = None) -> "SessionLock":
-        """Take the lock, or raise SessionError naming its holder. `holder_ok`: a pid whose lock is
-        this process's too (the study run that launched this node): then nothing is taken."""
+    def acquire(self) -> "SessionLock":
         self.directory.mkdir(parents=True, exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            info = _info(fd)
+            holder = _holder(fd)
             os.close(fd)
-            if holder_ok is not None and info.get("pid") == holder_ok:
-                return self
-            holder = _holder(info)
-            raise SessionError(f"{self.directory}: another run writes this session folder ({holder}); one writer "
-                               "at a time: wait for it to end or stop it, or use another --out") from None
+            doing = "writes this session folder" if self.path.name == LOCK else "writes this session's trials.csv"
+            raise SessionError(f"{self.directory}: another process {doing} ({holder}); one writer at a time: "
+                               "wait for it to end or stop it, or use another --out") from None
         os.ftruncate(fd, 0)
         os.write(fd, json.dumps({"pid": os.getpid(), "command": " ".join(sys.argv),
                                  "since": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode() + b"\n")
@@ -52,28 +55,30 @@ class SessionLock:
             self._fd = None
 
     def __enter__(self) -> "SessionLock":
-        return self.acquire()
+        return self if self._fd is not None else self.acquire()     # claim_session's lock is already held
 
     def __exit__(self, *exc) -> None:
         self.release()
 
 
-def writer_pid() -> int | None:
-    """The pid of the run that launched this process and holds its session folder (WRITER_ENV), if any."""
-    text = os.environ.get(WRITER_ENV, "")
-    return int(text) if text.isdigit() else None
+def claim_session(directory) -> SessionLock:
+    """The run's hold on a session folder: its `.lock`, taken, after checking that no study node
+    still writes there (`.writer` free). Release it (or use it as a context manager) when the run ends."""
+    run = SessionLock(directory).acquire()
+    try:
+        SessionLock(directory, WRITER).acquire().release()
+    except SessionError:
+        run.release()
+        raise
+    return run
 
 
-def _info(fd: int) -> dict:
+def _holder(fd: int) -> str:
+    """The locking process as its lock file says: pid, command and since when."""
     try:
         info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
     except (OSError, ValueError):
-        return {}
-    return info if isinstance(info, dict) else {}
-
-
-def _holder(info: dict) -> str:
-    """The locking process as its lock file says: pid, command and since when."""
-    if not info.get("pid"):
+        info = {}
+    if not isinstance(info, dict) or not info.get("pid"):
         return "a process that has not written its name yet"
     return f"pid {info['pid']}: {info.get('command', '?')}, since {info.get('since', '?')}"

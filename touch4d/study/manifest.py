@@ -13,7 +13,7 @@ from pathlib import Path
 from touch4d.errors import ConfigError
 
 from .plan import participant_hash
-from .lock import LOCK
+from .lock import LOCK, WRITER
 from .store import SessionError, fsync_dir
 
 MANIFEST = "manifest.json"
@@ -127,7 +127,7 @@ def prepare_out(out, participants: list[str], settings: dict, *, overwrite: bool
                               "; use a new --out (analysed together they would mix two studies)"))
     for folder, what in replace:
         for item in folder.iterdir():
-            if item.name != LOCK:
+            if item.name not in (LOCK, WRITER):
                 shutil.rmtree(item) if item.is_dir() else item.unlink()
         echo(f"{folder}: replaced (--overwrite; it ran with {what})")
     report = out / REPORT

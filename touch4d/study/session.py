@@ -18,7 +18,7 @@ import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
-from .lock import WRITER_ENV, SessionLock
+from .lock import claim_session
 from .store import next_segment, session_dir
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -123,7 +123,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
     launch's and the session's). A signal stops it (Stopped, raised after the stack is down; the
     session resumes where it was when run again). `overrides` come last, so they win.
     `simulation`: the settings a simulation records in the manifest; `locked`: the caller holds the
-    session folder's lock (else it is taken here). `on_ready(bus)` is called with the stack's
+    session folder (lock.claim_session; else it is claimed here). `on_ready(bus)` is called with the stack's
     BusConfig once it runs (tests, tools)."""
     import sys
     import tempfile
@@ -136,7 +136,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
     args = [launch, *session_overrides(study_path, participant, out, session=session, quick=quick,
                                        simulate=simulate, seed=seed, order=order, simulation=simulation,
                                        user=overrides), *overrides]
-    with nullcontext() if locked else SessionLock(directory), tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp, stop_on_signals():
+    with nullcontext() if locked else claim_session(directory), tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp, stop_on_signals():
         ready = Path(tmp) / "bus.json"
         bus_args = []
         if simulate:   # a private bus on free ports: simulations never meet a running stack
@@ -147,7 +147,6 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             echo(f"{participant}: pause with the Pause key (F9) or "
                  "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
-        env[WRITER_ENV] = str(os.getpid())     # this run holds the folder's lock: its study node writes under it
         cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, *bus_args, "--ready-file", str(ready)]
         watcher = None
         deadline = None if timeout_s is None else time.monotonic() + timeout_s

@@ -5,7 +5,7 @@
   reads it back and resumes at the first trial without a row (`TrialsFile.done`).
 - `manifest.json`: what the session is (touch4d.study.manifest).
 - `session-NNN.mcap`: the recorder's log of every topic, one per run segment (`next_segment`).
-- `.lock`: held by the session's one writer (touch4d.study.lock).
+- `.lock`, `.writer`: held by the run and the study node writing the folder (touch4d.study.lock).
 """
 from __future__ import annotations
 
