@@ -99,15 +99,16 @@ def test_timeouts_count_as_wrong_and_have_their_own_column(tmp_path):
 # ---- psychometric function ------------------------------------------------------------------------------
 
 
-def tilt_rows(rng, pse, sigma, lapse, per_level, condition="touch", participant="P01"):
+def tilt_rows(rng, pse, sigma, lapse, per_level, condition="touch", participant="P01", block=3):
+    """A tilt block (after synthetic()'s three): each trial once, as a session writes it."""
     rows = []
     for level in (-16, -8, -4, -2, 2, 4, 8, 16):
         p = lapse / 2 + (1 - lapse) * ndtr((level - pse) / sigma)
         for t in range(per_level):
             answer = "right" if level > 0 else "left"
             response = "right" if rng.random() < p else "left"
-            rows.append(row(participant, 0, t, "tilt", "tilt", condition, f"tilt{level:+d}", answer, response,
-                            float(level)))
+            rows.append(row(participant, block, len(rows), "tilt", "tilt", condition, f"tilt{level:+d}", answer,
+                            response, float(level)))
     return rows
 
 

@@ -1,7 +1,8 @@
 """The study node in this process with the scene node, on a test bus: keys in the renderer window
 answer (1..9), Enter ends a break, a pause interrupts a trial that is then shown again from its
 start, a trial unanswered by its time limit is written as timed out, answers to another trial are
-ignored, and the end closes the gate and stops the motors."""
+ignored, the end closes the gate and stops the motors, and a second study node on the same session
+folder is refused while the first runs."""
 from __future__ import annotations
 
 import csv
@@ -17,6 +18,7 @@ from touch4d.nodes.scene import SceneNode
 from touch4d.nodes.study import StudyNode
 from touch4d.study.design import load_study
 from touch4d.study.plan import plan_session
+from touch4d.study.store import SessionError
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -87,6 +89,11 @@ def test_keys_pause_breaks_timeouts_and_the_end(tmp_path):
             done = phase("done", -1)
             spin_until(lambda: stops)
             assert done.message and study.counts["responses_ignored"] >= 2 and study.counts["pauses"] == 1
+            # one writer per session folder: a second study node on it is refused while the first runs
+            with pytest.raises(SessionError, match=f"{tmp_path / 'P01'}: another process writes this session's trials.csv"):
+                StudyNode(params={"study": str(study_file), "participant": "P01", "out": str(tmp_path)}, bus=bus,
+                          heartbeat=False)
+            study.shutdown()
             # run again on the same session: every trial is done, so it ends at once; a clean stop of a
             # session under way closes the gate
             again_node = StudyNode(params={"study": str(study_file), "participant": "P01", "out": str(tmp_path)},

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from touch4d.errors import ConfigError
-from touch4d.study.session import (COLUMNS, SessionError, TrialMeasures, TrialsFile, next_segment, read_manifest,
-                                   write_manifest)
+from touch4d.study.manifest import read_manifest, start_manifest, write_manifest
+from touch4d.study.measures import TrialMeasures
+from touch4d.study.store import SessionError, TrialsFile, next_segment
+from touch4d.study.table import COLUMNS
 
 
 def row(index: int, **extra) -> dict:
@@ -45,6 +47,25 @@ def test_rows_are_read_back_exactly_and_a_row_cut_by_a_crash_is_dropped(tmp_path
     assert rows[0]["practice"] == "0" and rows[0]["correct"] == "0" and rows[0]["rt_s"] == "1.25"
     assert rows[0]["level"] == "" and json.loads(rows[0]["transform"]) == [["xw", 1.5]]
     assert rows[1]["response"] == "" and rows[1]["timed_out"] == "1" and rows[1]["rt_s"] == ""
+
+
+def test_a_session_begun_before_the_arrival_columns_resumes_in_its_own_columns(tmp_path):
+    from touch4d.study.table import ARRIVAL_COLUMNS, read_trials
+    old = [c for c in COLUMNS if c not in ARRIVAL_COLUMNS]
+    path = tmp_path / "P01" / "trials.csv"
+    path.parent.mkdir()
+    first = row(0)
+    path.write_text(",".join(old) + "\n")
+    f = TrialsFile(path)                   # refused before: the header is not today's
+    assert f.done == set()
+    f.write(first)
+    f.write(row(1, response_received=101.3))
+    f.close()
+    lines = path.read_text().splitlines()
+    assert lines[0] == ",".join(old) and len(lines) == 3 and all(len(x.split(",")) >= len(old) for x in lines)
+    table = read_trials(path)
+    assert list(table["index"]) == [0, 1] and not table["clock_suspect"].any()
+    assert table["response_received"].isna().all()
 
 
 def test_a_header_cut_short_is_written_again(tmp_path):
@@ -127,6 +148,12 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
     assert all(spec.respawn for spec in nodes.values())
     person = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "007", tmp_path))
     assert person["tracker"].module == "desktop" and person["study"].params["participant"] == "007"
+    # a counterbalancing row and the simulation's settings reach the study node (and the observer's plan)
+    settings = {"mode": "full stack", "noise": 0.08, "tracker": ["tracker.pace:=0.1"]}
+    picked = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "bob", tmp_path, order=3,
+                                                         simulate=True, simulation=settings))
+    assert picked["study"].params["order"] == 3 and picked["tracker"].params["order"] == 3
+    assert json.loads(picked["study"].params["simulation"]) == settings
 
 
 def test_a_session_resumes_only_as_it_was_started(tmp_path):
@@ -134,7 +161,6 @@ def test_a_session_resumes_only_as_it_was_started(tmp_path):
     from touch4d.boards.dbc import dbc_text
     from touch4d.configfile import resolve_path
     from touch4d.study.design import load_study
-    from touch4d.study.session import start_manifest
 
     study_path = resolve_path("config/studies/paper.yaml")
     common = dict(study=load_study(study_path), study_path=study_path, session="1",

@@ -12,20 +12,26 @@ import os
 import signal
 import threading
 
+import numpy as np
 import pytest
 
 from touch4d.bus import Node
 from touch4d.log.reader import LogReader
 from touch4d.messages import Heartbeat, MotorStatus, StudyResponse, StudyTrial, decode
 from touch4d.study.design import load_study
+from touch4d.study.gate import allowed
+from touch4d.study.observer import Exploration
 from touch4d.study.plan import condition_order, quick_plan
-from touch4d.study.session import COLUMNS, run_session
+from touch4d.study.session import run_session
+from touch4d.study.simulate import Timing
+from touch4d.study.table import COLUMNS
 
 pytestmark = pytest.mark.timeout(180)
 
 STUDY = "config/studies/paper.yaml"
 PARTICIPANT = "P04"           # row 3 of the counterbalancing: an order other than the file's
 KILL_AT = 4                   # the trial whose stimulus is running when the study node is killed
+PACE = 0.1                    # the observer takes a tenth of the offline simulation's times (a quicker test)
 
 
 class Watcher:
@@ -75,7 +81,8 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
     watcher = Watcher()
     code = {}
     runner = threading.Thread(target=lambda: code.setdefault("rc", run_session(
-        STUDY, PARTICIPANT, tmp_path, simulate=True, quick=True, seed=7, timeout_s=150, echo=lambda line: None,
+        STUDY, PARTICIPANT, tmp_path, [f"tracker.pace:={PACE}"], simulate=True, quick=True, seed=7, timeout_s=150,
+        echo=lambda line: None,
         on_ready=watcher.on_ready)))
     runner.start()
     runner.join(170)
@@ -107,6 +114,13 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
         assert 0.0 <= float(r["time_touching_s"]) <= float(r["rt_s"]) + 1e-6
         assert float(r["path_length"]) > 0.0 and float(r["mean_intensity"]) >= 0.0
     assert max(float(r["time_touching_s"]) for r in rows) > 0.0
+    # answer times as the offline simulation's (simulate.answer_time, scaled by PACE): never sooner than
+    # 4 sd of the log-normal factor below the trial's look + dwell per touch + decide, about it in the median
+    timing, touches = Timing(), Exploration().touches
+    base = {c: PACE * (timing.look_s * g.objects + timing.dwell_s * touches * g.motors + timing.decide_s)
+            for c in study.conditions for g in [allowed(c)]}
+    ratios = [float(r["rt_s"]) / base[r["condition"]] for r in rows]
+    assert min(ratios) >= np.exp(-4 * timing.rt_spread) and np.median(ratios) >= 0.7
     # as the offline simulation counts them: nothing is felt where the motors are held off
     assert all(float(r["time_touching_s"]) == 0.0 == float(r["mean_intensity"])
                for r in rows if r["condition"] == "visual")

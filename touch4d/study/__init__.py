@@ -13,6 +13,11 @@ outcome with model observers before anyone is recruited.
 - `simulate`: the offline simulation (no bus) into session folders; `table`: trials.csv (`COLUMNS`,
   `read_trials`); `analysis`: `touch4d study analyze`; `infotransfer`: bits from a confusion matrix
   (beside the bits its answers give shuffled) and predicted per glove.
+- `conditions`: the conditions, declared once; `gate`: what a condition lets through now.
+- `machine`: `TrialMachine`, a session's trial state machine without a bus (the study node wires it).
+- a session folder: `store` (trials.csv, `TrialsFile`), `manifest` (manifest.json, `prepare_out`),
+  `lock` (`SessionLock`: one writer), `measures` (exploration from bus samples); `session`: running
+  one through the full stack (`run_session`, `run_simulation`).
 
 Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
 it: every `break_every` trials within a block, never before a block's first nor with under half a

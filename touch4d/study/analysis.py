@@ -23,11 +23,12 @@ from scipy.stats import norm
 
 from touch4d.errors import Touch4dError, Unavailable
 
+from .conditions import CONDITIONS
 from .design import KINDS
 from .infotransfer import transfer_beyond_chance
 from .table import read_trials
 
-CONDITION_ORDER = ("visual", "touch", "visual+touch")
+CONDITION_ORDER = CONDITIONS
 TIMED_OUT = "(timed out)"
 
 

@@ -7,6 +7,7 @@ import importlib
 import json
 import math
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 from touch4d.configfile import COMMAND_LINE, resolve_path
@@ -23,16 +24,17 @@ def register(subparsers) -> None:
 
     check = sub.add_parser("check", help="check a study file and summarise it",
                            description="Read a study file (and every scene it names); print what a session holds.")
-    check.add_argument("file", metavar="FILE", help="study file (YAML), e.g. config/studies/paper.yaml")
+    check.add_argument("file", metavar="FILE", help="study file (YAML), e.g. config/studies/paper.yaml, or its name (paper)")
     check.set_defaults(func=run_check)
 
     plan = sub.add_parser("plan", help="one participant's trials, in order",
                           description="The condition order and every trial of a participant's session, from the "
                                       "study and the participant id alone (P01, P02 ... take the counterbalancing "
                                       "rows in turn).")
-    plan.add_argument("study", metavar="STUDY", help="study file")
+    plan.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     plan.add_argument("--participant", required=True, metavar="ID", help="participant id, e.g. P01")
     plan.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    plan.add_argument("--order", type=_count, metavar="N", help="counterbalancing row N (from 1) instead of the id's")
     plan.add_argument("--json", action="store_true", help="print JSON (a stable interface for scripts)")
     plan.set_defaults(func=run_plan)
 
@@ -40,7 +42,7 @@ def register(subparsers) -> None:
                          description="--simulate --participants N: N model observers (P01 ...) answer every "
                                      "trial; --offline runs them on the library alone (no bus), else through the "
                                      "full stack. --participant ID: a real participant's session.")
-    run.add_argument("study", metavar="STUDY", help="study file")
+    run.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     run.add_argument("items", nargs="*", metavar="ROLE:=NODE",
                      help="full stack: launch overrides, as for touch4d launch (tracker:=webxr, renderer:=none, "
                           "study.iti_s:=1, ...)")
@@ -52,6 +54,10 @@ def register(subparsers) -> None:
     run.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
     run.add_argument("--out", required=True, metavar="DIR", help="output folder: one session folder per participant")
     run.add_argument("--offline", action="store_true", help="simulate on the library alone, without a bus")
+    run.add_argument("--order", type=_count, metavar="N",
+                     help="--participant: counterbalancing row N (from 1; default: P01, P02, ... take the rows in turn)")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace this run's session folders in --out that ran another study or other settings")
     sim = run.add_argument_group("model observers (--simulate)")
     sim.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
     sim.add_argument("--every-sample", action="store_true",
@@ -101,9 +107,9 @@ def register(subparsers) -> None:
 
 
 def _study(path):
-    from .design import DEFAULT_STUDY, load_study
+    from .design import DEFAULT_STUDY, load_study, study_file_path
 
-    return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
+    return load_study(study_file_path(path or DEFAULT_STUDY))
 
 
 def run_check(args) -> int:
@@ -132,19 +138,24 @@ def run_check(args) -> int:
 def run_plan(args) -> int:
     import msgspec
 
-    from .plan import condition_order, participant_index, plan_session, quick_plan
+    from .plan import condition_order, order_note, order_table, plan_session, quick_plan
 
     study = _study(args.study)
-    trials = quick_plan(study, args.participant) if args.quick else plan_session(study, args.participant)
-    order = condition_order(study, args.participant)
+    row = _row(study, args.participant, args.order)
+    trials = (quick_plan if args.quick else plan_session)(study, args.participant, args.order)
+    order = condition_order(study, args.participant, args.order)
     if args.json:
         out = {"study": study.name, "study_file": study.path, "participant": args.participant,
-               "row": participant_index(study, args.participant), "condition_order": order,
+               "row": row, "order": row + 1, "condition_order": order,
+               "order_note": order_note(study, args.participant, args.order),
                "trials": msgspec.to_builtins(trials)}
         print(json.dumps(_clean(out)))
         return 0
-    print(f"{study.name}, participant {args.participant} (counterbalancing row "
-          f"{participant_index(study, args.participant)}): {' -> '.join(order)}")
+    print(f"{study.name}, participant {args.participant} (counterbalancing row {row + 1} of "
+          f"{len(order_table(study))}, --order {row + 1}): {' -> '.join(order)}")
+    note = order_note(study, args.participant, args.order)
+    if note:
+        print(f"note: {note}")
     print(f"{'index':>5} {'block':>5} {'trial':>5}  {'condition':<13} {'task':<12} {'stimulus':<10} {'answer':<8} "
           f"jitter (deg)")
     for t in trials:
@@ -155,9 +166,22 @@ def run_plan(args) -> int:
     return 0
 
 
+def _row(study, participant: str, order: int | None) -> int:
+    """The counterbalancing row (from 0) of a participant, `--order` checked against the study's rows."""
+    from .plan import order_table, participant_index
+
+    rows = len(order_table(study))
+    if order is not None and order > rows:
+        raise ConfigError(COMMAND_LINE, "--order", f"a counterbalancing row 1..{rows} (study {study.name})", got=order)
+    return participant_index(study, participant, order)
+
+
 def run_run(args) -> int:
     if args.offline and args.items:
         raise ConfigError(COMMAND_LINE, args.items[0], "no launch overrides with --offline (no stack runs)")
+    if args.order is not None and not args.participant:
+        raise ConfigError(COMMAND_LINE, "--order", "--participant ID with --order (simulated participants P01, "
+                          "P02, ... take the rows in turn)")
     if args.simulate and args.offline:
         return run_offline(args)
     if args.offline:
@@ -169,21 +193,41 @@ def run_offline(args) -> int:
     """Simulated participants on the library alone (touch4d.study.simulate)."""
     from touch4d.tactile import load_glove
 
-    from .observer import ModelObserver, every_sample_glove
+    from .lock import claim_session
+    from .manifest import MANIFEST, prepare_out, sha256_file
+    from .observer import every_sample_glove
     from .plan import participant_ids
-    from .simulate import simulate_study
+    from .store import session_dir
 
     study = _study(args.study)
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
+    settings = {"mode": "offline", "seed": args.seed, "noise": args.noise, "visual_noise": args.visual_noise,
+                "lapse": args.lapse, "spread": args.spread, "every_sample": bool(args.every_sample),
+                "glove_sha256": sha256_file(glove.path)}
     if args.every_sample:
         glove = every_sample_glove(glove)
+    participants = participant_ids(args.participants)
+    with ExitStack() as locks:
+        for participant in participants:
+            locks.enter_context(claim_session(session_dir(args.out, participant)))
+        prepare_out(args.out, participants, _settings(study, args.quick, settings), overwrite=args.overwrite)
+        again = [p for p in participants if (session_dir(args.out, p) / MANIFEST).exists()]
+        if again:
+            print(f"{', '.join(again)}: written again (the same study and settings, so the same seeded trials)")
+        return _simulate_offline(args, study, glove, participants, settings)
+
+
+def _simulate_offline(args, study, glove, participants, settings) -> int:
+    from .observer import ModelObserver
+    from .simulate import simulate_study
+
     started = time.perf_counter()
     # --quick checks every cell quickly: a lighter-trained observer (its accuracy is not the point)
     training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
     observer = ModelObserver(glove, study, noise=args.noise, visual_noise=args.visual_noise, lapse=args.lapse,
                              seed=args.seed, **training)
-    folders = simulate_study(study, participant_ids(args.participants), args.out, glove=glove, seed=args.seed,
-                             quick=args.quick, spread=args.spread, observer=observer, echo=print)
+    folders = simulate_study(study, participants, args.out, glove=glove, seed=args.seed, quick=args.quick,
+                             spread=args.spread, observer=observer, settings=settings, echo=print)
     print(f"{len(folders)} simulated sessions in {time.perf_counter() - started:.1f} s under {args.out}; "
           f"next: touch4d study analyze {args.out}")
     return 0
@@ -198,12 +242,52 @@ def run_full_stack(args) -> int:
             raise
         raise Unavailable("running a study through the full stack needs touch4d.study.session; "
                           "--simulate --offline runs simulated participants without it") from None
-    study_path = resolve_path(args.study, COMMAND_LINE, key="STUDY", what="study file")
-    if args.simulate:
+    from .design import study_file_path
+    from .lock import claim_session
+    from .manifest import prepare_out, read_manifest
+    from .plan import condition_order, order_note, participant_ids
+    from .store import session_dir
+
+    study_path = study_file_path(args.study)
+    study = _study(study_path)
+    participants = participant_ids(args.participants) if args.simulate else [args.participant]
+    simulation = None
+    if args.simulate:   # what the observers ran with: the tracker's settings (noise, lapse and any override)
         observer = [f"tracker.noise:={args.noise}", f"tracker.lapse:={args.lapse}"]
-        return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
-                                      seed=args.seed, quick=args.quick)
-    return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick)
+        simulation = {"mode": "full stack", "seed": args.seed, "noise": args.noise, "lapse": args.lapse,
+                      "tracker": sorted(i for i in args.items if i.lstrip("+").startswith("tracker."))}
+    else:
+        _row(study, args.participant, args.order)
+        note = order_note(study, args.participant, args.order)
+        if note:
+            print(f"note: {note}")
+        ran = read_manifest(session_dir(args.out, args.participant)).get("condition_order")
+        planned = condition_order(study, args.participant, args.order)
+        if ran is not None and ran != planned:
+            raise ConfigError(COMMAND_LINE, "--order", f"the order this session ran ({' -> '.join(ran)}) to resume it",
+                              got=f"{args.order} ({' -> '.join(planned)})" if args.order else "none",
+                              hint="resume with the --order it ran with, or use a new --out")
+    try:
+        with ExitStack() as locks:
+            for participant in participants:
+                locks.enter_context(claim_session(session_dir(args.out, participant)))
+            prepare_out(args.out, participants, _settings(study, args.quick, simulation), overwrite=args.overwrite)
+            if args.simulate:
+                return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
+                                              seed=args.seed, quick=args.quick, simulation=simulation, locked=True)
+            return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick,
+                                       order=args.order, locked=True)
+    except session.Stopped as exc:
+        print(f"touch4d study run: {exc}; the stack is stopped")
+        return exc.code
+
+
+def _settings(study, quick: bool, simulation: dict | None) -> dict:
+    """What this run's sessions must share with those already in --out (manifest.run_settings)."""
+    from .manifest import sha256_file
+
+    return {"study": study.name, "study_sha256": sha256_file(study.path), "quick": bool(quick),
+            "simulation": simulation}
 
 
 def run_transfer(args) -> int:
@@ -236,7 +320,10 @@ def transfer_table(results: list[dict]) -> str:
 
 def run_analyze(args) -> int:
     from .analysis import analyze, load, report_html, summary_text
+    from .manifest import check_one_study
+    from .table import find_tables
 
+    check_one_study(find_tables(args.dir))    # one study, run alike: never two mixed in one analysis
     data = load(args.dir)
     result = analyze(data, bootstrap=args.bootstrap, seed=args.seed)
     report = None

@@ -42,12 +42,15 @@ from typing import Annotated, Literal
 import msgspec
 
 from touch4d import schema
-from touch4d.configfile import resolve_path
+from touch4d.configfile import COMMAND_LINE, PathNotFound, resolve_path
+from touch4d.errors import ConfigError
 from touch4d.geometry.rotation import PLANES, plane_axes
 
-CONDITIONS = ("visual", "touch", "visual+touch")
+from .conditions import CONDITIONS
+
 KINDS = ("front-element", "look-alikes", "tilt")
-DEFAULT_STUDY = "config/studies/paper.yaml"
+STUDIES = "config/studies"                  # where a study named by its bare name lives
+DEFAULT_STUDY = f"{STUDIES}/paper.yaml"
 ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
 
 Name = Annotated[str, msgspec.Meta(min_length=1, pattern=r"^[A-Za-z0-9_.+-]+$",
@@ -117,7 +120,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     name: Name
     tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
     description: str = ""
-    conditions: Annotated[list[Literal["visual", "touch", "visual+touch"]], msgspec.Meta(min_length=1)] = \
+    conditions: Annotated[list[Literal[CONDITIONS]], msgspec.Meta(min_length=1)] = \
         msgspec.field(default_factory=lambda: list(CONDITIONS))
     counterbalance: Literal["latin", "all"] | None = None
     repetitions: Positive = 1
@@ -161,6 +164,30 @@ def replace_study(study: Study, **fields) -> Study:
 def tilt_name(level: float) -> str:
     """The stimulus name of a signed tilt level: tilt+8, tilt-2.5."""
     return f"tilt{level:+g}"
+
+
+def study_file_path(name) -> Path:
+    """The study file a user named: a path, or a bare name such as `paper` for
+    `config/studies/paper.yaml` (a path wins when it exists; the name is then found like any path,
+    yours first, else the packaged one), as `touch4d launch demo` finds launch/demo.yaml."""
+    given = Path(name)
+    if len(given.parts) == 1 and not given.suffix and not given.exists():
+        try:
+            return resolve_path(f"{STUDIES}/{name}.yaml", COMMAND_LINE, key="STUDY", what="study file")
+        except PathNotFound as exc:
+            near = [Path(n).stem for n in exc.near]
+            raise ConfigError(COMMAND_LINE, "STUDY", f"a study file: a path, or the name of one in {STUDIES}/ "
+                              f"({', '.join(study_names()) or 'none found'})", got=name, detail=exc.detail,
+                              hint=f"did you mean {' or '.join(repr(n) for n in near)}?" if near else None) from None
+    return resolve_path(name, COMMAND_LINE, key="STUDY", what="study file")
+
+
+def study_names() -> list[str]:
+    """The bare names `touch4d study run NAME` takes: config/studies/*.yaml here and packaged."""
+    from touch4d.defaults import ROOT
+
+    return sorted({p.stem for folder in (Path(STUDIES), ROOT / STUDIES) if folder.is_dir()
+                   for p in folder.glob("*.yaml")})
 
 
 def load_study(path=None) -> Study:

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 from touch4d.messages import StudyTrial
 
-CONDITIONS = ("visual", "touch", "visual+touch")
+from .conditions import BY_NAME
+
 
 
 @dataclass(frozen=True)
@@ -32,9 +33,10 @@ CLOSED = Allowed(objects=False, motors=False)
 
 def allowed(condition: str, phase: str = "stimulus") -> Allowed:
     """The gate of a condition in a phase; an unknown condition closes it (fail safe)."""
-    if phase != "stimulus" or condition not in CONDITIONS:
+    known = BY_NAME.get(condition)
+    if phase != "stimulus" or known is None:
         return CLOSED
-    return Allowed(objects=condition != "touch", motors=condition != "visual")
+    return Allowed(objects=known.objects, motors=known.motors)
 
 
 GATE_START = ("open", "closed")   # a node's `study_gate` parameter: its gate before any study/trial

@@ -4,7 +4,8 @@ each trial's jitter and seed. Pure: the same inputs give the same plan on every 
 
 Participant ids are strings. `P01`, `P02`, ... (a letter P, any case, then a number) are rows 0,
 1, ... of the counterbalancing table, so consecutive participants get consecutive orders; any other
-id takes the row of a stable hash (the first 8 bytes of its SHA-256, big-endian) modulo the rows.
+id takes the row of a stable hash (the first 8 bytes of its SHA-256, big-endian) modulo the rows,
+unless the row is given (`order`, from 1: `--order N`); `order_note` says which row such an id got.
 A participant's random stream is `numpy.random.SeedSequence([study.seed, that hash])`.
 """
 from __future__ import annotations
@@ -51,14 +52,35 @@ def participant_hash(participant: str) -> int:
     return int.from_bytes(hashlib.sha256(str(participant).encode()).digest()[:8], "big")
 
 
-def participant_index(study: Study, participant: str) -> int:
-    """The row of the counterbalancing table for `participant`: P01 -> 0, P02 -> 1, ...; other ids by
-    a stable hash; always modulo the number of rows."""
+def participant_index(study: Study, participant: str, order: int | None = None) -> int:
+    """The row (from 0) of the counterbalancing table for `participant`: `order - 1` when a row is
+    given (from 1), else P01 -> 0, P02 -> 1, ...; other ids by a stable hash; always modulo the rows."""
     rows = len(order_table(study))
-    numbered = _NUMBERED.match(str(participant))
-    if numbered and int(numbered.group(1)) >= 1:
-        return (int(numbered.group(1)) - 1) % rows
+    if order is not None:
+        if not 1 <= order <= rows:
+            raise ValueError(f"counterbalancing row (--order): expected 1..{rows} for study {study.name}, got {order}")
+        return order - 1
+    if is_numbered(participant):
+        return (int(_NUMBERED.match(str(participant)).group(1)) - 1) % rows
     return participant_hash(participant) % rows
+
+
+def is_numbered(participant: str) -> bool:
+    """Whether an id is one of P01, P02, ... (which take the counterbalancing rows in turn)."""
+    numbered = _NUMBERED.match(str(participant))
+    return bool(numbered) and int(numbered.group(1)) >= 1
+
+
+def order_note(study: Study, participant: str, order: int | None = None) -> str | None:
+    """What to tell the experimenter about an id outside P01, P02, ... given no row: the row its hash
+    picked (hashes can unbalance the orders) and how to pick one; None when nothing needs saying."""
+    if order is not None or is_numbered(participant):
+        return None
+    rows = order_table(study)
+    row = participant_index(study, participant)
+    return (f"participant {participant!r} is not one of P01, P02, ...: it got counterbalancing row {row + 1} of "
+            f"{len(rows)} ({' -> '.join(rows[row])}) from a hash of the id, which can unbalance the orders; "
+            f"pick its row with --order N (1..{len(rows)})")
 
 
 def order_table(study: Study) -> list[list[str]]:
@@ -90,9 +112,9 @@ def balanced_latin_square(n: int) -> list[list[int]]:
     return rows
 
 
-def condition_order(study: Study, participant: str) -> list[str]:
-    """The conditions in the order `participant` meets them (one block each)."""
-    return list(order_table(study)[participant_index(study, participant)])
+def condition_order(study: Study, participant: str, order: int | None = None) -> list[str]:
+    """The conditions in the order `participant` meets them (one block each); `order`: the row, from 1."""
+    return list(order_table(study)[participant_index(study, participant, order)])
 
 
 def participant_seed(study: Study, participant: str) -> np.random.SeedSequence:
@@ -100,14 +122,15 @@ def participant_seed(study: Study, participant: str) -> np.random.SeedSequence:
     return np.random.SeedSequence([int(study.seed), participant_hash(participant)])
 
 
-def plan_session(study: Study, participant: str) -> list[Trial]:
+def plan_session(study: Study, participant: str, order: int | None = None) -> list[Trial]:
     """Every trial of `participant`'s session, in order: per block (condition) the practice trials,
     then each task's stimuli x repetitions, shuffled so that no more than `max_run` trials in a row
-    share a correct answer (over practice and main trials alike)."""
-    order = condition_order(study, participant)
-    block_seeds = participant_seed(study, participant).spawn(len(order))
+    share a correct answer (over practice and main trials alike). `order`: the counterbalancing row
+    (from 1), when not the participant id's."""
+    conditions = condition_order(study, participant, order)
+    block_seeds = participant_seed(study, participant).spawn(len(conditions))
     trials: list[Trial] = []
-    for block, (condition, seed) in enumerate(zip(order, block_seeds)):
+    for block, (condition, seed) in enumerate(zip(conditions, block_seeds)):
         rng = np.random.default_rng(seed)
         items = [(task, stim, level, answer) for task in study.tasks
                  for stim, level, answer in _stimuli(task) for _ in range(study.repetitions_of(task))]
@@ -133,11 +156,11 @@ def break_positions(length: int, every: int) -> set[int]:
     return {p for p in range(every, length, every) if 2 * (length - p) >= every}
 
 
-def quick_plan(study: Study, participant: str) -> list[Trial]:
+def quick_plan(study: Study, participant: str, order: int | None = None) -> list[Trial]:
     """A quick session (`--quick`): one repetition per task x condition cell, i.e. every stimulus once
     per condition, no practice, otherwise as `plan_session` (same order, constraint and seeds)."""
     tasks = [msgspec.structs.replace(t, repetitions=1) for t in study.tasks]
-    return plan_session(replace_study(study, tasks=tasks, repetitions=1, practice=0), participant)
+    return plan_session(replace_study(study, tasks=tasks, repetitions=1, practice=0), participant, order)
 
 
 def participant_ids(n: int) -> list[str]:

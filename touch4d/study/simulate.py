@@ -21,6 +21,7 @@ import numpy as np
 from touch4d.tactile import Glove
 
 from .design import Study
+from .gate import allowed
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
@@ -48,19 +49,28 @@ def participant_observer(observer: ModelObserver, study: Study, participant: str
     return observer.with_noise(float(np.exp(rng.normal(0.0, spread))) if spread > 0 else 1.0)
 
 
+def answer_time(timing: Timing, trial: Trial, touches: int, rng: np.random.Generator) -> float:
+    """Seconds from a trial's onset to the simulated answer: `look_s` when the condition draws the
+    objects, `dwell_s` per touch when the motors run, and `decide_s`, times a log-normal factor (one
+    draw from `rng`). The offline simulation and the observer on the bus (nodes/study_observer.py)
+    both take their time from here."""
+    gate = allowed(trial.condition)
+    rt = (timing.look_s if gate.objects else 0.0) + (timing.dwell_s * touches if gate.motors else 0.0) + timing.decide_s
+    return rt * float(np.exp(rng.normal(0.0, timing.rt_spread)))
+
+
 def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: Trial, *, seed: int,
                    timing: Timing) -> dict:
     """One trial: the hand explores, the observer answers from what the condition lets through.
     Returns the response (None: timed out), answer time and the exploration measures."""
     rng = np.random.default_rng([int(trial.seed), int(seed)])
     scene = trial_scene(study, trial)
-    touch = trial.condition != "visual"            # visual: motors held off
-    view = trial.condition != "touch"              # touch: nothing drawn
+    gate = allowed(trial.condition)                # visual: motors held off; touch: nothing drawn
+    touch, view = gate.motors, gate.objects
     positions = observer.explore(trial, rng)
     patterns = patterns_at(glove, scene, positions) if touch else None
     response = observer.respond(trial, patterns, scene if view else None, rng)
-    rt = (timing.look_s if view else 0.0) + (timing.dwell_s * len(positions) if touch else 0.0) + timing.decide_s
-    rt *= float(np.exp(rng.normal(0.0, timing.rt_spread)))
+    rt = answer_time(timing, trial, len(positions), rng)
     timed_out = rt > trial.time_limit_s
     felt = patterns if patterns is not None else np.zeros((len(positions), len(glove.motor_names)))
     touching = (felt > glove.touch_threshold).any(axis=1)   # felt: above the glove's touch threshold
@@ -75,9 +85,9 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
 
 def simulate_session(observer: ModelObserver, glove: Glove, study: Study, participant: str, out, *,
                      seed: int = 0, quick: bool = False, timing: Timing = Timing(), spread: float = 0.25,
-                     session: str = "1") -> Path:
+                     session: str = "1", settings: dict | None = None) -> Path:
     """A participant's whole session, simulated; writes OUT/<participant>/trials.csv and manifest.json
-    and returns the session folder."""
+    (with the run's `settings` as its `simulation`) and returns the session folder."""
     own = participant_observer(observer, study, participant, seed, spread)
     trials = quick_plan(study, participant) if quick else plan_session(study, participant)
     rows, clock = [], 0.0
@@ -97,6 +107,7 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
         "study_file": study.path, "study_sha256": _sha256(study.path), "participant": participant,
         "session": session, "study_seed": int(study.seed), "seed": int(seed),
         "condition_order": condition_order(study, participant), "trials": len(trials), "quick": quick,
+        "simulation": settings,
         "glove_file": glove.path, "glove_sha256": _sha256(glove.path), "motors": len(glove.motor_names),
         "observer": {"noise": own.noise, "visual_noise": own.visual_noise, "lapse": own.lapse,
                      "touches": own.exploration.touches, "spread": spread},
@@ -108,14 +119,15 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
 
 def simulate_study(study: Study, participants: list[str], out, *, glove: Glove, seed: int = 0, quick: bool = False,
                    noise: float = 0.08, visual_noise: float = 0.5, lapse: float = 0.03, spread: float = 0.25,
-                   timing: Timing = Timing(), observer: ModelObserver | None = None, echo=None) -> list[Path]:
+                   timing: Timing = Timing(), observer: ModelObserver | None = None, settings: dict | None = None,
+                   echo=None) -> list[Path]:
     """Simulated participants, one session folder each under `out`; one observer trained for them all."""
     if observer is None:
         observer = ModelObserver(glove, study, noise=noise, visual_noise=visual_noise, lapse=lapse, seed=seed)
     folders = []
     for participant in participants:
         folder = simulate_session(observer, glove, study, participant, out, seed=seed, quick=quick, timing=timing,
-                                  spread=spread)
+                                  spread=spread, settings=settings)
         if echo:
             echo(f"{participant}: {folder / TRIALS}")
         folders.append(folder)
@@ -138,4 +150,4 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["Timing", "simulate_trial", "simulate_session", "simulate_study", "participant_observer"]
+__all__ = ["Timing", "answer_time", "simulate_trial", "simulate_session", "simulate_study", "participant_observer"]

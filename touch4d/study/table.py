@@ -93,7 +93,27 @@ def read_trials(where):
             frame[name] = pd.to_numeric(frame[name], errors="coerce")    # empty: not measured (NaN)
         frame["source"] = str(path)
         frames.append(frame)
-    return pd.concat(frames, ignore_index=True)
+    data = pd.concat(frames, ignore_index=True)
+    _refuse_repeats(data)
+    return data
+
+
+TRIAL_KEY = ("participant", "session", "block", "trial")     # one row per trial of a session
+
+
+def _refuse_repeats(data) -> None:
+    """A trial written twice (two writers on one session, or one participant's session in two tables)
+    would be counted twice: a ConfigError naming the repeated trials and their files."""
+    repeated = data[data.duplicated(list(TRIAL_KEY), keep=False)]
+    if repeated.empty:
+        return
+    groups = repeated.groupby(list(TRIAL_KEY), sort=True)["source"]
+    named = [f"participant {p} session {s} block {b} trial {t} ({len(files)}x: {', '.join(sorted(set(files)))})"
+             for (p, s, b, t), files in groups]
+    more = f" and {len(named) - 5} more" if len(named) > 5 else ""
+    raise ConfigError(repeated["source"].iloc[0], "(rows)", "each (participant, session, block, trial) once",
+                      got=f"{len(named)} trial(s) more than once", detail="; ".join(named[:5]) + more,
+                      hint="two writers on one session folder, or one session in two tables: keep one of each")
 
 
 def trial_row(trial, *, participant: str, session: str, response: str | None, onset: float,

@@ -1,0 +1,119 @@
+"""However `study run` ends (SIGTERM, SIGHUP, SIGINT, an exception), its stack ends with it: with real
+processes, a simulated session is stopped in the middle, then no process it started survives,
+trials.csv stops growing, and the motor node's last status has every motor off."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from touch4d.bus import Node
+from touch4d.bus.config import BusConfig
+from touch4d.bus.testing import collect, wait_until
+from touch4d.messages import MotorStatus
+
+pytestmark = pytest.mark.timeout(300)
+
+# A `study run --simulate --quick` of one participant in its own process, writing its bus to a file once
+# the stack runs; with "exception" the run itself fails (an error raised wherever it is) at its 3rd row.
+RUNNER = textwrap.dedent("""
+    import signal, sys
+    from pathlib import Path
+    from touch4d.study.session import Stopped, run_session
+
+    def ready(bus):
+        Path(sys.argv[3]).write_text(bus.to_json())
+        if sys.argv[2] == "exception":
+            signal.signal(signal.SIGALRM, fail)
+            signal.setitimer(signal.ITIMER_REAL, 0.1, 0.1)
+
+    def fail(*_):
+        table = Path(sys.argv[1]) / "P01" / "trials.csv"
+        if table.exists() and len(table.read_text().splitlines()) > 3:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            raise RuntimeError("the run failed")
+
+    try:
+        code = run_session("config/studies/paper.yaml", "P01", sys.argv[1], ["tracker.pace:=0.1"], simulate=True,
+                           quick=True, seed=1, echo=lambda line: None, on_ready=ready)
+    except Stopped as exc:
+        code = exc.code
+    sys.exit(code)
+""")
+
+
+def descendants(pid: int) -> set[int]:
+    """Every process below `pid` (from /proc's parent links)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            parent = int(stat.rpartition(")")[2].split()[1])
+            children.setdefault(parent, []).append(int(entry.name))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def rows(path: Path) -> int:
+    return max(len(path.read_text().splitlines()) - 1, 0) if path.exists() else 0
+
+
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "SIGINT", "exception"])
+def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(tmp_path, how):
+    table = tmp_path / "P01" / "trials.csv"
+    bus = tmp_path / "bus.json"
+    with open(tmp_path / "run.log", "w") as log:
+        runner = subprocess.Popen([sys.executable, "-c", RUNNER, str(tmp_path), how, str(bus)], stdout=log,
+                                  stderr=subprocess.STDOUT, start_new_session=True)
+    started: set[int] = set()
+    probe = None
+    try:
+        wait_until(lambda: bus.exists() and bus.stat().st_size, timeout=120)
+        probe = Node("test-probe", bus=BusConfig.from_json(bus.read_text()), heartbeat=False)
+        status = collect(probe, "motors/status", MotorStatus)
+        wait_until(lambda: rows(table) >= 2 and status, timeout=180, spin=probe)   # a session under way
+        started = descendants(runner.pid)
+        assert len(started) >= 6                    # the launcher and its nodes
+        before = len(status)
+        if how != "exception":
+            runner.send_signal(getattr(signal, how))
+        code = runner.wait(60)
+        assert code == (128 + getattr(signal, how) if how != "exception" else 1)
+        wait_until(lambda: not any(alive(p) for p in started), timeout=10)
+        written = rows(table)
+        time.sleep(2.0)
+        assert rows(table) == written               # nothing writes on
+        probe.spin_once(0.5)
+        assert len(status) > before
+        last = status[-1]
+        assert last.duty.size and not last.duty.any()   # the motor node stopped them on its way out
+    finally:
+        if probe is not None:
+            probe.shutdown()
+        for pid in descendants(runner.pid) | started:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        if runner.poll() is None:
+            runner.kill()
+            runner.wait()

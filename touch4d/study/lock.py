@@ -1,0 +1,84 @@
+"""One writer per session folder, with exclusive `flock`s the kernel drops when their process ends,
+however it ends (a dead writer never holds a folder); each lock file keeps its holder's pid and
+command for the refusal.
+
+- `.lock`: the run writing the folder (`touch4d study run`, an offline simulation) holds it for
+  its whole run: a second run is refused at once.
+- `.writer`: the study node appending trials.csv holds it. It outlives a run killed outright
+  (SIGKILL) whose stack ran on: `claim_session` checks it is free, so a new run is refused, naming
+  the node still writing, rather than starting a second writer.
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from .store import SessionError
+
+LOCK = ".lock"
+WRITER = ".writer"
+
+
+class SessionLock:
+    """`with SessionLock(folder):` holds the folder's lock file `name`, or raises a SessionError that
+    names the folder and the process holding it. Not inherited by child processes (close-on-exec)."""
+
+    def __init__(self, directory, name: str = LOCK):
+        self.directory = Path(directory)
+        self.path = self.directory / name
+        self._fd: int | None = None
+
+    def acquire(self) -> "SessionLock":
+        self.directory.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            doing = "writes this session folder" if self.path.name == LOCK else "writes this session's trials.csv"
+            raise SessionError(f"{self.directory}: another process {doing} ({holder}); one writer at a time: "
+                               "wait for it to end or stop it, or use another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, json.dumps({"pid": os.getpid(), "command": " ".join(sys.argv),
+                                 "since": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode() + b"\n")
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)          # closing the only descriptor drops the lock
+            self._fd = None
+
+    def __enter__(self) -> "SessionLock":
+        return self if self._fd is not None else self.acquire()     # claim_session's lock is already held
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def claim_session(directory) -> SessionLock:
+    """The run's hold on a session folder: its `.lock`, taken, after checking that no study node
+    still writes there (`.writer` free). Release it (or use it as a context manager) when the run ends."""
+    run = SessionLock(directory).acquire()
+    try:
+        SessionLock(directory, WRITER).acquire().release()
+    except SessionError:
+        run.release()
+        raise
+    return run
+
+
+def _holder(fd: int) -> str:
+    """The locking process as its lock file says: pid, command and since when."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+    except (OSError, ValueError):
+        info = {}
+    if not isinstance(info, dict) or not info.get("pid"):
+        return "a process that has not written its name yet"
+    return f"pid {info['pid']}: {info.get('command', '?')}, since {info.get('since', '?')}"

@@ -1,0 +1,63 @@
+"""A trial's exploration measured from the bus samples of its stimulus (tactile/motors, hand/pose):
+the table's columns time touching, mean intensity and hand path (touch4d.study.table)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Measures:
+    time_touching_s: float
+    mean_intensity: float
+    path_length: float
+
+
+@dataclass
+class TrialMeasures:
+    """Bus samples of one trial -> time touching, mean intensity and hand path over [onset, end].
+
+    Both signals are sample-and-hold: a motor command holds until the next one, so the sample before
+    the onset counts from the onset on. `threshold`: a motor intensity above it is felt (the glove's
+    duty deadband). Path: the sum of the hand's steps between valid poses inside the window."""
+
+    threshold: float
+    _motors: list = field(default_factory=list)    # (stamp, any motor > threshold, 30-motor mean)
+    _poses: list = field(default_factory=list)     # (stamp, position or None when invalid)
+
+    def reset(self) -> None:
+        """Keep only the latest sample of each signal (it holds into the next trial's window)."""
+        self._motors = self._motors[-1:]
+        self._poses = self._poses[-1:]
+
+    def add_motors(self, stamp: float, intensity: np.ndarray) -> None:
+        intensity = np.nan_to_num(np.asarray(intensity, dtype=float))
+        mean = float(intensity.mean()) if intensity.size else 0.0
+        self._motors.append((stamp, bool((intensity > self.threshold).any()), mean))
+
+    def add_pose(self, stamp: float, position, valid: bool) -> None:
+        self._poses.append((stamp, np.asarray(position, dtype=float).copy() if valid else None))
+
+    def measure(self, onset: float, end: float) -> Measures:
+        touching = integral = 0.0
+        samples = sorted(self._motors, key=lambda s: s[0])
+        for k, (t, on, mean) in enumerate(samples):
+            t_next = samples[k + 1][0] if k + 1 < len(samples) else end
+            a, b = max(t, onset), min(t_next, end)
+            if b > a:
+                touching += (b - a) * on
+                integral += (b - a) * mean
+        span = end - onset
+        path = 0.0
+        previous = None
+        for t, position in sorted(self._poses, key=lambda s: s[0]):
+            if t > end:
+                break
+            if t < onset:
+                previous = position      # where the hand was at the onset
+                continue
+            if position is not None and previous is not None:
+                path += float(np.linalg.norm(position - previous))
+            previous = position
+        return Measures(touching, integral / span if span > 0 else 0.0, path)
