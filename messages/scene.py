@@ -6,6 +6,8 @@ import numpy as np
 from .base import Array, Float, Map, Message, Records, doc
 
 PROJECTIONS = ("orthographic", "perspective")
+VIEWS = ("projection", "slice", "both")        # what is drawn: the projection, the section at w = slice_w, both
+SLICE_TOUCH = ("section", "projection")         # what the glove renders in a slice view
 SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", "pause", "play", "step")   # the last three: physics
 
 SceneObject = Records(
@@ -27,6 +29,13 @@ class SceneState(Message):
     eye_distance: Float = doc("perspective eye on the w axis at w = -eye_distance, screen units")
     selected: int = doc("index of the object the controller rotates (-1: the whole scene)")
     revision: int = doc("bumps on every change of the scene, so consumers rebuild only then")
+    view: Literal[VIEWS] = doc("projection: the 4D scene projected (the paper); slice: each object's cross-section "
+                               "at w = slice_w, solid; both: the section inside the translucent projection",
+                               default="projection", optional=True)
+    slice_w: Float = doc("where the slice view cuts the world, w in screen units", default=0.0, optional=True)
+    slice_touch: Literal[SLICE_TOUCH] = doc("in the slice view, what the glove renders: section (the cross-section "
+                                            "as a solid the hand presses) or projection (the paper's touch)",
+                                            default="section", optional=True)
 
     def check(self):
         for index, obj in enumerate(self.objects):

@@ -1,0 +1,198 @@
+"""Cross-sections of convex 4-polytopes by the hyperplane w = c: the slice view's solid and what a hand
+presses in it.
+
+A body n.x <= d cut by w = c is the convex polyhedron n3.u <= d - n_w c in u = (x, y, z): one more
+half-space computation (`section_halfspaces`). Its boundary is exact and cheap from the body's
+combinatorics: the hyperplane meets each cell in a polygon whose corners are where the cell's edges
+cross w = c; each polygon is a face of the section, coloured by the cell it cuts. `SectionKernel`
+does this for many bodies of one shape at once (the renderer, every frame); `cross_section` gives one
+body's section with shared vertices and its volume (the `touch4d scene slice` command, the tests).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .polytope import Polytope, Topology
+
+ON_PLANE = 1e-9      # |w - c| below this (screen units): a vertex lies in the cutting hyperplane
+PARALLEL = 1e-9      # |n3| of a unit cell normal below this: the cell is parallel to the hyperplane
+
+
+def section_halfspaces(normals, offsets, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """The half-spaces (n3, d - n_w c) of the cross-section at w = c in 3D, from a body's n.x <= d (any
+    leading axes on (..., C, 4) and (..., C)). A cell parallel to the hyperplane gives n3 = 0: then the
+    section is empty where d - n_w c < 0."""
+    n = np.asarray(normals, dtype=np.float64)
+    return n[..., :3], np.asarray(offsets, dtype=np.float64) - n[..., 3] * float(c)
+
+
+def inside_section(normals, offsets, c: float, points3, tol: float = 0.0) -> np.ndarray:
+    """(N, B) whether each 3D point (N, 3) lies in the section at w = c of each body (B, C, 4), (B, C)."""
+    n3, d3 = section_halfspaces(normals, offsets, c)
+    p = np.asarray(points3, dtype=np.float64).reshape(-1, 3)
+    return np.all(np.einsum("bck,nk->nbc", n3, p) <= d3[None] + tol, axis=-1)
+
+
+def w_extent(vertices) -> tuple[float, float]:
+    """The range of w a body (or all the vertices given) spans: the c at which it has a section."""
+    w = np.asarray(vertices, dtype=np.float64)[..., 3]
+    return float(w.min()), float(w.max())
+
+
+class SectionKernel:
+    """The per-shape tables of the cross-section: each cell's edges, padded to the widest cell, so that
+    the polygons of every cell of many bodies come out of a few array operations."""
+
+    def __init__(self, topology: Topology):
+        edges = np.asarray(topology.edges)
+        cell_edges = []
+        for faces in topology.cell_faces:
+            sides = np.concatenate([topology.face_edges[topology.face_starts[f]:topology.face_starts[f + 1]]
+                                    for f in faces])
+            cell_edges.append(np.unique(sides))
+        width = max(len(e) for e in cell_edges)
+        self.edges = edges
+        self.cell_edges = np.full((len(cell_edges), width), -1, np.int64)
+        for k, e in enumerate(cell_edges):
+            self.cell_edges[k, :len(e)] = e
+        self.pad = self.cell_edges < 0
+        self.cell_edges[self.pad] = 0
+        # Each polygon corner has two slots per edge: a crossing inside the edge, or its ends in the plane.
+        self.slots = 2 * width
+
+    def polygons(self, vertices, normals, c: float):
+        """The section's faces for bodies of this shape: vertices (B, V, 4) and cell normals (B, C, 4) in
+        the world. Returns corners (B, C, S, 3), in cyclic order counterclockwise seen from outside the
+        section (along +n3), and how many there are (B, C): a cell's polygon is corners[..., :count, :],
+        fewer than 3 where the hyperplane misses it. A corner shared by several edges (a vertex in the
+        plane) repeats; `cross_section` merges such repeats."""
+        x = np.asarray(vertices, dtype=np.float64)
+        n = np.asarray(normals, dtype=np.float64)
+        dw = x[..., 3] - c                                          # (B, V)
+        on = np.abs(dw) <= ON_PLANE
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        wa, wb = dw[:, a], dw[:, b]                                 # (B, E)
+        cross = (wa * wb < 0) & ~on[:, a] & ~on[:, b]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(cross, wa / (wa - wb), 0.0)
+        xa, xb = x[:, a, :3], x[:, b, :3]
+        first = np.where(cross[..., None], xa + t[..., None] * (xb - xa), xa)   # the crossing, or end a
+        ends = np.stack([first, xb], axis=2)                        # (B, E, 2, 3)
+        valid = np.stack([cross | on[:, a], on[:, b]], axis=2)      # (B, E, 2)
+        pts = ends[:, self.cell_edges].reshape(len(x), *self.cell_edges.shape[:1], self.slots, 3)
+        ok = (valid[:, self.cell_edges] & ~self.pad[None, :, :, None]).reshape(len(x), -1, self.slots)
+        n3 = n[..., :3]
+        norm = np.linalg.norm(n3, axis=-1)
+        ok &= (norm > PARALLEL)[..., None]
+        count = ok.sum(axis=-1)
+        centre = np.sum(np.where(ok[..., None], pts, 0.0), axis=2) / np.maximum(count, 1)[..., None]
+        # A basis (e1, e2) of the face's plane with e1 x e2 = n3: angles grow counterclockwise about n3.
+        axis = np.eye(3)[np.argmin(np.abs(n3), axis=-1)]
+        e1 = np.cross(n3, axis)
+        e1 /= np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-300)
+        e2 = np.cross(n3 / np.maximum(norm, 1e-300)[..., None], e1)
+        rel = pts - centre[:, :, None]
+        angle = np.arctan2(np.einsum("bcsk,bck->bcs", rel, e2), np.einsum("bcsk,bck->bcs", rel, e1))
+        order = np.argsort(np.where(ok, angle, np.inf), axis=-1)
+        corners = np.take_along_axis(pts, order[..., None], axis=2)
+        count = np.where(count >= 3, count, 0)
+        return corners, count
+
+    def triangles(self, vertices, normals, c: float):
+        """The section's faces as fans of triangles: (B, C, S - 2, 3, 3) corners and (B, C, S - 2) which
+        of them exist. Each is wound counterclockwise seen from outside."""
+        corners, count = self.polygons(vertices, normals, c)
+        k = np.arange(1, self.slots - 1)
+        tris = np.stack([np.broadcast_to(corners[:, :, :1], corners[:, :, k].shape), corners[:, :, k],
+                         corners[:, :, k + 1]], axis=3)
+        return tris, (k + 1)[None, None, :] < count[..., None]
+
+
+_KERNELS: dict[int, tuple[Topology, SectionKernel]] = {}
+
+
+def kernel(topology: Topology) -> SectionKernel:
+    """The `SectionKernel` of a shape's topology, built once (topologies are shared by every copy)."""
+    entry = _KERNELS.get(id(topology))
+    if entry is None or entry[0] is not topology:
+        if len(_KERNELS) > 256:
+            _KERNELS.clear()
+        entry = _KERNELS[id(topology)] = (topology, SectionKernel(topology))
+    return entry[1]
+
+
+@dataclass(frozen=True)
+class Section:
+    """The cross-section of one body at w = c: a convex polyhedron in (x, y, z).
+
+    `vertices` (N, 3); `faces` lists of vertex indices, counterclockwise seen from outside; `face_cell`
+    (F,) the body's cell each face cuts; `volume` (0 where the hyperplane misses the body or only touches
+    it)."""
+
+    c: float
+    vertices: np.ndarray
+    faces: list
+    face_cell: np.ndarray
+    volume: float
+
+    @property
+    def empty(self) -> bool:
+        return self.volume <= 0.0
+
+
+def cross_section(body: Polytope, c: float, tol: float = 1e-9) -> Section:
+    """The exact cross-section of a world polytope by w = c (corners merged within `tol`; faces of no
+    area, where the hyperplane only touches a cell, left out)."""
+    corners, count = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
+    corners, count = corners[0], count[0]
+    points, faces, cells, seen = [], [], [], set()
+    for cell in np.nonzero(count)[0]:
+        face = []
+        for p in corners[cell, :count[cell]]:
+            index = _merge(points, p, tol)
+            if not face or (index != face[-1] and index != face[0]):
+                face.append(index)
+        if len(face) >= 3 and frozenset(face) not in seen:   # a 2-face in the plane: both its cells give it
+            seen.add(frozenset(face))
+            faces.append(face)
+            cells.append(int(cell))
+    vertices = np.array(points, dtype=np.float64).reshape(-1, 3)
+    keep = [k for k, f in enumerate(faces) if _area(vertices[f]) > tol]
+    faces = [faces[k] for k in keep]
+    face_cell = np.array([cells[k] for k in keep], dtype=np.int64)
+    volume = _volume(vertices, faces) if len(faces) >= 4 else 0.0
+    if faces:
+        used = np.unique(np.concatenate(faces))
+        remap = np.full(len(vertices), -1)
+        remap[used] = np.arange(len(used))
+        vertices, faces = vertices[used], [remap[f].tolist() for f in faces]
+    else:
+        vertices = np.zeros((0, 3))
+    return Section(float(c), vertices, faces, face_cell, max(volume, 0.0))
+
+
+def _merge(points: list, p: np.ndarray, tol: float) -> int:
+    for i, q in enumerate(points):
+        if np.max(np.abs(q - p)) <= tol:
+            return i
+    points.append(p)
+    return len(points) - 1
+
+
+def _area(polygon: np.ndarray) -> float:
+    """Area of a planar polygon in 3D (corners in order)."""
+    rel = polygon - polygon[0]
+    return 0.5 * float(np.linalg.norm(np.sum(np.cross(rel[1:-1], rel[2:]), axis=0)))
+
+
+def _volume(vertices: np.ndarray, faces: list) -> float:
+    """Volume of a closed polyhedron with outward-wound faces (divergence theorem: signed tetrahedra
+    from the centroid over each face's fan)."""
+    o = vertices.mean(axis=0)
+    total = 0.0
+    for f in faces:
+        p = vertices[f] - o
+        total += float(np.sum(np.einsum("ij,ij->i", p[0][None], np.cross(p[1:-1], p[2:])))) / 6.0
+    return total
