@@ -8,7 +8,8 @@ from .base import Array, Float, Map, Message, Records, doc
 PROJECTIONS = ("orthographic", "perspective")
 VIEWS = ("projection", "slice", "both")        # what is drawn: the projection, the section at w = slice_w, both
 SLICE_TOUCH = ("section", "projection")         # what the glove renders in a slice view
-SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", "pause", "play", "step")   # the last three: physics
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "view", "slice", "load",
+                  "pause", "play", "step")   # the last three: physics
 
 SceneObject = Records(
     name=str, shape=str, params=Map, size=Float, position=Array(4), orientation=Array(4, 4), color=Array(4),
@@ -58,4 +59,6 @@ class SceneCommand(Message):
 
     command: Literal[SCENE_COMMANDS] = doc("what to do")
     argument: str = doc("select: object name or index; projection: orthographic|perspective|toggle; "
+                        "view: projection|slice|both|next; slice: where it cuts (a number, w = C) or "
+                        "up / down [D] to move it by D (default one step); "
                         "load: the scene file's text; step: how many physics steps (default 1)")
