@@ -39,6 +39,7 @@ from .physics_keys import ObjectPhysics, ScenePhysics
 from .polytope import GeometryError, Polytope, not_corners
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
+from .section import SectionCaster
 from .shapes import get_shape, list_shapes
 
 CUSTOM_KINDS = ("vertices", "halfspaces", "parts")
@@ -119,8 +120,11 @@ class Scene:
         """(object index, world Polytope) for every convex part of every object."""
         return [(i, p) for i, obj in enumerate(self.objects) for p in obj.world_parts()]
 
-    def ray_caster(self) -> RayCaster:
-        """A RayCaster for this scene and its projection."""
+    def ray_caster(self) -> RayCaster | SectionCaster:
+        """What the glove touches: a RayCaster for this scene and its projection (the paper), or in a
+        slice view that touches the section, a SectionCaster of the cross-sections at slice_w."""
+        if self.touches_section:
+            return SectionCaster(self.world_parts(), self.slice_w, self.perspective_eye)
         return RayCaster(self.world_parts(), self.perspective_eye)
 
     def to_message(self):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .halfspace import GRAZE
 from .polytope import Polytope, Topology
 
 ON_PLANE = 1e-9      # |w - c| below this (screen units): a vertex lies in the cutting hyperplane
@@ -196,3 +197,37 @@ def _volume(vertices: np.ndarray, faces: list) -> float:
         p = vertices[f] - o
         total += float(np.sum(np.einsum("ij,ij->i", p[0][None], np.cross(p[1:-1], p[2:])))) / 6.0
     return total
+
+
+class SectionCaster:
+    """Touch of the slice view: the cross-sections at w = c as solids the hand presses. Answers what
+    `RayCaster.cast` answers, so the tactile model (eq. 1-7) runs unchanged: a screen point inside an
+    object's section is in contact (t = 0, the strongest stimulus, as for a point inside a body in the
+    projection), elsewhere it touches nothing (NaN, -1). Where the slice is drawn in perspective, at
+    d / (d + c) of its size, a screen point u stands for the world point u (d + c) / d.
+    """
+
+    def __init__(self, world_parts: list[tuple[int, Polytope]], c: float, eye_distance: float | None = None):
+        self.c = float(c)
+        self.scale = 1.0 if eye_distance is None else (float(eye_distance) + self.c) / float(eye_distance)
+        self.part_object = np.array([int(i) for i, _ in world_parts], dtype=np.int64)
+        rows = [section_halfspaces(p.normals, p.offsets, self.c) for _, p in world_parts]
+        self._normals = np.vstack([n for n, _ in rows]) if rows else np.zeros((0, 3))
+        self._offsets = np.concatenate([d for _, d in rows]) if rows else np.zeros(0)
+        self._starts = np.r_[0, np.cumsum([len(d) for _, d in rows])[:-1]].astype(np.int64)
+
+    @property
+    def n_parts(self) -> int:
+        return len(self.part_object)
+
+    def cast(self, points3) -> tuple[np.ndarray, np.ndarray]:
+        """(N,3) screen points -> (t (N,): 0 inside a section, NaN elsewhere; hit (N,) object or -1)."""
+        p = np.asarray(points3, dtype=np.float64).reshape(-1, 3) * self.scale
+        n = len(p)
+        if not self.n_parts or not n:
+            return np.full(n, np.nan), np.full(n, -1, dtype=np.int64)
+        ok = p @ self._normals.T <= self._offsets + GRAZE                       # (N, half-spaces)
+        inside = np.logical_and.reduceat(ok, self._starts, axis=1)             # (N, parts)
+        found = inside.any(axis=1)
+        hit = np.where(found, self.part_object[inside.argmax(axis=1)], -1)
+        return np.where(found, 0.0, np.nan), hit
