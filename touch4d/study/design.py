@@ -5,7 +5,7 @@ Declared once as msgspec Structs and read with `touch4d.schema`, so a mistake is
 naming the file, the key path, what was expected and what was there, as for a scene file::
 
     name: paper
-    conditions: [visual, touch, visual+touch]
+    conditions: [visual, touch, visual+touch]   # each may name a view: slice-visual, both-touch, ...
     counterbalance: all          # all orders (default while there are <= 6), or latin
     repetitions: 4               # per stimulus per condition
     practice: 3                  # flagged trials at the start of each block
@@ -46,6 +46,10 @@ from touch4d.configfile import resolve_path
 from touch4d.geometry.rotation import PLANES, plane_axes
 
 CONDITIONS = ("visual", "touch", "visual+touch")
+# A condition may set the view: `slice-<condition>` shows (and, with touch, lets the hand press) each
+# object's cross-section at the scene's slice_w; `both-<condition>` the section inside the projection.
+VIEWED = ("slice", "both")
+ALL_CONDITIONS = CONDITIONS + tuple(f"{view}-{c}" for view in VIEWED for c in CONDITIONS)
 KINDS = ("front-element", "look-alikes", "tilt")
 DEFAULT_STUDY = "config/studies/paper.yaml"
 ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
@@ -117,7 +121,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     name: Name
     tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
     description: str = ""
-    conditions: Annotated[list[Literal["visual", "touch", "visual+touch"]], msgspec.Meta(min_length=1)] = \
+    conditions: Annotated[list[Literal[ALL_CONDITIONS]], msgspec.Meta(min_length=1)] = \
         msgspec.field(default_factory=lambda: list(CONDITIONS))
     counterbalance: Literal["latin", "all"] | None = None
     repetitions: Positive = 1
@@ -156,6 +160,17 @@ def replace_study(study: Study, **fields) -> Study:
     out = msgspec.structs.replace(study, **fields)
     out.__dict__["_path"] = study.path
     return out
+
+
+def split_condition(condition: str) -> tuple[str, str]:
+    """(what reaches the participant: visual | touch | visual+touch, the view: projection | slice |
+    both) of a condition name; ValueError for a name that is not a condition."""
+    view, sep, rest = condition.partition("-")
+    if sep and view in VIEWED and rest in CONDITIONS:
+        return rest, view
+    if condition in CONDITIONS:
+        return condition, "projection"
+    raise ValueError(f"condition: expected one of {', '.join(ALL_CONDITIONS)}, got {condition!r}")
 
 
 def tilt_name(level: float) -> str:

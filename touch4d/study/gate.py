@@ -4,6 +4,7 @@ consumer (motor node, desktop renderer, WebXR page), taken from the latest `stud
 - `visual`: objects drawn, motors held off (duty 0);
 - `touch`: motors run, no object drawn in any view (the screen's frame and the hand still are);
 - `visual+touch`: both.
+A condition that sets a view (`slice-visual`, `both-touch+visual`, ...) gates as its modality does.
 Outside a trial's stimulus phase (between trials, breaks, pauses, the end) nothing is drawn and the
 motors are off. Before any `study/trial` has arrived everything is allowed (no study runs). The last
 message holds for good: a study node that dies leaves its gate as it was (fail safe: a visual trial
@@ -14,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from touch4d.messages import StudyTrial
+
+from .design import split_condition
 
 CONDITIONS = ("visual", "touch", "visual+touch")
 
@@ -32,9 +35,13 @@ CLOSED = Allowed(objects=False, motors=False)
 
 def allowed(condition: str, phase: str = "stimulus") -> Allowed:
     """The gate of a condition in a phase; an unknown condition closes it (fail safe)."""
-    if phase != "stimulus" or condition not in CONDITIONS:
+    try:
+        modality, _ = split_condition(condition)
+    except ValueError:
         return CLOSED
-    return Allowed(objects=condition != "touch", motors=condition != "visual")
+    if phase != "stimulus" or modality not in CONDITIONS:
+        return CLOSED
+    return Allowed(objects=modality != "touch", motors=modality != "visual")
 
 
 GATE_START = ("open", "closed")   # a node's `study_gate` parameter: its gate before any study/trial

@@ -20,7 +20,7 @@ import numpy as np
 
 from touch4d.tactile import Glove
 
-from .design import Study
+from .design import Study, split_condition
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
 from .stimuli import trial_scene
@@ -54,8 +54,9 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
     Returns the response (None: timed out), answer time and the exploration measures."""
     rng = np.random.default_rng([int(trial.seed), int(seed)])
     scene = trial_scene(study, trial)
-    touch = trial.condition != "visual"            # visual: motors held off
-    view = trial.condition != "touch"              # touch: nothing drawn
+    modality, _ = split_condition(trial.condition)   # the view (projection, slice, both): in the scene
+    touch = modality != "visual"                   # visual: motors held off
+    view = modality != "touch"                     # touch: nothing drawn
     positions = observer.explore(trial, rng)
     patterns = patterns_at(glove, scene, positions) if touch else None
     response = observer.respond(trial, patterns, scene if view else None, rng)
