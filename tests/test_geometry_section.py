@@ -137,9 +137,10 @@ def test_the_batched_triangles_cover_each_section_surface():
     base = get_shape("tesseract").parts[0]
     bodies = [base.transformed(special_ortho_group.rvs(4, random_state=rng), [0, 0, 0, 0.1 * k]) for k in range(5)]
     k = kernel(base.topology)
-    tris, ok = k.triangles(np.stack([b.vertices for b in bodies]), np.stack([b.normals for b in bodies]), 0.05)
+    tris, owner, cell = k.triangles(np.stack([b.vertices for b in bodies]), np.stack([b.normals for b in bodies]), 0.05)
     for i, body in enumerate(bodies):
-        t = tris[i][ok[i]]
+        t = tris[owner == i]
+        assert set(cell[owner == i]) <= set(range(8))
         area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=-1)
         vertices, _ = independent_section(body.vertices, 0.05)
         assert area.sum() == pytest.approx(ConvexHull(vertices).area, rel=1e-9)

@@ -65,10 +65,11 @@ class SectionKernel:
 
     def polygons(self, vertices, normals, c: float):
         """The section's faces for bodies of this shape: vertices (B, V, 4) and cell normals (B, C, 4) in
-        the world. Returns corners (B, C, S, 3), in cyclic order counterclockwise seen from outside the
-        section (along +n3), and how many there are (B, C): a cell's polygon is corners[..., :count, :],
-        fewer than 3 where the hyperplane misses it. A corner shared by several edges (a vertex in the
-        plane) repeats; `cross_section` merges such repeats."""
+        the world. Only the cells the hyperplane cuts come out: their corners (K, S, 3), in cyclic order
+        counterclockwise seen from outside the section (along +n3), how many there are (K,) (a cell's
+        polygon is corners[k, :count[k]]; S is the most any has), and the body (K,) and cell (K,) each
+        comes from. A corner
+        shared by several edges (a vertex in the plane) repeats; `cross_section` merges such repeats."""
         x = np.asarray(vertices, dtype=np.float64)
         n = np.asarray(normals, dtype=np.float64)
         dw = x[..., 3] - c                                          # (B, V)
@@ -76,39 +77,44 @@ class SectionKernel:
         a, b = self.edges[:, 0], self.edges[:, 1]
         wa, wb = dw[:, a], dw[:, b]                                 # (B, E)
         cross = (wa * wb < 0) & ~on[:, a] & ~on[:, b]
+        valid = np.stack([cross | on[:, a], on[:, b]], axis=2)      # (B, E, 2): a crossing or end a; end b
+        slots = valid[:, self.cell_edges] & ~self.pad[None, :, :, None]          # (B, C, W, 2)
+        count = slots.reshape(*slots.shape[:2], self.slots).sum(axis=-1)
+        n3 = n[..., :3]
+        norm = np.linalg.norm(n3, axis=-1)
+        body, cell = np.nonzero((count >= 3) & (norm > PARALLEL))
+        if not len(body):
+            empty = np.zeros(0, np.int64)
+            return np.zeros((0, self.slots, 3)), empty, empty, empty
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(cross, wa / (wa - wb), 0.0)
         xa, xb = x[:, a, :3], x[:, b, :3]
-        first = np.where(cross[..., None], xa + t[..., None] * (xb - xa), xa)   # the crossing, or end a
-        ends = np.stack([first, xb], axis=2)                        # (B, E, 2, 3)
-        valid = np.stack([cross | on[:, a], on[:, b]], axis=2)      # (B, E, 2)
-        pts = ends[:, self.cell_edges].reshape(len(x), *self.cell_edges.shape[:1], self.slots, 3)
-        ok = (valid[:, self.cell_edges] & ~self.pad[None, :, :, None]).reshape(len(x), -1, self.slots)
-        n3 = n[..., :3]
-        norm = np.linalg.norm(n3, axis=-1)
-        ok &= (norm > PARALLEL)[..., None]
-        count = ok.sum(axis=-1)
-        centre = np.sum(np.where(ok[..., None], pts, 0.0), axis=2) / np.maximum(count, 1)[..., None]
-        # A basis (e1, e2) of the face's plane with e1 x e2 = n3: angles grow counterclockwise about n3.
-        axis = np.eye(3)[np.argmin(np.abs(n3), axis=-1)]
-        e1 = np.cross(n3, axis)
-        e1 /= np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-300)
-        e2 = np.cross(n3 / np.maximum(norm, 1e-300)[..., None], e1)
-        rel = pts - centre[:, :, None]
-        angle = np.arctan2(np.einsum("bcsk,bck->bcs", rel, e2), np.einsum("bcsk,bck->bcs", rel, e1))
-        order = np.argsort(np.where(ok, angle, np.inf), axis=-1)
-        corners = np.take_along_axis(pts, order[..., None], axis=2)
-        count = np.where(count >= 3, count, 0)
-        return corners, count
+        ends = np.stack([xa + t[..., None] * (xb - xa), xb], axis=2)            # (B, E, 2, 3)
+        pts = ends[body[:, None], self.cell_edges[cell]].reshape(len(body), self.slots, 3)
+        ok = slots[body, cell].reshape(len(body), self.slots)
+        k = count[body, cell]
+        centre = np.einsum("ks,ksj->kj", ok.astype(np.float64), pts) / k[:, None]
+        # Cyclic order: angles in the coordinate plane (i, j) that drops the normal's largest component
+        # m_k, (i, j, k) cyclic; they grow counterclockwise about +e_k, so about n3 when m_k > 0.
+        m = n3[body, cell]
+        drop = np.argmax(np.abs(m), axis=-1)
+        rel = pts - centre[:, None]
+        rows = np.arange(len(body))
+        u = np.take_along_axis(rel, ((drop + 1) % 3)[:, None, None], axis=2)[..., 0]
+        v = np.take_along_axis(rel, ((drop + 2) % 3)[:, None, None], axis=2)[..., 0]
+        angle = np.arctan2(v, u) * np.sign(m[rows, drop])[:, None]
+        order = np.argsort(np.where(ok, angle, np.inf), axis=-1)[:, :k.max()]
+        corners = pts[rows[:, None], order]
+        return corners, k, body, cell
 
     def triangles(self, vertices, normals, c: float):
-        """The section's faces as fans of triangles: (B, C, S - 2, 3, 3) corners and (B, C, S - 2) which
-        of them exist. Each is wound counterclockwise seen from outside."""
-        corners, count = self.polygons(vertices, normals, c)
-        k = np.arange(1, self.slots - 1)
-        tris = np.stack([np.broadcast_to(corners[:, :, :1], corners[:, :, k].shape), corners[:, :, k],
-                         corners[:, :, k + 1]], axis=3)
-        return tris, (k + 1)[None, None, :] < count[..., None]
+        """The section's faces as fans of triangles wound counterclockwise seen from outside: corners
+        (T, 3, 3), and the body (T,) and cell (T,) each comes from."""
+        corners, count, body, cell = self.polygons(vertices, normals, c)
+        face, i = np.nonzero(np.arange(1, corners.shape[1] - 1)[None, :] + 1 < count[:, None])
+        i = i + 1
+        tris = np.stack([corners[face, 0], corners[face, i], corners[face, i + 1]], axis=1)
+        return tris, body[face], cell[face]
 
 
 _KERNELS: dict[int, tuple[Topology, SectionKernel]] = {}
@@ -146,12 +152,11 @@ class Section:
 def cross_section(body: Polytope, c: float, tol: float = 1e-9) -> Section:
     """The exact cross-section of a world polytope by w = c (corners merged within `tol`; faces of no
     area, where the hyperplane only touches a cell, left out)."""
-    corners, count = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
-    corners, count = corners[0], count[0]
+    corners, count, _, cut = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
     points, faces, cells, seen = [], [], [], set()
-    for cell in np.nonzero(count)[0]:
+    for k, cell in enumerate(cut):
         face = []
-        for p in corners[cell, :count[cell]]:
+        for p in corners[k, :count[k]]:
             index = _merge(points, p, tol)
             if not face or (index != face[-1] and index != face[0]):
                 face.append(index)

@@ -21,48 +21,96 @@ AMBIENT = 0.55                                                          # share 
 def section_triangles(layer, c: float) -> np.ndarray:
     """(3T, 7) float32 triangles of every body's section at w = c, for a `SceneLayer` (its geometry's
     local parts placed by its transforms); empty where the hyperplane misses every body."""
-    g = layer.geometry
+    return section_mesh(layer, c)[0]
+
+
+def section_mesh(layer, c: float) -> tuple[np.ndarray, tuple[float, float] | None]:
+    """`section_triangles`, and the w the bodies span (None without bodies), found on the way."""
     t = np.asarray(layer.transforms, dtype=np.float64)
-    rotation = t[:, :4].transpose(0, 2, 1)                 # (O, 4, 4): world = R (size local) + p
     out = []
-    groups: dict[int, list[int]] = {}
-    for b, part in enumerate(g.parts):
-        groups.setdefault(id(part.topology), []).append(b)
-    for bodies in groups.values():
-        parts = [g.parts[b] for b in bodies]
-        obj = g.body_object[bodies]
-        r, p, size = rotation[obj], t[obj, 4], t[obj, 5, 0]
-        local_v = np.stack([q.vertices for q in parts])    # (B, V, 4)
-        local_n = np.stack([q.normals for q in parts])     # (B, C, 4)
-        vertices = np.einsum("bij,bvj->bvi", r, local_v * size[:, None, None]) + p[:, None]
-        normals = np.einsum("bij,bcj->bci", r, local_n)
-        tris, ok = kernel(parts[0].topology).triangles(vertices, normals, c)
-        if not ok.any():
+    lo, hi = np.inf, -np.inf
+    for group in _groups(layer.geometry):
+        obj = group.body_object
+        rotation, size = t[obj, :4], t[obj, 5, 0]          # rotation[b, k] = column k of R
+        position = t[obj, 4]
+        # Only bodies whose w range holds c are cut (w = size * R[3, :] . local + p_w).
+        w = np.einsum("bvj,bj->bv", group.vertices, rotation[:, :, 3]) * size[:, None] + position[:, 3:4]
+        w_lo, w_hi = w.min(axis=1), w.max(axis=1)
+        lo, hi = min(lo, w_lo.min()), max(hi, w_hi.max())
+        hit = (w_lo <= c) & (w_hi >= c)
+        if not hit.any():
             continue
-        cell = np.broadcast_to(np.arange(tris.shape[1])[None, :, None], ok.shape)[ok]
-        corners = tris[ok]                                  # (T, 3, 3)
-        n3 = np.broadcast_to(normals[:, :, None, :3], (*ok.shape, 3))[ok]
+        r, size, position = rotation[hit], size[hit], position[hit]
+        vertices = np.matmul(group.vertices[hit] * size[:, None, None], r) + position[:, None]   # local @ R^T
+        normals = np.matmul(group.normals[hit], r)
+        tris, body, cell = group.kernel.triangles(vertices, normals, c)
+        if not len(tris):
+            continue
+        n3 = normals[body, cell, :3]
         light = AMBIENT + (1 - AMBIENT) * np.clip(n3 @ LIGHT / np.linalg.norm(n3, axis=-1), 0.0, 1.0)
-        rgb = cell_color(cell) * light[:, None]
-        rows = np.empty((len(corners), 3, FLOATS_PER_VERTEX), np.float32)
-        rows[..., :3] = corners
-        rows[..., 3:6] = rgb[:, None]
+        rows = np.empty((len(tris), 3, FLOATS_PER_VERTEX), np.float32)
+        rows[..., :3] = tris
+        rows[..., 3:6] = (cell_color(cell) * light[:, None])[:, None]
         rows[..., 6] = 1.0
         out.append(rows.reshape(-1, FLOATS_PER_VERTEX))
     mesh = np.concatenate(out) if out else np.zeros((0, FLOATS_PER_VERTEX), np.float32)
     if layer.projection == "perspective":
         mesh[:, :3] *= layer.eye_distance / (layer.eye_distance + c)
-    return mesh
+    return mesh, ((float(lo), float(hi)) if np.isfinite(lo) else None)
 
 
-def w_range(layer) -> tuple[float, float] | None:
-    """The w the scene's bodies span (where a slice finds something), or None without bodies."""
-    g = layer.geometry
-    if not g.parts:
-        return None
-    t = np.asarray(layer.transforms, dtype=np.float64)
-    lo, hi = np.inf, -np.inf
-    for part, o in zip(g.parts, g.body_object):
-        w = (part.vertices * t[o, 5, 0]) @ t[o, :4, 3] + t[o, 4, 3]   # row 3 of R: columns' w components
-        lo, hi = min(lo, w.min()), max(hi, w.max())
-    return float(lo), float(hi)
+class _Group:
+    """The bodies of one shape in a scene geometry: their section kernel and stacked local arrays."""
+
+    def __init__(self, parts, bodies, body_object):
+        self.kernel = kernel(parts[0].topology)
+        self.body_object = np.asarray(body_object)[bodies]
+        self.vertices = np.stack([p.vertices for p in parts])     # (B, V, 4)
+        self.normals = np.stack([p.normals for p in parts])       # (B, C, 4)
+
+
+_GROUPS: dict[int, tuple[object, list[_Group]]] = {}
+
+
+def _groups(geometry) -> list[_Group]:
+    """The geometry's bodies grouped by shape, built once per scene geometry (a revision of its shapes)."""
+    entry = _GROUPS.get(id(geometry))
+    if entry is None or entry[0] is not geometry:
+        if len(_GROUPS) > 16:
+            _GROUPS.clear()
+        by_topology: dict[int, list[int]] = {}
+        for b, part in enumerate(geometry.parts):
+            by_topology.setdefault(id(part.topology), []).append(b)
+        groups = [_Group([geometry.parts[b] for b in bodies], bodies, geometry.body_object)
+                  for bodies in by_topology.values()]
+        entry = _GROUPS[id(geometry)] = (geometry, groups)
+    return entry[1]
+
+
+class _Group:
+    """The bodies of one shape in a scene geometry: their section kernel and stacked local arrays."""
+
+    def __init__(self, parts, bodies, body_object):
+        self.kernel = kernel(parts[0].topology)
+        self.body_object = np.asarray(body_object)[bodies]
+        self.vertices = np.stack([p.vertices for p in parts])     # (B, V, 4)
+        self.normals = np.stack([p.normals for p in parts])       # (B, C, 4)
+
+
+_GROUPS: dict[int, tuple[object, list[_Group]]] = {}
+
+
+def _groups(geometry) -> list[_Group]:
+    """The geometry's bodies grouped by shape, built once per scene geometry (a revision of its shapes)."""
+    entry = _GROUPS.get(id(geometry))
+    if entry is None or entry[0] is not geometry:
+        if len(_GROUPS) > 16:
+            _GROUPS.clear()
+        by_topology: dict[int, list[int]] = {}
+        for b, part in enumerate(geometry.parts):
+            by_topology.setdefault(id(part.topology), []).append(b)
+        groups = [_Group([geometry.parts[b] for b in bodies], bodies, geometry.body_object)
+                  for bodies in by_topology.values()]
+        entry = _GROUPS[id(geometry)] = (geometry, groups)
+    return entry[1]
+

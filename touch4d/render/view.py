@@ -16,7 +16,7 @@ from touch4d.tactile.skeleton import ViewHand, quaternion_matrices
 from .frame import Frame, SceneLayer, Style
 from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
 from .scene_geometry import SceneGeometry, object_transforms
-from .section_mesh import section_triangles, w_range
+from .section_mesh import section_mesh
 
 BACKGROUND = (0.04, 0.04, 0.06, 1.0)
 
@@ -94,8 +94,7 @@ class SceneView:
         layer = SceneLayer(geometry, object_transforms(scene), scene.projection, float(scene.eye_distance),
                            self.style if view != "both" else both_style(self.style))
         slice_w = float(scene.slice_w if self.slice_w_override is None else self.slice_w_override)
-        self.section = section_triangles(layer, slice_w) if view != "projection" else None
-        self.extent = w_range(layer) if view != "projection" else None
+        self.section, self.extent = section_mesh(layer, slice_w) if view != "projection" else (None, None)
         self.layer, self.view, self.slice_w = layer, view, slice_w
         self.scene, self._scene_key = scene, key
         return True
