@@ -23,11 +23,11 @@ from scipy.stats import norm
 
 from touch4d.errors import Touch4dError, Unavailable
 
-from .design import KINDS
+from .design import ALL_CONDITIONS, KINDS
 from .infotransfer import information_transfer
 from .table import read_trials
 
-CONDITION_ORDER = ("visual", "touch", "visual+touch")
+CONDITION_ORDER = ALL_CONDITIONS     # visual, touch, visual+touch; then the same in the slice, both views
 TIMED_OUT = "(timed out)"
 
 
@@ -52,7 +52,8 @@ def load(where):
 
 
 def conditions_in(data) -> list[str]:
-    """The conditions present, in the usual order (visual, touch, visual+touch), others after."""
+    """The conditions present, in the usual order (visual, touch, visual+touch, then in the slice and
+    both views), others after."""
     present = list(dict.fromkeys(data["condition"]))
     return [c for c in CONDITION_ORDER if c in present] + [c for c in present if c not in CONDITION_ORDER]
 
