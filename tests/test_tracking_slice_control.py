@@ -1,5 +1,6 @@
 """The view and the slice as the scene node changes them: scene/command view and slice, the controller's
 buttons (the desktop's m, k, j keys), and the scene/state they publish."""
+
 import numpy as np
 import pytest
 
@@ -57,3 +58,18 @@ def test_the_view_travels_in_scene_state_and_old_messages_read_as_projection():
     assert (scene.view, scene.slice_w) == ("both", 1.75)
     plain = SceneState(objects=msg.objects, projection="orthographic", eye_distance=3.0)
     assert (plain.view, plain.slice_w) == ("projection", 0.0)
+
+
+def test_the_thumbstick_pushed_forward_and_back_moves_the_slice():
+    from test_web_protocol import input_message, source
+
+    from touch4d.web.protocol import parse_page_message
+
+    msg = parse_page_message(input_message(sources=[source(buttons=["thumbstick-up"])]))
+    held = list(msg["sources"][0].buttons)
+    ctl = control()
+    c = ctl.scene.slice_w
+    ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, held)
+    assert ctl.scene.slice_w == pytest.approx(c + SLICE_STEP)
+    ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, ["thumbstick-down"])
+    assert ctl.scene.slice_w == pytest.approx(c)

@@ -25,7 +25,7 @@ from touch4d.geometry import quaternion
 from .calibration import Calibration
 
 DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection", "thumbstick": "view",
-                   "a": "slice up", "b": "slice down"}
+                   "a": "slice up", "b": "slice down", "thumbstick-up": "slice up", "thumbstick-down": "slice down"}
 ROTATE_TARGETS = ("object", "scene", "none")   # none: the controller turns nothing (a study's fixed stimuli)
 BUTTON_COMMANDS = ("next", "reset", "projection", "view", "slice up", "slice down")   # a button's command
 SLICE_STEP = 0.05                              # screen units of w per slice up / down
