@@ -60,16 +60,15 @@ class SectionKernel:
             self.cell_edges[k, :len(e)] = e
         self.pad = self.cell_edges < 0
         self.cell_edges[self.pad] = 0
-        # Each polygon corner has two slots per edge: a crossing inside the edge, or its ends in the plane.
-        self.slots = 2 * width
+        self.width = width
 
     def polygons(self, vertices, normals, c: float):
         """The section's faces for bodies of this shape: vertices (B, V, 4) and cell normals (B, C, 4) in
         the world. Only the cells the hyperplane cuts come out: their corners (K, S, 3), in cyclic order
         counterclockwise seen from outside the section (along +n3), how many there are (K,) (a cell's
         polygon is corners[k, :count[k]]; S is the most any has), and the body (K,) and cell (K,) each
-        comes from. A corner
-        shared by several edges (a vertex in the plane) repeats; `cross_section` merges such repeats."""
+        comes from. A corner shared by several edges (a vertex in the plane) repeats; `cross_section`
+        merges such repeats."""
         x = np.asarray(vertices, dtype=np.float64)
         n = np.asarray(normals, dtype=np.float64)
         dw = x[..., 3] - c                                          # (B, V)
@@ -77,21 +76,27 @@ class SectionKernel:
         a, b = self.edges[:, 0], self.edges[:, 1]
         wa, wb = dw[:, a], dw[:, b]                                 # (B, E)
         cross = (wa * wb < 0) & ~on[:, a] & ~on[:, b]
-        valid = np.stack([cross | on[:, a], on[:, b]], axis=2)      # (B, E, 2): a crossing or end a; end b
-        slots = valid[:, self.cell_edges] & ~self.pad[None, :, :, None]          # (B, C, W, 2)
-        count = slots.reshape(*slots.shape[:2], self.slots).sum(axis=-1)
+        # A corner per edge: where it crosses w = c, or its end a in the plane; with vertices in the
+        # plane (rare), a second per edge, its end b, so that no corner is lost (repeats are harmless).
+        ends_too = bool(on.any())
+        slots_per_edge = 2 if ends_too else 1
+        valid = np.stack([cross | on[:, a], on[:, b]], axis=2) if ends_too else (cross | on[:, a])[..., None]
+        slots = valid[:, self.cell_edges] & ~self.pad[None, :, :, None]          # (B, C, W, 1 or 2)
+        n_slots = self.width * slots_per_edge
+        count = slots.reshape(*slots.shape[:2], n_slots).sum(axis=-1)
         n3 = n[..., :3]
         norm = np.linalg.norm(n3, axis=-1)
         body, cell = np.nonzero((count >= 3) & (norm > PARALLEL))
         if not len(body):
             empty = np.zeros(0, np.int64)
-            return np.zeros((0, self.slots, 3)), empty, empty, empty
+            return np.zeros((0, 3, 3)), empty, empty, empty
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(cross, wa / (wa - wb), 0.0)
         xa, xb = x[:, a, :3], x[:, b, :3]
-        ends = np.stack([xa + t[..., None] * (xb - xa), xb], axis=2)            # (B, E, 2, 3)
-        pts = ends[body[:, None], self.cell_edges[cell]].reshape(len(body), self.slots, 3)
-        ok = slots[body, cell].reshape(len(body), self.slots)
+        ends = (np.stack([xa + t[..., None] * (xb - xa), xb], axis=2) if ends_too
+                else (xa + t[..., None] * (xb - xa))[:, :, None])                 # (B, E, 1 or 2, 3)
+        pts = ends[body[:, None], self.cell_edges[cell]].reshape(len(body), n_slots, 3)
+        ok = slots[body, cell].reshape(len(body), n_slots)
         k = count[body, cell]
         centre = np.einsum("ks,ksj->kj", ok.astype(np.float64), pts) / k[:, None]
         # Cyclic order: angles in the coordinate plane (i, j) that drops the normal's largest component
