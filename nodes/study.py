@@ -30,7 +30,7 @@ from touch4d.geometry.scene import parse_scene, scene_digest
 from touch4d.messages import (HandPose, InputEvents, MotorCommand, SceneCommand, SceneState, Stop, StudyCommand,
                               StudyResponse, StudyTrial)
 from touch4d.schema import parse_yaml
-from touch4d.study.design import load_study
+from touch4d.study.design import load_study, split_condition
 from touch4d.study.gate import allowed
 from touch4d.study.plan import condition_order, plan_session, quick_plan
 from touch4d.study.session import TrialMeasures, TrialsFile, session_dir, start_manifest, trial_row
@@ -132,7 +132,8 @@ class StudyNode(Node):
             self._finish_session()
             return
         self._prepare_scene()
-        words = CONDITION_WORDS.get(self.current.condition, self.current.condition)
+        modality, view = split_condition(self.current.condition)
+        words = CONDITION_WORDS[modality] + ("" if view == "projection" else f", {view} view")
         new_block = previous is not None and previous.block != self.current.block
         if first and self.current.trial == 0:      # a block's start, the session's or after a restart
             self._set_phase("break", f"Ready? First: {words}. Press Enter or any answer button to start.")

@@ -9,7 +9,7 @@ from scipy.spatial import ConvexHull, Delaunay
 from scipy.stats import special_ortho_group
 
 from touch4d.geometry.rotation import plane_rotation
-from touch4d.geometry.section import cross_section, inside_section, kernel, w_extent
+from touch4d.geometry.section import SectionCaster, cross_section, kernel, w_extent
 from touch4d.geometry.shapes import get_shape, list_shapes
 
 from test_geometry_cli import run
@@ -120,14 +120,14 @@ def test_a_touching_hyperplane_gives_no_volume():
     assert cross_section(body, 1.0).volume == 0.0
 
 
-def test_inside_section_agrees_with_the_hull():
+def test_the_section_caster_agrees_with_the_hull():
     rng = np.random.default_rng(3)
     body = shape("24-cell", 1.0, special_ortho_group.rvs(4, random_state=rng))
     c = 0.1
     vertices, _ = independent_section(body.vertices, c)
     points = rng.uniform(-0.8, 0.8, (4000, 3))
     expected = Delaunay(vertices).find_simplex(points) >= 0
-    got = inside_section(body.normals[None], body.offsets[None], c, points)[:, 0]
+    got = SectionCaster([(0, body)], c).cast(points)[1] == 0
     assert got.shape == (4000,) and 200 < expected.sum() < 3800
     assert np.array_equal(got, expected)
 

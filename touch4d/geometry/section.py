@@ -29,13 +29,6 @@ def section_halfspaces(normals, offsets, c: float) -> tuple[np.ndarray, np.ndarr
     return n[..., :3], np.asarray(offsets, dtype=np.float64) - n[..., 3] * float(c)
 
 
-def inside_section(normals, offsets, c: float, points3, tol: float = 0.0) -> np.ndarray:
-    """(N, B) whether each 3D point (N, 3) lies in the section at w = c of each body (B, C, 4), (B, C)."""
-    n3, d3 = section_halfspaces(normals, offsets, c)
-    p = np.asarray(points3, dtype=np.float64).reshape(-1, 3)
-    return np.all(np.einsum("bck,nk->nbc", n3, p) <= d3[None] + tol, axis=-1)
-
-
 def w_extent(vertices) -> tuple[float, float]:
     """The range of w a body (or all the vertices given) spans: the c at which it has a section."""
     w = np.asarray(vertices, dtype=np.float64)[..., 3]
