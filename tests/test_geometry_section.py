@@ -160,3 +160,18 @@ def test_scene_slice_prints_each_objects_section(capsys):
     assert {f["cell"] for f in part["faces"]} <= set(range(8))
     assert run(["scene", "slice", "config/scenes/hypercube.yaml", "--w", "5"]) == 0
     assert "empty" in capsys.readouterr().out
+
+
+def test_a_scene_file_names_a_bad_view_or_cut():
+    from touch4d.errors import ConfigError
+    from touch4d.geometry.scene import parse_scene
+
+    objects = [{"shape": "tesseract", "position": [0, 0, 0, 1.5]}]
+    with pytest.raises(ConfigError, match=r"'view'.*projection.*slice.*both"):
+        parse_scene({"objects": objects, "view": "sideways"}, "s.yaml")
+    with pytest.raises(ConfigError, match="slice_w"):
+        parse_scene({"objects": objects, "slice_w": "deep"}, "s.yaml")
+    with pytest.raises(ConfigError, match="slice_touch"):
+        parse_scene({"objects": objects, "slice_touch": "both"}, "s.yaml")
+    scene = parse_scene({"objects": objects, "view": "slice", "slice_w": 1.25, "slice_touch": "projection"})
+    assert (scene.view, scene.slice_w, scene.slice_touch) == ("slice", 1.25, "projection")
