@@ -175,3 +175,10 @@ def test_a_scene_file_names_a_bad_view_or_cut():
         parse_scene({"objects": objects, "slice_touch": "both"}, "s.yaml")
     scene = parse_scene({"objects": objects, "view": "slice", "slice_w": 1.25, "slice_touch": "projection"})
     assert (scene.view, scene.slice_w, scene.slice_touch) == ("slice", 1.25, "projection")
+
+
+def test_scene_check_names_the_view(tmp_path, capsys):
+    path = tmp_path / "s.yaml"
+    path.write_text("view: both\nslice_w: 1.4\nobjects:\n  - shape: tesseract\n    position: [0, 0, 0, 1.5]\n")
+    assert run(["scene", "check", str(path)]) == 0
+    assert "orthographic projection; both view at w = 1.4 (touch: section)" in capsys.readouterr().out

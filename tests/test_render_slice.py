@@ -161,3 +161,38 @@ def test_render_command_draws_the_slice(tmp_path, capsys):
     assert width == pytest.approx(height, abs=1) and width > 40
     scene = parse_scene({"objects": [{"shape": "tesseract", "position": [0, 0, 0, 1.5]}]})
     assert scene.slice_w == 1.5                                    # by default the middle of the w extent
+
+
+def test_the_renderer_node_draws_the_slice_its_view_parameter_asks_for():
+    from touch4d.bus import Node
+    from touch4d.bus.testing import running_broker, wait_until
+    from touch4d.errors import ConfigError
+    from touch4d.nodes.renderer import RendererNode
+
+    params = {"headless": True, "width": 200, "height": 160, "samples": 0, "rate": 30.0, "show_status": False,
+              "show_frame": False, "show_tactile": False, "backend": "clip",
+              "camera": "yaw=0,pitch=0,distance=4,target=0:0:0,ortho"}
+    msg = one(view="projection").to_message()
+    with running_broker() as bus:
+        with pytest.raises(ConfigError, match="view.*sideways"):
+            RendererNode(params={**params, "view": "sideways"}, bus=bus, heartbeat=False)
+        node = RendererNode(params={**params, "view": "slice", "slice_w": 1.5}, bus=bus, heartbeat=False)
+        probe = Node("probe", bus=bus, heartbeat=False)
+        try:
+            pub = probe.create_publisher("scene/state", type(msg))
+
+            def drawn_cube():
+                pub.publish(msg)
+                node.spin_once(0.05)
+                if not node.counts["frames"] or node.view.scene is None:
+                    return None
+                image = node.renderer.read()
+                return [image] if drawn(image).sum() > 1000 else None
+
+            image = wait_until(drawn_cube, timeout=90, interval=0.0)[0]
+        finally:
+            probe.shutdown()
+            node.shutdown()
+    # the unit tesseract's section, face on: a solid square of the cube's size in its cells' colours
+    assert node.view.view == "slice"
+    assert box_pixels(drawn(image)) == pytest.approx((pixels_per_unit(),) * 2, abs=1.5)
