@@ -80,3 +80,15 @@ def test_moving_the_slice_rebuilds_the_touch():
     assert engine.set_scene(scene(c=1.5).to_message())
     assert not engine.set_scene(scene(c=1.5).to_message())
     assert engine.set_scene(scene(c=1.6).to_message())
+
+
+def test_a_cut_behind_the_perspective_eye_is_neither_seen_nor_touched():
+    from touch4d.render.view import SceneView
+
+    obj = SceneObject(name="c", shape="tesseract", size=8.0, position=np.array([0, 0, 0, 0.0]))
+    s = scene(c=-3.5, projection="perspective", objects=[obj])           # the eye is at w = -3
+    assert s.ray_caster().cast(np.zeros((1, 3)))[1].tolist() == [-1]
+    view = SceneView()
+    view.set_scene(s)
+    assert len(view.section) == 0 and not view.frame().solids
+    assert view.extent == pytest.approx((-4.0, 4.0))

@@ -207,12 +207,15 @@ class SectionCaster:
     `RayCaster.cast` answers, so the tactile model (eq. 1-7) runs unchanged: a screen point inside an
     object's section is in contact (t = 0, the strongest stimulus, as for a point inside a body in the
     projection), elsewhere it touches nothing (NaN, -1). Where the slice is drawn in perspective, at
-    d / (d + c) of its size, a screen point u stands for the world point u (d + c) / d.
+    d / (d + c) of its size, a screen point u stands for the world point u (d + c) / d; a cut at or
+    behind the eye (c <= -d) is seen nowhere and touches nothing.
     """
 
     def __init__(self, world_parts: list[tuple[int, Polytope]], c: float, eye_distance: float | None = None):
         self.c = float(c)
         self.scale = 1.0 if eye_distance is None else (float(eye_distance) + self.c) / float(eye_distance)
+        if self.scale <= 0:
+            world_parts = []
         self.part_object = np.array([int(i) for i, _ in world_parts], dtype=np.int64)
         rows = [section_halfspaces(p.normals, p.offsets, self.c) for _, p in world_parts]
         self._normals = np.vstack([n for n, _ in rows]) if rows else np.zeros((0, 3))

@@ -29,6 +29,7 @@ def section_mesh(layer, c: float) -> tuple[np.ndarray, tuple[float, float] | Non
     t = np.asarray(layer.transforms, dtype=np.float64)
     out = []
     lo, hi = np.inf, -np.inf
+    behind_eye = layer.projection == "perspective" and c <= -layer.eye_distance   # nothing there is seen
     for group in _groups(layer.geometry):
         obj = group.body_object
         rotation, size = t[obj, :4], t[obj, 5, 0]          # rotation[b, k] = column k of R
@@ -38,7 +39,7 @@ def section_mesh(layer, c: float) -> tuple[np.ndarray, tuple[float, float] | Non
         w_lo, w_hi = w.min(axis=1), w.max(axis=1)
         lo, hi = min(lo, w_lo.min()), max(hi, w_hi.max())
         hit = (w_lo <= c) & (w_hi >= c)
-        if not hit.any():
+        if behind_eye or not hit.any():
             continue
         r, size, position = rotation[hit], size[hit], position[hit]
         vertices = np.matmul(group.vertices[hit] * size[:, None, None], r) + position[:, None]   # local @ R^T
