@@ -22,7 +22,7 @@ import numpy as np
 from touch4d.render.context import create_headless_context
 from touch4d.render.section_mesh import section_triangles
 
-from bench_render import BARE, Loop, best_of, cell120, tesseracts
+from bench_render import Loop, best_of, cell120, tesseracts
 
 TARGET = 1e-3          # CPU per frame the gpu backend must stay under, in the slice and both views
 

@@ -104,7 +104,8 @@ def test_the_sections_volumes_integrate_to_the_4d_volume(name, volume4):
     body = shape(name, 1.0, special_ortho_group.rvs(4, random_state=5))
     lo, hi = w_extent(body.vertices)
     integral, _ = quad(lambda c: cross_section(body, c).volume, lo, hi, limit=200, epsabs=1e-10)
-    assert integral == pytest.approx(volume4, rel=1e-6)      # 16-cell: 2^4 / 4! r^4, r = 1/2; 24-cell: 2 a^4, a = 1/sqrt(2)
+    # 16-cell: 2^4 / 4! r^4, r = 1/2; 24-cell: 2 a^4, a = 1/sqrt(2)
+    assert integral == pytest.approx(volume4, rel=1e-6)
 
 
 def test_outside_its_w_extent_a_body_has_no_section():

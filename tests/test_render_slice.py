@@ -136,7 +136,8 @@ def test_gpu_and_clip_draw_the_same_picture(renderers, view, seed):
 def test_the_renderer_can_override_the_scenes_view(renderers):
     r = renderers["clip"]
     scene = one(view="projection")
-    assert np.array_equal(picture(r, scene, OBLIQUE, view="slice", slice_w=1.5), picture(r, replace(scene, view="slice"), OBLIQUE))
+    overridden = picture(r, scene, OBLIQUE, view="slice", slice_w=1.5)
+    assert np.array_equal(overridden, picture(r, replace(scene, view="slice"), OBLIQUE))
 
 
 def test_the_status_line_says_where_the_slice_cuts():

@@ -13,7 +13,8 @@ from touch4d.tracking.scene_control import SLICE_STEP, ControlConfig, SceneComma
 
 
 def control(**config):
-    return SceneControl(load_scene(CONFIG_DIR / "scenes" / "hypercube.yaml"), load_calibration(), ControlConfig(**config))
+    scene = load_scene(CONFIG_DIR / "scenes" / "hypercube.yaml")
+    return SceneControl(scene, load_calibration(), ControlConfig(**config))
 
 
 def test_view_command_sets_and_cycles_the_view():

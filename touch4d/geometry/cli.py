@@ -96,7 +96,8 @@ def _check(args) -> int:
     path = resolve_path(args.file, COMMAND_LINE, key="FILE", what="scene file")
     scene = load_scene(path)
     eye = f", eye at w = -{scene.eye_distance:g}" if scene.projection == "perspective" else ""
-    view = "" if scene.view == "projection" else f"; {scene.view} view at w = {scene.slice_w:g} (touch: {scene.slice_touch})"
+    view = "" if scene.view == "projection" else \
+        f"; {scene.view} view at w = {scene.slice_w:g} (touch: {scene.slice_touch})"
     print(f"{path}: {len(scene.objects)} object(s), {scene.projection} projection{eye}{view}")
     outside = 0
     for i, obj in enumerate(scene.objects):

@@ -172,9 +172,9 @@ class Scene:
 
 def scene_digest(msg, touch_only: bool = False) -> bytes:
     """The one digest of a `scene/state` message: everything in its objects, the projection, the eye
-    distance and the view with its slice (all but `selected` and `revision`; with `touch_only`, names and colours too, which
-    the hand cannot feel). Equal digests draw (or touch) the same scene, so a repeated message (the
-    scene node repeats it for late joiners) or a new selection rebuilds nothing."""
+    distance and the view with its slice (all but `selected` and `revision`; with `touch_only`, names
+    and colours too, which the hand cannot feel). Equal digests draw (or touch) the same scene, so a
+    repeated message (the scene node repeats it for late joiners) or a new selection rebuilds nothing."""
     skipped = ("name", "color") if touch_only else ()
     digest = hashlib.blake2b(digest_size=16)
     digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}|{msg.view}|{float(msg.slice_w)!r}|"

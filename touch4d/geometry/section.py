@@ -5,8 +5,9 @@ A body n.x <= d cut by w = c is the convex polyhedron n3.u <= d - n_w c in u = (
 half-space computation (`section_halfspaces`). Its boundary is exact and cheap from the body's
 combinatorics: the hyperplane meets each cell in a polygon whose corners are where the cell's edges
 cross w = c; each polygon is a face of the section, coloured by the cell it cuts. `SectionKernel`
-does this for many bodies of one shape at once (the renderer, every frame); `cross_section` gives one
-body's section with shared vertices and its volume (the `touch4d scene slice` command, the tests).
+does this for many bodies of one shape at once (the renderer, whenever the scene moves);
+`cross_section` gives one body's section with shared vertices and its volume (the `touch4d scene
+slice` command, the tests); `SectionCaster` is what the hand presses in the slice view.
 """
 from __future__ import annotations
 

@@ -186,7 +186,8 @@ class SceneView:
             names = ", ".join(o.name for o in self.scene.objects[:4]) + (" ..." if len(self.scene.objects) > 4 else "")
             lines.append(f"scene: {names or 'empty'} ({self.scene.projection})")
             if self.view != "projection":
-                span = "nothing to cut" if self.extent is None else f"objects span w {self.extent[0]:.2f} .. {self.extent[1]:.2f}"
+                span = "nothing to cut" if self.extent is None else \
+                    f"objects span w {self.extent[0]:.2f} .. {self.extent[1]:.2f}"
                 lines.append(f"{self.view} view: slice at w = {self.slice_w:.2f} ({span})")
         if self.motors is not None:
             threshold = self.glove.touch_threshold if self.glove is not None else DEFAULT_TOUCH_THRESHOLD

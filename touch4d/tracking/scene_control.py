@@ -259,7 +259,8 @@ class SceneControl:
         except ValueError:
             target = None
         if target is None or not np.isfinite(target):
-            raise SceneCommandError(f"slice: expected where to cut (a number, w = C) or up / down [D], got {argument!r}")
+            raise SceneCommandError(f"slice: expected where to cut (a number, w = C) or up / down [D], "
+                                    f"got {argument!r}")
         if target == self.scene.slice_w:
             return False
         self.scene.slice_w = float(target)
