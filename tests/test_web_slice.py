@@ -1,6 +1,7 @@
 """The WebXR page in the slice view, in a real browser (Debian's chromium, WebGL2 through
 SwiftShader): `scene/command view slice` turns the page's picture into the cross-section, a solid in
-its cells' colours, and its status line says where the slice cuts; `slice` moves the cut."""
+its cells' colours (in the both view, inside the projection), and its status line says where the
+slice cuts; `slice` moves the cut."""
 from __future__ import annotations
 
 import io
@@ -82,7 +83,15 @@ def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
             assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
             status = page.inner_text("#status")
             assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
+            # both: the same solid, seen through the projection drawn faintly around it
+            command(stack, page, "view", "both", "touch4d.view === 'both'")
+            page.wait_for_timeout(300)
+            both = screenshot(page)
+            solid = cell_coloured(cut)
+            assert np.abs(both - cut)[solid].mean() < 40                    # the solid, faintly tinted
+            assert (np.abs(both - cut).sum(axis=2) > 60).sum() > 300        # and the projection's edges
             # moved out of the object's w range: nothing left to draw but the frame and the hand's cube
+            command(stack, page, "view", "slice", "touch4d.view === 'slice'")
             command(stack, page, "slice", "2.5", "touch4d.frame.slice_w === 2.5")
             page.wait_for_timeout(300)
             assert cell_coloured(screenshot(page)).sum() < 50
