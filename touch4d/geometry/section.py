@@ -37,82 +37,81 @@ def w_extent(vertices) -> tuple[float, float]:
 
 
 class SectionKernel:
-    """The per-shape tables of the cross-section: each cell's edges, padded to the widest cell, so that
-    the polygons of every cell of many bodies come out of a few array operations."""
+    """The per-shape table of the cross-section: the cells around each edge (padded with -1), so that
+    the polygons of every cut cell of many bodies come out of a few array operations."""
 
     def __init__(self, topology: Topology):
-        edges = np.asarray(topology.edges)
-        cell_edges = []
-        for faces in topology.cell_faces:
-            sides = np.concatenate([topology.face_edges[topology.face_starts[f]:topology.face_starts[f + 1]]
-                                    for f in faces])
-            cell_edges.append(np.unique(sides))
-        width = max(len(e) for e in cell_edges)
-        self.edges = edges
-        self.cell_edges = np.full((len(cell_edges), width), -1, np.int64)
-        for k, e in enumerate(cell_edges):
-            self.cell_edges[k, :len(e)] = e
-        self.pad = self.cell_edges < 0
-        self.cell_edges[self.pad] = 0
-        self.width = width
+        self.edges = np.asarray(topology.edges)
+        face_cells = np.asarray(topology.face_cells)
+        around = [np.unique(face_cells[faces]) for faces in topology.edge_faces]
+        self.edge_cells = np.full((len(around), max(len(a) for a in around)), -1, np.int64)
+        for e, cells in enumerate(around):
+            self.edge_cells[e, :len(cells)] = cells
+        self.n_cells = len(topology.cell_faces)
 
     def polygons(self, vertices, normals, c: float):
         """The section's faces for bodies of this shape: vertices (B, V, 4) and cell normals (B, C, 4) in
-        the world. Only the cells the hyperplane cuts come out: their corners (K, S, 3), in cyclic order
-        counterclockwise seen from outside the section (along +n3), how many there are (K,) (a cell's
-        polygon is corners[k, :count[k]]; S is the most any has), and the body (K,) and cell (K,) each
-        comes from. A corner shared by several edges (a vertex in the plane) repeats; `cross_section`
-        merges such repeats."""
+        the world. Only the cells the hyperplane cuts come out, K of them: the corners (N, 3) of all
+        their polygons one after the other, each polygon in cyclic order counterclockwise seen from
+        outside the section (along +n3), where each starts (K + 1,), and the body (K,) and cell (K,)
+        each comes from. A corner shared by several edges (a vertex in the plane) repeats;
+        `cross_section` merges such repeats."""
         x = np.asarray(vertices, dtype=np.float64)
-        n = np.asarray(normals, dtype=np.float64)
+        n3 = np.asarray(normals, dtype=np.float64)[..., :3]
         dw = x[..., 3] - c                                          # (B, V)
         on = np.abs(dw) <= ON_PLANE
         a, b = self.edges[:, 0], self.edges[:, 1]
         wa, wb = dw[:, a], dw[:, b]                                 # (B, E)
         cross = (wa * wb < 0) & ~on[:, a] & ~on[:, b]
-        # A corner per edge: where it crosses w = c, or its end a in the plane; with vertices in the
-        # plane (rare), a second per edge, its end b, so that no corner is lost (repeats are harmless).
-        ends_too = bool(on.any())
-        slots_per_edge = 2 if ends_too else 1
-        valid = np.stack([cross | on[:, a], on[:, b]], axis=2) if ends_too else (cross | on[:, a])[..., None]
-        slots = valid[:, self.cell_edges] & ~self.pad[None, :, :, None]          # (B, C, W, 1 or 2)
-        n_slots = self.width * slots_per_edge
-        count = slots.reshape(*slots.shape[:2], n_slots).sum(axis=-1)
-        n3 = n[..., :3]
-        norm = np.linalg.norm(n3, axis=-1)
-        body, cell = np.nonzero((count >= 3) & (norm > PARALLEL))
-        if not len(body):
-            empty = np.zeros(0, np.int64)
-            return np.zeros((0, 3, 3)), empty, empty, empty
+        # The corners: where an edge crosses w = c, and the ends of edges in the plane (rare); each
+        # is a corner of the polygon of every cell around its edge.
+        body, edge = np.nonzero(cross | on[:, a])
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(cross, wa / (wa - wb), 0.0)
-        xa, xb = x[:, a, :3], x[:, b, :3]
-        ends = (np.stack([xa + t[..., None] * (xb - xa), xb], axis=2) if ends_too
-                else (xa + t[..., None] * (xb - xa))[:, :, None])                 # (B, E, 1 or 2, 3)
-        pts = ends[body[:, None], self.cell_edges[cell]].reshape(len(body), n_slots, 3)
-        ok = slots[body, cell].reshape(len(body), n_slots)
-        k = count[body, cell]
-        centre = np.einsum("ks,ksj->kj", ok.astype(np.float64), pts) / k[:, None]
+            t = np.where(cross[body, edge], wa[body, edge] / (wa[body, edge] - wb[body, edge]), 0.0)
+        xa = x[body, a[edge], :3]
+        points = xa + t[:, None] * (x[body, b[edge], :3] - xa)
+        if on.any():
+            body_b, edge_b = np.nonzero(on[:, b])
+            body, edge = np.r_[body, body_b], np.r_[edge, edge_b]
+            points = np.vstack([points, x[body_b, b[edge_b], :3]])
+        cells = self.edge_cells[edge]                               # (P, M)
+        has = cells >= 0
+        corner_body = np.broadcast_to(body[:, None], cells.shape)[has]
+        key = corner_body * self.n_cells + cells[has]               # (N,): the body's cell each corner is on
+        pts = np.broadcast_to(points[:, None], (*cells.shape, 3))[has]
+        # Cells with 3 corners or more, not parallel to the hyperplane, are cut in a polygon.
+        count = np.bincount(key, minlength=len(x) * self.n_cells)
+        m = n3.reshape(-1, 3)
+        cut = (count >= 3) & (np.abs(m).max(axis=1) > PARALLEL)
+        keep = cut[key]
+        key, pts = key[keep], pts[keep]
+        if not len(key):
+            empty = np.zeros(0, np.int64)
+            return np.zeros((0, 3)), np.zeros(1, np.int64), empty, empty
+        centre = np.stack([np.bincount(key, pts[:, j], minlength=len(count)) for j in range(3)], axis=1)
+        centre /= np.maximum(count, 1)[:, None]
         # Cyclic order: angles in the coordinate plane (i, j) that drops the normal's largest component
         # m_k, (i, j, k) cyclic; they grow counterclockwise about +e_k, so about n3 when m_k > 0.
-        m = n3[body, cell]
-        drop = np.argmax(np.abs(m), axis=-1)
-        rel = pts - centre[:, None]
-        rows = np.arange(len(body))
-        u = np.take_along_axis(rel, ((drop + 1) % 3)[:, None, None], axis=2)[..., 0]
-        v = np.take_along_axis(rel, ((drop + 2) % 3)[:, None, None], axis=2)[..., 0]
-        angle = np.arctan2(v, u) * np.sign(m[rows, drop])[:, None]
-        order = np.argsort(np.where(ok, angle, np.inf), axis=-1)[:, :k.max()]
-        corners = pts[rows[:, None], order]
-        return corners, k, body, cell
+        mk = m[key]
+        drop = np.argmax(np.abs(mk), axis=1)
+        rel = pts - centre[key]
+        rows = np.arange(len(key))
+        angle = np.arctan2(rel[rows, (drop + 2) % 3], rel[rows, (drop + 1) % 3]) * np.sign(mk[rows, drop])
+        order = np.argsort(key + (angle + 4.0) / 8.0)              # by cell, then by angle (|angle| <= pi < 4)
+        key = key[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        faces = key[starts]
+        return pts[order], np.r_[starts, len(key)], faces // self.n_cells, faces % self.n_cells
 
     def triangles(self, vertices, normals, c: float):
         """The section's faces as fans of triangles wound counterclockwise seen from outside: corners
         (T, 3, 3), and the body (T,) and cell (T,) each comes from."""
-        corners, count, body, cell = self.polygons(vertices, normals, c)
-        face, i = np.nonzero(np.arange(1, corners.shape[1] - 1)[None, :] + 1 < count[:, None])
-        i = i + 1
-        tris = np.stack([corners[face, 0], corners[face, i], corners[face, i + 1]], axis=1)
+        corners, starts, body, cell = self.polygons(vertices, normals, c)
+        fans = np.diff(starts) - 2                                 # a polygon of k corners: k - 2 triangles
+        face = np.repeat(np.arange(len(fans)), fans)
+        first = starts[face]
+        i = first + 1 + np.arange(len(face)) - np.repeat(np.cumsum(fans) - fans, fans)   # 1 .. k - 2 in each
+        tris = np.stack([corners[first], corners[i], corners[i + 1]], axis=1)
         return tris, body[face], cell[face]
 
 
@@ -151,11 +150,11 @@ class Section:
 def cross_section(body: Polytope, c: float, tol: float = 1e-9) -> Section:
     """The exact cross-section of a world polytope by w = c (corners merged within `tol`; faces of no
     area, where the hyperplane only touches a cell, left out)."""
-    corners, count, _, cut = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
+    corners, starts, _, cut = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
     points, faces, cells, seen = [], [], [], set()
     for k, cell in enumerate(cut):
         face = []
-        for p in corners[k, :count[k]]:
+        for p in corners[starts[k]:starts[k + 1]]:
             index = _merge(points, p, tol)
             if not face or (index != face[-1] and index != face[0]):
                 face.append(index)

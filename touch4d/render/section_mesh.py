@@ -47,11 +47,12 @@ def section_mesh(layer, c: float) -> tuple[np.ndarray, tuple[float, float] | Non
         tris, body, cell = group.kernel.triangles(vertices, normals, c)
         if not len(tris):
             continue
-        n3 = normals[body, cell, :3]
-        light = AMBIENT + (1 - AMBIENT) * np.clip(n3 @ LIGHT / np.linalg.norm(n3, axis=-1), 0.0, 1.0)
+        n3 = normals[..., :3]                                       # each cell's face colour, lit: (B, C, 3)
+        lit = np.clip(n3 @ LIGHT / np.maximum(np.linalg.norm(n3, axis=-1), 1e-12), 0.0, 1.0)
+        shade = group.colors * (AMBIENT + (1 - AMBIENT) * lit)[..., None]
         rows = np.empty((len(tris), 3, FLOATS_PER_VERTEX), np.float32)
         rows[..., :3] = tris
-        rows[..., 3:6] = (cell_color(cell) * light[:, None])[:, None]
+        rows[..., 3:6] = shade[body, cell][:, None]
         rows[..., 6] = 1.0
         out.append(rows.reshape(-1, FLOATS_PER_VERTEX))
     mesh = np.concatenate(out) if out else np.zeros((0, FLOATS_PER_VERTEX), np.float32)
@@ -68,6 +69,7 @@ class _Group:
         self.body_object = np.asarray(body_object)[bodies]
         self.vertices = np.stack([p.vertices for p in parts])     # (B, V, 4)
         self.normals = np.stack([p.normals for p in parts])       # (B, C, 4)
+        self.colors = cell_color(np.arange(self.normals.shape[1]))  # (C, 3): the centre copies' palette
 
 
 _GROUPS: dict[int, tuple[object, list[_Group]]] = {}
@@ -96,6 +98,7 @@ class _Group:
         self.body_object = np.asarray(body_object)[bodies]
         self.vertices = np.stack([p.vertices for p in parts])     # (B, V, 4)
         self.normals = np.stack([p.normals for p in parts])       # (B, C, 4)
+        self.colors = cell_color(np.arange(self.normals.shape[1]))  # (C, 3): the centre copies' palette
 
 
 _GROUPS: dict[int, tuple[object, list[_Group]]] = {}
