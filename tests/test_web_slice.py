@@ -81,6 +81,7 @@ def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
             assert cell_coloured(cut).sum() > 2000 and cell_coloured(cut).sum() > 0.5 * drawn.sum() - 2000
             # ... where the projection showed translucent faces
             assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
+            assert page.evaluate("touch4d.panel") == ["slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)"]
             status = page.inner_text("#status")
             assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
             # both: the same solid, seen through the projection drawn faintly around it

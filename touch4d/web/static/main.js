@@ -89,7 +89,7 @@ const link = new Link((message) => {
     state.study = header.study || null;
     state.drawObjects = header.draw_objects !== false;
     if (panel) {
-      panel.update(state.study);
+      panel.update(state.study || (slice && slice.panel()));   // no study: the slice's c, in the headset too
       state.panel = panel.lines;
     }
     buttons.update(state.study);

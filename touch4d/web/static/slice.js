@@ -27,6 +27,12 @@ export class SliceRenderer {
     this.label = this.view === 'projection' ? '' : `${this.view} view: slice at w = ${f.slice_w.toFixed(2)} (${span})`;
   }
 
+  // What the text panel above the screen shows while no study runs (the panel takes a study's lines):
+  // the view and where it cuts, or nothing in the projection view.
+  panel() {
+    return this.label ? { lines: [this.label] } : null;
+  }
+
   // Whether the projection is drawn too (projection and both views).
   get projection() {
     return this.view !== 'slice';
