@@ -6,7 +6,7 @@ See docs/contracts.md for the table of topics and fields.
 from .base import Message, MessageError, TYPES, decode, decoder, encode
 from .hand import ControllerState, HandJoints, HandPose
 from .physics import PhysicsContacts, PhysicsInput
-from .scene import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS, SceneCommand, SceneState
+from .scene import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS, SLICE_TOUCH, VIEWS, SceneCommand, SceneState
 from .study import STUDY_COMMANDS, STUDY_PHASES, StudyCommand, StudyResponse, StudyTrial
 from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
 from .tactile import MotorCommand, TactileField
@@ -36,6 +36,7 @@ __all__ = [
     "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode", "decoder",
     "HandPose", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
     "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PHYSICS_COMMANDS", "PROJECTIONS", "SCENE_COMMANDS",
+    "VIEWS", "SLICE_TOUCH",
     "StudyTrial", "StudyResponse", "StudyCommand", "STUDY_PHASES", "STUDY_COMMANDS",
     "PhysicsContacts", "PhysicsInput",
 ]

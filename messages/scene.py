@@ -6,8 +6,10 @@ import numpy as np
 from .base import Array, Float, Map, Message, Records, doc
 
 PROJECTIONS = ("orthographic", "perspective")
+VIEWS = ("projection", "slice", "both")        # what is drawn: the projection, the section at w = slice_w, both
+SLICE_TOUCH = ("section", "projection")         # what the glove renders in a slice view
 PHYSICS_COMMANDS = ("pause", "play", "step")      # only the physics node runs these
-SCENE_COMMANDS = ("next", "select", "reset", "projection", "load", *PHYSICS_COMMANDS)
+SCENE_COMMANDS = ("next", "select", "reset", "projection", "view", "slice", "load", *PHYSICS_COMMANDS)
 
 SceneObject = Records(
     name=str, shape=str, params=Map, size=Float, position=Array(4), orientation=Array(4, 4), color=Array(4),
@@ -28,6 +30,13 @@ class SceneState(Message):
     eye_distance: Float = doc("perspective eye on the w axis at w = -eye_distance, screen units")
     selected: int = doc("index of the object the controller rotates (-1: the whole scene)")
     revision: int = doc("bumps on every change of the scene, so consumers rebuild only then")
+    view: Literal[VIEWS] = doc("projection: the 4D scene projected (the paper); slice: each object's cross-section "
+                               "at w = slice_w, solid; both: the section inside the translucent projection",
+                               default="projection", optional=True)
+    slice_w: Float = doc("where the slice view cuts the world, w in screen units", default=0.0, optional=True)
+    slice_touch: Literal[SLICE_TOUCH] = doc("in the slice view, what the glove renders: section (the cross-section "
+                                            "as a solid the hand presses) or projection (the paper's touch)",
+                                            default="section", optional=True)
 
     def check(self):
         for index, obj in enumerate(self.objects):
@@ -50,4 +59,6 @@ class SceneCommand(Message):
 
     command: Literal[SCENE_COMMANDS] = doc("what to do")
     argument: str = doc("select: object name or index; projection: orthographic|perspective|toggle; "
+                        "view: projection|slice|both|next; slice: where it cuts (a number, w = C) or "
+                        "up / down [D] to move it by D (default one step); "
                         "load: the scene file's text; step: how many physics steps (default 1)")

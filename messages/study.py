@@ -13,7 +13,9 @@ from .base import Float, Message, doc
 # idle: between trials (the next trial's scene loads); stimulus: the trial runs and takes answers;
 # break: a rest the participant ends; paused: the experimenter paused; done: the session is complete.
 STUDY_PHASES = ("idle", "stimulus", "break", "paused", "done")
-STUDY_CONDITIONS = ("visual", "touch", "visual+touch")
+STUDY_MODALITIES = ("visual", "touch", "visual+touch")   # what reaches the participant
+STUDY_VIEWS = ("slice", "both")         # a condition may name a view other than the projection: slice-touch
+STUDY_CONDITIONS = STUDY_MODALITIES + tuple(f"{v}-{m}" for v in STUDY_VIEWS for m in STUDY_MODALITIES)
 STUDY_COMMANDS = ("pause", "resume", "toggle")
 RESPONSE_SOURCES = ("keyboard", "controller", "page", "observer", "cli")
 
@@ -32,7 +34,8 @@ class StudyTrial(Message):
     practice: bool = doc("a practice trial (not analysed)")
     task: str = doc("task id")
     kind: str = doc("task kind: front-element, look-alikes or tilt")
-    condition: Literal[STUDY_CONDITIONS] = doc("visual (motors held off), touch (no object drawn), visual+touch")
+    condition: Literal[STUDY_CONDITIONS] = doc("visual (motors held off), touch (no object drawn), visual+touch; "
+                                                   "slice-... or both-...: the same in that view")
     stimulus: str = doc("stimulus name, e.g. face, tilt+8")
     prompt: str = doc("the question shown")
     options: list[str] = doc("the response options, in the order keys 1..9 and buttons pick them")

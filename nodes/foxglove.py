@@ -6,7 +6,9 @@ arrays such as `tactile/motors.intensity` and `tactile/field.s` plot by index an
 shows as it is. `foxglove/scene` adds 3D scene entities (foxglove.SceneUpdate, frame `screen`):
 the screen, a cube of edge 2 around the origin, and the hand, its sample points placed by the
 latest `hand/pose` (or, while they drive, by `hand/joints`: every sample on its bone, and the
-joints' skeleton drawn) and coloured by the latest `tactile/field` (grey: nothing felt, red: full).
+joints' skeleton drawn) and coloured by the latest `tactile/field` (grey: nothing felt, red: full);
+in the scene's slice and both views, each object's cross-section at w = slice_w (`slice`: triangles in
+its cells' colours, the renderer's own, `touch4d.render.section_mesh`).
 
 Serves on loopback by default: the protocol has no authentication, so another `host` shows the bus
 to anyone who reaches that address. Needs `pip install 'touch4d[foxglove]'`.
@@ -23,8 +25,9 @@ from touch4d.bus import Node, Param
 from touch4d.bus.config import is_loopback
 from touch4d.errors import Touch4dError, Unavailable
 from touch4d.log.schema import message_schema, to_jsonable
-from touch4d.messages import HandJoints, decoder
+from touch4d.messages import HandJoints, SceneState, decoder
 from touch4d.messages.codec import CodecError, unpack
+from touch4d.render.view import SceneView
 from touch4d.tactile.glove import load_glove
 from touch4d.tactile.pose import PoseError, place
 from touch4d.tactile.skeleton import ViewHand
@@ -76,6 +79,9 @@ class FoxgloveNode(Node):
         self.field: tuple[float, np.ndarray] | None = None  # (when, s per sample) of the latest tactile/field
         self.joints = ViewHand(self.glove)                  # the articulated hand while hand/joints drives
         self._joints_decoder = decoder(HandJoints)
+        self.view = SceneView()                             # the slice's triangles, cut once per scene
+        self._scene_decoder = decoder(SceneState)
+        self._pose: dict | None = None                      # the latest hand/pose, to redraw on a new scene
         for topic in p["topics"] or [""]:
             self.create_raw_subscription(topic, self.on_message)
         if not is_loopback(p["host"]):
@@ -88,7 +94,8 @@ class FoxgloveNode(Node):
         if self.params["topics"] and topic not in self.params["topics"]:
             return  # a subscription is a prefix: hand/pose also brings hand/pose_replayed
         served = self.served.get(topic)
-        scene = topic in ("hand/pose", "hand/joints", "tactile/field") and self.scene.channel.has_sinks()
+        scene = topic in ("hand/pose", "hand/joints", "tactile/field", "scene/state") and \
+            self.scene.channel.has_sinks()
         if served is not None and not scene and not served.channel.has_sinks():
             return  # nobody watches: no decoding, no JSON
         try:
@@ -106,8 +113,12 @@ class FoxgloveNode(Node):
             self._on_field(data, now)
         elif topic == "hand/joints":
             self._on_joints(payload)
-        elif topic == "hand/pose" and self._due(self.scene, now):
-            self._send_scene(data, now)
+        elif topic == "scene/state":
+            self._on_scene(payload, now)
+        elif topic == "hand/pose":
+            self._pose = data
+            if self._due(self.scene, now):
+                self._send_scene(data, now)
         if served.channel.has_sinks() and self._due(served, now):
             served.channel.log(json.dumps(to_jsonable(data)).encode())
 
@@ -132,6 +143,15 @@ class FoxgloveNode(Node):
             self.joints.on_joints(self._joints_decoder(payload))
         except Touch4dError as exc:        # MessageError, JointsError: the rigid hand is drawn meanwhile
             self.warn_once(("hand/joints", str(exc)), f"hand/joints not drawn: {exc}")
+
+    def _on_scene(self, payload: bytes, now: float) -> None:
+        try:
+            changed = self.view.set_scene(self._scene_decoder(payload))
+        except Touch4dError as exc:        # MessageError, GeometryError: the last good scene stays
+            self.warn_once(("scene/state", str(exc)), f"scene/state not drawn: {exc}")
+            return
+        if changed and self._pose is not None:
+            self._send_scene(self._pose, now)
 
     def _send_scene(self, data: dict, now: float) -> None:
         self.joints.on_pose(float(data.get("stamp", 0.0)))
@@ -173,7 +193,14 @@ class FoxgloveNode(Node):
                                              for x, y, z in np.asarray(outline).reshape(-1, 3).tolist()],
                                      color=m.Color(r=0.95, g=0.85, b=0.75, a=alpha))]
         hand = m.SceneEntity(frame_id=FRAME, id="hand", spheres=spheres, lines=bones)
-        return m.SceneUpdate(entities=[screen, hand])
+        entities = [screen, hand]
+        section = self.view.section
+        if section is not None and len(section):
+            rows = section.astype(float).tolist()
+            entities.append(m.SceneEntity(frame_id=FRAME, id="slice", triangles=[m.TriangleListPrimitive(
+                points=[m.Point3(x=r[0], y=r[1], z=r[2]) for r in rows],
+                colors=[m.Color(r=r[3], g=r[4], b=r[5], a=r[6]) for r in rows])]))
+        return m.SceneUpdate(entities=entities)
 
 
 if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does

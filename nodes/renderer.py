@@ -53,6 +53,9 @@ class RendererNode(Node):
         "backend": Param(DEFAULT_BACKEND, "how the 4D scene is drawn: gpu (per-pixel ray visibility in shaders), "
                          "clip (the paper's clip units, on the CPU), auto (gpu on a hardware GPU, else clip)",
                          choices=tuple(backend_names())),
+        "view": Param("scene", "what is drawn: the scene's view, or projection, slice (each object's cross-section "
+                      "at w = slice_w), both", choices=("scene", "projection", "slice", "both")),
+        "slice_w": Param(None, "where the slice cuts (default: the scene's slice_w)", type=float),
         "output": Param("", "save frames as numbered PNGs: a folder/, a file.png or a pattern with {frame}"),
         "save_every": Param(1, "write every n-th frame", min=1),
         "max_frames": Param(0, "stop after this many frames (0 = run on)", min=0),
@@ -76,7 +79,8 @@ class RendererNode(Node):
         show = Show(frame=p["show_frame"], tactile=p["show_tactile"], status=p["show_status"])
         source, key = self.param_where("camera")
         self.camera = parse_camera(p["camera"], OrbitCamera(), f"{source}: {key}")
-        self.view = SceneView(load_glove(p["glove"] or None), style, show)
+        self.view = SceneView(load_glove(p["glove"] or None), style, show,
+                              view=None if p["view"] == "scene" else p["view"], slice_w=p["slice_w"])
         self.counts = {"frames": 0, "saved": 0, "scenes_built": 0, "bad_scenes": 0, "bad_poses": 0, "bad_fields": 0}
         self._received = {"scene": 0, "pose": 0, "field": 0, "motors": 0}
         self._rates = dict.fromkeys(self._received, 0.0)

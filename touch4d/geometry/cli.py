@@ -1,7 +1,9 @@
 """`touch4d shape list`, `touch4d shape info NAME [-p KEY=VALUE ...]`: what the catalog holds;
-`touch4d scene check FILE`: whether a scene file is right, and what it holds."""
+`touch4d scene check FILE`: whether a scene file is right, and what it holds; `touch4d scene slice FILE
+--w C [--json]`: every object's cross-section at w = C."""
 from __future__ import annotations
 
+import json
 
 import numpy as np
 
@@ -12,6 +14,7 @@ from touch4d.errors import ConfigError
 from .polytope import GeometryError
 from .projection import project
 from .scene import load_scene
+from .section import cross_section, w_extent
 from .shapes import get_shape, list_shapes, shape_params
 
 
@@ -34,6 +37,15 @@ def register(subparsers) -> None:
                                        "they fall on the screen, or the first mistake with its key (exit 2).")
     check.add_argument("file", metavar="FILE", help="scene file, e.g. config/scenes/hypercube.yaml")
     check.set_defaults(func=_check)
+    cut = sub.add_parser("slice", help="every object's cross-section at w = C: vertices, faces and their cells, volume",
+                         description="Cut each object of a scene file by the hyperplane w = C and print the convex "
+                                     "polyhedron of each convex part: its vertices (x, y, z), its faces (vertex "
+                                     "indices, each with the cell of the part it cuts) and its volume.")
+    cut.add_argument("file", metavar="FILE", help="scene file, e.g. config/scenes/hypercube.yaml")
+    cut.add_argument("--w", type=float, default=None, metavar="C",
+                     help="where to cut (screen units; default the scene's slice_w)")
+    cut.add_argument("--json", action="store_true", help="print the sections as JSON")
+    cut.set_defaults(func=_slice)
     scene.set_defaults(func=lambda args: scene.print_help() or 2)
 
 
@@ -84,7 +96,9 @@ def _check(args) -> int:
     path = resolve_path(args.file, COMMAND_LINE, key="FILE", what="scene file")
     scene = load_scene(path)
     eye = f", eye at w = -{scene.eye_distance:g}" if scene.projection == "perspective" else ""
-    print(f"{path}: {len(scene.objects)} object(s), {scene.projection} projection{eye}")
+    view = "" if scene.view == "projection" else \
+        f"; {scene.view} view at w = {scene.slice_w:g} (touch: {scene.slice_touch})"
+    print(f"{path}: {len(scene.objects)} object(s), {scene.projection} projection{eye}{view}")
     outside = 0
     for i, obj in enumerate(scene.objects):
         parts = obj.world_parts()
@@ -105,6 +119,40 @@ def _check(args) -> int:
         f"; never the static {', '.join(repr(scene.objects[i].name) for i in static)}" if static else "")
     print(f"ok{f', but {outside} object(s) cannot be seen or touched' if outside else ''}; the controller turns "
           f"{selected}")
+    return 0
+
+
+def _slice(args) -> int:
+    path = resolve_path(args.file, COMMAND_LINE, key="FILE", what="scene file")
+    scene = load_scene(path)
+    c = scene.slice_w if args.w is None else args.w
+    if not np.isfinite(c):
+        raise ConfigError("(command line)", "--w", "a finite number", got=args.w)
+    objects = []
+    for obj in scene.objects:
+        parts = obj.world_parts()
+        sections = [cross_section(p, c) for p in parts]
+        objects.append({"name": obj.name, "w_extent": list(w_extent(np.vstack([p.vertices for p in parts]))),
+                        "parts": [{"vertices": s.vertices.tolist(),
+                                   "faces": [{"vertices": f, "cell": int(k)} for f, k in zip(s.faces, s.face_cell)],
+                                   "volume": s.volume} for s in sections]})
+    if args.json:
+        print(json.dumps({"file": str(path), "w": c, "objects": objects}, indent=1))
+        return 0
+    print(f"{path}: cross-sections at w = {c:g}")
+    for i, obj in enumerate(objects):
+        lo, hi = obj["w_extent"]
+        print(f"  [{i}] {obj['name']}: w {lo:.4g} .. {hi:.4g}")
+        for j, part in enumerate(obj["parts"]):
+            if not part["faces"]:
+                print(f"    part {j}: empty (w = {c:g} misses it)")
+                continue
+            print(f"    part {j}: {len(part['vertices'])} vertices, {len(part['faces'])} faces, "
+                  f"volume {part['volume']:.6g}")
+            for k, v in enumerate(part["vertices"]):
+                print(f"      v{k}: {np.round(v, 6).tolist()}")
+            for face in part["faces"]:
+                print(f"      cell {face['cell']}: {face['vertices']}")
     return 0
 
 

@@ -3,6 +3,9 @@
 Scene file (YAML)::
 
     projection: orthographic          # or perspective, with eye_distance (screen units, default 3)
+    view: projection                  # or slice (each object's cross-section at w = slice_w, solid), or both
+    slice_w: 1.5                      # where the slice cuts (default: the middle of the objects' w extent)
+    slice_touch: section              # in a slice view the glove renders the section, or the projection
     objects:
       - name: cube                    # optional
         shape: tesseract              # a catalog name (params: {...} for its parameters), or a custom
@@ -36,6 +39,7 @@ from .physics_keys import ObjectPhysics, ScenePhysics
 from .polytope import GeometryError, Polytope, not_corners
 from .raycast import RayCaster
 from .rotation import plane_axes, rotation_from_list
+from .section import SectionCaster
 from .shapes import get_shape, list_shapes
 
 CUSTOM_KINDS = ("vertices", "halfspaces", "parts")
@@ -89,13 +93,23 @@ class SceneObject:
 
 @dataclass
 class Scene:
-    """Objects, projection mode and eye distance, the selected object and a revision counter."""
+    """Objects, projection mode and eye distance, the view (projection, slice, both) and where the slice
+    cuts, the selected object and a revision counter."""
 
     objects: list[SceneObject] = field(default_factory=list)
     projection: str = "orthographic"
     eye_distance: float = DEFAULT_EYE_DISTANCE
     selected: int = 0
     revision: int = 0
+    view: str = "projection"
+    slice_w: float = 0.0
+    slice_touch: str = "section"
+
+    @property
+    def touches_section(self) -> bool:
+        """Whether the glove renders the cross-section at slice_w (a slice view that says so) rather
+        than the projection."""
+        return self.view == "slice" and self.slice_touch == "section"
 
     @property
     def perspective_eye(self) -> float | None:
@@ -106,8 +120,11 @@ class Scene:
         """(object index, world Polytope) for every convex part of every object."""
         return [(i, p) for i, obj in enumerate(self.objects) for p in obj.world_parts()]
 
-    def ray_caster(self) -> RayCaster:
-        """A RayCaster for this scene and its projection."""
+    def ray_caster(self) -> RayCaster | SectionCaster:
+        """What the glove touches: a RayCaster for this scene and its projection (the paper), or in a
+        slice view that touches the section, a SectionCaster of the cross-sections at slice_w."""
+        if self.touches_section:
+            return SectionCaster(self.world_parts(), self.slice_w, self.perspective_eye)
         return RayCaster(self.world_parts(), self.perspective_eye)
 
     def to_message(self):
@@ -116,7 +133,8 @@ class Scene:
 
         return SceneState(objects=[o.to_map() for o in self.objects], projection=self.projection,
                           eye_distance=float(self.eye_distance), selected=int(self.selected),
-                          revision=int(self.revision))
+                          revision=int(self.revision), view=self.view, slice_w=float(self.slice_w),
+                          slice_touch=self.slice_touch)
 
     @classmethod
     def from_message(cls, msg) -> "Scene":
@@ -144,7 +162,8 @@ class Scene:
                 raise MessageError(f"SceneState.objects[{i}]: {exc}") from exc
             objects.append(obj)
         return cls(objects=objects, projection=msg.projection, eye_distance=float(msg.eye_distance),
-                   selected=int(msg.selected), revision=int(msg.revision))
+                   selected=int(msg.selected), revision=int(msg.revision), view=msg.view,
+                   slice_w=float(msg.slice_w), slice_touch=msg.slice_touch)
 
     def copy(self) -> "Scene":
         return replace(self, objects=[replace(o, position=o.position.copy(), orientation=o.orientation.copy())
@@ -152,13 +171,14 @@ class Scene:
 
 
 def scene_digest(msg, touch_only: bool = False) -> bytes:
-    """The one digest of a `scene/state` message: everything in its objects, the projection and the
-    eye distance (all but `selected` and `revision`; with `touch_only`, names and colours too, which
-    the hand cannot feel). Equal digests draw (or touch) the same scene, so a repeated message (the
-    scene node repeats it for late joiners) or a new selection rebuilds nothing."""
+    """The one digest of a `scene/state` message: everything in its objects, the projection, the eye
+    distance and the view with its slice (all but `selected` and `revision`; with `touch_only`, names
+    and colours too, which the hand cannot feel). Equal digests draw (or touch) the same scene, so a
+    repeated message (the scene node repeats it for late joiners) or a new selection rebuilds nothing."""
     skipped = ("name", "color") if touch_only else ()
     digest = hashlib.blake2b(digest_size=16)
-    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}".encode())
+    digest.update(f"{msg.projection}|{float(msg.eye_distance)!r}|{msg.view}|{float(msg.slice_w)!r}|"
+                  f"{msg.slice_touch}".encode())
 
     def add(value) -> None:
         if isinstance(value, dict):
@@ -243,6 +263,9 @@ class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
     objects: Annotated[list[ObjectSpec], msgspec.Meta(min_length=1, description="a non-empty list of objects")]
     projection: Literal["orthographic", "perspective"] = "orthographic"
     eye_distance: Positive = DEFAULT_EYE_DISTANCE
+    view: Literal["projection", "slice", "both"] = "projection"
+    slice_w: Finite | None = None
+    slice_touch: Literal["section", "projection"] = "section"
     description: str = ""
     selected: int = 0
     physics: ScenePhysics | None = None           # read by touch4d.physics (docs/physics.md)
@@ -261,7 +284,12 @@ def parse_scene(data, file=None) -> Scene:
     objects = [_object(file, f"objects[{i}]", item, i) for i, item in enumerate(spec.objects)]
     if not -1 <= spec.selected < len(objects):
         schema.fail(file, "selected", f"an object index -1..{len(objects) - 1}", got=spec.selected)
-    return Scene(objects=objects, projection=spec.projection, eye_distance=spec.eye_distance, selected=spec.selected)
+    slice_w = spec.slice_w
+    if slice_w is None:                              # the middle of what there is to cut
+        w = np.concatenate([p.vertices[:, 3] for o in objects for p in o.world_parts()])
+        slice_w = float(0.5 * (w.min() + w.max()))
+    return Scene(objects=objects, projection=spec.projection, eye_distance=spec.eye_distance, selected=spec.selected,
+                 view=spec.view, slice_w=slice_w, slice_touch=spec.slice_touch)
 
 
 def _object(file, key, item: ObjectSpec, index) -> SceneObject:

@@ -1,4 +1,5 @@
-"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--size WxH] [--backend gpu|clip] -o out.png`:
+"""`touch4d render --scene FILE [--hand X Y Z] [--camera ...] [--view slice --slice-w C] [--size WxH]
+[--backend gpu|clip] -o out.png`:
 one frame, offline."""
 from __future__ import annotations
 
@@ -27,6 +28,9 @@ def register(subparsers) -> None:
                    help="orbit camera: yaw=DEG,pitch=DEG,distance=D,fov=DEG,target=X:Y:Z,ortho")
     p.add_argument("--projection", choices=("orthographic", "perspective"),
                    help="override the scene's 4D -> 3D projection")
+    p.add_argument("--view", choices=("projection", "slice", "both"),
+                   help="override the scene's view: the projection, the cross-section at w = --slice-w, or both")
+    p.add_argument("--slice-w", type=float, metavar="C", help="where the slice cuts (default the scene's slice_w)")
     p.add_argument("--size", default="1280x800", help="image size WIDTHxHEIGHT in pixels")
     p.add_argument("--samples", type=int, default=4, help="multisampling (0 for exact pixel colours)")
     p.add_argument("--no-frame", action="store_true", help="leave out the screen's frame")
@@ -69,6 +73,12 @@ def _render(args) -> int:
     scene = load_scene(scene_file)
     if args.projection:
         scene = replace(scene, projection=args.projection)
+    if args.view:
+        scene = replace(scene, view=args.view)
+    if args.slice_w is not None:
+        if not np.isfinite(args.slice_w):
+            raise ConfigError("(command line)", "--slice-w", "a finite number", got=args.slice_w)
+        scene = replace(scene, slice_w=args.slice_w)
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
     show = Show(frame=not args.no_frame, tactile=bool(args.hand) and not args.no_tactile, status=not args.no_status)
     view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)

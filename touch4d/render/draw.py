@@ -2,7 +2,8 @@
 alpha-blended, shared by every backend. The shaders are the GLSL ES-compatible ones of `glsl`.
 
 The flat layers are drawn without a depth buffer: what is hidden is already removed, and the
-semi-transparent fills must all show through each other.
+semi-transparent fills must all show through each other. The opaque solids (the slice view's
+cross-sections) come first, before the scene, with a depth test among themselves only.
 """
 from __future__ import annotations
 
@@ -77,12 +78,14 @@ class Painter:
         self.overlay = program(ctx, "overlay.vert", "overlay.frag")
         self.corners = ctx.buffer(QUAD_CORNERS.tobytes())
         self._tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
+        self._solids = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
         self._lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
                              self.corners)
         self._points = Stream(ctx, self.point, "3f 4f 1f", ("in_position", "in_color", "in_size"))
         self._quad = Stream(ctx, self.overlay, "2f 2f", ("in_position", "in_uv"))
         self._texture = None
         self._counts = (0, 0, 0)
+        self._n_solid = 0
         self._overlay = None
 
     def upload(self, frame: Frame, triangles=(), lines=()) -> tuple[int, int, int]:
@@ -92,6 +95,7 @@ class Painter:
                         self._lines.upload(join([*lines, *frame.lines], FLOATS_PER_VERTEX).reshape(-1, 14)),
                         self._points.upload(join(frame.points, POINT_FLOATS)))
         self._overlay = frame.overlay
+        self._n_solid = self._solids.upload(join(frame.solids, FLOATS_PER_VERTEX))
         return self._counts
 
     def draw(self, mvp: np.ndarray, viewport: tuple[int, int]) -> None:
@@ -115,6 +119,18 @@ class Painter:
         if self._overlay is not None:
             self._draw_overlay(self._overlay, viewport)
 
+    def draw_solids(self, mvp: np.ndarray) -> None:
+        """The opaque solids uploaded, nearest in front (a depth test among themselves): drawn first, so
+        that the translucent projection drawn after shows them inside it."""
+        if not self._n_solid:
+            return
+        ctx = self.ctx
+        ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
+        ctx.enable(moderngl.DEPTH_TEST)
+        set_uniforms(self.flat, u_mvp=mvp)
+        self._solids.vao.render(moderngl.TRIANGLES, vertices=self._n_solid)
+        ctx.disable(moderngl.DEPTH_TEST)
+
     def _draw_overlay(self, image: np.ndarray, viewport: tuple[int, int]) -> None:
         """Blit an RGBA image (row 0 at the top) to the top-left corner, pixel for pixel."""
         h, w = image.shape[:2]
@@ -133,7 +149,7 @@ class Painter:
         self._quad.vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
-        for s in (self._tris, self._lines, self._points, self._quad):
+        for s in (self._tris, self._solids, self._lines, self._points, self._quad):
             s.release()
         for p in (self.flat, self.line, self.point, self.overlay):
             p.release()

@@ -3,8 +3,9 @@ renderer, the clip-unit renderer, the WebXR page) draws the same frame.
 
 A `Frame` holds the 4D scene as a `SceneLayer` — the per-revision `SceneGeometry` and the per-frame
 object transforms, the projection and the `Style` — and the flat layers drawn around it in 3D screen
-coordinates: triangles and lines (N, 7) [x, y, z, r, g, b, a], points (N, 8) [.., size in pixels],
-and an RGBA overlay image at the top-left corner. docs/contracts.md fixes the layouts.
+coordinates: opaque solids (the slice view's cross-sections) and triangles and lines (N, 7)
+[x, y, z, r, g, b, a], points (N, 8) [.., size in pixels], and an RGBA overlay image at the top-left
+corner. docs/contracts.md fixes the layouts.
 """
 from __future__ import annotations
 
@@ -62,9 +63,11 @@ class SceneLayer:
 
 @dataclass
 class Frame:
-    """Everything one frame draws: the scene (or None) and the flat layers around it."""
+    """Everything one frame draws: the scene's projection (or None), the opaque solids (depth-tested
+    among themselves, drawn over the projection) and the flat layers around it."""
 
     scene: SceneLayer | None = None
+    solids: list = field(default_factory=list)
     triangles: list = field(default_factory=list)
     lines: list = field(default_factory=list)
     points: list = field(default_factory=list)

@@ -2,7 +2,7 @@
 GL-free frames that any backend draws."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from touch4d.tactile.skeleton import ViewHand, quaternion_matrices
 from .frame import Frame, SceneLayer, Style
 from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
 from .scene_geometry import SceneGeometry, object_transforms
+from .section_mesh import section_mesh
 
 BACKGROUND = (0.04, 0.04, 0.06, 1.0)
 
@@ -30,6 +31,12 @@ class Show:
     status: bool = True
 
 
+def both_style(style: Style) -> Style:
+    """The projection of the both view: fainter fills and edges, no centre copies, so the slice's solid
+    shows inside it."""
+    return replace(style, centres=False, fill_alpha=min(style.fill_alpha, 0.08), edge_alpha=min(style.edge_alpha, 0.4))
+
+
 @dataclass
 class _Hand:
     position: np.ndarray
@@ -42,14 +49,21 @@ class SceneView:
     """Holds the last good state of every input and turns it into a `Frame`. The scene's geometry is
     built once per revision of its shapes and colours; a scene that only moved gets new transforms.
 
+    The view (projection, slice, both) and where the slice cuts are the scene's unless `view` or
+    `slice_w` override them (a renderer parameter); the slice's solid is cut once per adopted scene.
+
     Setters raise (MessageError, GeometryError, PoseError) on input they cannot use and then keep the previous state,
     so a caller that catches keeps drawing the last good picture.
     """
 
     def __init__(self, glove: Glove | None = None, style: Style = Style(), show: Show | None = None,
-                 cube: TactileCube = TactileCube()):
+                 cube: TactileCube = TactileCube(), view: str | None = None, slice_w: float | None = None):
         self.glove = glove
         self.style = style
+        self.view_override, self.slice_w_override = view, slice_w
+        self.view, self.slice_w = "projection", 0.0
+        self.section: np.ndarray | None = None         # the slice's triangles, in slice and both views
+        self.extent: tuple[float, float] | None = None  # the w the objects span
         self.show = show or Show()
         self.cube = cube
         self.scene: Scene | None = None
@@ -76,8 +90,12 @@ class SceneView:
         if geometry is None or not geometry.fits(scene):
             geometry = SceneGeometry.build(scene)        # fails before adopting
             self.geometry_builds += 1
-        self.layer = SceneLayer(geometry, object_transforms(scene), scene.projection, float(scene.eye_distance),
-                                self.style)
+        view = self.view_override or scene.view
+        layer = SceneLayer(geometry, object_transforms(scene), scene.projection, float(scene.eye_distance),
+                           self.style if view != "both" else both_style(self.style))
+        slice_w = float(scene.slice_w if self.slice_w_override is None else self.slice_w_override)
+        self.section, self.extent = section_mesh(layer, slice_w) if view != "projection" else (None, None)
+        self.layer, self.view, self.slice_w = layer, view, slice_w
         self.scene, self._scene_key = scene, key
         return True
 
@@ -113,7 +131,9 @@ class SceneView:
     def frame(self, status: list[str] | None = None) -> Frame:
         """The frame to draw now: the scene layer (the same object until the scene changes) and the
         flat layers around it."""
-        out = Frame(scene=self.layer)
+        out = Frame(scene=None if self.view == "slice" else self.layer)
+        if self.section is not None and len(self.section):
+            out.solids.append(self.section)
         if self.show.frame:
             out.lines.append(screen_frame())
         articulated = self.joints.current() if self.joints is not None else None
@@ -165,6 +185,10 @@ class SceneView:
         if self.scene is not None:
             names = ", ".join(o.name for o in self.scene.objects[:4]) + (" ..." if len(self.scene.objects) > 4 else "")
             lines.append(f"scene: {names or 'empty'} ({self.scene.projection})")
+            if self.view != "projection":
+                span = "nothing to cut" if self.extent is None else \
+                    f"objects span w {self.extent[0]:.2f} .. {self.extent[1]:.2f}"
+                lines.append(f"{self.view} view: slice at w = {self.slice_w:.2f} ({span})")
         if self.motors is not None:
             threshold = self.glove.touch_threshold if self.glove is not None else DEFAULT_TOUCH_THRESHOLD
             touched = touched_motors(self.motors.names, self.motors.intensity, threshold)

@@ -23,12 +23,12 @@ from scipy.stats import norm
 
 from touch4d.errors import Touch4dError, Unavailable
 
-from .conditions import CONDITIONS
+from .conditions import ALL_CONDITIONS
 from .design import KINDS
 from .infotransfer import transfer_beyond_chance
 from .table import read_trials
 
-CONDITION_ORDER = CONDITIONS
+CONDITION_ORDER = ALL_CONDITIONS     # visual, touch, visual+touch; then the same in the slice, both views
 TIMED_OUT = "(timed out)"
 
 
@@ -53,7 +53,8 @@ def load(where):
 
 
 def conditions_in(data) -> list[str]:
-    """The conditions present, in the usual order (visual, touch, visual+touch), others after."""
+    """The conditions present, in the usual order (visual, touch, visual+touch, then in the slice and
+    both views), others after."""
     present = list(dict.fromkeys(data["condition"]))
     return [c for c in CONDITION_ORDER if c in present] + [c for c in present if c not in CONDITION_ORDER]
 

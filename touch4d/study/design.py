@@ -5,7 +5,7 @@ Declared once as msgspec Structs and read with `touch4d.schema`, so a mistake is
 naming the file, the key path, what was expected and what was there, as for a scene file::
 
     name: paper
-    conditions: [visual, touch, visual+touch]
+    conditions: [visual, touch, visual+touch]   # each may name a view: slice-visual, both-touch, ...
     counterbalance: all          # all orders (default while there are <= 6), or latin
     repetitions: 4               # per stimulus per condition
     practice: 3                  # flagged trials at the start of each block
@@ -46,7 +46,7 @@ from touch4d.configfile import COMMAND_LINE, PathNotFound, resolve_path
 from touch4d.errors import ConfigError
 from touch4d.geometry.rotation import PLANES, plane_axes
 
-from .conditions import CONDITIONS
+from .conditions import ALL_CONDITIONS, CONDITIONS
 
 KINDS = ("front-element", "look-alikes", "tilt")
 STUDIES = "config/studies"                  # where a study named by its bare name lives
@@ -120,7 +120,7 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     name: Name
     tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
     description: str = ""
-    conditions: Annotated[list[Literal[CONDITIONS]], msgspec.Meta(min_length=1)] = \
+    conditions: Annotated[list[Literal[ALL_CONDITIONS]], msgspec.Meta(min_length=1)] = \
         msgspec.field(default_factory=lambda: list(CONDITIONS))
     counterbalance: Literal["latin", "all"] | None = None
     repetitions: Positive = 1

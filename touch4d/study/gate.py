@@ -4,6 +4,7 @@ consumer (motor node, desktop renderer, WebXR page), taken from the latest `stud
 - `visual`: objects drawn, motors held off (duty 0);
 - `touch`: motors run, no object drawn in any view (the screen's frame and the hand still are);
 - `visual+touch`: both.
+A condition that sets a view (`slice-visual`, `both-visual+touch`, ...) gates as its modality does.
 Outside a trial's stimulus phase (between trials, breaks, pauses, the end) nothing is drawn and the
 motors are off. Before any `study/trial` has arrived everything is allowed (no study runs). The last
 message holds for good: a study node that dies leaves its gate as it was (fail safe: a visual trial

@@ -4,7 +4,10 @@ Touch: the glove's motor pattern (paper eq. 1-3, computed by `touch4d.tactile.co
 each hand position its scripted hand visits, plus Gaussian sensory noise (`noise`, in units of full
 drive) on every motor. Vision: the projected geometry, i.e. what the view shows: which points of the
 3D screen the object's projection covers, on a grid, plus noise (`visual_noise`). The view does not
-show how far each point lies in w, which is the depth the paper adds by touch.
+show how far each point lies in w, which is the depth the paper adds by touch. In a slice view the
+observer moves the slice through the object and sees, at each c it explores (`SLICE_OFFSETS` about
+the scene's slice_w), which grid points the cross-section covers; with touch it presses the section
+at slice_w (the scene's slice_touch). Its cues are trained per view.
 
 Per task the observer is trained once, on stimuli with the task's jitter and hand positions drawn
 at random, with scikit-learn's linear discriminant analysis (a shrinkage covariance keeps 247
@@ -27,15 +30,19 @@ import numpy as np
 from scipy.special import log_softmax
 
 from touch4d.errors import ConfigError, Unavailable
+from touch4d.geometry.raycast import RayCaster
 from touch4d.geometry.scene import Scene
+from touch4d.geometry.section import SectionCaster
 from touch4d.tactile import Glove, compute_stimulus
 
+from .conditions import split_condition
 from .design import Study, Task
 from .plan import Trial, draw_jitter, stimuli_of
-from .stimuli import stimulus_scene
+from .stimuli import in_view, stimulus_scene
 
 FACING = np.array([0.0, 0.0, 0.0, 1.0])   # the hand's identity pose: palm toward -z, fingers up (+y)
 VIEW_GRID = 7                               # the view as a 7^3 grid of screen points (1/3 unit apart)
+SLICE_OFFSETS = (-0.3, -0.15, 0.0, 0.15, 0.3)   # where a slice observer cuts, about the scene's slice_w (w)
 
 
 def every_sample_glove(glove: Glove) -> Glove:
@@ -70,39 +77,48 @@ def patterns_at(glove: Glove, scene: Scene, positions: np.ndarray, caster=None) 
 
 
 def view_features(scene: Scene, caster=None, grid: int = VIEW_GRID) -> np.ndarray:
-    """What the view shows: 1 where the object's projection covers a screen point of a grid^3 grid, else 0."""
-    caster = scene.ray_caster() if caster is None else caster
+    """What the view shows: 1 where the object's projection covers a screen point of a grid^3 grid, else
+    0; in a slice view the same for its cross-section at each c the observer explores (both: the two)."""
     axis = np.linspace(-1.0, 1.0, grid)
     points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
-    distance, _ = caster.cast(points)
-    return np.isfinite(distance).astype(float)
+    seen = []
+    if scene.view != "slice":
+        projection = RayCaster(scene.world_parts(), scene.perspective_eye) if caster is None else caster
+        seen.append(np.isfinite(projection.cast(points)[0]))
+    if scene.view != "projection":
+        parts = scene.world_parts()
+        for offset in SLICE_OFFSETS:
+            section = SectionCaster(parts, scene.slice_w + offset, scene.perspective_eye)
+            seen.append(section.cast(points)[1] >= 0)
+    return np.concatenate(seen).astype(float)
 
 
 def touch_examples(glove: Glove, study: Study, task: Task, rng: np.random.Generator, *, scenes: int,
-                   positions: int, exploration: Exploration | None = None
+                   positions: int, exploration: Exploration | None = None, view: str = "projection"
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Noise-free motor patterns of a task's stimuli, `scenes` jittered versions each, the hand at
-    `positions` random places on each: (patterns (S*scenes*positions, M), stimulus index per row,
+    """Noise-free motor patterns of a task's stimuli in `view`, `scenes` jittered versions each, the hand
+    at `positions` random places on each: (patterns (S*scenes*positions, M), stimulus index per row,
     scene number per row)."""
     exploration = exploration or Exploration()
     rows, labels, groups = [], [], []
     for k, (name, level, _) in enumerate(stimuli_of(task)):
         for j in range(scenes):
-            scene = stimulus_scene(study, task.id, name, level, draw_jitter(task, rng))
+            scene = in_view(stimulus_scene(study, task.id, name, level, draw_jitter(task, rng)), view)
             rows.append(patterns_at(glove, scene, exploration.positions(rng, positions)))
             labels.append(np.full(positions, k))
             groups.append(np.full(positions, j))
     return np.vstack(rows), np.concatenate(labels), np.concatenate(groups)
 
 
-def view_examples(study: Study, task: Task, rng: np.random.Generator, *, scenes: int
+def view_examples(study: Study, task: Task, rng: np.random.Generator, *, scenes: int, view: str = "projection"
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Noise-free view features of a task's stimuli, `scenes` jittered versions each: (features,
-    stimulus index, scene number) per row."""
+    """Noise-free view features of a task's stimuli in `view`, `scenes` jittered versions each:
+    (features, stimulus index, scene number) per row."""
     rows, labels, groups = [], [], []
     for k, (name, level, _) in enumerate(stimuli_of(task)):
         for j in range(scenes):
-            rows.append(view_features(stimulus_scene(study, task.id, name, level, draw_jitter(task, rng))))
+            scene = in_view(stimulus_scene(study, task.id, name, level, draw_jitter(task, rng)), view)
+            rows.append(view_features(scene))
             labels.append(k)
             groups.append(j)
     return np.array(rows), np.array(labels), np.array(groups)
@@ -166,8 +182,8 @@ class ModelObserver:
         self.exploration = exploration or Exploration()
         self.train_scenes, self.train_positions, self.view_scenes = train_scenes, train_positions, view_scenes
         self.seed = int(seed)
-        self._touch: dict[str, _Cue] = {}
-        self._view: dict[str, _Cue] = {}
+        self._touch: dict[tuple[str, str], _Cue] = {}     # by (task, view)
+        self._view: dict[tuple[str, str], _Cue] = {}
 
     # -- what the node (or the offline simulation) calls --------------------------------------------
 
@@ -181,40 +197,42 @@ class ModelObserver:
         options = list(trial.options)
         if rng.random() < self.lapse:
             return options[int(rng.integers(len(options)))]
+        view = split_condition(trial.condition)[1]
         total = np.zeros(len(options))
         if patterns is not None and len(patterns):
             felt = np.asarray(patterns, dtype=float)
-            total += self.touch_cue(trial.task).log_posterior(felt + rng.normal(0.0, self.noise, felt.shape))
+            total += self.touch_cue(trial.task, view).log_posterior(felt + rng.normal(0.0, self.noise, felt.shape))
         if scene is not None:
-            seen = view_features(scene)
-            total += self.view_cue(trial.task).log_posterior(seen + rng.normal(0.0, self.visual_noise, seen.shape))
+            seen = view_features(in_view(copy.copy(scene), view))
+            total += self.view_cue(trial.task, view).log_posterior(
+                seen + rng.normal(0.0, self.visual_noise, seen.shape))
         best = np.flatnonzero(total >= total.max() - 1e-9) if np.isfinite(total.max()) else np.arange(len(options))
         return options[int(rng.choice(best))]
 
     # -- training ------------------------------------------------------------------------------------
 
-    def touch_cue(self, task_id: str) -> _Cue:
-        """The trained touch classifier of a task (trained on first use)."""
-        if task_id not in self._touch:
+    def touch_cue(self, task_id: str, view: str = "projection") -> _Cue:
+        """The trained touch classifier of a task in a view (trained on first use)."""
+        if (task_id, view) not in self._touch:
             task = self.study.task(task_id)
-            rng = self._rng(task_id, "touch")
+            rng = self._rng(task_id, "touch", view)
             x, k, groups = touch_examples(self.glove, self.study, task, rng, scenes=self.train_scenes,
-                                          positions=self.train_positions, exploration=self.exploration)
+                                          positions=self.train_positions, exploration=self.exploration, view=view)
             answers = np.array([a for _, _, a in stimuli_of(task)])[k]
-            self._touch[task_id] = _Cue(x + rng.normal(0.0, self.noise, x.shape), answers, groups,
-                                        list(task.options))
-        return self._touch[task_id]
+            self._touch[task_id, view] = _Cue(x + rng.normal(0.0, self.noise, x.shape), answers, groups,
+                                              list(task.options))
+        return self._touch[task_id, view]
 
-    def view_cue(self, task_id: str) -> _Cue:
-        """The trained view classifier of a task (trained on first use)."""
-        if task_id not in self._view:
+    def view_cue(self, task_id: str, view: str = "projection") -> _Cue:
+        """The trained view classifier of a task in a view (trained on first use)."""
+        if (task_id, view) not in self._view:
             task = self.study.task(task_id)
-            rng = self._rng(task_id, "view")
-            x, k, groups = view_examples(self.study, task, rng, scenes=self.view_scenes)
+            rng = self._rng(task_id, "view", view)
+            x, k, groups = view_examples(self.study, task, rng, scenes=self.view_scenes, view=view)
             answers = np.array([a for _, _, a in stimuli_of(task)])[k]
-            self._view[task_id] = _Cue(x + rng.normal(0.0, self.visual_noise, x.shape), answers, groups,
-                                       list(task.options))
-        return self._view[task_id]
+            self._view[task_id, view] = _Cue(x + rng.normal(0.0, self.visual_noise, x.shape), answers, groups,
+                                             list(task.options))
+        return self._view[task_id, view]
 
     def with_noise(self, factor: float) -> "ModelObserver":
         """The same trained observer with its sensory noise (touch and sight) scaled by `factor`: a
@@ -224,14 +242,17 @@ class ModelObserver:
         return other
 
     def train(self) -> "ModelObserver":
-        """Train every task's cues now (else on first use)."""
+        """Train every task's cues in every view the study's conditions use now (else on first use)."""
+        views = dict.fromkeys(split_condition(c)[1] for c in self.study.conditions)
         for task in self.study.tasks:
-            self.touch_cue(task.id)
-            self.view_cue(task.id)
+            for view in views:
+                self.touch_cue(task.id, view)
+                self.view_cue(task.id, view)
         return self
 
-    def _rng(self, task_id: str, cue: str) -> np.random.Generator:
-        salt = int.from_bytes(hashlib.sha256(f"{task_id}|{cue}".encode()).digest()[:8], "big")
+    def _rng(self, task_id: str, cue: str, view: str = "projection") -> np.random.Generator:
+        key = f"{task_id}|{cue}" if view == "projection" else f"{task_id}|{cue}|{view}"
+        salt = int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big")
         return np.random.default_rng([self.seed, salt])
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from touch4d import schema
 from touch4d.geometry.scene import Scene, parse_scene
 
+from .conditions import split_condition
 from .design import Study, scene_path
 from .plan import Trial
 
@@ -60,13 +61,25 @@ def stimulus_scene(study: Study, task_id: str, stimulus: str, level: float = mat
 
 
 def scene_mapping(study: Study, trial: Trial) -> dict:
-    """The trial's scene as a scene-file mapping (what `parse_scene` reads; a runner sends it as text)."""
-    return stimulus_mapping(study, trial.task, trial.stimulus, trial.level, trial.transform)
+    """The trial's scene as a scene-file mapping (what `parse_scene` reads; a runner sends it as text),
+    in the view its condition sets."""
+    data = stimulus_mapping(study, trial.task, trial.stimulus, trial.level, trial.transform)
+    view = split_condition(trial.condition)[1]
+    if view != "projection":
+        data["view"] = view
+    return data
 
 
 def trial_scene(study: Study, trial: Trial) -> Scene:
-    """The trial's scene, ready for a RayCaster or a renderer."""
-    return stimulus_scene(study, trial.task, trial.stimulus, trial.level, trial.transform)
+    """The trial's scene, in the view its condition sets, ready for a RayCaster or a renderer."""
+    return in_view(stimulus_scene(study, trial.task, trial.stimulus, trial.level, trial.transform),
+                   split_condition(trial.condition)[1])
+
+
+def in_view(scene: Scene, view: str) -> Scene:
+    """`scene` shown (and touched) in `view`: projection, slice or both."""
+    scene.view = view
+    return scene
 
 
 @lru_cache(maxsize=64)

@@ -3,7 +3,9 @@
 Keys (held): a/d move the hand along -x/+x, q/e along -y/+y, w/s along -z/+z (into / out of the
 screen); the arrows turn it (left/right about y, up/down about x), z/c roll it about z; left_shift
 slows everything to a quarter; space holds the trigger. n, r, p hold the controller's 'menu' (next
-object), 'grip' (reset) and 'trackpad' (projection) buttons; pressing h brings the hand home.
+object), 'grip' (reset) and 'trackpad' (projection) buttons, m, k, j its 'thumbstick' (the next view:
+projection, slice, both), 'a' and 'b' (the slice one step up / down in w); pressing h brings the
+hand home.
 Fingers: hold 1 .. 5 to curl the thumb .. little finger, f to make a fist, v to spread them (they
 straighten again when released). Mouse drags hold the trigger: with the left button they turn the
 hand (and so the selected object's yz/zx planes), with the right button they move it in x/y (the
@@ -23,7 +25,7 @@ from .paths import PathSample
 
 MOVE_KEYS = {"d": (0, 1.0), "a": (0, -1.0), "e": (1, 1.0), "q": (1, -1.0), "s": (2, 1.0), "w": (2, -1.0)}
 TURN_KEYS = {"right": (1, -1.0), "left": (1, 1.0), "up": (0, -1.0), "down": (0, 1.0), "c": (2, -1.0), "z": (2, 1.0)}
-BUTTON_KEYS = {"n": "menu", "r": "grip", "p": "trackpad"}
+BUTTON_KEYS = {"n": "menu", "r": "grip", "p": "trackpad", "m": "thumbstick", "k": "a", "j": "b"}
 SLOW_KEYS = ("left_shift", "right_shift")
 FINGER_KEYS = {str(k + 1): finger for k, finger in enumerate(FINGER_NAMES)}   # 1 thumb .. 5 little
 FIST_KEY, SPREAD_KEY = "f", "v"

@@ -4,7 +4,7 @@ While the trigger is held, the controller's motion between two samples turns the
 (or the whole scene, about its centre) by `geometry.rotation.controller_rotation` (paper §4.4):
 its translation, in the screen's axes and in metres, turns the xw, yw, zw planes; its rotation
 turns the yz, zx, xy planes. Button presses (edges, not levels) and `scene/command` messages
-select the next object, reset the scene or switch the projection.
+select the next object, reset the scene, switch the projection or the view, or move the slice.
 """
 from __future__ import annotations
 
@@ -19,14 +19,16 @@ from touch4d.errors import Touch4dError
 from touch4d.schema import Finite, parse_yaml
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
 from touch4d.geometry.scene import Scene, parse_scene
-from touch4d.messages import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS
+from touch4d.messages import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS, VIEWS
 
 from touch4d.geometry import quaternion
 from .calibration import Calibration
 
-DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection"}
+DEFAULT_BUTTONS = {"menu": "next", "grip": "reset", "trackpad": "projection", "thumbstick": "view",
+                   "a": "slice up", "b": "slice down", "thumbstick-up": "slice up", "thumbstick-down": "slice down"}
 ROTATE_TARGETS = ("object", "scene", "none")   # none: the controller turns nothing (a study's fixed stimuli)
-BUTTON_COMMANDS = ("next", "reset", "projection")   # the commands that need no argument
+BUTTON_COMMANDS = ("next", "reset", "projection", "view", "slice up", "slice down")   # a button's command
+SLICE_STEP = 0.05                              # screen units of w per slice up / down
 
 
 class SceneCommandError(Touch4dError, ValueError):
@@ -121,7 +123,7 @@ class SceneControl:
         for button in sorted(now - self._held):
             command = self.config.buttons.get(button)
             if command is not None:
-                changed |= self.command(command)
+                changed |= self.command(*command.split(" ", 1))
         self._held = now
         if not valid or trigger < self.config.trigger_threshold or self.config.rotate == "none":
             self._grab = None
@@ -167,7 +169,7 @@ class SceneControl:
 
     def command(self, name: str, argument: str = "") -> bool:
         """next | select ARG (index, name, or 'scene') | reset | projection [orthographic|perspective|toggle]
-        | load SCENE-FILE-TEXT.
+        | view [projection|slice|both|next] | slice C|+D|-D|up|down | load SCENE-FILE-TEXT.
 
         A bad command or argument raises SceneCommandError saying what was expected.
         """
@@ -183,6 +185,10 @@ class SceneControl:
             return True
         if name == "projection":
             return self._projection(argument)
+        if name == "view":
+            return self._view(argument)
+        if name == "slice":
+            return self._slice(argument)
         if name == "load":
             return self.load(argument)
         if name in PHYSICS_COMMANDS:
@@ -249,6 +255,43 @@ class SceneControl:
         if target == self.scene.projection:
             return False
         self.scene.projection = target
+        self.scene.revision += 1
+        return True
+
+    def _view(self, argument: str) -> bool:
+        argument = argument.strip() or "next"
+        if argument == "next":
+            target = VIEWS[(VIEWS.index(self.scene.view) + 1) % len(VIEWS)]
+        elif argument in VIEWS:
+            target = argument
+        else:
+            raise SceneCommandError(f"view: expected {', '.join(VIEWS)} or next, got {argument!r}")
+        if target == self.scene.view:
+            return False
+        self.scene.view = target
+        self.scene.revision += 1
+        return True
+
+    def _slice(self, argument: str) -> bool:
+        """Move the slice: to w = C (a number), or up (+w, away from the viewer) / down by D (default
+        one step)."""
+        words = argument.split()
+        try:
+            if words and words[0] in ("up", "down") and len(words) <= 2:
+                step = float(words[1]) if len(words) == 2 else SLICE_STEP
+                target = self.scene.slice_w + (step if words[0] == "up" else -step)
+            elif len(words) == 1:
+                target = float(words[0])
+            else:
+                target = None
+        except ValueError:
+            target = None
+        if target is None or not np.isfinite(target):
+            raise SceneCommandError(f"slice: expected where to cut (a number, w = C) or up / down [D], "
+                                    f"got {argument!r}")
+        if target == self.scene.slice_w:
+            return False
+        self.scene.slice_w = float(target)
         self.scene.revision += 1
         return True
 

@@ -34,6 +34,8 @@ KNUCKLE = JOINTS.index("middle-finger-phalanx-proximal")
 
 # The buttons of the WebXR `xr-standard` gamepad mapping, by index (0, the trigger, is an axis here).
 XR_STANDARD_BUTTONS = (None, "squeeze", "touchpad", "thumbstick", "a", "b")
+# The thumbstick pushed forward / back past half its travel, held as buttons (the slice view's c).
+THUMBSTICK_BUTTONS = ("thumbstick-up", "thumbstick-down")
 
 # Hand frame in the wrist joint's frame: a -90 degree turn about x (q = (-sin 45, 0, 0, cos 45)).
 _HAND_IN_WRIST = np.array([-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])

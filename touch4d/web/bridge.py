@@ -59,7 +59,7 @@ log = logging.getLogger(__name__)
 
 # The GPU renderer's shaders the page compiles (as GLSL ES 3.00), by the names of touch4d.render.glsl.
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
-                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
+                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
                  "page_unresponsive", "page_not_driver", "page_connections", "recentred", "recenter_limited",
                  "study_answers")
@@ -307,6 +307,12 @@ class WebBridge:
             arrays["t_objects"] = data_rows(layer.transforms)[0]
             fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
                           selected=int(self._scene.selected), revision=int(self._scene.revision))
+            # the view; in the slice and both views the cross-section's triangles, cut here (static/slice.js)
+            view = self.view
+            fields.update(view=view.view, slice_w=view.slice_w, w_extent=list(view.extent) if view.extent else None,
+                          scene_style=dataclasses.asdict(layer.style))
+            if view.section is not None:
+                arrays["section"] = np.ascontiguousarray(view.section, dtype=np.float32).ravel()
         self._last_frame = pack_frame("frame", fields, arrays)
         return self._last_frame
 

@@ -31,7 +31,8 @@ where a "response" answers a study's trial `index` with one of its options from 
 buttons (a tap in a desktop or headset browser; controller buttons arrive with "input");
 `time` is the page's clock (performance.timeOrigin + performance.now(), ms) when it read the
 poses, a pose is [x, y, z, qx, qy, qz, qw] (metres, local-floor space), and a source is
-{"handedness": "right"|"left"|"none", "grip": pose|null, "trigger": 0..1, "buttons": [name, ...],
+{"handedness": "right"|"left"|"none", "grip": pose|null, "trigger": 0..1, "buttons": [name, ...]
+(the xr-standard buttons, and "thumbstick-up" / "thumbstick-down" while the stick is pushed),
 "joints": [[x, y, z, qx, qy, qz, qw, radius] x 25]|null}.
 """
 from __future__ import annotations
@@ -47,7 +48,7 @@ import numpy as np
 
 from touch4d import schema
 from touch4d.errors import ConfigError, Touch4dError
-from touch4d.tracking.webxr import JOINTS, XR_STANDARD_BUTTONS, XRSource
+from touch4d.tracking.webxr import JOINTS, THUMBSTICK_BUTTONS, XR_STANDARD_BUTTONS, XRSource
 
 ARRAY_DTYPES = ("f4", "u4", "i4", "u2", "u1")
 MAX_PAGE_MESSAGE = 16384          # bytes: an input message with two tracked hands is about 6 kB
@@ -59,7 +60,7 @@ WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
 PAGE_TYPES = ("input", "recenter", "session", "stats", "response")
 MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
-BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b)
+BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b) | frozenset(THUMBSTICK_BUTTONS)
 _LEN = struct.Struct("<I")
 
 

@@ -77,7 +77,9 @@ MESSAGES = [
                                            [-1.0, -1.0, -1.0, -1.0, 0.0]]),
                        arr("<f8", (2, 5), [[0.0, 0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, -1.0, -2.0]])]},
         ],
-        "projection": "perspective", "eye_distance": 3.0, "selected": 2, "revision": 7}),
+        "projection": "perspective", "eye_distance": 3.0, "selected": 2, "revision": 7,
+        # fields added after the log was made: their defaults
+        "view": "projection", "slice_w": 0.0, "slice_touch": "section"}),
     ("scene/command", T_NS + 7_000_000, "SceneCommand", {
         "stamp": T + 0.007, "seq": 0, "source_stamp": T + 0.007, "recorded_stamp": 0.0,
         "command": "projection", "argument": "toggle"}),

@@ -60,8 +60,10 @@ class Backend(ABC):
         to look inside the picture."""
 
     def draw(self, mvp: np.ndarray, viewport: tuple[int, int], background=(0.0, 0.0, 0.0, 1.0)) -> None:
-        """Clear, then draw the prepared frame seen through `mvp` (3D screen -> clip, row-major)."""
+        """Clear, then draw the prepared frame seen through `mvp` (3D screen -> clip, row-major): the
+        opaque solids (a slice), the scene's projection over them, the flat layers."""
         self.ctx.clear(*background)
+        self.painter.draw_solids(mvp)
         self.draw_scene(mvp, viewport)
         self.painter.draw(mvp, viewport)
 

@@ -50,6 +50,9 @@ export class InputReader {
       if (pad) {
         if (pad.buttons[0]) out.trigger = round(Math.min(Math.max(pad.buttons[0].value, 0), 1));
         pad.buttons.forEach((b, i) => { if (BUTTONS[i] && b.pressed) out.buttons.push(BUTTONS[i]); });
+        // the thumbstick pushed forward or back past half its travel (the slice view moves c)
+        if (pad.axes.length > 3 && pad.axes[3] < -0.5) out.buttons.push('thumbstick-up');
+        if (pad.axes.length > 3 && pad.axes[3] > 0.5) out.buttons.push('thumbstick-down');
       }
       if (this.selecting.has(source)) out.trigger = 1;
       sources.push(out);

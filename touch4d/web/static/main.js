@@ -6,6 +6,7 @@ import { Link, forgetToken } from './net.js';
 import { InputReader } from './input.js';
 import { Hud } from './hud.js';
 import { SceneRenderer } from './scene.js';
+import { SliceRenderer } from './slice.js';
 import { Orbit } from './orbit.js';
 import { StudyButtons, StudyPanel } from './study.js';
 import { fromPose, multiply, perspective } from './mat.js';
@@ -20,11 +21,11 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
-  study: null, drawObjects: true, answers: 0, panel: [],
+  study: null, drawObjects: true, answers: 0, panel: [], view: 'projection',
 });
 
 // made when the node's setup frame (with the shaders) arrives
-let hud = null, scene = null, orbit = null, panel = null;
+let hud = null, scene = null, orbit = null, panel = null, slice = null;
 let screenModel = null;   // screen units -> the room, from the setup frame
 
 if (!gl) {
@@ -59,6 +60,7 @@ const link = new Link((message) => {
         scene = new SceneRenderer(gl, header.shaders, header.style, message.arrays.cell_palette);
         hud = new Hud(gl, header.shaders);
         panel = new StudyPanel(gl);
+        slice = new SliceRenderer(gl, header.shaders);
       } catch (error) {
         state.error = String(error);
         statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
@@ -78,12 +80,17 @@ const link = new Link((message) => {
     const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
     state.motorsOn = message.arrays.intensity.filter((v) => v > threshold).length;
     if (scene) scene.setFrame(message);
+    if (scene && header.scene_style) scene.style = header.scene_style;   // the both view's is fainter
+    if (slice) {
+      slice.update(message);
+      state.view = slice.view;
+    }
     if (hud) hud.update(message);
     // a running study: its question, and whether its condition lets objects be drawn
     state.study = header.study || null;
     state.drawObjects = header.draw_objects !== false;
     if (panel) {
-      panel.update(state.study);
+      panel.update(state.study || (slice && slice.panel()));   // no study: the slice's c, in the headset too
       state.panel = panel.lines;
     }
     buttons.update(state.study);
@@ -92,13 +99,15 @@ const link = new Link((message) => {
 
 // ---- drawing --------------------------------------------------------------------------------------
 
-// One view of the world: the scene, then the flat layers over it, alpha-blended without a depth
-// test (as every touch4d renderer draws a frame).
+// One view of the world: the slice's solid (slice and both views), the scene's projection (projection
+// and both views), then the flat layers over it, alpha-blended without a depth test (as every
+// touch4d renderer draws a frame).
 function drawWorld(framebuffer, size, viewport, projection, view, model) {
   if (!scene || !hud) return;
   const mvp = multiply(projection, multiply(view, model));
   const scale = Math.hypot(model[0], model[1], model[2]);   // room metres per screen unit
-  if (state.drawObjects) scene.draw(framebuffer, size, viewport, mvp);
+  if (state.drawObjects && slice) slice.draw(framebuffer, viewport, mvp);
+  if (state.drawObjects && (!slice || slice.projection)) scene.draw(framebuffer, size, viewport, mvp);
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
   gl.viewport(...viewport);
   gl.disable(gl.DEPTH_TEST);
@@ -136,7 +145,8 @@ function showStatus() {
   const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
   const hand = state.otherDriver ? ' · another page drives the hand'
     : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
-  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
+  const cut = slice && slice.label ? ` · ${slice.label}` : '';
+  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}${cut}`
                                            : 'touch4d: connecting to the node…';
 }
 

@@ -1,0 +1,100 @@
+"""The WebXR page in the slice view, in a real browser (Debian's chromium, WebGL2 through
+SwiftShader): `scene/command view slice` turns the page's picture into the cross-section, a solid in
+its cells' colours (in the both view, inside the projection), and its status line says where the
+slice cuts; `slice` moves the cut."""
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from touch4d.bus import Node
+from touch4d.bus.testing import free_port, launch_process
+from touch4d.messages import SceneCommand
+from touch4d.render.frame import CELL_PALETTE
+from touch4d.web.testing import chromium, context_options, wait_connected
+
+BACKGROUND = np.array([0.04, 0.04, 0.06]) * 255
+
+
+@pytest.fixture(scope="module")
+def stack():
+    """launch/webxr.yaml without motors: the scene node, the webxr node, the tactile node."""
+    port = free_port()
+    args = ["launch/webxr.yaml", "motors:=none", "monitor:=none", f"tracker.port:={port}",
+            "tracker.save_calibration:=false", "tracker.tracker:=false"]
+    with launch_process(args) as run:
+        bus = run.wait_ready(60)
+        run.wait_for_line("WebXR page", timeout=60)
+        commander = Node("slice-test", bus=bus, heartbeat=False)
+        try:
+            yield {"url": f"http://127.0.0.1:{port}/", "commands": commander.create_publisher("scene/command",
+                                                                                            SceneCommand)}
+        finally:
+            commander.shutdown()
+
+
+def screenshot(page) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"), dtype=float)
+
+
+def cell_coloured(image: np.ndarray) -> np.ndarray:
+    """Pixels in a cell's colour of the palette, shaded (a solid face): the hue of one of its colours,
+    and bright (the projection's faces are translucent, its centre copies blended with the background)."""
+    hues = CELL_PALETTE / CELL_PALETTE.max(axis=1, keepdims=True)
+    top = image.max(axis=2, keepdims=True)
+    hue = image / np.maximum(top, 1)
+    near = np.min(np.abs(hue[:, :, None, :] - hues[None, None]).max(axis=-1), axis=-1) < 0.06
+    return near & (top[..., 0] > 0.5 * 255)
+
+
+def command(stack, page, name, argument, expect):
+    for _ in range(100):                              # the bus may drop the first while it joins
+        stack["commands"].publish(SceneCommand(command=name, argument=argument))
+        try:
+            page.wait_for_function(expect, timeout=300)
+            return
+        except Exception:  # noqa: BLE001 - playwright's TimeoutError: not yet
+            continue
+    raise AssertionError(f"the page never showed {expect}")
+
+
+def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
+    with chromium() as browser:
+        context = browser.new_context(**context_options(640, 400))
+        page = context.new_page()
+        try:
+            page.goto(stack["url"])
+            wait_connected(page)
+            page.wait_for_function("touch4d.geometry !== null && touch4d.frames > 5")
+            command(stack, page, "view", "projection", "touch4d.view === 'projection'")
+            page.wait_for_timeout(300)
+            projection = screenshot(page)
+            command(stack, page, "view", "slice", "touch4d.view === 'slice'")
+            command(stack, page, "slice", "1.5", "touch4d.frame.slice_w === 1.5")
+            page.wait_for_timeout(300)
+            cut = screenshot(page)
+            drawn = np.abs(cut - BACKGROUND).sum(axis=2) > 30
+            # the hypercube's section (a cube of its size, 1.2) is a solid in its cells' colours ...
+            assert cell_coloured(cut).sum() > 2000 and cell_coloured(cut).sum() > 0.5 * drawn.sum() - 2000
+            # ... where the projection showed translucent faces
+            assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
+            assert page.evaluate("touch4d.panel") == ["slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)"]
+            status = page.inner_text("#status")
+            assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
+            # both: the same solid, seen through the projection drawn faintly around it
+            command(stack, page, "view", "both", "touch4d.view === 'both'")
+            page.wait_for_timeout(300)
+            both = screenshot(page)
+            solid = cell_coloured(cut)
+            assert np.abs(both - cut)[solid].mean() < 40                    # the solid, faintly tinted
+            assert (np.abs(both - cut).sum(axis=2) > 60).sum() > 300        # and the projection's edges
+            # moved out of the object's w range: nothing left to draw but the frame and the hand's cube
+            command(stack, page, "view", "slice", "touch4d.view === 'slice'")
+            command(stack, page, "slice", "2.5", "touch4d.frame.slice_w === 2.5")
+            page.wait_for_timeout(300)
+            assert cell_coloured(screenshot(page)).sum() < 50
+        finally:
+            context.close()
