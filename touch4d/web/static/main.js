@@ -8,6 +8,7 @@ import { Hud } from './hud.js';
 import { SceneRenderer } from './scene.js';
 import { Orbit } from './orbit.js';
 import { StudyButtons, StudyPanel } from './study.js';
+import { Haptics } from './haptics.js';
 import { fromPose, multiply, perspective } from './mat.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
@@ -20,7 +21,7 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
-  study: null, drawObjects: true, answers: 0, panel: [],
+  study: null, drawObjects: true, answers: 0, panel: [], haptics: null,
 });
 
 // made when the node's setup frame (with the shaders) arrives
@@ -45,6 +46,9 @@ const buttons = new StudyButtons(document.getElementById('study'), (index, optio
   link.send({ type: 'response', index, option, time: performance.timeOrigin + performance.now() });
   state.answers++;
 });
+
+// The controller (or a desktop gamepad) as the glove: what it plays, and what the node is told.
+const haptics = (state.haptics = new Haptics((output) => { link.send({ type: 'haptics', output }); showStatus(); }));
 
 const link = new Link((message) => {
   const { header } = message;
@@ -74,6 +78,7 @@ const link = new Link((message) => {
     showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
+    haptics.frame(header);
     const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
     state.motorsOn = message.arrays.intensity.filter((v) => v > threshold).length;
     if (scene) scene.setFrame(message);
@@ -135,7 +140,8 @@ function showStatus() {
   const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
   const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
     : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
-  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}`
+  const felt = haptics.output === 'none' ? ' · no vibration here: touch cannot be felt' : '';
+  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}${felt}`
                                            : 'touch4d: connecting to the node…';
 }
 
@@ -147,6 +153,7 @@ function inlineLoop(now) {
   clear(null, width, height);
   const projection = perspective(orbit.fov, width / height, 0.05, orbit.distance + 20);
   drawWorld(null, [width, height], [0, 0, width, height], projection, orbit.view(), fromPose([0, 0, 0], [0, 0, 0, 1], 1));
+  if (document.visibilityState === 'visible') haptics.desktopFrame(now);
   countFrame(now);
 }
 requestAnimationFrame(inlineLoop);
@@ -155,6 +162,7 @@ requestAnimationFrame(inlineLoop);
 
 // The hand is absent from now on (hidden page, lost session): the node publishes it invalid.
 function handGone() {
+  haptics.stop();
   if (state.setup && state.setup.tracker) {
     link.send({ type: 'input', time: performance.timeOrigin + performance.now(), tracking: false, head: null, sources: [] });
   }
@@ -188,6 +196,11 @@ async function enterVR() {
       state.input = reader.read(frame, space, session, viewer || null, time);
       link.send(state.input);
       state.sent++;
+      // the controller plays while this page drives the hand and both it and the head are tracked
+      const hand = state.input.sources.find((s) => s.handedness === state.setup.hand);
+      if (state.otherDriver) haptics.stop();
+      else haptics.xrFrame(session, state.setup.hand, Boolean(viewer && hand && (hand.grip || hand.joints)),
+                           performance.now());
     }
     if (!viewer) return;
     const base = session.renderState.baseLayer;
