@@ -1,5 +1,6 @@
 """A held controller as a glove (config/gloves/quest-controller.yaml): one actuator that covers
 samples, its intensity eq. 3 with that motor's weights (closed forms on known distances)."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +89,15 @@ def test_a_cover_that_reaches_no_sample_is_named():
     data["motors"][0]["covers"] = {"radius": -1}
     with pytest.raises(ConfigError, match="radius"):
         glove_from_dict(data, "c.yaml")
+
+
+def test_study_transfer_compares_the_controller_beside_the_30_motor_glove(capsys):
+    from touch4d.cli import main as cli_main
+
+    rc = cli_main(["study", "transfer", "config/studies/paper.yaml", "--glove", "config/glove.yaml", "--glove",
+                   str(CONTROLLER), "--task", "lookalikes", "--scenes", "4", "--positions", "4", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [(Path(r["glove"]).name, r["motors"]) for r in out["results"]] == [("glove.yaml", 30),
+                                                                              ("quest-controller.yaml", 1)]
+    assert all(0 <= r["bits"] <= r["max_bits"] for r in out["results"])

@@ -71,7 +71,8 @@ def register(subparsers) -> None:
                                           "trained on the glove's motor patterns at random hand positions, "
                                           "tested on new scenes and positions.")
     transfer.add_argument("study", metavar="STUDY", help="study file")
-    transfer.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    transfer.add_argument("--glove", metavar="FILE", action="append",
+                          help="glove file (default: config/glove.yaml); repeat to compare gloves side by side")
     transfer.add_argument("--every-sample", action="store_true",
                           help="also a motor at every sample point of the glove, side by side")
     transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
@@ -213,19 +214,31 @@ def run_transfer(args) -> int:
     from .observer import every_sample_glove
 
     study = _study(args.study)
-    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
-    gloves = [glove] + ([every_sample_glove(glove)] if args.every_sample else [])
+    files = [resolve_path(g, COMMAND_LINE, key="--glove", what="glove file") for g in args.glove] if args.glove \
+        else [None]
+    loaded = [load_glove(f) for f in files]
+    gloves = [g for glove in loaded for g in [glove] + ([every_sample_glove(glove)] if args.every_sample else [])]
     tasks = [study.task(t).id for t in args.task] if args.task else [t.id for t in study.tasks]
-    results = [predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
-                                  seed=args.seed) for task in tasks for g in gloves]
+    results = [{**predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
+                                     seed=args.seed), "glove": g.path} for task in tasks for g in gloves]
     if args.json:
-        print(json.dumps(_clean({"study": study.name, "glove": glove.path, "noise": args.noise, "results": results})))
+        print(json.dumps(_clean({"study": study.name, "glove": loaded[0].path, "gloves": [g.path for g in loaded],
+                                 "noise": args.noise, "results": results})))
         return 0
-    print(f"{study.name}: information transferred by one touch ({glove.path}; noise {args.noise} per motor)")
-    print(f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>5} {'accuracy':>8}")
+    print(f"{study.name}: information transferred by one touch ({', '.join(g.path for g in loaded)}; "
+          f"noise {args.noise} per motor)")
+    named = len(gloves) > 1
+    print(f"{'task':<12} " + (f"{'glove':<24} " if named else "") + f"{'motors':>6} {'bits':>6} {'of':>5} {'accuracy':>8}")
     for r in results:
-        print(f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>5.2f} {r['accuracy']:>8.2f}")
+        glove = f"{_glove_name(r['glove']):<24} " if named else ""
+        print(f"{r['task']:<12} {glove}{r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>5.2f} {r['accuracy']:>8.2f}")
     return 0
+
+
+def _glove_name(path: str) -> str:
+    """A glove's short name in a table: its file's name, and what was made of it."""
+    file, _, made = path.partition(" (")
+    return Path(file).stem + (" (every sample)" if made else "")
 
 
 def run_analyze(args) -> int:
