@@ -54,6 +54,8 @@ class StudyResponse(Message):
     index: int = doc("the trial answered (StudyTrial.index)")
     response: str = doc("the option chosen, one of the trial's options")
     source: Literal[RESPONSE_SOURCES] = doc("what gave it: keyboard, controller, page, observer, cli")
+    received: Float = doc("when it reached touch4d on the bus clock (a page's: its arrival at the WebXR node); "
+                          "0: not known", default=0.0, optional=True)
 
 
 class StudyCommand(Message):

@@ -11,11 +11,15 @@ shows its question in the page, hides objects where its condition says so, and t
 (controller buttons, or the page's own) go out on `study/response`.
 
 Access: `host` 127.0.0.1 (default) serves this machine only (and a Quest over USB through `adb
-reverse tcp:PORT tcp:PORT`); any other host requires the random token in the URL (printed, with a
-QR code) and serves https with a self-signed certificate made in `cert_dir` (`tls: auto`).
+reverse tcp:PORT tcp:PORT`); any other host requires a token (random, printed in the link and as a
+QR code; or one of 128 bits or more from a file or the environment, never the command line, where
+`ps` shows it) and serves https with a self-signed certificate made in `cert_dir` (`tls: auto`;
+`tls: off` is refused beyond loopback: the token would cross the network in clear). The page trades
+the link's token for a cookie on first load (touch4d.web.access).
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from touch4d.bus import Node, Param
@@ -25,10 +29,13 @@ from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorComman
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
-from touch4d.web import access
+from touch4d.web import access, tls
 from touch4d.study.gate import GATE_START
 from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.server import PageServer
+
+
+TOKEN_ENV = "TOUCH4D_WEBXR_TOKEN"
 
 
 class WebXRNode(Node):
@@ -38,8 +45,12 @@ class WebXRNode(Node):
     PARAMS = {
         "host": Param("127.0.0.1", "address to serve on; beyond loopback: https and a token"),
         "port": Param(8090, "TCP port (0 = any free one)", min=0, max=65535, port=True),
-        "token": Param("auto", "'auto' (random, only beyond loopback) or a token of your own"),
-        "tls": Param("auto", "https: auto (beyond loopback), on, off", choices=("auto", "on", "off")),
+        "token": Param("auto", f"auto (random, only beyond loopback), env (from ${TOKEN_ENV}) or file (token_file)",
+                       choices=("auto", "env", "file")),
+        "token_file": Param("", "with token: file, the file holding the token (128 bits or more)"),
+        "names": Param("", "host names served besides loopback and this machine's addresses (comma-separated), "
+                       "e.g. the reverse proxy's public name"),
+        "tls": Param("auto", "https: auto (beyond loopback), on, off (loopback only)", choices=("auto", "on", "off")),
         "cert_dir": Param("", "where the self-signed certificate is kept ('' = ~/.config/touch4d/webxr-tls)"),
         "tracker": Param(False, "publish what the page tracks (hand/pose, controller/state, hand/joints)"),
         "hand": Param("right", "the hand that wears the glove", choices=HANDS),
@@ -63,17 +74,21 @@ class WebXRNode(Node):
 
     def setup(self) -> None:
         p = self.params
-        if not p["token"]:
-            raise self.param_error("token", "'auto' or a token of your own")
         host = p["host"]
         loopback = access.is_loopback(host)
-        self.token = None if p["token"] == "auto" and loopback else (
-            access.new_token() if p["token"] == "auto" else p["token"])
+        if p["tls"] == "off" and not loopback:
+            raise self.param_error("tls", "auto or on beyond loopback (with tls off the token crosses the network "
+                                          "in clear)", got="off")
+        self.token = self._token(loopback)
+        self.access = None
+        if self.token is not None:
+            self.access = access.Access()
+            self.access.issue("page", token=self.token)
         ssl_context, fingerprint = None, None
         if p["tls"] == "on" or (p["tls"] == "auto" and not loopback):
-            cert, key, fingerprint = access.ensure_certificate(
-                Path(p["cert_dir"]) if p["cert_dir"] else access.DEFAULT_CERT_DIR, access.lan_addresses(host))
-            ssl_context = access.server_ssl_context(cert, key)
+            cert, key, fingerprint = tls.ensure_certificate(
+                Path(p["cert_dir"]) if p["cert_dir"] else tls.DEFAULT_CERT_DIR, access.lan_addresses(host))
+            ssl_context = tls.server_ssl_context(cert, key)
 
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
@@ -91,11 +106,13 @@ class WebXRNode(Node):
                                 send=lambda conn, data: self.server.send(conn, data),
                                 save_calibration=self._save_calibration)
         # The server's thread hands every event to this node's thread (one thread runs the bridge).
-        self.server = PageServer(host, p["port"], self.token, ssl_context, max_pages=p["max_pages"],
+        # Each page's messages wait in its bounded inbox; the node's thread takes them (server.deliver).
+        self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
+                                 names=[n.strip() for n in p["names"].split(",") if n.strip()],
                                  on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
                                                                                    self.server.peer(conn)),
-                                 on_message=lambda conn, data, arrival: self.call_soon_threadsafe(
-                                     self.bridge.page_message, conn, data, arrival),
+                                 on_message=self.bridge.page_message,
+                                 on_pending=lambda conn: self.call_soon_threadsafe(self.server.deliver, conn),
                                  on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
         self.create_subscription("scene/state", SceneState, self.bridge.on_scene, latest_only=True)
         self.create_subscription("hand/pose", HandPose, self.bridge.on_hand_pose, latest_only=True)
@@ -112,8 +129,7 @@ class WebXRNode(Node):
             raise self.param_error("port", f"a port free on {host}", got=f"{p['port']} ({exc.strerror or exc})") \
                 from None
         self.add_cleanup(self.server.stop)
-        self.add_stats(lambda: {**self.bridge.counts, "page_refused": self.server.refused,
-                                "page_over_limit": self.server.over_limit,
+        self.add_stats(lambda: {**self.bridge.counts, **self.server.counts(),
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1),
                                 **self.bridge.haptic_outputs()})
         scheme = "https" if ssl_context else "http"
@@ -131,6 +147,28 @@ class WebXRNode(Node):
         else:
             self.log.info("Quest over USB: adb reverse tcp:%d tcp:%d, then open http://localhost:%d/ in its browser",
                           bound, bound, bound)
+
+    def _token(self, loopback: bool) -> str | None:
+        """The page's token: none on loopback unless given, random beyond it, or the user's own from the
+        environment or a file (not a parameter's value: a command line is visible to every user)."""
+        p = self.params
+        if p["token"] == "auto":
+            return None if loopback else access.new_token()
+        if p["token"] == "env":
+            token, where = os.environ.get(TOKEN_ENV, "").strip(), f"the environment variable {TOKEN_ENV}"
+        else:
+            if not p["token_file"]:
+                raise self.param_error("token_file", "the file holding the token (with token: file)", got="")
+            try:
+                token = Path(p["token_file"]).expanduser().read_text().strip()
+            except OSError as exc:
+                raise self.param_error("token_file", "a readable file holding the token",
+                                       got=f"{p['token_file']} ({exc.strerror or exc})") from None
+            where = f"the token file {p['token_file']}"
+        why = access.check_token(token) if token else "a token"
+        if why is not None:
+            raise self.param_error("token", f"in {where}: {why}", got=None)
+        return token
 
     def _publish(self, topic: str, msg) -> None:
         self.publishers[topic].publish(msg)

@@ -282,10 +282,10 @@ def test_garbage_on_the_socket_is_counted_and_survived(browser, stack):
             ws.onopen = () => {
                 ws.send('{not json');
                 ws.send('{"type": "input", "time": 1, "tracking": true, "head": [NaN, 1, 0, 0, 0, 0, 1], "sources": []}');
-                ws.send('{"type": "input", "junk": "' + 'x'.repeat(40000) + '"}');
                 ws.send(new Uint8Array([0, 255, 1, 2]));
                 ws.send(JSON.stringify({type: 'input', time: 1, tracking: true, head: null,
                                         sources: [{handedness: 'right', grip: [0, 1, 0, 0, 0, 0, 5], trigger: 0, buttons: [], joints: null}]}));
+                ws.send('{"type": "input", "junk": "' + 'x'.repeat(40000) + '"}');   // over the limit: closes it
                 setTimeout(() => { ws.close(); done(); }, 200);
             };
         })""")
@@ -346,6 +346,16 @@ def test_beyond_loopback_a_page_without_the_token_is_refused(browser, tmp_path):
             assert response.status == 403 and "token" in page.content()
             response = page.goto(f"https://127.0.0.1:{port}/?token={token}")
             assert response.status == 200
+            wait_connected(page)
+            # the token was traded for a cookie no script can read, and left the address bar and history
+            assert token not in page.url and page.evaluate("document.cookie") == ""
+            page.go_back()
+            page.go_forward()                             # the entry of the tokened link, as history kept it
+            assert token not in page.url and token not in page.evaluate("location.href")
+            (cookie,) = context.cookies()
+            assert cookie["httpOnly"] and cookie["secure"] and cookie["sameSite"] == "Strict"
+            assert cookie["value"] != token
+            assert page.reload().status == 200            # the cookie alone lets the page in again
             wait_connected(page)
         finally:
             context.close()

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from touch4d import schema
+from touch4d.atomic import write_atomic
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 from touch4d.schema import Finite, Positive
@@ -197,4 +198,4 @@ def save_screen_placement(path, calibration: Calibration) -> None:
         text, n = pattern.subn(lambda m: m.group(1) + value + m.group(3), text, count=1)
         if n != 1:
             raise ConfigError(path, f"screen.{key}", "a one-line value under `screen:` to update")
-    path.write_text(text)
+    write_atomic(path.resolve(), text)   # whole or not at all (a link of the user's is followed: its file replaced)

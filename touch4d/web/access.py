@@ -1,37 +1,199 @@
-"""Who may open the page: loopback by default; beyond it a random token in the URL (shown as a QR
-code in the terminal) and TLS with a self-signed certificate, since a headset's browser grants
-WebXR only to a secure context (https, or http on localhost, which `adb reverse` provides).
+"""Who may open the page: tokens per holder (a headset, each participant of a study, an
+experimenter), each of them able to expire and be revoked, exchanged on first load for a cookie.
+
+    access = Access()
+    token = access.issue("P07", ttl=3600)      # >= 128 bits; a second issue replaces the holder's token
+    access.check(token)                         # -> "P07" (None: unknown, expired or revoked)
+    access.revoke("P07")                        # its token and its cookies stop working at once
+    gate = CookieGate(access)                   # aiohttp middleware: web.Application(middlewares=[gate.middleware])
+
+The holder opens `https://host/?token=...` once: `CookieGate` finds the token, sets a session cookie
+(HttpOnly, Secure, SameSite=Strict: no script, no plain http, no other site sees it) that expires
+with the token, and puts the holder in `request[HOLDER]`; the page then removes the token from
+the address bar (history.replaceState), so it stays out of the browser's history and of what a
+proxy logs later; the page's files and its WebSocket go with the cookie. A request with neither a
+valid token nor a valid cookie gets 403 (paths under `open_prefixes` excepted). Tokens and cookies
+are kept as SHA-256 digests (a dict lookup, no timing hint about the secret). Thread-safe: a study
+may issue and revoke from any thread; `on_revoke(callback)` lets a server close a holder's pages.
+
+Beyond the layer: the node's link (`page_url`), the QR code for a headset's camera, the addresses
+a headset on the LAN can reach, and the token a user provides (`check_token`: 128 bits at least).
 """
 from __future__ import annotations
 
-import datetime
+import hashlib
 import hmac
-import ipaddress
-import os
+import re
 import secrets
 import socket
-import ssl
-from pathlib import Path
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import NameOID
+from aiohttp import web
 
 from touch4d.bus.config import is_loopback  # noqa: F401  (the bus's rule: 127.0.0.0/8, ::1, localhost)
 
-CERT_DAYS = 365
-DEFAULT_CERT_DIR = Path(os.environ.get("XDG_CONFIG_HOME", Path.home() / ".config")) / "touch4d" / "webxr-tls"
+TOKEN_BYTES = 16                                  # 128 bits
+MIN_TOKEN_CHARS = 22                              # base64url characters carrying 128 bits (6 bits each)
+TOKEN_CHARS = re.compile(r"[A-Za-z0-9_-]+")       # what secrets.token_urlsafe gives, safe in a URL
+COOKIE = "touch4d"
+HOLDER = web.RequestKey("holder", str)             # request[HOLDER]: who the gate let in (None: an open path)
+REFUSED = ("touch4d: this page needs its link (the URL with a token, or its QR code, that you were given); "
+           "the link may have expired or been revoked.\n")
 
 
 def new_token() -> str:
     """A random URL-safe token (128 bits)."""
-    return secrets.token_urlsafe(16)
+    return secrets.token_urlsafe(TOKEN_BYTES)
+
+
+def check_token(token: str) -> str | None:
+    """Why a token of a user's own is unfit (None: fit): 128 bits at least, URL-safe characters."""
+    if not TOKEN_CHARS.fullmatch(token):
+        return "only the characters A-Z a-z 0-9 _ - (as `python -c 'import secrets; print(secrets.token_urlsafe(16))'` gives)"
+    if len(token) < MIN_TOKEN_CHARS:
+        return f"at least {MIN_TOKEN_CHARS} characters (128 bits), got {len(token)}"
+    return None
 
 
 def token_matches(given: str | None, token: str) -> bool:
     """Constant-time comparison (no timing hint about the token's characters)."""
     return given is not None and hmac.compare_digest(given.encode(), token.encode())
+
+
+def _digest(secret: str) -> bytes:
+    return hashlib.sha256(secret.encode("utf-8", "surrogatepass")).digest()
+
+
+@dataclass
+class _Grant:
+    holder: str
+    expires: float          # on the Access clock; inf: never
+    session: bool           # a cookie's value (from exchange), not a link's token
+
+
+class Access:
+    """Tokens per holder; see the module doc. `now` is the clock the `ttl`s count on."""
+
+    def __init__(self, now: Callable[[], float] = time.time):
+        self.now = now
+        self._grants: dict[bytes, _Grant] = {}
+        self._lock = threading.Lock()
+        self._revoked: list[Callable[[str], None]] = []
+
+    def issue(self, holder: str, ttl: float | None = None, token: str | None = None) -> str:
+        """A new token for `holder`, valid `ttl` seconds (None: until revoked), replacing its previous
+        token (its cookies stay valid). `token`: one of the user's own (see check_token)."""
+        if not holder:
+            raise ValueError("a holder needs a name")
+        if token is None:
+            token = new_token()
+        elif (why := check_token(token)) is not None:
+            raise ValueError(f"token for {holder!r}: {why}")
+        if ttl is not None and not ttl > 0:
+            raise ValueError(f"ttl for {holder!r}: a number of seconds > 0, got {ttl!r}")
+        expires = float("inf") if ttl is None else self.now() + ttl
+        with self._lock:
+            self._grants = {d: g for d, g in self._grants.items() if g.session or g.holder != holder}
+            self._grants[_digest(token)] = _Grant(holder, expires, False)
+        return token
+
+    def revoke(self, holder: str) -> bool:
+        """End `holder`'s token and cookies at once (and tell `on_revoke` callbacks); False: none held."""
+        with self._lock:
+            kept = {d: g for d, g in self._grants.items() if g.holder != holder}
+            had = len(kept) != len(self._grants)
+            self._grants = kept
+        for callback in list(self._revoked):
+            callback(holder)
+        return had
+
+    def check(self, token: str | None) -> str | None:
+        """The holder of a link's token, or None (unknown, expired or revoked)."""
+        return self._find(token, session=False)
+
+    def session_holder(self, cookie: str | None) -> str | None:
+        """The holder of a cookie's value from `exchange`, or None."""
+        return self._find(cookie, session=True)
+
+    def exchange(self, token: str | None) -> tuple[str, str, float] | None:
+        """A link's token -> (holder, cookie value, expiry) for a browser to keep; None if the token
+        is not valid. The cookie expires with the token and is revoked with its holder."""
+        with self._lock:
+            grant = self._valid(token, session=False)
+            if grant is None:
+                return None
+            cookie = new_token()
+            self._grants[_digest(cookie)] = _Grant(grant.holder, grant.expires, True)
+            return grant.holder, cookie, grant.expires
+
+    def holders(self) -> list[str]:
+        """The holders with a valid token or cookie."""
+        now = self.now()
+        with self._lock:
+            return sorted({g.holder for g in self._grants.values() if g.expires > now})
+
+    def on_revoke(self, callback: Callable[[str], None]) -> None:
+        """Call `callback(holder)` after each revoke (on the revoking thread)."""
+        self._revoked.append(callback)
+
+    def _find(self, secret: str | None, session: bool) -> str | None:
+        with self._lock:
+            grant = self._valid(secret, session)
+            return grant.holder if grant is not None else None
+
+    def _valid(self, secret: str | None, session: bool) -> _Grant | None:
+        if not secret:
+            return None
+        digest = _digest(secret)
+        grant = self._grants.get(digest)
+        if grant is None or grant.session != session:
+            return None
+        if grant.expires <= self.now():
+            del self._grants[digest]
+            return None
+        return grant
+
+
+class CookieGate:
+    """aiohttp middleware: a request passes with a valid `?token=` (then a cookie is set) or cookie;
+    else 403 (counted in `refused`). Paths under `open_prefixes` pass without (the page's own files).
+    `secure=False` only for plain-http tests: a browser keeps Secure cookies from https (and localhost)."""
+
+    def __init__(self, access: Access, cookie: str = COOKIE, secure: bool = True,
+                 open_prefixes: tuple[str, ...] = (), refused_text: str = REFUSED):
+        self.access, self.cookie, self.secure = access, cookie, secure
+        self.open_prefixes = open_prefixes
+        self.refused_text = refused_text
+        self.refused = 0
+
+    def holder(self, request: web.Request) -> str | None:
+        """The holder a request's cookie names (None: no valid cookie)."""
+        return self.access.session_holder(request.cookies.get(self.cookie))
+
+    @web.middleware
+    async def middleware(self, request: web.Request, handler):
+        holder, cookie = self.holder(request), None
+        token = request.query.get("token")
+        if token is not None and holder is None:
+            exchanged = self.access.exchange(token)
+            if exchanged is not None:
+                holder, cookie, expires = exchanged
+        if holder is None and not request.path.startswith(self.open_prefixes or ("\0",)):
+            self.refused += 1
+            raise web.HTTPForbidden(text=self.refused_text)
+        request[HOLDER] = holder
+        response = await handler(request)
+        if cookie is not None and not response.prepared:
+            max_age = None if expires == float("inf") else max(1, int(expires - self.access.now()))
+            response.set_cookie(self.cookie, cookie, max_age=max_age, path="/", secure=self.secure,
+                                httponly=True, samesite="Strict")
+        return response
+
+
+# ---- the link ---------------------------------------------------------------------------------------
 
 
 def lan_addresses(host: str) -> list[str]:
@@ -70,57 +232,3 @@ def qr_text(url: str) -> str:
     out = io.StringIO()
     segno.make(url, error="l").terminal(out=out, compact=True)
     return out.getvalue()
-
-
-# ---- TLS ------------------------------------------------------------------------------------------
-
-
-def ensure_certificate(directory: Path, addresses: list[str]) -> tuple[Path, Path, str]:
-    """A self-signed certificate for `addresses` (and localhost) in `directory`, made once and
-    reused while valid for them; returns (certificate, key, SHA-256 fingerprint) so a user can
-    compare the fingerprint with the one the headset's browser shows before accepting it."""
-    directory = Path(directory)
-    cert_path, key_path = directory / "cert.pem", directory / "key.pem"
-    wanted = {"127.0.0.1", *addresses}
-    if cert_path.exists() and key_path.exists():
-        try:
-            cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
-            sans = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-            have = {str(ip) for ip in sans.get_values_for_type(x509.IPAddress)}
-            fresh = cert.not_valid_after_utc > datetime.datetime.now(datetime.timezone.utc) + datetime.timedelta(days=1)
-            if wanted <= have and fresh:
-                return cert_path, key_path, fingerprint(cert)
-        except (ValueError, x509.ExtensionNotFound):
-            pass  # unreadable or foreign: make a new one
-    directory.mkdir(parents=True, exist_ok=True)
-    key = ec.generate_private_key(ec.SECP256R1())
-    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "touch4d WebXR node"),
-                      x509.NameAttribute(NameOID.ORGANIZATION_NAME, "touch4d (self-signed)")])
-    now = datetime.datetime.now(datetime.timezone.utc)
-    san = [x509.DNSName("localhost")] + [x509.IPAddress(ipaddress.ip_address(a)) for a in sorted(wanted)]
-    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5))
-            .not_valid_after(now + datetime.timedelta(days=CERT_DAYS))
-            .add_extension(x509.SubjectAlternativeName(san), critical=False)
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(x509.ExtendedKeyUsage([x509.oid.ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
-            .sign(key, hashes.SHA256()))
-    # The key is written readable by its owner only, before any byte of it reaches the disk.
-    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                  serialization.NoEncryption()))
-    cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    return cert_path, key_path, fingerprint(cert)
-
-
-def fingerprint(cert: x509.Certificate) -> str:
-    return ":".join(f"{b:02X}" for b in cert.fingerprint(hashes.SHA256()))
-
-
-def server_ssl_context(cert_path: Path, key_path: Path) -> ssl.SSLContext:
-    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
-    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
-    ctx.load_cert_chain(cert_path, key_path)
-    return ctx

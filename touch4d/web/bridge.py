@@ -9,9 +9,14 @@ hand's joints on `hand/joints` (just before the pose of the same instant, with i
 hand's on `hand/joints/other`) from the one page that drives the hand. The rule: a page drives from
 its first tracked input while no other page drives, and keeps driving until it stops tracking
 (closes, hides, ends its session, loses tracking or falls silent for `stale_s`); only then may
-another page take over. Meanwhile another page's input and re-centring are refused, never silently:
-counted (`page_not_driver`), logged once per page with its address, and the page is told (a "driver"
-frame). Every change of driver is logged. Fail safe: when the driving page closes, hides, loses
+another page take over. Answers and re-centring come only from the page in control: the one that
+drives the hand (or last drove it and is still open), else the page open longest (a view-only
+page). Another page's input, answers and re-centring are refused, never silently: counted
+(`page_not_driver`), logged once per page with its address, and the page is told (a "driver"
+frame, which names no address). Every change of driver is logged. Re-centring happens at most once
+per `recenter_min_s`, and the calibration file is written at most once per `save_min_s` (the last
+placement, later if need be). What a page sends is logged with its control characters escaped,
+within a warning budget of its own. Fail safe: when the driving page closes, hides, loses
 tracking or falls silent for `stale_s`, the hand is published invalid at once and then every
 `invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
 (within 100 ms); the controller too, except while its page is only silent.
@@ -19,7 +24,8 @@ tracking or falls silent for `stale_s`, the hand is published invalid at once an
 A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
 (touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
 "response" publishes `study/response`, stamped with the page's clock mapped to this machine's. While
-a trial runs, the re-centre button answers instead of re-centring.
+a trial runs, the re-centre button answers instead of re-centring. The response also carries its
+arrival on this machine's clock (`received`), so a page whose clock claims too much is seen.
 """
 from __future__ import annotations
 
@@ -48,7 +54,7 @@ from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
 from .haptics import HAPTIC_COUNTERS, haptic_level
-from .protocol import PageError, pack_frame, parse_page_message
+from .protocol import PageError, pack_frame, parse_page_message, printable
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +62,9 @@ log = logging.getLogger(__name__)
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
                 "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
-                 "page_unresponsive", "page_not_driver", "page_connections", "recentred", "study_answers")
+                 "page_unresponsive", "page_not_driver", "page_connections", "recentred", "recenter_limited",
+                 "study_answers")
+PAGE_WARNINGS = 5        # distinct warnings logged per page; then its problems are only counted
 # A study's answers from the controller: the k-th of these buttons picks the k-th option (A, B, the
 # thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
 ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
@@ -76,6 +84,8 @@ class BridgeConfig:
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
     study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
     motors_stale_s: float = 0.06        # tactile/motors older than this: the page's controller plays 0
+    recenter_min_s: float = 1.0         # re-centring at most this often
+    save_min_s: float = 5.0             # the calibration file written at most this often
 
 
 class ClockMap:
@@ -112,6 +122,7 @@ class _Page:
     answer_held: frozenset = frozenset()   # answer buttons held at its last input (any controller)
     fps: float = 0.0
     haptics: str = ""                # what it can vibrate ("pulse", "dual-rumble", "none"; "" untold)
+    warned: set = dataclasses.field(default_factory=set)   # its warnings logged (its own budget)
 
 
 def _shown(trial: StudyTrial) -> tuple:
@@ -140,6 +151,9 @@ class WebBridge:
         self._logged: set[str] = set()
         self._invalid_at = -np.inf          # when invalid poses were last published (node clock)
         self._was_live = False
+        self._recentred_at = -np.inf        # node clock
+        self._saved_at = -np.inf
+        self._unsaved: Calibration | None = None   # a placement waiting for its time to be stored
         # latest bus state, as page arrays; the scene as the desktop renderer models it (render.view)
         self.view = SceneView(style=Style())
         self._geometry: SceneGeometry | None = None
@@ -318,6 +332,7 @@ class WebBridge:
         if frame is not None:
             self.broadcast(frame, True)
         self.check_tracking(self.now())
+        self._save_due(self.now())
 
     # ---- connections -----------------------------------------------------------------------------
 
@@ -347,8 +362,7 @@ class WebBridge:
             msg = parse_page_message(data)
         except PageError as exc:
             self.counts[f"page_{exc.cause}"] += 1
-            self._warn_once(f"page:{exc.cause}:{exc}", f"dropped a {exc.cause.replace('_', '-')} message from page "
-                                                       f"{conn}: {exc}")
+            self._page_warning(page, f"{exc.cause}:{exc}", f"dropped a {exc.cause.replace('_', '-')} message: {exc}")
             return
         kind = msg["type"]
         if kind == "session":
@@ -363,20 +377,22 @@ class WebBridge:
                 log.warning("page %d (%s) has no vibration actuator: its participant feels no touch", conn, page.peer)
             page.haptics = msg["output"]
         elif kind == "recenter":
-            if self._may_drive(page, arrival):
-                self.recenter(msg["head"])
+            if self._may_control(page, arrival):
+                self.recenter(msg["head"], arrival)
         elif kind == "input":
             self._input(page, msg, arrival)
         elif kind == "response":
-            if self._may_drive(page, arrival):   # a second page cannot answer for the participant
-                self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival))
+            if self._may_control(page, arrival):   # a second page cannot answer for the participant
+                self._answer(msg["index"], msg["option"], "page", page.clock.stamp(msg["time"] / 1000.0, arrival),
+                             arrival)
 
-    def _answer(self, index: int, option: str, source: str, stamp: float) -> None:
+    def _answer(self, index: int, option: str, source: str, stamp: float, arrival: float) -> None:
         """A study answer goes on the bus as given; the study node takes the first valid one per trial."""
         self.counts["study_answers"] += 1
-        self.publish("study/response", StudyResponse(index=index, response=option, source=source, stamp=stamp))
+        self.publish("study/response", StudyResponse(index=index, response=option, source=source, stamp=stamp,
+                                                     received=arrival))
 
-    def _answer_buttons(self, page: _Page, msg: dict, stamp: float) -> frozenset:
+    def _answer_buttons(self, page: _Page, msg: dict, stamp: float, arrival: float) -> frozenset:
         """Newly pressed answer buttons of any controller answer the trial shown (or end a break).
         Returns the buttons they used, which do nothing else."""
         held = frozenset(b for s in msg["sources"] for b in s.buttons if b in ANSWER_BUTTONS)
@@ -385,11 +401,11 @@ class WebBridge:
         if trial is None or not pressed or trial.phase not in ("stimulus", "break"):
             return frozenset()
         if trial.phase == "break":
-            self._answer(trial.index, "", "controller", stamp)
+            self._answer(trial.index, "", "controller", stamp, arrival)
             return pressed
         for k, button in enumerate(ANSWER_BUTTONS[:len(trial.options)]):
             if button in pressed:
-                self._answer(trial.index, trial.options[k], "controller", stamp)
+                self._answer(trial.index, trial.options[k], "controller", stamp, arrival)
                 return pressed
         return frozenset()
 
@@ -402,19 +418,38 @@ class WebBridge:
             return page.conn
         return None
 
+    def in_control(self) -> int | None:
+        """The page whose answers and re-centring count: the page that drives the hand, or last drove
+        it and is still open; else the page open longest (view-only pages, or none tracked yet)."""
+        if self.owner in self.pages:
+            return self.owner
+        return next(iter(self.pages), None)
+
     def _may_drive(self, page: _Page, now: float) -> bool:
         """Whether this page's input may drive the hand; a refusal is counted, logged and told."""
         driver = self.driving(now)
         if driver is None or driver == page.conn:
             return True
+        self._refuse(page, driver, "sent input")
+        return False
+
+    def _may_control(self, page: _Page, now: float) -> bool:
+        """Whether this page may answer or re-centre (see in_control); a refusal is counted, logged and told."""
+        control = self.in_control()
+        if control == page.conn:
+            return True
+        self._refuse(page, control, "answered or re-centred")
+        return False
+
+    def _refuse(self, page: _Page, other_conn: int | None, what: str) -> None:
         self.counts["page_not_driver"] += 1
         if page.conn not in self._refused:
             self._refused.add(page.conn)
-            other = self.pages[driver]
-            log.warning("page %d (%s) sent input while page %d (%s) drives the hand: refused until that page "
-                        "stops tracking", page.conn, page.peer, other.conn, other.peer)
-            self.send(page.conn, pack_frame("driver", {"driver": False, "by": other.peer}))
-        return False
+            other = self.pages.get(other_conn)
+            log.warning("page %d (%s) %s while page %d (%s) is in control: refused until that page stops "
+                        "tracking", page.conn, page.peer, what, other_conn or 0, other.peer if other else "?")
+            # the page is told another page drives, never where that page is
+            self.send(page.conn, pack_frame("driver", {"driver": False}))
 
     def _take(self, page: _Page) -> None:
         """Make `page` the owner (it may now drive); log and tell it."""
@@ -426,13 +461,15 @@ class WebBridge:
         if before is not None:
             log.info("page %d (%s) drives the hand now (page %d, %s, stopped tracking)", page.conn, page.peer,
                      before.conn, before.peer)
-        self.send(page.conn, pack_frame("driver", {"driver": True, "by": page.peer}))
+        self.send(page.conn, pack_frame("driver", {"driver": True}))
 
     def _input(self, page: _Page, msg: dict, arrival: float) -> None:
         stamp = page.clock.stamp(msg["time"] / 1000.0, arrival)
-        # Only the page that drives the hand (or any page while none drives) answers a study's trials.
-        may_answer = (page.tracking or msg["tracking"]) and self.driving(arrival) in (None, page.conn)
-        answered = self._answer_buttons(page, msg, stamp) if may_answer else frozenset()
+        # Only the page in control (that drives the hand, or may take it now) answers a study's trials.
+        may_answer = (page.tracking or msg["tracking"]) and (
+            self.in_control() == page.conn or (self.config.tracker and msg["tracking"]
+                                               and self.driving(arrival) is None))
+        answered = self._answer_buttons(page, msg, stamp, arrival) if may_answer else frozenset()
         if not self.config.tracker:
             self.counts["page_ignored"] += 1
             return
@@ -466,7 +503,7 @@ class WebBridge:
             self._invalid_at = arrival
         held = frozenset(control_side.buttons) if control_side is not None else frozenset()
         if self.config.recenter_button in held - page.buttons - answered and msg["head"] is not None:
-            self.recenter(msg["head"])
+            self.recenter(msg["head"], arrival)
         page.buttons = held
 
     # ---- safety ----------------------------------------------------------------------------------
@@ -499,14 +536,28 @@ class WebBridge:
 
     # ---- calibration -----------------------------------------------------------------------------
 
-    def recenter(self, head: np.ndarray) -> None:
-        """Put the screen in front of the head, store it, and tell every page."""
+    def recenter(self, head: np.ndarray, now: float) -> None:
+        """Put the screen in front of the head, store it (at most every `save_min_s`), and tell every
+        page; at most once per `recenter_min_s` (more are counted as `recenter_limited`)."""
+        if now - self._recentred_at < self.config.recenter_min_s:
+            self.counts["recenter_limited"] += 1
+            return
+        self._recentred_at = now
         p = self.placement
         self.calibration = self.calibration.placed_in_front(head[:3], head[3:7], p.distance_m, p.below_eye_m)
         self.counts["recentred"] += 1
-        if self.save_calibration is not None:
-            self.save_calibration(self.calibration)
+        self._unsaved = self.calibration
+        self._save_due(now)
         self.broadcast(pack_frame("calibration", self._calibration_fields()), False)
+
+    def _save_due(self, now: float) -> None:
+        """Store the last placement if one waits and the file was not written within `save_min_s`."""
+        if self._unsaved is None or now - self._saved_at < self.config.save_min_s:
+            return
+        calibration, self._unsaved = self._unsaved, None
+        self._saved_at = now
+        if self.save_calibration is not None:
+            self.save_calibration(calibration)
 
     def _warn_once(self, cause: str, text: str) -> None:
         if cause not in self._logged and len(self._logged) < 100:
@@ -517,6 +568,18 @@ class WebBridge:
         """How many connected pages vibrate a controller, a gamepad, or nothing (for the heartbeat)."""
         kinds = [p.haptics for p in self.pages.values()]
         return {name: kinds.count(output) for output, name in HAPTIC_COUNTERS.items()}
+
+    def _page_warning(self, page: _Page, cause: str, text: str) -> None:
+        """A problem with what a page sent: logged once per cause within the page's own budget (a
+        page cannot use up the node's), its text with control characters escaped."""
+        if cause in page.warned or len(page.warned) > PAGE_WARNINGS:
+            return
+        page.warned.add(cause)
+        if len(page.warned) > PAGE_WARNINGS:
+            log.warning("page %d (%s): more problems; from now on they are only counted", page.conn, page.peer)
+            return
+        log.warning("page %d (%s): %s (further identical problems are only counted)", page.conn, page.peer,
+                    printable(text))
 
     def page_fps(self) -> float:
         """The frame rate the tracker page (else any page) reports."""

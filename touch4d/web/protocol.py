@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 from typing import Annotated, Literal, Union
 
@@ -54,6 +55,8 @@ from touch4d.tracking.webxr import JOINTS, XR_STANDARD_BUTTONS, XRSource
 ARRAY_DTYPES = ("f4", "u4", "i4", "u2", "u1")
 MAX_PAGE_MESSAGE = 16384          # bytes: an input message with two tracked hands is about 6 kB
 MAX_SOURCES = 4
+MAX_POSITION_M = 100.0            # |x|, |y|, |z| of a pose: metres a room (or a hall) can hold
+MAX_JOINT_RADIUS_M = 0.1          # a finger joint's radius, metres
 QUAT_TOLERANCE = 1e-2             # |q| - 1 allowed in a page's quaternion (float32 poses)
 WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
 PAGE_TYPES = ("input", "recenter", "session", "stats", "response", "haptics")
@@ -128,9 +131,13 @@ def _align(n: int) -> int:
 
 
 # JSON cannot carry NaN or infinity; a number too big for a double (1e999) is refused by the decoder.
-Pose = Annotated[tuple[float, float, float, float, float, float, float],
+# Positions are metres from the headset's floor origin: a room, never 1e308 (which would be stored
+# in the calibration file by a re-centre).
+Metres = Annotated[float, msgspec.Meta(ge=-MAX_POSITION_M, le=MAX_POSITION_M)]
+Pose = Annotated[tuple[Metres, Metres, Metres, float, float, float, float],
                  msgspec.Meta(description="a pose [x, y, z, qx, qy, qz, qw]")]
-Joint = Annotated[tuple[float, float, float, float, float, float, float, float],
+Joint = Annotated[tuple[Metres, Metres, Metres, float, float, float, float,
+                        Annotated[float, msgspec.Meta(le=MAX_JOINT_RADIUS_M)]],
                   msgspec.Meta(description="a joint [x, y, z, qx, qy, qz, qw, radius]")]
 
 
@@ -195,6 +202,39 @@ class HapticsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type
 
 PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage, HapticsMessage]
 _DECODER = msgspec.json.Decoder(PageMessage)
+
+
+class _Type(msgspec.Struct):
+    type: str = ""
+
+
+_TYPE = msgspec.json.Decoder(_Type)
+
+
+def message_type(data) -> str:
+    """A page message's "type" (as sent, unchecked; '' if it has none or is not JSON): cheap enough
+    for the server's thread, which paces inputs before the node parses anything."""
+    if not isinstance(data, (str, bytes)) or len(data) > MAX_PAGE_MESSAGE:
+        return ""
+    try:
+        return _TYPE.decode(data).type
+    except (msgspec.DecodeError, RecursionError):
+        return ""
+
+
+# C0 and C1 controls, DEL, the Unicode line and paragraph separators and the bidirectional overrides:
+# what could end a log line, move a terminal's cursor or colour it, or reorder what a reader sees.
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: str) -> str:
+    """`text` from a page, safe to log: each control character as its escape (\\n, \\x1b, \\u2028)."""
+    return _CONTROL.sub(_escape, text)
+
+
+def _escape(match: re.Match) -> str:
+    c = match.group()
+    return {"\n": "\\n", "\r": "\\r", "\t": "\\t"}.get(c) or (f"\\x{ord(c):02x}" if ord(c) <= 0xff else f"\\u{ord(c):04x}")
 
 
 def _reject_constant(name: str):

@@ -2,12 +2,22 @@
 files from the package and one WebSocket per open page.
 
 It holds no touch4d state: what pages send goes to `on_message(conn, data, arrival)` (data: the
-text, the bytes, or the WebSocket error that closed the connection, e.g. a message over 1 MiB; with
-`on_connect(conn)` / `on_close(conn)`), called on the server's thread (the node hands them to its
-own); what the node sends goes out through `send` and `broadcast`, safe from any thread. Per page,
-frames marked `latest` replace one not yet sent (a slow Wi-Fi link gets the newest state, never a
-backlog); the others (setup, geometry) are sent in order, never dropped. A new page hears broadcasts
-only after the node's first frame to it (its setup): no page sees a frame before its setup.
+text, the bytes, or the WebSocket error that closed the connection, e.g. a message over the page
+message limit; with `on_connect(conn)` / `on_close(conn)`). Each page's messages pass through its
+`Inbox` (paced inputs, the latest kept; other messages bounded): with `on_pending(conn)` the server
+only says that a page has something, and the node's thread calls `deliver(conn)`, which calls
+`on_message` there; without it, `on_message` is called on the server's thread. What the node sends
+goes out through `send` and `broadcast`, safe from any thread. Per page, frames marked `latest`
+replace one not yet sent (a slow Wi-Fi link gets the newest state, never a backlog); the others
+(setup, geometry) are sent in order, never dropped: a page with `max_queued` of them unsent, or
+whose socket takes `send_timeout_s` to take one frame, is closed (counted in `send_overflow`).
+
+Bounds for the internet: only the Host names it serves (loopback names, its LAN addresses, the
+configured `names`; else 421, page and WebSocket alike: DNS rebinding), WebSockets from its own
+origin only, `max_pages` pages at once, `max_per_address` connections per client address (loopback
+clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request header whole within
+`header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
+With an `Access` (touch4d.web.access) every path but the page's own files needs a token or cookie.
 """
 from __future__ import annotations
 
@@ -19,55 +29,175 @@ import threading
 import time
 from importlib import resources
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
-from .access import token_matches
+from .access import HOLDER, Access, CookieGate, is_loopback, lan_addresses
+from .inbox import MAX_INPUT_HZ, Inbox
+from .protocol import MAX_PAGE_MESSAGE, message_type
 
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(str(resources.files("touch4d.web") / "static"))
-WS_MAX_MESSAGE = 1 << 20     # larger WebSocket messages close the connection (the page reconnects)
 WS_HEARTBEAT_S = 2.0         # a page that answers no ping within this is closed (it does not read)
 MAX_PAGES = 64               # pages connected at once: one more is refused (HTTP 503)
-REFUSED = ("touch4d: this page needs the token that the webxr node printed (its URL or QR code in "
-           "the terminal where touch4d runs).\n")
+MAX_PER_ADDRESS = 16         # TCP connections at once from one client address (a browser opens ~6)
+HEADER_TIMEOUT_S = 10.0      # a request's header must arrive whole within this (slow trickle: closed)
+KEEPALIVE_S = 15.0           # an idle HTTP connection is closed after this
+SEND_TIMEOUT_S = 5.0         # one frame not taken by the page's socket within this: the page is closed
+MAX_QUEUED = 32              # in-order frames waiting for one page; one more closes it
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+SECURITY_HEADERS = {
+    # The page may talk to this server only: no other host, no inline script, no framing.
+    "Content-Security-Policy": ("default-src 'self'; connect-src 'self'; img-src 'self' data:; "
+                                "frame-ancestors 'none'; base-uri 'none'; form-action 'none'"),
+    "Referrer-Policy": "no-referrer",       # nothing of the page's address leaves in Referer headers
+    "Cache-Control": "no-store",
+    "X-Content-Type-Options": "nosniff",
+}
 
 
 class _Client:
     """One page's WebSocket and what waits to be sent to it."""
 
-    def __init__(self, ws: web.WebSocketResponse, peer: str = ""):
+    def __init__(self, ws: web.WebSocketResponse, transport, holder: str | None, inbox: Inbox, peer: str = ""):
         self.ws = ws
-        self.peer = peer     # the page's address (host:port), to name it in the log
+        self.transport = transport
+        self.peer = peer         # the page's address (host:port), for the log only (never sent to pages)
+        self.dropped = False
+        self.holder = holder     # who opened it (the Access holder), None without access control
+        self.inbox = inbox
         self.queue: collections.deque = collections.deque()
         self.latest: bytes | None = None
         self.wake = asyncio.Event()
         self.ready = False   # set by the node's first frame to this page: broadcasts reach it after
+        self.release: asyncio.TimerHandle | None = None   # the held input's time
+
+
+class _Guard(asyncio.Protocol):
+    """One TCP connection in front of aiohttp's handler: counted per client address, closed if a
+    request header does not arrive whole within the header timeout; passes through after a
+    WebSocket upgrade."""
+
+    def __init__(self, server: "PageServer", inner: asyncio.Protocol):
+        self.server, self.inner = server, inner
+        self.address: str | None = None
+        self.timer: asyncio.TimerHandle | None = None
+        self.tail = b""
+        self.upgraded = False
+
+    def connection_made(self, transport) -> None:
+        peer = transport.get_extra_info("peername")
+        address = peer[0] if peer else "?"
+        if not self.server._admit(address):
+            transport.abort()
+            return
+        self.address, self.transport = address, transport
+        self.server._guards[transport] = self
+        self.inner.connection_made(transport)
+        self._arm()
+
+    def _arm(self) -> None:
+        self.tail = b""
+        self.timer = asyncio.get_running_loop().call_later(self.server.header_timeout_s, self._expired)
+
+    def _expired(self) -> None:
+        self.server.header_timeouts += 1
+        self.transport.abort()
+
+    def data_received(self, data: bytes) -> None:
+        if not self.upgraded:
+            if self.timer is None:
+                self._arm()              # the next request on a kept-alive connection
+            seen = self.tail + data
+            if b"\r\n\r\n" in seen:      # the header is whole: its handler takes it from here
+                self.timer.cancel()
+                self.timer = None
+                after = seen.rsplit(b"\r\n\r\n", 1)[1]
+                if after:                # pipelined: the next header has begun
+                    self._arm()
+                    self.tail = after[-3:]
+            else:
+                self.tail = seen[-3:]
+        self.inner.data_received(data)
+
+    def upgrade(self) -> None:
+        self.upgraded = True
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+
+    def eof_received(self):
+        return self.inner.eof_received() if self.address is not None else None
+
+    def pause_writing(self) -> None:
+        self.inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        self.inner.resume_writing()
+
+    def connection_lost(self, exc) -> None:
+        if self.address is None:
+            return
+        if self.timer is not None:
+            self.timer.cancel()
+        self.server._guards.pop(self.transport, None)
+        self.server._release(self.address)
+        self.inner.connection_lost(exc)
 
 
 class PageServer:
     """HTTP + WebSocket server for the WebXR page, running until `stop()`."""
 
-    def __init__(self, host: str, port: int, token: str | None, ssl_context=None, max_pages: int = MAX_PAGES,
+    def __init__(self, host: str, port: int, access: Access | None = None, ssl_context=None, *,
+                 max_pages: int = MAX_PAGES, names: Iterable[str] = (), secure_cookie: bool = True,
+                 max_per_address: int = MAX_PER_ADDRESS, limit_loopback: bool = False,
+                 header_timeout_s: float = HEADER_TIMEOUT_S, send_timeout_s: float = SEND_TIMEOUT_S,
+                 max_queued: int = MAX_QUEUED, input_hz: float = MAX_INPUT_HZ,
                  on_connect: Callable[[int], None] = lambda conn: None,
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
-                 on_close: Callable[[int], None] = lambda conn: None, static_dir: Path = STATIC_DIR):
-        self.host, self.port, self.token, self.ssl_context = host, port, token, ssl_context
+                 on_close: Callable[[int], None] = lambda conn: None,
+                 on_pending: Callable[[int], None] | None = None, static_dir: Path = STATIC_DIR):
+        self.host, self.port, self.access, self.ssl_context = host, port, access, ssl_context
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
+        self.on_pending = on_pending
         self.static_dir = Path(static_dir)
-        self.refused = 0
-        self.max_pages = max_pages
-        self.over_limit = 0      # connections refused because max_pages pages were connected
+        self.max_pages, self.max_per_address, self.limit_loopback = max_pages, max_per_address, limit_loopback
+        self.header_timeout_s, self.send_timeout_s, self.max_queued = header_timeout_s, send_timeout_s, max_queued
+        self.input_hz = input_hz
+        self.names = {n.lower().strip("[]") for n in (*LOOPBACK_NAMES, *names) if n}
+        if not is_loopback(host):
+            self.names |= {a.lower() for a in lan_addresses(host)} | ({host.lower()} if host not in ("", "0.0.0.0", "::") else set())
+        self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
+        # counted refusals and closes
+        self.refused_origin = 0     # WebSockets from another site
+        self.refused_host = 0       # Host names not served (421)
+        self.over_limit = 0         # connections refused because max_pages pages were connected
+        self.over_address = 0       # connections closed at once: max_per_address from that address
+        self.header_timeouts = 0    # connections closed: no whole request header in time
+        self.send_overflow = 0      # pages closed: they did not take what was sent to them
+        self.inputs_replaced = 0    # of closed pages: inputs superseded by a newer one (paced)
+        self.flooded = 0            # of closed pages: other messages over their rate, dropped
         self.clients: dict[int, _Client] = {}
+        self._per_address: collections.Counter = collections.Counter()
+        self._guards: dict = {}
+        self._inboxes: dict[int, Inbox] = {}     # until the last delivery after a page closed
         self._ids = itertools.count(1)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.base_events.Server | None = None
         self._started = threading.Event()
         self._error: BaseException | None = None
+        if access is not None:
+            access.on_revoke(self._revoked)
+
+    @property
+    def refused(self) -> int:
+        """Requests refused: no valid token or cookie, another origin, or a Host not served."""
+        return (self.gate.refused if self.gate else 0) + self.refused_origin + self.refused_host
 
     # ---- lifecycle (any thread) ------------------------------------------------------------------
 
@@ -98,14 +228,38 @@ class PageServer:
             self._loop.call_soon_threadsafe(self._enqueue, conn, data, False, True)
 
     def peer(self, conn: int) -> str:
-        """The address (host:port) of a connected page; '' once it has gone."""
+        """The address (host:port) of a connected page, for the log; '' once it has gone."""
         client = self.clients.get(conn)
         return client.peer if client is not None else ""
+
+    def holder(self, conn: int) -> str | None:
+        """Who opened a connected page (its Access holder); None without access control or once gone."""
+        client = self.clients.get(conn)
+        return client.holder if client is not None else None
 
     def broadcast(self, data: bytes, latest: bool = False) -> None:
         """Queue a frame for every page; `latest` frames replace an unsent one."""
         if self._loop is not None:
             self._loop.call_soon_threadsafe(self._enqueue_all, data, latest)
+
+    def deliver(self, conn: int) -> None:
+        """Call `on_message` for what the page has sent since (the node's thread, after `on_pending`;
+        once more after the page closed, before `on_close`, for its last messages)."""
+        inbox = self._inboxes.get(conn)
+        if inbox is None:
+            return
+        if conn not in self.clients:
+            self._inboxes.pop(conn, None)
+        for data, arrival in inbox.take():
+            self.on_message(conn, data, arrival)
+
+    def counts(self) -> dict:
+        """What the server refused, closed and dropped, for the node's stats."""
+        return {"page_refused": self.refused, "page_over_limit": self.over_limit,
+                "page_wrong_host": self.refused_host, "page_over_address": self.over_address,
+                "page_header_timeout": self.header_timeouts, "page_send_overflow": self.send_overflow,
+                "page_inputs_replaced": self.inputs_replaced + sum(c.inbox.replaced for c in list(self.clients.values())),
+                "page_flooded": self.flooded + sum(c.inbox.dropped for c in list(self.clients.values()))}
 
     # ---- the server's thread ---------------------------------------------------------------------
 
@@ -127,52 +281,70 @@ class PageServer:
             loop.close()
 
     async def _serve(self) -> None:
-        app = web.Application(middlewares=[self._headers])
+        middlewares = [self._check_host] + ([self.gate.middleware] if self.gate else [])
+        app = web.Application(middlewares=middlewares, client_max_size=MAX_PAGE_MESSAGE)
+        app.on_response_prepare.append(self._headers)
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_static("/static/", self.static_dir, follow_symlinks=False)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, keepalive_timeout=KEEPALIVE_S)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context)
-        await site.start()
-        self.port = self._runner.addresses[0][1]
+        handler = self._runner.server
+        self._listener = await asyncio.get_running_loop().create_server(
+            lambda: _Guard(self, handler()), self.host or None, self.port, ssl=self.ssl_context,
+            ssl_handshake_timeout=self.header_timeout_s if self.ssl_context else None)
+        self.port = self._listener.sockets[0].getsockname()[1]
 
     async def _shutdown(self) -> None:
+        if self._listener is not None:
+            self._listener.close()
         for client in list(self.clients.values()):
             await client.ws.close()
         if self._runner is not None:
             await self._runner.cleanup()
 
-    @web.middleware
-    async def _headers(self, request: web.Request, handler):
-        response = await handler(request)
-        # The page may talk to this server only: no other host, no inline script, no framing.
-        response.headers["Content-Security-Policy"] = (
-            "default-src 'self'; connect-src 'self' ws: wss:; img-src 'self' data:; frame-ancestors 'none'")
-        response.headers["Referrer-Policy"] = "no-referrer"   # the token stays out of Referer headers
-        response.headers["Cache-Control"] = "no-store"
-        response.headers["X-Content-Type-Options"] = "nosniff"
-        return response
-
-    def _allowed(self, request: web.Request) -> bool:
-        if self.token and not token_matches(request.query.get("token"), self.token):
-            self.refused += 1
+    def _admit(self, address: str) -> bool:
+        if (self.limit_loopback or not is_loopback(address)) and self._per_address[address] >= self.max_per_address:
+            self.over_address += 1
             return False
+        self._per_address[address] += 1
         return True
 
+    def _release(self, address: str) -> None:
+        self._per_address[address] -= 1
+        if self._per_address[address] <= 0:
+            del self._per_address[address]
+
+    async def _headers(self, request: web.Request, response: web.StreamResponse) -> None:
+        """Every answer, the router's 404 and 405 and the gate's 403 included."""
+        response.headers.update(SECURITY_HEADERS)
+        response.headers.pop("Server", None)   # no banner naming the software and its version
+
+    def _host_served(self, request: web.Request) -> bool:
+        host = request.headers.get("Host")
+        try:
+            name = urlsplit(f"//{host}").hostname if host else None
+        except ValueError:
+            name = None
+        return name is not None and name in self.names
+
+    @web.middleware
+    async def _check_host(self, request: web.Request, handler):
+        # DNS rebinding: a page of another site, its name pointed at this address, must get nothing.
+        if not self._host_served(request):
+            self.refused_host += 1
+            raise web.HTTPMisdirectedRequest(text="touch4d: this server does not serve that host name\n")
+        return await handler(request)
+
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        if not self._allowed(request):
-            return web.Response(status=403, text=REFUSED)
         return web.FileResponse(self.static_dir / "index.html")
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
-        if not self._allowed(request):
-            return web.Response(status=403, text=REFUSED)
         # A page from another site must not drive the hand through this browser (cross-site
         # WebSocket hijacking): a browser always sends Origin, and it must be this server.
         origin = request.headers.get("Origin")
         if origin is not None and urlsplit(origin).netloc != request.host:
-            self.refused += 1
+            self.refused_origin += 1
             return web.Response(status=403, text="touch4d: WebSocket from another origin refused\n")
         if len(self.clients) >= self.max_pages:
             # Each page costs a setup frame and a send queue: a flood of connections must not take
@@ -180,29 +352,69 @@ class PageServer:
             self.over_limit += 1
             return web.Response(status=503, text=f"touch4d: {self.max_pages} pages are connected already "
                                                  "(the webxr node's max_pages); close one and reload\n")
-        ws = web.WebSocketResponse(max_msg_size=WS_MAX_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
+        ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
         await ws.prepare(request)
+        guard = self._guards.get(request.transport)
+        if guard is not None:
+            guard.upgrade()
         conn = next(self._ids)
-        transport_peer = request.transport.get_extra_info("peername") if request.transport else None
-        peer = f"{transport_peer[0]}:{transport_peer[1]}" if transport_peer else (request.remote or "?")
-        client = self.clients[conn] = _Client(ws, peer)
+        peer = request.transport.get_extra_info("peername") if request.transport else None
+        inbox = self._inboxes[conn] = Inbox(input_hz=self.input_hz)
+        client = self.clients[conn] = _Client(ws, request.transport, request.get(HOLDER), inbox,
+                                              f"{peer[0]}:{peer[1]}" if peer else (request.remote or "?"))
         sender = asyncio.ensure_future(self._sender(client))
         self.on_connect(conn)
         try:
             async for msg in ws:
                 arrival = time.time()
                 if msg.type == WSMsgType.TEXT:
-                    self.on_message(conn, msg.data, arrival)
+                    self._offer(conn, client, msg.data, arrival)
                 elif msg.type == WSMsgType.BINARY:
-                    self.on_message(conn, bytes(msg.data), arrival)
+                    self._offer(conn, client, bytes(msg.data), arrival)
                 elif msg.type == WSMsgType.ERROR:
-                    self.on_message(conn, msg.data, arrival)   # the error, counted; the socket closes
+                    self._offer(conn, client, msg.data, arrival, final=True)   # the error, counted
                     break
         finally:
+            if client.release is not None:
+                client.release.cancel()
+            client.inbox.release(time.time())   # a held input goes too: its page's last word
             self.clients.pop(conn, None)
+            self.inputs_replaced += inbox.replaced
+            self.flooded += inbox.dropped
+            self._pending(conn)                  # the last delivery (it forgets the inbox), then the close
             sender.cancel()
             self.on_close(conn)
         return ws
+
+    def _offer(self, conn: int, client: _Client, data, arrival: float, final: bool = False) -> None:
+        wake, release_at = client.inbox.offer(data, arrival, not final and message_type(data) == "input",
+                                              always=final)
+        if release_at is not None and client.release is None:
+            client.release = self._loop.call_at(self._loop.time() + max(0.0, release_at - time.time()),
+                                                self._release_input, conn, client)
+        if wake:
+            self._pending(conn)
+
+    def _release_input(self, conn: int, client: _Client) -> None:
+        client.release = None
+        if client.inbox.release(time.time()):
+            self._pending(conn)
+
+    def _pending(self, conn: int) -> None:
+        if self.on_pending is None:
+            self.deliver(conn)
+        else:
+            self.on_pending(conn)
+
+    def _revoked(self, holder: str) -> None:
+        """A holder's access ended: its open pages close too (any thread)."""
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._close_holder, holder)
+
+    def _close_holder(self, holder: str) -> None:
+        for client in list(self.clients.values()):
+            if client.holder == holder:
+                asyncio.ensure_future(client.ws.close(code=1008, message=b"access revoked"))
 
     async def _sender(self, client: _Client) -> None:
         ws = client.ws
@@ -211,12 +423,25 @@ class PageServer:
                 await client.wake.wait()
                 client.wake.clear()
                 while client.queue:
-                    await ws.send_bytes(client.queue.popleft())
+                    await asyncio.wait_for(ws.send_bytes(client.queue.popleft()), self.send_timeout_s)
                 if client.latest is not None:
                     data, client.latest = client.latest, None
-                    await ws.send_bytes(data)
+                    await asyncio.wait_for(ws.send_bytes(data), self.send_timeout_s)
+        except (asyncio.TimeoutError, TimeoutError):
+            self._drop(client, f"its socket took no frame within {self.send_timeout_s:g} s")
         except (ConnectionError, RuntimeError):
             pass   # the page went away; the receive loop sees the close
+
+    def _drop(self, client: _Client, why: str) -> None:
+        """Close a page that does not keep up with what is sent to it (counted); it may reconnect."""
+        if client.dropped:
+            return
+        client.dropped = True
+        self.send_overflow += 1
+        log.warning("closed the page at %s: %s (it may reconnect)", client.peer, why)
+        client.queue.clear()
+        if client.transport is not None:
+            client.transport.abort()
 
     def _enqueue(self, conn: int, data: bytes, latest: bool, direct: bool = False) -> None:
         client = self.clients.get(conn)
@@ -225,10 +450,13 @@ class PageServer:
         client.ready = True
         if latest:
             client.latest = data
+        elif len(client.queue) >= self.max_queued:
+            self._drop(client, f"{self.max_queued} frames were waiting for it")
+            return
         else:
             client.queue.append(data)
         client.wake.set()
 
     def _enqueue_all(self, data: bytes, latest: bool) -> None:
-        for conn in self.clients:
+        for conn in list(self.clients):
             self._enqueue(conn, data, latest)

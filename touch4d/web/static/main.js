@@ -2,7 +2,7 @@
 // screen placed in the room) or inline in a desktop browser (mouse orbit). In a headset it is also
 // the tracker when the node says so: each XR frame first sends what is tracked, then draws.
 
-import { Link } from './net.js';
+import { Link, forgetToken } from './net.js';
 import { InputReader } from './input.js';
 import { Hud } from './hud.js';
 import { SceneRenderer } from './scene.js';
@@ -47,6 +47,7 @@ const buttons = new StudyButtons(document.getElementById('study'), (index, optio
   state.answers++;
 });
 
+forgetToken();
 // The controller (or a desktop gamepad) as the glove: what it plays, and what the node is told.
 const haptics = (state.haptics = new Haptics((output) => { link.send({ type: 'haptics', output }); showStatus(); }));
 
@@ -74,7 +75,7 @@ const link = new Link((message) => {
     state.geometry = header.key;
     if (scene) scene.setGeometry(message);
   } else if (header.kind === 'driver') {
-    state.otherDriver = header.driver ? null : header.by;   // another page drives the hand: say so
+    state.otherDriver = !header.driver;   // another page drives the hand: say so
     showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
@@ -138,7 +139,7 @@ function showStatus() {
   const f = state.frame;
   const role = state.setup && state.setup.tracker ? 'tracker' : 'view';
   const fingers = f && f.hand_source === 'joints' ? ' (fingers tracked)' : '';
-  const hand = state.otherDriver ? ` · another page (${state.otherDriver}) drives the hand`
+  const hand = state.otherDriver ? ' · another page drives the hand'
     : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   const felt = haptics.output === 'none' ? ' · no vibration here: touch cannot be felt' : '';
   statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}${felt}`

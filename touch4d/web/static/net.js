@@ -15,6 +15,15 @@ export function decodeFrame(buffer) {
   return { header, arrays };
 }
 
+// The link's token was exchanged for a cookie when the page loaded: out of the address bar, so it
+// stays out of the browser's history, bookmarks and what is shared of this page.
+export function forgetToken() {
+  const url = new URL(location.href);
+  if (!url.searchParams.has('token')) return;
+  url.searchParams.delete('token');
+  history.replaceState(history.state, '', url);
+}
+
 export class Link {
   // onFrame({header, arrays}) for every frame; onState(connected) when the socket opens or closes.
   constructor(onFrame, onState) {
@@ -29,9 +38,7 @@ export class Link {
 
   connect() {
     const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
-    const token = new URLSearchParams(location.search).get('token');
-    const url = `${scheme}://${location.host}/ws` + (token ? `?token=${encodeURIComponent(token)}` : '');
-    const ws = (this.ws = new WebSocket(url));
+    const ws = (this.ws = new WebSocket(`${scheme}://${location.host}/ws`));   // the cookie says who
     ws.binaryType = 'arraybuffer';
     ws.onopen = () => { this.retry = 250; this.onState(true); };
     ws.onmessage = (event) => {

@@ -1,0 +1,210 @@
+"""The page server's bounds, probed on loopback as an attacker would (raw sockets and WebSocket
+clients, bounded in count and time): Host names it does not serve, the security headers on every
+answer, connections that send nothing or trickle, too many from one address, messages over the
+page limit, pages that never read, and a revoked holder's open page."""
+import asyncio
+import json
+import time
+
+import aiohttp
+import pytest
+
+from touch4d.web.access import Access
+from touch4d.web.protocol import MAX_PAGE_MESSAGE
+from touch4d.web.server import PageServer
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@pytest.fixture
+def serve():
+    started = []
+
+    def start(**kwargs):
+        server = PageServer("127.0.0.1", 0, **kwargs)
+        started.append(server)
+        return server, server.start()
+    yield start
+    for server in started:
+        server.stop()
+
+
+async def raw(port: int, request: bytes, wait: float = 5.0) -> bytes:
+    """What the server answers to `request` sent as is, until it closes or `wait` s pass."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(request)
+        await writer.drain()
+        return await asyncio.wait_for(reader.read(1 << 16), wait)
+    except ConnectionResetError:
+        return b""
+    finally:
+        writer.close()
+
+
+def get(port: int, path: str = "/", host: str | None = None, headers: dict | None = None) -> bytes:
+    lines = [f"GET {path} HTTP/1.1", f"Host: {f'127.0.0.1:{port}' if host is None else host}", "Connection: close",
+             *(f"{k}: {v}" for k, v in (headers or {}).items())]
+    return asyncio.run(raw(port, ("\r\n".join(lines) + "\r\n\r\n").encode()))
+
+
+def status_of(answer: bytes) -> int:
+    return int(answer.split(b" ", 2)[1])
+
+
+def headers_of(answer: bytes) -> dict:
+    head = answer.split(b"\r\n\r\n", 1)[0].decode().split("\r\n")[1:]
+    return {k.lower(): v.strip() for k, v in (line.split(":", 1) for line in head)}
+
+
+def test_a_host_name_it_does_not_serve_gets_nothing_page_or_socket(serve):
+    """DNS rebinding: another site's name pointed at this address, with a matching Origin."""
+    server, port = serve(names=["touch4d.example.org"])
+    assert status_of(get(port)) == 200
+    assert status_of(get(port, host=f"localhost:{port}")) == 200
+    assert status_of(get(port, host=f"touch4d.example.org:{port}")) == 200          # the configured name
+    assert status_of(get(port, host=f"attacker.example:{port}")) == 421
+    assert status_of(get(port, host="")) in (400, 421)
+    upgrade = {"Upgrade": "websocket", "Connection": "Upgrade", "Sec-WebSocket-Version": "13",
+               "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==", "Origin": f"http://attacker.example:{port}"}
+    lines = [f"GET /ws HTTP/1.1", f"Host: attacker.example:{port}", *(f"{k}: {v}" for k, v in upgrade.items())]
+    answer = asyncio.run(raw(port, ("\r\n".join(lines) + "\r\n\r\n").encode(), wait=5))
+    assert status_of(answer) == 421 and not server.clients
+    assert server.refused_host == 3
+
+
+def test_every_answer_carries_the_security_headers_and_no_banner(serve):
+    _, port = serve()
+    for path, method, expected in (("/", "GET", 200), ("/nothing", "GET", 404), ("/", "POST", 405),
+                                   ("/static/main.js", "GET", 200), ("/static/none.js", "GET", 404)):
+        answer = asyncio.run(raw(port, f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                                       "Connection: close\r\nContent-Length: 0\r\n\r\n".encode()))
+        headers = headers_of(answer)
+        assert status_of(answer) == expected, (path, method)
+        assert "server" not in headers, (path, method, headers.get("server"))
+        csp = headers["content-security-policy"]
+        assert "connect-src 'self';" in csp and "ws:" not in csp and "frame-ancestors 'none'" in csp
+        assert headers["x-content-type-options"] == "nosniff" and headers["referrer-policy"] == "no-referrer"
+        assert headers["cache-control"] == "no-store"
+
+
+def test_a_connection_that_sends_nothing_or_trickles_is_closed(serve):
+    server, port = serve(header_timeout_s=0.5)
+
+    async def probe():
+        t0 = time.monotonic()
+        silent = await raw(port, b"", wait=5)                         # sends nothing at all
+        silent_s = time.monotonic() - t0
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        t0 = time.monotonic()
+        closed_after = None
+        for k in range(40):                                           # a header line every 0.1 s
+            try:
+                writer.write(f"X-Slow-{k}: y\r\n".encode() if k else b"GET / HTTP/1.1\r\n")
+                await writer.drain()
+                if await asyncio.wait_for(reader.read(100), 0.1) == b"":
+                    closed_after = time.monotonic() - t0
+                    break
+            except asyncio.TimeoutError:
+                continue
+            except ConnectionError:
+                closed_after = time.monotonic() - t0
+                break
+        writer.close()
+        return silent, silent_s, closed_after
+
+    silent, silent_s, trickle_s = asyncio.run(probe())
+    assert silent == b"" and 0.4 < silent_s < 3
+    assert trickle_s is not None and trickle_s < 3
+    assert server.header_timeouts == 2
+    assert status_of(get(port)) == 200                                # a real request is served as before
+
+
+def test_connections_from_one_address_are_capped(serve):
+    server, port = serve(max_per_address=4, limit_loopback=True)
+
+    async def probe():
+        held = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]
+        over = await raw(port, f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode(), wait=5)
+        for _, writer in held:
+            writer.close()
+        await asyncio.sleep(0.3)
+        return over
+
+    assert asyncio.run(probe()) == b""                                # closed at once, nothing answered
+    assert server.over_address == 1
+    assert status_of(get(port)) == 200                                # freed again
+
+
+def test_a_message_over_the_page_limit_ends_the_connection_at_once(serve):
+    received = []
+    server, port = serve(on_message=lambda conn, data, arrival: received.append(data))
+
+    async def page():
+        async with aiohttp.ClientSession() as session, session.ws_connect(f"http://127.0.0.1:{port}/ws") as ws:
+            await ws.send_str('{"type": "stats", "fps": 60}')
+            await ws.send_str("x" * (MAX_PAGE_MESSAGE + 1))
+            msg = await ws.receive(timeout=5)
+            return msg.type, ws.close_code
+
+    kind, code = asyncio.run(page())
+    deadline = time.monotonic() + 5
+    while len(received) < 2 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert kind in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED) and code == 1009
+    assert received[0] == '{"type": "stats", "fps": 60}' and isinstance(received[-1], Exception)
+    assert len(received) == 2
+
+
+def test_a_page_that_does_not_read_is_closed_and_counted(serve):
+    server, port = serve(send_timeout_s=1.0, max_queued=8)
+    connected = []
+    server.on_connect = connected.append
+
+    async def page():
+        async with aiohttp.ClientSession() as session:
+            ws = await session.ws_connect(f"http://127.0.0.1:{port}/ws", autoping=False)
+            try:
+                for _ in range(100):
+                    if connected:
+                        break
+                    await asyncio.sleep(0.02)
+                big = b"g" * (1 << 20)
+                for _ in range(64):                                   # geometry frames it never reads
+                    server.send(connected[0], big)
+                    await asyncio.sleep(0.02)
+                for _ in range(300):
+                    if not server.clients:
+                        return True
+                    await asyncio.sleep(0.02)
+                return False
+            finally:
+                await ws.close()
+
+    assert asyncio.run(page())
+    assert server.send_overflow == 1
+
+
+def test_a_revoked_holder_loses_its_open_page_and_the_others_keep_theirs(serve):
+    access = Access()
+    tokens = {name: access.issue(name) for name in ("P01", "P02")}
+    server, port = serve(access=access, secure_cookie=False)
+
+    async def pages():
+        async with aiohttp.ClientSession() as session:
+            socks = {name: await session.ws_connect(f"http://127.0.0.1:{port}/ws?token={token}")
+                     for name, token in tokens.items()}
+            await asyncio.sleep(0.2)
+            holders = sorted(server.holder(conn) for conn in server.clients)
+            access.revoke("P01")
+            msg = await socks["P01"].receive(timeout=5)
+            await asyncio.sleep(0.2)
+            alive = {name: not ws.closed for name, ws in socks.items()}
+            for ws in socks.values():
+                await ws.close()
+            return holders, msg.type, alive
+
+    holders, kind, alive = asyncio.run(pages())
+    assert holders == ["P01", "P02"]
+    assert kind in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+    assert alive == {"P01": False, "P02": True}
