@@ -141,3 +141,36 @@ def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tm
         # the study node runs P01's session (its namespace's study/trial reaches the experimenter's page)
         wait_until(lambda: [p for p in experimenter_view(served)["participants"]
                             if p["participant"] == "P01" and p["of"]], timeout=60)
+
+
+def _processes_with(text: str) -> list[int]:
+    """The processes whose command line holds `text` (this test's folder: its server's stacks)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text in (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
+                    found.append(int(entry.name))
+            except OSError:
+                pass
+    return found
+
+
+def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_resumes(tmp_path, capsys):
+    with serve(tmp_path) as served:
+        link = invite(served, "P01", capsys=capsys)
+        page = Browser()
+        page.get(link)
+        assert page.get(f"{served.url}/join", data=b"")[0] == 200
+        assert _processes_with(f"{served.out}/P01")                    # its nodes run
+        served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
+        served.proc.wait()
+        wait_until(lambda: not _processes_with(f"{served.out}/P01"), timeout=30)
+    with serve(tmp_path) as again:
+        page = Browser()
+        status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
+        assert status == 200 and "id=join" in text
+        assert page.get(f"{again.url}/join", data=b"")[0] == 200
+        # the study node started a second time on the same session (it resumes at the first trial without a row)
+        wait_until(lambda: len(json.loads((again.out / "P01" / "manifest.json").read_text())["starts"]) >= 2,
+                   timeout=60)

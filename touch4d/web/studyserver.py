@@ -97,7 +97,9 @@ class StudyServer:
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
-        self.secure = (host not in ("127.0.0.1", "localhost", "::1")) if secure is None else secure
+        # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
+        # this server speaks plain http, on loopback or behind that proxy.
+        self.secure = (public_url or "").startswith("https://") if secure is None else secure
         self.out.mkdir(parents=True, exist_ok=True)
         self.invites = Invites(self.out)
         self.access = Access()
@@ -116,8 +118,7 @@ class StudyServer:
     def base_url(self) -> str:
         if self.public_url:
             return self.public_url.rstrip("/")
-        scheme = "https" if self.secure else "http"
-        return f"{scheme}://{self.host}:{self.port}"
+        return f"http://{self.host}:{self.port}"
 
     def _load_invites(self) -> None:
         """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs)."""
