@@ -1,7 +1,7 @@
 """A served study in a real browser (Debian's chromium, Quest 3s emulated by iwer): participants
 join by their link, touch with the controller in a touch trial (its pulses recorded by wrapping the
 actuator's `pulse`, here only), leave and come back to resume, two at once each in their own
-namespace and folder."""
+namespace and folder; a third is told the study is full (503), a forged or mismatched link refused."""
 from __future__ import annotations
 
 import pytest
@@ -9,7 +9,7 @@ import pytest
 from touch4d.bus.testing import wait_until
 from touch4d.study.design import load_study
 from touch4d.study.plan import quick_plan
-from touch4d.web.testing import chromium, enter_vr, headset_page, wait_connected
+from touch4d.web.testing import chromium, context_options, enter_vr, headset_page, wait_connected
 
 from test_study_serve import Browser, experimenter_view, invite, serve   # noqa: F401 - the server fixture's helpers
 from test_web_haptics_browser import CENTER, RECORD_PULSES
@@ -77,5 +77,16 @@ def test_join_touch_leave_resume_and_a_second_participant(tmp_path, capsys):
         for participant in ("P03", "P04"):
             assert (served.out / participant / "manifest.json").exists()
             assert f"every topic under {participant}/" in (served.out / participant / "serve.log").read_text()
-        other.context.close()
-        page.context.close()
+        # refused in the browser too: full (HTTP 503, a page that says so), forged, mismatched (403)
+        third = headset_page(browser, invite(served, "P05", capsys=capsys), 320, 180)
+        with third.expect_navigation(timeout=60000) as refused:
+            third.click("#join", no_wait_after=True)
+        assert refused.value.status == 503 and "full" in third.content()
+        for url, text in ((f"{served.url}/?participant=P06&token=AAAAAAAAAAAAAAAAAAAAAA", "needs its link"),
+                          (link.replace("participant=P03", "participant=P04"), "does not match")):
+            refused_page = browser.new_context(**context_options(320, 180)).new_page()
+            response = refused_page.goto(url)
+            assert response.status == 403 and text in refused_page.content()
+            refused_page.context.close()
+        for opened in (other, page, third):
+            opened.context.close()
