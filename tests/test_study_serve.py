@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
@@ -174,3 +173,20 @@ def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_res
         # the study node started a second time on the same session (it resumes at the first trial without a row)
         wait_until(lambda: len(json.loads((again.out / "P01" / "manifest.json").read_text())["starts"]) >= 2,
                    timeout=60)
+
+
+def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experimenter(tmp_path, capsys):
+    with serve(tmp_path) as served:
+        lab = Browser()
+        status, text = lab.get(served.experimenter)
+        assert status == 200 and "0 of 16 running" in text
+        status, text = lab.get(f"{served.url}/experimenter/invite", data=b"participant=P09")
+        link = re.search(r"(http://\S+participant=P09&amp;token=[\w-]+)", text).group(1).replace("&amp;", "&")
+        participant = Browser()
+        assert participant.get(link)[0] == 200
+        assert participant.get(f"{served.url}/experimenter")[0] == 403          # a participant is not the lab
+        assert lab.get(f"{served.url}/experimenter/invite", data=b"participant=experimenter")[0] == 400
+        status, text = lab.get(f"{served.url}/experimenter/revoke", data=b"participant=P09")
+        assert status == 200 and "P09" in text                                 # back on the list
+        assert participant.get(f"{served.url}/")[0] == 403 and Browser().get(link)[0] == 403
+        assert "P09" not in json.loads((served.out / "invites.json").read_text())

@@ -11,7 +11,7 @@ from touch4d.study.design import load_study
 from touch4d.study.plan import quick_plan
 from touch4d.web.testing import chromium, context_options, enter_vr, headset_page, wait_connected
 
-from test_study_serve import Browser, experimenter_view, invite, serve   # noqa: F401 - the server fixture's helpers
+from test_study_serve import experimenter_view, invite, serve
 from test_web_haptics_browser import CENTER, RECORD_PULSES
 
 pytestmark = pytest.mark.timeout(300)

@@ -43,7 +43,7 @@ from touch4d.study.design import Study
 from touch4d.study.session import session_dir, session_overrides
 
 from .access import HOLDER, Access, CookieGate
-from .invites import EXPERIMENTER, Invites
+from .invites import EXPERIMENTER, Invites, check_participant
 
 log = logging.getLogger("study-serve")
 
@@ -51,7 +51,6 @@ LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
-STATES = ("invited", "starting", "running", "paused", "left")
 
 
 def _free_port() -> int:
@@ -73,7 +72,7 @@ class Participant:
     """One participant's stack and what the experimenter page shows of it."""
 
     id: str
-    state: str = "invited"
+    state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
     port: int = 0
     proc: subprocess.Popen | None = None
     ready_file: Path | None = None
@@ -454,7 +453,7 @@ class StudyServer:
         action = request.match_info["action"]
         if action == "invite":
             try:
-                token = self.invites.issue(participant)
+                token = self.invites.issue(check_participant(participant))   # never the experimenter's
             except ValueError as exc:
                 raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
             self._load_invites()
