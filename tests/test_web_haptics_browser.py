@@ -1,7 +1,8 @@
 """The held controller as the glove, in a real browser (Debian's chromium, a Quest 3 emulated by
 iwer) against launch/quest.yaml: the page pulses the glove hand's controller with the node's
 intensity while the hand touches, never in a visual trial, and 0 within 100 ms of being hidden; a
-controller without an actuator is said so on the page and in the node's heartbeat.
+controller without an actuator is said so on the page and in the node's heartbeat; a desktop page
+plays it on a gamepad with `dual-rumble`.
 
 iwer's actuator keeps only its last pulse: the test wraps `pulse` to record every one (here only,
 never in the page)."""
@@ -15,7 +16,7 @@ import pytest
 from touch4d.bus import Node
 from touch4d.bus.testing import collect, free_port, launch_process, wait_until
 from touch4d.messages import Heartbeat, MotorCommand, StudyTrial
-from touch4d.web.testing import chromium, enter_vr, headset_page
+from touch4d.web.testing import chromium, context_options, enter_vr, headset_page
 
 pytestmark = pytest.mark.timeout(150)
 
@@ -175,3 +176,39 @@ def test_a_controller_without_an_actuator_is_said_so_and_nothing_throws(browser,
                             and b.stats.get("haptics_none", 0) >= 1], timeout=10, spin=watcher)
     finally:
         page.context.close()
+
+
+GAMEPAD = """
+window.effects = [];
+const rumble = { playEffect: (type, params) => { effects.push([type, params.strongMagnitude, params.weakMagnitude,
+                                                              params.duration]); return Promise.resolve('complete'); } };
+navigator.getGamepads = () => [{ index: 0, id: 'test pad', connected: true, vibrationActuator: rumble }];
+"""
+
+
+def test_a_desktop_gamepad_rumbles_with_the_scripted_hands_touch(browser):
+    """The demo's scripted hand sweeps over the hypercube; a desktop page (no headset) plays the
+    node's intensity on a gamepad (one made here: this machine has none)."""
+    port = free_port()
+    with launch_process(["launch/demo.yaml", "renderer:=webxr", f"renderer.port:={port}", "motors:=none",
+                         "monitor:=none"]) as run:
+        bus = run.wait_ready(60)
+        run.wait_for_line("WebXR page", timeout=60)
+        watcher = Node("rumble-test", bus=bus, heartbeat=False)
+        beats = collect(watcher, "node/heartbeat", Heartbeat)
+        context = browser.new_context(**context_options(320, 180))
+        context.add_init_script(GAMEPAD)
+        page = context.new_page()
+        try:
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("effects.some(([type, strong]) => type === 'dual-rumble' && strong > 0.05)",
+                                   timeout=60000)
+            effects = page.evaluate("effects")
+            assert all(t == "dual-rumble" and s == w and 0 <= s <= 1 and 10 <= d <= 50 for t, s, w, d in effects)
+            assert page.evaluate("touch4d.haptics.output") == "dual-rumble"
+            assert "no vibration" not in page.inner_text("#status")
+            wait_until(lambda: [b for b in beats if b.node == "renderer" and b.stats.get("haptics_rumble", 0) >= 1],
+                       timeout=15, spin=watcher)
+        finally:
+            context.close()
+            watcher.shutdown()
