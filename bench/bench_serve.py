@@ -11,7 +11,11 @@ costs, not the trials (a trial's cost is a scene load every few seconds). Then t
 relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
 netem). Baseline, in the same run: one participant.
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10]
+`--trials`: the stacks with their study node (the full session), every participant answering each
+trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
+and rows against answers sent (none lost).
+
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials]
 """
 from __future__ import annotations
 
@@ -49,10 +53,11 @@ DELAY_S = 0.025                                      # each way: 50 ms round tri
 # ---- the server and its processes -----------------------------------------------------------------------
 
 
-def start_server(out: Path, participants: int):
+def start_server(out: Path, participants: int, study: bool = False):
+    stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
-                             "--port", "0", "--quick", "--max-participants", str(participants), "--leave-after", "60",
-                             "study:=none", "tracker.study_gate:=open", "recorder:=none"],
+                             "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
+                             "--leave-after", "60", *stack],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     for line in proc.stdout:
@@ -119,6 +124,11 @@ def cpu(pids) -> float:
     return total
 
 
+def count_rows(out: Path) -> int:
+    """Rows in every participant's trials.csv."""
+    return sum(max(0, len(f.read_text().splitlines()) - 1) for f in out.glob("S*/trials.csv"))
+
+
 # ---- the delaying relay ---------------------------------------------------------------------------------
 
 
@@ -161,7 +171,7 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 # ---- a simulated participant ----------------------------------------------------------------------------
 
 
-async def participant(base: str, link: str, seconds: float, latencies: list, lost: list) -> None:
+async def participant(base: str, link: str, seconds: float, latencies: list, lost: list, answered: list) -> None:
     """Join by `link` (through `base`), then play a page: inputs at 72 Hz, the controller in and out."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
@@ -174,7 +184,7 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
                 raise RuntimeError(f"join: HTTP {r.status}")
         ws_url = base.replace("http://", "ws://") + "/ws"
         async with http.ws_connect(ws_url, origin=base, max_msg_size=0) as ws:
-            state = {"want": None, "since": None, "haptic": 0.0}
+            state = {"want": None, "since": None, "haptic": 0.0, "answered": set()}
 
             async def read():
                 async for msg in ws:
@@ -183,6 +193,16 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
                     header = unpack_frame(msg.data)[0]
                     if header.get("kind") != "frame":
                         continue
+                    trial = header.get("study")
+                    key = trial and (trial["phase"], trial["index"], trial.get("message"))
+                    if trial and trial["phase"] in ("break", "stimulus") and key not in state["answered"]:
+                        # answer at once (a break: go on); the study node takes the first answer per trial
+                        state["answered"].add(key)
+                        if trial["phase"] == "stimulus":
+                            answered.append(trial["index"])
+                        option = trial["options"][0] if trial["phase"] == "stimulus" else ""
+                        await ws.send_str(json.dumps({"type": "response", "index": trial["index"], "option": option,
+                                                      "time": time.time() * 1000.0}))
                     haptic = header.get("haptic", 0.0)
                     want, since = state["want"], state["since"]
                     if since is not None and ((want and haptic > 0.05) or (not want and haptic == 0.0)):
@@ -209,10 +229,10 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
             reader.cancel()
 
 
-async def run_round(n: int, seconds: float, delay: float) -> dict:
+async def run_round(n: int, seconds: float, delay: float, study: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
-        proc, base = start_server(out, n)
+        proc, base = start_server(out, n, study)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -221,24 +241,30 @@ async def run_round(n: int, seconds: float, delay: float) -> dict:
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost = [], []
+            latencies, lost, answered = [], [], []
             t_start = time.monotonic()
-            tasks = [asyncio.ensure_future(participant(target, link, seconds, latencies, lost)) for link in links]
+            tasks = [asyncio.ensure_future(participant(target, link, seconds, latencies, lost, answered))
+                     for link in links]
             # CPU over the measured stretch: every process of the server's tree (the stacks included)
             await asyncio.sleep(5.0 + 2.0 * n)           # joins and stacks starting
             pids = descendants(proc.pid)
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
             c0, w0, s0 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            rows0 = count_rows(out)
             memory = sum(pss_mb(p) for p in stacks)
             server_mb = pss_mb(proc.pid)
             await asyncio.gather(*tasks)
             c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            rows1 = count_rows(out)
+            await asyncio.sleep(1.0)                                 # the last answers' rows
+            rows = count_rows(out)
             lat = np.array(latencies) * 1000
             return {"n": n, "delay_ms": 2000 * delay, "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
-                    "lost": len(lost), "wall": time.monotonic() - t_start}
+                    "lost": len(lost), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
         finally:
             if relay_server is not None:
                 relay_server.close()
@@ -250,9 +276,19 @@ def main() -> None:
     parser.add_argument("--participants", type=int, nargs="+", default=[1, 4, 8, 16])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--no-delay-round", action="store_true", help="skip the rounds through the 50 ms relay")
+    parser.add_argument("--trials", action="store_true",
+                        help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")
+    if args.trials:
+        for n in sorted(set([1, *args.participants])):
+            r = asyncio.run(run_round(n, args.seconds, 0.0, study=True))
+            print(f"N={n:>2} with the study node: {r['rows']} trials written, "
+                  f"{r['trials_per_s']:.2f} trials/s ({r['trials_per_s'] / n:.2f} per participant); "
+                  f"{r['answers']} answers sent, {r['rows']} rows (none lost: rows >= answers - {n}, the last "
+                  f"answer of each may still be in flight)", flush=True)
+        return
     rows = []
     for delay in ([0.0] if args.no_delay_round else [0.0, DELAY_S]):
         for n in sorted(set([1, *args.participants])):
