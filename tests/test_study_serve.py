@@ -140,6 +140,12 @@ def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tm
         # the study node runs P01's session (its namespace's study/trial reaches the experimenter's page)
         wait_until(lambda: [p for p in experimenter_view(served)["participants"]
                             if p["participant"] == "P01" and p["of"]], timeout=60)
+        # the experimenter pauses P01's session (its study node says so on P01/study/trial)
+        lab = Browser()
+        assert lab.get(served.experimenter)[0] == 200
+        assert lab.get(f"{served.url}/experimenter/pause", data=b"participant=P01")[0] == 200
+        wait_until(lambda: [p for p in experimenter_view(served)["participants"]
+                            if p["participant"] == "P01" and p["phase"] == "paused"], timeout=60)
 
 
 def _processes_with(text: str) -> list[int]:
