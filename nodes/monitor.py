@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 
 from touch4d import glovefile
-from touch4d.bus import Node, Param
+from touch4d.bus import Node, Param, names
 from touch4d.bus.node import HEARTBEAT_TOPIC
 from touch4d.bus.topology import shared_text
 from touch4d.messages import Heartbeat, MotorCommand, MotorStatus, MotorTrace
@@ -13,7 +13,7 @@ from touch4d.status import StackStatus
 
 
 class Monitor(Node):
-    """Watches the whole bus and prints what a user wants to see while the demo runs."""
+    """Watches its stack (its namespace's topics and nodes) and prints what a user wants to see while the demo runs."""
 
     default_name = "monitor"
     PARAMS = {
@@ -47,7 +47,8 @@ class Monitor(Node):
         self.status.on_motor_status(msg)
 
     def on_heartbeat(self, msg: Heartbeat) -> None:
-        self.status.on_heartbeat(msg, time.time())
+        if names.in_namespace(msg.node, self.namespace):   # one stack's monitor: another's nodes are not its
+            self.status.on_heartbeat(msg, time.time())
 
     def on_timer(self) -> None:
         now = time.time()

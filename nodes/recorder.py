@@ -29,7 +29,7 @@ class RecorderNode(Node):
         topics = self.params["topics"]
         if not all(topics):
             raise self.param_error("topics", "a list of topic names")
-        self.recorder = Recorder(self.bus, path, topics)
+        self.recorder = Recorder(self.bus, path, topics, namespace=self.namespace)
         self.recorder.start()
         self.create_timer(0.25, self.on_timer)   # a full disk is said at once; the other nodes go on
         self.log.info("recording %s to %s", ", ".join(topics) if topics else "all topics", path)

@@ -51,7 +51,7 @@ class ReplayNode(Node):
         for warning in plan.warnings():
             self.log.warning("%s: %s", path, warning)
         sys.setswitchinterval(0.0005)
-        self.sender = BusSender(self.bus)
+        self.sender = BusSender(self.bus, namespace=self.namespace)
         self.add_cleanup(self.sender.close)
         self.replayer = Replayer(reader, plan, options, self.sender)
         self.thread = threading.Thread(target=self._run, name="replay", daemon=True)

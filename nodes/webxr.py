@@ -130,7 +130,8 @@ class WebXRNode(Node):
                 from None
         self.add_cleanup(self.server.stop)
         self.add_stats(lambda: {**self.bridge.counts, **self.server.counts(),
-                                "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1)})
+                                "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1),
+                                **self.bridge.haptic_outputs()})
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]

@@ -79,13 +79,22 @@ class Grid(msgspec.Struct, forbid_unknown_fields=True):
         return tuple(self.n) if isinstance(self.n, tuple) else (self.n, self.n, self.n)
 
 
+class Covers(msgspec.Struct, forbid_unknown_fields=True):
+    """The samples one actuator feels: every sample within `radius` metres of it, weighted equally
+    (a held controller's one actuator stands for the whole hand around it; touch4d.tactile.glove)."""
+
+    radius: Positive
+
+
 class Motor(msgspec.Struct, forbid_unknown_fields=True):
-    """One motor: its name, where it sits on the hand (metres) and the board channel that drives it."""
+    """One motor: its name, where it sits on the hand (metres) and the board channel that drives it;
+    `covers`: the samples it feels (default: its nearest sample only, a glove's coin motor)."""
 
     name: Annotated[str, msgspec.Meta(min_length=1)]
     position: Point3
     board: int
     channel: int
+    covers: Covers | None = None
 
 
 BoneFraction = Annotated[float, msgspec.Meta(gt=0, lt=1, description="a fraction of the finger, 0..1")]

@@ -24,6 +24,7 @@ def register(subparsers) -> None:
     p.add_argument("--bus", help=BUS_HELP)
     p.add_argument("--no-broker", action="store_true", help="use a broker that already runs (e.g. on another machine)")
     p.add_argument("--ready-file", help="write the bus endpoints (JSON) here once every node is started")
+    p.add_argument("--namespace", metavar="NS", help="every topic of this launch under NS/ (replaces the file's ns)")
     p.set_defaults(func=_launch)
 
     topic = _group(subparsers, "topic", "inspect topics")
@@ -51,6 +52,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=_topic_pub)
     for parser in topic.choices.values():
         parser.add_argument("--bus", help=BUS_HELP)
+        parser.add_argument("--namespace", "--ns", default="", metavar="NS",
+                            help="the topics of the stack launched with --namespace NS (TOPIC means NS/TOPIC)")
 
     node = _group(subparsers, "node", "inspect or run nodes")
     p = node.add_parser("list", help="the nodes that can be launched and where each comes from (--live: the "
@@ -58,13 +61,14 @@ def register(subparsers) -> None:
     p.add_argument("--live", action="store_true", help="list the nodes running on the bus instead")
     p.add_argument("--duration", type=float, default=2.5, help="with --live: listen for S seconds (default 2.5)")
     p.add_argument("--bus", help="with --live: " + BUS_HELP)
+    p.add_argument("--namespace", "--ns", default=None, metavar="NS", help="with --live: only the nodes of NS")
     p.set_defaults(func=_node_list)
     p = node.add_parser("info", help="a node's parameters: type, default, what is valid")
     p.add_argument("node", help="a node name (see `touch4d node list`) or a module path")
     p.set_defaults(func=_node_info)
     p = node.add_parser("run", help="run one node in this process: NODE [--name N] [--params JSON]")
     p.add_argument("module", metavar="node", help="a node name (see `touch4d node list`) or a module path")
-    p.add_argument("args", nargs=argparse.REMAINDER, help="--name N --params JSON --bus FILE --log-level L")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="--name N --params JSON --bus FILE --namespace NS --log-level L")
     p.set_defaults(func=_node_run)
 
     bus = _group(subparsers, "bus", "the broker and its keys")
@@ -117,7 +121,7 @@ def _launch(args) -> int:
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
-    nodes = load_launch(path, overrides)
+    nodes = load_launch(path, overrides, namespace=args.namespace)
     check_launch(nodes)   # every file found and every port free before any node starts
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
@@ -127,28 +131,30 @@ def _launch(args) -> int:
 def _topic_list(args) -> int:
     from touch4d.bus.introspect import topic_list
 
-    topic_list(resolve_bus_config(args.bus), args.duration)
+    topic_list(resolve_bus_config(args.bus), args.duration, namespace=args.namespace)
     return 0
 
 
 def _topic_echo(args) -> int:
     from touch4d.bus.introspect import topic_echo
 
-    topic_echo(args.topic, resolve_bus_config(args.bus), args.count, args.duration, args.type, args.full)
+    topic_echo(args.topic, resolve_bus_config(args.bus), args.count, args.duration, args.type, args.full,
+               namespace=args.namespace)
     return 0
 
 
 def _topic_hz(args) -> int:
     from touch4d.bus.introspect import topic_hz
 
-    topic_hz(args.topic, resolve_bus_config(args.bus), args.duration, args.window)
+    topic_hz(args.topic, resolve_bus_config(args.bus), args.duration, args.window, namespace=args.namespace)
     return 0
 
 
 def _topic_pub(args) -> int:
     from touch4d.bus.introspect import topic_pub
 
-    topic_pub(args.topic, args.yaml, resolve_bus_config(args.bus), args.type, args.rate, args.count)
+    topic_pub(args.topic, args.yaml, resolve_bus_config(args.bus), args.type, args.rate, args.count,
+              namespace=args.namespace)
     return 0
 
 
@@ -156,7 +162,7 @@ def _node_list(args) -> int:
     if args.live:
         from touch4d.bus.introspect import node_list
 
-        node_list(resolve_bus_config(args.bus), args.duration)
+        node_list(resolve_bus_config(args.bus), args.duration, namespace=args.namespace)
         return 0
     from touch4d.bus.registry import aliases, available, shadowed
 

@@ -14,7 +14,7 @@ import yaml
 import zmq
 
 from touch4d import schema
-from touch4d.bus import transport
+from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig, BusUnreachable, resolve_bus_config
 from touch4d.bus.node import HEARTBEAT_TOPIC, Node
 from touch4d.bus.params import suggest
@@ -26,7 +26,7 @@ CONNECT_TIMEOUT = 3.0  # seconds a tool waits for the broker before saying none 
 SILENCE_NOTICE = 1.5   # seconds of silence on a topic after which echo/hz say whether anyone publishes it
 
 
-def _tool(bus: BusConfig | None, what: str) -> Node:
+def _tool(bus: BusConfig | None, what: str, namespace: str = "") -> Node:
     """A short-lived node on the bus; BusUnreachable (the one error, no warning before it) when no
     broker answers within CONNECT_TIMEOUT."""
     bus = bus if bus is not None else resolve_bus_config()
@@ -38,7 +38,14 @@ def _tool(bus: BusConfig | None, what: str) -> Node:
                                  "is `touch4d launch` running?")
     finally:
         probe.close(linger=0)
-    return Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=CONNECT_TIMEOUT)
+    return Node(f"_{what}", bus=bus, heartbeat=False, kind="introspect", connect_timeout=CONNECT_TIMEOUT,
+                namespace=namespace)
+
+
+def _published(node: Node, hb: Heartbeat) -> list[str]:
+    """What a heartbeat's node publishes, as `node` names the topics (those it can hear)."""
+    ns = names.namespace_of(hb.node)
+    return [t for t in (names.rebase(topic, ns, node.namespace) for topic in hb.publishes) if t is not None]
 
 
 def _spin(node: Node, duration: float | None, done=lambda: False, each=lambda: None) -> None:
@@ -62,6 +69,7 @@ class PublisherWatch:
         self.declared: dict[str, set[str]] = defaultdict(set)  # topic -> nodes that publish it
         self.start = time.monotonic()
         self.done = False
+        self.node = node
         node.create_raw_subscription("", self._on_any)
 
     def _on_any(self, topic: str, payload: bytes) -> None:
@@ -71,7 +79,7 @@ class PublisherWatch:
                 hb = decode(payload, Heartbeat)
             except MessageError:
                 return
-            for name in hb.publishes:
+            for name in _published(self.node, hb):
                 self.declared[name].add(hb.node)
 
     def check(self) -> None:
@@ -111,11 +119,12 @@ def message_type(topic: str, type_name: str | None = None) -> type[Message] | No
     return TOPIC_TYPES.get(topic)
 
 
-def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None) -> dict[str, dict]:
-    """Listen to everything for `duration` s; print each topic with its type, rate and publishers."""
+def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None, namespace: str = "") -> dict[str, dict]:
+    """Listen to everything for `duration` s; print each topic with its type, rate and publishers
+    (in `namespace`: its topics, named relative to it, and the global ones)."""
     out = out or sys.stdout
     seen: dict[str, dict] = defaultdict(lambda: {"count": 0, "type": "?", "publishers": set()})
-    node = _tool(bus, "topic_list")
+    node = _tool(bus, "topic_list", namespace)
 
     def on_any(topic: str, payload: bytes) -> None:
         entry = seen[topic]
@@ -127,7 +136,7 @@ def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None) ->
                 return
             entry["type"] = msg.TYPE
             if isinstance(msg, Heartbeat):
-                for name in msg.publishes:
+                for name in _published(node, msg):
                     seen[name]["publishers"].add(msg.node)
                 entry["publishers"].add(msg.node)
 
@@ -149,7 +158,7 @@ def topic_list(bus: BusConfig | None = None, duration: float = 2.0, out=None) ->
 
 
 def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = None, duration: float | None = None,
-               type_name: str | None = None, full: bool = False, out=None, err=None) -> int:
+               type_name: str | None = None, full: bool = False, out=None, err=None, namespace: str = "") -> int:
     """Print each message on `topic` as YAML; returns how many were printed. When nothing comes,
     says on `err` (stderr) whether anyone publishes the topic, and which topics are live."""
     out = out or sys.stdout
@@ -172,7 +181,7 @@ def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = Non
         except MessageError as exc:
             print(f"# malformed message on {topic}: {exc}", file=out)
 
-    node = _tool(bus, "topic_echo")
+    node = _tool(bus, "topic_echo", namespace)
     try:
         watch = PublisherWatch(node, topic, err)
         if cls is None:
@@ -189,11 +198,11 @@ def topic_echo(topic: str, bus: BusConfig | None = None, count: int | None = Non
 
 
 def topic_hz(topic: str, bus: BusConfig | None = None, duration: float | None = None, window: float = 1.0,
-             out=None, err=None) -> float | None:
+             out=None, err=None, namespace: str = "") -> float | None:
     """Print the rate of `topic` every `window` s; returns the overall mean rate (None if silent)."""
     out = out or sys.stdout
     arrivals: list[float] = []
-    node = _tool(bus, "topic_hz")
+    node = _tool(bus, "topic_hz", namespace)
     watch = PublisherWatch(node, topic, err)
     node.create_raw_subscription(topic, lambda name, _: arrivals.append(time.monotonic()) if name == topic else None)
     shown = 0
@@ -245,11 +254,11 @@ def build_message(topic: str, text: str, type_name: str | None = None) -> Messag
 
 
 def topic_pub(topic: str, text: str, bus: BusConfig | None = None, type_name: str | None = None,
-              rate: float | None = None, count: int | None = None, out=None) -> int:
+              rate: float | None = None, count: int | None = None, out=None, namespace: str = "") -> int:
     """Publish a message built from YAML once, or at `rate` Hz (`count` times, or until Ctrl+C)."""
     out = out or sys.stdout
     template = build_message(topic, text, type_name)
-    node = _tool(bus, "topic_pub")
+    node = _tool(bus, "topic_pub", namespace)
     pub = node.create_publisher(topic, type(template))
     sent = 0
     total = count if count is not None else (None if rate else 1)
@@ -270,16 +279,20 @@ def topic_pub(topic: str, text: str, bus: BusConfig | None = None, type_name: st
             _spin(node, None, lambda: total is not None and sent >= total)
     finally:
         node.shutdown()
-    print(f"published {sent} {type(template).TYPE} message(s) on {topic}", file=out)
+    print(f"published {sent} {type(template).TYPE} message(s) on {node.resolve_topic(topic)}", file=out)
     return sent
 
 
-def node_list(bus: BusConfig | None = None, duration: float = 2.5, out=None) -> dict[str, Heartbeat]:
-    """Collect heartbeats for `duration` s; print each live node."""
+def node_list(bus: BusConfig | None = None, duration: float = 2.5, out=None,
+              namespace: str | None = None) -> dict[str, Heartbeat]:
+    """Collect heartbeats for `duration` s; print each live node (only those of `namespace`, if given;
+    a node in a namespace is named NS/ROLE)."""
     out = out or sys.stdout
     beats: dict[str, Heartbeat] = {}
     node = _tool(bus, "node_list")
-    node.create_subscription(HEARTBEAT_TOPIC, Heartbeat, lambda hb: beats.__setitem__(hb.node, hb))
+    keep = (lambda name: True) if namespace is None else (lambda name: names.in_namespace(name, namespace.strip("/")))
+    node.create_subscription(HEARTBEAT_TOPIC, Heartbeat,
+                             lambda hb: beats.__setitem__(hb.node, hb) if keep(hb.node) else None)
     try:
         _spin(node, duration)
     finally:

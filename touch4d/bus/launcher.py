@@ -26,7 +26,7 @@ from pathlib import Path
 
 import zmq
 
-from touch4d.bus import transport
+from touch4d.bus import names, transport
 from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec
@@ -70,6 +70,7 @@ class Launcher:
         self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
         self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
+        self.namespace = next((spec.namespace for spec in nodes.values()), "")   # one per launch
         width = max([len(r) for r in nodes] + [6])
         color = self.out is sys.stdout.buffer and sys.stdout.isatty()
         self._prefix = {}
@@ -138,6 +139,8 @@ class Launcher:
                "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
         if spec.realtime:
             cmd.append("--realtime")
+        if spec.namespace:
+            cmd += ["--namespace", spec.namespace]
         ready_r, ready_w = os.pipe()
         try:
             child.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -232,7 +235,8 @@ class Launcher:
         self._selector.register(wake_r, selectors.EVENT_READ, None)
         try:
             if self.files[0]:
-                self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}")
+                self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}"
+                         + (f"; every topic under {self.namespace}/" if self.namespace else ""))
             if broker:
                 self.say(f"broker: publishers connect to {endpoints.pub_endpoint}, subscribers to "
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
@@ -328,7 +332,8 @@ class Launcher:
                 beat = decode(frames[-1], Heartbeat)
             except MessageError:
                 continue
-            self._beats[beat.node] = (now, beat)
+            if names.in_namespace(beat.node, self.namespace):   # another stack's nodes are not ours to judge
+                self._beats[beat.node] = (now, beat)
         live = [beat for heard, beat in self._beats.values() if now - heard <= BEAT_TIMEOUT]
         for topic, nodes in shared_inputs(live).items():
             if (topic, tuple(nodes)) not in self._warned_shared:

@@ -2,6 +2,7 @@
 
 ```yaml
 include: [base.yaml]          # merged first (found by touch4d.configfile.resolve_path); may nest
+ns: P07                       # every topic of this launch under P07/ (touch4d.bus.names); optional
 nodes:
   tracker:                    # the role (node name)
     node: scripted_tracker    # a built-in node, an installed one (entry point), or mylab.nodes.x
@@ -15,7 +16,8 @@ nodes:
 Overrides on the command line: `ROLE:=NODE` swaps a node, `+ROLE:=NODE` adds one, `ROLE:=none`
 removes one, `ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML). A swap to another node drops
 the role's `params` (they belong to the node it replaces: `rate` is Hz for a tracker but a speed
-factor for replay) and takes that node's `params_for` entry instead.
+factor for replay) and takes that node's `params_for` entry instead. `ns` is the launched file's (an
+included file's is not used); `touch4d launch FILE --namespace NS` replaces it.
 
 Everything is checked before any process starts: every role an override names exists, every node
 exists, and every parameter is one the node declares (`PARAMS`), with a valid value.
@@ -29,7 +31,7 @@ from typing import Annotated, Any
 import msgspec
 
 from touch4d import schema
-from touch4d.bus import registry
+from touch4d.bus import names, registry
 from touch4d.bus.params import check_params, suggest
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
@@ -50,6 +52,7 @@ class LaunchFile(msgspec.Struct, forbid_unknown_fields=True):
     """A launch file, as written (see the module doc)."""
 
     include: str | list[str] = []
+    ns: str = ""
     nodes: dict[str, NodeEntry] = {}
 
 
@@ -64,20 +67,28 @@ class NodeSpec:
     respawn: bool = False
     respawn_delay: float = 0.5
     realtime: bool = False
+    namespace: str = ""         # every topic of the node under NAMESPACE/ (touch4d.bus.names)
     source: str = COMMAND_LINE  # the file that last set this node's module or parameters
     # parameter -> (where it was set, its key there): a file and nodes.ROLE.params.NAME, or the override
     param_sources: dict = field(default_factory=dict)
 
 
-def load_launch(path: str | Path, overrides: list[str] = ()) -> dict[str, NodeSpec]:
+def load_launch(path: str | Path, overrides: list[str] = (), namespace: str | None = None) -> dict[str, NodeSpec]:
     """Read a launch file with its includes, apply command-line overrides and check the result:
     every node exists and gets only parameters it declares, with valid values. `path` and the
     includes are found by `resolve_path` (an include relative to its including file after the
-    current directory)."""
+    current directory). `namespace` (`--namespace`) replaces the file's `ns`."""
     nodes: dict[str, NodeSpec] = {}
     path = resolve_path(path, COMMAND_LINE, key="launch file", what="launch file")
-    _merge_file(path, nodes, stack=())
+    ns = _merge_file(path, nodes, stack=())
+    source, key = (path, "ns") if namespace is None else (COMMAND_LINE, "--namespace")
+    try:
+        ns = names.check_namespace(ns if namespace is None else namespace)
+    except ValueError as exc:
+        raise ConfigError(source, key, names.EXPECTED, got=ns if namespace is None else namespace) from None
     apply_overrides(nodes, overrides, launch_file=str(path))
+    for spec in nodes.values():
+        spec.namespace = ns
     for role, spec in nodes.items():
         if spec.module is None:
             raise ConfigError(spec.source, f"nodes.{role}.node", "a node (the role is not defined by any included file)")
@@ -102,7 +113,8 @@ def _check_params(node_class, spec: NodeSpec, params: dict, owner: str) -> None:
     check_params(node_class.PARAMS, params, error, owner)
 
 
-def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...]) -> None:
+def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...]) -> str:
+    """Merge a launch file (its includes first) into `nodes`; returns its `ns`."""
     path = path.resolve()
     if path in stack:
         raise ConfigError(stack[-1], "include", "no include cycle", got=str(path))
@@ -119,6 +131,7 @@ def _merge_file(path: Path, nodes: dict[str, NodeSpec], stack: tuple[Path, ...])
         _merge_file(resolve_path(inc, path, key=f"include[{i}]", what="launch file"), nodes, (*stack, path))
     for role, entry in spec.nodes.items():
         _merge_node(path, role, entry, nodes)
+    return spec.ns
 
 
 def _merge_node(path: Path, role: str, entry: NodeEntry, nodes: dict[str, NodeSpec]) -> None:

@@ -23,7 +23,7 @@ from typing import Any, Callable, ClassVar
 
 import zmq
 
-from touch4d.bus import transport
+from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig, resolve_bus_config
 from touch4d.bus.executor import Executor, Timer
 from touch4d.bus.params import Param, check_params
@@ -141,10 +141,16 @@ class Node:
         connect_timeout: float = 5.0,
         context: zmq.Context | None = None,
         start: bool = True,
+        namespace: str | None = None,
     ):
         """Check the parameters and make the sockets; then `start()` unless `start=False` (set
-        attributes a test needs, e.g. a device to use, between the two)."""
+        attributes a test needs, e.g. a device to use, between the two). `namespace`: every topic
+        this node names lies under `NAMESPACE/` (touch4d.bus.names; '' or None: none)."""
         self.name = role or name or self.default_name
+        try:
+            self.namespace = names.check_namespace(namespace)
+        except ValueError as exc:
+            raise ConfigError(f"node '{self.name}'", "namespace", str(exc).split(", got")[0], got=namespace) from None
         self.kind = kind or type(self).__module__.rsplit(".", 1)[-1]
         self._params_source = params_source
         given = dict(params or {})
@@ -277,16 +283,20 @@ class Node:
 
     # ---- topics and timers -------------------------------------------------------------------
 
+    def resolve_topic(self, name: str) -> str:
+        """The bus topic this node means by `name`: under its namespace, unless global (touch4d.bus.names)."""
+        return names.resolve(name, self.namespace)
+
     def create_publisher(self, topic: str, msg_type: type[Message]) -> Publisher:
         _check_topic(topic)
         self._publishes.add(topic)
-        return Publisher(self, topic, msg_type)
+        return Publisher(self, self.resolve_topic(topic), msg_type)
 
     def create_raw_publisher(self, topic: str) -> RawPublisher:
         """A publisher of encoded payloads, sent unchanged (no header filled, no check)."""
         _check_topic(topic)
         self._publishes.add(topic)
-        return RawPublisher(self, topic)
+        return RawPublisher(self, self.resolve_topic(topic))
 
     def create_subscription(
         self, topic: str, msg_type: type[Message], callback: Callable[[Message], Any], latest_only: bool = False,
@@ -297,21 +307,28 @@ class Node:
         `optional`: the node does not expect a publisher (commands, stops; see the monitor)."""
         _check_topic(topic)
         sub = Subscription(topic, msg_type, callback, latest_only, optional=optional)
-        key = topic.encode()
-        self._subs.setdefault(key, []).append(sub)
-        if latest_only:
-            self._latest_only_topics.add(key)
-        self._state(key)
-        self._subscribe(key)
+        keys = [self.resolve_topic(topic)]
+        if self.namespace and topic in names.BROADCAST_TOPICS:
+            keys.append(topic)      # the broadcast stop: this namespace's and everyone's
+        for key in (k.encode() for k in keys):
+            self._subs.setdefault(key, []).append(sub)
+            if latest_only:
+                self._latest_only_topics.add(key)
+            self._state(key)
+            self._subscribe(key)
         return sub
 
     def create_raw_subscription(self, prefix: str, callback: Callable[[str, bytes], Any]) -> Subscription:
         """Call `callback(topic, payload_bytes)` for every message whose topic starts with `prefix`
-        ("" = all), undecoded (for recorders and introspection)."""
+        ("" = all), undecoded (for recorders and introspection). In a namespace: the topics under it,
+        named relative to it, and with "" the global ones too (heartbeats, the broadcast stop)."""
         sub = Subscription(prefix, None, callback, raw=True)
-        key = prefix.encode()
-        self._raw_subs.append((key, sub))
-        self._subscribe(key)
+        keys = [self.resolve_topic(prefix) if prefix else (f"{self.namespace}/" if self.namespace else "")]
+        if self.namespace and not prefix:
+            keys += sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)
+        for key in (k.encode() for k in keys):
+            self._raw_subs.append((key, sub))
+            self._subscribe(key)
         return sub
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
@@ -500,7 +517,10 @@ class Node:
             if self._raw_subs and len(frames) == 2:
                 for prefix, sub in self._raw_subs:
                     if sub.active and topic.startswith(prefix):
-                        self._call(sub.callback, (topic.decode(errors="replace"), frames[1]), sub.topic)
+                        name = topic.decode(errors="replace")
+                        if self.namespace:
+                            name = names.relative(name, self.namespace) or name
+                        self._call(sub.callback, (name, frames[1]), sub.topic)
                         handled += 1
         return handled
 
@@ -584,14 +604,25 @@ class Node:
 
     def _send_heartbeat(self) -> None:
         self._heartbeat_pub.publish(Heartbeat(
-            node=self.name,
+            node=names.node_name(self.name, self.namespace),
             pid=self.pid,
             kind=self.kind,
             publishes=sorted(t for t in self._publishes if t != HEARTBEAT_TOPIC),
-            subscribes=sorted({k.decode() + ("?" if all(s.optional for s in subs) else "") for k, subs in self._subs.items()}
-                              | {k.decode() + "*" for k, _ in self._raw_subs}),
+            # topics as the node names them (relative to its namespace, which its name carries)
+            subscribes=sorted({self._relative(k) + ("?" if all(s.optional for s in subs) else "")
+                               for k, subs in self._subs.items()}
+                              | {self._relative(k) + "*" for k, _ in self._raw_subs}),
             stats=self.stats_flat(),
         ))
+
+
+    def _relative(self, key: bytes) -> str:
+        name = key.decode()
+        if not self.namespace:
+            return name
+        if name == f"{self.namespace}/":
+            return ""
+        return names.relative(name, self.namespace) or name
 
 
 def _check_topic(topic: str) -> None:

@@ -36,6 +36,7 @@ def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> 
     parser.add_argument("--params", default="{}", help="parameters as a JSON object")
     parser.add_argument("--params-source", help="where the parameters came from (for error messages)")
     parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+    parser.add_argument("--namespace", default="", metavar="NS", help="put every topic of the node under NS/")
     parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
     parser.add_argument("--realtime", action="store_true",
                         help="run with real-time (SCHED_FIFO) priority when permitted (root or CAP_SYS_NICE)")
@@ -89,7 +90,8 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
         else:
             logging.getLogger(args.name or "node").warning(
                 "real-time priority not permitted (needs root or CAP_SYS_NICE): running at normal priority")
-    kwargs = {"params": params, "bus": None, "kind": args.kind, "params_source": args.params_source}
+    kwargs = {"params": params, "bus": None, "kind": args.kind, "params_source": args.params_source,
+              "namespace": args.namespace}
     if args.name:
         kwargs["role"] = args.name
     # Handlers go in before the node is built: a stop that arrives while it starts is kept for later.

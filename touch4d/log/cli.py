@@ -20,6 +20,8 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="the .mcap file to write")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--bus", metavar="FILE", help="bus config file (default: $TOUCH4D_BUS or config/bus.yaml)")
+    p.add_argument("--namespace", "--ns", default="", metavar="NS",
+                   help="record the stack launched with --namespace NS (topics written relative to NS)")
     p.add_argument("--no-realtime", dest="realtime", action="store_false",
                    help="do not try real-time priority for the receiving thread (it keeps stamps accurate)")
     p.set_defaults(func=cmd_record)
@@ -45,6 +47,7 @@ def register(subparsers) -> None:
                    help="replay an unfinished log (no footer: its recorder was killed) up to where it ends; "
                         "damaged chunks are skipped with a warning in any case")
     p.add_argument("--bus", metavar="FILE", help="bus config file")
+    p.add_argument("--namespace", "--ns", default="", metavar="NS", help="publish every topic under NS/")
     p.add_argument("--no-realtime", dest="realtime", action="store_false",
                    help="do not try real-time priority for the sending thread (it keeps timing exact)")
     p.set_defaults(func=cmd_replay)
@@ -83,6 +86,18 @@ def _stop_on_signals(stop):
             signal.signal(sig, handler)
 
 
+def _namespace(text: str) -> str:
+    """--namespace checked (a ConfigError naming it)."""
+    from touch4d.bus.names import EXPECTED, check_namespace
+    from touch4d.configfile import COMMAND_LINE
+    from touch4d.errors import ConfigError
+
+    try:
+        return check_namespace(text)
+    except ValueError:
+        raise ConfigError(COMMAND_LINE, "--namespace", EXPECTED, got=text) from None
+
+
 def _err(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -104,7 +119,8 @@ def cmd_record(args) -> int:
     if args.duration is not None and not 0 < args.duration < float("inf"):
         raise Touch4dError(f"record: --duration must be a finite number of seconds > 0, got {args.duration}")
     sys.setswitchinterval(0.0005)  # the receiving thread must not wait 5 ms for the GIL
-    recorder = Recorder(resolve_bus_config(args.bus), args.output, args.topics, realtime=args.realtime)
+    recorder = Recorder(resolve_bus_config(args.bus), args.output, args.topics, realtime=args.realtime,
+                        namespace=_namespace(args.namespace))
     done = threading.Event()
     with _stop_on_signals(done.set):
         recorder.start()
@@ -137,7 +153,7 @@ def cmd_replay(args) -> int:
     for warning in plan.warnings():
         _err(f"replay: {warning}")
     sys.setswitchinterval(0.0005)
-    sender = BusSender(resolve_bus_config(args.bus), realtime=args.realtime)
+    sender = BusSender(resolve_bus_config(args.bus), realtime=args.realtime, namespace=_namespace(args.namespace))
     replayer = Replayer(reader, plan, options, sender)
     try:
         with _stop_on_signals(replayer.stop), _progress(plan, options) as progress:

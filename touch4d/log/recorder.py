@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import zmq
 
-from touch4d.bus import transport
+from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig
 from touch4d.bus.realtime import raise_thread_priority
 from touch4d.bus.transport import INTERNAL_PREFIX, bus_context
@@ -78,15 +78,18 @@ class RecordingReport:
 
 
 class Recorder:
-    """Records `topics` (all when empty) from the bus into the MCAP file `path`."""
+    """Records `topics` (all when empty) from the bus into the MCAP file `path`. In `namespace`:
+    its topics (all: everything under NAMESPACE/ and the global ones), written by their names
+    relative to it, so the log replays into any namespace (touch4d.bus.names)."""
 
     def __init__(self, bus: BusConfig, path: str | os.PathLike, topics: list[str] | None = None, *,
                  flush_interval: float = 0.5, context: zmq.Context | None = None,
-                 chunk_size: int = 1 << 20, realtime: bool = True) -> None:
+                 chunk_size: int = 1 << 20, realtime: bool = True, namespace: str = "") -> None:
         self.bus = bus
         self.path = os.fspath(path)
         self.topics = list(dict.fromkeys(topics or []))
-        self._wanted = {t.encode() for t in self.topics}
+        self.namespace = names.check_namespace(namespace)
+        self._wanted = {names.resolve(t, self.namespace).encode() for t in self.topics}
         self.flush_interval = flush_interval
         self.chunk_size = chunk_size
         self.realtime = realtime
@@ -110,7 +113,7 @@ class Recorder:
         existed = os.path.lexists(self.path)
         self._writer = LogWriter(self.path, chunk_size=self.chunk_size)   # an unwritable path fails first
         sock = transport.subscriber(self._context, self.bus, hwm=0,  # unbounded: a slow disk queues, never drops
-                                    topics=[t.encode() for t in self.topics or [""]])
+                                    topics=sorted(self._wanted) or self._everything())
         self._started = time.monotonic()
         try:
             early = self._sync(sock, timeout)
@@ -161,19 +164,29 @@ class Recorder:
             self._received.set()
 
     def _drain(self, sock: zmq.Socket) -> None:
-        wanted, append, clock, names = self._wanted, self._queue.append, self._clock, self._names
+        wanted, append, clock, known = self._wanted, self._queue.append, self._clock, self._names
         while True:
             try:
                 frames = sock.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 return
             if _wanted(frames[0], wanted):
-                append((names.get(frames[0]) or self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", clock()))
+                append((known.get(frames[0]) or self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", clock()))
                 self.received += 1
 
+    def _everything(self) -> list[bytes]:
+        """The subscriptions of a recording of every topic (of its namespace, and the global ones)."""
+        if not self.namespace:
+            return [b""]
+        return [f"{self.namespace}/".encode()] + [t.encode() for t in sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)]
+
     def _name(self, topic: bytes) -> str:
-        """A topic's name as text, decoded once per topic."""
-        return self._names.setdefault(topic, topic.decode("utf-8", "replace"))
+        """A topic's name as text (relative to the namespace), decoded once per topic."""
+        name = self._names.get(topic)
+        if name is None:
+            text = topic.decode("utf-8", "replace")
+            name = self._names[topic] = (names.relative(text, self.namespace) or text) if self.namespace else text
+        return name
 
     def _write(self) -> None:
         writer, queue = self._writer, self._queue

@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 
 import zmq
 
-from touch4d.bus import transport
+from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig
 from touch4d.errors import Touch4dError
 
@@ -253,8 +253,12 @@ class BusSender:
     """Publishes raw (topic, payload) frames to the broker, waiting until the broker has subscribed."""
 
     def __init__(self, bus: BusConfig, *, context: zmq.Context | None = None, timeout: float = 5.0,
-                 realtime: bool = True) -> None:
+                 realtime: bool = True, namespace: str = "") -> None:
+        """`namespace`: a log's topics go out under NAMESPACE/ (touch4d.bus.names), so a recording
+        made in one namespace replays into another."""
         self._own_context = context is None
+        self._namespace = names.check_namespace(namespace)
+        self._keys: dict[str, bytes] = {}
         self._context = context or bus_context(realtime)
         # The transport's publisher sees the broker's subscription arrive: then nothing is lost.
         self._sock = transport.publisher(self._context, bus, hwm=0, linger=1000)
@@ -264,7 +268,10 @@ class BusSender:
                                f"(start one with `touch4d launch` or the bus broker command)")
 
     def __call__(self, topic: str, payload: bytes) -> None:
-        self._sock.send_multipart([topic.encode(), payload], copy=len(payload) < 4096)
+        key = self._keys.get(topic)
+        if key is None:
+            key = self._keys[topic] = names.resolve(topic, self._namespace).encode()
+        self._sock.send_multipart([key, payload], copy=len(payload) < 4096)
 
     def close(self, linger: int | None = None) -> None:
         self._sock.close(linger)

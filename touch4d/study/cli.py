@@ -71,13 +71,43 @@ def register(subparsers) -> None:
                      help="between-participant spread of the noise, sd of its log (default 0.25)")
     run.set_defaults(func=run_run)
 
+    serve = sub.add_parser("serve", help="a study server: participants join by a link, many at once",
+                           description="Participants join from their own headset's browser by a link "
+                                       "(`touch4d study invite`); each gets a stack of their own under their "
+                                       "namespace, writing DIR/ID/ as `study run` does. Prints the experimenter's "
+                                       "link. Behind a reverse proxy with a real certificate: --public-url.")
+    serve.add_argument("study", metavar="STUDY", help="study file")
+    serve.add_argument("items", nargs="*", metavar="ROLE.PARAM:=VALUE", help="overrides for each participant's "
+                       "stack (launch/study-serve.yaml), e.g. study.iti_s:=1")
+    serve.add_argument("--out", required=True, metavar="DIR", help="output folder: links, one session folder each")
+    serve.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, default=8095, help="TCP port (default 8095; 0: any free one)")
+    serve.add_argument("--max-participants", type=_count, default=16, metavar="N",
+                       help="participants running at once; one more gets a page that says so (HTTP 503)")
+    serve.add_argument("--public-url", metavar="URL", help="the address participants use (a reverse proxy's https URL)")
+    serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
+                       help="a participant without a page this long has left: their stack stops (default 30)")
+    serve.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    serve.set_defaults(func=run_serve)
+
+    invite = sub.add_parser("invite", help="a participant's link to a served study (a new token each time)",
+                            description="Prints the link (and a QR code) for participant ID of the study "
+                                        "served with --out DIR; a second invite replaces the first link.")
+    invite.add_argument("dir", metavar="DIR", help="the --out folder of `touch4d study serve`")
+    invite.add_argument("participant", metavar="ID", help="participant id, e.g. P07")
+    invite.add_argument("--public-url", metavar="URL", help="the server's address (default: the one it last served)")
+    invite.add_argument("--revoke", action="store_true", help="revoke the participant's link instead")
+    invite.add_argument("--no-qr", action="store_true", help="the link only")
+    invite.set_defaults(func=run_invite)
+
     transfer = sub.add_parser("transfer", help="bits one touch tells about each task's stimuli, with a glove",
                               description="Before recruiting anyone: the information transferred (bits, "
                                           "maximum-likelihood from the confusion matrix) per task by an observer "
                                           "trained on the glove's motor patterns at random hand positions, "
                                           "tested on new scenes and positions.")
     transfer.add_argument("study", metavar="STUDY", help="study file")
-    transfer.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    transfer.add_argument("--glove", metavar="FILE", action="append",
+                          help="glove file (default: config/glove.yaml); repeat to compare gloves side by side")
     transfer.add_argument("--every-sample", action="store_true",
                           help="also a motor at every sample point of the glove, side by side")
     transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
@@ -297,23 +327,70 @@ def run_transfer(args) -> int:
     from .observer import every_sample_glove
 
     study = _study(args.study)
-    glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
-    gloves = [glove] + ([every_sample_glove(glove)] if args.every_sample else [])
+    files = [resolve_path(g, COMMAND_LINE, key="--glove", what="glove file") for g in args.glove] if args.glove \
+        else [None]
+    loaded = [load_glove(f) for f in files]
+    gloves = [g for glove in loaded for g in [glove] + ([every_sample_glove(glove)] if args.every_sample else [])]
     tasks = [study.task(t).id for t in args.task] if args.task else [t.id for t in study.tasks]
-    results = [predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
-                                  seed=args.seed) for task in tasks for g in gloves]
+    results = [{**predicted_transfer(g, study, task, noise=args.noise, scenes=args.scenes, positions=args.positions,
+                                     seed=args.seed), "glove": g.path} for task in tasks for g in gloves]
     if args.json:
-        print(json.dumps(_clean({"study": study.name, "glove": glove.path, "noise": args.noise, "results": results})))
+        print(json.dumps(_clean({"study": study.name, "glove": loaded[0].path, "gloves": [g.path for g in loaded],
+                                 "noise": args.noise, "results": results})))
         return 0
-    print(f"{study.name}: information transferred by one touch ({glove.path}; noise {args.noise} per motor)")
-    print(transfer_table(results))
+    print(f"{study.name}: information transferred by one touch ({', '.join(g.path for g in loaded)}; "
+          f"noise {args.noise} per motor)")
+    print(transfer_table(results, named=len(gloves) > 1))
     return 0
 
 
-def transfer_table(results: list[dict]) -> str:
-    """`study transfer`'s table: bits and their maximum rounded alike (a perfect score reads x of x)."""
-    lines = [f"{'task':<12} {'motors':>6} {'bits':>6} {'of':>6} {'accuracy':>8}"]
-    lines += [f"{r['task']:<12} {r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>6.3f} {r['accuracy']:>8.2f}"
+def _glove_name(path: str) -> str:
+    """A glove's short name in a table: its file's name, and what was made of it."""
+    file, _, made = path.partition(" (")
+    return Path(file).stem + (" (every sample)" if made else "")
+
+
+def run_serve(args) -> int:
+    from touch4d.web.studyserver import StudyServer
+
+    study_path = resolve_path(args.study, COMMAND_LINE, key="STUDY", what="study file")
+    server = StudyServer(_study(args.study), study_path, Path(args.out), host=args.host, port=args.port,
+                         max_participants=args.max_participants, public_url=args.public_url,
+                         leave_after_s=args.leave_after, quick=args.quick, overrides=args.items)
+    return server.run()
+
+
+def run_invite(args) -> int:
+    from touch4d.errors import ConfigError
+    from touch4d.web.access import qr_text
+    from touch4d.web.invites import Invites, check_participant
+    from touch4d.web.studyserver import participant_link, served_url
+
+    try:
+        check_participant(args.participant)
+    except ValueError as exc:
+        raise ConfigError(COMMAND_LINE, "ID", str(exc).split(", got")[0], got=args.participant) from None
+    invites = Invites(Path(args.dir))
+    if args.revoke:
+        print(f"{args.participant}: link revoked" if invites.revoke(args.participant)
+              else f"{args.participant}: had no link")
+        return 0
+    base = args.public_url or served_url(Path(args.dir))
+    if not base:
+        raise ConfigError(COMMAND_LINE, "--public-url", f"the server's address (no server has served {args.dir} yet)")
+    link = participant_link(base.rstrip("/"), args.participant, invites.issue(args.participant))
+    print(link)
+    if not args.no_qr:
+        print(qr_text(link))
+    return 0
+
+
+def transfer_table(results: list[dict], named: bool = False) -> str:
+    """`study transfer`'s table: bits and their maximum rounded alike (a perfect score reads x of x);
+    `named`: a glove column (several gloves side by side)."""
+    glove = (lambda r: f"{_glove_name(r['glove']):<24} ") if named else (lambda r: "")
+    lines = [f"{'task':<12} " + (f"{'glove':<24} " if named else "") + f"{'motors':>6} {'bits':>6} {'of':>6} {'accuracy':>8}"]
+    lines += [f"{r['task']:<12} {glove(r)}{r['motors']:>6} {r['bits']:>6.3f} {r['max_bits']:>6.3f} {r['accuracy']:>8.2f}"
               for r in results]
     return "\n".join(lines)
 

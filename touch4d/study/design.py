@@ -129,6 +129,10 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     time_limit_s: Seconds = 30.0
     max_run: Positive = 3
     seed: Annotated[int, msgspec.Meta(ge=0, description="an integer >= 0")] = 0
+    # What a participant who joins by a link reads first (`touch4d study serve`): the consent they
+    # give by joining, and how to take part. Plain text; blank lines separate paragraphs.
+    consent: str = ""
+    instructions: str = ""
 
     @property
     def path(self) -> str:

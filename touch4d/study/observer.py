@@ -52,7 +52,8 @@ def every_sample_glove(glove: Glove) -> Glove:
     index = np.arange(n)
     return replace(glove, path=f"{glove.path} (a motor at every sample)",
                    motor_names=[f"sample-{i}" for i in index], motor_positions=glove.samples.copy(),
-                   motor_sample=index, motor_board=1 + index // 8, motor_channel=index % 8)
+                   motor_sample=index, motor_board=1 + index // 8, motor_channel=index % 8,
+                   motor_weights=None)
 
 
 @dataclass

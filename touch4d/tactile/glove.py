@@ -43,6 +43,9 @@ class Glove:
     touch_threshold: float = DEFAULT_TOUCH_THRESHOLD   # a motor driven above this counts as touched
     can: CanSection = field(default_factory=CanSection)   # the boards' part, as the file gave it
     bones: glovefile.Bones = field(default_factory=glovefile.Bones)   # where the finger joints lie
+    # (M, N) weights of each motor over the samples (rows sum to 1), or None: each motor feels its
+    # own sample (motor_sample) alone. Eq. 3 per motor: V_m = gamma sum_i w_mi h_i.
+    motor_weights: np.ndarray | None = None
 
     @cached_property
     def skeleton(self):
@@ -103,6 +106,7 @@ def glove_from_file(data: GloveFile, path="<input>") -> Glove:
         schema.fail(path, f"motors[{k}].position", f"a point on the hand, within {reach:.4f} m of a sample point",
                     got=positions[k].tolist())
     return Glove(
+        motor_weights=_cover_weights(data.motors, samples, motor_sample, path),
         path=str(path), screen_edge_m=data.screen_edge_m, hand=hand, samples=samples,
         motor_names=names, motor_positions=positions, motor_sample=motor_sample,
         motor_board=np.array([m.board for m in data.motors], dtype=int),
@@ -110,6 +114,24 @@ def glove_from_file(data: GloveFile, path="<input>") -> Glove:
         alpha=data.alpha, beta=data.beta, gamma=data.gamma, touch_threshold=data.touch_threshold, can=data.can,
         bones=data.bones,
     )
+
+
+def _cover_weights(motors, samples: np.ndarray, motor_sample: np.ndarray, path) -> np.ndarray | None:
+    """Each motor's weights over the samples: 1/K on each of the K samples within its `covers`
+    radius, or 1 on its own sample; None when no motor covers more than its own sample."""
+    if all(m.covers is None for m in motors):
+        return None
+    weights = np.zeros((len(motors), len(samples)))
+    for k, m in enumerate(motors):
+        if m.covers is None:
+            weights[k, motor_sample[k]] = 1.0
+            continue
+        near = np.linalg.norm(samples - np.asarray(m.position), axis=1) <= m.covers.radius
+        if not near.any():
+            schema.fail(path, f"motors[{k}].covers.radius", "a radius that reaches a sample point",
+                        got=m.covers.radius)
+        weights[k, near] = 1.0 / np.count_nonzero(near)
+    return weights
 
 
 def check_alpha(value, path, key) -> float:

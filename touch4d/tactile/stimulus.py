@@ -24,7 +24,7 @@ class Stimulus:
     hit: np.ndarray         # (N,) index of the object hit, -1 where l is NaN
     s: np.ndarray           # (N,) eq. 1
     h: np.ndarray           # (N,) eq. 2
-    motor_h: np.ndarray     # (M,) h at each motor's sample
+    motor_h: np.ndarray     # (M,) h as each motor feels it (its sample's, or its weighted samples')
     V: np.ndarray           # (M,) eq. 3, the motor intensities
     alpha: float
     beta: float
@@ -58,6 +58,11 @@ def adjusted_strength(s: np.ndarray, beta: float) -> np.ndarray:
 def intensity(h: np.ndarray, gamma: float) -> np.ndarray:
     """Eq. 3: V_i = gamma h_i."""
     return gamma * h
+
+
+def motor_strength(glove: Glove, h: np.ndarray) -> np.ndarray:
+    """h as each motor feels it: its own sample's, or the weighted mean over the samples it covers."""
+    return h[glove.motor_sample] if glove.motor_weights is None else glove.motor_weights @ h
 
 
 def inside_screen(points: np.ndarray) -> np.ndarray:
@@ -115,7 +120,7 @@ def no_stimulus(glove: Glove, positions: np.ndarray | None = None, alpha: float 
 def _from_distances(glove, positions, inside, l, hit, alpha, beta) -> Stimulus:
     s = relative_strength(l, alpha)
     h = adjusted_strength(s, beta)
-    motor_h = h[glove.motor_sample]
+    motor_h = motor_strength(glove, h)
     return Stimulus(positions=positions, inside=inside, l=l, hit=hit, s=s, h=h, motor_h=motor_h,
                     V=intensity(motor_h, glove.gamma), alpha=float(alpha), beta=float(beta),
                     gamma=float(glove.gamma))

@@ -53,6 +53,7 @@ from touch4d.tactile.skeleton import OUTLINE_PAIRS, JointsError, ViewHand
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
+from .haptics import HAPTIC_COUNTERS, haptic_level
 from .protocol import PageError, pack_frame, parse_page_message, printable
 
 log = logging.getLogger(__name__)
@@ -82,6 +83,7 @@ class BridgeConfig:
     stale_s: float = 0.05               # tracker page silent this long -> invalid poses
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
     study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
+    motors_stale_s: float = 0.06        # tactile/motors older than this: the page's controller plays 0
     recenter_min_s: float = 1.0         # re-centring at most this often
     save_min_s: float = 5.0             # the calibration file written at most this often
 
@@ -119,6 +121,7 @@ class _Page:
     buttons: frozenset = frozenset()
     answer_held: frozenset = frozenset()   # answer buttons held at its last input (any controller)
     fps: float = 0.0
+    haptics: str = ""                # what it can vibrate ("pulse", "dual-rumble", "none"; "" untold)
     warned: set = dataclasses.field(default_factory=set)   # its warnings logged (its own budget)
 
 
@@ -166,6 +169,8 @@ class WebBridge:
         self._touched = np.zeros(n, np.uint8)
         self._intensity = np.zeros(m, np.float32)
         self._duty = np.zeros(m, np.float32)
+        self._motors_at = -np.inf           # when tactile/motors last arrived (node clock)
+        self._haptic = 0.0                  # the page's controller intensity in the last frame
         self._boards: list = []
         self._dirty = False
         self._last_frame: bytes | None = None
@@ -258,6 +263,7 @@ class WebBridge:
     def on_motors(self, msg: MotorCommand) -> None:
         if len(msg.intensity) == len(self._intensity):
             self._intensity = msg.intensity.astype(np.float32)
+            self._motors_at = self.now()
             self._dirty = True
 
     def on_status(self, msg: MotorStatus) -> None:
@@ -289,7 +295,8 @@ class WebBridge:
             return None
         self._dirty = False
         self._frame_count += 1
-        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards,
+        self._haptic = self.haptic(self.now())
+        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards, "haptic": self._haptic,
                   "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now(),
                   **self.study_fields()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
@@ -316,8 +323,17 @@ class WebBridge:
         self._last_frame = pack_frame("frame", fields, arrays)
         return self._last_frame
 
+    def haptic(self, now: float) -> float:
+        """What the page's controller plays now (touch4d.web.haptics): 0 while the study's condition
+        holds the motors off, the hand is invalid or tactile/motors is stale."""
+        fresh = now - self._motors_at <= self.config.motors_stale_s
+        return haptic_level(self._intensity, self.gate.motors and self._hand_valid and fresh)
+
     def tick(self) -> None:
-        """The node's timer: send the frame, and keep the hand invalid while no page tracks."""
+        """The node's timer: send the frame (at once when the controller's intensity must change),
+        and keep the hand invalid while no page tracks."""
+        if self.haptic(self.now()) != self._haptic:
+            self._dirty = True
         frame = self.frame()
         if frame is not None:
             self.broadcast(frame, True)
@@ -362,6 +378,10 @@ class WebBridge:
                 self.check_tracking(arrival)
         elif kind == "stats":
             page.fps = msg["fps"]
+        elif kind == "haptics":
+            if msg["output"] == "none" and page.haptics != "none":
+                log.warning("page %d (%s) has no vibration actuator: its participant feels no touch", conn, page.peer)
+            page.haptics = msg["output"]
         elif kind == "recenter":
             if self._may_control(page, arrival):
                 self.recenter(msg["head"], arrival)
@@ -549,6 +569,11 @@ class WebBridge:
         if cause not in self._logged and len(self._logged) < 100:
             self._logged.add(cause)
             log.warning("%s (further identical problems are only counted)", text)
+
+    def haptic_outputs(self) -> dict[str, int]:
+        """How many connected pages vibrate a controller, a gamepad, or nothing (for the heartbeat)."""
+        kinds = [p.haptics for p in self.pages.values()]
+        return {name: kinds.count(output) for output, name in HAPTIC_COUNTERS.items()}
 
     def _page_warning(self, page: _Page, cause: str, text: str) -> None:
         """A problem with what a page sent: logged once per cause within the page's own budget (a

@@ -16,7 +16,8 @@ dtype is one of ARRAY_DTYPES ("f4", "u4", "i4", "u2", "u1"). Kinds:
 - "frame", at most once per tick: the objects' transforms texture (96 bytes per object), the
   projection, the hand's pose, h and "touched" per sample, the motors' intensities and duties, and
   while a study runs `study` (its phase, trial index and total, prompt, options, message) and
-  `draw_objects` (false: the study's condition hides every object; touch4d.study.gate);
+  `draw_objects` (false: the study's condition hides every object; touch4d.study.gate), and
+  `haptic`, the intensity 0..1 the page's controller or gamepad plays (touch4d.web.haptics);
 - "calibration", after a re-centre: the screen's new placement in the room.
 
 Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinity (rejected here):
@@ -26,8 +27,10 @@ Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinit
     {"type": "session", "mode": "immersive"|"inline", "active": bool}
     {"type": "stats", "fps": number}
     {"type": "response", "index": int, "option": str, "time": ms}
+    {"type": "haptics", "output": "pulse"|"dual-rumble"|"none"}
 
-where a "response" answers a study's trial `index` with one of its options from the page's own
+where "haptics" says, when it changes, what the page can vibrate: the glove hand's controller
+(WebXR `pulse`), a desktop gamepad (`dual-rumble`) or nothing; a "response" answers a study's trial `index` with one of its options from the page's own
 buttons (a tap in a desktop or headset browser; controller buttons arrive with "input");
 `time` is the page's clock (performance.timeOrigin + performance.now(), ms) when it read the
 poses, a pose is [x, y, z, qx, qy, qz, qw] (metres, local-floor space), and a source is
@@ -57,7 +60,8 @@ MAX_POSITION_M = 100.0            # |x|, |y|, |z| of a pose: metres a room (or a
 MAX_JOINT_RADIUS_M = 0.1          # a finger joint's radius, metres
 QUAT_TOLERANCE = 1e-2             # |q| - 1 allowed in a page's quaternion (float32 poses)
 WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
-PAGE_TYPES = ("input", "recenter", "session", "stats", "response")
+PAGE_TYPES = ("input", "recenter", "session", "stats", "response", "haptics")
+HAPTIC_OUTPUTS = ("pulse", "dual-rumble", "none")   # what a page can vibrate (touch4d/web/static/haptics.js)
 MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
 BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b) | frozenset(THUMBSTICK_BUTTONS)
@@ -193,7 +197,11 @@ class ResponseMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="typ
     time: Annotated[float, msgspec.Meta(ge=0)]
 
 
-PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage]
+class HapticsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="haptics"):
+    output: Literal[HAPTIC_OUTPUTS]
+
+
+PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage, HapticsMessage]
 _DECODER = msgspec.json.Decoder(PageMessage)
 
 
@@ -265,6 +273,8 @@ def parse_page_message(data: str | bytes) -> dict:
         return {"type": "session", "mode": msg.mode, "active": msg.active}
     if isinstance(msg, ResponseMessage):
         return {"type": "response", "index": msg.index, "option": msg.option, "time": msg.time}
+    if isinstance(msg, HapticsMessage):
+        return {"type": "haptics", "output": msg.output}
     return {"type": "stats", "fps": msg.fps}
 
 

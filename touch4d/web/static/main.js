@@ -9,6 +9,7 @@ import { SceneRenderer } from './scene.js';
 import { SliceRenderer } from './slice.js';
 import { Orbit } from './orbit.js';
 import { StudyButtons, StudyPanel } from './study.js';
+import { Haptics } from './haptics.js';
 import { fromPose, multiply, perspective } from './mat.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
@@ -21,7 +22,7 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
-  study: null, drawObjects: true, answers: 0, panel: [], view: 'projection',
+  study: null, drawObjects: true, answers: 0, panel: [], view: 'projection', haptics: null,
 });
 
 // made when the node's setup frame (with the shaders) arrives
@@ -48,6 +49,9 @@ const buttons = new StudyButtons(document.getElementById('study'), (index, optio
 });
 
 forgetToken();
+// The controller (or a desktop gamepad) as the glove: what it plays, and what the node is told.
+const haptics = (state.haptics = new Haptics((output) => { link.send({ type: 'haptics', output }); showStatus(); }));
+
 const link = new Link((message) => {
   const { header } = message;
   if (header.kind === 'setup') {
@@ -77,6 +81,7 @@ const link = new Link((message) => {
     showStatus();
   } else if (header.kind === 'frame') {
     state.frame = header;
+    haptics.frame(header);
     const threshold = state.setup ? state.setup.touch_threshold : 0;   // the glove file's, sent once in setup
     state.motorsOn = message.arrays.intensity.filter((v) => v > threshold).length;
     if (scene) scene.setFrame(message);
@@ -146,7 +151,8 @@ function showStatus() {
   const hand = state.otherDriver ? ' · another page drives the hand'
     : f && f.hand_valid ? ` · hand in${fingers} · ${state.motorsOn} motors on` : ' · no hand';
   const cut = slice && slice.label ? ` · ${slice.label}` : '';
-  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}${cut}`
+  const felt = haptics.output === 'none' ? ' · no vibration here: touch cannot be felt' : '';
+  statusLine.textContent = state.connected ? `touch4d ${role} · ${state.fps.toFixed(0)} fps${hand}${cut}${felt}`
                                            : 'touch4d: connecting to the node…';
 }
 
@@ -158,6 +164,7 @@ function inlineLoop(now) {
   clear(null, width, height);
   const projection = perspective(orbit.fov, width / height, 0.05, orbit.distance + 20);
   drawWorld(null, [width, height], [0, 0, width, height], projection, orbit.view(), fromPose([0, 0, 0], [0, 0, 0, 1], 1));
+  if (document.visibilityState === 'visible') haptics.desktopFrame(now);
   countFrame(now);
 }
 requestAnimationFrame(inlineLoop);
@@ -166,6 +173,7 @@ requestAnimationFrame(inlineLoop);
 
 // The hand is absent from now on (hidden page, lost session): the node publishes it invalid.
 function handGone() {
+  haptics.stop();
   if (state.setup && state.setup.tracker) {
     link.send({ type: 'input', time: performance.timeOrigin + performance.now(), tracking: false, head: null, sources: [] });
   }
@@ -199,6 +207,11 @@ async function enterVR() {
       state.input = reader.read(frame, space, session, viewer || null, time);
       link.send(state.input);
       state.sent++;
+      // the controller plays while this page drives the hand and both it and the head are tracked
+      const hand = state.input.sources.find((s) => s.handedness === state.setup.hand);
+      if (state.otherDriver) haptics.stop();
+      else haptics.xrFrame(session, state.setup.hand, Boolean(viewer && hand && (hand.grip || hand.joints)),
+                           performance.now());
     }
     if (!viewer) return;
     const base = session.renderState.baseLayer;

@@ -1,0 +1,307 @@
+"""How many participants one study server holds: simulated participants play pages over the same
+WebSocket protocol as the WebXR page, each at 72 Hz, and the bench measures per participant the
+CPU and memory of their stack, and pose -> pulse: from the input message that moves the controller
+into (or out of) the object leaving the participant's socket to the first frame whose `haptic`
+(the controller's intensity) follows it arriving back (loopback, so about the server side).
+
+Each participant: a link (`touch4d study invite`), Join, then its socket; its controller goes in and
+out of the hypercube's front cell every 300 ms. The stacks run without their study node
+(`study:=none`, the page's gate open): what is measured is the per-frame loop that every participant
+costs, not the trials (a trial's cost is a scene load every few seconds). Then the same through a
+relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
+netem). Baseline, in the same run: one participant.
+
+`--trials`: the stacks with their study node (the full session), every participant answering each
+trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
+and rows against answers sent (none lost).
+
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials]
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
+import aiohttp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cpu import cpu_seconds  # noqa: E402
+
+from touch4d.web.protocol import unpack_frame  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+STUDY = "config/studies/paper.yaml"
+RATE_HZ = 72.0
+INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's centre: in the front cell
+OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
+TOGGLE_S = 0.3
+DELAY_S = 0.025                                      # each way: 50 ms round trip
+
+
+# ---- the server and its processes -----------------------------------------------------------------------
+
+
+def start_server(out: Path, participants: int, study: bool = False):
+    stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
+                             "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
+                             "--leave-after", "60", *stack],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    for line in proc.stdout:
+        match = re.search(r"serving (http://\S+)/ for", line)
+        if match:
+            return proc, match.group(1)
+    raise RuntimeError("the study server did not start")
+
+
+def stop_server(proc) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(30)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def invite(out: Path, participant: str) -> str:
+    text = subprocess.run([sys.executable, "-m", "touch4d.cli", "study", "invite", str(out), participant, "--no-qr"],
+                          cwd=REPO, capture_output=True, text=True, check=True).stdout
+    return text.strip().splitlines()[-1]
+
+
+def children() -> dict[int, list[int]]:
+    tree: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            tree.setdefault(ppid, []).append(int(entry.name))
+    return tree
+
+
+def descendants(pid: int) -> list[int]:
+    tree, out, todo = children(), [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo.extend(tree.get(p, []))
+    return out
+
+
+def pss_mb(pid: int) -> float:
+    """A process's proportional set size (shared pages split among their users), MB."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def cpu(pids) -> float:
+    total = 0.0
+    for pid in pids:
+        try:
+            total += cpu_seconds(pid)
+        except OSError:
+            pass
+    return total
+
+
+def count_rows(out: Path) -> int:
+    """Rows in every participant's trials.csv."""
+    return sum(max(0, len(f.read_text().splitlines()) - 1) for f in out.glob("S*/trials.csv"))
+
+
+# ---- the delaying relay ---------------------------------------------------------------------------------
+
+
+async def relay(listen_port_box: list, target_port: int, delay: float) -> asyncio.AbstractServer:
+    """A TCP relay on loopback that holds every chunk `delay` seconds in each direction, in order."""
+    async def pump(reader, writer):
+        queue: asyncio.Queue = asyncio.Queue()
+
+        async def send():
+            while True:
+                due, data = await queue.get()
+                if data is None:
+                    break
+                await asyncio.sleep(max(0.0, due - time.monotonic()))
+                writer.write(data)
+                await writer.drain()
+            writer.close()
+        sender = asyncio.ensure_future(send())
+        try:
+            while data := await reader.read(65536):
+                queue.put_nowait((time.monotonic() + delay, data))
+        except (ConnectionError, asyncio.CancelledError):
+            sender.cancel()
+            return
+        queue.put_nowait((0.0, None))
+        await sender
+
+    async def handle(reader, writer):
+        try:
+            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", target_port)
+            await asyncio.gather(pump(reader, up_writer), pump(up_reader, writer), return_exceptions=True)
+        except (ConnectionError, asyncio.CancelledError):
+            writer.close()   # the round is over: its connections go
+
+    server = await asyncio.start_server(handle, "127.0.0.1", 0)
+    listen_port_box.append(server.sockets[0].getsockname()[1])
+    return server
+
+
+# ---- a simulated participant ----------------------------------------------------------------------------
+
+
+async def participant(base: str, link: str, seconds: float, latencies: list, lost: list, answered: list) -> None:
+    """Join by `link` (through `base`), then play a page: inputs at 72 Hz, the controller in and out."""
+    jar = aiohttp.CookieJar(unsafe=True)
+    async with aiohttp.ClientSession(cookie_jar=jar) as http:
+        link = re.sub(r"^http://[^/]+", base, link)
+        async with http.get(link) as r:
+            await r.read()
+        async with http.post(f"{base}/join", timeout=aiohttp.ClientTimeout(total=300)) as r:
+            await r.read()
+            if r.status != 200:
+                raise RuntimeError(f"join: HTTP {r.status}")
+        ws_url = base.replace("http://", "ws://") + "/ws"
+        async with http.ws_connect(ws_url, origin=base, max_msg_size=0) as ws:
+            state = {"want": None, "since": None, "haptic": 0.0, "answered": set()}
+
+            async def read():
+                async for msg in ws:
+                    if msg.type != aiohttp.WSMsgType.BINARY:
+                        continue
+                    header = unpack_frame(msg.data)[0]
+                    if header.get("kind") != "frame":
+                        continue
+                    trial = header.get("study")
+                    key = trial and (trial["phase"], trial["index"], trial.get("message"))
+                    if trial and trial["phase"] in ("break", "stimulus") and key not in state["answered"]:
+                        # answer at once (a break: go on); the study node takes the first answer per trial
+                        state["answered"].add(key)
+                        if trial["phase"] == "stimulus":
+                            answered.append(trial["index"])
+                        option = trial["options"][0] if trial["phase"] == "stimulus" else ""
+                        await ws.send_str(json.dumps({"type": "response", "index": trial["index"], "option": option,
+                                                      "time": time.time() * 1000.0}))
+                    haptic = header.get("haptic", 0.0)
+                    want, since = state["want"], state["since"]
+                    if since is not None and ((want and haptic > 0.05) or (not want and haptic == 0.0)):
+                        latencies.append(time.monotonic() - since)
+                        state["since"] = None
+            reader = asyncio.ensure_future(read())
+            t0 = time.monotonic()
+            inside, next_toggle, k = False, t0 + 2.0, 0     # 2 s to settle before the first move
+            while time.monotonic() - t0 < seconds + 2.0:
+                now = time.monotonic()
+                if now >= next_toggle:
+                    if state["since"] is not None:
+                        lost.append(1)                       # no frame followed the last move in 300 ms
+                    inside = not inside
+                    state["want"], state["since"] = inside, now
+                    next_toggle = now + TOGGLE_S
+                grip = INSIDE if inside else OUTSIDE
+                await ws.send_str(json.dumps({"type": "input", "time": time.time() * 1000.0, "tracking": True,
+                                              "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
+                                              "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
+                                                           "buttons": [], "joints": None}]}))
+                k += 1
+                await asyncio.sleep(max(0.0, t0 + k / RATE_HZ - time.monotonic()))
+            reader.cancel()
+
+
+async def run_round(n: int, seconds: float, delay: float, study: bool = False) -> dict:
+    with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
+        out = Path(tmp) / "out"
+        proc, base = start_server(out, n, study)
+        relay_server = None
+        try:
+            links = [invite(out, f"S{k:02d}") for k in range(n)]
+            target = base
+            if delay > 0:
+                box: list = []
+                relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
+                target = f"http://127.0.0.1:{box[0]}"
+            latencies, lost, answered = [], [], []
+            t_start = time.monotonic()
+            tasks = [asyncio.ensure_future(participant(target, link, seconds, latencies, lost, answered))
+                     for link in links]
+            # CPU over the measured stretch: every process of the server's tree (the stacks included)
+            await asyncio.sleep(5.0 + 2.0 * n)           # joins and stacks starting
+            pids = descendants(proc.pid)
+            stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
+            c0, w0, s0 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            rows0 = count_rows(out)
+            memory = sum(pss_mb(p) for p in stacks)
+            server_mb = pss_mb(proc.pid)
+            await asyncio.gather(*tasks)
+            c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            rows1 = count_rows(out)
+            await asyncio.sleep(1.0)                                 # the last answers' rows
+            rows = count_rows(out)
+            lat = np.array(latencies) * 1000
+            return {"n": n, "delay_ms": 2000 * delay, "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
+                    "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
+                    "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
+                    "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
+                    "lost": len(lost), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
+        finally:
+            if relay_server is not None:
+                relay_server.close()
+            stop_server(proc)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--participants", type=int, nargs="+", default=[1, 4, 8, 16])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--no-delay-round", action="store_true", help="skip the rounds through the 50 ms relay")
+    parser.add_argument("--trials", action="store_true",
+                        help="instead: with the study node, every participant answering at once: trials per second")
+    args = parser.parse_args()
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"load {os.getloadavg()[0]:.1f}")
+    if args.trials:
+        for n in sorted(set([1, *args.participants])):
+            r = asyncio.run(run_round(n, args.seconds, 0.0, study=True))
+            print(f"N={n:>2} with the study node: {r['rows']} trials written, "
+                  f"{r['trials_per_s']:.2f} trials/s ({r['trials_per_s'] / n:.2f} per participant); "
+                  f"{r['answers']} answers sent, {r['rows']} rows (none lost: rows >= answers - {n}, the last "
+                  f"answer of each may still be in flight)", flush=True)
+        return
+    rows = []
+    for delay in ([0.0] if args.no_delay_round else [0.0, DELAY_S]):
+        for n in sorted(set([1, *args.participants])):
+            r = asyncio.run(run_round(n, args.seconds, delay))
+            rows.append(r)
+            base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"])
+            fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+            print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core and "
+                  f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "
+                  f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse p50 {fmt(r['p50'])} ms, "
+                  f"p99 {fmt(r['p99'])} ms ({r['moves']} moves, {r['lost']} without a frame in 300 ms); "
+                  f"p99 x{(r['p99'] or 0) / max(base['p99'] or 1e-9, 1e-9):.2f} of N=1", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,198 @@
+"""The study server over HTTP on loopback (`touch4d study serve`, a real process): links, consent,
+403 for a forged, revoked or mismatched link, 503 when full, a participant's stack started on join
+under their namespace and stopped when they leave, the experimenter's page."""
+from __future__ import annotations
+
+import http.cookiejar
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import urllib.error
+import urllib.request
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from touch4d.bus.testing import wait_until
+from touch4d.cli import main as cli_main
+
+pytestmark = pytest.mark.timeout(240)
+
+REPO = Path(__file__).resolve().parents[1]
+STUDY = "config/studies/paper.yaml"
+
+
+class Served:
+    """A `touch4d study serve` process and what it printed."""
+
+    def __init__(self, proc, out: Path):
+        self.proc, self.out = proc, out
+        self.lines: list[str] = []
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+        wait_until(lambda: any(line.startswith("experimenter page:") for line in self.lines) or proc.poll() is not None,
+                   timeout=60)
+        text = "\n".join(self.lines)
+        self.url = re.search(r"serving (http://\S+)/ for", text).group(1)
+        self.experimenter = re.search(r"experimenter page: (\S+)", text).group(1)
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+@contextmanager
+def serve(tmp_path, *args):
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
+                             "--port", "0", "--quick", *args], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        yield Served(proc, out)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(30)
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            pass
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)   # whatever is left of its group
+        except ProcessLookupError:
+            pass
+        proc.wait()
+
+
+def invite(served, participant, *extra, capsys=None) -> str:
+    assert cli_main(["study", "invite", str(served.out), participant, "--no-qr", *extra]) == 0
+    return capsys.readouterr().out.strip().splitlines()[-1] if capsys else ""
+
+
+class Browser:
+    """A cookie-keeping HTTP client: (status, text) for each request."""
+
+    def __init__(self):
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+
+    def get(self, url, data=None, timeout=120):
+        try:
+            with self.opener.open(url, data=data, timeout=timeout) as response:
+                return response.status, response.read().decode()
+        except urllib.error.HTTPError as exc:
+            return exc.code, exc.read().decode()
+
+
+def experimenter_view(served):
+    status, text = Browser().get(served.experimenter.replace("/experimenter?", "/experimenter?format=json&"))
+    assert status == 200
+    return json.loads(text)
+
+
+def test_links_consent_and_refusals(tmp_path, capsys):
+    with serve(tmp_path) as served:
+        link = invite(served, "P01", capsys=capsys)
+        assert link.startswith(f"{served.url}/?participant=P01&token=")
+        page = Browser()
+        status, text = page.get(link)
+        assert status == 200 and "By pressing Join you agree" in text and "enter VR" in text and 'id=join' in text
+        # forged: 403, logged once however often
+        for _ in range(3):
+            assert Browser().get(f"{served.url}/?participant=P01&token=AAAAAAAAAAAAAAAAAAAAAA")[0] == 403
+        # a participant id that is not its token's
+        status, text = Browser().get(link.replace("participant=P01", "participant=P02"))
+        assert status == 403 and "does not match" in text
+        # revoked: the link and its cookie stop working
+        assert cli_main(["study", "invite", str(served.out), "P01", "--revoke"]) == 0
+        assert Browser().get(link)[0] == 403
+        assert page.get(f"{served.url}/")[0] == 403
+        view = experimenter_view(served)
+        assert view["counts"]["forged"] >= 4 and view["counts"]["mismatched"] == 1
+        # a new link works again
+        assert Browser().get(invite(served, "P01", capsys=capsys))[0] == 200
+    assert served.text.count("forged, expired or revoked") == 1
+    assert oct((served.out / "invites.json").stat().st_mode & 0o777) == "0o600"
+
+
+def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tmp_path, capsys):
+    with serve(tmp_path, "--max-participants", "1", "--leave-after", "1") as served:
+        p1, p2 = Browser(), Browser()
+        assert p1.get(invite(served, "P01", capsys=capsys))[0] == 200
+        assert p2.get(invite(served, "P02", capsys=capsys))[0] == 200
+        status, text = p1.get(f"{served.url}/join", data=b"")
+        assert status == 200 and '<canvas id="view">' in text          # the WebXR page, through the server
+        assert p1.get(f"{served.url}/static/main.js")[0] == 200
+        status, text = p2.get(f"{served.url}/join", data=b"")
+        assert status == 503 and "full" in text
+        view = experimenter_view(served)
+        states = {p["participant"]: p["state"] for p in view["participants"]}
+        assert states == {"P01": "running", "P02": "invited"} and view["counts"]["full"] == 1
+        log = (served.out / "P01" / "serve.log").read_text()
+        assert "every topic under P01/" in log
+        wait_until(lambda: (served.out / "P01" / "manifest.json").exists(), timeout=60)
+        # the study node runs P01's session (its namespace's study/trial reaches the experimenter's page)
+        wait_until(lambda: [p for p in experimenter_view(served)["participants"]
+                            if p["participant"] == "P01" and p["of"]], timeout=60)
+        # the experimenter pauses P01's session (its study node says so on P01/study/trial)
+        lab = Browser()
+        assert lab.get(served.experimenter)[0] == 200
+        assert lab.get(f"{served.url}/experimenter/pause", data=b"participant=P01")[0] == 200
+        wait_until(lambda: [p for p in experimenter_view(served)["participants"]
+                            if p["participant"] == "P01" and p["phase"] == "paused"], timeout=60)
+
+
+def _processes_with(text: str) -> list[int]:
+    """The processes whose command line holds `text` (this test's folder: its server's stacks)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text in (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
+                    found.append(int(entry.name))
+            except OSError:
+                pass
+    return found
+
+
+def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_resumes(tmp_path, capsys):
+    with serve(tmp_path) as served:
+        link = invite(served, "P01", capsys=capsys)
+        page = Browser()
+        page.get(link)
+        assert page.get(f"{served.url}/join", data=b"")[0] == 200
+        assert _processes_with(f"{served.out}/P01")                    # its nodes run
+        served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
+        served.proc.wait()
+        wait_until(lambda: not _processes_with(f"{served.out}/P01"), timeout=30)
+    with serve(tmp_path) as again:
+        page = Browser()
+        status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
+        assert status == 200 and "id=join" in text
+        assert page.get(f"{again.url}/join", data=b"")[0] == 200
+        # the study node started a second time on the same session (it resumes at the first trial without a row)
+        wait_until(lambda: len(json.loads((again.out / "P01" / "manifest.json").read_text())["starts"]) >= 2,
+                   timeout=60)
+
+
+def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experimenter(tmp_path, capsys):
+    with serve(tmp_path) as served:
+        lab = Browser()
+        status, text = lab.get(served.experimenter)
+        assert status == 200 and "0 of 16 running" in text
+        status, text = lab.get(f"{served.url}/experimenter/invite", data=b"participant=P09")
+        link = re.search(r"(http://\S+participant=P09&amp;token=[\w-]+)", text).group(1).replace("&amp;", "&")
+        participant = Browser()
+        assert participant.get(link)[0] == 200
+        assert participant.get(f"{served.url}/experimenter")[0] == 403          # a participant is not the lab
+        assert lab.get(f"{served.url}/experimenter/invite", data=b"participant=experimenter")[0] == 400
+        status, text = lab.get(f"{served.url}/experimenter/revoke", data=b"participant=P09")
+        assert status == 200 and "P09" in text                                 # back on the list
+        assert participant.get(f"{served.url}/")[0] == 403 and Browser().get(link)[0] == 403
+        assert "P09" not in json.loads((served.out / "invites.json").read_text())

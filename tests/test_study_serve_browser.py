@@ -1,0 +1,92 @@
+"""A served study in a real browser (Debian's chromium, Quest 3s emulated by iwer): participants
+join by their link, touch with the controller in a touch trial (its pulses recorded by wrapping the
+actuator's `pulse`, here only), leave and come back to resume, two at once each in their own
+namespace and folder; a third is told the study is full (503), a forged or mismatched link refused."""
+from __future__ import annotations
+
+import pytest
+
+from touch4d.bus.testing import wait_until
+from touch4d.study.design import load_study
+from touch4d.study.plan import quick_plan
+from touch4d.web.testing import chromium, context_options, enter_vr, headset_page, wait_connected
+
+from test_study_serve import experimenter_view, invite, serve
+from test_web_haptics_browser import CENTER, RECORD_PULSES
+
+pytestmark = pytest.mark.timeout(300)
+
+STUDY = "config/studies/paper.yaml"
+
+
+def join(browser, link):
+    """Open a link as a participant, press Join, enter VR looking away (cheap frames)."""
+    page = headset_page(browser, link, 320, 180)
+    with page.expect_navigation(timeout=150000):   # the server starts the participant's stack meanwhile
+        page.click("#join", no_wait_after=True)
+    wait_connected(page, 90)
+    enter_vr(page)
+    page.evaluate("xr.position.set(0, 1.5, 0.8); xr.quaternion.set(0, 1, 0, 0)")
+    return page
+
+
+def state(served, participant):
+    return next(p for p in experimenter_view(served)["participants"] if p["participant"] == participant)
+
+
+def press_a_until(page, predicate, timeout=30):
+    page.evaluate("xr.controllers.right.updateButtonValue('a-button', 1)")
+    try:
+        return wait_until(predicate, timeout=timeout)
+    finally:
+        page.evaluate("xr.controllers.right.updateButtonValue('a-button', 0)")
+
+
+def test_join_touch_leave_resume_and_a_second_participant(tmp_path, capsys):
+    study = load_study(STUDY)
+    assert quick_plan(study, "P03")[0].condition == "touch"          # this participant starts touching
+    with serve(tmp_path, "--max-participants", "2", "--leave-after", "2", "study.iti_s:=0.2") as served, \
+            chromium() as browser:
+        link = invite(served, "P03", capsys=capsys)
+        page = join(browser, link)
+        page.evaluate(RECORD_PULSES)
+        # the session opens with a break; A goes on to the first trial, a touch trial
+        page.wait_for_function("touch4d.study && touch4d.study.phase === 'break'", timeout=60000)
+        press_a_until(page, lambda: page.evaluate("touch4d.study && touch4d.study.phase === 'stimulus'"))
+        assert page.evaluate("touch4d.drawObjects") is False
+        page.evaluate("xr.controllers.right.position.set({}, {}, {})".format(*CENTER))
+        page.wait_for_function("pulses.some(([hand, value]) => value > 0.05)", timeout=60000)
+        index = page.evaluate("touch4d.study.index")
+        assert state(served, "P03")["state"] == "running"
+        # leaving: paused at once, the stack stopped after --leave-after
+        page.context.close()
+        wait_until(lambda: state(served, "P03")["state"] == "paused", timeout=30)
+        wait_until(lambda: state(served, "P03")["state"] == "left", timeout=30)
+        # a second participant meanwhile, in their own namespace and folder
+        other = join(browser, invite(served, "P04", capsys=capsys))
+        other.wait_for_function("touch4d.study && touch4d.study.phase === 'break'", timeout=60000)
+        # the link again: the session resumes at the trial without a row
+        page = join(browser, link)
+        page.wait_for_function("touch4d.study && touch4d.study.phase === 'break'", timeout=60000)
+        press_a_until(page, lambda: page.evaluate("touch4d.study && touch4d.study.phase === 'stimulus'"))
+        assert page.evaluate("touch4d.study.index") == index       # the trial left unanswered, again
+        assert not (served.out / "P03" / "trials.csv").exists() or \
+            len((served.out / "P03" / "trials.csv").read_text().splitlines()) <= 1
+        both = {p["participant"]: p["state"] for p in experimenter_view(served)["participants"]}
+        assert both == {"P03": "running", "P04": "running"}
+        for participant in ("P03", "P04"):
+            assert (served.out / participant / "manifest.json").exists()
+            assert f"every topic under {participant}/" in (served.out / participant / "serve.log").read_text()
+        # refused in the browser too: full (HTTP 503, a page that says so), forged, mismatched (403)
+        third = headset_page(browser, invite(served, "P05", capsys=capsys), 320, 180)
+        with third.expect_navigation(timeout=60000) as refused:
+            third.click("#join", no_wait_after=True)
+        assert refused.value.status == 503 and "full" in third.content()
+        for url, text in ((f"{served.url}/?participant=P06&token=AAAAAAAAAAAAAAAAAAAAAA", "needs its link"),
+                          (link.replace("participant=P03", "participant=P04"), "does not match")):
+            refused_page = browser.new_context(**context_options(320, 180)).new_page()
+            response = refused_page.goto(url)
+            assert response.status == 403 and text in refused_page.content()
+            refused_page.context.close()
+        for opened in (other, page, third):
+            opened.context.close()

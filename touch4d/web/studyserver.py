@@ -1,0 +1,537 @@
+"""The study server (`touch4d study serve`): participants join a study from their own headset's
+browser by a link, many at once, each in a namespace of their own on one bus.
+
+A link is `URL/?participant=P07&token=...` (`invites.Invites`, kept in OUT/invites.json). Opening
+it shows the study's consent and instructions; Join starts that participant's stack
+(launch/study-serve.yaml under the namespace P07: the WebXR page's node, scene, tactile, study,
+recorder, writing OUT/P07/ as `touch4d study run` does) and the page comes through this server:
+every request and the WebSocket of the participant's cookie go to their node on loopback, so the
+page is today's page and the second page on a link is refused by today's rule. When the last page
+of a participant closes, their trial pauses (`study/command` pause); the page back within
+`leave_after_s` resumes it, else the stack stops and the link's next opening starts it again,
+resuming at the first trial without a row (a server killed and started again on the same OUT
+resumes everyone the same way). More running participants than `max_participants`: a page that
+says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once. A
+participant id in the link that is not its token's: 403. The experimenter's link opens
+/experimenter: every participant's state, trial, last message heard; pause, or revoke a link.
+"""
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import html
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import quote, urlsplit
+
+import aiohttp
+from aiohttp import WSMsgType, web
+
+from touch4d.bus import Broker, BusConfig, Node
+from touch4d.messages import StudyCommand, StudyTrial, decode
+from touch4d.study.design import Study
+from touch4d.study.session import session_dir, session_overrides
+
+from .access import HOLDER, Access, CookieGate
+from .invites import EXPERIMENTER, Invites, check_participant
+
+log = logging.getLogger("study-serve")
+
+LAUNCH = "launch/study-serve.yaml"
+SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
+READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
+PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _die_with_server() -> None:
+    """In a participant's launch process: SIGTERM when the server dies (it then stops its nodes)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+@dataclass
+class Participant:
+    """One participant's stack and what the experimenter page shows of it."""
+
+    id: str
+    state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
+    port: int = 0
+    proc: subprocess.Popen | None = None
+    ready_file: Path | None = None
+    pages: int = 0                     # its pages connected now
+    last_heard: float = 0.0            # wall clock of its page's last message
+    trial: StudyTrial | None = None    # its study node's latest state
+    leave: asyncio.TimerHandle | None = field(default=None, repr=False)
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+
+class StudyServer:
+    """The server; `run()` serves until SIGINT/SIGTERM (or `stop()`)."""
+
+    def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
+                 max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
+                 quick: bool = False, secure: bool | None = None, overrides: list[str] = ()):
+        self.study, self.study_path, self.out = study, Path(study_path), Path(out)
+        self.host, self.port, self.max_participants = host, port, max_participants
+        self.public_url = public_url
+        self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
+        # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
+        # this server speaks plain http, on loopback or behind that proxy.
+        self.secure = (public_url or "").startswith("https://") if secure is None else secure
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.invites = Invites(self.out)
+        self.access = Access()
+        self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study")
+        self.participants: dict[str, Participant] = {}
+        self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0}
+        self._logged: set[str] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+        self._invites_mtime = None
+        self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
+        self._load_invites()
+
+    # ---- links ---------------------------------------------------------------------------------
+
+    def base_url(self) -> str:
+        if self.public_url:
+            return self.public_url.rstrip("/")
+        return f"http://{self.host}:{self.port}"
+
+    def _load_invites(self) -> None:
+        """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs)."""
+        try:
+            mtime = self.invites.path.stat().st_mtime_ns
+        except FileNotFoundError:
+            mtime = None
+        if mtime == self._invites_mtime:
+            return
+        self._invites_mtime = mtime
+        tokens = self.invites.load()
+        for holder in set(self.access.holders()) - set(tokens):
+            self.access.revoke(holder)
+        for holder, token in tokens.items():
+            if self.access.check(token) != holder:
+                self.access.issue(holder, token=token)
+            if holder != EXPERIMENTER:
+                self.participants.setdefault(holder, Participant(holder))
+
+    # ---- the bus -------------------------------------------------------------------------------
+
+    def _start_bus(self, tmp: Path) -> None:
+        self.broker = Broker(BusConfig(bind_host="127.0.0.1", connect_host="127.0.0.1", pub_port=0, sub_port=0,
+                                       source="<study server>"))
+        bus = self.broker.start()
+        self.bus_file = tmp / "bus.yaml"
+        self.bus_file.write_text(f"broker: {{bind: 127.0.0.1, pub_port: {bus.pub_port}, sub_port: {bus.sub_port}}}\n"
+                                 "connect: 127.0.0.1\n")
+        self.node = Node("study-serve", bus=bus.for_clients())
+        self.node.create_raw_subscription("", self._on_bus)
+        self._commands: dict[str, object] = {}
+        def spin():
+            try:
+                self.node.spin()
+            finally:
+                self.node.shutdown()
+        self._bus_thread = threading.Thread(target=spin, name="study-serve-bus", daemon=True)
+        self._bus_thread.start()
+
+    def _on_bus(self, topic: str, payload: bytes) -> None:
+        """Every participant's study/trial (the node's thread): the experimenter page's state."""
+        ns, _, name = topic.partition("/")
+        if name != "study/trial" or ns not in self.participants:
+            return
+        try:
+            self.participants[ns].trial = decode(payload, StudyTrial)
+        except Exception:  # noqa: BLE001 - a malformed message is not the experimenter page's to show
+            return
+
+    def command(self, participant: str, command: str, reason: str) -> None:
+        """Send `study/command` to a participant's study node (from any thread)."""
+        def send():
+            pub = self._commands.get(participant)
+            if pub is None:
+                pub = self._commands[participant] = self.node.create_publisher(f"/{participant}/study/command",
+                                                                                StudyCommand)
+            pub.publish(StudyCommand(command=command, reason=reason))
+        self.node.call_soon_threadsafe(send)
+
+    # ---- participants' stacks ------------------------------------------------------------------
+
+    def _start_stack(self, p: Participant, tmp: Path) -> None:
+        p.port = _free_port()
+        p.ready_file = tmp / f"{p.id}.ready"
+        p.ready_file.unlink(missing_ok=True)
+        args = [sys.executable, "-m", "touch4d.cli", "launch", LAUNCH, "--namespace", p.id, "--no-broker",
+                "--bus", str(self.bus_file), "--ready-file", str(p.ready_file),
+                *session_overrides(self.study_path, p.id, self.out, quick=self.quick),
+                f"tracker.port:={p.port}", *self.overrides]
+        directory = session_dir(self.out, p.id)
+        directory.mkdir(parents=True, exist_ok=True)
+        logfile = open(directory / "serve.log", "ab")   # the stack's output, for the experimenter
+        try:
+            p.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=logfile, stderr=subprocess.STDOUT,
+                                      start_new_session=True, preexec_fn=_die_with_server)
+        finally:
+            logfile.close()
+        p.state = "starting"
+
+    async def _wait_ready(self, p: Participant) -> bool:
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if not p.running:
+                return False
+            if p.ready_file.exists() and p.ready_file.stat().st_size > 0:
+                try:   # and its page is served
+                    async with self.client.get(f"http://127.0.0.1:{p.port}/") as response:
+                        if response.status == 200:
+                            return True
+                except aiohttp.ClientError:
+                    pass
+            await asyncio.sleep(0.1)
+        return False
+
+    def _stop_stack(self, p: Participant, state: str) -> None:
+        if p.leave is not None:
+            p.leave.cancel()
+            p.leave = None
+        proc, p.proc = p.proc, None
+        p.state = state
+        if proc is None or proc.poll() is not None:
+            return
+        try:
+            os.killpg(proc.pid, signal.SIGINT)   # the launcher stops its nodes (the study keeps its rows)
+        except ProcessLookupError:
+            return
+        threading.Thread(target=self._reap, args=(proc,), daemon=True).start()
+
+    @staticmethod
+    def _reap(proc: subprocess.Popen) -> None:
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+    def running(self) -> int:
+        return sum(1 for p in self.participants.values() if p.running)
+
+    # ---- HTTP ----------------------------------------------------------------------------------
+
+    def _log_once(self, cause: str, text: str) -> None:
+        if cause not in self._logged:
+            self._logged.add(cause)
+            log.warning("%s (further ones are only counted)", text)
+
+    @web.middleware
+    async def _refusals(self, request: web.Request, handler):
+        """The gate's 403 (a forged, expired or revoked token) counted and logged once."""
+        self._load_invites()
+        try:
+            return await handler(request)
+        except web.HTTPForbidden:
+            if HOLDER in request:
+                raise   # a holder refused something further (a mismatched id): counted there
+            self.counts["forged"] += 1
+            self._log_once("forged", f"refused a request with a forged, expired or revoked link ({request.path})")
+            raise
+
+    def _participant(self, request: web.Request) -> Participant:
+        holder = request[HOLDER]
+        wanted = request.query.get("participant")
+        if wanted is not None and wanted != holder:
+            self.counts["mismatched"] += 1
+            self._log_once("mismatched", f"refused a link whose participant id ({wanted[:32]!r}) is not its token's")
+            raise web.HTTPForbidden(text="touch4d: this link's participant id does not match its token.\n")
+        if holder == EXPERIMENTER:
+            raise web.HTTPFound("/experimenter")
+        p = self.participants.get(holder)
+        if p is None:   # a holder the access layer knows is invited
+            p = self.participants[holder] = Participant(holder)
+        return p
+
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        p = self._participant(request)
+        if p.running and p.state in ("running", "paused"):
+            return await self._proxy_http(request, p)
+        return web.Response(text=self._welcome(p), content_type="text/html")
+
+    def _welcome(self, p: Participant) -> str:
+        study = self.study
+        rows = self._rows(p.id)
+        paragraphs = lambda text: "".join(f"<p>{html.escape(t.strip())}</p>" for t in text.split("\n\n") if t.strip())  # noqa: E731
+        go = "Continue" if rows else "Join"
+        return (f"<!doctype html><html lang=en><head><meta charset=utf-8><meta name=viewport "
+                f"content='width=device-width, initial-scale=1'><title>{html.escape(study.name)}</title></head><body>"
+                f"<h1>{html.escape(study.description or study.name)}</h1>"
+                + (f"<p>Welcome back: {rows} trials are done, the next one follows.</p>" if rows else "")
+                + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
+                f"<form method=post action=/join><button id=join type=submit>{go}</button></form></body></html>")
+
+    def _rows(self, participant: str) -> int:
+        path = session_dir(self.out, participant) / "trials.csv"
+        try:
+            with open(path) as f:
+                return max(0, sum(1 for _ in f) - 1)
+        except OSError:
+            return 0
+
+    async def _join(self, request: web.Request) -> web.StreamResponse:
+        p = self._participant(request)
+        if not p.running:
+            if self.running() >= self.max_participants:
+                self.counts["full"] += 1
+                return web.Response(status=503, content_type="text/html", text=(
+                    "<!doctype html><html lang=en><meta charset=utf-8><title>Full</title><body><h1>The study is "
+                    "full right now</h1><p>Every place is taken. Please open your link again in a few minutes."
+                    "</p></body></html>"))
+            self.counts["resumed" if self._rows(p.id) else "joined"] += 1
+            self._start_stack(p, self.tmp)
+            log.info("%s joined: starting its stack (namespace %s, page port %d)", p.id, p.id, p.port)
+        if not await self._wait_ready(p):
+            self._stop_stack(p, "left")
+            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; see "
+                                                 f"{session_dir(self.out, p.id) / 'serve.log'}\n")
+        if p.state == "starting":
+            p.state = "running"
+        raise web.HTTPSeeOther("/")
+
+    async def _proxy_http(self, request: web.Request, p: Participant) -> web.StreamResponse:
+        url = f"http://127.0.0.1:{p.port}{request.path}"
+        try:
+            async with self.client.get(url) as upstream:
+                body = await upstream.read()
+                response = web.Response(body=body, status=upstream.status)
+                if upstream.content_type:
+                    response.content_type = upstream.content_type
+                for name in PROXIED_HEADERS:
+                    if name in upstream.headers:
+                        response.headers[name] = upstream.headers[name]
+                return response
+        except aiohttp.ClientError:
+            return web.Response(status=502, text=f"touch4d: the session of {p.id} is not answering; reload\n")
+
+    async def _static(self, request: web.Request) -> web.StreamResponse:
+        p = self._participant(request)
+        if not p.running:
+            raise web.HTTPNotFound(text="touch4d: join first\n")
+        return await self._proxy_http(request, p)
+
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        p = self._participant(request)
+        origin = request.headers.get("Origin")
+        if origin is not None and urlsplit(origin).netloc != request.host:
+            raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
+        if not p.running:
+            raise web.HTTPNotFound(text="touch4d: join first\n")
+        try:
+            upstream = await self.client.ws_connect(f"ws://127.0.0.1:{p.port}/ws", max_msg_size=0,
+                                                    origin=f"http://127.0.0.1:{p.port}")
+        except aiohttp.ClientError:
+            raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} is not answering\n") from None
+        ws = web.WebSocketResponse(max_msg_size=1 << 20, compress=False, heartbeat=5.0)
+        await ws.prepare(request)
+        self._page_opened(p)
+
+        async def up():
+            async for msg in ws:
+                p.last_heard = time.time()
+                if msg.type == WSMsgType.TEXT:
+                    await upstream.send_str(msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    await upstream.send_bytes(msg.data)
+
+        async def down():
+            async for msg in upstream:
+                if msg.type == WSMsgType.BINARY:
+                    await ws.send_bytes(msg.data)
+                elif msg.type == WSMsgType.TEXT:
+                    await ws.send_str(msg.data)
+
+        tasks = [asyncio.ensure_future(up()), asyncio.ensure_future(down())]
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in tasks:
+                task.cancel()
+            await upstream.close()
+            await ws.close()
+            self._page_closed(p)
+        return ws
+
+    def _page_opened(self, p: Participant) -> None:
+        p.pages += 1
+        p.last_heard = time.time()
+        if p.leave is not None:
+            p.leave.cancel()
+            p.leave = None
+        if p.state == "paused":
+            p.state = "running"
+            self.command(p.id, "resume", "the participant's page is back")
+            log.info("%s is back: trial resumed", p.id)
+
+    def _page_closed(self, p: Participant) -> None:
+        p.pages -= 1
+        if p.pages > 0 or not p.running:
+            return
+        p.state = "paused"
+        self.command(p.id, "pause", "the participant's page closed")
+        log.info("%s: no page; paused (stopping in %g s unless it comes back)", p.id, self.leave_after_s)
+        p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
+
+    def _left(self, p: Participant) -> None:
+        p.leave = None
+        if p.pages == 0 and p.running:
+            self.counts["left"] += 1
+            log.info("%s left: its stack stops (its link resumes it)", p.id)
+            self._stop_stack(p, "left")
+
+    # ---- the experimenter's page ---------------------------------------------------------------
+
+    def _experimenter_only(self, request: web.Request) -> None:
+        if request[HOLDER] != EXPERIMENTER:
+            raise web.HTTPForbidden(text="touch4d: the experimenter's link only\n")
+
+    def status(self) -> list[dict]:
+        """Every participant: state, trial k of n, seconds since its page was last heard."""
+        now = time.time()
+        out = []
+        for p in sorted(self.participants.values(), key=lambda p: p.id):
+            t = p.trial
+            out.append({"participant": p.id, "state": p.state, "pages": p.pages, "rows": self._rows(p.id),
+                        "trial": None if t is None or t.index < 0 else t.index + 1,
+                        "of": None if t is None else t.total, "phase": None if t is None else t.phase,
+                        "last_heard_s": None if not p.last_heard else round(now - p.last_heard, 1)})
+        return out
+
+    async def _experimenter(self, request: web.Request) -> web.StreamResponse:
+        self._experimenter_only(request)
+        if request.query.get("format") == "json":
+            return web.json_response({"participants": self.status(), "counts": self.counts,
+                                      "running": self.running(), "max_participants": self.max_participants})
+        rows = "".join(
+            f"<tr><td>{html.escape(s['participant'])}</td><td>{s['state']}</td>"
+            f"<td>{'' if s['trial'] is None else s['trial']} of {'' if s['of'] is None else s['of']}</td>"
+            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>"
+            f"<form method=post action=/experimenter/pause><input type=hidden name=participant "
+            f"value='{html.escape(s['participant'], quote=True)}'><button>pause</button></form>"
+            f"<form method=post action=/experimenter/revoke><input type=hidden name=participant "
+            f"value='{html.escape(s['participant'], quote=True)}'><button>revoke</button></form></td></tr>"
+            for s in self.status())
+        return web.Response(content_type="text/html", text=(
+            f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(self.study.name)}: participants"
+            f"</title><body><h1>{html.escape(self.study.name)}: {self.running()} of {self.max_participants} "
+            f"running</h1><table><tr><th>participant</th><th>state</th><th>trial</th><th>last heard</th><th></th>"
+            f"</tr>{rows}</table><form method=post action=/experimenter/invite><input name=participant "
+            f"placeholder=P07><button>invite</button></form></body></html>"))
+
+    async def _experimenter_action(self, request: web.Request) -> web.StreamResponse:
+        self._experimenter_only(request)
+        form = await request.post()
+        participant = str(form.get("participant", ""))
+        action = request.match_info["action"]
+        if action == "invite":
+            try:
+                token = self.invites.issue(check_participant(participant))   # never the experimenter's
+            except ValueError as exc:
+                raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
+            self._load_invites()
+            link = self.link(participant, token)
+            return web.Response(content_type="text/html", text=f"<!doctype html><p>{html.escape(link)}</p>"
+                                                                 "<p><a href=/experimenter>back</a></p>")
+        p = self.participants.get(participant)
+        if p is None:
+            raise web.HTTPNotFound(text="touch4d: no such participant\n")
+        if action == "pause":
+            self.command(p.id, "pause", "the experimenter")
+        elif action == "revoke":
+            self.invites.revoke(p.id)
+            self._load_invites()
+            self._stop_stack(p, "left")
+            log.info("%s: link revoked by the experimenter", p.id)
+        raise web.HTTPSeeOther("/experimenter")
+
+    def link(self, participant: str, token: str) -> str:
+        return participant_link(self.base_url(), participant, token)
+
+    # ---- running -------------------------------------------------------------------------------
+
+    async def _serve(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stopping = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._loop.add_signal_handler(sig, self._stopping.set)
+        app = web.Application(middlewares=[self._refusals, self.gate.middleware])
+        app.router.add_get("/", self._index)
+        app.router.add_post("/join", self._join)
+        app.router.add_get("/ws", self._websocket)
+        app.router.add_get("/static/{path:.*}", self._static)
+        app.router.add_get("/experimenter", self._experimenter)
+        app.router.add_post("/experimenter/{action:pause|revoke|invite}", self._experimenter_action)
+        self.client = aiohttp.ClientSession()
+        runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        await runner.setup()
+        site = web.TCPSite(runner, self.host, self.port)
+        await site.start()
+        self.port = runner.addresses[0][1]
+        (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
+        print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants; "
+              f"data in {self.out}", flush=True)
+        print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
+        try:
+            await self._stopping.wait()
+        finally:
+            for p in self.participants.values():
+                self._stop_stack(p, p.state)
+            await self.client.close()
+            await runner.cleanup()
+
+    def run(self) -> int:
+        with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
+            self.tmp = Path(tmp)
+            self._start_bus(self.tmp)
+            try:
+                asyncio.run(self._serve())
+            finally:
+                self.node.request_shutdown()
+                self._bus_thread.join(5)
+                self.broker.stop()
+        return 0
+
+
+def served_url(out: Path) -> str | None:
+    """The address the server last served OUT at (OUT/serve.json), for `touch4d study invite`."""
+    try:
+        return json.loads((Path(out) / SERVED).read_text())["url"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def participant_link(base_url: str, participant: str, token: str) -> str:
+    """A participant's link (the experimenter's: /experimenter)."""
+    if participant == EXPERIMENTER:
+        return f"{base_url}/experimenter?token={token}"
+    return f"{base_url}/?participant={quote(participant)}&token={token}"
+
+
