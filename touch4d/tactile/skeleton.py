@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from touch4d.errors import Touch4dError
+from touch4d.geometry import quaternion
 from touch4d.messages import HandJoints
 
 from touch4d.glovefile import Bones
@@ -106,36 +107,13 @@ class JointSet:
                 "orientations": self.orientations.tolist(), "radii": self.radii.tolist()}
 
 
-def _quadratic_form() -> np.ndarray:
-    """C (16, 9) with R.ravel() = (q outer q).ravel() @ C for a unit quaternion q = (x, y, z, w): each
-    entry of the rotation matrix is a quadratic form of q (the 1 of the diagonal is x2+y2+z2+w2)."""
-    c = np.zeros((4, 4, 3, 3))
-    x, y, z, w = range(4)
-    for (i, j), terms in {
-        (0, 0): [(w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)], (1, 1): [(w, w, 1), (y, y, 1), (x, x, -1), (z, z, -1)],
-        (2, 2): [(w, w, 1), (z, z, 1), (x, x, -1), (y, y, -1)],
-        (0, 1): [(x, y, 2), (z, w, -2)], (1, 0): [(x, y, 2), (z, w, 2)],
-        (0, 2): [(x, z, 2), (y, w, 2)], (2, 0): [(x, z, 2), (y, w, -2)],
-        (1, 2): [(y, z, 2), (x, w, -2)], (2, 1): [(y, z, 2), (x, w, 2)],
-    }.items():
-        for a, b, k in terms:
-            c[a, b, i, j] += k
-    return c.reshape(16, 9)
-
-
-_QUADRATIC = _quadratic_form()
-# The same as the rows of a bone's (3, 4) map, [R | t] row by row with zeros where t goes, and a
+# geometry.quaternion's quadratic form laid out as the rows of a bone's (3, 4) map, [R | t] row by row with zeros where t goes, and a
 # 13th column, the squared norm x2+y2+z2+w2: one product gives every rotation and the check.
 _MAP_COLUMNS = np.zeros((16, 13))
-_MAP_COLUMNS[:, [0, 1, 2, 4, 5, 6, 8, 9, 10]] = _QUADRATIC
+_MAP_COLUMNS[:, [0, 1, 2, 4, 5, 6, 8, 9, 10]] = quaternion.QUADRATIC_FORM
 _MAP_COLUMNS[:, 12] = np.eye(4).ravel()
 _OUTER_A, _OUTER_B = np.repeat(np.arange(4), 4), np.tile(np.arange(4), 4)   # q_a q_b, a * 4 + b
 _ONES3 = np.ones(3)
-
-
-def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4) x, y, z, w, in two array operations."""
-    return ((q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ _QUADRATIC).reshape(-1, 3, 3)
 
 
 def _joint_frame(direction: np.ndarray) -> np.ndarray:
@@ -268,10 +246,9 @@ class Skeleton:
             # x axis turns round (a right-handed frame): columns -M x, M y, M z = M R M
             mirror = np.diag([-1.0, 1.0, 1.0])
             positions, frames = positions @ mirror, mirror @ frames @ mirror
-        r = Rotation.from_quat(np.asarray(orientation, dtype=float))
-        world = r.as_matrix()
+        world = quaternion.to_matrix(quaternion.canonical(orientation))
         out_pos = np.asarray(position, dtype=float) + units_per_metre * positions @ world.T
-        out_q = (r * Rotation.from_matrix(frames)).as_quat(canonical=True)
+        out_q = Rotation.from_matrix(world @ frames).as_quat(canonical=True)
         return JointSet(tuple(JOINTS), out_pos, out_q, self.radii * units_per_metre, handedness)
 
     def shaped(self, shape: HandShape) -> tuple[np.ndarray, np.ndarray]:
