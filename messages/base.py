@@ -32,9 +32,9 @@ import numpy as np
 
 from touch4d.errors import Touch4dError
 
-from .codec import CodecError, _ext_hook, encode_plain
+from .codec import CodecError, _ext_hook, encode_plain, unpack
 from .header import DOCS as HEADER_DOCS
-from .header import Finite, Header, peek_any
+from .header import Finite, Header
 
 __all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
            "decoder"]
@@ -557,47 +557,57 @@ def encode(msg: Message) -> bytes:
 
 
 def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> MessageError:
-    """msgspec's or the codec's complaint about a payload as a MessageError naming type and field."""
+    """msgspec's or the codec's complaint about a payload as a MessageError naming type and field.
+
+    What is wrong is found from the message's declaration, not from msgspec's words: the payload is
+    read as plain data and each field is given the check publishing gives it (`Field.check`)."""
     if isinstance(exc, CodecError):
         return MessageError(str(exc))
     if isinstance(exc, UnicodeDecodeError):   # msgspec decodes map keys itself, and raises this for bad UTF-8
         return MessageError(f"not a message: a string that is not UTF-8 ({exc.reason} at byte {exc.start})")
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
         return MessageError(f"not a msgpack payload: {exc}")
-    found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
-    text, key, path = found.group(1), found.group(2), found.group(3) or ""
-    if not path and text.startswith("Expected `object`"):
-        return MessageError(f"expected a message map, got {text.rpartition('got ')[2].strip('`')}")
-    name = _type_of(payload)
+    try:
+        data = unpack(payload)
+    except CodecError as bad:
+        return MessageError(str(bad))
+    if not isinstance(data, dict):
+        return MessageError(f"expected a message map, got {_kind(data)}")
+    name = data.get("type")
     cls = TYPES.get(name) if isinstance(name, str) else None
-    if path == "type" or cls is None or (expected is not None and cls is not expected):
-        if cls is None:
-            return MessageError(f"unknown message type {name!r}")
+    if cls is None:
+        return MessageError(f"unknown message type {name!r}")
+    if expected is not None and cls is not expected:
         return MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
-    if text.startswith("Object missing required field"):
-        return MessageError(f"{cls.TYPE}.{text.split('`')[1]}: missing")
-    if text.startswith("Object contains unknown field"):
-        return MessageError(f"{cls.TYPE}: unknown field(s) {text.split('`')[1]}")
-    field = next((f for f in cls.FIELDS if f.name == path.split(".")[0].split("[")[0]), None)
-    if field is not None and typing.get_origin(field.type) is Literal and text.startswith("Invalid enum value"):
-        text = f"expected one of {', '.join(typing.get_args(field.type))}, got {text.split(' ', 3)[3]}"
-    elif "1.7976931348623157e+308" in text:
-        text = "expected a finite number"
-    elif text.startswith("Expected `"):   # as publishing says it: "expected a number, got str"
-        want, _, got = text[len("Expected `"):].partition("`, got `")
-        text = f"expected {_WIRE_NAMES.get(want, want)}, got {_WIRE_NAMES.get(got.strip('`'), got.strip('`'))}"
-    else:
-        text = text[0].lower() + text[1:]
-    if key:
-        text = f"keys: {text}"
-    return MessageError(f"{cls.TYPE}.{path}: {text}" if path else f"{cls.TYPE}: {text}")
+    return MessageError(f"{cls.TYPE}{_problem(cls, data) or f': {exc}'}")
+
+
+def _problem(cls: type[Message], data: dict) -> str | None:
+    """What is wrong with the map `data` as a `cls` message (".field: ..." or ": ..."), or None if
+    the fields' own checks find nothing (msgspec's words are then all there is)."""
+    keys = [k for k in data if not isinstance(k, str)]
+    if keys:
+        return f": keys: expected a string, got {_kind(keys[0])}"
+    fields = {f.name: f for f in cls.FIELDS}
+    unknown = [k for k in data if k != "type" and k not in fields]
+    if unknown:
+        return f": unknown field(s) {', '.join(unknown)}"
+    for f in cls.FIELDS:
+        if f.name not in data:
+            if not f.optional:
+                return f".{f.name}: missing"
+            continue
+        try:
+            f.check(data[f.name])
+        except ValueError as exc:
+            return f".{f.name}{_sep(exc)}{exc}"
+    return None
+
+
+def _kind(value) -> str:
+    """A wire value's kind in the messages' words (a list, a map, a string, ...)."""
+    return _WIRE_NAMES.get(type(value).__name__, type(value).__name__)
 
 
 _WIRE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
-               "array": "a list", "object": "a map", "numpy.ndarray": "a numpy array", "null": "nil"}
-
-
-def _type_of(payload: bytes):
-    """The "type" of a payload that failed to decode (for the error's text), or None."""
-    found = peek_any(payload)
-    return found[0] if found else None
+               "list": "a list", "dict": "a map", "ndarray": "a numpy array", "NoneType": "nil", "bytes": "bytes"}
