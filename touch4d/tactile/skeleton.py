@@ -299,6 +299,13 @@ class Skeleton:
         raise JointsError("positions: expected joints within a hand's reach of each other, got coordinates too "
                           "large to compute with")
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels now, by placing the rest joint set: a
+        loop's first joint set then costs what the others do."""
+        rest = self.joint_set(np.zeros(3), quaternion.IDENTITY, self.units_per_metre)
+        self.place("samples", self.transforms(rest.names, rest.positions, rest.orientations, rest.handedness,
+                                              self.units_per_metre))
+
     def place(self, which: str, m: np.ndarray) -> np.ndarray:
         """The samples ("samples") or motors ("motors") in the screen, from `transforms`: each point
         through its own bone's map."""
