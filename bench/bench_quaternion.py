@@ -8,7 +8,7 @@ Candidates, each for a stack (K, 4) and a single (4,):
   quadratic form  each entry a quadratic form of q: the outer products q q^T (K, 16) times a
                   constant (16, 9) in one matrix product
   scipy           Rotation.from_quat(q).as_matrix()
-Each figure: microseconds per conversion (median of 5 rounds), and its ratio to the fastest of the load.
+Each figure: CPU microseconds per conversion (median of 5 rounds), and its ratio to the fastest of the load.
 
     .venv/bin/python bench/bench_quaternion.py [--number 20000]
 """
@@ -42,13 +42,13 @@ CANDIDATES = {"closed form": closed_form, "quadratic form": quaternion.to_matrix
 
 
 def per_call(fn, q, number: int) -> float:
-    """Median over 5 rounds of the mean time per call, microseconds."""
+    """Median over 5 rounds of the mean CPU time per call, microseconds (the machine's other load not counted)."""
     rounds = []
     for _ in range(5):
-        start = time.perf_counter()
+        start = time.process_time()
         for _ in range(number):
             fn(q)
-        rounds.append((time.perf_counter() - start) / number * 1e6)
+        rounds.append((time.process_time() - start) / number * 1e6)
     return float(np.median(rounds))
 
 

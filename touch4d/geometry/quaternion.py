@@ -4,7 +4,8 @@ scipy's Rotation is the reference (the tests compare against it) and reads confi
 of microseconds per call on single rotations; a tracker at 1 kHz composes several per pose, so the
 per-sample path uses these few closed forms instead (bench/bench_tracking.py has the figures).
 `to_matrix` is the library's one quaternion -> matrix conversion, for one quaternion or a stack of
-them (bench/bench_quaternion.py chose it over the entries written out and over scipy).
+them: bench/bench_quaternion.py chose the quadratic form (a stack of 16 or 25 in ~5 us, 6x quicker
+than the entries written out and 2.5x than scipy; one quaternion ~1 us slower than written out).
 """
 from __future__ import annotations
 
