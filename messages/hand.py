@@ -17,10 +17,10 @@ def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float =
         if not abs(norm - 1.0) <= tol:   # NaN too
             raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
         return
-    norms = np.sqrt(np.einsum("ij,ij->i", q, q))
-    off = ~(np.abs(norms - 1.0) <= tol)
-    if off.any():
-        i = int(off.argmax())
+    n2 = np.einsum("ij,ij->i", q, q)      # squared norms: |n - 1| <= tol is (1 - tol)^2 <= n^2 <= (1 + tol)^2
+    if len(n2) and not (n2.min() >= (1.0 - tol) ** 2 and n2.max() <= (1.0 + tol) ** 2):   # NaN fails both
+        norms = np.sqrt(n2)
+        i = int((~(np.abs(norms - 1.0) <= tol)).argmax())
         raise ValueError(f"{name}[{i}]: expected a unit quaternion (x, y, z, w), got norm {norms[i]:.6g}")
 
 
