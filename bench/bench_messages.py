@@ -1,8 +1,8 @@
 """Message codec benchmark: the cost of one message's construction, `publish_payload(seq)` (check,
 stamp, encode) and decoding by a subscription's `decoder(type)`, in microseconds, beside plain
 msgpack of the same fields (arrays as raw bytes: no checks, no dtype or shape), measured in the
-same run. Messages: a HandPose (the 1 kHz stream), a 30-motor MotorCommand and a 256-sample
-TactileField. Each figure is CPU time (process_time: what the machine's other load takes from the
+same run. Messages: a HandPose (the 1 kHz stream), a HandJoints of WebXR's 25 joints (25 unit
+quaternions checked), a 30-motor MotorCommand and a 256-sample TactileField. Each figure is CPU time (process_time: what the machine's other load takes from the
 run is not counted), the best of a few repeats.
 
     .venv/bin/python bench/bench_messages.py [--number 20000] [--repeat 5]
@@ -35,9 +35,14 @@ def cases(messages):
     names, intensity = [f"m{i}" for i in range(30)], rng.random(30)
     n = 256
     samples, l, s, h = rng.random((n, 3)), rng.random(n), rng.random(n), rng.random(n)
+    joint_names = [f"joint-{i}" for i in range(25)]
+    joint_q = np.tile(quat, (25, 1))
+    joints = {"handedness": "left", "names": joint_names, "positions": rng.random((25, 3)), "orientations": joint_q,
+              "radii": np.full(25, 0.01), "valid": True}
     return [
         ("HandPose", lambda: messages.HandPose(position=pos, orientation=quat, valid=True),
          {"position": pos, "orientation": quat, "valid": True}),
+        ("HandJoints x25", lambda: messages.HandJoints(**joints), joints),
         ("MotorCommand x30", lambda: messages.MotorCommand(names=names, intensity=intensity),
          {"names": names, "intensity": intensity}),
         ("TactileField x256", lambda: messages.TactileField(positions=samples, l=l, s=s, h=h, alpha=1.0, beta=0.5,

@@ -23,10 +23,10 @@ import time
 import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
 import numpy as np
 
+from touch4d.geometry import quaternion
 from touch4d.geometry.rotation import rotation_from_list
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.pose import quaternion_matrix
 from touch4d.hands import HandShape
 from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 
@@ -53,9 +53,9 @@ def twenty_objects() -> Scene:
     return Scene(objects=objects)
 
 
-def plain_numpy(glove, normals, offsets, starts, position, quaternion):
+def plain_numpy(glove, normals, offsets, starts, position, q):
     """Eq. 4-7 and 1-3 as one straightforward numpy expression chain: every sample x every half-space."""
-    p = glove.samples @ (quaternion_matrix(quaternion) * glove.units_per_metre).T + position
+    p = glove.samples @ (quaternion.to_matrix(q) * glove.units_per_metre).T + position
     inside = np.all(np.abs(p) <= 1.0, axis=1)
     nw = normals[:, 3]
     room = offsets - p @ normals[:, :3].T                       # n3.p + nw t <= c  <=>  nw t <= room

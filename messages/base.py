@@ -32,9 +32,9 @@ import numpy as np
 
 from touch4d.errors import Touch4dError
 
-from .codec import CodecError, _ext_hook, encode_plain
+from .codec import CodecError, _ext_hook, encode_plain, unpack
 from .header import DOCS as HEADER_DOCS
-from .header import Finite, Header, peek_any
+from .header import Finite, Header
 
 __all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
            "decoder"]
@@ -270,6 +270,42 @@ def _zero(tp) -> Callable[[], Any] | Any:
     return {int: 0, bool: False, str: ""}[tp]
 
 
+def _usual(fields) -> tuple[Callable[[Any], bool], tuple]:
+    """(usual(msg), rest): `usual` answers in one expression, compiled once per class as dataclasses
+    writes an __init__, whether every field it covers holds the usual value of its type (a float,
+    an int, a bool, a string, a choice, a small numpy vector of its shape and kind; all finite that
+    must be); `rest` ((name, check) pairs) are the fields it leaves to their own checks. A no says
+    nothing: the fields' checks, which say what is wrong, then look one by one."""
+    env: dict[str, Any] = {"ndarray": np.ndarray, "isfinite": math.isfinite}
+    loads, terms, finite, rest = [], [], [], []
+    for k, (name, tp) in enumerate(fields):
+        v, spec, origin = f"v{k}", _spec(tp), typing.get_origin(tp)
+        if tp is Finite or tp is float:
+            terms.append(f"{v}.__class__ is float")
+            if tp is Finite:
+                finite.append(v)
+        elif tp in (int, bool, str):
+            terms.append(f"{v}.__class__ is {tp.__name__}")
+        elif origin is Literal and all(isinstance(a, str) for a in typing.get_args(tp)):
+            env[f"c{k}"] = frozenset(typing.get_args(tp))
+            terms.append(f"{v}.__class__ is str and {v} in c{k}")
+        elif (isinstance(spec, ArraySpec) and len(spec.shape) == 1 and spec.shape[0] is not None
+              and spec.shape[0] <= 16):
+            env[f"s{k}"], env[f"k{k}"] = spec.shape, spec.kinds
+            terms.append(f"{v}.__class__ is ndarray and {v}.shape == s{k} and {v}.dtype.kind in k{k}")
+            if spec.check_finite:
+                finite.append(f"sum({v}.tolist())")
+        else:
+            rest.append((name, _checker(tp)))
+            continue
+        loads.append(f"    {v} = msg.{name}\n")
+    # a finite sum proves every term finite (a sum too large for a float says no: then each is looked at)
+    terms.append(f"isfinite({' + '.join(finite)})" if finite else "True")
+    source = f"def usual(msg):\n{''.join(loads)}    return ({' and '.join(terms)})\n"
+    exec(source, env)  # noqa: S102 - source made above from the class's own field types
+    return env["usual"], tuple(rest)
+
+
 def _needs_check_after_decode(tp) -> bool:
     """Whether msgspec's decoding leaves part of a field's check undone (arrays and records)."""
     return _spec(tp) is not None or (typing.get_origin(tp) is list and _spec(typing.get_args(tp)[0]) is not None)
@@ -352,8 +388,12 @@ class MessageMeta(msgspec.StructMeta):
         cls._defaults = _make(cls, **{f.name: f.default() if callable(f.default) else f.default for f in fields})
         cls._coerce = {f.name: f.coerce for f in fields if f.coerce is not None}
         cls._checks = tuple((f.name, f.check) for f in fields)
-        cls._body_checks = tuple((f.name, f.check) for f in fields if f.name not in HEADER_DOCS)
         cls._after_decode = tuple((f.name, f.check) for f in fields if _needs_check_after_decode(f.type))
+        # the whole message at one look, then only what that look leaves (publishing; after decoding)
+        usual, cls._rest = _usual([(f.name, f.type) for f in fields])
+        usual_decoded, cls._rest_decoded = _usual([(f.name, f.type) for f in fields
+                                                   if _needs_check_after_decode(f.type)])
+        cls._usual, cls._usual_decoded = staticmethod(usual), staticmethod(usual_decoded)
         cls._optional = tuple((f.name, f.default) for f in fields if f.optional)
         cls._overrides_check = cls.check is not Message.check
         cls._decode = msgspec.msgpack.Decoder(cls, ext_hook=_ext_hook).decode
@@ -404,11 +444,8 @@ class Message(Header, metaclass=MessageMeta, tag_field="type", omit_defaults=Tru
 
     def validate(self) -> None:
         """Check every field (types, shapes, finiteness) and the message's own rules (`check`)."""
-        s, q, t, r = self.stamp, self.seq, self.source_stamp, self.recorded_stamp
-        # the header as it nearly always is, at one look (any other value: each field's own check)
-        usual = (s.__class__ is float and t.__class__ is float and r.__class__ is float and q.__class__ is int
-                 and s - s == 0.0 and t - t == 0.0 and r - r == 0.0)
-        _checked(self, self._body_checks if usual else self._checks)
+        # the message as it nearly always is, at one look; else each field's own check says what is wrong
+        _checked(self, self._rest if self._usual(self) else self._checks)
 
     def to_dict(self) -> dict[str, Any]:
         """The message as the map it is sent as (an optional field at its default left out)."""
@@ -493,13 +530,14 @@ def _checked(msg: Message, checks: tuple) -> Message:
 def decoder(expected: type[Message]) -> Callable[[bytes], Message]:
     """`decode(payload, expected)` as one function, made once (a subscription's)."""
     decode_one, checks = expected._decode, expected._after_decode
+    usual, rest = expected._usual_decoded, expected._rest_decoded
 
     def decode_expected(payload: bytes) -> Message:
         try:
             msg = decode_one(payload)
         except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
             raise _error(exc, payload, expected) from None
-        return _checked(msg, checks)
+        return _checked(msg, rest if usual(msg) else checks)
 
     return decode_expected
 
@@ -510,7 +548,7 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
         msg = expected._decode(payload) if expected is not None else _decode_any(payload)
     except (msgspec.ValidationError, msgspec.DecodeError, CodecError, UnicodeDecodeError) as exc:
         raise _error(exc, payload, expected) from None
-    return _checked(msg, msg._after_decode)
+    return _checked(msg, msg._rest_decoded if msg._usual_decoded(msg) else msg._after_decode)
 
 
 def encode(msg: Message) -> bytes:
@@ -519,47 +557,57 @@ def encode(msg: Message) -> bytes:
 
 
 def _error(exc: Exception, payload: bytes, expected: type[Message] | None) -> MessageError:
-    """msgspec's or the codec's complaint about a payload as a MessageError naming type and field."""
+    """msgspec's or the codec's complaint about a payload as a MessageError naming type and field.
+
+    What is wrong is found from the message's declaration, not from msgspec's words: the payload is
+    read as plain data and each field is given the check publishing gives it (`Field.check`)."""
     if isinstance(exc, CodecError):
         return MessageError(str(exc))
     if isinstance(exc, UnicodeDecodeError):   # msgspec decodes map keys itself, and raises this for bad UTF-8
         return MessageError(f"not a message: a string that is not UTF-8 ({exc.reason} at byte {exc.start})")
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
         return MessageError(f"not a msgpack payload: {exc}")
-    found = re.fullmatch(r"(.*?)(?: - at `(key` in `)?\$\.?(.*)`)?", str(exc), re.S)
-    text, key, path = found.group(1), found.group(2), found.group(3) or ""
-    if not path and text.startswith("Expected `object`"):
-        return MessageError(f"expected a message map, got {text.rpartition('got ')[2].strip('`')}")
-    name = _type_of(payload)
+    try:
+        data = unpack(payload)
+    except CodecError as bad:
+        return MessageError(str(bad))
+    if not isinstance(data, dict):
+        return MessageError(f"expected a message map, got {_kind(data)}")
+    name = data.get("type")
     cls = TYPES.get(name) if isinstance(name, str) else None
-    if path == "type" or cls is None or (expected is not None and cls is not expected):
-        if cls is None:
-            return MessageError(f"unknown message type {name!r}")
+    if cls is None:
+        return MessageError(f"unknown message type {name!r}")
+    if expected is not None and cls is not expected:
         return MessageError(f"expected a {expected.TYPE} message, got {cls.TYPE}")
-    if text.startswith("Object missing required field"):
-        return MessageError(f"{cls.TYPE}.{text.split('`')[1]}: missing")
-    if text.startswith("Object contains unknown field"):
-        return MessageError(f"{cls.TYPE}: unknown field(s) {text.split('`')[1]}")
-    field = next((f for f in cls.FIELDS if f.name == path.split(".")[0].split("[")[0]), None)
-    if field is not None and typing.get_origin(field.type) is Literal and text.startswith("Invalid enum value"):
-        text = f"expected one of {', '.join(typing.get_args(field.type))}, got {text.split(' ', 3)[3]}"
-    elif "1.7976931348623157e+308" in text:
-        text = "expected a finite number"
-    elif text.startswith("Expected `"):   # as publishing says it: "expected a number, got str"
-        want, _, got = text[len("Expected `"):].partition("`, got `")
-        text = f"expected {_WIRE_NAMES.get(want, want)}, got {_WIRE_NAMES.get(got.strip('`'), got.strip('`'))}"
-    else:
-        text = text[0].lower() + text[1:]
-    if key:
-        text = f"keys: {text}"
-    return MessageError(f"{cls.TYPE}.{path}: {text}" if path else f"{cls.TYPE}: {text}")
+    return MessageError(f"{cls.TYPE}{_problem(cls, data) or f': {exc}'}")
+
+
+def _problem(cls: type[Message], data: dict) -> str | None:
+    """What is wrong with the map `data` as a `cls` message (".field: ..." or ": ..."), or None if
+    the fields' own checks find nothing (msgspec's words are then all there is)."""
+    keys = [k for k in data if not isinstance(k, str)]
+    if keys:
+        return f": keys: expected a string, got {_kind(keys[0])}"
+    fields = {f.name: f for f in cls.FIELDS}
+    unknown = [k for k in data if k != "type" and k not in fields]
+    if unknown:
+        return f": unknown field(s) {', '.join(unknown)}"
+    for f in cls.FIELDS:
+        if f.name not in data:
+            if not f.optional:
+                return f".{f.name}: missing"
+            continue
+        try:
+            f.check(data[f.name])
+        except ValueError as exc:
+            return f".{f.name}{_sep(exc)}{exc}"
+    return None
+
+
+def _kind(value) -> str:
+    """A wire value's kind in the messages' words (a list, a map, a string, ...)."""
+    return _WIRE_NAMES.get(type(value).__name__, type(value).__name__)
 
 
 _WIRE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
-               "array": "a list", "object": "a map", "numpy.ndarray": "a numpy array", "null": "nil"}
-
-
-def _type_of(payload: bytes):
-    """The "type" of a payload that failed to decode (for the error's text), or None."""
-    found = peek_any(payload)
-    return found[0] if found else None
+               "list": "a list", "dict": "a map", "ndarray": "a numpy array", "NoneType": "nil", "bytes": "bytes"}

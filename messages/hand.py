@@ -10,9 +10,18 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)  # quaternion x, y, z, w
 
 
 def check_unit_quaternion(q: np.ndarray, name: str = "orientation", tol: float = 1e-3) -> None:
-    norm = math.hypot(*q.tolist())
-    if abs(norm - 1.0) > tol:
-        raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
+    """Raise ValueError unless `q` (4,) is a unit quaternion, or every row of a stack (N, 4) is (the
+    stack's norms in one array operation; the error names the first row that is not: name[i])."""
+    if q.ndim == 1:
+        norm = math.hypot(*q.tolist())
+        if not abs(norm - 1.0) <= tol:   # NaN too
+            raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
+        return
+    n2 = np.einsum("ij,ij->i", q, q)      # squared norms: |n - 1| <= tol is (1 - tol)^2 <= n^2 <= (1 + tol)^2
+    if len(n2) and not (n2.min() >= (1.0 - tol) ** 2 and n2.max() <= (1.0 + tol) ** 2):   # NaN fails both
+        norms = np.sqrt(n2)
+        i = int((~(np.abs(norms - 1.0) <= tol)).argmax())
+        raise ValueError(f"{name}[{i}]: expected a unit quaternion (x, y, z, w), got norm {norms[i]:.6g}")
 
 
 class HandPose(Message):
@@ -67,5 +76,4 @@ class HandJoints(Message):
             raise ValueError(f"names, positions, orientations and radii: expected equal lengths, got {n}, "
                              f"{len(self.positions)}, {len(self.orientations)}, {len(self.radii)}")
         if self.valid:
-            for i, q in enumerate(self.orientations):
-                check_unit_quaternion(q, f"orientations[{i}]")
+            check_unit_quaternion(self.orientations, "orientations")

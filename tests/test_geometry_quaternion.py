@@ -1,4 +1,5 @@
-"""The numpy quaternion helpers agree with scipy's Rotation (the reference) on random rotations."""
+"""The numpy quaternion helpers: the matrix against Rodrigues' formula (a closed form from axis and
+angle), the others against scipy's Rotation (the reference) on random rotations."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
@@ -34,3 +35,38 @@ def test_small_rotations_stay_exact_and_canonical_picks_w_positive():
     close = Rotation.from_rotvec([0, 0, 1e-3])
     assert np.allclose(qt.to_matrix(qt.slerp(qt.IDENTITY, close.as_quat(), 0.5)),
                        Rotation.from_rotvec([0, 0, 5e-4]).as_matrix())
+
+
+def rodrigues(axis, angle: float) -> np.ndarray:
+    """The rotation by `angle` about the unit `axis`: cos I + sin [k]x + (1 - cos) k k^T."""
+    k = np.asarray(axis, dtype=float)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.cos(angle) * np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * np.outer(k, k)
+
+
+def axis_angle_quaternion(axis, angle: float) -> np.ndarray:
+    return np.r_[np.sin(angle / 2) * np.asarray(axis, dtype=float), np.cos(angle / 2)]
+
+
+AXES_ANGLES = [(np.array(a) / np.linalg.norm(a), t) for a, t in
+               [((1, 0, 0), 0.3), ((0, 1, 0), -1.2), ((0, 0, 1), np.pi / 2), ((1, 2, -2), 2.9), ((-3, 1, 5), np.pi),
+                ((0.2, -0.7, 0.1), 1e-7)]]
+
+
+def test_to_matrix_is_rodrigues_for_one_quaternion_and_for_stacks():
+    for axis, angle in AXES_ANGLES:
+        assert np.allclose(qt.to_matrix(axis_angle_quaternion(axis, angle)), rodrigues(axis, angle), atol=1e-14)
+        assert np.allclose(qt.to_matrix(-axis_angle_quaternion(axis, angle)), rodrigues(axis, angle), atol=1e-14)
+    stack = np.array([axis_angle_quaternion(a, t) for a, t in AXES_ANGLES])
+    expected = np.array([rodrigues(a, t) for a, t in AXES_ANGLES])
+    assert qt.to_matrix(stack).shape == (len(AXES_ANGLES), 3, 3)
+    assert np.allclose(qt.to_matrix(stack), expected, atol=1e-14)
+    grid = np.stack([stack, stack[::-1]])            # any leading shape
+    assert np.allclose(qt.to_matrix(grid), np.stack([expected, expected[::-1]]), atol=1e-14)
+
+
+def test_to_matrix_turns_x_to_y_at_90_degrees_about_z_and_scales_by_the_squared_norm():
+    q = np.array([0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])
+    assert np.allclose(qt.to_matrix(q) @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+    assert np.array_equal(qt.to_matrix([0, 0, 0, 1]), np.eye(3))
+    assert np.allclose(qt.to_matrix(2.0 * q), 4.0 * rodrigues([0, 0, 1], np.pi / 2), atol=1e-14)

@@ -1,12 +1,13 @@
 """Messages: round trips keep types, dtypes and shapes; bad payloads are rejected with a clear reason."""
 import msgpack
+import msgspec
 import numpy as np
 import pytest
 
 from touch4d.messages import (
     TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
     MotorStatus, MotorTrace, PhysicsContacts, PhysicsInput, SceneCommand, SceneState, Stop, StudyCommand, StudyResponse,
-    StudyTrial, TactileField, decode, encode,
+    StudyTrial, TactileField, decode, decoder, encode,
 )
 from touch4d.messages.codec import pack
 
@@ -104,6 +105,36 @@ def test_bad_payloads_are_rejected_with_the_reason(payload, reason):
     with pytest.raises(MessageError) as info:
         decode(payload)
     assert reason in str(info.value)
+
+
+@pytest.mark.parametrize("payload, reason", [
+    (pack({"type": "HandPose", "stamp": float("inf"), "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.stamp: expected a finite number, got inf"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 1.5, "source_stamp": 0.0, "position": np.zeros(3),
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.seq: expected an integer, got float"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": [0, 0, 0],
+           "orientation": np.array([0, 0, 0, 1.0]), "valid": True}), "HandPose.position: expected a numpy array, got list"),
+    (pack({"type": "HandJoints", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "handedness": "middle", "names": [],
+           "positions": np.zeros((0, 3)), "orientations": np.zeros((0, 4)), "radii": np.zeros(0), "valid": False}),
+     "HandJoints.handedness: expected one of right, left, got 'middle'"),
+    (pack({"type": "HandPose", "stamp": 0.0, "seq": 0, "source_stamp": 0.0, "position": np.zeros(3),
+           "valid": True}), "HandPose.orientation: missing"),
+    (pack({"type": "HandPose", 7: 0.0}), "HandPose: keys: expected a string, got an integer"),
+])
+def test_what_is_wrong_is_read_from_the_declaration_not_from_msgspecs_words(monkeypatch, payload, reason):
+    """msgspec's message for a payload it refuses may change wording: the error says the same."""
+    cls = HandJoints if b"HandJoints" in payload else HandPose
+    def reworded(data):
+        try:
+            return real(data)
+        except msgspec.ValidationError:
+            raise msgspec.ValidationError("Something else entirely - at `$.nowhere`") from None
+    real = cls._decode
+    monkeypatch.setattr(cls, "_decode", reworded)
+    for decode_it in (lambda: decode(payload, cls), lambda: decoder(cls)(payload)):
+        with pytest.raises(MessageError) as info:
+            decode_it()
+        assert str(info.value) == reason
 
 
 def test_expected_type_is_enforced():

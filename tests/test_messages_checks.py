@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from touch4d.errors import Touch4dError
 from touch4d.messages import (
-    TOPIC_TYPES, TYPES, HandPose, Message, MessageError, MotorCommand, MotorStatus, TactileField, decode, decoder,
+    TOPIC_TYPES, TYPES, HandJoints, HandPose, Message, MessageError, MotorCommand, MotorStatus, TactileField, decode, decoder,
 )
 from touch4d.messages.base import Array, ArraySpec, Float, Map, Records, RecordsSpec, doc
 from touch4d.messages.codec import CodecError, pack, unpack
@@ -260,6 +260,40 @@ def test_every_field_refuses_bad_values_by_name_on_publish_and_on_the_wire(examp
     if not field.optional:
         with pytest.raises(MessageError, match=rf"^{cls.TYPE}\.{name}: missing"):
             decode(pack({k: v for k, v in good.items() if k != name}), cls)
+
+
+@pytest.mark.parametrize("example, name", [c for c in _cases() if c.values[1] not in dict(type(c.values[0])._rest)])
+def test_the_one_look_at_a_message_never_passes_what_its_fields_checks_refuse(example, name):
+    """Publishing looks at the whole message once (`_usual`), then at the fields that look leaves
+    (`_rest`), and at each field only when it says no: a yes must never let through a value the
+    field's own check refuses."""
+    cls = type(example)
+    field = next(f for f in cls.FIELDS if f.name == name)
+    odd = [*bad_values(field.type), 1, 1.0, True, "x", math.nan, np.ones(3, np.float32), np.ones(4), [0.0]]
+    for value in odd:
+        msg = decode(example.encode(), cls)
+        setattr(msg, name, value)
+        try:
+            field.check(value)
+        except ValueError:
+            assert not cls._usual(msg), (name, value)
+    assert cls._usual(decode(example.encode(), cls))
+
+
+def test_a_joint_set_names_its_first_quaternion_that_is_not_unit_length():
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (25, 1)).astype(np.float32)
+    q[3] = [0.0, 0.6, 0.0, 0.8005]                   # within the float32 tolerance (norm 1.0004)
+    joints = HandJoints(handedness="left", names=[f"j{i}" for i in range(25)], positions=np.zeros((25, 3)),
+                        orientations=q, radii=np.full(25, 0.01), valid=True)
+    joints.publish_payload(0)
+    joints.orientations[7, 3] = 1.01
+    joints.orientations[12, 3] = 0.5
+    with pytest.raises(MessageError, match=r"^HandJoints.orientations\[7\]: expected a unit quaternion .* norm 1.01$"):
+        joints.publish_payload(1)
+    with pytest.raises(MessageError, match=r"^HandJoints.orientations\[7\]: expected a unit quaternion"):
+        decode(joints.encode(), HandJoints)
+    joints.valid = False                              # an untracked hand's arrays are stale: not checked
+    joints.publish_payload(2)
 
 
 def test_every_topic_type_has_an_example_here():

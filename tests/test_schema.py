@@ -1,5 +1,5 @@
 """The schema layer: declared file types, one error naming file, key path, expected and got."""
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 import pytest
@@ -85,3 +85,64 @@ def test_numpy_numbers_convert_like_the_python_ones_yaml_gives():
 def test_a_misspelt_required_key_is_named_as_written():
     e = error({"objcts": [{}]})
     assert e.key == "objcts" and "did you mean 'objects'?" in str(e) and "objects, mode" in e.expected
+
+
+class Checked(msgspec.Struct, forbid_unknown_fields=True):
+    """Every kind of mistake a file can hold, for the test below."""
+
+    kind: Literal["sweep", "hold"] = "hold"
+    size: Annotated[float, msgspec.Meta(gt=0, le=10)] = 1.0
+    at: schema.Finite = 0.0
+    described: schema.Fraction = 0.5
+    corner: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    names: Annotated[list[str], msgspec.Meta(min_length=1)] = msgspec.field(default_factory=lambda: ["a"])
+    table: dict[str, float] = msgspec.field(default_factory=dict)
+    color: str | list[float] | None = None
+    low: float = 0.0
+    high: float = 1.0
+
+    def __post_init__(self):
+        if self.low > self.high:
+            raise schema.Invalid(f"a number <= high ({self.high:g})", self.low, "low")
+
+
+class Outer(msgspec.Struct, forbid_unknown_fields=True):
+    items: list[Checked]
+
+
+MISTAKES = [   # the second item of `items` (the first is good), and the error: key, expected, got, hint
+    ({"kind": "swep"}, ("items[1].kind", "one of sweep, hold", "swep", "did you mean 'sweep'?")),
+    ({"size": 0}, ("items[1].size", "a number > 0", 0, None)),
+    ({"size": 11.5}, ("items[1].size", "a number <= 10", 11.5, None)),
+    ({"size": "big"}, ("items[1].size", "a number", "big", None)),
+    ({"at": float("inf")}, ("items[1].at", "a finite number", float("inf"), None)),
+    ({"described": 2}, ("items[1].described", "a number in 0..1", 2, None)),
+    ({"corner": [1, 2]}, ("items[1].corner", "a list of 3 numbers", [1, 2], None)),
+    ({"corner": [1, "x", 3]}, ("items[1].corner[1]", "a number", "x", None)),
+    ({"names": []}, ("items[1].names", "a list of length >= 1", [], None)),
+    ({"table": {"a": 1, "b": True}}, ("items[1].table.b", "a number", True, None)),
+    ({"table": {3: 1.0}}, ("items[1].table.3", "a key that is a name (text)", 3, None)),
+    ({"color": [1, None]}, ("items[1].color[1]", "a number", None, None)),
+    ({"color": 5}, ("items[1].color", "a string or a list or nothing (null)", 5, None)),
+    ({"sise": 2}, ("items[1].sise", "one of the keys " + ", ".join(schema.struct_fields(Checked)), None,
+                   "did you mean 'size'?")),
+    ({"low": 3, "high": 2}, ("items[1].low", "a number <= high (2)", 3, None)),
+]
+
+
+@pytest.mark.parametrize("item, wanted", MISTAKES, ids=[m[1][0] + ":" + repr(m[0]) for m in MISTAKES])
+def test_what_is_wrong_is_read_from_the_declared_types_not_from_msgspecs_words(monkeypatch, item, wanted):
+    """msgspec's wording of a refusal may change: the error (key, expected, got, hint) stays the same."""
+    real = msgspec.convert
+
+    def reworded(*args, **kwargs):
+        try:
+            return real(*args, **kwargs)
+        except msgspec.ValidationError as exc:
+            raise msgspec.ValidationError("Something else entirely - at `$.nowhere[7]`") from exc.__cause__
+    monkeypatch.setattr(msgspec, "convert", reworded)
+    with pytest.raises(ConfigError) as info:
+        schema.convert({"items": [{}, item]}, Outer, "f.yaml")
+    e = info.value
+    key, expected, got, hint = wanted
+    assert (e.file, e.key, e.expected, e.got, e.hint) == ("f.yaml", key, expected, got, hint)

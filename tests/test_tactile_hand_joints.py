@@ -12,7 +12,7 @@ from touch4d.errors import ConfigError
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.tactile.glove import glove_from_dict, load_glove
 from touch4d.hands import HandShape
-from touch4d.tactile.skeleton import BONE_NAMES, JOINTS, JointsError
+from touch4d.tactile.skeleton import BONE_NAMES, BONES, JOINTS, JointsError
 from touch4d.tactile.stimulus import compute_joint_stimulus, compute_stimulus
 from touch4d.configfile import read_yaml, resolve_path
 
@@ -203,3 +203,28 @@ def test_the_glove_files_bones_section_sets_the_joints_and_is_checked():
         with pytest.raises(ConfigError) as info:
             glove_from_dict(data, "g.yaml")
         assert info.value.key == key and info.value.file == "g.yaml"
+
+
+@pytest.mark.parametrize("handedness, scale", [("left", UPM), ("right", UPM), ("left", 2 * UPM)])
+def test_each_bone_map_is_its_joints_rotation_stretched_along_the_bone(glove, handedness, scale):
+    """Every bone's map from arbitrary joints (random poses, float32 quaternions a little off unit
+    length) against scipy's rotations: the base joint's rotation, its z column times the bone's length
+    over its rest length, x turned round for the other hand, x and y scaled with the screen, moved to
+    the base joint; each point through its own bone's map."""
+    sk = glove.skeleton
+    rng = np.random.default_rng(5)
+    q = (Rotation.random(len(JOINTS), random_state=6).as_quat() * rng.uniform(0.9995, 1.0005, (len(JOINTS), 1)))
+    q = q.astype(np.float32)
+    positions = rng.normal(0.0, 0.2, (len(JOINTS), 3))
+    m = sk.transforms(list(JOINTS), positions, q, handedness, scale)
+    for k, (_, _, base, end) in enumerate(BONES):
+        j, e = JOINTS.index(base), JOINTS.index(end)
+        r = Rotation.from_quat(q[j].astype(float)).as_matrix()
+        stretch = np.linalg.norm(positions[e] - positions[j]) / (UPM * sk.rest_lengths[k])
+        expected = r * [-scale / UPM if handedness != sk.handedness else scale / UPM, scale / UPM, stretch]
+        np.testing.assert_allclose(m[k, :, :3], expected, atol=1e-12)
+        np.testing.assert_allclose(m[k, :, 3], positions[j], atol=0)
+    local = sk.sample_local * UPM
+    placed = sk.place("samples", m)
+    expected = np.einsum("nij,nj->ni", m[sk.sample_bone, :, :3], local) + m[sk.sample_bone, :, 3]
+    np.testing.assert_allclose(placed, expected, atol=1e-12)

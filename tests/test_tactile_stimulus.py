@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as hs
 
 from touch4d.tactile.glove import load_glove
-from touch4d.tactile.pose import PoseError, check_pose, place, quaternion_matrix
+from touch4d.tactile.pose import PoseError, check_pose, place
 from touch4d.tactile.stimulus import (adjusted_strength, compute_stimulus, intensity, no_stimulus,
                                       relative_strength)
 
@@ -82,12 +82,6 @@ def test_eq3_intensity_is_gamma_h():
 
 
 # ---- poses ---------------------------------------------------------------------------------------
-
-
-def test_quaternion_matrix_turns_x_to_y_for_90_degrees_about_z():
-    q = np.array([0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])
-    np.testing.assert_allclose(quaternion_matrix(q) @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(quaternion_matrix(np.array([0, 0, 0, 1.0])), np.eye(3))
 
 
 def test_place_scales_metres_to_screen_units_rotates_and_translates():

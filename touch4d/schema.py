@@ -17,8 +17,10 @@ the garbage collector; constrain the union as a whole or check in `__post_init__
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import sys
+import types
 import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -38,16 +40,6 @@ Finite = Annotated[float, msgspec.Meta(ge=-FINITE_MAX, le=FINITE_MAX, descriptio
 Positive = Annotated[float, msgspec.Meta(gt=0, le=FINITE_MAX, description="a finite number > 0")]
 NonNegative = Annotated[float, msgspec.Meta(ge=0, le=FINITE_MAX, description="a finite number >= 0")]
 Fraction = Annotated[float, msgspec.Meta(ge=0, le=1, description="a number in 0..1")]
-
-_ENUM = re.compile(r"^Invalid (?:enum )?value (?P<got>.+)$")
-_AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
-_AT_KEY = re.compile(r" - at `key` in `\$(?P<path>[^`]*)`$")
-_UNKNOWN = re.compile(r"^Object contains unknown field `(?P<name>[^`]*)`")
-_MISSING = re.compile(r"^Object missing required field `(?P<name>[^`]*)`")
-_EXPECTED = re.compile(r"^Expected (?P<expected>.+?)(?:, got `(?P<got>[^`]*)`|, got (?P<count>\d+))?$")
-# msgspec's words for YAML's kinds of value, as a user of a YAML file knows them
-_WORDS = {"object": "a mapping", "array": "a list", "str": "a string", "float": "a number", "int": "an integer",
-          "bool": "true or false", "null": "nothing (null)"}
 
 
 def read_text(path, what: str = "file") -> str:
@@ -128,17 +120,13 @@ class Invalid(Touch4dError, ValueError):
 def error_of(exc: msgspec.ValidationError, data, type_, file=None, key: str = "") -> ConfigError:
     """The ConfigError for msgspec's ValidationError `exc` raised converting (or decoding) `data` to
     `type_`: key path, expected and got in the words of a YAML or JSON file."""
-    text = str(exc)
-    cause = exc.__cause__
-    if isinstance(cause, Invalid):
-        at = _AT.search(text)
-        where = _walk(data, type_, at.group("path") if at else "", key)[0]
-        if cause.key:
-            where = join(where, cause.key)
-        return ConfigError(file, where or "(top level)", cause.expected, got=cause.got, hint=cause.hint)
+    found = _mismatch(data, type_, file, key)
+    if found is not None:
+        return found
+    cause = exc.__cause__                   # every part converts (`data` is not what msgspec was given)
     if isinstance(cause, ConfigError):
         return cause
-    return _config_error(text, data, type_, file, key)
+    return ConfigError(file, key or "(top level)", "a valid value", detail=str(cause or exc))
 
 
 def fail(file, key: str, expected: str, got=None, choices=None) -> typing.NoReturn:
@@ -175,89 +163,189 @@ def struct_fields(type_) -> tuple[str, ...]:
     return tuple(f.encode_name for f in msgspec.inspect.type_info(info).fields) if info else ()
 
 
-# ---- msgspec's error text -> ConfigError ------------------------------------------------------------
+# ---- what is wrong, found from the declared type ----------------------------------------------------
 
 
-def _config_error(text: str, data, type_, file, prefix: str) -> ConfigError:
-    path = ""
-    at_key = _AT_KEY.search(text)
-    at = at_key or _AT.search(text)
-    if at:
-        path = at.group("path")
-        text = text[: at.start()]
-    key, value, found, type_ = _walk(data, type_, path, prefix)
-    if at_key:                              # a mapping's key that is not a name
-        bad = next((k for k in value if not isinstance(k, str)), None) if found and isinstance(value, dict) else None
-        return ConfigError(file, join(key, str(bad)) if bad is not None else key or "(top level)",
-                           "a key that is a name (text)", got=bad)
-    if _strip_optional(type_) is not type_ and found and value is not None and not at_key:
-        try:                                # Optional[X] given a value: say what X says (not "or null")
-            msgspec.convert(value, _strip_optional(type_), strict=True)
-        except msgspec.ValidationError as inner:
-            if inner.__cause__ is None and not _AT.search(str(inner)):
-                return _config_error(str(inner), value, _strip_optional(type_), file, key)
-    described = _description(type_)
-    unknown = _UNKNOWN.match(text)
-    if unknown:
-        name = unknown.group("name")
-        allowed = _keys(type_, value if found else None)
-        expected = f"one of the keys {', '.join(allowed)}" if allowed else "no such key"
-        return ConfigError(file, join(key, name), expected, got=None, hint=did_you_mean(name, allowed))
-    missing = _MISSING.match(text)
-    if missing:
-        name = missing.group("name")
-        if found and isinstance(value, dict):   # a required key misspelt: name the misspelling
-            allowed = _keys(type_, value)
-            for given in value:
-                if isinstance(given, str) and given not in allowed and did_you_mean(given, [name]):
+def _mismatch(value, type_, file, key: str) -> ConfigError | None:
+    """The ConfigError for the first place where `value` does not convert to `type_` (an error named
+    at `key` or below it), found by walking the value and the annotation together and converting
+    each part on its own; None if it converts. msgspec's words are never read: only whether a part
+    converts, and the declared type says what was expected."""
+    try:
+        msgspec.convert(value, type_, strict=True)
+        return None
+    except msgspec.ValidationError as exc:
+        own = exc.__cause__                 # a Struct's own check (__post_init__), once its fields convert
+    bare = _bare(type_)
+    tagged = _tagged(type_)
+    if value is not None and _strip_optional(type_) is not type_ and not tagged:
+        return _mismatch(value, _strip_optional(type_), file, key)   # Optional[X] given a value: what X says
+    if typing.get_origin(bare) in (typing.Union, types.UnionType) and not tagged:
+        members = [a for a in typing.get_args(bare) if _is_kind(value, _bare(a))]
+        if len(members) == 1:               # the one member of the value's kind (a list: the list's) says what
+            return _mismatch(value, members[0], file, key)
+    struct = _struct(bare) if not tagged else None
+    if (tagged or struct is not None) and isinstance(value, dict):
+        bad = next((k for k in value if not isinstance(k, str)), None)
+        if bad is not None:
+            return ConfigError(file, join(key, str(bad)), "a key that is a name (text)", got=bad)
+        if tagged:
+            tag_field = tagged[0].__struct_config__.tag_field
+            tags = [m.__struct_config__.tag for m in tagged]
+            if value.get(tag_field) not in tags:
+                return _leaf(value.get(tag_field), Literal[tuple(tags)], file, join(key, tag_field),
+                             found=tag_field in value)
+            struct = next(m for m in tagged if m.__struct_config__.tag == value[tag_field])
+        return _struct_mismatch(value, struct, own, file, key, tagged)
+    origin, args = typing.get_origin(bare), typing.get_args(bare)
+    if origin in (list, tuple, set, frozenset) and isinstance(value, list):
+        fixed = origin is tuple and args and args[-1] is not Ellipsis
+        if fixed and len(value) != len(args):
+            return ConfigError(file, key or "(top level)", _expected(type_, value), got=value)
+        for i, item in enumerate(value):
+            found = _mismatch(item, args[i] if fixed else args[0] if args else Any, file, join(key, f"[{i}]"))
+            if found is not None:
+                return found
+    elif origin is dict and isinstance(value, dict):
+        keys, values = args if len(args) == 2 else (Any, Any)
+        for k, v in value.items():
+            if _mismatch(k, keys, file, key) is not None:
+                return ConfigError(file, join(key, str(k)), "a key that is a name (text)" if keys is str
+                                   else _expected(keys, k), got=k)
+        for k, v in value.items():
+            found = _mismatch(v, values, file, join(key, str(k)))
+            if found is not None:
+                return found
+    return _leaf(value, type_, file, key)
+
+
+def _struct_mismatch(value: dict, struct, own, file, key: str, tagged) -> ConfigError:
+    """The first unknown key, missing key or field that does not convert of a mapping for `struct`;
+    else the Struct's own check (`own`, raised by its __post_init__) at `key`."""
+    allowed = (tagged[0].__struct_config__.tag_field, *struct_fields(struct)) if tagged else struct_fields(struct)
+    if struct.__struct_config__.forbid_unknown_fields:
+        for name in value:
+            if name not in allowed:
+                return ConfigError(file, join(key, name), f"one of the keys {', '.join(allowed)}" if allowed
+                                   else "no such key", hint=did_you_mean(name, allowed))
+    hints = typing.get_type_hints(struct, include_extras=True)
+    info = msgspec.inspect.type_info(struct).fields
+    for f in info:
+        if f.required and f.encode_name not in value:
+            for given in value:              # a required key misspelt: name the misspelling
+                if given not in allowed and did_you_mean(given, [f.encode_name]):
                     return ConfigError(file, join(key, given), f"one of the keys {', '.join(allowed)}",
-                                       hint=did_you_mean(given, [name]))
-        field = _walk({}, type_, f".{name}", "")[3]
-        choices = _choices(field)
-        what = _description(field) or _fixed_tuple(field) or (f"one of {', '.join(map(str, choices))}" if choices
-                                                              else "a value")
-        return ConfigError(file, join(key, name), f"{what} (the key is required)")
-    enum = _ENUM.match(text)
-    if enum:
-        choices = _choices(type_)
-        got = value if found else enum.group("got")
-        if described:
-            return ConfigError(file, key or "(top level)", described, got=got, hint=did_you_mean(got, choices))
-        what = f"one of {', '.join(map(str, choices))}" if choices else "one of the allowed values"
-        return ConfigError(file, key or "(top level)", what, got=got, hint=did_you_mean(got, choices))
-    if text == "Number out of range":
-        return ConfigError(file, key or "(top level)", "a finite number", got=value if found else None)
-    expected = _EXPECTED.match(text)
+                                       hint=did_you_mean(given, [f.encode_name]))
+            field = hints.get(f.name, Any)
+            choices = _choices(field)
+            what = _description(field) or _fixed_tuple(field) or (f"one of {', '.join(map(str, choices))}" if choices
+                                                                  else "a value")
+            return ConfigError(file, join(key, f.encode_name), f"{what} (the key is required)")
+    by_name = {f.encode_name: f.name for f in info}
+    for name, item in value.items():
+        if name in by_name:
+            found = _mismatch(item, hints.get(by_name[name], Any), file, join(key, name))
+            if found is not None:
+                return found
+    if isinstance(own, Invalid):
+        return ConfigError(file, join(key, own.key) if own.key else key or "(top level)", own.expected,
+                           got=own.got, hint=own.hint)
+    if isinstance(own, ConfigError):
+        return own
+    return ConfigError(file, key or "(top level)", "a valid value", got=value,
+                       detail=str(own) if own is not None else None)
+
+
+def _leaf(value, type_, file, key: str, found: bool = True) -> ConfigError:
+    """The ConfigError for `value` that is not a `type_` at `key`, in the words of a YAML file."""
+    choices = _choices(type_)
+    hint = did_you_mean(value, choices) if choices else None
+    return ConfigError(file, key or "(top level)", _expected(type_, value), got=value if found else None, hint=hint)
+
+
+_KINDS = {float: "a number", int: "an integer", str: "a string", bool: "true or false", list: "a list",
+          tuple: "a list", set: "a list", frozenset: "a list", dict: "a mapping", type(None): "nothing (null)"}
+_BOUNDS = (("ge", ">=", lambda v, b: v >= b), ("gt", ">", lambda v, b: v > b), ("le", "<=", lambda v, b: v <= b),
+           ("lt", "<", lambda v, b: v < b))
+
+
+def _expected(type_, value) -> str:
+    """What a value of `type_` is, in a user's words: the description its Meta gives, else its choices,
+    its kind and the constraint `value` breaks ("a number > 0", "a list of length >= 1")."""
+    described = _description(type_)
     if described:
-        return ConfigError(file, key or "(top level)", described, got=value if found else None)
-    if expected and _fixed_tuple(type_) and "length" in text:
-        return ConfigError(file, key or "(top level)", _fixed_tuple(type_), got=value if found else None)
-    if expected:
-        what = _finite_words(expected.group("expected"))
-        what = re.sub(r"`([\w |]+)`", lambda m: " | ".join(_WORDS.get(w, w) for w in m.group(1).split(" | ")), what)
-        what = re.sub(r"(\d)\.0\b", r"\1", what.replace("`", "")).replace(" | ", " or ")
-        if expected.group("count") is not None:
-            what += f" (not {expected.group('count')})"
-        if expected.group("got") is not None and not found:
-            return ConfigError(file, key or "(top level)", what, got=expected.group("got"))
-        return ConfigError(file, key or "(top level)", what, got=value if found else None)
-    return ConfigError(file, key or "(top level)", text.replace("`", ""), got=value if found else None)
+        return described
+    choices = _choices(type_)
+    if choices:
+        return f"one of {', '.join(map(str, choices))}"
+    fixed = _fixed_tuple(type_)
+    if fixed:
+        return fixed
+    bare = _bare(type_)
+    origin = typing.get_origin(bare)
+    if origin is typing.Union or origin is types.UnionType:
+        return " or ".join(dict.fromkeys(_expected(a, value) for a in typing.get_args(bare)))
+    kind = _KINDS.get(origin or bare) or ("a mapping" if _struct(bare) is not None else "a value")
+    numeric = bare in (int, float)
+    if not _is_kind(value, bare):
+        return kind
+    for meta in _metas(type_):
+        for name, op, holds in _BOUNDS:
+            bound = getattr(meta, name)
+            if bound is None or not numeric:
+                continue
+            if abs(bound) == FINITE_MAX:     # the bound of Finite: what it means, not its digits
+                if not math.isfinite(value):
+                    return "a finite number" if bare is float else kind
+                continue
+            if not holds(value, bound):
+                return f"{kind} {op} {_number(bound)}"
+        if numeric and meta.multiple_of is not None and value % meta.multiple_of:
+            return f"{kind} that's a multiple of {_number(meta.multiple_of)}"
+        n = len(value) if isinstance(value, (str, list, dict)) else None
+        if n is not None and meta.min_length is not None and n < meta.min_length:
+            return f"{kind} of length >= {meta.min_length}"
+        if n is not None and meta.max_length is not None and n > meta.max_length:
+            return f"{kind} of length <= {meta.max_length}"
+        if isinstance(value, str) and meta.pattern is not None and not re.search(meta.pattern, value):
+            return f"{kind} matching regex '{meta.pattern}'"
+    if isinstance(value, int) and not isinstance(value, bool) and numeric:
+        return "a finite number"             # an integer too large for the machine's numbers
+    return kind
 
 
-def _finite_words(text: str) -> str:
-    """msgspec's `float` >= -1.79e308 (the bound of Finite) as "a finite number"."""
-    bound = repr(FINITE_MAX)
-    if bound not in text:
-        return text
-    text = re.sub(rf"\s*(?:and\s*)?[<>]=\s*-?{re.escape(bound)}", "", text)
-    text = re.sub(r"`float`,?", "a finite number", text, count=1)
-    return text.replace(" ,", ",").strip()
+def _is_kind(value, bare) -> bool:
+    """Whether `value` is of the plain kind `bare` as msgspec converts strictly (an int is a number)."""
+    if bare is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if bare is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    origin = typing.get_origin(bare) or bare
+    if origin in (list, tuple, set, frozenset):
+        return isinstance(value, list)
+    if origin is dict or _struct(bare) is not None:
+        return isinstance(value, dict)
+    return isinstance(origin, type) and isinstance(value, origin)
+
+
+def _metas(type_) -> list:
+    """The msgspec.Meta constraints of an annotation (through Optional and nested Annotated)."""
+    type_ = _strip_optional(type_)
+    if typing.get_origin(type_) is not typing.Annotated:
+        return []
+    args = typing.get_args(type_)
+    return [m for m in args[1:] if isinstance(m, msgspec.Meta)] + _metas(args[0])
+
+
+def _number(x) -> str:
+    """A bound as a file would write it: 0 for 0.0, 0.5 for 0.5."""
+    return re.sub(r"(\d)\.0\b", r"\1", repr(x))
 
 
 def _strip_optional(type_):
     """`X` for `X | None`, else `type_`."""
     origin = typing.get_origin(type_)
-    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+    if origin is typing.Union or origin is types.UnionType:
         members = [a for a in typing.get_args(type_) if a is not type(None)]
         if len(members) == 1:
             return members[0]
@@ -285,8 +373,7 @@ def _fixed_tuple(type_) -> str | None:
     kinds = {_bare(a) for a in args}
     if kinds <= {float, int}:
         return f"a list of {len(args)} numbers"
-    names = ", ".join(_WORDS.get({float: "float", int: "int", str: "str", bool: "bool"}.get(_bare(a), ""), "a value")
-                      for a in args)
+    names = ", ".join(_KINDS.get(_bare(a), "a value") for a in args)
     return f"a list of {len(args)}: {names}"
 
 
@@ -295,7 +382,7 @@ def _choices(type_) -> tuple:
     origin = typing.get_origin(type_)
     if origin is typing.Literal:
         return typing.get_args(type_)
-    if origin is typing.Annotated or origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+    if origin is typing.Annotated or origin is typing.Union or origin is types.UnionType:
         for arg in typing.get_args(type_):
             found = _choices(arg)
             if found:
@@ -308,7 +395,7 @@ def _struct(type_):
     origin = typing.get_origin(type_)
     if origin is typing.Annotated:
         return _struct(typing.get_args(type_)[0])
-    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+    if origin is typing.Union or origin is types.UnionType:
         for arg in typing.get_args(type_):
             found = _struct(arg)
             if found is not None:
@@ -319,84 +406,11 @@ def _struct(type_):
     return None
 
 
-def _walk(data, type_, path: str, key: str):
-    """Follow msgspec's error path (`.name`, `[3]`, `[...]` for a mapping's key, which msgspec does
-    not name) through `data` and `type_` together: (key as shown, value there, whether the value was
-    found, annotation there)."""
-    found = True
-    for name, index in re.findall(r"\.([^.\[\]]+)|\[(\d+|\.\.\.)\]", path):
-        type_ = _bare(type_)
-        if index == "...":                  # the first entry of the mapping whose value does not convert
-            args = typing.get_args(type_)
-            inner = args[1] if len(args) == 2 else Any
-            bad = None
-            if found and isinstance(data, dict):
-                for k, v in data.items():
-                    try:
-                        msgspec.convert(v, inner, strict=True)
-                    except msgspec.ValidationError:
-                        bad = k
-                        break
-            if bad is None:                 # a key of the wrong kind
-                keys = args[0] if len(args) == 2 else Any
-                for k in data if found and isinstance(data, dict) else ():
-                    try:
-                        msgspec.convert(k, keys, strict=True)
-                    except msgspec.ValidationError:
-                        return join(key, str(k)), k, True, keys
-                return join(key, "[...]"), None, False, inner
-            key, data, type_ = join(key, str(bad)), data[bad], inner
-            continue
-        if index:
-            step = int(index)
-            args = typing.get_args(type_)
-            type_ = (args[step] if step < len(args) and args[-1] is not Ellipsis and typing.get_origin(type_) is tuple
-                     else args[0] if args else Any)
-            key = join(key, f"[{step}]")
-        else:
-            step = name
-            struct = _struct(type_)
-            tagged = _tagged(type_)
-            if tagged:                      # a union told apart by a tag field (kind: sweep)
-                tag_field = tagged[0].__struct_config__.tag_field
-                if step == tag_field:
-                    type_ = Literal[tuple(m.__struct_config__.tag for m in tagged)]
-                    struct = None
-                else:
-                    tag = data.get(tag_field) if found and isinstance(data, dict) else None
-                    struct = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
-            if struct is not None:
-                hints = typing.get_type_hints(struct, include_extras=True)
-                by_name = {f.encode_name: f.name for f in msgspec.inspect.type_info(struct).fields}
-                type_ = hints.get(by_name.get(step, step), Any)
-            elif not (tagged and step == tag_field):
-                type_ = Any
-            key = join(key, step)
-        if found:
-            try:
-                data = data[step]
-            except (KeyError, IndexError, TypeError):
-                data, found = None, False
-    return key, data, found, type_
-
-
-def _keys(type_, value) -> tuple[str, ...]:
-    """The keys a mapping of `type_` may hold: a Struct's fields; for a tagged union, the tag field
-    and the fields of the member `value` names (else of the first)."""
-    tagged = _tagged(type_)
-    if not tagged:
-        return struct_fields(type_)
-    tag_field = tagged[0].__struct_config__.tag_field
-    tag = value.get(tag_field) if isinstance(value, dict) else None
-    member = next((m for m in tagged if m.__struct_config__.tag == tag), tagged[0])
-    return (tag_field, *struct_fields(member))
-
-
 def _tagged(type_) -> list:
     """The members of a union of tagged Structs (`tag_field=`), else []."""
     type_ = _bare(type_)
     origin = typing.get_origin(type_)
-    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+    if origin is typing.Union or origin is types.UnionType:
         members = [a for a in typing.get_args(type_) if isinstance(a, type) and issubclass(a, msgspec.Struct)]
         if members and all(m.__struct_config__.tag_field for m in members):
             return members
@@ -409,7 +423,7 @@ def _bare(type_):
         origin = typing.get_origin(type_)
         if origin is typing.Annotated:
             type_ = typing.get_args(type_)[0]
-        elif origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        elif origin is typing.Union or origin is types.UnionType:
             members = [a for a in typing.get_args(type_) if a is not type(None)]
             if len(members) != 1:
                 return type_

@@ -6,12 +6,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from touch4d.geometry import quaternion
 from touch4d.geometry.scene import Scene, scene_digest
 from touch4d.glovefile import DEFAULT_TOUCH_THRESHOLD
 from touch4d.messages import HandJoints, HandPose, MessageError, MotorCommand, SceneState, TactileField
 from touch4d.tactile.glove import Glove
-from touch4d.tactile.pose import check_pose, place, quaternion_matrix
-from touch4d.tactile.skeleton import ViewHand, quaternion_matrices
+from touch4d.tactile.pose import check_pose, place
+from touch4d.tactile.skeleton import ViewHand
 
 from .frame import Frame, SceneLayer, Style
 from .hud import TactileCube, hand_geometry, hand_skeleton, screen_frame, text_image, touched_motors
@@ -109,7 +110,7 @@ class SceneView:
             upm = self.glove.units_per_metre
             samples = place(self.glove.samples, upm, position, q)
             skeleton = place(hand_skeleton(self.glove.hand).reshape(-1, 3), upm, position, q)
-        self.hand = _Hand(position, quaternion_matrix(q), samples, skeleton)
+        self.hand = _Hand(position, quaternion.to_matrix(q), samples, skeleton)
         if self.joints is not None:
             self.joints.on_pose(pose.stamp)
 
@@ -161,7 +162,7 @@ class SceneView:
         q = self.joints.wrist_orientation
         if q is None:
             return self.hand.rotation if self.hand is not None else np.eye(3)
-        return quaternion_matrices(q[None])[0] @ np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+        return quaternion.to_matrix(q) @ np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
     def _tactile(self, out: Frame) -> None:
         f = self.field

@@ -32,6 +32,7 @@ class TactileEngine:
         if projection not in PROJECTION_CHOICES:
             raise ValueError(f"projection: expected one of {', '.join(PROJECTION_CHOICES)}, got {projection!r}")
         self.glove = glove.with_constants(alpha=alpha, beta=beta)
+        self.glove.skeleton.warm_up()        # the articulated hand ready before the loop, not at its first joints
         self.projection = projection
         self.caster = None
         self.scene_key: tuple | None = None   # (scene_digest, projection) of the adopted scene

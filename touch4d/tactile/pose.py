@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from touch4d.errors import Touch4dError
-from touch4d.geometry.quaternion import to_matrix as quaternion_matrix  # one closed form, shared with tracking
+from touch4d.geometry import quaternion
 
 UNIT_TOLERANCE = 1e-3  # as touch4d.messages.hand: a tracker's float32 quaternion passes
 
@@ -39,5 +39,5 @@ def check_pose(position, orientation) -> tuple[np.ndarray, np.ndarray]:
 def place(points_m: np.ndarray, units_per_metre: float, position, orientation) -> np.ndarray:
     """Hand-frame points (N, 3) in metres -> screen coordinates (N, 3): rotate, scale, translate."""
     p, q = check_pose(position, orientation)
-    rotation = quaternion_matrix(q) * units_per_metre
+    rotation = quaternion.to_matrix(q) * units_per_metre
     return points_m @ rotation.T + p

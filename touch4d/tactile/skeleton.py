@@ -25,11 +25,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from touch4d.errors import Touch4dError
+from touch4d.geometry import quaternion
 from touch4d.messages import HandJoints
 
 from touch4d.glovefile import Bones
 from touch4d.hands import WEBXR_JOINTS as JOINTS, HandShape
 
+from . import bone_kernels
 from .bones import fractions as bone_fractions
 from .hand import FINGER_NAMES, Hand
 
@@ -106,38 +108,6 @@ class JointSet:
                 "orientations": self.orientations.tolist(), "radii": self.radii.tolist()}
 
 
-def _quadratic_form() -> np.ndarray:
-    """C (16, 9) with R.ravel() = (q outer q).ravel() @ C for a unit quaternion q = (x, y, z, w): each
-    entry of the rotation matrix is a quadratic form of q (the 1 of the diagonal is x2+y2+z2+w2)."""
-    c = np.zeros((4, 4, 3, 3))
-    x, y, z, w = range(4)
-    for (i, j), terms in {
-        (0, 0): [(w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)], (1, 1): [(w, w, 1), (y, y, 1), (x, x, -1), (z, z, -1)],
-        (2, 2): [(w, w, 1), (z, z, 1), (x, x, -1), (y, y, -1)],
-        (0, 1): [(x, y, 2), (z, w, -2)], (1, 0): [(x, y, 2), (z, w, 2)],
-        (0, 2): [(x, z, 2), (y, w, 2)], (2, 0): [(x, z, 2), (y, w, -2)],
-        (1, 2): [(y, z, 2), (x, w, -2)], (2, 1): [(y, z, 2), (x, w, 2)],
-    }.items():
-        for a, b, k in terms:
-            c[a, b, i, j] += k
-    return c.reshape(16, 9)
-
-
-_QUADRATIC = _quadratic_form()
-# The same as the rows of a bone's (3, 4) map, [R | t] row by row with zeros where t goes, and a
-# 13th column, the squared norm x2+y2+z2+w2: one product gives every rotation and the check.
-_MAP_COLUMNS = np.zeros((16, 13))
-_MAP_COLUMNS[:, [0, 1, 2, 4, 5, 6, 8, 9, 10]] = _QUADRATIC
-_MAP_COLUMNS[:, 12] = np.eye(4).ravel()
-_OUTER_A, _OUTER_B = np.repeat(np.arange(4), 4), np.tile(np.arange(4), 4)   # q_a q_b, a * 4 + b
-_ONES3 = np.ones(3)
-
-
-def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4) x, y, z, w, in two array operations."""
-    return ((q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ _QUADRATIC).reshape(-1, 3, 3)
-
-
 def _joint_frame(direction: np.ndarray) -> np.ndarray:
     """The rest frame (columns x, y, z in the hand frame) of a joint whose bone runs along `direction`
     in the palm's plane: -z along the bone, +y out of the back of the hand (+z of the hand frame)."""
@@ -204,7 +174,6 @@ class Skeleton:
 
         self.bone_joint = np.array([JOINT_INDEX[b[2]] for b in BONES])
         self.bone_end = np.array([JOINT_INDEX[b[3]] for b in BONES])
-        self._gather = np.r_[self.bone_joint, self.bone_end]      # one gather: the bases, then the ends
         self.rest_lengths = np.linalg.norm(positions[self.bone_end] - positions[self.bone_joint], axis=1)
         self._inv_rest2 = 1.0 / (self.units_per_metre * self.rest_lengths) ** 2
 
@@ -213,8 +182,8 @@ class Skeleton:
         self.motor_bone = self.sample_bone[np.asarray(motor_sample, dtype=int)]
         self.motor_local = self.local(motor_positions, self.motor_bone)
         # local coordinates in screen units for placing (each bone's map is then a rotation)
-        self._sample_aug, self._sample_pick = self._layout(self.sample_local * self.units_per_metre, self.sample_bone)
-        self._motor_aug, self._motor_pick = self._layout(self.motor_local * self.units_per_metre, self.motor_bone)
+        self._placing = {"samples": (np.ascontiguousarray(self.sample_local * self.units_per_metre), self.sample_bone),
+                         "motors": (np.ascontiguousarray(self.motor_local * self.units_per_metre), self.motor_bone)}
         self._names_cache: tuple[list, np.ndarray | None] = ([], None)
 
     @classmethod
@@ -241,15 +210,6 @@ class Skeleton:
             best = np.where(closer, gap, best)
         return bone
 
-    @staticmethod
-    def _layout(local: np.ndarray, bone: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Local coordinates as columns with a 1 below (4, N), and where each point's screen
-        coordinates lie in the product (3 B, N) of the bones' maps with them, flattened (N, 3)."""
-        n = len(local)
-        aug = np.ascontiguousarray(np.r_[np.asarray(local, float).T, np.ones((1, n))])
-        rows = 3 * np.asarray(bone)[:, None] + np.arange(3)
-        return aug, rows * n + np.arange(n)[:, None]
-
     def local(self, points: np.ndarray, bone: np.ndarray) -> np.ndarray:
         """Hand-frame points (N, 3), metres, in the rest frames of their bones' base joints."""
         j = self.bone_joint[bone]
@@ -268,10 +228,9 @@ class Skeleton:
             # x axis turns round (a right-handed frame): columns -M x, M y, M z = M R M
             mirror = np.diag([-1.0, 1.0, 1.0])
             positions, frames = positions @ mirror, mirror @ frames @ mirror
-        r = Rotation.from_quat(np.asarray(orientation, dtype=float))
-        world = r.as_matrix()
+        world = quaternion.to_matrix(quaternion.canonical(orientation))
         out_pos = np.asarray(position, dtype=float) + units_per_metre * positions @ world.T
-        out_q = (r * Rotation.from_matrix(frames)).as_quat(canonical=True)
+        out_q = Rotation.from_matrix(world @ frames).as_quat(canonical=True)
         return JointSet(tuple(JOINTS), out_pos, out_q, self.radii * units_per_metre, handedness)
 
     def shaped(self, shape: HandShape) -> tuple[np.ndarray, np.ndarray]:
@@ -314,34 +273,19 @@ class Skeleton:
         """Every bone's map (B, 3, 4) of its points' local coordinates (screen units at the glove's
         scale) to the screen, [linear | translation]; raises JointsError for joints that cannot be used.
 
-        The tactile loop's hot path, kept to a few array operations: one product gives every bone's
-        rotation (from its quaternion, normalised after) and the quaternions' norms for the check."""
+        The tactile loop's hot path, compiled (touch4d.tactile.bone_kernels)."""
         index = self.joint_indices(names)
         p = np.asarray(positions, dtype=float)
         q = np.asarray(orientations, dtype=float)
         if p.shape != (len(names), 3) or q.shape != (len(names), 4):
             raise JointsError(f"positions, orientations: expected ({len(names)}, 3) and ({len(names)}, 4), "
                               f"got {p.shape} and {q.shape}")
-        b = len(self.bone_joint)
-        gather = self._gather if index is None else index[self._gather]
-        pj = p.take(gather, axis=0)                   # the bones' base joints, then their ends
-        t = pj[:b]
-        ends = pj[b:] - t
-        # each bone's length now over its rest length (both in screen units: the glove's scale)
-        stretch = np.sqrt(((ends * ends) @ _ONES3) * self._inv_rest2)
-        qb = q.take(gather[:b], axis=0)
-        r = (qb.take(_OUTER_A, axis=1) * qb.take(_OUTER_B, axis=1)) @ _MAP_COLUMNS
-        n2 = r[:, 12].tolist()
-        if not (math.isfinite(sum(stretch.tolist())) and min(n2) >= _N2_LOW and max(n2) <= _N2_HIGH):
-            self._explain(t, pj[b:], qb, np.sqrt(n2))     # (a non-finite base joint makes its length NaN too)
-        m = r[:, :12] / r[:, 12:13]                   # / |q|^2: the rotations normalised
-        m[:, 2::4] *= stretch[:, None]                # each bone's points stretched along it (its z)
-        if handedness != self.handedness:
-            m[:, 0::4] *= -1.0                        # the other hand: mirrored in each bone's frame
-        if units_per_metre != self.units_per_metre:   # another scale than the glove's (rare)
-            m[:, [0, 1, 4, 5, 8, 9]] *= units_per_metre / self.units_per_metre
-        m[:, 3::4] = t
-        return m.reshape(b, 3, 4)
+        base, end = (self.bone_joint, self.bone_end) if index is None else (index[self.bone_joint], index[self.bone_end])
+        m = np.empty((len(base), 3, 4))
+        if not bone_kernels.bone_maps(p, q, base, end, self._inv_rest2, quaternion.QUADRATIC_FORM, _N2_LOW, _N2_HIGH,
+                                      handedness != self.handedness, units_per_metre / self.units_per_metre, m):
+            self._explain(p[base], p[end], q[base], np.sqrt(np.einsum("ij,ij->i", q[base], q[base])))
+        return m
 
     def _explain(self, t, ends, q, norms) -> None:
         """Raise the JointsError that names the first joint that cannot be used."""
@@ -355,14 +299,20 @@ class Skeleton:
         raise JointsError("positions: expected joints within a hand's reach of each other, got coordinates too "
                           "large to compute with")
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels now, by placing the rest joint set: a
+        loop's first joint set then costs what the others do."""
+        rest = self.joint_set(np.zeros(3), quaternion.IDENTITY, self.units_per_metre)
+        self.place("samples", self.transforms(rest.names, rest.positions, rest.orientations, rest.handedness,
+                                              self.units_per_metre))
+
     def place(self, which: str, m: np.ndarray) -> np.ndarray:
-        """The samples ("samples") or motors ("motors") in the screen, from `transforms`: one small
-        matrix product of every bone's map with every point, then each point's own bone picked."""
-        if which == "samples":
-            local, pick = self._sample_aug, self._sample_pick
-        else:
-            local, pick = self._motor_aug, self._motor_pick
-        return (m.reshape(-1, 4) @ local).ravel().take(pick)
+        """The samples ("samples") or motors ("motors") in the screen, from `transforms`: each point
+        through its own bone's map."""
+        local, bone = self._placing[which]
+        out = np.empty_like(local)
+        bone_kernels.place_points(m, local, bone, out)
+        return out
 
 
 def _outline_pairs() -> np.ndarray:

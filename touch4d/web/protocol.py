@@ -296,12 +296,26 @@ def _syntax_error(data: str, exc: msgspec.DecodeError) -> PageError:
 def _shape_error(data: str, exc: msgspec.ValidationError) -> PageError:
     """A message of the wrong shape: its field, what was expected and what it got."""
     try:
-        raw = msgspec.json.decode(data)
-    except (msgspec.DecodeError, RecursionError):
-        raw = None
+        raw = json.loads(data)                  # a number too large for a float (1e999) reads inf here
+        where = _non_finite(raw)
+    except (ValueError, RecursionError):
+        raw = where = None
+    if where is not None:                       # msgspec's JSON refuses it before any field is looked at
+        return PageError("non_finite", f"{where}: expected a finite number", where, "a finite number")
     err: ConfigError = schema.error_of(exc, raw, PageMessage)
     text = f"{err.key}: expected {err.expected}" + ("" if err.got is None else f", got {err.got!r}"[:120])
     if err.hint:
         text += f" ({err.hint})"
-    cause = "non_finite" if str(exc).startswith("Number out of range") else "malformed"
-    return PageError(cause, text, err.key, err.expected, err.got)
+    return PageError("malformed", text, err.key, err.expected, err.got)
+
+
+def _non_finite(value, key: str = "") -> str | None:
+    """The key path of the first number in decoded JSON that is not finite, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return key or "(top level)"
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        found = _non_finite(v, schema.join(key, f"[{k}]" if isinstance(value, list) else str(k)))
+        if found is not None:
+            return found
+    return None
