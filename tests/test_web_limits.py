@@ -148,6 +148,40 @@ def test_connections_from_one_address_are_capped(serve):
     assert status_of(get(port)) == 200                                # freed again
 
 
+def test_connections_from_one_address_are_capped_before_their_tls_handshake(serve, tmp_path):
+    """Over https the cap counts TCP connections, not finished handshakes: connections that never
+    start one (each held until the handshake timeout) cannot take the server's sockets."""
+    import ssl
+
+    from touch4d.web.tls import ensure_certificate, server_ssl_context
+
+    cert, key, _ = ensure_certificate(tmp_path / "tls", ["127.0.0.1"])
+    server, port = serve(max_per_address=4, limit_loopback=True, header_timeout_s=20,
+                         ssl_context=server_ssl_context(cert, key))
+
+    async def probe():
+        held = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]   # no handshake
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        started = time.monotonic()
+        try:
+            over = await asyncio.wait_for(reader.read(1), 5)
+        except ConnectionResetError:
+            over = b""
+        closed_after = time.monotonic() - started
+        writer.close()
+        for _, w in held:
+            w.close()
+        await asyncio.sleep(0.3)
+        client = ssl.create_default_context(cafile=str(cert))
+        async with aiohttp.ClientSession() as session, session.get(f"https://127.0.0.1:{port}/", ssl=client) as r:
+            return over, closed_after, r.status
+
+    over, closed_after, status = asyncio.run(probe())
+    assert over == b"" and closed_after < 5                           # the fifth closed at once
+    assert server.over_address == 1
+    assert status == 200                                              # freed again, and TLS still served
+
+
 def test_a_message_over_the_page_limit_ends_the_connection_at_once(serve):
     received = []
     server, port = serve(on_message=lambda conn, data, arrival: received.append(data))

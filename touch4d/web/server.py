@@ -14,8 +14,8 @@ whose socket takes `send_timeout_s` to take one frame, is closed (counted in `se
 
 Bounds for the internet: only the Host names it serves (loopback names, its LAN addresses, the
 configured `names`; else 421, page and WebSocket alike: DNS rebinding), WebSockets from its own
-origin only, `max_pages` pages at once, `max_per_address` connections per client address (loopback
-clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request header whole within
+origin only, `max_pages` pages at once, `max_per_address` TCP connections per client address (counted
+before any TLS handshake; loopback clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request header whole within
 `header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
 With an `Access` (touch4d.web.access) every path but the page's own files needs a token or cookie.
 """
@@ -78,13 +78,17 @@ class _Client:
 
 
 class _Guard(asyncio.Protocol):
-    """One TCP connection in front of aiohttp's handler: counted per client address, closed if a
-    request header does not arrive whole within the header timeout; passes through after a
-    WebSocket upgrade."""
+    """One TCP connection in front of aiohttp's handler: counted per client address before anything
+    else (a TLS handshake included: connections that never finish one are capped too), TLS started
+    over it if the server has a certificate, closed if a request header does not arrive whole within
+    the header timeout; passes through after a WebSocket upgrade."""
 
     def __init__(self, server: "PageServer", inner: asyncio.Protocol):
         self.server, self.inner = server, inner
         self.address: str | None = None
+        self.transport = None            # what the handler uses: the TCP connection, or TLS over it
+        self.early: list[bytes] = []     # data decrypted before the handler has its transport
+        self.early_eof = False
         self.timer: asyncio.TimerHandle | None = None
         self.tail = b""
         self.upgraded = False
@@ -95,10 +99,41 @@ class _Guard(asyncio.Protocol):
         if not self.server._admit(address):
             transport.abort()
             return
-        self.address, self.transport = address, transport
+        self.address = address
+        if self.server.ssl_context is None:
+            self._attach(transport)
+        else:
+            asyncio.ensure_future(self._start_tls(transport))
+
+    async def _start_tls(self, raw) -> None:
+        try:
+            transport = await asyncio.get_running_loop().start_tls(
+                raw, self, self.server.ssl_context, server_side=True,
+                ssl_handshake_timeout=self.server.header_timeout_s)
+        except Exception:  # noqa: BLE001 - a failed or timed-out handshake: start_tls closed the connection
+            self._forget()
+            return
+        if self.address is None:          # lost in between
+            transport.abort()
+            return
+        self._attach(transport)
+
+    def _attach(self, transport) -> None:
+        self.transport = transport
         self.server._guards[transport] = self
         self.inner.connection_made(transport)
         self._arm()
+        for data in self.early:
+            self.data_received(data)
+        self.early = []
+        if self.early_eof:
+            self.inner.eof_received()
+
+    def _forget(self) -> None:
+        """Release the connection's place in its address's count (once)."""
+        if self.address is not None:
+            self.server._release(self.address)
+            self.address = None
 
     def _arm(self) -> None:
         self.tail = b""
@@ -109,6 +144,9 @@ class _Guard(asyncio.Protocol):
         self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
+        if self.transport is None:       # TLS: the request right after the handshake, before _attach
+            self.early.append(data)
+            return
         if not self.upgraded:
             if self.timer is None:
                 self._arm()              # the next request on a kept-alive connection
@@ -131,22 +169,27 @@ class _Guard(asyncio.Protocol):
             self.timer = None
 
     def eof_received(self):
-        return self.inner.eof_received() if self.address is not None else None
+        if self.transport is None:
+            self.early_eof = self.address is not None
+            return None
+        return self.inner.eof_received()
 
     def pause_writing(self) -> None:
-        self.inner.pause_writing()
+        if self.transport is not None:
+            self.inner.pause_writing()
 
     def resume_writing(self) -> None:
-        self.inner.resume_writing()
+        if self.transport is not None:
+            self.inner.resume_writing()
 
     def connection_lost(self, exc) -> None:
-        if self.address is None:
-            return
         if self.timer is not None:
             self.timer.cancel()
-        self.server._guards.pop(self.transport, None)
-        self.server._release(self.address)
-        self.inner.connection_lost(exc)
+        attached = self.transport is not None and self.address is not None
+        self._forget()
+        if attached:
+            self.server._guards.pop(self.transport, None)
+            self.inner.connection_lost(exc)
 
 
 class _BadRequests(logging.Filter):
@@ -311,9 +354,9 @@ class PageServer:
                                      logger=self._http_log)
         await self._runner.setup()
         handler = self._runner.server
+        # TLS, if any, is started by each connection's guard once it is counted (see _Guard)
         self._listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guard(self, handler()), self.host or None, self.port, ssl=self.ssl_context,
-            ssl_handshake_timeout=self.header_timeout_s if self.ssl_context else None)
+            lambda: _Guard(self, handler()), self.host or None, self.port)
         self.port = self._listener.sockets[0].getsockname()[1]
 
     async def _shutdown(self) -> None:
