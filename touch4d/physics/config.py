@@ -35,6 +35,11 @@ class PhysicsConfig(msgspec.Struct):
     scene: ScenePhysics
     objects: list[ObjectPhysics]
 
+    @property
+    def static(self) -> list[int]:
+        """The indices of the objects that never move (a floor): never the controller's either."""
+        return [i for i, o in enumerate(self.objects) if o.static]
+
 
 def parse_physics(data, file=None) -> PhysicsConfig:
     """The physics of a parsed scene file (`data`, checked whole as the scene module declares it); errors name
