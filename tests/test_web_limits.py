@@ -231,6 +231,56 @@ def test_a_page_that_does_not_read_is_closed_and_counted(serve):
     assert server.send_overflow == 1
 
 
+@pytest.mark.parametrize("frame", [2000, 20000])
+def test_a_page_that_floods_pings_and_reads_nothing_is_closed_and_its_place_freed(serve, frame):
+    """Pings are not answered (a browser never sends them): answering them, the server's reading
+    waited for the unread pongs to leave, and the page held its place (or its socket, left closing
+    behind its unread pongs) for ever."""
+    import base64
+    import os
+    import socket
+    import threading
+
+    ended = []
+    server, port = serve(on_connect=lambda conn: server.send(conn, b"setup"),
+                         on_message=lambda conn, data, arrival: isinstance(data, Exception) and ended.append(data))
+    ticking = threading.Event()
+
+    def node_frames():                      # what a node sends every tick
+        while not ticking.wait(0.05):
+            server.broadcast(b"f" * frame, latest=True)
+
+    threading.Thread(target=node_frames, daemon=True).start()
+    page = socket.create_connection(("127.0.0.1", port))
+    try:
+        page.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        key = base64.b64encode(os.urandom(16)).decode()
+        page.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                     f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+        assert page.recv(12) == b"HTTP/1.1 101"
+        ping = bytes([0x89, 0x80 | 125]) + b"\0\0\0\0" + b"x" * 125     # masked, as from a client
+        page.setblocking(False)
+        started, sent, closed = time.monotonic(), 0, False
+        while time.monotonic() - started < 15 and sent < 300000 and not closed:
+            try:
+                page.send(ping)
+                sent += 1
+            except BlockingIOError:
+                time.sleep(0.01)
+                closed = not server.clients and not server._guards
+            except OSError:                 # reset: the server closed it
+                closed = True
+        deadline = time.monotonic() + 2
+        while (server.clients or server._guards) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not server.clients and not server._guards and not server._per_address   # closed, its place freed
+        # closed as a page that answers no ping (the node counts it, page_unresponsive) or takes no frame
+        assert len(ended) + server.send_overflow == 1
+    finally:
+        ticking.set()
+        page.close()
+
+
 def test_a_revoked_holder_loses_its_open_page_and_the_others_keep_theirs(serve):
     access = Access()
     tokens = {name: access.issue(name) for name in ("P01", "P02")}

@@ -416,7 +416,10 @@ class PageServer:
             self.over_limit += 1
             return web.Response(status=503, text=f"touch4d: {self.max_pages} pages are connected already "
                                                  "(the webxr node's max_pages); close one and reload\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
+        # A page's pings are not answered (a browser never sends them): answering, the reading would wait
+        # for the pongs to leave, and a page that reads nothing would hold its place for ever.
+        ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S,
+                                   autoping=False)
         await ws.prepare(request)
         guard = self._guards.get(request.transport)
         if guard is not None:
