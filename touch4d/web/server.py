@@ -89,6 +89,7 @@ class _Guard(asyncio.Protocol):
         self.transport = None            # what the handler uses: the TCP connection, or TLS over it
         self.early: list[bytes] = []     # data decrypted before the handler has its transport
         self.early_eof = False
+        self.handshake: asyncio.Future | None = None
         self.timer: asyncio.TimerHandle | None = None
         self.tail = b""
         self.upgraded = False
@@ -103,7 +104,7 @@ class _Guard(asyncio.Protocol):
         if self.server.ssl_context is None:
             self._attach(transport)
         else:
-            asyncio.ensure_future(self._start_tls(transport))
+            self.handshake = asyncio.ensure_future(self._start_tls(transport))   # (held: a task is weakly kept)
 
     async def _start_tls(self, raw) -> None:
         try:
