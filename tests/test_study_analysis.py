@@ -80,7 +80,8 @@ def test_wilson_intervals_cover_the_true_accuracy_about_95_percent_of_the_time()
     hits = 0
     for _ in range(runs):
         correct = rng.random(n) < p
-        cell = pd.DataFrame({"correct": correct, "timed_out": False, "rt_s": 1.0, "participant": "P01",
+        cell = pd.DataFrame({"correct": correct, "timed_out": False, "clock_suspect": False, "rt_s": 1.0,
+                             "participant": "P01",
                              "time_touching_s": 0.0, "mean_intensity": 0.0, "path_length": 0.0})
         low, high = cell_summary(cell, 0.5)["ci95"]
         hits += low <= p <= high

@@ -124,8 +124,8 @@ def clock_warnings(data) -> list[str]:
     if not suspect.any():
         return []
     who = ", ".join(sorted(map(str, data.loc[suspect, "participant"].unique())))
-    return [f"{int(suspect.sum())} answer(s) ({who}) stamped by a page whose clock claimed more than its answer's arrival "
-            "(clock_suspect in trials.csv): their answer times are left out; their answers count"]
+    return [f"{int(suspect.sum())} answer(s) ({who}) stamped by a page whose clock claimed more than its answer's "
+            "arrival (clock_suspect in trials.csv): their answer times are left out; their answers count"]
 
 
 def cell_summary(cell, chance: float) -> dict:

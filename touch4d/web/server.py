@@ -14,9 +14,9 @@ whose socket takes `send_timeout_s` to take one frame, is closed (counted in `se
 
 Bounds for the internet: only the Host names it serves (loopback names, its LAN addresses, the
 configured `names`; else 421, page and WebSocket alike: DNS rebinding), WebSockets from its own
-origin only, `max_pages` pages at once, `max_per_address` TCP connections per client address (counted
-before any TLS handshake; loopback clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request header whole within
-`header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
+origin only, `max_pages` pages at once, `max_per_address` TCP connections per client address
+(counted before any TLS handshake; loopback clients, e.g. a reverse proxy, are exempt unless
+`limit_loopback`), a request header whole within `header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
 With an `Access` (touch4d.web.access) every path but the page's own files needs a token or cookie.
 """
 from __future__ import annotations
