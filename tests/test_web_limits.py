@@ -332,3 +332,24 @@ def test_a_page_outlives_the_header_timeout(serve, tmp_path, tls):
 
     assert asyncio.run(page()) is False
     assert received == ['{"type": "stats", "fps": 60}'] and server.header_timeouts == 0
+
+
+def test_two_servers_on_one_host_keep_their_own_cookies(serve):
+    """Browsers keep cookies per host, not per port: two page servers of one machine (a participant's
+    each) opened in one browser must not overwrite each other's cookie."""
+    first, second = Access(), Access()
+    tokens = first.issue("P01"), second.issue("P02")
+    ports = [serve(access=access, secure_cookie=False)[1] for access in (first, second)]
+
+    async def browse():
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as browser:
+            for port, token in zip(ports, tokens):                    # each link opened once
+                async with browser.get(f"http://127.0.0.1:{port}/?token={token}") as r:
+                    assert r.status == 200
+            answers = []
+            for port in ports:                                        # then reloaded without it
+                async with browser.get(f"http://127.0.0.1:{port}/") as r:
+                    answers.append(r.status)
+            return answers
+
+    assert asyncio.run(browse()) == [200, 200]

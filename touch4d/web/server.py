@@ -35,7 +35,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
-from .access import HOLDER, Access, CookieGate, is_loopback, lan_addresses
+from .access import COOKIE, HOLDER, Access, CookieGate, is_loopback, lan_addresses
 from .inbox import MAX_INPUT_HZ, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
 
@@ -359,6 +359,9 @@ class PageServer:
         self._listener = await asyncio.get_running_loop().create_server(
             lambda: _Guard(self, handler()), self.host or None, self.port)
         self.port = self._listener.sockets[0].getsockname()[1]
+        if self.gate is not None:
+            # a browser keeps cookies per host, not per port: another server of this machine must not overwrite it
+            self.gate.cookie = f"{COOKIE}-{self.port}"
 
     async def _shutdown(self) -> None:
         if self._listener is not None:
