@@ -353,3 +353,17 @@ def test_two_servers_on_one_host_keep_their_own_cookies(serve):
             return answers
 
     assert asyncio.run(browse()) == [200, 200]
+
+
+def test_behind_a_proxy_the_websocket_needs_the_browsers_host_passed_on(serve):
+    """A reverse proxy that rewrites Host to the node's own address (nginx's default) makes the page's
+    WebSocket look cross-origin: refused; with the public name passed on (and in `names`) it opens."""
+    server, port = serve(names=["touch4d.example"])
+    upgrade = ("Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+               "Sec-WebSocket-Version: 13\r\nOrigin: https://touch4d.example\r\n")
+
+    def open_socket(host: str) -> int:
+        return status_of(asyncio.run(raw(port, f"GET /ws HTTP/1.1\r\nHost: {host}\r\n{upgrade}\r\n".encode(), 2)))
+
+    assert open_socket(f"127.0.0.1:{port}") == 403 and server.refused_origin == 1
+    assert open_socket("touch4d.example") == 101
