@@ -367,3 +367,13 @@ def test_behind_a_proxy_the_websocket_needs_the_browsers_host_passed_on(serve):
 
     assert open_socket(f"127.0.0.1:{port}") == 403 and server.refused_origin == 1
     assert open_socket("touch4d.example") == 101
+
+
+@pytest.mark.parametrize("name, host", [("touch4d.example", "touch4d.example"),
+                                        ("Touch4D.example:443", "touch4d.example"),
+                                        ("https://touch4d.example/", "touch4d.example:443"),
+                                        ("fe80::1", "[fe80::1]:8090"), ("[FE80::1]:443", "[fe80::1]")])
+def test_a_public_name_is_served_however_it_is_written(serve, name, host):
+    server, port = serve(names=[name])
+    assert status_of(get(port, "/static/index.html", host=host)) == 200
+    assert status_of(get(port, "/static/index.html", host="other.example")) == 421

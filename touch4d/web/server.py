@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import ipaddress
 import itertools
 import logging
 import threading
@@ -58,6 +59,15 @@ SECURITY_HEADERS = {
     "Cache-Control": "no-store",
     "X-Content-Type-Options": "nosniff",
 }
+
+
+def _host_name(name: str) -> str:
+    """A host name as a Host header's is compared: lower case, without scheme, port or brackets
+    (a user may write `touch4d.example:443` or `https://touch4d.example/`); a bare IPv6 address as it is."""
+    try:
+        return str(ipaddress.ip_address(name))
+    except ValueError:
+        return (urlsplit(name if "://" in name else f"//{name}").hostname or name).lower()
 
 
 class _Client:
@@ -226,7 +236,7 @@ class PageServer:
         self.max_pages, self.max_per_address, self.limit_loopback = max_pages, max_per_address, limit_loopback
         self.header_timeout_s, self.send_timeout_s, self.max_queued = header_timeout_s, send_timeout_s, max_queued
         self.input_hz = input_hz
-        self.names = {n.lower().strip("[]") for n in (*LOOPBACK_NAMES, *names) if n}
+        self.names = {_host_name(n) for n in (*LOOPBACK_NAMES, *names) if n}
         if not is_loopback(host):
             self.names |= {a.lower() for a in lan_addresses(host)} | ({host.lower()} if host not in ("", "0.0.0.0", "::") else set())
         self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
