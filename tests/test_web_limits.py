@@ -180,6 +180,7 @@ def test_connections_from_one_address_are_capped_before_their_tls_handshake(serv
     assert over == b"" and closed_after < 5                           # the fifth closed at once
     assert server.over_address == 1
     assert status == 200                                              # freed again, and TLS still served
+    assert server.counts()["page_tls_failed"] == 4                    # the four that never began one
 
 
 def test_a_message_over_the_page_limit_ends_the_connection_at_once(serve):

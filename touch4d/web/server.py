@@ -122,6 +122,7 @@ class _Guard(asyncio.Protocol):
                 raw, self, self.server.ssl_context, server_side=True,
                 ssl_handshake_timeout=self.server.header_timeout_s)
         except Exception:  # noqa: BLE001 - a failed or timed-out handshake: start_tls closed the connection
+            self.server.tls_failed += 1
             self._forget()
             return
         if self.address is None:          # lost in between
@@ -246,6 +247,7 @@ class PageServer:
         self.over_limit = 0         # connections refused because max_pages pages were connected
         self.over_address = 0       # connections closed at once: max_per_address from that address
         self.header_timeouts = 0    # connections closed: no whole request header in time
+        self.tls_failed = 0         # connections closed: no TLS handshake, or a failed one, in time
         self.send_overflow = 0      # pages closed: they did not take what was sent to them
         self.inputs_replaced = 0    # of closed pages: inputs superseded by a newer one (paced)
         self.flooded = 0            # of closed pages: other messages over their rate, dropped
@@ -330,7 +332,8 @@ class PageServer:
         """What the server refused, closed and dropped, for the node's stats."""
         return {"page_refused": self.refused, "page_over_limit": self.over_limit,
                 "page_wrong_host": self.refused_host, "page_over_address": self.over_address,
-                "page_header_timeout": self.header_timeouts, "page_send_overflow": self.send_overflow,
+                "page_header_timeout": self.header_timeouts, "page_tls_failed": self.tls_failed,
+                "page_send_overflow": self.send_overflow,
                 "page_bad_request": self.bad_requests.count,
                 "page_inputs_replaced": self.inputs_replaced + sum(c.inbox.replaced for c in list(self.clients.values())),
                 "page_flooded": self.flooded + sum(c.inbox.dropped for c in list(self.clients.values()))}
