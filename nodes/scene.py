@@ -45,7 +45,7 @@ class SceneNode(Node):
                                            source=self.param_where("spin")[0])
         self.control = SceneControl(load_scene(p["scene"]), load_calibration(p["calibration"]), config)
         # a scene file's static bodies (a floor) are never the controller's, with or without physics
-        self.control.fix(i for i, o in enumerate(load_physics(p["scene"]).objects) if o.static)
+        self.control.fix(load_physics(p["scene"]).static)
         self.calibration_mtime = os.stat(p["calibration"]).st_mtime_ns
         self.create_timer(1.0, self.reload_calibration)
         self.dirty = False

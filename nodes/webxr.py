@@ -185,6 +185,7 @@ class WebXRNode(Node):
             self.warn_once(("calibration", str(exc)), f"screen re-centred but not stored in {path}: {exc}")
 
     def on_shutdown(self) -> None:
+        self.bridge.save_pending()                     # a re-centre still waiting for save_min_s
         if "hand/pose" in self.publishers:
             self.bridge.owner = None
             self.bridge.check_tracking(float("inf"))   # the hand leaves: motors off before the pages go

@@ -149,3 +149,20 @@ def test_the_plain_scene_node_never_turns_a_static_floor_either():
             assert node.control.scene.selected == 1 and node.control.fixed == {0}
         finally:
             node.shutdown()
+
+
+def test_a_scene_loaded_into_the_plain_scene_node_keeps_its_floor_static():
+    from touch4d.bus.testing import running_broker
+    from touch4d.messages import SceneCommand
+    from touch4d.nodes.scene import SceneNode
+
+    with running_broker() as bus:
+        node = SceneNode(bus=bus, params={"scene": "config/scenes/hypercube.yaml"}, heartbeat=False)
+        try:
+            node.on_command(SceneCommand(command="load", argument=open("config/scenes/physics-drop.yaml").read()))
+            assert [o.name for o in node.control.scene.objects] == ["floor", "tesseract"]
+            assert node.control.scene.selected == 1 and node.control.fixed == {0}
+            with pytest.raises(SceneCommandError, match="static"):
+                node.control.command("select", "floor")
+        finally:
+            node.shutdown()

@@ -80,7 +80,8 @@ def test_wilson_intervals_cover_the_true_accuracy_about_95_percent_of_the_time()
     hits = 0
     for _ in range(runs):
         correct = rng.random(n) < p
-        cell = pd.DataFrame({"correct": correct, "timed_out": False, "rt_s": 1.0, "participant": "P01",
+        cell = pd.DataFrame({"correct": correct, "timed_out": False, "clock_suspect": False, "rt_s": 1.0,
+                             "participant": "P01",
                              "time_touching_s": 0.0, "mean_intensity": 0.0, "path_length": 0.0})
         low, high = cell_summary(cell, 0.5)["ci95"]
         hits += low <= p <= high
@@ -94,6 +95,21 @@ def test_timeouts_count_as_wrong_and_have_their_own_column(tmp_path):
     cell = result["tasks"]["looks"]["touch"]
     assert (cell["accuracy"], cell["timed_out"]) == (0.6, 4)
     assert result["confusion"]["looks"]["touch"]["responses"] == ["a", "(timed out)"]
+
+
+def test_answer_times_leave_out_a_page_clock_that_claimed_too_much_and_say_so(tmp_path, capsys):
+    rows = [row("P01", 0, t, "looks", "look-alikes", "touch", "a", "a", "a", math.nan, rt=3.0) for t in range(5)]
+    lying = [row("P02", 0, t, "looks", "look-alikes", "touch", "a", "a", "b", math.nan, rt=0.15) for t in range(3)]
+    for r in lying:                                   # answered 3 s after onset, stamped 0.15 s after it
+        r.update(response_received=3.0, clock_suspect=True)
+    write_sessions(tmp_path, rows + lying)
+    result = analyze(load(tmp_path), bootstrap=0, tests=False)
+    cell = result["tasks"]["looks"]["touch"]
+    assert cell["rt_s"] == 3.0 and cell["rt_iqr_s"] == [3.0, 3.0]      # the honest times only
+    assert (cell["n"], cell["correct"]) == (8, 5)                    # the answers still count
+    assert any("3 answer(s) (P02)" in w and "clock_suspect" in w for w in result["warnings"])
+    assert main(["study", "analyze", str(tmp_path), "--bootstrap", "0"]) == 0
+    assert "warning: 3 answer(s) (P02)" in capsys.readouterr().out
 
 
 # ---- psychometric function ------------------------------------------------------------------------------

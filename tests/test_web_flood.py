@@ -75,3 +75,27 @@ def test_a_flooding_page_is_paced_and_its_recentring_limited(tmp_path):
         text = calibration.read_text()
         assert "center_m:" in text and len(text) < 2 * len((REPO / "config/calibration.yaml").read_text())
         assert [b for b in beats if b.node == "webxr"]              # the node's heartbeat went on
+
+
+def test_a_placement_waiting_for_its_time_is_stored_when_the_node_stops(tmp_path):
+    """Re-centred twice within save_min_s, then the node is stopped: the file holds the second placement."""
+    calibration = tmp_path / "calibration.yaml"
+    shutil.copy(REPO / "config/calibration.yaml", calibration)
+    port = free_port()
+    with running_broker() as bus, node_process("webxr", bus, params={
+            "port": port, "tracker": True, "calibration": str(calibration)}) as proc:
+        proc.wait_for_line("WebXR page", timeout=30)
+
+        async def page():
+            async with aiohttp.ClientSession() as session, session.ws_connect(f"http://127.0.0.1:{port}/ws") as ws:
+                assert unpack_frame(await ws.receive_bytes())[0]["kind"] == "setup"
+                await ws.send_str(tracked(0.0))
+                for x in (0.0, 0.5):                   # the second a little over a second later
+                    await ws.send_str(json.dumps({"type": "recenter", "head": [x, 1.7, 0, 0, 0, 0, 1]}))
+                    await asyncio.sleep(1.3)
+
+        asyncio.run(page())
+        proc.wait_for_line("stored in", timeout=10)     # the first, stored at once
+    # the screen is put 0.5 m in front of the head: its centre's x is the head's
+    centre = [line for line in calibration.read_text().splitlines() if "center_m:" in line]
+    assert len(centre) == 1 and float(centre[0].split("[", 1)[1].split(",")[0]) == pytest.approx(0.5)

@@ -148,6 +148,41 @@ def test_connections_from_one_address_are_capped(serve):
     assert status_of(get(port)) == 200                                # freed again
 
 
+def test_connections_from_one_address_are_capped_before_their_tls_handshake(serve, tmp_path):
+    """Over https the cap counts TCP connections, not finished handshakes: connections that never
+    start one (each held until the handshake timeout) cannot take the server's sockets."""
+    import ssl
+
+    from touch4d.web.tls import ensure_certificate, server_ssl_context
+
+    cert, key, _ = ensure_certificate(tmp_path / "tls", ["127.0.0.1"])
+    server, port = serve(max_per_address=4, limit_loopback=True, header_timeout_s=20,
+                         ssl_context=server_ssl_context(cert, key))
+
+    async def probe():
+        held = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]   # no handshake
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        started = time.monotonic()
+        try:
+            over = await asyncio.wait_for(reader.read(1), 5)
+        except ConnectionResetError:
+            over = b""
+        closed_after = time.monotonic() - started
+        writer.close()
+        for _, w in held:
+            w.close()
+        await asyncio.sleep(0.3)
+        client = ssl.create_default_context(cafile=str(cert))
+        async with aiohttp.ClientSession() as session, session.get(f"https://127.0.0.1:{port}/", ssl=client) as r:
+            return over, closed_after, r.status
+
+    over, closed_after, status = asyncio.run(probe())
+    assert over == b"" and closed_after < 5                           # the fifth closed at once
+    assert server.over_address == 1
+    assert status == 200                                              # freed again, and TLS still served
+    assert server.counts()["page_tls_failed"] == 4                    # the four that never began one
+
+
 def test_a_message_over_the_page_limit_ends_the_connection_at_once(serve):
     received = []
     server, port = serve(on_message=lambda conn, data, arrival: received.append(data))
@@ -195,6 +230,56 @@ def test_a_page_that_does_not_read_is_closed_and_counted(serve):
 
     assert asyncio.run(page())
     assert server.send_overflow == 1
+
+
+@pytest.mark.parametrize("frame", [2000, 20000])
+def test_a_page_that_floods_pings_and_reads_nothing_is_closed_and_its_place_freed(serve, frame):
+    """Pings are not answered (a browser never sends them): answering them, the server's reading
+    waited for the unread pongs to leave, and the page held its place (or its socket, left closing
+    behind its unread pongs) for ever."""
+    import base64
+    import os
+    import socket
+    import threading
+
+    ended = []
+    server, port = serve(on_connect=lambda conn: server.send(conn, b"setup"),
+                         on_message=lambda conn, data, arrival: isinstance(data, Exception) and ended.append(data))
+    ticking = threading.Event()
+
+    def node_frames():                      # what a node sends every tick
+        while not ticking.wait(0.05):
+            server.broadcast(b"f" * frame, latest=True)
+
+    threading.Thread(target=node_frames, daemon=True).start()
+    page = socket.create_connection(("127.0.0.1", port))
+    try:
+        page.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        key = base64.b64encode(os.urandom(16)).decode()
+        page.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                     f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+        assert page.recv(12) == b"HTTP/1.1 101"
+        ping = bytes([0x89, 0x80 | 125]) + b"\0\0\0\0" + b"x" * 125     # masked, as from a client
+        page.setblocking(False)
+        started, sent, closed = time.monotonic(), 0, False
+        while time.monotonic() - started < 15 and sent < 300000 and not closed:
+            try:
+                page.send(ping)
+                sent += 1
+            except BlockingIOError:
+                time.sleep(0.01)
+                closed = not server.clients and not server._guards
+            except OSError:                 # reset: the server closed it
+                closed = True
+        deadline = time.monotonic() + 2
+        while (server.clients or server._guards) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not server.clients and not server._guards and not server._per_address   # closed, its place freed
+        # closed as a page that answers no ping (the node counts it, page_unresponsive) or takes no frame
+        assert len(ended) + server.send_overflow == 1
+    finally:
+        ticking.set()
+        page.close()
 
 
 def test_a_revoked_holder_loses_its_open_page_and_the_others_keep_theirs(serve):
@@ -248,3 +333,48 @@ def test_a_page_outlives_the_header_timeout(serve, tmp_path, tls):
 
     assert asyncio.run(page()) is False
     assert received == ['{"type": "stats", "fps": 60}'] and server.header_timeouts == 0
+
+
+def test_two_servers_on_one_host_keep_their_own_cookies(serve):
+    """Browsers keep cookies per host, not per port: two page servers of one machine (a participant's
+    each) opened in one browser must not overwrite each other's cookie."""
+    first, second = Access(), Access()
+    tokens = first.issue("P01"), second.issue("P02")
+    ports = [serve(access=access, secure_cookie=False)[1] for access in (first, second)]
+
+    async def browse():
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as browser:
+            for port, token in zip(ports, tokens):                    # each link opened once
+                async with browser.get(f"http://127.0.0.1:{port}/?token={token}") as r:
+                    assert r.status == 200
+            answers = []
+            for port in ports:                                        # then reloaded without it
+                async with browser.get(f"http://127.0.0.1:{port}/") as r:
+                    answers.append(r.status)
+            return answers
+
+    assert asyncio.run(browse()) == [200, 200]
+
+
+def test_behind_a_proxy_the_websocket_needs_the_browsers_host_passed_on(serve):
+    """A reverse proxy that rewrites Host to the node's own address (nginx's default) makes the page's
+    WebSocket look cross-origin: refused; with the public name passed on (and in `names`) it opens."""
+    server, port = serve(names=["touch4d.example"])
+    upgrade = ("Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+               "Sec-WebSocket-Version: 13\r\nOrigin: https://touch4d.example\r\n")
+
+    def open_socket(host: str) -> int:
+        return status_of(asyncio.run(raw(port, f"GET /ws HTTP/1.1\r\nHost: {host}\r\n{upgrade}\r\n".encode(), 2)))
+
+    assert open_socket(f"127.0.0.1:{port}") == 403 and server.refused_origin == 1
+    assert open_socket("touch4d.example") == 101
+
+
+@pytest.mark.parametrize("name, host", [("touch4d.example", "touch4d.example"),
+                                        ("Touch4D.example:443", "touch4d.example"),
+                                        ("https://touch4d.example/", "touch4d.example:443"),
+                                        ("fe80::1", "[fe80::1]:8090"), ("[FE80::1]:443", "[fe80::1]")])
+def test_a_public_name_is_served_however_it_is_written(serve, name, host):
+    server, port = serve(names=[name])
+    assert status_of(get(port, "/static/index.html", host=host)) == 200
+    assert status_of(get(port, "/static/index.html", host="other.example")) == 421

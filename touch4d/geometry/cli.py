@@ -113,7 +113,7 @@ def _check(args) -> int:
     from touch4d.physics.config import load_physics
     from touch4d.tracking.scene_control import controller_object
 
-    static = [i for i, o in enumerate(load_physics(path).objects) if o.static]
+    static = load_physics(path).static
     index = controller_object(scene.selected, static, len(scene.objects))
     selected = ("the whole scene" if index < 0 else f"object {index} ({scene.objects[index].name})") + (
         f"; never the static {', '.join(repr(scene.objects[i].name) for i in static)}" if static else "")

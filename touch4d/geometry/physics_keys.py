@@ -61,3 +61,9 @@ class ScenePhysics(msgspec.Struct, forbid_unknown_fields=True):
     position_iterations: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 4
     margin: NonNegative = 0.02
     slop: NonNegative = 0.00005
+
+
+def static_indices(physics: list) -> list[int]:
+    """The indices of the objects whose `physics:` section (None: none) makes them static: they never
+    move (a floor), and are never the controller's either."""
+    return [i for i, p in enumerate(physics) if p is not None and p.static]

@@ -24,7 +24,7 @@ from __future__ import annotations
 import msgspec
 
 from touch4d import schema
-from touch4d.geometry.physics_keys import Friction, ObjectPhysics, ScenePhysics
+from touch4d.geometry.physics_keys import Friction, ObjectPhysics, ScenePhysics, static_indices
 
 __all__ = ["Friction", "ObjectPhysics", "ScenePhysics", "PhysicsConfig", "parse_physics", "load_physics"]
 
@@ -34,6 +34,11 @@ class PhysicsConfig(msgspec.Struct):
 
     scene: ScenePhysics
     objects: list[ObjectPhysics]
+
+    @property
+    def static(self) -> list[int]:
+        """The indices of the objects that never move (a floor): never the controller's either."""
+        return static_indices(self.objects)
 
 
 def parse_physics(data, file=None) -> PhysicsConfig:

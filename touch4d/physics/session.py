@@ -226,7 +226,6 @@ class PhysicsSession:
 
         source = "scene/command load"
         self.world, self.initial = build_world(self.control.scene, parse_physics(parse_yaml(text, source), source))
-        self.control.fix(np.flatnonzero(self.world.static))
         self.state = self.initial
         self.touch, self._hand, self._pushed = Touch.none(), None, frozenset()
         self._turn_rate, self._turn_step = np.zeros(6), None

@@ -110,8 +110,24 @@ def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) ->
                 for condition in conditions if (rows["condition"] == condition).any()}
         if tests:
             result["tests"][task] = condition_tests(rows, conditions)
-    result["warnings"] = condition_test_warnings(result["tests"])
+    result["warnings"] = condition_test_warnings(result["tests"]) + clock_warnings(data)
     return result
+
+
+def answer_times(frame):
+    """The answer times (s) of `frame`'s answered trials that can be trusted: a time stamped by a page
+    whose clock claimed too much (`clock_suspect`, see touch4d.study.table) is left out."""
+    return frame.loc[~frame["timed_out"] & ~frame["clock_suspect"], "rt_s"].dropna()
+
+
+def clock_warnings(data) -> list[str]:
+    """What the answer times leave out, said once."""
+    suspect = data["clock_suspect"] & ~data["timed_out"]
+    if not suspect.any():
+        return []
+    who = ", ".join(sorted(map(str, data.loc[suspect, "participant"].unique())))
+    return [f"{int(suspect.sum())} answer(s) ({who}) stamped by a page whose clock claimed more than its answer's "
+            "arrival (clock_suspect in trials.csv): their answer times are left out; their answers count"]
 
 
 def cell_summary(cell, chance: float) -> dict:
@@ -121,7 +137,7 @@ def cell_summary(cell, chance: float) -> dict:
 
     n, k = int(len(cell)), int(cell["correct"].sum())
     low, high = proportion_confint(k, n, alpha=0.05, method="wilson")
-    answered = cell.loc[~cell["timed_out"], "rt_s"].dropna()
+    answered = answer_times(cell)
     quartiles = answered.quantile([0.25, 0.5, 0.75]).tolist() if len(answered) else [math.nan] * 3
     return {
         "accuracy": k / n, "n": n, "correct": k, "ci95": [float(low), float(high)], "chance": chance,
@@ -543,8 +559,7 @@ def figure_times(data):
     groups, labels = [], []
     for task in tasks:
         for condition in conditions:
-            rt = data.loc[(data["task"] == task) & (data["condition"] == condition) & ~data["timed_out"], "rt_s"]
-            groups.append(rt.dropna().to_numpy())
+            groups.append(answer_times(data[(data["task"] == task) & (data["condition"] == condition)]).to_numpy())
             labels.append(f"{task}\n{condition}")
     ax.boxplot(groups, showfliers=False)
     ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=6)

@@ -18,8 +18,9 @@ from touch4d import schema
 from touch4d.errors import Touch4dError
 from touch4d.schema import Finite, parse_yaml
 from touch4d.geometry.rotation import PLANES, controller_rotation, plane_axes, plane_rotation, renormalize
-from touch4d.geometry.scene import Scene, parse_scene
+from touch4d.geometry.scene import Scene, SceneFile, parse_scene
 from touch4d.messages import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS, VIEWS
+from touch4d.geometry.physics_keys import static_indices
 
 from touch4d.geometry import quaternion
 from .calibration import Calibration
@@ -200,15 +201,18 @@ class SceneControl:
                                 f"node's {', '.join(PHYSICS_COMMANDS)})")
 
     def load(self, text: str, source: str = "scene/command load") -> bool:
-        """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it. A bad
-        scene raises ConfigError (a Touch4dError) naming `source` and the key, and the scene stays."""
-        scene = parse_scene(parse_yaml(text, source), source)
+        """Replace the whole scene by one given as scene-file text (YAML); `reset` returns to it, and its
+        static bodies (physics keys) are never the controller's. A bad scene raises ConfigError (a
+        Touch4dError) naming `source` and the key, and the scene stays."""
+        data = parse_yaml(text, source)
+        scene = parse_scene(data, source)
+        static = static_indices([o.physics for o in schema.convert(data, SceneFile, source).objects])
         if self.config.rotate == "scene":
             scene.selected = -1
         scene.revision = self.scene.revision + 1
         self.scene = scene
         self._initial = scene.copy()
-        self.fixed = frozenset()              # other objects: whoever fixed the old ones fixes the new
+        self.fix(static)
         self._grab = None
         return True
 

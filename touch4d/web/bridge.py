@@ -15,10 +15,10 @@ page). Another page's input, answers and re-centring are refused, never silently
 (`page_not_driver`), logged once per page with its address, and the page is told (a "driver"
 frame, which names no address). Every change of driver is logged. Re-centring happens at most once
 per `recenter_min_s`, and the calibration file is written at most once per `save_min_s` (the last
-placement, later if need be). What a page sends is logged with its control characters escaped,
-within a warning budget of its own. Fail safe: when the driving page closes, hides, loses
-tracking or falls silent for `stale_s`, the hand is published invalid at once and then every
-`invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
+placement, later if need be, and at the latest when the node stops). What a page sends is logged
+with its control characters escaped, within a warning budget of its own. Fail safe: when the
+driving page closes, hides, loses tracking or falls silent for `stale_s`, the hand is published
+invalid at once and then every `invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
 (within 100 ms); the controller too, except while its page is only silent.
 
 A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
@@ -564,6 +564,10 @@ class WebBridge:
         self._saved_at = now
         if self.save_calibration is not None:
             self.save_calibration(calibration)
+
+    def save_pending(self) -> None:
+        """Store a placement still waiting for its time (the node stops: the last re-centre is kept)."""
+        self._save_due(float("inf"))
 
     def _warn_once(self, cause: str, text: str) -> None:
         if cause not in self._logged and len(self._logged) < 100:

@@ -14,15 +14,16 @@ whose socket takes `send_timeout_s` to take one frame, is closed (counted in `se
 
 Bounds for the internet: only the Host names it serves (loopback names, its LAN addresses, the
 configured `names`; else 421, page and WebSocket alike: DNS rebinding), WebSockets from its own
-origin only, `max_pages` pages at once, `max_per_address` connections per client address (loopback
-clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request header whole within
-`header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
+origin only, `max_pages` pages at once, `max_per_address` TCP connections per client address
+(counted before any TLS handshake; loopback clients, e.g. a reverse proxy, are exempt unless
+`limit_loopback`), a request header whole within `header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
 With an `Access` (touch4d.web.access) every path but the page's own files needs a token or cookie.
 """
 from __future__ import annotations
 
 import asyncio
 import collections
+import ipaddress
 import itertools
 import logging
 import threading
@@ -35,7 +36,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
-from .access import HOLDER, Access, CookieGate, is_loopback, lan_addresses
+from .access import COOKIE, HOLDER, Access, CookieGate, is_loopback, lan_addresses
 from .inbox import MAX_INPUT_HZ, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
 
@@ -60,6 +61,15 @@ SECURITY_HEADERS = {
 }
 
 
+def _host_name(name: str) -> str:
+    """A host name as a Host header's is compared: lower case, without scheme, port or brackets
+    (a user may write `touch4d.example:443` or `https://touch4d.example/`); a bare IPv6 address as it is."""
+    try:
+        return str(ipaddress.ip_address(name))
+    except ValueError:
+        return (urlsplit(name if "://" in name else f"//{name}").hostname or name).lower()
+
+
 class _Client:
     """One page's WebSocket and what waits to be sent to it."""
 
@@ -78,13 +88,18 @@ class _Client:
 
 
 class _Guard(asyncio.Protocol):
-    """One TCP connection in front of aiohttp's handler: counted per client address, closed if a
-    request header does not arrive whole within the header timeout; passes through after a
-    WebSocket upgrade."""
+    """One TCP connection in front of aiohttp's handler: counted per client address before anything
+    else (a TLS handshake included: connections that never finish one are capped too), TLS started
+    over it if the server has a certificate, closed if a request header does not arrive whole within
+    the header timeout; passes through after a WebSocket upgrade."""
 
     def __init__(self, server: "PageServer", inner: asyncio.Protocol):
         self.server, self.inner = server, inner
         self.address: str | None = None
+        self.transport = None            # what the handler uses: the TCP connection, or TLS over it
+        self.early: list[bytes] = []     # data decrypted before the handler has its transport
+        self.early_eof = False
+        self.handshake: asyncio.Future | None = None
         self.timer: asyncio.TimerHandle | None = None
         self.tail = b""
         self.upgraded = False
@@ -95,10 +110,42 @@ class _Guard(asyncio.Protocol):
         if not self.server._admit(address):
             transport.abort()
             return
-        self.address, self.transport = address, transport
+        self.address = address
+        if self.server.ssl_context is None:
+            self._attach(transport)
+        else:
+            self.handshake = asyncio.ensure_future(self._start_tls(transport))   # (held: a task is weakly kept)
+
+    async def _start_tls(self, raw) -> None:
+        try:
+            transport = await asyncio.get_running_loop().start_tls(
+                raw, self, self.server.ssl_context, server_side=True,
+                ssl_handshake_timeout=self.server.header_timeout_s)
+        except Exception:  # noqa: BLE001 - a failed or timed-out handshake: start_tls closed the connection
+            self.server.tls_failed += 1
+            self._forget()
+            return
+        if self.address is None:          # lost in between
+            transport.abort()
+            return
+        self._attach(transport)
+
+    def _attach(self, transport) -> None:
+        self.transport = transport
         self.server._guards[transport] = self
         self.inner.connection_made(transport)
         self._arm()
+        for data in self.early:
+            self.data_received(data)
+        self.early = []
+        if self.early_eof:
+            self.inner.eof_received()
+
+    def _forget(self) -> None:
+        """Release the connection's place in its address's count (once)."""
+        if self.address is not None:
+            self.server._release(self.address)
+            self.address = None
 
     def _arm(self) -> None:
         self.tail = b""
@@ -109,6 +156,9 @@ class _Guard(asyncio.Protocol):
         self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
+        if self.transport is None:       # TLS: the request right after the handshake, before _attach
+            self.early.append(data)
+            return
         if not self.upgraded:
             if self.timer is None:
                 self._arm()              # the next request on a kept-alive connection
@@ -131,22 +181,27 @@ class _Guard(asyncio.Protocol):
             self.timer = None
 
     def eof_received(self):
-        return self.inner.eof_received() if self.address is not None else None
+        if self.transport is None:
+            self.early_eof = self.address is not None
+            return None
+        return self.inner.eof_received()
 
     def pause_writing(self) -> None:
-        self.inner.pause_writing()
+        if self.transport is not None:
+            self.inner.pause_writing()
 
     def resume_writing(self) -> None:
-        self.inner.resume_writing()
+        if self.transport is not None:
+            self.inner.resume_writing()
 
     def connection_lost(self, exc) -> None:
-        if self.address is None:
-            return
         if self.timer is not None:
             self.timer.cancel()
-        self.server._guards.pop(self.transport, None)
-        self.server._release(self.address)
-        self.inner.connection_lost(exc)
+        attached = self.transport is not None and self.address is not None
+        self._forget()
+        if attached:
+            self.server._guards.pop(self.transport, None)
+            self.inner.connection_lost(exc)
 
 
 class _BadRequests(logging.Filter):
@@ -182,7 +237,7 @@ class PageServer:
         self.max_pages, self.max_per_address, self.limit_loopback = max_pages, max_per_address, limit_loopback
         self.header_timeout_s, self.send_timeout_s, self.max_queued = header_timeout_s, send_timeout_s, max_queued
         self.input_hz = input_hz
-        self.names = {n.lower().strip("[]") for n in (*LOOPBACK_NAMES, *names) if n}
+        self.names = {_host_name(n) for n in (*LOOPBACK_NAMES, *names) if n}
         if not is_loopback(host):
             self.names |= {a.lower() for a in lan_addresses(host)} | ({host.lower()} if host not in ("", "0.0.0.0", "::") else set())
         self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
@@ -192,6 +247,7 @@ class PageServer:
         self.over_limit = 0         # connections refused because max_pages pages were connected
         self.over_address = 0       # connections closed at once: max_per_address from that address
         self.header_timeouts = 0    # connections closed: no whole request header in time
+        self.tls_failed = 0         # connections closed: no TLS handshake, or a failed one, in time
         self.send_overflow = 0      # pages closed: they did not take what was sent to them
         self.inputs_replaced = 0    # of closed pages: inputs superseded by a newer one (paced)
         self.flooded = 0            # of closed pages: other messages over their rate, dropped
@@ -276,7 +332,8 @@ class PageServer:
         """What the server refused, closed and dropped, for the node's stats."""
         return {"page_refused": self.refused, "page_over_limit": self.over_limit,
                 "page_wrong_host": self.refused_host, "page_over_address": self.over_address,
-                "page_header_timeout": self.header_timeouts, "page_send_overflow": self.send_overflow,
+                "page_header_timeout": self.header_timeouts, "page_tls_failed": self.tls_failed,
+                "page_send_overflow": self.send_overflow,
                 "page_bad_request": self.bad_requests.count,
                 "page_inputs_replaced": self.inputs_replaced + sum(c.inbox.replaced for c in list(self.clients.values())),
                 "page_flooded": self.flooded + sum(c.inbox.dropped for c in list(self.clients.values()))}
@@ -311,10 +368,13 @@ class PageServer:
                                      logger=self._http_log)
         await self._runner.setup()
         handler = self._runner.server
+        # TLS, if any, is started by each connection's guard once it is counted (see _Guard)
         self._listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guard(self, handler()), self.host or None, self.port, ssl=self.ssl_context,
-            ssl_handshake_timeout=self.header_timeout_s if self.ssl_context else None)
+            lambda: _Guard(self, handler()), self.host or None, self.port)
         self.port = self._listener.sockets[0].getsockname()[1]
+        if self.gate is not None:
+            # a browser keeps cookies per host, not per port: another server of this machine must not overwrite it
+            self.gate.cookie = f"{COOKIE}-{self.port}"
 
     async def _shutdown(self) -> None:
         if self._listener is not None:
@@ -373,7 +433,10 @@ class PageServer:
             self.over_limit += 1
             return web.Response(status=503, text=f"touch4d: {self.max_pages} pages are connected already "
                                                  "(the webxr node's max_pages); close one and reload\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S)
+        # A page's pings are not answered (a browser never sends them): answering, the reading would wait
+        # for the pongs to leave, and a page that reads nothing would hold its place for ever.
+        ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S,
+                                   autoping=False)
         await ws.prepare(request)
         guard = self._guards.get(request.transport)
         if guard is not None:
