@@ -23,7 +23,8 @@ from touch4d.study.lock import claim_session
 from touch4d.study.session import STOP_SIGNALS, Stopped, stop_on_signals
 
 # A `study run --simulate --quick` of one participant in its own process, writing its bus to a file once
-# the stack runs; with "exception" the run itself fails (an error raised wherever it is) at its 3rd row.
+# the stack runs; with "exception" the run itself fails (an error raised wherever it is) once the test
+# writes the file `fail` in its folder.
 RUNNER = textwrap.dedent("""
     import signal, sys
     from pathlib import Path
@@ -36,8 +37,7 @@ RUNNER = textwrap.dedent("""
             signal.setitimer(signal.ITIMER_REAL, 0.1, 0.1)
 
     def fail(*_):
-        table = Path(sys.argv[1]) / "P01" / "trials.csv"
-        if table.exists() and len(table.read_text().splitlines()) > 3:
+        if (Path(sys.argv[1]) / "fail").exists():
             signal.setitimer(signal.ITIMER_REAL, 0)
             raise RuntimeError("the run failed")
 
@@ -95,15 +95,42 @@ def test_each_stop_signal_raises_stopped_once_then_the_old_handler_is_back(sig):
     assert signal.getsignal(sig) is before
 
 
-# SIGINT and SIGHUP take SIGTERM's path (the test above); SIGKILL none the run can see.
+WAYS = ["SIGTERM", "exception", "SIGKILL"]   # SIGINT and SIGHUP take SIGTERM's path (the test above)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One run per way out, started together: their stacks start up side by side, not one after another."""
+    runners = {}
+    try:
+        for how in WAYS:
+            folder = tmp_path_factory.mktemp(how)
+            with open(folder / "run.log", "w") as log:
+                runners[how] = folder, subprocess.Popen([sys.executable, "-c", RUNNER, str(folder), how,
+                                                         str(folder / "bus.json")], stdout=log,
+                                                        stderr=subprocess.STDOUT, start_new_session=True)
+        yield runners
+    finally:
+        for _, runner in runners.values():
+            stop(runner, set())
+
+
+def stop(runner: subprocess.Popen, started: set[int]) -> None:
+    """Kill whatever is left of a run and the processes it started."""
+    for pid in descendants(runner.pid) | started:
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+    if runner.poll() is None:
+        runner.kill()
+    runner.wait()
+
+
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("how", ["SIGTERM", "exception", "SIGKILL"])
-def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(tmp_path, how):
-    table = tmp_path / "P01" / "trials.csv"
-    bus = tmp_path / "bus.json"
-    with open(tmp_path / "run.log", "w") as log:
-        runner = subprocess.Popen([sys.executable, "-c", RUNNER, str(tmp_path), how, str(bus)], stdout=log,
-                                  stderr=subprocess.STDOUT, start_new_session=True)
+@pytest.mark.parametrize("how", WAYS)
+def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(runs, how):
+    folder, runner = runs[how]
+    table = folder / "P01" / "trials.csv"
+    bus = folder / "bus.json"
     started: set[int] = set()
     probe = None
     try:
@@ -114,7 +141,9 @@ def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(tmp_path, h
         started = descendants(runner.pid)
         assert len(started) >= 6                    # the launcher and its nodes
         before = len(status)
-        if how != "exception":
+        if how == "exception":
+            (folder / "fail").touch()
+        else:
             runner.send_signal(getattr(signal, how))
         code = runner.wait(60)
         assert code == {"exception": 1, "SIGKILL": -signal.SIGKILL}.get(how, 128 + getattr(signal, how, 0))
@@ -122,7 +151,7 @@ def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(tmp_path, h
         written = rows(table)
         time.sleep(1.0)
         assert rows(table) == written               # nothing writes on
-        claim_session(tmp_path / "P01").release()   # no writer left: a run again resumes the session
+        claim_session(folder / "P01").release()     # no writer left: a run again resumes the session
         probe.spin_once(0.5)
         assert len(status) > before
         last = status[-1]
@@ -130,9 +159,4 @@ def test_every_way_study_run_ends_ends_its_stack_with_the_motors_off(tmp_path, h
     finally:
         if probe is not None:
             probe.shutdown()
-        for pid in descendants(runner.pid) | started:
-            if alive(pid):
-                os.kill(pid, signal.SIGKILL)
-        if runner.poll() is None:
-            runner.kill()
-            runner.wait()
+        stop(runner, started)
