@@ -6,6 +6,7 @@ of a run of many parts."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -74,6 +75,30 @@ def test_a_folder_the_lock_made_goes_with_it_when_nothing_else_was_written(tmp_p
     with SessionLock(tmp_path / "P03"):
         pass
     assert (tmp_path / "P03").is_dir()
+
+
+def test_a_lock_opened_as_its_holder_removes_the_empty_folder_is_taken_anew(tmp_path, monkeypatch):
+    import touch4d.study.lock as lock
+
+    first = SessionLock(tmp_path / "P01").acquire()
+    opened, os_open = [], os.open
+
+    def open_then_holder_leaves(*args, **kwargs):    # the holder releases between our open and our flock
+        fd = os_open(*args, **kwargs)
+        if not opened:
+            opened.append(fd)
+            first.release()
+        return fd
+
+    monkeypatch.setattr(lock.os, "open", open_then_holder_leaves)
+    second = SessionLock(tmp_path / "P01").acquire()
+    monkeypatch.undo()
+    try:
+        assert opened and (tmp_path / "P01" / LOCK).exists()
+        with pytest.raises(SessionError):          # the lock held is the folder's, not a removed file
+            SessionLock(tmp_path / "P01").acquire()
+    finally:
+        second.release()
 
 
 def test_a_run_is_refused_while_a_study_node_of_a_killed_run_still_writes(tmp_path, capsys):

@@ -36,10 +36,13 @@ class SessionLock:
         self._created = False     # this lock made the folder: it removes it on release if nothing else came
 
     def acquire(self) -> "SessionLock":
-        created = not self.directory.exists()
-        self.directory.mkdir(parents=True, exist_ok=True)
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            created = not self.directory.exists()
+            self.directory.mkdir(parents=True, exist_ok=True)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except FileNotFoundError:
+                continue    # the folder went (an empty one, released) between mkdir and open
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -50,7 +53,7 @@ class SessionLock:
                                    "wait for it to end or stop it, or use another --out") from None
             if _is_file(fd, self.path):
                 break
-            os.close(fd)    # its holder removed it (an empty folder) between our open and flock: open anew
+            os.close(fd)    # its holder removed it (and its empty folder) between our open and flock: anew
         self._created = created
         os.ftruncate(fd, 0)
         os.write(fd, json.dumps({"pid": os.getpid(), "command": " ".join(sys.argv),
