@@ -99,6 +99,7 @@ class StudyNode(Node):
 
         self.trial_pub = self.create_publisher("study/trial", StudyTrial)
         self.response_pub = self.create_publisher("study/response", StudyResponse)
+        self._keyed: set[tuple[int, float]] = set()   # (index, stamp) of the key answers published here
         self.scene_pub = self.create_publisher("scene/command", SceneCommand)
         self.stop_pub = self.create_publisher("safety/stop", Stop)
         self.create_subscription("study/response", StudyResponse, self.on_response, optional=True)
@@ -159,6 +160,9 @@ class StudyNode(Node):
         self._act()
 
     def on_response(self, msg: StudyResponse) -> None:
+        if (msg.index, msg.stamp) in self._keyed:    # a key's answer, taken already, back from the bus
+            self._keyed.discard((msg.index, msg.stamp))
+            return
         self.machine.respond(msg.index, msg.response, msg.stamp, msg.received)
         self._act()
 
@@ -166,6 +170,7 @@ class StudyNode(Node):
         for key in msg.pressed:
             answer = self.machine.key(key, msg.stamp)
             if answer is not None:
+                self._keyed.add((answer.index, answer.stamp))
                 self.response_pub.publish(answer)
             self._act()
 

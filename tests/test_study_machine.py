@@ -151,6 +151,23 @@ def test_a_pause_shows_the_interrupted_trial_again_from_its_start(study):
     assert machine.counts["pauses"] == 1
 
 
+def test_a_pause_in_a_break_resumes_into_that_break(study):
+    machine, clock = make(study)
+    machine.start()
+    assert machine.phase == Phase.BREAK
+    ready = machine.message                              # the block's first condition, said before its trials
+    machine.drain()
+    machine.command("pause")
+    assert machine.drain()[0] == Paused("study/command pause", interrupted=False)
+    machine.command("resume")
+    assert machine.phase == Phase.BREAK and machine.message == ready
+    shown(machine)
+    clock.now += 10 * ITI
+    machine.tick()
+    assert machine.phase == Phase.BREAK                  # no stimulus until the participant goes on
+    to_stimulus(machine, clock)
+
+
 def test_a_resumed_session_starts_at_the_first_trial_without_a_row_and_a_complete_one_ends_at_once(study):
     machine, clock = make(study, done={0, 1})
     machine.start()

@@ -9,6 +9,7 @@ import pytest
 from scipy.stats import binomtest
 
 from touch4d.cli import main
+from touch4d.errors import ConfigError
 from touch4d.study.design import load_study
 from touch4d.study.infotransfer import predicted_transfer
 from touch4d.study.observer import ModelObserver, every_sample_glove, patterns_at
@@ -155,3 +156,11 @@ def test_the_transfer_table_rounds_the_bits_and_their_maximum_alike():
     perfect = {"task": "lookalikes", "motors": 30, "bits": math.log2(3), "max_bits": math.log2(3), "accuracy": 1.0}
     row = transfer_table([perfect]).splitlines()[1].split()
     assert row[2] == row[3] == "1.585"
+
+
+def test_few_training_scenes_train_or_are_refused_naming_the_setting(paper, glove):
+    # two views per stimulus: too few to hold one out for the temperature, enough to learn from
+    observer = ModelObserver(glove, paper, seed=1, train_scenes=4, train_positions=8, view_scenes=2).train()
+    assert all(np.isfinite(observer.view_cue(task.id).temperature) for task in paper.tasks)
+    with pytest.raises(ConfigError, match="view_scenes"):     # one view per stimulus: no more than the answers
+        ModelObserver(glove, paper, seed=1, train_scenes=4, train_positions=8, view_scenes=1).train()

@@ -6,6 +6,7 @@ of a run of many parts."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -63,6 +64,43 @@ def test_a_session_folder_has_one_writer_and_a_dead_writer_holds_nothing(tmp_pat
     assert (folder / "trials.csv").exists()
 
 
+def test_a_folder_the_lock_made_goes_with_it_when_nothing_else_was_written(tmp_path):
+    with SessionLock(tmp_path / "P01"):
+        pass
+    assert not (tmp_path / "P01").exists()
+    with SessionLock(tmp_path / "P02"):
+        (tmp_path / "P02" / "manifest.json").write_text("{}")
+    assert sorted(p.name for p in (tmp_path / "P02").iterdir()) == [LOCK, "manifest.json"]
+    (tmp_path / "P03").mkdir()                  # a folder that was there before the lock stays
+    with SessionLock(tmp_path / "P03"):
+        pass
+    assert (tmp_path / "P03").is_dir()
+
+
+def test_a_lock_opened_as_its_holder_removes_the_empty_folder_is_taken_anew(tmp_path, monkeypatch):
+    import touch4d.study.lock as lock
+
+    first = SessionLock(tmp_path / "P01").acquire()
+    opened, os_open = [], os.open
+
+    def open_then_holder_leaves(*args, **kwargs):    # the holder releases between our open and our flock
+        fd = os_open(*args, **kwargs)
+        if not opened:
+            opened.append(fd)
+            first.release()
+        return fd
+
+    monkeypatch.setattr(lock.os, "open", open_then_holder_leaves)
+    second = SessionLock(tmp_path / "P01").acquire()
+    monkeypatch.undo()
+    try:
+        assert opened and (tmp_path / "P01" / LOCK).exists()
+        with pytest.raises(SessionError):          # the lock held is the folder's, not a removed file
+            SessionLock(tmp_path / "P01").acquire()
+    finally:
+        second.release()
+
+
 def test_a_run_is_refused_while_a_study_node_of_a_killed_run_still_writes(tmp_path, capsys):
     orphan = hold_lock(tmp_path / "P01", WRITER)      # as a study node whose `study run` was SIGKILLed
     try:
@@ -104,7 +142,8 @@ def test_a_run_into_an_out_of_other_settings_is_refused_or_replaced_with_overwri
     # ... but never another participant's session of other settings (analysed together they would mix)
     assert main([*OFFLINE[:-1], "2", "--out", str(tmp_path), "--noise", "0.08"]) == 2
     capsys.readouterr()
-    (tmp_path / "P02").mkdir(exist_ok=True)
+    assert not (tmp_path / "P02").exists()      # the refused run leaves no folder holding only its lock
+    (tmp_path / "P02").mkdir()
     (tmp_path / "P02" / "manifest.json").write_text(json.dumps({"study": "other", "study_sha256": "0" * 64}))
     assert main([*OFFLINE, "--out", str(tmp_path), "--noise", "0.3", "--overwrite"]) == 2
     assert str(tmp_path / "P02") in capsys.readouterr().err

@@ -115,7 +115,9 @@ def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
     from touch4d.bus.launchfile import load_launch
     from touch4d.bus.preflight import check_launch
+    from touch4d.bus.process import PARENT_PID_ENV, die_with_parent
 
+    die_with_parent(PARENT_PID_ENV)   # started by `touch4d study run`: its stack ends with it, even killed outright
     files = [i for i in args.items if ":=" not in i]
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:

@@ -25,6 +25,7 @@ from touch4d.bus.realtime import PRIORITY, raise_thread_priority
 from touch4d.errors import Touch4dError, Unavailable
 
 LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
+PARENT_PID_ENV = "TOUCH4D_PARENT_PID"   # a program that starts `touch4d launch` and wants the launch to end with it
 READY_FD_ENV = "TOUCH4D_READY_FD"
 _PR_SET_PDEATHSIG = 1
 
@@ -43,17 +44,19 @@ def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> 
     return parser.parse_args(argv)
 
 
-def _die_with_launcher() -> None:
-    """Ask the kernel to SIGTERM this process if the launcher that started it dies (even by SIGKILL)."""
-    launcher = os.environ.get(LAUNCHER_PID_ENV)
-    if not launcher or not sys.platform.startswith("linux"):
+def die_with_parent(env: str = LAUNCHER_PID_ENV) -> None:
+    """If $`env` names this process's parent, ask the kernel to SIGTERM this process when that parent
+    dies, even by SIGKILL (Linux prctl PR_SET_PDEATHSIG); exit at once if the parent is already gone.
+    The variable is removed: this process's own children are not told to watch a grandparent."""
+    parent = os.environ.pop(env, None)
+    if not parent or not sys.platform.startswith("linux"):
         return
     try:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     except (OSError, AttributeError):
         return
-    if os.getppid() != int(launcher):
-        sys.exit(0)  # the launcher is already gone
+    if os.getppid() != int(parent):
+        sys.exit(0)  # the parent died before the request took hold
 
 
 def _tell_ready() -> None:
@@ -75,7 +78,7 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
     args = parse_node_args(sys.argv[1:] if argv is None else argv, getattr(node_class, "__name__", None))
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
-    _die_with_launcher()
+    die_with_parent()
     try:
         params = json.loads(args.params)
         if not isinstance(params, dict):

@@ -7,6 +7,8 @@ command for the refusal.
 - `.writer`: the study node appending trials.csv holds it. It outlives a run killed outright
   (SIGKILL) whose stack ran on: `claim_session` checks it is free, so a new run is refused, naming
   the node still writing, rather than starting a second writer.
+
+A folder the run's lock created and left empty (a refused run) is removed with its lock files.
 """
 from __future__ import annotations
 
@@ -31,18 +33,28 @@ class SessionLock:
         self.directory = Path(directory)
         self.path = self.directory / name
         self._fd: int | None = None
+        self._created = False     # this lock made the folder: it removes it on release if nothing else came
 
     def acquire(self) -> "SessionLock":
-        self.directory.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = _holder(fd)
-            os.close(fd)
-            doing = "writes this session folder" if self.path.name == LOCK else "writes this session's trials.csv"
-            raise SessionError(f"{self.directory}: another process {doing} ({holder}); one writer at a time: "
-                               "wait for it to end or stop it, or use another --out") from None
+        while True:
+            created = not self.directory.exists()
+            self.directory.mkdir(parents=True, exist_ok=True)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except FileNotFoundError:
+                continue    # the folder went (an empty one, released) between mkdir and open
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _holder(fd)
+                os.close(fd)
+                doing = "writes this session folder" if self.path.name == LOCK else "writes this session's trials.csv"
+                raise SessionError(f"{self.directory}: another process {doing} ({holder}); one writer at a time: "
+                                   "wait for it to end or stop it, or use another --out") from None
+            if _is_file(fd, self.path):
+                break
+            os.close(fd)    # its holder removed it (and its empty folder) between our open and flock: anew
+        self._created = created
         os.ftruncate(fd, 0)
         os.write(fd, json.dumps({"pid": os.getpid(), "command": " ".join(sys.argv),
                                  "since": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode() + b"\n")
@@ -51,6 +63,8 @@ class SessionLock:
 
     def release(self) -> None:
         if self._fd is not None:
+            if self._created and self.path.name == LOCK:
+                _remove_if_empty(self.directory)     # still holding the lock: no other run is in there
             os.close(self._fd)          # closing the only descriptor drops the lock
             self._fd = None
 
@@ -71,6 +85,34 @@ def claim_session(directory) -> SessionLock:
         run.release()
         raise
     return run
+
+
+def _is_file(fd: int, path: Path) -> bool:
+    """Whether the open file `fd` is still the file at `path` (not one removed since it was opened)."""
+    try:
+        return os.path.samestat(os.fstat(fd), os.stat(path))
+    except FileNotFoundError:
+        return False
+
+
+def _remove_if_empty(directory: Path) -> None:
+    """Remove a session folder that holds nothing but its lock files (a refused run made it)."""
+    if {p.name for p in directory.iterdir()} - {LOCK, WRITER}:
+        return
+    writer = SessionLock(directory, WRITER)
+    try:
+        writer.acquire()
+    except SessionError:
+        return                                   # a study node writes there after all
+    try:
+        (directory / WRITER).unlink(missing_ok=True)
+        (directory / LOCK).unlink(missing_ok=True)
+    finally:
+        writer.release()
+    try:
+        directory.rmdir()
+    except OSError:
+        pass                                     # something came in meanwhile: it stays
 
 
 def _holder(fd: int) -> str:

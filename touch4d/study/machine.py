@@ -14,7 +14,8 @@ Per trial: IDLE until the scene node shows the trial's scene (`scene_shown`) and
 then STIMULUS (its onset is the clock's reading then) until the first valid answer (`respond`, or a
 key `1..9`) or `time_limit_s`. A block's first trial, and one the plan offers a break before, start
 with a BREAK that `go_on` (Enter, any answer) or `break_s` ends. `pause` interrupts a trial, which
-is shown again from its start after `resume`. After the last trial: DONE.
+is shown again from its start after `resume`, or a break, which `resume` shows again. After the last
+trial: DONE.
 
 One clock, passed in: `clock()` returns seconds on the bus clock (`time.time` in a node, so that
 answers' stamps compare with the onset); a test passes a fake and moves it by hand.
@@ -125,6 +126,7 @@ class TrialMachine:
         self._scene_ok = False                   # the scene node shows exactly the trial's scene
         self._scene_kind_ok = False              # ... or the same objects, turned
         self._loaded_at = -np.inf
+        self._paused_break = ""                  # the message of a break a pause interrupted
 
     # ---- the session's course ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -255,11 +257,15 @@ class TrialMachine:
         if pause and self.phase != Phase.PAUSED:
             self.counts["pauses"] += 1
             self.outbox.append(Paused(why, interrupted=self.phase == Phase.STIMULUS))
+            self._paused_break = self.message if self.phase == Phase.BREAK else ""
             self._set_phase(Phase.PAUSED, "Paused.")
         elif not pause and self.phase == Phase.PAUSED:
             self.outbox.append(Resumed(why))
             self.measures.reset()
-            self._set_phase(Phase.IDLE)
+            if self._paused_break:
+                self._set_phase(Phase.BREAK, self._paused_break)
+            else:
+                self._set_phase(Phase.IDLE)
 
     def stop(self) -> None:
         """The runner stops (a clean shutdown): close the gate; the trial shown is shown again on resume."""

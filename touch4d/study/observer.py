@@ -140,12 +140,21 @@ class _Cue:
     2017), so that a cue that cannot tell the options apart says so (near-uniform posteriors) instead
     of adding confident noise to the other cue."""
 
-    def __init__(self, features: np.ndarray, answers: np.ndarray, groups: np.ndarray, options: list[str]):
+    def __init__(self, features: np.ndarray, answers: np.ndarray, groups: np.ndarray, options: list[str],
+                 setting: str = "train_scenes"):
         from scipy.optimize import minimize_scalar
 
+        classes = len(np.unique(answers))
+
+        def fits(rows: np.ndarray) -> bool:           # LDA needs every answer and more examples than answers
+            return rows.sum() > classes and len(np.unique(answers[rows])) == classes
+
         held = groups % 3 == 0                        # every third scene is held out for the temperature
-        if held.all() or not held.any() or len(np.unique(answers[~held])) < len(np.unique(answers)):
+        if not held.any() or not fits(~held):
             held = np.zeros(len(answers), bool)
+        if not fits(~held):
+            raise ConfigError("model observer", setting, f"enough scenes for more training examples than the "
+                              f"{classes} answers", got=f"{len(answers)} examples")
         fit = classifier().fit(features[~held], answers[~held])
         self.temperature = 1.0
         if held.any():
@@ -232,7 +241,7 @@ class ModelObserver:
             x, k, groups = view_examples(self.study, task, rng, scenes=self.view_scenes, view=view)
             answers = np.array([a for _, _, a in stimuli_of(task)])[k]
             self._view[task_id, view] = _Cue(x + rng.normal(0.0, self.visual_noise, x.shape), answers, groups,
-                                             list(task.options))
+                                             list(task.options), setting="view_scenes")
         return self._view[task_id, view]
 
     def with_noise(self, factor: float) -> "ModelObserver":

@@ -4,8 +4,10 @@ N simulated participants in turn. The session folder's files: touch4d.study.stor
 
 However a run ends (done, SIGINT, SIGTERM, SIGHUP, an exception), the stack it launched is stopped
 (the launcher stops its nodes; the motor node sends zero duty) and whatever is left of its process
-group is killed: no node writes on after `touch4d study run` is gone. While it runs, the run holds
-the session folder's lock (touch4d.study.lock): one writer per folder.
+group is killed: no node writes on after `touch4d study run` is gone. Killed outright (SIGKILL), the
+run stops nothing itself: the kernel then SIGTERMs the launcher (touch4d.bus.process.die_with_parent),
+which stops its nodes as on Ctrl+C. While it runs, the run holds the session folder's lock
+(touch4d.study.lock): one writer per folder.
 """
 from __future__ import annotations
 
@@ -130,6 +132,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
 
     from touch4d.bus.config import ENV_VAR, BusConfig
     from touch4d.bus.node import Node
+    from touch4d.bus.process import PARENT_PID_ENV
     from touch4d.messages import StudyTrial
 
     directory = session_dir(out, participant)
@@ -147,6 +150,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             echo(f"{participant}: pause with the Pause key (F9) or "
                  "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
+        env[PARENT_PID_ENV] = str(os.getpid())   # killed outright (SIGKILL), this process still ends its stack
         cmd = [sys.executable, "-m", "touch4d.cli", "launch", *args, *bus_args, "--ready-file", str(ready)]
         watcher = None
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
