@@ -21,6 +21,9 @@ import math
 import numpy as np
 from numba import njit
 
+from touch4d.geometry.segment import clip_segment
+from touch4d.geometry.tolerance import ANGLE, POINT, RELATIVE
+
 PA = np.array([0, 0, 0, 1, 1, 2])      # first axis of each plane
 PB = np.array([1, 2, 3, 2, 3, 3])      # second axis
 MAX_POINTS = 12                        # contact points kept per pair of convex parts
@@ -36,6 +39,8 @@ N_OPTIONS = 7
 C_A, C_B, C_PX, C_NX, C_DEPTH, C_LAMBDA, C_TX, C_SPEED, C_KEY, C_LOCAL = 0, 1, 2, 6, 10, 11, 12, 16, 17, 18
 C_WIDTH = 22
 WARM_DISTANCE = 0.005                  # a point moved less than this (body frame) is the same point
+EDGE_PREFERENCE = 1e-6                 # relative to the parts' size: an edge x face axis must separate this much
+                                       # more than the best cell's to be taken (a cell's contact is steadier)
 
 
 cache = dict(cache=True, nogil=True)
@@ -254,29 +259,20 @@ def _separation(na, oa, ca_start, ca_count, vb, vb_start, vb_count):
 
 
 @njit(**cache)
-def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_count, margin, facing, pts, count):
-    """End points of the edges (of one part) clipped to the other part (Cyrus-Beck), whose cells are grown
-    by margin times how much they face `facing` (the direction the edges' part lies in): a point may
-    hover up to margin above the contact, never beside it."""
+def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_count, margin, facing, tol, pts, count):
+    """End points of the edges (of one part) clipped to the other part, whose cells are grown by margin
+    times how much they face `facing` (the direction the edges' part lies in), so a point may hover up to
+    margin above the contact, never beside it, and by the tolerance tol, so an edge lying on a cell is kept."""
+    n_cells = normals[c_start:c_start + c_count]
+    grown = np.empty(c_count)
+    for c in range(c_count):
+        n = n_cells[c]
+        grow = n[0] * facing[0] + n[1] * facing[1] + n[2] * facing[2] + n[3] * facing[3]
+        grown[c] = offsets[c_start + c] + margin * max(grow, 0.0)
     for e in range(e_start, e_start + e_count):
         p0 = verts[edges[e, 0]]
         p1 = verts[edges[e, 1]]
-        t0, t1 = 0.0, 1.0
-        for c in range(c_start, c_start + c_count):
-            n = normals[c]
-            den = n[0] * (p1[0] - p0[0]) + n[1] * (p1[1] - p0[1]) + n[2] * (p1[2] - p0[2]) + n[3] * (p1[3] - p0[3])
-            grow = n[0] * facing[0] + n[1] * facing[1] + n[2] * facing[2] + n[3] * facing[3]
-            num = offsets[c] + margin * max(grow, 0.0) - (n[0] * p0[0] + n[1] * p0[1] + n[2] * p0[2] + n[3] * p0[3])
-            if abs(den) < 1e-14:
-                if num < 0:
-                    t0, t1 = 1.0, 0.0
-                    break
-            elif den > 0:
-                t1 = min(t1, num / den)
-            else:
-                t0 = max(t0, num / den)
-            if t0 > t1:
-                break
+        t0, t1 = clip_segment(p0, p1, n_cells, grown, tol)
         if t0 > t1:
             continue
         for t in (t0, t1):
@@ -297,7 +293,7 @@ def _exit_depth(q, direction, normals, offsets, c_start, c_count):
     for c in range(c_start, c_start + c_count):
         n = normals[c]
         along = n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2] + n[3] * direction[3]
-        if along > 1e-9:
+        if along > ANGLE:
             t = (offsets[c] - (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] + n[3] * q[3])) / along
             if t < best:
                 best = t
@@ -355,7 +351,7 @@ def _edge_face_axes(verts, pa_v, pa_vc, pb_v, pb_vc, dirs, d_s, d_c, spans, f_s,
 
 
 @njit(**cache)
-def _support_mid(verts, start, count, n, sign, out):
+def _support_mid(verts, start, count, n, sign, tol, out):
     """The centre of a part's vertices that lie farthest along sign * n (its supporting vertex, edge or face)."""
     top = -np.inf
     for v in range(start, start + count):
@@ -366,7 +362,7 @@ def _support_mid(verts, start, count, n, sign, out):
         out[k] = 0.0
     for v in range(start, start + count):
         d = sign * (n[0] * verts[v, 0] + n[1] * verts[v, 1] + n[2] * verts[v, 2] + n[3] * verts[v, 3])
-        if d >= top - 1e-9:
+        if d >= top - tol:
             for k in range(4):
                 out[k] += verts[v, k]
             m += 1
@@ -376,9 +372,12 @@ def _support_mid(verts, start, count, n, sign, out):
 
 @njit(**cache)
 def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
-                 edges, d_start, d_count, dirs, f_start, f_count, spans, margin, out_pts, out_depth, out_normal):
+                 edges, d_start, d_count, dirs, f_start, f_count, spans, size, margin, out_pts, out_depth, out_normal):
     """Contact points of two convex parts: returns their number (0: apart by more than margin);
-    fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b."""
+    fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b.
+    size: every part's size (`tolerance.size` of its vertices), which scales the tolerances."""
+    scale = max(size[pa], size[pb])
+    tol = RELATIVE * scale
     sep_a, cell_a = _separation(normals, offsets, c_start[pa], c_count[pa], verts, v_start[pb], v_count[pb])
     if sep_a > margin:
         return 0
@@ -386,7 +385,7 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
     if sep_b > margin:
         return 0
     # prefer a's axis unless b's is clearly better: equal axes (face on face) must not flip-flop
-    if sep_b > sep_a + 1e-9:
+    if sep_b > sep_a + tol:
         for k in range(4):
             out_normal[k] = -normals[cell_b, k]
         best, other, o_start, o_count = sep_b, pa, c_start[pa], c_count[pa]
@@ -402,16 +401,16 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
     sign = 1.0 if other == pb else -1.0
     for c in range(o_start, o_start + o_count):
         along = sign * (normals[c, 0] * n[0] + normals[c, 1] * n[1] + normals[c, 2] * n[2] + normals[c, 3] * n[3])
-        if along < -1.0 + 1e-9:
+        if along < -1.0 + ANGLE:
             flat = True
             break
     if not flat and (d_count[pa] > 0 and f_count[pb] > 0 or d_count[pb] > 0 and f_count[pa] > 0):
         axis = np.empty(4)
         edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pa],
-                                    d_count[pa], spans, f_start[pb], f_count[pb], best + 1e-7, axis)
+                                    d_count[pa], spans, f_start[pb], f_count[pb], best + EDGE_PREFERENCE * scale, axis)
         edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pb],
                                     d_count[pb], spans, f_start[pa], f_count[pa], edge_best, axis)
-        if edge_best > best + 1e-7:
+        if edge_best > best + EDGE_PREFERENCE * scale:
             if edge_best > margin:
                 return 0                       # separated along an edge-face axis
             for k in range(4):
@@ -422,11 +421,12 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
     cand = np.empty((MAX_CANDIDATES, 4))
     depth = np.empty(MAX_CANDIDATES)
     count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
-                        margin, n, cand, 0)
+                        margin, n, tol, cand, 0)
     split = count
     count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
-                        margin, minus, cand, count)
+                        margin, minus, tol, cand, count)
     keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
+    same = POINT * scale
     kept = 0
     for i in range(count):
         if i < split:    # a point of b inside a: b must move along +n to leave a
@@ -443,7 +443,7 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
                 for k in range(4):
                     dist += (cand[i, k] - cand[j, k]) ** 2
                     along += (cand[i, k] - cand[j, k]) * n[k]
-                if dist - along * along < 1e-12:      # the same place across the normal: one point
+                if dist - along * along < same * same:      # the same place across the normal: one point
                     dup = True
                     if d > depth[j]:
                         depth[j] = d
@@ -458,8 +458,8 @@ def narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, v
             return 0
         # an edge against a 2-face meet where no edge of either is inside the other (the overlap's corners are
         # where 2-faces cross): one point between the two parts' supporting features, at the axis' depth
-        _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, out_pts[0])
-        _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, cand[0])
+        _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, tol, out_pts[0])
+        _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, tol, cand[0])
         for k in range(4):
             out_pts[0, k] = 0.5 * (out_pts[0, k] + cand[0, k])
         out_depth[0] = -best
@@ -582,7 +582,7 @@ def _apply_row(c, d, delta, a, b, basis, ang, inv_ang, inv_mass, v, w, dL):
 @njit(**cache)
 def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
          part_body, v_start, v_count, c_start, c_count, e_start, e_count, local_verts, local_normals,
-         local_offsets, edges, d_start, d_count, local_dirs, f_start, f_count, local_spans,
+         local_offsets, edges, d_start, d_count, local_dirs, f_start, f_count, local_spans, part_size,
          friction_static, friction_kinetic, restitution,
          gravity, dt, options, impulses, previous):
     """One step: state (x, v, r, L) in, new state and the contact rows out (see module doc).
@@ -688,7 +688,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
         while cursor < len(previous) and previous[cursor, C_KEY] < key:
             cursor += 1
         k = narrow_phase(pa, pb, v_start, v_count, c_start, c_count, e_start, e_count, verts, normals, offsets,
-                         edges, d_start, d_count, dirs, f_start, f_count, spans, margin, pts, depth, normal)
+                         edges, d_start, d_count, dirs, f_start, f_count, spans, part_size, margin, pts, depth, normal)
         a, b = part_body[pa], part_body[pb]
         mus = math.sqrt(friction_static[a] * friction_static[b])
         muk = math.sqrt(friction_kinetic[a] * friction_kinetic[b])

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from touch4d.geometry import tolerance
 from touch4d.geometry.scene import Scene
 
 from . import bivector, kernels
@@ -130,7 +131,7 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
         for poly in local:
             dirs, spans = edge_face_directions(poly)
             part_rows.append((i, poly.vertices - props.center, poly.normals, poly.offsets - poly.normals @ props.center,
-                              poly.edges, dirs, spans))
+                              poly.edges, dirs, spans, tolerance.size(poly.vertices)))
     dynamic = np.isfinite(masses)
     inv_mass = np.where(dynamic, 1.0 / np.where(dynamic, masses, 1.0), 0.0)
     inv_plane = np.where(planes > 0, 1.0 / np.where(planes > 0, planes, 1.0), 0.0)
@@ -177,7 +178,8 @@ def _flatten(rows) -> tuple:
     fc = np.array([len(row[6]) for row in rows], dtype=np.int64)
     dirs = np.ascontiguousarray(np.concatenate([row[5] for row in rows]).reshape(-1, 4))
     spans = np.ascontiguousarray(np.concatenate([row[6] for row in rows]).reshape(-1, 2, 4))
-    return body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges, starts(dc), dc, dirs, starts(fc), fc, spans
+    size = np.array([row[7] for row in rows], dtype=np.float64)
+    return body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges, starts(dc), dc, dirs, starts(fc), fc, spans, size
 
 
 MAX_EDGE_DIRECTIONS = 32      # parts with more distinct edge directions (or 2-face planes, below) are
