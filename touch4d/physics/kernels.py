@@ -21,6 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
+from touch4d.geometry.rotation import renormalize
 from touch4d.geometry.segment import clip_segment
 from touch4d.geometry.tolerance import ANGLE, POINT, RELATIVE
 
@@ -120,15 +121,6 @@ def world_inverse_inertia(r, axes, inv_plane, out):
             for k in range(6):
                 acc += c[i, k] * inv_plane[k] * c[j, k]
             out[i, j] = acc
-
-
-@njit(**cache)
-def renormalize(r):
-    """One Newton-Schulz step towards the nearest rotation: r (3 I - r^T r) / 2."""
-    e = r.T @ r
-    for k in range(4):
-        e[k, k] -= 3.0
-    return -0.5 * (r @ e)
 
 
 @njit(**cache)
