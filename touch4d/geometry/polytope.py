@@ -74,6 +74,35 @@ class Polytope:
         return np.hstack([self.normals, self.offsets[:, None]])
 
     @property
+    def edge_directions(self) -> np.ndarray:
+        """(D, 4) the distinct unit directions of the edges, each once (its first clear coordinate > 0)."""
+        v = self.vertices
+        d = v[self.edges[:, 1]] - v[self.edges[:, 0]]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        lead = np.argmax(np.abs(d) > tolerance.ANGLE, axis=1)
+        d *= np.where(d[np.arange(len(d)), lead] < 0, -1.0, 1.0)[:, None]
+        _, first = np.unique(np.round(d, 9), axis=0, return_index=True)
+        return d[np.sort(first)]
+
+    @property
+    def face_planes(self) -> np.ndarray:
+        """(P, 2, 4) the distinct planes of the 2-faces, each as two orthonormal vectors spanning it."""
+        v = self.vertices
+        spans, keys = [], []
+        for face in self.topology.faces:
+            p0 = v[face[0]]
+            e1 = v[face[1]] - p0
+            e1 /= np.linalg.norm(e1)
+            rest = v[face[2:]] - p0
+            rest -= np.outer(rest @ e1, e1)
+            e2 = rest[np.argmax(np.linalg.norm(rest, axis=1))]
+            e2 /= np.linalg.norm(e2)
+            spans.append((e1, e2))
+            keys.append(np.round(np.outer(e1, e1) + np.outer(e2, e2), 9).ravel())   # the plane's projector
+        _, first = np.unique(np.array(keys), axis=0, return_index=True)
+        return np.array(spans)[np.sort(first)]
+
+    @property
     def center(self) -> np.ndarray:
         """Mean of the vertices: an interior point."""
         return self.vertices.mean(axis=0)

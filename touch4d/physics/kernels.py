@@ -25,8 +25,8 @@ from touch4d.geometry.rotation import renormalize
 from touch4d.geometry.segment import clip_segment
 from touch4d.geometry.tolerance import ANGLE, POINT, RELATIVE
 
-PA = np.array([0, 0, 0, 1, 1, 2])      # first axis of each plane
-PB = np.array([1, 2, 3, 2, 3, 3])      # second axis
+from .bivector import PA, PB, compound_into, exp_into, turn_into, wedge_into
+
 MAX_POINTS = 12                        # contact points kept per pair of convex parts
 MAX_CANDIDATES = 512                   # clipped edge end points examined per pair
 
@@ -48,73 +48,11 @@ cache = dict(cache=True, nogil=True)
 
 
 @njit(**cache)
-def compound(m, out):
-    """6x6 matrix turning bivectors as m turns vectors."""
-    for i in range(6):
-        a, b = PA[i], PB[i]
-        for j in range(6):
-            c, d = PA[j], PB[j]
-            out[i, j] = m[a, c] * m[b, d] - m[a, d] * m[b, c]
-
-
-@njit(**cache)
-def wedge(r, p, out):
-    for i in range(6):
-        out[i] = r[PA[i]] * p[PB[i]] - r[PB[i]] * p[PA[i]]
-
-
-@njit(**cache)
-def turn(w, r, out):
-    """out = W r, the velocity of the point r of a body turning at w."""
-    for k in range(4):
-        out[k] = 0.0
-    for i in range(6):
-        a, b = PA[i], PB[i]
-        out[b] += w[i] * r[a]
-        out[a] -= w[i] * r[b]
-
-
-@njit(**cache)
-def exp_bivector(w, out):
-    """exp(hat(w)) in closed form: the product of its two commuting isoclinic parts, each
-    cos(theta) I + sin(theta) / theta hat(part) with theta = |part| / sqrt(2)."""
-    p0, p1, p2 = 0.5 * (w[0] + w[5]), 0.5 * (w[1] - w[4]), 0.5 * (w[2] + w[3])    # self-dual part
-    q0, q1, q2 = 0.5 * (w[0] - w[5]), 0.5 * (w[1] + w[4]), 0.5 * (w[2] - w[3])    # anti-self-dual part
-    tp = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    tq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-    # hat() of a self-dual bivector (p0, p1, p2, p2, -p1, p0) and of an anti-self-dual one (q0, q1, q2, -q2, q1, -q0)
-    cp, sp = math.cos(tp), (math.sin(tp) / tp if tp > 0 else 1.0)
-    cq, sq = math.cos(tq), (math.sin(tq) / tq if tq > 0 else 1.0)
-    a = np.empty((4, 4))
-    b = np.empty((4, 4))
-    _hat_into(p0, p1, p2, p2, -p1, p0, cp, sp, a)
-    _hat_into(q0, q1, q2, -q2, q1, -q0, cq, sq, b)
-    for k in range(4):
-        for j in range(4):
-            out[k, j] = a[k, 0] * b[0, j] + a[k, 1] * b[1, j] + a[k, 2] * b[2, j] + a[k, 3] * b[3, j]
-
-
-@njit(**cache)
-def _hat_into(w0, w1, w2, w3, w4, w5, c, s, out):
-    """out = c I + s hat(w)."""
-    for k in range(4):
-        for j in range(4):
-            out[k, j] = 0.0
-        out[k, k] = c
-    out[1, 0], out[0, 1] = s * w0, -s * w0
-    out[2, 0], out[0, 2] = s * w1, -s * w1
-    out[3, 0], out[0, 3] = s * w2, -s * w2
-    out[2, 1], out[1, 2] = s * w3, -s * w3
-    out[3, 1], out[1, 3] = s * w4, -s * w4
-    out[3, 2], out[2, 3] = s * w5, -s * w5
-
-
-@njit(**cache)
 def world_inverse_inertia(r, axes, inv_plane, out):
     """R Q diag(1 / I) (R Q)^T on bivectors: the world inverse inertia (6x6) of one body."""
     w = r @ axes
     c = np.empty((6, 6))
-    compound(w, c)
+    compound_into(w, c)
     for i in range(6):
         for j in range(6):
             acc = 0.0
@@ -126,7 +64,7 @@ def world_inverse_inertia(r, axes, inv_plane, out):
 @njit(**cache)
 def _plane_momentum(w, L, lp):
     c = np.empty((6, 6))
-    compound(w, c)
+    compound_into(w, c)
     for j in range(6):
         acc = 0.0
         for i in range(6):
@@ -155,7 +93,7 @@ def rotate_free(r, axes, L, iso_inv, excess, dt):
     """
     e = np.empty((4, 4))
     if not excess.any():                       # equal inertia in every plane: one exact rotation
-        exp_bivector(L * (iso_inv * dt), e)
+        exp_into(L * (iso_inv * dt), e)
         return renormalize(e @ r)
     w = r @ axes
     lp = np.empty(6)
@@ -164,7 +102,7 @@ def rotate_free(r, axes, L, iso_inv, excess, dt):
         if excess[j] != 0.0:
             _plane_momentum(w, L, lp)
             _turn_columns(w, PA[j], PB[j], excess[j] * lp[j] * half)
-    exp_bivector(L * (iso_inv * dt), e)
+    exp_into(L * (iso_inv * dt), e)
     w = e @ w
     for j in range(5, -1, -1):
         if excess[j] != 0.0:
@@ -506,7 +444,7 @@ def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6):
         return
     for k in range(4):
         v[body, k] += sign * inv_mass[body] * p[k]
-    wedge(r, p, tmp6)
+    wedge_into(r, p, tmp6)
     for i in range(6):
         dL[body, i] += sign * tmp6[i]
     for i in range(6):
@@ -518,7 +456,7 @@ def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6):
 
 @njit(**cache)
 def _point_velocity(body, r, v, w, out, tmp):
-    turn(w[body], r, tmp)
+    turn_into(w[body], r, tmp)
     for k in range(4):
         out[k] = v[body, k] + tmp[k]
 
@@ -764,8 +702,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
                 if inv_mass[body] == 0.0:
                     continue
                 dvec = basis[c, d]
-                for i in range(6):
-                    ang[c, d, side, i] = rr[PA[i]] * dvec[PB[i]] - rr[PB[i]] * dvec[PA[i]]
+                wedge_into(rr, dvec, ang[c, d, side])
                 for i in range(6):
                     if isotropic[body]:
                         acc = iso_inv[body] * ang[c, d, side, i]
@@ -854,7 +791,7 @@ def step(x, v, r, L, inv_mass, axes, inv_plane, iso_inv, excess, gravity_scale,
         for i in range(n):
             if dynamic[i] and (pv[i].any() or pw[i].any()):
                 x[i] += dt * pv[i]
-                exp_bivector(pw[i] * dt, turn_by)
+                exp_into(pw[i] * dt, turn_by)
                 r[i] = renormalize(turn_by @ r[i])
     return x, v, r, L, rows
 

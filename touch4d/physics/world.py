@@ -187,29 +187,9 @@ MAX_FACE_PLANES = 64          # separated by their cells only: the edge x face a
 
 
 def edge_face_directions(poly) -> tuple[np.ndarray, np.ndarray]:
-    """A convex part's distinct edge directions (D, 4) and 2-face planes (F, 2, 4: two orthonormal
-    spanning vectors each), for the edge x 2-face separating axes; empty when there are too many."""
-    v = poly.vertices
-    d = v[poly.edges[:, 1]] - v[poly.edges[:, 0]]
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    d *= np.where(d[np.arange(len(d)), np.argmax(np.abs(d) > 1e-9, axis=1)] < 0, -1.0, 1.0)[:, None]
-    _, first = np.unique(np.round(d, 9), axis=0, return_index=True)
-    dirs = d[np.sort(first)]
-    spans, keys = [], []
-    for face in poly.topology.faces:
-        p0 = v[face[0]]
-        e1 = v[face[1]] - p0
-        e1 /= np.linalg.norm(e1)
-        rest = v[face[2:]] - p0
-        rest -= np.outer(rest @ e1, e1)
-        e2 = rest[np.argmax(np.linalg.norm(rest, axis=1))]
-        e2 /= np.linalg.norm(e2)
-        plane = bivector.wedge(e1, e2)                     # the plane, up to sign
-        plane *= -1.0 if plane[np.argmax(np.abs(plane) > 1e-9)] < 0 else 1.0
-        keys.append(np.round(plane, 9))
-        spans.append((e1, e2))
-    _, first = np.unique(np.array(keys), axis=0, return_index=True)
-    spans = np.array(spans)[np.sort(first)]
+    """A convex part's distinct edge directions (D, 4) and 2-face planes (F, 2, 4) (the polytope's), for the
+    edge x 2-face separating axes; empty when there are too many."""
+    dirs, spans = poly.edge_directions, poly.face_planes
     if len(dirs) > MAX_EDGE_DIRECTIONS or len(spans) > MAX_FACE_PLANES:
         return np.zeros((0, 4)), np.zeros((0, 2, 4))
     return dirs, spans
