@@ -140,7 +140,8 @@ def test_the_stages_make_the_step():
     state = state.__class__(0.0, 0, state.x, np.array([[0.5, 0, 0, 0], [-0.5, 0, 0, 0]]), state.r, state.L)
     m, contacts = kernels.step(world.bodies, world.parts, motion(state), world.gravity, world.options,
                                np.zeros((0, 9)), no_contacts())
-    assert isinstance(contacts, Contacts) and len(contacts.a) > 0
+    m, contacts = Motion(*m), Contacts(*contacts)
+    assert len(contacts.a) > 0 and contacts.a.dtype == np.int64
     # the bodies swap momentum symmetrically: total momentum kept (gravity aside), no spin
     np.testing.assert_allclose(MASS * (m.v.sum(axis=0) - 2 * world.gravity * world.dt), 0, atol=1e-15)
     assert m.v[0, 0] < 0 < m.v[1, 0]

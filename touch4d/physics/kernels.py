@@ -423,21 +423,29 @@ def split_impulse(contacts: Contacts, rows: Rows, inv_mass, motion: Motion, opti
 
 
 @njit(**cache)
-def step(bodies: Bodies, parts: Parts, motion: Motion, gravity, options: Options, impulses, previous: Contacts):
+def step(bodies, parts, motion, gravity, options, impulses, previous):
     """One step: the state in, the new state and this step's contacts out, stage by stage (module doc).
 
+    bodies, parts, motion, options, previous: `Bodies`, `Parts`, `Motion`, `Options`, `Contacts`, or plain
+    tuples of their fields (Python calls with plain tuples: numba dispatches those several times faster).
     impulses: (K, 9) rows [body, point (4, world), impulse (4)] applied at the start (the hand's push).
     previous: the contacts of the step before (warm start: a point found again starts from its impulses,
     so a stack's solution carries over from step to step instead of being found anew).
+    Returns the new (x, v, r, L) and the contacts' fields, as plain tuples (`Motion`, `Contacts` order).
     """
+    bodies, parts, motion, options, previous = (Bodies(*bodies), Parts(*parts), Motion(*motion), Options(*options),
+                                                Contacts(*previous))
     dt = options.dt
     vel = velocities(bodies, motion, impulses, gravity, dt)
     placed = place_parts(parts, motion.x, motion.r)
     contacts = collide(parts, placed, bodies.inv_mass > 0.0, motion.x, motion.r, options.margin)
     solver = rows(contacts, previous, bodies, vel, motion.x, options)
     solve(contacts, solver, bodies.inv_mass, vel, options.iterations)
-    moved = integrate(bodies, motion, vel, contacts, gravity, dt)
-    return split_impulse(contacts, solver, bodies.inv_mass, moved, options), contacts
+    moved = split_impulse(contacts, solver, bodies.inv_mass, integrate(bodies, motion, vel, contacts, gravity, dt),
+                          options)
+    c = contacts
+    return ((moved.x, moved.v, moved.r, moved.L),
+            (c.a, c.b, c.point, c.normal, c.depth, c.impulse, c.tangent, c.speed, c.key, c.local))
 
 
 @njit(**cache)

@@ -9,6 +9,7 @@ and world angular momentum `L` (a bivector: what a free body keeps exactly; its 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -72,8 +73,14 @@ class World:
     dt: float
     options: arrays.Options
 
-    @property
+    @cached_property
+    def step_constants(self) -> tuple[tuple, tuple, tuple]:
+        """bodies, parts, options as plain tuples, as `kernels.step` is called (numba dispatches those fast)."""
+        return tuple(self.bodies), tuple(self.parts), tuple(self.options)
+
+    @cached_property
     def bodies(self) -> arrays.Bodies:
+        """The bodies' constants as the step's stages take them."""
         return arrays.Bodies(self.inv_mass, self.axes, self.inv_plane, self.iso_inv, self.excess, self.gravity_scale,
                              self.friction_static, self.friction_kinetic, self.restitution)
 
@@ -213,8 +220,9 @@ def step(world: World, state: State, impulses: np.ndarray | None = None) -> tupl
     impulses: optional (K, 9) rows [body, point (4, world), impulse (4)] applied at the step's start
     (the hand's push)."""
     imp = NO_IMPULSES if impulses is None or len(impulses) == 0 else np.ascontiguousarray(impulses, dtype=np.float64)
-    motion, contacts = kernels.step(world.bodies, world.parts, arrays.Motion(state.x, state.v, state.r, state.L),
-                                    world.gravity, world.options, imp, state.contacts)
+    motion, contacts = kernels.step(*world.step_constants[:2], (state.x, state.v, state.r, state.L), world.gravity,
+                                    world.step_constants[2], imp, tuple(state.contacts))
+    contacts = arrays.Contacts(*contacts)
     return State((state.steps + 1) * world.dt, state.steps + 1, *motion, contacts), Contacts(contacts)
 
 
