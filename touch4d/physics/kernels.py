@@ -212,7 +212,13 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     pair strikes), its friction coefficient, its Jacobians; then the warm start: a point found again in
     `previous` (same pair, within options.warm_distance in b's frame) starts from its impulses, applied."""
     m = len(contacts.a)
-    dt = options.dt
+    dt, margin, bounce_speed, stick_speed = options.dt, options.margin, options.bounce_speed, options.stick_speed
+    body_a, body_b, point, normal, depth, speed, key_of, local = (contacts.a, contacts.b, contacts.point, contacts.normal,
+                                                                 contacts.depth, contacts.speed, contacts.key,
+                                                                 contacts.local)
+    p_key, p_local, p_speed, p_impulse, p_tangent = (previous.key, previous.local, previous.speed, previous.impulse,
+                                                     previous.tangent)
+    v, w, isotropic, inv_inertia, dL = vel.v, vel.w, vel.isotropic, vel.inv_inertia, vel.dL
     ra = np.empty((m, 4))
     rb = np.empty((m, 4))
     target = np.empty(m)
@@ -225,63 +231,63 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     cursor = 0
     start = 0
     while start < m:                                  # one pair of parts at a time (contacts come by key)
-        key = contacts.key[start]
+        key = key_of[start]
         end = start
-        while end < m and contacts.key[end] == key:
+        while end < m and key_of[end] == key:
             end += 1
-        a, b = contacts.a[start], contacts.b[start]
+        a, b = body_a[start], body_b[start]
         mus = math.sqrt(bodies.friction_static[a] * bodies.friction_static[b])
         muk = math.sqrt(bodies.friction_kinetic[a] * bodies.friction_kinetic[b])
         e = max(bodies.restitution[a], bodies.restitution[b])
-        while cursor < len(previous.key) and previous.key[cursor] < key:
+        while cursor < len(p_key) and p_key[cursor] < key:
             cursor += 1
         for c in range(start, end):
-            n = contacts.normal[c]
+            n = normal[c]
             for kk in range(4):
-                ra[c, kk] = contacts.point[c, kk] - x[a, kk]
-                rb[c, kk] = contacts.point[c, kk] - x[b, kk]
-            _point_velocity(a, ra[c], vel.v, vel.w, va, tmp4)
-            _point_velocity(b, rb[c], vel.v, vel.w, vb, tmp4)
+                ra[c, kk] = point[c, kk] - x[a, kk]
+                rb[c, kk] = point[c, kk] - x[b, kk]
+            _point_velocity(a, ra[c], v, w, va, tmp4)
+            _point_velocity(b, rb[c], v, w, vb, tmp4)
             vn = 0.0
             for kk in range(4):
                 vn += (vb[kk] - va[kk]) * n[kk]
-            contacts.speed[c] = vn
-            gap = max(-contacts.depth[c], 0.0)
+            speed[c] = vn
+            gap = max(-depth[c], 0.0)
             target[c] = -gap / dt                     # speculative: may close the gap, no more
             slide = 0.0
             for kk in range(4):
                 slide += (vb[kk] - va[kk] - vn * n[kk]) ** 2
-            mu[c] = mus if math.sqrt(slide) < options.stick_speed else muk
+            mu[c] = mus if math.sqrt(slide) < stick_speed else muk
             # warm start from the same point of the step before
             best = options.warm_distance * options.warm_distance
             found = -1
             prev = cursor
-            while prev < len(previous.key) and previous.key[prev] == key:
+            while prev < len(p_key) and p_key[prev] == key:
                 dd = 0.0
                 for kk in range(4):
-                    dd += (previous.local[prev, kk] - contacts.local[c, kk]) ** 2
+                    dd += (p_local[prev, kk] - local[c, kk]) ** 2
                 if dd < best:
                     best, found = dd, prev
                 prev += 1
-            if found >= 0 and previous.speed[found] >= -options.bounce_speed:   # an impact's impulse is not a load
-                lam[c, 0] = previous.impulse[found]
+            if found >= 0 and p_speed[found] >= -bounce_speed:   # an impact's impulse is not a load
+                lam[c, 0] = p_impulse[found]
                 along = 0.0
                 for kk in range(4):
-                    along += previous.tangent[found, kk] * n[kk]
+                    along += p_tangent[found, kk] * n[kk]
                 for kk in range(4):
-                    tangent[c, kk] = previous.tangent[found, kk] - along * n[kk]
+                    tangent[c, kk] = p_tangent[found, kk] - along * n[kk]
         # restitution: when any point of the pair closes its gap within this step, every point of the pair
         # that approaches faster than bounce_speed (and is no further than the margin) bounces, so a face
         # striking a face bounces as one whatever rounding does to each point's gap
         if e > 0.0:
             impact = False
             for c in range(start, end):
-                if contacts.speed[c] < target[c]:
+                if speed[c] < target[c]:
                     impact = True
             if impact:
                 for c in range(start, end):
-                    vn = contacts.speed[c]
-                    if vn < -options.bounce_speed and vn * dt - contacts.depth[c] < options.margin:
+                    vn = speed[c]
+                    if vn < -bounce_speed and vn * dt - depth[c] < margin:
                         target[c] = -e * vn
         start = end
     # Jacobians of every row (normal, three tangents) with the inverse inertia applied, computed once:
@@ -292,8 +298,8 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     mass = np.empty((m, 4))
     inv_mass, iso_inv = bodies.inv_mass, bodies.iso_inv
     for c in range(m):
-        a, b = contacts.a[c], contacts.b[c]
-        _tangent_basis(contacts.normal[c], basis[c])
+        a, b = body_a[c], body_b[c]
+        _tangent_basis(normal[c], basis[c])
         for d in range(4):
             inv_k = inv_mass[a] + inv_mass[b]
             for side in range(2):
@@ -303,12 +309,12 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
                     continue
                 wedge_into(rr, basis[c, d], ang[c, d, side])
                 for i in range(6):
-                    if vel.isotropic[body]:
+                    if isotropic[body]:
                         acc = iso_inv[body] * ang[c, d, side, i]
                     else:
                         acc = 0.0
                         for j in range(6):
-                            acc += vel.inv_inertia[body, i, j] * ang[c, d, side, j]
+                            acc += inv_inertia[body, i, j] * ang[c, d, side, j]
                     inv_ang[c, d, side, i] = acc
                     inv_k += ang[c, d, side, i] * acc
             mass[c, d] = 1.0 / inv_k
@@ -319,7 +325,7 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
             lam[c, d] = acc
         for d in range(4):                          # warm start
             if lam[c, d] != 0.0:
-                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, vel.v, vel.w, vel.dL)
+                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
     return Rows(ra, rb, basis, ang, inv_ang, mass, lam, target, mu)
 
 
@@ -330,19 +336,20 @@ def solve(contacts: Contacts, rows: Rows, inv_mass, vel: Velocities, iterations)
     written into contacts.impulse and contacts.tangent."""
     m = len(contacts.a)
     basis, ang, inv_ang, k_row, lam = rows.basis, rows.ang, rows.inv_ang, rows.mass, rows.lam
+    target, mu, body_a, body_b = rows.target, rows.mu, contacts.a, contacts.b
     v, w, dL = vel.v, vel.w, vel.dL
     rel = np.empty(4)
     for it in range(iterations):
         for c in range(m):
-            a, b = contacts.a[c], contacts.b[c]
+            a, b = body_a[c], body_b[c]
             vn = _row_velocity(c, 0, a, b, basis, ang, v, w)
             old = lam[c, 0]
-            new = max(old + k_row[c, 0] * (rows.target[c] - vn), 0.0)
+            new = max(old + k_row[c, 0] * (target[c] - vn), 0.0)
             lam[c, 0] = new
             if new != old:
                 _apply_row(c, 0, new - old, a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
             # friction: the tangential impulse (3 rows) held inside the disc of radius mu * normal impulse
-            limit = rows.mu[c] * new
+            limit = mu[c] * new
             if limit <= 0.0 and lam[c, 1] == 0.0 and lam[c, 2] == 0.0 and lam[c, 3] == 0.0:
                 continue
             size = 0.0
@@ -356,10 +363,11 @@ def solve(contacts: Contacts, rows: Rows, inv_mass, vel: Velocities, iterations)
                 if new_t != lam[c, d]:
                     _apply_row(c, d, new_t - lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
                     lam[c, d] = new_t
+    impulse, tangent = contacts.impulse, contacts.tangent
     for c in range(m):
-        contacts.impulse[c] = lam[c, 0]
+        impulse[c] = lam[c, 0]
         for kk in range(4):
-            contacts.tangent[c, kk] = lam[c, 1] * basis[c, 1, kk] + lam[c, 2] * basis[c, 2, kk] + lam[c, 3] * basis[c, 3, kk]
+            tangent[c, kk] = lam[c, 1] * basis[c, 1, kk] + lam[c, 2] * basis[c, 2, kk] + lam[c, 3] * basis[c, 3, kk]
 
 
 @njit(**cache)
@@ -401,18 +409,21 @@ def split_impulse(contacts: Contacts, rows: Rows, inv_mass, motion: Motion, opti
     pw = np.zeros((n, 6))
     pdl = np.zeros((n, 6))
     plam = np.zeros(m)
+    depth, body_a, body_b = contacts.depth, contacts.a, contacts.b
+    basis, ang, inv_ang, k_row = rows.basis, rows.ang, rows.inv_ang, rows.mass
+    slop, baumgarte = options.slop, options.baumgarte
     for it in range(options.position_iterations):
         for c in range(m):
-            excess_depth = contacts.depth[c] - options.slop
+            excess_depth = depth[c] - slop
             if excess_depth <= 0.0:
                 continue
-            a, b = contacts.a[c], contacts.b[c]
-            vn = _row_velocity(c, 0, a, b, rows.basis, rows.ang, pv, pw)
+            a, b = body_a[c], body_b[c]
+            vn = _row_velocity(c, 0, a, b, basis, ang, pv, pw)
             old = plam[c]
-            new = max(old + rows.mass[c, 0] * (options.baumgarte * excess_depth / dt - vn), 0.0)
+            new = max(old + k_row[c, 0] * (baumgarte * excess_depth / dt - vn), 0.0)
             plam[c] = new
             if new != old:
-                _apply_row(c, 0, new - old, a, b, rows.basis, rows.ang, rows.inv_ang, inv_mass, pv, pw, pdl)
+                _apply_row(c, 0, new - old, a, b, basis, ang, inv_ang, inv_mass, pv, pw, pdl)
     turn_by = np.empty((4, 4))
     for i in range(n):
         if inv_mass[i] > 0.0 and (pv[i].any() or pw[i].any()):
