@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from touch4d.physics import bivector as bv
-from touch4d.physics.kernels import PA, PB
+from touch4d.physics.bivector import PA, PB
 from touch4d.physics.world import from_data, run, step
 
 FLOOR = {"name": "floor", "halfspaces": [[1, 0, 0, 0, 20], [-1, 0, 0, 0, 20], [0, 1, 0, 0, -0.5], [0, -1, 0, 0, 2],

@@ -20,7 +20,6 @@ from touch4d.errors import Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, HandPose, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
 from touch4d.physics.config import load_physics
-from touch4d.physics.kernels import C_A, C_B, C_LAMBDA, C_NX, C_PX, C_SPEED
 from touch4d.physics.session import DEFAULT_BUTTONS, PhysicsSession, entry_to_map, split_buttons
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration
@@ -61,7 +60,8 @@ class PhysicsNode(Node):
                                       load_calibration(p["calibration"]), config, physics_buttons, paused=p["paused"],
                                       glove=glove, push_rate=p["push_rate"])
         self.dt = self.session.world.dt
-        self.counts = {"steps": 0, "late_steps": 0, "contact_events": 0, "bad_commands": 0}
+        for name in ("steps", "late_steps", "contact_events", "bad_commands"):
+            self.count(name, 0)              # declared: every heartbeat carries them
         self.pub = self.create_publisher("scene/state", SceneState)
         self.contacts_pub = self.create_publisher("physics/contacts", PhysicsContacts)
         self.journal_pub = self.create_publisher("physics/journal", PhysicsInput)
@@ -70,7 +70,7 @@ class PhysicsNode(Node):
         if glove is not None:
             self.create_subscription("hand/pose", HandPose, self.on_hand, latest_only=True)
         self.published_revision = -1
-        self.start: float | None = None       # the clock starts at the first tick, not during set-up
+        self.clock_start: float | None = None     # the clock starts at the first tick, not during set-up
         self.clock_steps = 0
         self.create_timer(1.0 / p["publish_rate"], self.tick)
         self.create_timer(1.0 / p["rate"], self.publish)
@@ -111,7 +111,7 @@ class PhysicsNode(Node):
         try:
             self.session.command(msg.command, msg.argument)
         except Touch4dError as exc:      # SceneCommandError, or (ConfigError) a bad scene to load: nothing changes
-            self.counts["bad_commands"] += 1
+            self.count("bad_commands")
             self.log.warning("scene/command ignored: %s", exc)
         else:
             s = self.session
@@ -122,52 +122,57 @@ class PhysicsNode(Node):
 
     def tick(self) -> None:
         """Run the steps the clock says are due, then publish what moved and what struck."""
-        if self.start is None:
-            self.start = time.monotonic()
-        due = int((time.monotonic() - self.start) / self.dt) - self.clock_steps
+        if self.clock_start is None:
+            self.clock_start = time.monotonic()
+        due = int((time.monotonic() - self.clock_start) / self.dt) - self.clock_steps
         if due > self.params["max_steps"]:
-            self.counts["late_steps"] += due - self.params["max_steps"]
+            self.count("late_steps", due - self.params["max_steps"])
             self.warn_once("late", f"physics falls behind the clock: at most {self.params['max_steps']} steps per "
                                    "tick, the rest dropped (slow motion)", every=10.0)
             due = self.params["max_steps"]
         self.clock_steps += due
         before = self.session.state.steps
         contacts = self.session.advance(max(due, 0))
-        self.counts["steps"] += self.session.state.steps - before
+        self.count("steps", self.session.state.steps - before)
         self.publish_contacts(contacts)
         self.flush_journal()
         if self.session.control.scene.revision != self.published_revision:
             self.publish()
 
     def publish_contacts(self, contacts) -> None:
-        rows = [c.rows[(c.rows[:, C_SPEED] < -self.params["contact_speed"]) & (c.rows[:, C_LAMBDA] > 0)]
-                for c in contacts]
-        rows = [r[:, :C_SPEED + 1] for r in rows if len(r)]
-        for body, point, normal, impulse, speed in self.session.hand_events:    # the hand starts a push
-            if speed > self.params["contact_speed"]:
-                row = np.zeros(C_SPEED + 1)
-                row[C_A], row[C_B], row[C_LAMBDA], row[C_SPEED] = -1, body, impulse, -speed
-                row[C_PX:C_PX + 4], row[C_NX:C_NX + 4] = point, normal
-                rows.append(row[None])
+        """Contact points that struck harder than contact_speed and carried an impulse, and pushes the hand
+        started, as one physics/contacts message (the hand is body -1)."""
+        floor = self.params["contact_speed"]
+        columns = []                         # a, b, points, normals, impulses, speeds of each source
+        for c in contacts:
+            m = (c.speed < -floor) & (c.impulse > 0)
+            if m.any():
+                columns.append((c.a[m], c.b[m], c.points[m], c.normals[m], c.impulse[m], -c.speed[m]))
+        events = [e for e in self.session.hand_events if e.speed > floor]
         self.session.hand_events.clear()
-        if not rows:
+        if events:
+            columns.append((np.full(len(events), -1), np.array([e.body for e in events]),
+                            np.array([e.point for e in events]), np.array([e.normal for e in events]),
+                            np.array([e.impulse for e in events]), np.array([e.speed for e in events])))
+        if not columns:
             return
-        hits = np.concatenate(rows)
-        self.counts["contact_events"] += len(hits)
+        a, b, points, normals, impulses, speeds = (np.concatenate(column) for column in zip(*columns))
+        self.count("contact_events", len(a))
         s = self.session.state
         self.contacts_pub.publish(PhysicsContacts(
-            names=list(self.session.world.names), a=hits[:, C_A].astype(np.int64), b=hits[:, C_B].astype(np.int64),
-            points=hits[:, C_PX:C_PX + 4].copy(), normals=hits[:, C_NX:C_NX + 4].copy(),
-            impulses=hits[:, C_LAMBDA].copy(), speeds=-hits[:, C_SPEED], step=int(s.steps), time=float(s.time)))
+            names=list(self.session.world.names), a=a.astype(np.int64), b=b.astype(np.int64), points=points,
+            normals=normals, impulses=impulses,
+            speeds=speeds, step=int(s.steps), time=float(s.time)))
 
     def publish(self) -> None:
         self.pub.publish(self.session.message())
         self.published_revision = self.session.control.scene.revision
 
     def on_shutdown(self) -> None:
-        c = self.counts                  # one count of steps: the world's own restarts at each reset
-        self.log.info("%d steps run (%d more dropped behind the clock), %d contact events, %d bad commands",
-                      c["steps"], c["late_steps"], c["contact_events"], c["bad_commands"])
+        c = self.stats_flat()            # one count of steps (the world's own restarts at each reset)
+        self.log.info("%d steps run (%d more dropped behind the clock, %.3f s simulated since the last reset), "
+                      "%d contact events, %d bad commands", c.get("steps", 0), c.get("late_steps", 0),
+                      self.session.state.time, c.get("contact_events", 0), c.get("bad_commands", 0))
 
 
 if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does

@@ -152,3 +152,20 @@ def test_catalog_rejects_unknown_names_and_parameters():
         get_shape("duoprism", p=2)
     with pytest.raises(GeometryError, match="unknown polyhedron"):
         get_shape("prism", base="torus")
+
+
+def test_edge_directions_and_face_planes_belong_to_the_polytope():
+    # a tesseract turned in xw: its edges run along the 4 turned axes, its 2-faces lie in the 6 planes of
+    # two of them (closed form: the turned axes are the rotation's columns)
+    c, s = np.cos(0.5), np.sin(0.5)
+    r = np.eye(4)
+    r[0, 0], r[0, 3], r[3, 0], r[3, 3] = c, -s, s, c
+    poly = get_shape("tesseract").parts[0].transformed(r, [0.3, 0, 0, 1.0], 0.4)
+    dirs = poly.edge_directions
+    assert dirs.shape == (4, 4)
+    np.testing.assert_allclose(np.abs(dirs @ r), np.eye(4)[np.argmax(np.abs(dirs @ r), axis=1)], atol=1e-12)
+    planes = poly.face_planes
+    assert planes.shape == (6, 2, 4)
+    spanned = sorted(tuple(np.nonzero(np.round((p @ r) ** 2, 9).sum(axis=0))[0]) for p in planes)
+    assert spanned == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]       # each pair of turned axes once
+    np.testing.assert_allclose(np.einsum("pik,pjk->pij", planes, planes), np.tile(np.eye(2), (6, 1, 1)), atol=1e-12)

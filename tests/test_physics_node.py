@@ -11,7 +11,7 @@ from touch4d.bus.config import ENV_VAR
 from touch4d.bus.testing import collect, node_process, running_broker, wait_until
 from touch4d.cli import main
 from touch4d.geometry.scene import load_scene, parse_scene
-from touch4d.messages import ControllerState, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
+from touch4d.messages import ControllerState, Heartbeat, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
 from touch4d.physics.config import load_physics, parse_physics
 from touch4d.physics.session import PhysicsSession, replay, split_buttons
 from touch4d.tracking.calibration import load_calibration
@@ -108,6 +108,7 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
                 states = collect(probe, "scene/state", SceneState)
                 hits = collect(probe, "physics/contacts", PhysicsContacts)
                 journal = collect(probe, "physics/journal", PhysicsInput)
+                beats = collect(probe, "node/heartbeat", Heartbeat)
                 commands = probe.create_publisher("scene/command", SceneCommand)
                 controller = probe.create_publisher("controller/state", ControllerState)
                 try:
@@ -119,6 +120,10 @@ def test_the_node_drops_the_body_publishes_contacts_and_obeys_pause(tmp_path, ca
                 assert (hit.speeds > 1.0).all() and (hit.impulses > 0).all()
                 np.testing.assert_allclose(hit.normals[:, 1], 1.0, atol=1e-9)     # the floor's top, up
                 assert states[-1].objects[1]["position"][1] < 0.45
+                # the node's counters ride on its heartbeat
+                mine = lambda: [b.stats for b in beats if b.kind == "physics" and b.stats.get("contact_events", 0) > 0]  # noqa: E731
+                wait_until(mine, timeout=10, spin=probe)
+                assert mine()[-1]["steps"] > 0 and mine()[-1]["late_steps"] >= 0 and mine()[-1]["bad_commands"] == 0
                 for k in range(6):                                   # the trigger turns the tesseract as it lies
                     controller.publish(ControllerState(position=CENTER + [0.01 * k, 0, 0], orientation=Q, trigger=1.0,
                                                        buttons=[], valid=True))

@@ -39,7 +39,7 @@ def test_a_hand_moving_into_an_object_pushes_it_where_it_feels_it():
     st = compute_stimulus(glove, s.control.scene.ray_caster(), [x, 0, 0], Q)
     felt = set(st.hit[st.h > 0])
     assert felt == {0} and st.V.max() > 0                   # the motors feel the object being pushed
-    assert [e[0] for e in s.hand_events][:1] == [0]         # the push began as a contact event on the cube
+    assert [e.body for e in s.hand_events][:1] == [0]       # the push began as a contact event on the cube
 
 
 def test_a_still_hand_or_no_push_rate_moves_nothing():

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import tolerance
 from .projection import perspective_halfspaces
 
-FACING = 1e-9    # |n_w| of a unit view normal below this: the cell is edge-on (parallel to the sight lines)
-GRAZE = 1e-9     # slack so that a sight line grazing an edge or a cell still counts as a hit
+FACING = tolerance.ANGLE     # |n_w| of a unit view normal below this: the cell is edge-on (parallel to the sight lines)
+GRAZE = tolerance.of(1.0)    # slack so that a sight line grazing an edge or a cell still counts as a hit (the
+                             # screen's size: its half-width, 1 screen unit)
 
 
 def view_halfspaces(normals, offsets, eye_distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,8 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from touch4d.errors import Touch4dError
 
+from . import tolerance
+
 
 class GeometryError(Touch4dError, ValueError):
     """Input that does not describe a bounded, full-dimensional convex 4-polytope."""
@@ -72,13 +74,44 @@ class Polytope:
         return np.hstack([self.normals, self.offsets[:, None]])
 
     @property
+    def edge_directions(self) -> np.ndarray:
+        """(D, 4) the distinct unit directions of the edges, each once (its first clear coordinate > 0)."""
+        v = self.vertices
+        d = v[self.edges[:, 1]] - v[self.edges[:, 0]]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        lead = np.argmax(np.abs(d) > tolerance.ANGLE, axis=1)
+        d *= np.where(d[np.arange(len(d)), lead] < 0, -1.0, 1.0)[:, None]
+        _, first = np.unique(np.round(d, 9), axis=0, return_index=True)
+        return d[np.sort(first)]
+
+    @property
+    def face_planes(self) -> np.ndarray:
+        """(P, 2, 4) the distinct planes of the 2-faces, each as two orthonormal vectors spanning it."""
+        v = self.vertices
+        spans, keys = [], []
+        for face in self.topology.faces:
+            p0 = v[face[0]]
+            e1 = v[face[1]] - p0
+            e1 /= np.linalg.norm(e1)
+            rest = v[face[2:]] - p0
+            rest -= np.outer(rest @ e1, e1)
+            e2 = rest[np.argmax(np.linalg.norm(rest, axis=1))]
+            e2 /= np.linalg.norm(e2)
+            spans.append((e1, e2))
+            keys.append(np.round(np.outer(e1, e1) + np.outer(e2, e2), 9).ravel())   # the plane's projector
+        _, first = np.unique(np.array(keys), axis=0, return_index=True)
+        return np.array(spans)[np.sort(first)]
+
+    @property
     def center(self) -> np.ndarray:
         """Mean of the vertices: an interior point."""
         return self.vertices.mean(axis=0)
 
-    def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        """Which of the (N,4) points lie in the closed polytope (within tol)."""
+    def contains(self, points: np.ndarray, tol: float | None = None) -> np.ndarray:
+        """Which of the (N,4) points lie in the closed polytope (within tol; default the shared tolerance
+        for its size)."""
         points = np.atleast_2d(points)
+        tol = tolerance.of(tolerance.size(self.vertices)) if tol is None else tol
         return np.all(points @ self.normals.T <= self.offsets + tol, axis=1)
 
     def transformed(self, orientation=None, position=None, size: float = 1.0) -> "Polytope":
@@ -104,10 +137,10 @@ class Polytope:
             raise GeometryError(f"expected at least 5 points of 4 coordinates, got shape {points.shape}")
         if not np.all(np.isfinite(points)):
             raise GeometryError("vertices must be finite numbers")
-        scale = float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1)))
+        scale = tolerance.size(points)
         if scale == 0:
             raise GeometryError("all points coincide")
-        tol = 1e-7 * scale if tol is None else tol
+        tol = tolerance.HULL * scale if tol is None else tol
         try:
             hull = ConvexHull(points)
         except QhullError as exc:
@@ -116,16 +149,24 @@ class Polytope:
         eq = hull.equations
         # Facets of the triangulated hull that hold the same vertices form one cell.
         on_plane = np.abs(candidates @ eq[:, :4].T + eq[:, 4]) <= tol          # (V, facets)
-        _, first = np.unique(np.packbits(on_plane.T, axis=1), axis=0, return_index=True)
-        cells = np.sort(first)
+        _, first, cell_of = np.unique(np.packbits(on_plane.T, axis=1), axis=0, return_index=True,
+                                      return_inverse=True)
+        order = np.argsort(first)
+        cells = first[order]
         incidence = on_plane[:, cells].T                                        # (C, V)
-        planes = eq[cells, :4]
+        # A cell's plane is Qhull's (outward, unit) facet equation, averaged over the facets it merges.
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        cell_of = rank[cell_of.reshape(-1)]
+        planes = np.zeros((len(cells), 5))
+        np.add.at(planes, cell_of, eq)
+        planes /= np.linalg.norm(planes[:, :4], axis=1, keepdims=True)
         # Keep only true vertices: points on cells whose normals span 4 dimensions.
-        keep = np.array([np.linalg.matrix_rank(planes[incidence[:, i]], tol=1e-6) == 4
+        keep = np.array([np.linalg.matrix_rank(planes[incidence[:, i], :4], tol=1e-6) == 4
                          for i in range(len(candidates))])
         vertices = candidates[keep]
         incidence = incidence[:, keep]
-        return cls._build(vertices, incidence, tol)
+        return cls._build(vertices, incidence, planes[:, :4], -planes[:, 4])
 
     @classmethod
     def from_halfspaces(cls, halfspaces, tol: float | None = None) -> "Polytope":
@@ -156,20 +197,8 @@ class Polytope:
         return cls.from_vertices(pts, tol)
 
     @classmethod
-    def _build(cls, vertices: np.ndarray, incidence: np.ndarray, tol: float) -> "Polytope":
-        """Cells, faces, edges from the vertex-cell incidence (C, V)."""
-        center = vertices.mean(axis=0)
-        n_cells = len(incidence)
-        normals = np.empty((n_cells, 4))
-        offsets = np.empty(n_cells)
-        for c in range(n_cells):
-            pts = vertices[incidence[c]]
-            mean = pts.mean(axis=0)
-            n = np.linalg.svd(pts - mean)[2][-1]
-            if n @ (mean - center) < 0:
-                n = -n
-            normals[c] = n
-            offsets[c] = n @ mean
+    def _build(cls, vertices: np.ndarray, incidence: np.ndarray, normals: np.ndarray, offsets: np.ndarray) -> "Polytope":
+        """Faces, edges and the rest of the boundary from the vertex-cell incidence (C, V) and the cells' planes."""
         # Two cells of a convex 4-polytope meet in a 2-face exactly when they share >= 3 vertices
         # (an edge has only two vertices).
         inc = incidence.astype(np.int32)
@@ -188,7 +217,7 @@ class Polytope:
         face_of_side = np.repeat(np.arange(len(faces)), np.diff(starts))
         order = np.argsort(side_edge, kind="stable")
         edge_faces = np.split(face_of_side[order], np.cumsum(np.bincount(side_edge, minlength=len(edges)))[:-1])
-        cell_faces = [np.nonzero((face_cells == c).any(axis=1))[0] for c in range(n_cells)]
+        cell_faces = [np.nonzero((face_cells == c).any(axis=1))[0] for c in range(len(incidence))]
         topology = Topology(
             edges=_readonly(edges.astype(np.int64)),
             faces=tuple(_readonly(f) for f in faces),
@@ -211,8 +240,7 @@ def not_corners(points, polytope: Polytope) -> list[tuple[int, str]]:
     Returns (index, "inside the hull" | "on the hull's boundary but not a corner").
     """
     points = np.asarray(points, dtype=np.float64)
-    scale = float(np.max(np.linalg.norm(points - points.mean(axis=0), axis=1)))
-    tol = 1e-6 * scale
+    tol = tolerance.POINT * tolerance.size(points)
     dist = np.linalg.norm(points[:, None, :] - polytope.vertices[None, :, :], axis=2).min(axis=1)
     out = []
     for i in np.nonzero(dist > tol)[0]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy.linalg import expm
 
 AXES = "xyzw"
@@ -43,29 +44,37 @@ def orthonormalize(r: np.ndarray) -> np.ndarray:
 
     Works on one 4x4 matrix or a stack (..., 4, 4).
     """
-    u, _, vt = np.linalg.svd(np.asarray(r, dtype=np.float64))
-    flip = np.linalg.det(u @ vt) < 0
-    if np.any(flip):
-        u = u.copy()
-        u[..., :, -1] = np.where(flip[..., None], -u[..., :, -1], u[..., :, -1])
-    return u @ vt
+    r = np.asarray(r, dtype=np.float64)
+    flat = np.ascontiguousarray(r.reshape(-1, 4, 4))
+    return np.array([_nearest(m) for m in flat]).reshape(r.shape)
 
 
-def renormalize(r: np.ndarray) -> np.ndarray:
-    """The rotation nearest to a near-rotation r, cheaply: for a running orientation after each update.
+@njit(cache=True, nogil=True)
+def _nearest(r):
+    """The rotation nearest to one 4x4 matrix: U V^T of its SVD, a reflection turned back to +1."""
+    u, _, vt = np.linalg.svd(r)
+    m = np.ascontiguousarray(u) @ np.ascontiguousarray(vt)
+    if np.linalg.det(m) < 0:                    # u's last column turned: U' V^T = U V^T - 2 u_3 v_3^T
+        m -= 2.0 * np.outer(u[:, 3], vt[3])
+    return m
+
+
+@njit(cache=True, nogil=True)
+def renormalize(r):
+    """The rotation nearest to a near-rotation r (4x4), cheaply: for a running orientation after each update
+    (the physics step's, the controller's).
 
     One Newton-Schulz step r (3I - r^T r) / 2 squares the deviation from orthogonality (1e-16 stays
     at rounding), at a fraction of an SVD's cost; a matrix further than 1e-6 from orthogonal goes
-    through `orthonormalize`.
+    through the SVD (`orthonormalize`). Compiled, so the physics step calls it too.
     """
-    r = np.asarray(r, dtype=np.float64)
-    e = r.T @ r - _I4
+    r = np.ascontiguousarray(r)
+    e = r.T @ r
+    for k in range(4):
+        e[k, k] -= 1.0
     if np.abs(e).max() > 1e-6:
-        return orthonormalize(r)
+        return _nearest(r)
     return r - 0.5 * (r @ e)
-
-
-_I4 = np.eye(4)
 
 
 def is_rotation(r: np.ndarray, tol: float = 1e-9) -> bool:

@@ -17,12 +17,11 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import linprog
 
-from . import halfspace
+from . import halfspace, tolerance
 from .halfspace import FACING, view_halfspaces as _view
 from .polytope import Polytope
 from .projection import perspective_points
-
-TOL = 1e-9
+from .segment import clip_segment
 
 
 class Relation(IntEnum):
@@ -88,9 +87,11 @@ def clip_units(poly: Polytope, eye_distance: float | None = None) -> np.ndarray:
     return planes[ridge]
 
 
-def in_region(units: np.ndarray, points3, tol: float = TOL) -> np.ndarray:
-    """(N,) bool: which screen points lie in the region hidden by an object with these clip units."""
+def in_region(units: np.ndarray, points3, tol: float | None = None) -> np.ndarray:
+    """(N,) bool: which screen points lie in the region hidden by an object with these clip units (within
+    tol; default the shared tolerance for the coordinates' size)."""
     p = np.atleast_2d(np.asarray(points3, dtype=np.float64))
+    tol = _tol(p, units) if tol is None else tol
     return np.all(p @ units[:, :3].T <= units[:, 3] + tol, axis=1)
 
 
@@ -119,6 +120,7 @@ def relations(polys: list[Polytope], eye_distance: float | None = None, units: l
     views = [None] * count
     units = list(units) if units is not None else [None] * count
     all_v = np.vstack(verts)
+    tol = tolerance.of(tolerance.extent(all_v))
     sizes = np.array([len(v) for v in verts])
     starts = np.r_[0, np.cumsum(sizes)[:-1]]
     lo = np.minimum.reduceat(all_v[:, :3], starts, axis=0)
@@ -138,7 +140,7 @@ def relations(polys: list[Polytope], eye_distance: float | None = None, units: l
     apart = np.zeros((count, count), dtype=bool)
     overlap = np.zeros((count, count), dtype=bool)    # a point common to both projections is known
     meet = np.zeros((count, count), dtype=bool)       # a point common to both interiors is known
-    boxes_apart = np.any((lo[:, None] >= hi[None] - TOL) | (hi[:, None] <= lo[None] + TOL), axis=2)
+    boxes_apart = np.any((lo[:, None] >= hi[None] - tol) | (hi[:, None] <= lo[None] + tol), axis=2)
     for i in range(count):
         others = np.nonzero(~boxes_apart[i])[0]
         others = others[others != i]
@@ -153,16 +155,16 @@ def relations(polys: list[Polytope], eye_distance: float | None = None, units: l
         probe, probe_of = probes[pr], probe_owner[pr]
         n, c = views[i]
         gap = np.minimum.reduceat(v @ n.T - c, at, axis=0)               # (others, cells of i)
-        separating = gap >= -TOL
+        separating = gap >= -tol
         # Viewer on i's side of the separating hyperplane: its normal points away from the viewer.
         ahead = (separating & (n[:, 3] > FACING)).any(axis=1)
         behind = (separating & (n[:, 3] < -FACING)).any(axis=1)
         sep4[i, others] = np.where(ahead & ~behind, 1, np.where(behind & ~ahead, -1, 0))
-        meet[i, probe_of[np.all(probe @ n.T < c - TOL, axis=1)]] = True
+        meet[i, probe_of[np.all(probe @ n.T < c - tol, axis=1)]] = True
         m = units[i]
         gap3 = np.minimum.reduceat(v[:, :3] @ m[:, :3].T - m[:, 3], at, axis=0)
-        apart[i, others] = (gap3 >= -TOL).any(axis=1)
-        overlap[i, probe_of[np.all(probe[:, :3] @ m[:, :3].T < m[:, 3] - TOL, axis=1)]] = True
+        apart[i, others] = (gap3 >= -tol).any(axis=1)
+        overlap[i, probe_of[np.all(probe[:, :3] @ m[:, :3].T < m[:, 3] - tol, axis=1)]] = True
     apart = apart | apart.T | boxes_apart
     meet = meet | meet.T
     out[meet & ~apart] = Relation.INTERSECTING
@@ -219,13 +221,14 @@ def subtract_polygon(polygon, units: np.ndarray, eps: float = 1e-12) -> list[np.
     poly = np.asarray(polygon, dtype=np.float64)
     if not len(units):
         return []
+    tol = _tol(poly, units)
     side = poly @ units[:, :3].T - units[:, 3]                          # (k, M)
-    if np.any(np.all(side >= -TOL, axis=0)):
+    if np.any(np.all(side >= -tol, axis=0)):
         return [poly]                                                   # entirely outside one unit
-    if np.all(side <= TOL):
+    if np.all(side <= tol):
         return []                                                       # entirely hidden
     pieces, rest = [], poly
-    for j in np.nonzero(np.any(side > TOL, axis=0))[0]:
+    for j in np.nonzero(np.any(side > tol, axis=0))[0]:
         m, c = units[j, :3], units[j, 3]
         out = _clip(rest, -m, -c)
         if len(out) >= 3 and _area(out) > eps:
@@ -236,41 +239,25 @@ def subtract_polygon(polygon, units: np.ndarray, eps: float = 1e-12) -> list[np.
     return pieces
 
 
-def subtract_segment(segment, units: np.ndarray, eps: float = 1e-12) -> list[np.ndarray]:
-    """The part of a 3D segment (2,3) outside the region ∩ {m.x <= c} of `units`, as (2,3) segments."""
+def subtract_segment(segment, units: np.ndarray) -> list[np.ndarray]:
+    """The part of a 3D segment (2,3) outside the region ∩ {m.x <= c} of `units`, as (2,3) segments: what
+    is left either side of the hidden stretch (`segment.clip_segment` to the region shrunk by the shared
+    tolerance, so a segment lying on the region's boundary stays whole, as a polygon touching it does)."""
     seg = np.asarray(segment, dtype=np.float64)
     if not len(units):
         return []
+    tol = _tol(seg, units)
     p0, d = seg[0], seg[1] - seg[0]
-    f0 = p0 @ units[:, :3].T - units[:, 3]
-    df = d @ units[:, :3].T
-    f1 = f0 + df
-    if np.any((f0 >= -TOL) & (f1 >= -TOL)):
-        return [seg]                                                    # entirely outside one unit
-    if np.all((f0 <= TOL) & (f1 <= TOL)):
-        return []                                                       # entirely hidden
-    pieces = []
-    lo, hi = 0.0, 1.0
-    for fj, dj in zip(f0, df):
-        # Within [lo, hi] the unit holds where fj + s dj <= 0; the rest is a visible piece.
-        if abs(dj) < 1e-15:
-            if fj > TOL:
-                pieces.append((lo, hi))
-                lo, hi = 1.0, 0.0
-        else:
-            s = -fj / dj
-            if dj > 0:
-                if s < hi:
-                    pieces.append((max(s, lo), hi))
-                    hi = min(hi, s)
-            else:
-                if s > lo:
-                    pieces.append((lo, min(s, hi)))
-                    lo = max(lo, s)
-        if hi - lo <= eps:
-            break
-    length = np.linalg.norm(d)
-    return [np.array([p0 + a * d, p0 + b * d]) for a, b in pieces if (b - a) * length > eps]
+    t0, t1 = clip_segment(p0, seg[1], units[:, :3], units[:, 3], -tol)
+    length = float(np.linalg.norm(d))
+    if t0 > t1 or (t1 - t0) * length <= tol:
+        return [seg]                                                    # nothing of it hidden
+    return [np.array([p0 + a * d, p0 + b * d]) for a, b in ((0.0, t0), (t1, 1.0)) if (b - a) * length > tol]
+
+
+def _tol(points, units: np.ndarray) -> float:
+    """The shared tolerance for screen points and clip units: rounding grows with the coordinates."""
+    return tolerance.of(tolerance.extent(points, units[:, 3]))
 
 
 def _clip(poly: np.ndarray, m: np.ndarray, c: float) -> np.ndarray:

@@ -11,6 +11,7 @@ needs no clock.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +61,16 @@ def entry_from_map(step: int, kind: str, args: dict) -> JournalEntry:
     return JournalEntry(int(step), kind, tuple(values))
 
 
+class HandEvent(NamedTuple):
+    """The hand starting to push a body: a contact event with the hand as body a."""
+
+    body: int
+    point: np.ndarray             # (4,) world, the push's centre
+    normal: np.ndarray            # (4,) the push's direction
+    impulse: float                # its first step's impulse
+    speed: float                  # the hand's speed, screen units/s
+
+
 class PhysicsSession:
     """A physics world driven like the scene node: controller rotation (paper §4.4), buttons, commands."""
 
@@ -80,7 +91,7 @@ class PhysicsSession:
         self.touch = Touch.none()
         self._hand: tuple[np.ndarray, int] | None = None    # last valid hand position and its step
         self._pushed: frozenset[int] = frozenset()
-        self.hand_events: list[tuple[int, np.ndarray, np.ndarray, float, float]] = []
+        self.hand_events: list[HandEvent] = []
         self._turn_rate, self._turn_step = np.zeros(6), None
         self._sync_scene()
 
@@ -98,10 +109,10 @@ class PhysicsSession:
                 changed |= self._physics_command(command, "")
         self._held = now
         before = self._poses()
-        holding = self.control._grab is not None
+        holding = self.control.holding
         changed |= self.control.on_controller(position_m, quat_room, trigger, buttons, valid)
         self._take_poses(before)
-        self._throw(before, holding, self.control._grab is not None)
+        self._throw(before, holding, self.control.holding)
         return changed
 
     def _throw(self, before, was_holding: bool, holding: bool) -> None:
@@ -212,8 +223,8 @@ class PhysicsSession:
             size = float(np.linalg.norm(total))
             point = (rows[:, 1:5] * np.linalg.norm(rows[:, 5:9], axis=1)[:, None]).sum(axis=0) / max(
                 float(np.linalg.norm(rows[:, 5:9], axis=1).sum()), 1e-300)
-            self.hand_events.append((body, point, total / size if size > 0 else total, size,
-                                     float(np.linalg.norm(self.touch.velocity))))
+            self.hand_events.append(HandEvent(body, point, total / size if size > 0 else total, size,
+                                              float(np.linalg.norm(self.touch.velocity))))
         self._pushed = pushed
 
     # ---- the scene it shows -----------------------------------------------------------------------

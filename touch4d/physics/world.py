@@ -9,35 +9,45 @@ and world angular momentum `L` (a bivector: what a free body keeps exactly; its 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
+from touch4d.geometry import tolerance
 from touch4d.geometry.scene import Scene
 
-from . import bivector, kernels
+from . import arrays, bivector, kernels
 from .config import ObjectPhysics, PhysicsConfig, ScenePhysics
 from .inertia import mass_properties
 
 
 @dataclass(frozen=True)
 class Contacts:
-    """The contact points of one step (one row each): bodies a, b; point (4,); normal (4,) from a to b;
+    """The contact points of one step (one entry each): bodies a, b; point (4,); normal (4,) from a to b;
     depth (> 0 penetrating); normal impulse; tangential impulse (4,); approach speed before the step
     (normal relative velocity, < 0 closing)."""
 
-    rows: np.ndarray
+    entries: arrays.Contacts
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return len(self.entries.a)
 
-    a = property(lambda self: self.rows[:, kernels.C_A].astype(np.int64))
-    b = property(lambda self: self.rows[:, kernels.C_B].astype(np.int64))
-    points = property(lambda self: self.rows[:, kernels.C_PX:kernels.C_PX + 4])
-    normals = property(lambda self: self.rows[:, kernels.C_NX:kernels.C_NX + 4])
-    depth = property(lambda self: self.rows[:, kernels.C_DEPTH])
-    impulse = property(lambda self: self.rows[:, kernels.C_LAMBDA])
-    tangent_impulse = property(lambda self: self.rows[:, kernels.C_TX:kernels.C_TX + 4])
-    speed = property(lambda self: self.rows[:, kernels.C_SPEED])
+    a = property(lambda self: self.entries.a)
+    b = property(lambda self: self.entries.b)
+    points = property(lambda self: self.entries.point)
+    normals = property(lambda self: self.entries.normal)
+    depth = property(lambda self: self.entries.depth)
+    impulse = property(lambda self: self.entries.impulse)
+    tangent_impulse = property(lambda self: self.entries.tangent)
+    speed = property(lambda self: self.entries.speed)
+
+
+# The solver's constants, in screen units (one unit is 250 mm with the default glove and calibration) and s.
+BAUMGARTE = 0.2            # fraction of the penetration beyond the slop removed per step (split impulse)
+BOUNCE_SPEED = 0.05        # units/s (12.5 mm/s): slower approaches do not bounce; at least 4 |g| dt, so a body
+                           # resting under gravity does not
+STICK_SPEED = 0.002        # units/s (0.5 mm/s): a point sliding slower sticks (static friction); at least 2 |g| dt
+WARM_DISTANCE = 0.005      # units (1.25 mm): a contact point moved less than this in its body's frame is the same
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,10 +68,21 @@ class World:
     friction_static: np.ndarray
     friction_kinetic: np.ndarray
     restitution: np.ndarray
-    parts: tuple                 # the flat part arrays of kernels.step (part_body ... edges)
+    parts: arrays.Parts          # every body's convex parts, flat
     gravity: np.ndarray          # (4,)
     dt: float
-    options: np.ndarray          # kernels.OPT_*
+    options: arrays.Options
+
+    @cached_property
+    def step_constants(self) -> tuple[tuple, tuple, tuple]:
+        """bodies, parts, options as plain tuples, as `kernels.step` is called (numba dispatches those fast)."""
+        return tuple(self.bodies), tuple(self.parts), tuple(self.options)
+
+    @cached_property
+    def bodies(self) -> arrays.Bodies:
+        """The bodies' constants as the step's stages take them."""
+        return arrays.Bodies(self.inv_mass, self.axes, self.inv_plane, self.iso_inv, self.excess, self.gravity_scale,
+                             self.friction_static, self.friction_kinetic, self.restitution)
 
     @property
     def static(self) -> np.ndarray:
@@ -73,8 +94,8 @@ class World:
 
 @dataclass(frozen=True, eq=False)
 class State:
-    """Time, step count, every body's x (N, 4), v (N, 4), r (N, 4, 4), L (N, 6), and the last step's contact
-    rows (their impulses start the next step's solver)."""
+    """Time, step count, every body's x (N, 4), v (N, 4), r (N, 4, 4), L (N, 6), and the last step's contacts
+    (their impulses start the next step's solver)."""
 
     time: float
     steps: int
@@ -82,11 +103,11 @@ class State:
     v: np.ndarray
     r: np.ndarray
     L: np.ndarray
-    contacts: np.ndarray = field(default_factory=lambda: np.zeros((0, kernels.C_WIDTH)))
+    contacts: arrays.Contacts = field(default_factory=arrays.no_contacts)
 
     def digest(self) -> bytes:
         """The state's exact bytes (for determinism checks and replays)."""
-        return b"".join(np.ascontiguousarray(a).tobytes() for a in (self.x, self.v, self.r, self.L, self.contacts))
+        return b"".join(np.ascontiguousarray(a).tobytes() for a in (self.x, self.v, self.r, self.L, *self.contacts))
 
 
 def from_data(data: dict, **kwargs) -> tuple[World, State]:
@@ -130,7 +151,7 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
         for poly in local:
             dirs, spans = edge_face_directions(poly)
             part_rows.append((i, poly.vertices - props.center, poly.normals, poly.offsets - poly.normals @ props.center,
-                              poly.edges, dirs, spans))
+                              poly.edges, dirs, spans, tolerance.size(poly.vertices)))
     dynamic = np.isfinite(masses)
     inv_mass = np.where(dynamic, 1.0 / np.where(dynamic, masses, 1.0), 0.0)
     inv_plane = np.where(planes > 0, 1.0 / np.where(planes > 0, planes, 1.0), 0.0)
@@ -141,14 +162,11 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
     excess[~dynamic] = 0.0
     friction = np.array([s.friction_pair for s in specs]).reshape(n, 2)
     dt = 1.0 / (rate or settings.rate)
-    options = np.zeros(kernels.N_OPTIONS)
-    options[kernels.OPT_ITERATIONS] = iterations or settings.iterations
-    options[kernels.OPT_POSITION_ITERATIONS] = settings.position_iterations
-    options[kernels.OPT_MARGIN] = settings.margin
-    options[kernels.OPT_SLOP] = settings.slop
-    options[kernels.OPT_BAUMGARTE] = 0.2
-    options[kernels.OPT_RESTITUTION_SPEED] = max(0.05, 4.0 * float(np.linalg.norm(settings.gravity)) * dt)
-    options[kernels.OPT_STICK_SPEED] = max(0.002, 2.0 * float(np.linalg.norm(settings.gravity)) * dt)
+    g = float(np.linalg.norm(settings.gravity))
+    options = arrays.Options(dt=dt, iterations=int(iterations or settings.iterations),
+                             position_iterations=int(settings.position_iterations), margin=float(settings.margin),
+                             slop=float(settings.slop), baumgarte=BAUMGARTE, bounce_speed=max(BOUNCE_SPEED, 4.0 * g * dt),
+                             stick_speed=max(STICK_SPEED, 2.0 * g * dt), warm_distance=WARM_DISTANCE)
     world = World(
         names=tuple(names), sizes=sizes, centers=centers, mass=masses, inv_mass=inv_mass,
         axes=np.array(axes).reshape(n, 4, 4), plane_inertia=planes, inv_plane=inv_plane, iso_inv=iso_inv,
@@ -159,10 +177,8 @@ def build_world(scene: Scene, physics: PhysicsConfig | None = None, *, rate: flo
     return world, State(0.0, 0, x, v, r, L)
 
 
-def _flatten(rows) -> tuple:
-    """The parts as flat arrays: part_body, v_start, v_count, c_start, c_count, e_start, e_count,
-    vertices, normals, offsets, edges (global vertex indices), d_start, d_count, edge directions, f_start,
-    f_count, 2-face planes."""
+def _flatten(rows) -> arrays.Parts:
+    """The parts as flat arrays (edges by global vertex index)."""
     body = np.array([row[0] for row in rows], dtype=np.int64)
     vc = np.array([len(row[1]) for row in rows], dtype=np.int64)
     cc = np.array([len(row[2]) for row in rows], dtype=np.int64)
@@ -177,7 +193,9 @@ def _flatten(rows) -> tuple:
     fc = np.array([len(row[6]) for row in rows], dtype=np.int64)
     dirs = np.ascontiguousarray(np.concatenate([row[5] for row in rows]).reshape(-1, 4))
     spans = np.ascontiguousarray(np.concatenate([row[6] for row in rows]).reshape(-1, 2, 4))
-    return body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges, starts(dc), dc, dirs, starts(fc), fc, spans
+    size = np.array([row[7] for row in rows], dtype=np.float64)
+    return arrays.Parts(body, vs, vc, cs, cc, es, ec, verts, normals, offsets, edges, starts(dc), dc, dirs, starts(fc), fc,
+                        spans, size)
 
 
 MAX_EDGE_DIRECTIONS = 32      # parts with more distinct edge directions (or 2-face planes, below) are
@@ -185,29 +203,9 @@ MAX_FACE_PLANES = 64          # separated by their cells only: the edge x face a
 
 
 def edge_face_directions(poly) -> tuple[np.ndarray, np.ndarray]:
-    """A convex part's distinct edge directions (D, 4) and 2-face planes (F, 2, 4: two orthonormal
-    spanning vectors each), for the edge x 2-face separating axes; empty when there are too many."""
-    v = poly.vertices
-    d = v[poly.edges[:, 1]] - v[poly.edges[:, 0]]
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    d *= np.where(d[np.arange(len(d)), np.argmax(np.abs(d) > 1e-9, axis=1)] < 0, -1.0, 1.0)[:, None]
-    _, first = np.unique(np.round(d, 9), axis=0, return_index=True)
-    dirs = d[np.sort(first)]
-    spans, keys = [], []
-    for face in poly.topology.faces:
-        p0 = v[face[0]]
-        e1 = v[face[1]] - p0
-        e1 /= np.linalg.norm(e1)
-        rest = v[face[2:]] - p0
-        rest -= np.outer(rest @ e1, e1)
-        e2 = rest[np.argmax(np.linalg.norm(rest, axis=1))]
-        e2 /= np.linalg.norm(e2)
-        plane = bivector.wedge(e1, e2)                     # the plane, up to sign
-        plane *= -1.0 if plane[np.argmax(np.abs(plane) > 1e-9)] < 0 else 1.0
-        keys.append(np.round(plane, 9))
-        spans.append((e1, e2))
-    _, first = np.unique(np.array(keys), axis=0, return_index=True)
-    spans = np.array(spans)[np.sort(first)]
+    """A convex part's distinct edge directions (D, 4) and 2-face planes (F, 2, 4) (the polytope's), for the
+    edge x 2-face separating axes; empty when there are too many."""
+    dirs, spans = poly.edge_directions, poly.face_planes
     if len(dirs) > MAX_EDGE_DIRECTIONS or len(spans) > MAX_FACE_PLANES:
         return np.zeros((0, 4)), np.zeros((0, 2, 4))
     return dirs, spans
@@ -222,11 +220,10 @@ def step(world: World, state: State, impulses: np.ndarray | None = None) -> tupl
     impulses: optional (K, 9) rows [body, point (4, world), impulse (4)] applied at the step's start
     (the hand's push)."""
     imp = NO_IMPULSES if impulses is None or len(impulses) == 0 else np.ascontiguousarray(impulses, dtype=np.float64)
-    x, v, r, L, rows = kernels.step(
-        state.x, state.v, state.r, state.L, world.inv_mass, world.axes, world.inv_plane, world.iso_inv,
-        world.excess, world.gravity_scale, *world.parts, world.friction_static, world.friction_kinetic,
-        world.restitution, world.gravity, world.dt, world.options, imp, state.contacts)
-    return State((state.steps + 1) * world.dt, state.steps + 1, x, v, r, L, rows), Contacts(rows)
+    motion, contacts = kernels.step(*world.step_constants[:2], (state.x, state.v, state.r, state.L), world.gravity,
+                                    world.step_constants[2], imp, tuple(state.contacts))
+    contacts = arrays.Contacts(*contacts)
+    return State((state.steps + 1) * world.dt, state.steps + 1, *motion, contacts), Contacts(contacts)
 
 
 def run(world: World, state: State, steps: int) -> State:
@@ -286,4 +283,4 @@ def with_pose(world: World, state: State, index: int, position=None, orientation
         c = bivector.compound(r[index] @ world.axes[index])
         L[index] = c @ (world.plane_inertia[index] * (c.T @ np.asarray(angular_velocity_world, dtype=float)))
     moved = position is not None or orientation is not None      # a moved body's contacts are found anew
-    return replace(state, x=x, v=v, r=r, L=L, contacts=np.zeros((0, kernels.C_WIDTH)) if moved else state.contacts)
+    return replace(state, x=x, v=v, r=r, L=L, contacts=arrays.no_contacts() if moved else state.contacts)

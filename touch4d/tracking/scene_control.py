@@ -117,6 +117,11 @@ class SceneControl:
 
     # ---- controller ----------------------------------------------------------------------------
 
+    @property
+    def holding(self) -> bool:
+        """The trigger holds the selected object: the controller's motion turns it."""
+        return self._grab is not None
+
     def on_controller(self, position_m, quat_room, trigger: float, buttons, valid: bool = True) -> bool:
         """One controller sample (room frame): button edges run commands, a held trigger rotates."""
         changed = False
