@@ -99,6 +99,10 @@ def register(subparsers) -> None:
     analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
     analyze.set_defaults(func=run_analyze)
 
+    from . import planning_cli     # power and fit: before recruiting
+
+    planning_cli.register(sub, count=_count, count0=_count0, probability=_probability)
+
 
 def _study(path):
     from .design import DEFAULT_STUDY, load_study

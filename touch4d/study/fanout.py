@@ -59,15 +59,16 @@ class Cluster:
 
 
 @contextlib.contextmanager
-def dask_client(cluster: Cluster):
-    """A distributed.Client for `cluster` (a local cluster of processes, one thread each, if no scheduler)."""
+def dask_client(cluster: Cluster, *, timeout: str = "20s"):
+    """A distributed.Client for `cluster` (a local cluster of processes, one thread each, if no scheduler);
+    `timeout`: how long to try reaching a scheduler."""
     try:
         from distributed import Client, LocalCluster
     except ImportError:
         raise Unavailable("many simulations need Dask: pip install 'touch4d[study]'") from None
     if cluster.scheduler:
         try:
-            client = Client(cluster.scheduler, timeout="20s")
+            client = Client(cluster.scheduler, timeout=timeout)
         except (OSError, TimeoutError) as exc:
             raise ConfigError("command line", "--scheduler", "the address of a running Dask scheduler "
                               "(tcp://HOST:8786)", got=cluster.scheduler, detail=str(exc)) from None

@@ -1,0 +1,136 @@
+"""`touch4d study power` and `touch4d study fit`: plan a study before recruiting (many simulations,
+on Dask: `--workers N` local processes or `--scheduler tcp://HOST:8786`)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.errors import ConfigError
+
+
+def register(sub, *, count, count0, probability) -> None:
+    """Add `power` and `fit` to `touch4d study`'s subcommands (`count` etc.: cli's argument types)."""
+    power = sub.add_parser("power", help="participants needed: power by simulating whole studies",
+                           description="For each number of participants, simulate whole studies (participants "
+                                       "drawn from a pilot's fit, or the default observers) and analyse each as "
+                                       "`study analyze` does (GEE, mixed model, psychometric fit): the power to "
+                                       "find each condition effect per task and the tilt threshold's interval "
+                                       "width. Writes DIR/power.json and DIR/report.html; an interrupted run "
+                                       "resumes from DIR/cache.")
+    power.add_argument("study", metavar="STUDY", help="study file")
+    power.add_argument("--fit", metavar="FIT.json", help="the population of a pilot (touch4d study fit --out)")
+    power.add_argument("--participants", type=_sizes, default=[4, 8, 12, 16, 24], metavar="N,N,...",
+                       help="sample sizes (default 4,8,12,16,24)")
+    power.add_argument("--simulations", type=count, default=500, metavar="N",
+                       help="simulated studies per size (default 500)")
+    power.add_argument("--seed", type=int, default=0, metavar="S")
+    power.add_argument("--out", metavar="DIR", help="output folder (default power-<study name>)")
+    power.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    power.add_argument("--quick", action="store_true", help="quick sessions (one trial per task x condition x "
+                                                            "stimulus) and lighter-trained observers")
+    power.add_argument("--bootstrap", type=count0, default=100, metavar="N",
+                       help="bootstrap resamples for the tilt threshold's interval (default 100)")
+    power.add_argument("--alpha", type=probability, default=0.05, metavar="A", help="test level (default 0.05)")
+    power.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_cluster_options(power)
+    power.set_defaults(func=run_power)
+
+
+def add_cluster_options(parser) -> None:
+    group = parser.add_argument_group("where the simulations run (Dask)")
+    where = group.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None, metavar="N",
+                       help="local worker processes (default: one per core; 0: in this process, no Dask)")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="a Dask cluster's scheduler, e.g. tcp://HOST:8786")
+
+
+def cluster_of(args):
+    from .fanout import Cluster
+
+    return Cluster(workers=args.workers, scheduler=args.scheduler)
+
+
+def _study(path):
+    from .design import DEFAULT_STUDY, load_study
+
+    return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
+
+
+def _glove(path):
+    from touch4d.tactile import load_glove
+
+    return load_glove(resolve_path(path, COMMAND_LINE, key="--glove", what="glove file") if path else None)
+
+
+def read_fit(path) -> dict:
+    """A fit file (touch4d study fit --out) as a dict; a file that is not one is a ConfigError naming it."""
+    path = resolve_path(path, COMMAND_LINE, key="--fit", what="fit file")
+    try:
+        fit = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "(file)", "a JSON fit file written by touch4d study fit --out",
+                          got=str(exc).splitlines()[0]) from None
+    if not isinstance(fit, dict):
+        raise ConfigError(path, "(file)", "a JSON object written by touch4d study fit --out", got=type(fit).__name__)
+    return fit
+
+
+def run_power(args) -> int:
+    from .cli import _clean
+    from .observer import ModelObserver
+    from .power import Population, PowerSetup, power_curves, report_html, summary_text
+
+    study = _study(args.study)
+    population = Population.from_fit(read_fit(args.fit), study, args.fit) if args.fit else Population()
+    glove = _glove(args.glove)
+    out = Path(args.out or f"power-{study.name}")
+    training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
+    observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
+                             lapse=population.lapse, seed=args.seed, **training).train()
+    setup = PowerSetup(observer, glove, study, population, quick=args.quick, bootstrap=args.bootstrap,
+                       seed=args.seed, alpha=args.alpha)
+    started = time.perf_counter()
+    cluster = cluster_of(args)
+    try:
+        result = power_curves(setup, args.participants, args.simulations, cluster=cluster, out=out,
+                              progress=not args.json)
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished simulations are kept under {out / 'cache'}; the same command resumes")
+        return 130
+    result["seconds"] = time.perf_counter() - started
+    result["ran_on"] = cluster.describe()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "power.json").write_text(json.dumps(_clean(result), indent=1) + "\n")
+    (out / "report.html").write_text(report_html(result))
+    if args.json:
+        print(json.dumps(_clean(result)))
+    else:
+        print(summary_text(result))
+        print(f"{result['seconds']:.1f} s on {result['ran_on']}; report: {out / 'report.html'}")
+    return 0
+
+
+def _sizes(text: str) -> list[int]:
+    import argparse
+
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected sizes such as 4,8,12, got {text!r}") from None
+    if not sizes or min(sizes) < 2:
+        raise argparse.ArgumentTypeError(f"expected sizes of 2 or more participants, got {text!r}")
+    return sorted(set(sizes))
+
+
+def _workers(text: str) -> int:
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+    return value
