@@ -37,6 +37,24 @@ def register(sub, *, count, count0, probability) -> None:
     add_cluster_options(power)
     power.set_defaults(func=run_power)
 
+    fit = sub.add_parser("fit", help="fit a pilot: each participant's touch noise, visual noise and lapse",
+                         description="From a pilot's trials.csv files: each participant's touch noise, visual "
+                                     "noise and lapse by maximum likelihood under the model observer (its "
+                                     "accuracy simulated on a grid of noises), with 95% profile intervals, and the "
+                                     "population's spread. --out FIT.json feeds `study power --fit`.")
+    fit.add_argument("dir", metavar="PILOT_DIR", help="folder of the pilot's session folders (trials.csv each)")
+    fit.add_argument("--study", metavar="STUDY", help="study file (default: the one the sessions' manifest.json names)")
+    fit.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    fit.add_argument("--points", type=count, default=7, metavar="N",
+                     help="grid points per noise axis of the simulated accuracy (default 7)")
+    fit.add_argument("--trials", type=count, default=60, metavar="N",
+                     help="simulated trials per grid point (default 60)")
+    fit.add_argument("--seed", type=int, default=0, metavar="S")
+    fit.add_argument("--out", metavar="FIT.json", help="write the fit here (for study power --fit)")
+    fit.add_argument("--json", action="store_true", help="print the fit as JSON")
+    add_cluster_options(fit)
+    fit.set_defaults(func=run_fit)
+
 
 def add_cluster_options(parser) -> None:
     group = parser.add_argument_group("where the simulations run (Dask)")
@@ -109,6 +127,64 @@ def run_power(args) -> int:
     else:
         print(summary_text(result))
         print(f"{result['seconds']:.1f} s on {result['ran_on']}; report: {out / 'report.html'}")
+    return 0
+
+
+def pilot_study(where, given):
+    """The study of a pilot: `given`, or the study file its sessions' manifest.json names; a pilot of
+    another study than `given` is a ConfigError."""
+    from .design import load_study
+    from .table import find_tables
+
+    named = {}
+    for table in find_tables(where):
+        manifest = table.parent / "manifest.json"
+        try:
+            data = json.loads(manifest.read_text())
+            named[str(data["study"])] = data.get("study_file")
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if given:
+        study = _study(given)
+        if named and study.name not in named:
+            raise ConfigError(given, "name", f"the study of the pilot's sessions ({', '.join(sorted(named))})",
+                              got=study.name)
+        return study
+    if len(named) != 1 or not next(iter(named.values())):
+        raise ConfigError(COMMAND_LINE, "--study", "the pilot's study file (its sessions' manifest.json name "
+                          + ("several studies" if len(named) > 1 else "none") + ")")
+    return load_study(next(iter(named.values())))
+
+
+def run_fit(args) -> int:
+    from .analysis import load
+    from .cli import _clean
+    from .observer import ModelObserver
+    from .pilotfit import accuracy_surface, fit_pilot, summary_text
+
+    data = load(args.dir)
+    if len(data) == 0:
+        raise ConfigError(args.dir, "trials.csv", "a pilot with trials (not only practice trials)", got="none")
+    study = pilot_study(args.dir, args.study)
+    glove = _glove(args.glove)
+    observer = ModelObserver(glove, study, seed=args.seed).train()
+    cache = (Path(args.out).parent if args.out else Path(args.dir)) / "cache"
+    try:
+        surface = accuracy_surface(observer, glove, study, points=args.points, trials=args.trials, seed=args.seed,
+                                   cluster=cluster_of(args), cache=cache, progress=not args.json)
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished simulations are kept under {cache}; the same command resumes")
+        return 130
+    fit = fit_pilot(surface, data, seed=args.seed)
+    fit.update({"study_file": study.path, "glove": glove.path, "pilot": str(args.dir), "surface": surface.to_json()})
+    if args.out:
+        Path(args.out).write_text(json.dumps(_clean(fit), indent=1) + "\n")
+    if args.json:
+        print(json.dumps(_clean(fit)))
+    else:
+        print(summary_text(fit))
+        if args.out:
+            print(f"fit: {args.out}; next: touch4d study power {study.path} --fit {args.out}")
     return 0
 
 
