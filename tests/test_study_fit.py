@@ -12,6 +12,7 @@ from touch4d.study.design import load_study
 from touch4d.study.pilotfit import Surface, dense_accuracy, fit_participant, population_of
 from touch4d.study.simulate import simulate_study
 from touch4d.study.observer import ModelObserver
+from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.tactile import load_glove
 
 STUDY = "tests/data/studies/lookalikes.yaml"
@@ -71,7 +72,7 @@ def test_the_population_spread_is_the_spread_of_the_noise_beyond_each_estimates_
 @pytest.mark.timeout(400)
 def test_fit_recovers_the_touch_noise_of_a_simulated_pilot_and_feeds_power(tmp_path, capsys):
     study, glove = load_study(STUDY), load_glove()
-    trained = ModelObserver(glove, study).train()          # the defaults, as the fit trains its own
+    trained = ModelObserver(glove, study, noise=HUMAN_NOISE).train()   # trained as the fit trains its own
     pilot = tmp_path / "pilot"
     truth = 1.0                                             # touch noise: accuracy well below ceiling
     simulate_study(study, ["P01", "P02", "P03"], pilot, glove=glove, spread=0.0,

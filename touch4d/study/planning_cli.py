@@ -161,13 +161,14 @@ def run_fit(args) -> int:
     from .cli import _clean
     from .observer import ModelObserver
     from .pilotfit import accuracy_surface, fit_pilot, summary_text
+    from .psychophysics import HUMAN_NOISE
 
     data = load(args.dir)
     if len(data) == 0:
         raise ConfigError(args.dir, "trials.csv", "a pilot with trials (not only practice trials)", got="none")
     study = pilot_study(args.dir, args.study)
     glove = _glove(args.glove)
-    observer = ModelObserver(glove, study, seed=args.seed).train()
+    observer = ModelObserver(glove, study, noise=HUMAN_NOISE, seed=args.seed).train()
     cache = (Path(args.out).parent if args.out else Path(args.dir)) / "cache"
     try:
         surface = accuracy_surface(observer, glove, study, points=args.points, trials=args.trials, seed=args.seed,

@@ -24,6 +24,7 @@ from .design import Study
 from .fanout import Cluster, fan_out, seed_of, signature
 from .observer import ModelObserver
 from .plan import participant_ids, plan_session, quick_plan
+from .psychophysics import HUMAN_NOISE
 from .simulate import session_rows
 
 DESIGN = "power"
@@ -35,11 +36,11 @@ class Population:
     """Participants to draw: typical touch and visual noise, lapse, and the spread (sd of the log of
     each participant's noise factor, as in `simulate`)."""
 
-    noise: float = 0.08
+    noise: float = HUMAN_NOISE       # the fingertip's amplitude discrimination (psychophysics)
     visual_noise: float = 0.5
     lapse: float = 0.03
     spread: float = 0.25
-    source: str = "defaults"
+    source: str = "defaults (touch noise from published vibrotactile thresholds)"
 
     @classmethod
     def from_fit(cls, fit: dict, study: Study, path="FIT.json") -> "Population":
