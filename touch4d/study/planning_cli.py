@@ -56,6 +56,62 @@ def register(sub, *, count, count0, probability) -> None:
     fit.set_defaults(func=run_fit)
 
 
+def register_glove_design(sub) -> None:
+    """`touch4d glove design`: K motor places chosen for a study (touch4d.study.glovedesign)."""
+    import argparse
+
+    def motors(text):
+        value = _workers(text)
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+        return value
+
+    design = sub.add_parser("design", help="choose K motor places for a study, write a working glove file",
+                            description="Choose K actuator places among the hand's sample points to maximise the "
+                                        "bits one touch tells about the study's stimuli (study transfer's measure, "
+                                        "mean over tasks) by greedy forward selection with swaps; write the glove "
+                                        "file (boards and channels assigned) and its DBC; compare with random "
+                                        "layouts of K and the glove's own layout.")
+    design.add_argument("--motors", required=True, type=motors, metavar="K", help="number of motors")
+    design.add_argument("--study", required=True, metavar="STUDY", help="study file")
+    design.add_argument("--glove", metavar="FILE", help="the glove to redesign (default: config/glove.yaml)")
+    design.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
+    design.add_argument("--noise", type=float, default=None, metavar="X",
+                        help="sensory noise per motor (default: the fingertip's, touch4d.study.psychophysics)")
+    design.add_argument("--random", type=int, default=10, metavar="N", help="random layouts to compare (default 10)")
+    design.add_argument("--rounds", type=int, default=2, metavar="N", help="swap passes after the greedy steps")
+    design.add_argument("--scenes", type=motors, default=8, metavar="N", help="jittered scenes per stimulus")
+    design.add_argument("--positions", type=motors, default=8, metavar="N", help="hand positions per scene")
+    design.add_argument("--seed", type=int, default=0, metavar="S")
+    design.add_argument("-o", "--output", required=True, metavar="NEW.yaml", help="the designed glove file")
+    design.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    add_cluster_options(design)
+    design.set_defaults(func=run_glove_design)
+
+
+def run_glove_design(args) -> int:
+    from .cli import _clean
+    from .glovedesign import design_gloves, summary_text, write_glove
+    from .psychophysics import HUMAN_NOISE
+
+    study = _study(args.study)
+    glove = _glove(args.glove)
+    tasks = [study.task(t).id for t in args.task] if args.task else None
+    result = design_gloves(glove, study, [args.motors], tasks=tasks,
+                           noise=HUMAN_NOISE if args.noise is None else args.noise, random_layouts=args.random,
+                           rounds=args.rounds, scenes=args.scenes, positions=args.positions, seed=args.seed,
+                           cluster=cluster_of(args), progress=not args.json)
+    places = result["sizes"][args.motors]["designed"]["places"]
+    path, dbc = write_glove(args.output, glove.path, glove, places)
+    result.update({"output": str(path), "dbc": str(dbc)})
+    if args.json:
+        print(json.dumps(_clean(result)))
+    else:
+        print(summary_text(result))
+        print(f"glove: {path} (DBC {dbc}); next: touch4d study transfer {study.path} --glove {path}")
+    return 0
+
+
 def add_cluster_options(parser) -> None:
     group = parser.add_argument_group("where the simulations run (Dask)")
     where = group.add_mutually_exclusive_group()
