@@ -13,6 +13,9 @@ outcome with model observers before anyone is recruited.
 - `simulate`: the offline simulation (no bus) into session folders; `table`: trials.csv (`COLUMNS`,
   `read_trials`); `analysis`: `touch4d study analyze`; `infotransfer`: bits from a confusion matrix
   and predicted per glove.
+- Planning before recruiting (docs/planning.md): `psychophysics` (the default touch noise from
+  published thresholds), `pilotfit` (`touch4d study fit`), `power` (`touch4d study power`),
+  `glovedesign` (`touch4d glove design`), all fanned out by `fanout` on Dask.
 
 Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
 it: every `break_every` trials within a block, never before a block's first); the model observer's
