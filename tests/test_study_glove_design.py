@@ -52,3 +52,19 @@ def test_a_designed_pair_of_motors_tells_more_than_random_pairs():
 def test_more_motors_than_sample_points_is_a_clear_error(capsys):
     assert main(["glove", "design", "--motors", "1000", "--study", STUDY, "--workers", "0", "-o", "x.yaml"]) != 0
     assert "--motors': expected at most 247 motors" in capsys.readouterr().err
+
+
+def test_regions_restrict_the_places_and_an_unknown_region_is_a_clear_error(capsys):
+    from touch4d.study.glovedesign import candidates_in, sample_regions
+
+    study, glove = load_study(STUDY), load_glove()
+    regions = sample_regions(glove)
+    palm = candidates_in(glove, ["palm"])
+    assert palm == regions["palm"] and all(glove.samples[i][2] < 0 for i in palm)
+    assert set(candidates_in(glove, ["index", "thumb"])) == set(regions["index"]) | set(regions["thumb"])
+    result = design_gloves(glove, study, [2], noise=HUMAN_NOISE, random_layouts=2, rounds=0, scenes=3, positions=3,
+                           candidates=palm, progress=False, cluster=Cluster(workers=0))
+    assert set(result["sizes"][2]["designed"]["places"]) <= set(palm)
+    assert main(["glove", "design", "--motors", "2", "--study", STUDY, "--regions", "wrist", "--workers", "0",
+                 "-o", "x.yaml"]) != 0
+    assert "--regions': expected regions of the hand: palm, back, thumb" in capsys.readouterr().err

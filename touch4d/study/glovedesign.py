@@ -56,6 +56,32 @@ def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scen
     return Examples(out)
 
 
+def sample_regions(glove: Glove) -> dict[str, list[int]]:
+    """The sample points of each region of the hand: `palm` (the palm's side, z < 0), `back` (z > 0),
+    and each finger by name (its capsule, outside the palm)."""
+    samples = glove.samples
+    palm = glove.hand.in_palm(samples)
+    regions = {"palm": np.flatnonzero(palm & (samples[:, 2] < 0)).tolist(),
+               "back": np.flatnonzero(palm & (samples[:, 2] > 0)).tolist()}
+    for finger in glove.hand.fingers:
+        axis = finger.tip - finger.base
+        t = np.clip((samples - finger.base) @ axis / (axis @ axis), 0.0, 1.0)
+        near = np.sum((samples - (finger.base + t[:, None] * axis)) ** 2, axis=1) <= (finger.radius + 1e-9) ** 2
+        regions[finger.name] = np.flatnonzero(near & ~palm).tolist()
+    return regions
+
+
+def candidates_in(glove: Glove, regions: list[str] | None) -> list[int]:
+    """The sample indices of `regions` (all samples if None); an unknown region is a ConfigError."""
+    if not regions:
+        return list(range(len(glove.samples)))
+    known = sample_regions(glove)
+    unknown = [r for r in regions if r not in known]
+    if unknown:
+        raise ConfigError("command line", "--regions", f"regions of the hand: {', '.join(known)}", got=unknown[0])
+    return sorted({i for r in regions for i in known[r]})
+
+
 def layout_bits(data: Examples, places) -> dict:
     """Bits per task (and their mean) of a layout: motors at the sample indices `places`."""
     columns = np.asarray(list(places), dtype=int)
@@ -115,7 +141,7 @@ def design_gloves(glove: Glove, study: Study, sizes: list[int], *, tasks: list[s
     too_many = [k for k in sizes if k > len(pool)]
     if too_many:
         raise ConfigError("command line", "--motors", f"at most {len(pool)} motors (the glove's sample points "
-                          "to place them at)", got=too_many[0])
+                          "to place them at, in the regions chosen)", got=too_many[0])
     settings = {"noise": noise, "scenes": scenes, "positions": positions, "seed": seed}
     search = examples(glove, study, tasks, purpose="search", **settings)
     check = examples(glove, study, tasks, purpose="check", **settings)     # scores: not the data searched
@@ -184,5 +210,5 @@ def summary_text(result: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Examples", "examples", "layout_bits", "greedy_layout", "design_gloves", "glove_file_of", "write_glove",
+__all__ = ["Examples", "examples", "sample_regions", "candidates_in", "layout_bits", "greedy_layout", "design_gloves", "glove_file_of", "write_glove",
            "summary_text"]

@@ -76,6 +76,9 @@ def register_glove_design(sub) -> None:
     design.add_argument("--study", required=True, metavar="STUDY", help="study file")
     design.add_argument("--glove", metavar="FILE", help="the glove to redesign (default: config/glove.yaml)")
     design.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
+    design.add_argument("--regions", nargs="+", metavar="REGION",
+                        help="place motors only here: palm, back, thumb, index, middle, ring, little (default: "
+                             "anywhere on the hand)")
     design.add_argument("--noise", type=float, default=None, metavar="X",
                         help="sensory noise per motor (default: the fingertip's, touch4d.study.psychophysics)")
     design.add_argument("--random", type=int, default=10, metavar="N", help="random layouts to compare (default 10)")
@@ -91,7 +94,7 @@ def register_glove_design(sub) -> None:
 
 def run_glove_design(args) -> int:
     from .cli import _clean
-    from .glovedesign import design_gloves, summary_text, write_glove
+    from .glovedesign import candidates_in, design_gloves, summary_text, write_glove
     from .psychophysics import HUMAN_NOISE
 
     study = _study(args.study)
@@ -100,7 +103,8 @@ def run_glove_design(args) -> int:
     result = design_gloves(glove, study, [args.motors], tasks=tasks,
                            noise=HUMAN_NOISE if args.noise is None else args.noise, random_layouts=args.random,
                            rounds=args.rounds, scenes=args.scenes, positions=args.positions, seed=args.seed,
-                           cluster=cluster_of(args), progress=not args.json)
+                           candidates=candidates_in(glove, args.regions), cluster=cluster_of(args),
+                           progress=not args.json)
     places = result["sizes"][args.motors]["designed"]["places"]
     path, dbc = write_glove(args.output, glove.path, glove, places)
     result.update({"output": str(path), "dbc": str(dbc)})
