@@ -100,19 +100,18 @@ def fan_out(function: Callable, jobs: dict[str, tuple], *, shared=None, cluster:
     todo = {key: args for key, args in jobs.items() if key not in results}
     with _progress(progress, label, len(jobs), len(results)) as advance:
         def keep(key: str, result: dict) -> None:
-            results[key] = result
+            text = json.dumps(result)
+            results[key] = json.loads(text)          # as a resumed run reads it: the same types either way
             if cache is not None:
                 tmp = cache / f".{key}.json.tmp"
-                tmp.write_text(json.dumps(result))
+                tmp.write_text(text)
                 os.replace(tmp, cache / f"{key}.json")     # atomic: a file is whole or absent
             advance()
 
-        if not todo:
-            pass
-        elif cluster.workers == 0 and not cluster.scheduler:
+        if cluster.workers == 0 and not cluster.scheduler:
             for key, args in todo.items():
                 keep(key, function(shared, *args))
-        else:
+        elif todo:
             from distributed import as_completed
 
             with dask_client(cluster) as client:
