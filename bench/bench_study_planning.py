@@ -10,7 +10,8 @@
    simulated studies analysed by the GEE of `study analyze`, beside statsmodels' power.
 4. Pilot fits: coverage of the 95% profile intervals over 100 pilots drawn from a known accuracy
    surface (closed form), per parameter.
-5. Glove design (`--design`): bits per touch (mean over the study's tasks, scored on examples the
+5. Glove design (`--design`; slow: a layout is scored in ~0.3 s here, so K = 30 takes about an hour on
+   the shared 2-core VM): bits per touch (mean over the study's tasks, scored on examples the
    search did not see) of designed layouts of K = 1, 2, 6, 10, 30 motors beside random layouts of K
    and the paper's 30.
 

@@ -60,6 +60,8 @@ def register_glove_design(sub) -> None:
     """`touch4d glove design`: K motor places chosen for a study (touch4d.study.glovedesign)."""
     import argparse
 
+    from .cli import _count0, _nonnegative
+
     def motors(text):
         value = _workers(text)
         if value < 1:
@@ -79,10 +81,12 @@ def register_glove_design(sub) -> None:
     design.add_argument("--regions", nargs="+", metavar="REGION",
                         help="place motors only here: palm, back, thumb, index, middle, ring, little (default: "
                              "anywhere on the hand)")
-    design.add_argument("--noise", type=float, default=None, metavar="X",
+    design.add_argument("--noise", type=_nonnegative, default=None, metavar="X",
                         help="sensory noise per motor (default: the fingertip's, touch4d.study.psychophysics)")
-    design.add_argument("--random", type=int, default=10, metavar="N", help="random layouts to compare (default 10)")
-    design.add_argument("--rounds", type=int, default=2, metavar="N", help="swap passes after the greedy steps")
+    design.add_argument("--random", type=_count0, default=10, metavar="N",
+                        help="random layouts to compare (default 10)")
+    design.add_argument("--rounds", type=_count0, default=2, metavar="N",
+                        help="swap passes after the greedy steps (default 2)")
     design.add_argument("--scenes", type=motors, default=8, metavar="N", help="jittered scenes per stimulus")
     design.add_argument("--positions", type=motors, default=8, metavar="N", help="hand positions per scene")
     design.add_argument("--seed", type=int, default=0, metavar="S")
