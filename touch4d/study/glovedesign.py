@@ -148,8 +148,8 @@ def design_gloves(glove: Glove, study: Study, sizes: list[int], *, tasks: list[s
     jobs = {f"designed-{k}": ("designed", k, 0, 0) for k in sizes}
     jobs.update({f"random-{k}-{r}": ("random", k, r, seed_of(study, DESIGN, f"random-{k}", r, seed))
                  for k in sizes for r in range(random_layouts)})
-    done = fan_out(_design_job, jobs, shared=(search, check, pool, rounds), cluster=cluster, cache=cache, label="layouts",
-                   progress=progress)
+    done = fan_out(_design_job, jobs, shared=(search, check, pool, rounds), cluster=cluster, cache=cache,
+                   label="layouts", progress=progress)
     own = sorted(set(int(s) for s in glove.motor_sample))
     result = {"study": study.name, "tasks": tasks, "noise": noise, "glove": glove.path,
               "own": {"motors": len(glove.motor_names), "places": own, **layout_bits(check, own)}, "sizes": {}}
@@ -210,5 +210,5 @@ def summary_text(result: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Examples", "examples", "sample_regions", "candidates_in", "layout_bits", "greedy_layout", "design_gloves", "glove_file_of", "write_glove",
-           "summary_text"]
+__all__ = ["Examples", "examples", "sample_regions", "candidates_in", "layout_bits", "greedy_layout", "design_gloves",
+           "glove_file_of", "write_glove", "summary_text"]

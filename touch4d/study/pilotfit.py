@@ -8,7 +8,8 @@ log-spaced grid, simulated once (on Dask) and interpolated in log noise. A touch
 touch noise alone, a visual cell on the visual noise, a visual+touch cell on both. A participant who
 answers k_c of n_c trials of cell c correctly (timed out: wrong) then has the binomial likelihood
 prod_c Binom(k_c | n_c, lapse/m_c + (1 - lapse) a_c(touch noise, visual noise)), m_c options,
-evaluated at once on a fine grid (noises x lapses: vectorised, a few ms a participant). Intervals: the parameter values whose profile log-likelihood lies within chi2_1(0.95)/2 of the
+evaluated at once on a fine grid (noises x lapses: vectorised, a few ms a participant). Intervals:
+the parameter values whose profile log-likelihood lies within chi2_1(0.95)/2 of the
 maximum (Wilks); one that reaches the grid's end is open there (`open_low`/`open_high`).
 Population: the geometric means of the noises, the mean lapse, and the spread (sd of the log touch
 noise across participants less its estimation variance, method of moments), with a participant
@@ -296,5 +297,6 @@ def summary_text(fit: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Surface", "accuracy_surface", "dense_accuracy", "cell_counts", "log_likelihood", "fit_participant", "fit_pilot",
+__all__ = ["Surface", "accuracy_surface", "dense_accuracy", "cell_counts", "log_likelihood", "fit_participant",
+           "fit_pilot",
            "population_of", "observer_with", "summary_text"]
