@@ -1,4 +1,4 @@
-"""`touch4d glove ...`: write the glove's DBC, show its bus load, run the board emulator."""
+"""`touch4d glove ...`: write the glove's DBC, show its bus load, run the board emulator, design a layout."""
 from __future__ import annotations
 
 import math
@@ -35,6 +35,10 @@ def register(subparsers) -> None:
                    help="run the boards' firmware core (firmware/, built for this machine) instead of the Python emulator")
     p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
     p.set_defaults(func=cmd_emulate)
+
+    from touch4d.study.cli.planning import register_glove_design   # a layout chosen by what it tells
+
+    register_glove_design(sub)
 
 
 def _glove(args):

@@ -18,6 +18,9 @@ outcome with model observers before anyone is recruited.
 - a session folder: `store` (trials.csv, `TrialsFile`), `manifest` (manifest.json, `prepare_out`),
   `lock` (`SessionLock`: one writer), `measures` (exploration from bus samples); `session`: running
   one through the full stack (`run_session`, `run_simulation`).
+- Planning before recruiting (docs/planning.md): `psychophysics` (the default touch noise from
+  published thresholds), `pilotfit` (`touch4d study fit`), `power` (`touch4d study power`),
+  `glovedesign` (`touch4d glove design`), all fanned out by `fanout` on Dask.
 
 Beyond the first agreed interface: a `Trial` also carries `break_before` (a pause is offered before
 it: every `break_every` trials within a block, never before a block's first nor with under half a

@@ -91,11 +91,18 @@ def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float
     x, k, groups = touch_examples(glove, study, task, rng, scenes=scenes, positions=positions, exploration=exploration)
     x = x + rng.normal(0.0, noise, x.shape)
     test = groups % 2 == 1                     # scenes, not only positions, are new to the observer
-    model = classifier().fit(x[~test], k[~test])
-    guess = model.predict(x[test])
     names = [name for name, _, _ in stimuli_of(task)]
-    confusion = np.zeros((len(names), len(names)), dtype=int)
-    np.add.at(confusion, (k[test], guess), 1)
+    confusion = held_out_confusion(x, k, test, len(names))
     return {"task": task_id, "bits": information_transfer(confusion), "max_bits": math.log2(len(names)),
-            "accuracy": float(np.mean(guess == k[test])), "stimuli": names, "confusion": confusion.tolist(),
-            "motors": len(glove.motor_names), "noise": noise, "test_patterns": int(test.sum())}
+            "accuracy": float(np.trace(confusion) / confusion.sum()), "stimuli": names,
+            "confusion": confusion.tolist(), "motors": len(glove.motor_names), "noise": noise,
+            "test_patterns": int(test.sum())}
+
+
+def held_out_confusion(x: np.ndarray, k: np.ndarray, test: np.ndarray, stimuli: int) -> np.ndarray:
+    """The stimulus x answer counts of the observer's classifier trained on the rows of `x` not in
+    `test` and tested on those in it (k: each row's stimulus index)."""
+    guess = classifier().fit(x[~test], k[~test]).predict(x[test])
+    confusion = np.zeros((stimuli, stimuli), dtype=int)
+    np.add.at(confusion, (k[test], guess), 1)
+    return confusion

@@ -83,13 +83,9 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
     }
 
 
-def simulate_session(observer: ModelObserver, glove: Glove, study: Study, participant: str, out, *,
-                     seed: int = 0, quick: bool = False, timing: Timing = Timing(), spread: float = 0.25,
-                     session: str = "1", settings: dict | None = None) -> Path:
-    """A participant's whole session, simulated; writes OUT/<participant>/trials.csv and manifest.json
-    (with the run's `settings` as its `simulation`) and returns the session folder."""
-    own = participant_observer(observer, study, participant, seed, spread)
-    trials = quick_plan(study, participant) if quick else plan_session(study, participant)
+def session_rows(own: ModelObserver, glove: Glove, study: Study, participant: str, trials: list[Trial], *,
+                 seed: int = 0, timing: Timing = Timing(), session: str = "1") -> list[dict]:
+    """The table rows (`table.trial_row`) of a participant's trials answered by the observer `own`."""
     rows, clock = [], 0.0
     for trial in trials:
         if trial.break_before:
@@ -100,6 +96,17 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
                               time_touching_s=result["time_touching_s"], mean_intensity=result["mean_intensity"],
                               path_length=result["path_length"]))
         clock += result["rt_s"] + timing.iti_s
+    return rows
+
+
+def simulate_session(observer: ModelObserver, glove: Glove, study: Study, participant: str, out, *,
+                     seed: int = 0, quick: bool = False, timing: Timing = Timing(), spread: float = 0.25,
+                     session: str = "1", settings: dict | None = None) -> Path:
+    """A participant's whole session, simulated; writes OUT/<participant>/trials.csv and manifest.json
+    (with the run's `settings` as its `simulation`) and returns the session folder."""
+    own = participant_observer(observer, study, participant, seed, spread)
+    trials = quick_plan(study, participant) if quick else plan_session(study, participant)
+    rows = session_rows(own, glove, study, participant, trials, seed=seed, timing=timing, session=session)
     folder = Path(out) / participant
     write_rows(folder / TRIALS, rows)
     manifest = {
@@ -150,4 +157,5 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["Timing", "answer_time", "simulate_trial", "simulate_session", "simulate_study", "participant_observer"]
+__all__ = ["Timing", "answer_time", "simulate_trial", "session_rows", "simulate_session", "simulate_study",
+           "participant_observer"]

@@ -135,15 +135,19 @@ def register(subparsers) -> None:
     analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
     analyze.set_defaults(func=run_analyze)
 
+    from . import planning     # power and fit: before recruiting
+
+    planning.register(sub, count=_count, count0=_count0, probability=_probability)
+
 
 def _study(path):
-    from .design import DEFAULT_STUDY, load_study, study_file_path
+    from ..design import DEFAULT_STUDY, load_study, study_file_path
 
     return load_study(study_file_path(path or DEFAULT_STUDY))
 
 
 def run_check(args) -> int:
-    from .plan import order_table, plan_session, quick_plan
+    from ..plan import order_table, plan_session, quick_plan
 
     study = _study(args.file)
     trials = plan_session(study, "P01")
@@ -168,7 +172,7 @@ def run_check(args) -> int:
 def run_plan(args) -> int:
     import msgspec
 
-    from .plan import condition_order, order_note, order_table, plan_session, quick_plan
+    from ..plan import condition_order, order_note, order_table, plan_session, quick_plan
 
     study = _study(args.study)
     row = _row(study, args.participant, args.order)
@@ -198,7 +202,7 @@ def run_plan(args) -> int:
 
 def _row(study, participant: str, order: int | None) -> int:
     """The counterbalancing row (from 0) of a participant, `--order` checked against the study's rows."""
-    from .plan import order_table, participant_index
+    from ..plan import order_table, participant_index
 
     rows = len(order_table(study))
     if order is not None and order > rows:
@@ -223,11 +227,11 @@ def run_offline(args) -> int:
     """Simulated participants on the library alone (touch4d.study.simulate)."""
     from touch4d.tactile import load_glove
 
-    from .lock import claim_session
-    from .manifest import MANIFEST, prepare_out, sha256_file
-    from .observer import every_sample_glove
-    from .plan import participant_ids
-    from .store import session_dir
+    from ..lock import claim_session
+    from ..manifest import MANIFEST, prepare_out, sha256_file
+    from ..observer import every_sample_glove
+    from ..plan import participant_ids
+    from ..store import session_dir
 
     study = _study(args.study)
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
@@ -248,8 +252,8 @@ def run_offline(args) -> int:
 
 
 def _simulate_offline(args, study, glove, participants, settings) -> int:
-    from .observer import ModelObserver
-    from .simulate import simulate_study
+    from ..observer import ModelObserver
+    from ..simulate import simulate_study
 
     started = time.perf_counter()
     # --quick checks every cell quickly: a lighter-trained observer (its accuracy is not the point)
@@ -272,11 +276,11 @@ def run_full_stack(args) -> int:
             raise
         raise Unavailable("running a study through the full stack needs touch4d.study.session; "
                           "--simulate --offline runs simulated participants without it") from None
-    from .design import study_file_path
-    from .lock import claim_session
-    from .manifest import prepare_out, read_manifest
-    from .plan import condition_order, order_note, participant_ids
-    from .store import session_dir
+    from ..design import study_file_path
+    from ..lock import claim_session
+    from ..manifest import prepare_out, read_manifest
+    from ..plan import condition_order, order_note, participant_ids
+    from ..store import session_dir
 
     study_path = study_file_path(args.study)
     study = _study(study_path)
@@ -314,7 +318,7 @@ def run_full_stack(args) -> int:
 
 def _settings(study, quick: bool, simulation: dict | None) -> dict:
     """What this run's sessions must share with those already in --out (manifest.run_settings)."""
-    from .manifest import sha256_file
+    from ..manifest import sha256_file
 
     return {"study": study.name, "study_sha256": sha256_file(study.path), "quick": bool(quick),
             "simulation": simulation}
@@ -323,8 +327,8 @@ def _settings(study, quick: bool, simulation: dict | None) -> dict:
 def run_transfer(args) -> int:
     from touch4d.tactile import load_glove
 
-    from .infotransfer import predicted_transfer
-    from .observer import every_sample_glove
+    from ..infotransfer import predicted_transfer
+    from ..observer import every_sample_glove
 
     study = _study(args.study)
     files = [resolve_path(g, COMMAND_LINE, key="--glove", what="glove file") for g in args.glove] if args.glove \
@@ -396,9 +400,9 @@ def transfer_table(results: list[dict], named: bool = False) -> str:
 
 
 def run_analyze(args) -> int:
-    from .analysis import analyze, load, report_html, summary_text
-    from .manifest import check_one_study
-    from .table import find_tables
+    from ..analysis import analyze, load, report_html, summary_text
+    from ..manifest import check_one_study
+    from ..table import find_tables
 
     check_one_study(find_tables(args.dir))    # one study, run alike: never two mixed in one analysis
     data = load(args.dir)
@@ -410,7 +414,7 @@ def run_analyze(args) -> int:
         report.write_text(report_html(result, data, title=f"touch4d study: {args.dir}"))
         result["report"] = str(report)
     if args.plot:
-        from .analysis import figure_summary
+        from ..analysis import figure_summary
 
         figure_summary(result).savefig(args.plot, dpi=110)
         result["plot"] = str(args.plot)

@@ -1,0 +1,173 @@
+"""Benchmark: planning a study before recruiting, on Dask.
+
+1. Simulated participants per second (whole sessions of the study, the model observer answering)
+   on 1 and on N local worker processes (`--workers`, default 2), measured in the same run: the
+   speed-up and its ratio to linear.
+2. A power curve: seconds per simulated-and-analysed study at each of 5 sizes, measured on a few
+   simulations per size (`--power-simulations`), and from them the estimated time of the full
+   500-simulation curve at those sizes on 1 and on N workers (an estimate from the smaller run).
+3. Power against a known answer: a difference of two binomial proportions, `--validation`
+   simulated studies analysed by the GEE of `study analyze`, beside statsmodels' power.
+4. Pilot fits: coverage of the 95% profile intervals over 100 pilots drawn from a known accuracy
+   surface (closed form), per parameter.
+5. Glove design (`--design`; slow: a layout is scored in ~0.3 s here, so K = 30 takes about an hour on
+   the shared 2-core VM): bits per touch (mean over the study's tasks, scored on examples the
+   search did not see) of designed layouts of K = 1, 2, 6, 10, 30 motors beside random layouts of K
+   and the paper's 30.
+
+    .venv/bin/python bench/bench_study_planning.py [--workers 2] [--participants 8]
+        [--power-simulations 2] [--validation 500] [--design]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+import warnings
+
+import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
+import numpy as np
+
+from touch4d.study.design import load_study
+from touch4d.study.fanout import Cluster, fan_out, seed_of
+from touch4d.study.observer import ModelObserver
+from touch4d.study.plan import plan_session
+from touch4d.study.power import Population, PowerSetup, simulate_outcome, study_outcome, summarise
+from touch4d.study.psychophysics import HUMAN_NOISE
+from touch4d.study.simulate import session_rows
+from touch4d.tactile import load_glove
+
+
+def _participant(setup: PowerSetup, participant: str, simulation: int) -> dict:
+    """One whole simulated session: its accuracy (what a worker returns)."""
+    seed = seed_of(setup.study, "bench", participant, simulation)
+    own = setup.population.participant(setup.observer, np.random.default_rng(seed))
+    rows = session_rows(own, setup.glove, setup.study, participant, plan_session(setup.study, participant), seed=seed)
+    return {"accuracy": float(np.mean([r["correct"] for r in rows])), "trials": len(rows)}
+
+
+def participants_per_second(setup, count: int, workers: int) -> float:
+    jobs = {f"p{i}": (f"P{i + 1:02d}", i) for i in range(count)}
+    fan_out(_participant, {"warm": ("P01", 10_000)}, shared=setup, cluster=Cluster(workers=workers), progress=False)
+    started = time.perf_counter()
+    fan_out(_participant, jobs, shared=setup, cluster=Cluster(workers=workers), progress=False)
+    return count / (time.perf_counter() - started)
+
+
+def power_timing(setup, sizes, simulations: int) -> dict:
+    seconds = {}
+    for n in sizes:
+        started = time.perf_counter()
+        for s in range(simulations):
+            simulate_outcome(setup, n, s)
+        seconds[n] = (time.perf_counter() - started) / simulations
+    return seconds
+
+
+def validation(simulations: int) -> None:
+    import pandas as pd
+    from statsmodels.stats.power import NormalIndPower
+    from statsmodels.stats.proportion import proportion_effectsize
+
+    participants, trials, p1, p2 = 20, 5, 0.6, 0.75
+    outcomes = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for s in range(simulations):
+            rng = np.random.default_rng(s)
+            rows = [{"participant": f"P{i}", "task": "t", "kind": "look-alikes", "condition": c, "correct": bool(k)}
+                    for i in range(participants) for c, p in (("visual", p1), ("visual+touch", p2))
+                    for k in rng.random(trials) < p]
+            outcomes.append(study_outcome(pd.DataFrame(rows)))
+    effect = summarise({participants: outcomes})["t"]["effects"]["visual+touch"]
+    expected = NormalIndPower().power(proportion_effectsize(p2, p1), nobs1=participants * trials, alpha=0.05)
+    gee, mixed = effect["gee"][0], effect["mixed"][0]
+    print(f"two proportions {p1} vs {p2}, {participants * trials} trials each, {simulations} simulated studies: "
+          f"power GEE {gee['power']:.3f} [{gee['ci95'][0]:.3f}, {gee['ci95'][1]:.3f}], mixed model "
+          f"{mixed['power']:.3f}; statsmodels NormalIndPower {expected:.3f}; ratio GEE / statsmodels "
+          f"{gee['power'] / expected:.3f}")
+
+
+def coverage() -> None:
+    from touch4d.study.pilotfit import Surface, dense_accuracy, fit_participant
+
+    log_touch, log_visual = np.linspace(math.log(0.02), math.log(5.0), 7), np.linspace(math.log(0.1), math.log(8.0), 7)
+    touch, visual = np.meshgrid(np.exp(log_touch), np.exp(log_visual), indexing="ij")
+
+    def accuracy(d):
+        return 1 / 3 + 2 / 3 * (1 - np.exp(-d))
+
+    values = {"t|touch": accuracy(0.5 / np.exp(log_touch)), "t|visual": accuracy(2.0 / np.exp(log_visual)),
+              "t|visual+touch": accuracy(0.5 / touch + 2.0 / visual)}
+    surface = Surface("synthetic", log_touch, log_visual, values, {c: 3 for c in values})
+    dense = dense_accuracy(surface)
+    truth = {"noise": 0.5, "visual_noise": 2.0, "lapse": 0.05}
+    rng = np.random.default_rng(0)
+    covered = dict.fromkeys(truth, 0)
+    started = time.perf_counter()
+    for _ in range(100):
+        counts = {c: (int(rng.binomial(60, truth["lapse"] / 3 + (1 - truth["lapse"]) * surface.accuracy(
+            c, math.log(truth["noise"]), math.log(truth["visual_noise"])))), 60) for c in values}
+        fit = fit_participant(surface, counts, dense)
+        for name, value in truth.items():
+            covered[name] += fit[name]["ci95"][0] <= value <= fit[name]["ci95"][1]
+    print(f"pilot fits: 95% intervals cover the truth in {covered} of 100 pilots "
+          f"({(time.perf_counter() - started) * 10:.1f} ms a fit)")
+
+
+def design(study, glove, workers: int) -> None:
+    from touch4d.study.glovedesign import design_gloves
+
+    started = time.perf_counter()
+    result = design_gloves(glove, study, [1, 2, 6, 10, 30], noise=HUMAN_NOISE, random_layouts=10, rounds=1,
+                           cluster=Cluster(workers=workers), progress=False)
+    own = result["own"]["mean_bits"]
+    print(f"glove design ({time.perf_counter() - started:.0f} s, {workers} workers): bits per touch, mean over "
+          f"{', '.join(result['tasks'])}; the paper's 30 motors: {own:.3f}")
+    print(f"{'K':>3} {'designed':>9} {'random mean':>11} {'random sd':>9} {'designed / paper 30':>20}")
+    for k, size in result["sizes"].items():
+        print(f"{k:>3} {size['designed']['mean_bits']:>9.3f} {size['random_mean_bits']:>11.3f} "
+              f"{size['random_sd_bits']:>9.3f} {size['designed']['mean_bits'] / own:>20.3f}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--study", default="config/studies/paper.yaml")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--participants", type=int, default=8, help="simulated participants per speed run")
+    parser.add_argument("--power-simulations", type=int, default=2, help="simulations per size timed")
+    parser.add_argument("--validation", type=int, default=500, help="simulated two-proportion studies")
+    parser.add_argument("--design", action="store_true", help="also the glove designs (slow)")
+    args = parser.parse_args(argv)
+    study, glove = load_study(args.study), load_glove()
+    population = Population()
+    observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
+                             lapse=population.lapse).train()
+    setup = PowerSetup(observer, glove, study, population, bootstrap=100)
+
+    one = participants_per_second(setup, args.participants, 1)
+    many = participants_per_second(setup, args.participants, args.workers)
+    print(f"simulated participants (whole {study.name} sessions) per second: 1 worker {one:.2f}, {args.workers} "
+          f"workers {many:.2f}; speed-up {many / one:.2f} ({many / one / args.workers:.0%} of linear)")
+
+    sizes = [4, 8, 12, 16, 24]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seconds = power_timing(setup, sizes, args.power_simulations)
+    per_curve = 500 * sum(seconds.values())
+    print("power: seconds per simulated and analysed study (bootstrap 100): "
+          + ", ".join(f"N={n} {s:.1f}" for n, s in seconds.items()))
+    print(f"estimated 500-simulation curve at N = {sizes}: {per_curve / 3600:.1f} h on 1 worker, "
+          f"{per_curve / 3600 / (many / one):.1f} h on {args.workers} (measured "
+          f"speed-up), {per_curve / 3600 / 16:.2f} h on 16 at linear speed-up (estimated from "
+          f"{args.power_simulations} simulations per size)")
+
+    validation(args.validation)
+    coverage()
+    if args.design:
+        design(study, glove, args.workers)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

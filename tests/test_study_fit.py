@@ -1,0 +1,112 @@
+"""A pilot fitted: over 100 simulated pilots with known parameters the profile intervals cover the
+truth at about their nominal rate; a pilot simulated by model observers of known noise is fitted
+end to end by `touch4d study fit`; bad pilots are clear errors."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from touch4d.cli import main
+from touch4d.study.design import load_study
+from touch4d.study.pilotfit import Surface, dense_accuracy, fit_participant, population_of
+from touch4d.study.simulate import simulate_study
+from touch4d.study.observer import ModelObserver
+from touch4d.study.psychophysics import HUMAN_NOISE
+from touch4d.tactile import load_glove
+
+STUDY = "tests/data/studies/lookalikes.yaml"
+
+
+def closed_form_surface() -> Surface:
+    """Known synthetic accuracies (3 options): 1/3 + 2/3 (1 - exp(-d)), d = 0.5 / touch noise by touch,
+    2 / visual noise by sight, their sum when both are there."""
+    log_touch, log_visual = np.linspace(math.log(0.02), math.log(5.0), 7), np.linspace(math.log(0.1), math.log(8.0), 7)
+
+    def accuracy(d):
+        return 1 / 3 + 2 / 3 * (1 - np.exp(-d))
+
+    touch, visual = np.meshgrid(np.exp(log_touch), np.exp(log_visual), indexing="ij")
+    values = {"t|touch": accuracy(0.5 / np.exp(log_touch)), "t|visual": accuracy(2.0 / np.exp(log_visual)),
+              "t|visual+touch": accuracy(0.5 / touch + 2.0 / visual)}
+    return Surface("synthetic", log_touch, log_visual, values, {cell: 3 for cell in values})
+
+
+def test_over_100_simulated_pilots_the_intervals_cover_the_truth_at_about_95_percent():
+    surface = closed_form_surface()
+    dense = dense_accuracy(surface)
+    truth = {"noise": 0.5, "visual_noise": 2.0, "lapse": 0.05}
+    rng = np.random.default_rng(0)
+    covered = {name: 0 for name in truth}
+    estimates = []
+    for _ in range(100):
+        counts = {}
+        for cell in surface.values:
+            p = truth["lapse"] / 3 + (1 - truth["lapse"]) * surface.accuracy(cell, math.log(truth["noise"]),
+                                                                                math.log(truth["visual_noise"]))
+            counts[cell] = (int(rng.binomial(60, p)), 60)
+        fit = fit_participant(surface, counts, dense)
+        estimates.append(fit["noise"]["estimate"])
+        for name, value in truth.items():
+            low, high = fit[name]["ci95"]
+            covered[name] += low <= value <= high
+    # 95% nominal: 100 pilots cover it 95 +- 2.2 times (binomial sd); 88 lies 3 sd below
+    assert all(88 <= count <= 100 for count in covered.values()), covered
+    assert abs(math.log(np.median(estimates)) - math.log(truth["noise"])) < 0.25
+
+
+def test_the_population_spread_is_the_spread_of_the_noise_beyond_each_estimates_error():
+    rng = np.random.default_rng(1)
+    noises = np.exp(rng.normal(math.log(0.3), 0.4, 400))
+    # intervals 2 x 1.96 x 0.1 wide on the log scale: each estimate's own error has sd 0.1
+    fits = {f"P{i}": {"noise": {"estimate": float(x * math.exp(rng.normal(0, 0.1))),
+                                "ci95": [float(x * math.exp(-0.196)), float(x * math.exp(0.196))]},
+                      "visual_noise": {"estimate": 1.0}, "lapse": {"estimate": 0.02}} for i, x in enumerate(noises)}
+    population = population_of(fits, bootstrap=200)
+    assert population["spread"] == pytest.approx(0.4, abs=0.04)
+    assert population["noise"] == pytest.approx(0.3, rel=0.06)
+    low, high = population["spread_ci95"]
+    assert low < population["spread"] < high and high - low < 0.15
+
+
+@pytest.mark.timeout(400)
+def test_fit_recovers_the_touch_noise_of_a_simulated_pilot_and_feeds_power(tmp_path, capsys):
+    study, glove = load_study(STUDY), load_glove()
+    trained = ModelObserver(glove, study, noise=HUMAN_NOISE).train()   # trained as the fit trains its own
+    pilot = tmp_path / "pilot"
+    truth = 1.0                                             # touch noise: accuracy well below ceiling
+    simulate_study(study, ["P01", "P02", "P03"], pilot, glove=glove, spread=0.0,
+                   observer=trained.with_noise(truth / trained.noise))
+    out = tmp_path / "fit.json"
+    assert main(["study", "fit", str(pilot), "--points", "5", "--trials", "24", "--workers", "0", "--out", str(out),
+                 "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)
+    assert fit["study"] == "lookalikes" and sorted(fit["participants"]) == ["P01", "P02", "P03"]
+    covered = [own["noise"]["ci95"][0] <= truth <= own["noise"]["ci95"][1] for own in fit["participants"].values()]
+    assert sum(covered) >= 2, fit["participants"]
+    assert json.loads(out.read_text())["population"] == fit["population"]
+    assert list((tmp_path / "cache").iterdir())                # the surface's simulations are kept
+    from touch4d.study.power import Population
+
+    population = Population.from_fit(fit, study, out)
+    assert population.noise == pytest.approx(fit["population"]["noise"]) and population.source == str(out)
+
+
+def test_an_empty_pilot_or_a_pilot_of_another_study_is_a_clear_error(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["study", "fit", str(empty), "--workers", "0"]) != 0
+    assert "a folder with at least one trials.csv" in capsys.readouterr().err
+    header = tmp_path / "header" / "P01"
+    header.mkdir(parents=True)
+    from touch4d.study.table import COLUMNS
+
+    (header / "trials.csv").write_text(",".join(COLUMNS) + "\n")
+    assert main(["study", "fit", str(header.parent), "--study", STUDY, "--workers", "0"]) != 0
+    assert "expected a pilot with trials" in capsys.readouterr().err
+    pilot = tmp_path / "pilot"
+    study, glove = load_study(STUDY), load_glove()
+    simulate_study(study, ["P01"], pilot, glove=glove, quick=True,
+                   observer=ModelObserver(glove, study, train_scenes=3, train_positions=6, view_scenes=6))
+    assert main(["study", "fit", str(pilot), "--study", "config/studies/paper.yaml", "--workers", "0"]) != 0
+    assert "expected the study of the pilot's sessions (lookalikes), got 'paper'" in capsys.readouterr().err

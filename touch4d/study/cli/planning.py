@@ -1,0 +1,277 @@
+"""`touch4d study power` and `touch4d study fit`: plan a study before recruiting (many simulations,
+on Dask: `--workers N` local processes or `--scheduler tcp://HOST:8786`)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from touch4d.configfile import COMMAND_LINE, resolve_path
+from touch4d.errors import ConfigError
+
+
+def register(sub, *, count, count0, probability) -> None:
+    """Add `power` and `fit` to `touch4d study`'s subcommands (`count` etc.: cli's argument types)."""
+    power = sub.add_parser("power", help="participants needed: power by simulating whole studies",
+                           description="For each number of participants, simulate whole studies (participants "
+                                       "drawn from a pilot's fit, or the default observers) and analyse each as "
+                                       "`study analyze` does (GEE, mixed model, psychometric fit): the power to "
+                                       "find each condition effect per task and the tilt threshold's interval "
+                                       "width. Writes DIR/power.json and DIR/report.html; an interrupted run "
+                                       "resumes from DIR/cache.")
+    power.add_argument("study", metavar="STUDY", help="study file")
+    power.add_argument("--fit", metavar="FIT.json", help="the population of a pilot (touch4d study fit --out)")
+    power.add_argument("--participants", type=_sizes, default=[4, 8, 12, 16, 24], metavar="N,N,...",
+                       help="sample sizes (default 4,8,12,16,24)")
+    power.add_argument("--simulations", type=count, default=500, metavar="N",
+                       help="simulated studies per size (default 500)")
+    power.add_argument("--seed", type=int, default=0, metavar="S")
+    power.add_argument("--out", metavar="DIR", help="output folder (default power-<study name>)")
+    power.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    power.add_argument("--quick", action="store_true", help="quick sessions (one trial per task x condition x "
+                                                            "stimulus) and lighter-trained observers")
+    power.add_argument("--bootstrap", type=count0, default=100, metavar="N",
+                       help="bootstrap resamples for the tilt threshold's interval (default 100)")
+    power.add_argument("--alpha", type=probability, default=0.05, metavar="A", help="test level (default 0.05)")
+    power.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_cluster_options(power)
+    power.set_defaults(func=run_power)
+
+    fit = sub.add_parser("fit", help="fit a pilot: each participant's touch noise, visual noise and lapse",
+                         description="From a pilot's trials.csv files: each participant's touch noise, visual "
+                                     "noise and lapse by maximum likelihood under the model observer (its "
+                                     "accuracy simulated on a grid of noises), with 95% profile intervals, and the "
+                                     "population's spread. --out FIT.json feeds `study power --fit`.")
+    fit.add_argument("dir", metavar="PILOT_DIR", help="folder of the pilot's session folders (trials.csv each)")
+    fit.add_argument("--study", metavar="STUDY", help="study file (default: the one the sessions' manifest.json names)")
+    fit.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    fit.add_argument("--points", type=count, default=7, metavar="N",
+                     help="grid points per noise axis of the simulated accuracy (default 7)")
+    fit.add_argument("--trials", type=count, default=60, metavar="N",
+                     help="simulated trials per grid point (default 60)")
+    fit.add_argument("--seed", type=int, default=0, metavar="S")
+    fit.add_argument("--out", metavar="FIT.json", help="write the fit here (for study power --fit)")
+    fit.add_argument("--json", action="store_true", help="print the fit as JSON")
+    add_cluster_options(fit)
+    fit.set_defaults(func=run_fit)
+
+
+def register_glove_design(sub) -> None:
+    """`touch4d glove design`: K motor places chosen for a study (touch4d.study.glovedesign)."""
+    import argparse
+
+    from . import _count0, _nonnegative
+
+    def motors(text):
+        value = _workers(text)
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+        return value
+
+    design = sub.add_parser("design", help="choose K motor places for a study, write a working glove file",
+                            description="Choose K actuator places among the hand's sample points to maximise the "
+                                        "bits one touch tells about the study's stimuli (study transfer's measure, "
+                                        "mean over tasks) by greedy forward selection with swaps; write the glove "
+                                        "file (boards and channels assigned) and its DBC; compare with random "
+                                        "layouts of K and the glove's own layout.")
+    design.add_argument("--motors", required=True, type=motors, metavar="K", help="number of motors")
+    design.add_argument("--study", required=True, metavar="STUDY", help="study file")
+    design.add_argument("--glove", metavar="FILE", help="the glove to redesign (default: config/glove.yaml)")
+    design.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
+    design.add_argument("--regions", nargs="+", metavar="REGION",
+                        help="place motors only here: palm, back, thumb, index, middle, ring, little (default: "
+                             "anywhere on the hand)")
+    design.add_argument("--noise", type=_nonnegative, default=None, metavar="X",
+                        help="sensory noise per motor (default: the fingertip's, touch4d.study.psychophysics)")
+    design.add_argument("--random", type=_count0, default=10, metavar="N",
+                        help="random layouts to compare (default 10)")
+    design.add_argument("--rounds", type=_count0, default=2, metavar="N",
+                        help="swap passes after the greedy steps (default 2)")
+    design.add_argument("--scenes", type=motors, default=8, metavar="N", help="jittered scenes per stimulus")
+    design.add_argument("--positions", type=motors, default=8, metavar="N", help="hand positions per scene")
+    design.add_argument("--seed", type=int, default=0, metavar="S")
+    design.add_argument("-o", "--output", required=True, metavar="NEW.yaml", help="the designed glove file")
+    design.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    add_cluster_options(design)
+    design.set_defaults(func=run_glove_design)
+
+
+def run_glove_design(args) -> int:
+    from . import _clean
+    from ..glovedesign import candidates_in, design_gloves, summary_text, write_glove
+    from ..psychophysics import HUMAN_NOISE
+
+    study = _study(args.study)
+    glove = _glove(args.glove)
+    tasks = [study.task(t).id for t in args.task] if args.task else None
+    result = design_gloves(glove, study, [args.motors], tasks=tasks,
+                           noise=HUMAN_NOISE if args.noise is None else args.noise, random_layouts=args.random,
+                           rounds=args.rounds, scenes=args.scenes, positions=args.positions, seed=args.seed,
+                           candidates=candidates_in(glove, args.regions), cluster=cluster_of(args),
+                           progress=not args.json)
+    places = result["sizes"][args.motors]["designed"]["places"]
+    path, dbc = write_glove(args.output, glove.path, glove, places)
+    result.update({"output": str(path), "dbc": str(dbc)})
+    if args.json:
+        print(json.dumps(_clean(result)))
+    else:
+        print(summary_text(result))
+        print(f"glove: {path} (DBC {dbc}); next: touch4d study transfer {study.path} --glove {path}")
+    return 0
+
+
+def add_cluster_options(parser) -> None:
+    group = parser.add_argument_group("where the simulations run (Dask)")
+    where = group.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None, metavar="N",
+                       help="local worker processes (default: one per core; 0: in this process, no Dask)")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="a Dask cluster's scheduler, e.g. tcp://HOST:8786")
+
+
+def cluster_of(args):
+    from ..fanout import Cluster
+
+    return Cluster(workers=args.workers, scheduler=args.scheduler)
+
+
+def _study(path):
+    from ..design import DEFAULT_STUDY, load_study
+
+    return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
+
+
+def _glove(path):
+    from touch4d.tactile import load_glove
+
+    return load_glove(resolve_path(path, COMMAND_LINE, key="--glove", what="glove file") if path else None)
+
+
+def read_fit(path) -> dict:
+    """A fit file (touch4d study fit --out) as a dict; a file that is not one is a ConfigError naming it."""
+    path = resolve_path(path, COMMAND_LINE, key="--fit", what="fit file")
+    try:
+        fit = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "(file)", "a JSON fit file written by touch4d study fit --out",
+                          got=str(exc).splitlines()[0]) from None
+    if not isinstance(fit, dict):
+        raise ConfigError(path, "(file)", "a JSON object written by touch4d study fit --out", got=type(fit).__name__)
+    return fit
+
+
+def run_power(args) -> int:
+    from . import _clean
+    from ..observer import ModelObserver
+    from ..power import Population, PowerSetup, power_curves, report_html, summary_text
+
+    study = _study(args.study)
+    population = Population.from_fit(read_fit(args.fit), study, args.fit) if args.fit else Population()
+    glove = _glove(args.glove)
+    out = Path(args.out or f"power-{study.name}")
+    training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
+    observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
+                             lapse=population.lapse, seed=args.seed, **training).train()
+    setup = PowerSetup(observer, glove, study, population, quick=args.quick, bootstrap=args.bootstrap,
+                       seed=args.seed, alpha=args.alpha)
+    started = time.perf_counter()
+    cluster = cluster_of(args)
+    try:
+        result = power_curves(setup, args.participants, args.simulations, cluster=cluster, out=out,
+                              progress=not args.json)
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished simulations are kept under {out / 'cache'}; the same command resumes")
+        return 130
+    result["seconds"] = time.perf_counter() - started
+    result["ran_on"] = cluster.describe()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "power.json").write_text(json.dumps(_clean(result), indent=1) + "\n")
+    (out / "report.html").write_text(report_html(result))
+    if args.json:
+        print(json.dumps(_clean(result)))
+    else:
+        print(summary_text(result))
+        print(f"{result['seconds']:.1f} s on {result['ran_on']}; report: {out / 'report.html'}")
+    return 0
+
+
+def pilot_study(where, given):
+    """The study of a pilot: `given`, or the study file its sessions' manifest.json names; a pilot of
+    another study than `given` is a ConfigError."""
+    from ..design import load_study
+    from ..table import find_tables
+
+    named = {}
+    for table in find_tables(where):
+        manifest = table.parent / "manifest.json"
+        try:
+            data = json.loads(manifest.read_text())
+            named[str(data["study"])] = data.get("study_file")
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if given:
+        study = _study(given)
+        if named and study.name not in named:
+            raise ConfigError(given, "name", f"the study of the pilot's sessions ({', '.join(sorted(named))})",
+                              got=study.name)
+        return study
+    if len(named) != 1 or not next(iter(named.values())):
+        raise ConfigError(COMMAND_LINE, "--study", "the pilot's study file (its sessions' manifest.json name "
+                          + ("several studies" if len(named) > 1 else "none") + ")")
+    return load_study(next(iter(named.values())))
+
+
+def run_fit(args) -> int:
+    from ..analysis import load
+    from . import _clean
+    from ..observer import ModelObserver
+    from ..pilotfit import accuracy_surface, fit_pilot, summary_text
+    from ..psychophysics import HUMAN_NOISE
+
+    data = load(args.dir)
+    if len(data) == 0:
+        raise ConfigError(args.dir, "trials.csv", "a pilot with trials (not only practice trials)", got="none")
+    study = pilot_study(args.dir, args.study)
+    glove = _glove(args.glove)
+    observer = ModelObserver(glove, study, noise=HUMAN_NOISE, seed=args.seed).train()
+    cache = (Path(args.out).parent if args.out else Path(args.dir)) / "cache"
+    try:
+        surface = accuracy_surface(observer, glove, study, points=args.points, trials=args.trials, seed=args.seed,
+                                   cluster=cluster_of(args), cache=cache, progress=not args.json)
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished simulations are kept under {cache}; the same command resumes")
+        return 130
+    fit = fit_pilot(surface, data, seed=args.seed)
+    fit.update({"study_file": study.path, "glove": glove.path, "pilot": str(args.dir), "surface": surface.to_json()})
+    if args.out:
+        Path(args.out).write_text(json.dumps(_clean(fit), indent=1) + "\n")
+    if args.json:
+        print(json.dumps(_clean(fit)))
+    else:
+        print(summary_text(fit))
+        if args.out:
+            print(f"fit: {args.out}; next: touch4d study power {study.path} --fit {args.out}")
+    return 0
+
+
+def _sizes(text: str) -> list[int]:
+    import argparse
+
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected sizes such as 4,8,12, got {text!r}") from None
+    if not sizes or min(sizes) < 2:
+        raise argparse.ArgumentTypeError(f"expected sizes of 2 or more participants, got {text!r}")
+    return sorted(set(sizes))
+
+
+def _workers(text: str) -> int:
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+    return value

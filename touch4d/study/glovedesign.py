@@ -1,0 +1,214 @@
+"""A glove designed (`touch4d glove design --motors K --study STUDY -o NEW.yaml`): K actuator places
+among the hand's sample points that maximise the bits one touch tells about the study's stimuli
+(`study transfer`'s measure, averaged over the tasks).
+
+A motor drives its sample point's h (paper eq. 1-3; h depends on every sample, not on the motors),
+so a layout's patterns are columns of the every-sample glove's patterns: the examples are computed
+once, with their noise, and a layout is scored by the held-out information transfer of the
+observer's classifier on its columns (`infotransfer.held_out_confusion`). The search: greedy
+forward selection (add the place that raises the bits most), then swaps (replace a chosen place by
+another while that raises them) until no swap helps or `rounds` passes are done. Every layout (the
+designed, random ones of K as the baseline, the glove's own) is then scored on a second, independent
+set of examples, so the search's own luck does not flatter the design. Layouts fan out on Dask.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from touch4d.errors import ConfigError
+from touch4d.tactile import Glove
+
+from .design import Study
+from .fanout import Cluster, fan_out, seed_of
+from .infotransfer import held_out_confusion, information_transfer
+from .observer import every_sample_glove, touch_examples
+from .plan import stimuli_of
+
+DESIGN = "glove-design"
+
+
+@dataclass
+class Examples:
+    """Per task the noisy patterns of every sample (rows, samples), each row's stimulus, the held-out
+    rows, and the number of stimuli: what a layout is scored on."""
+
+    tasks: dict
+
+    @property
+    def samples(self) -> int:
+        return next(iter(self.tasks.values()))[0].shape[1]
+
+
+def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scenes: int = 8, positions: int = 8,
+             seed: int = 0, purpose: str = "search") -> Examples:
+    """The every-sample glove's noisy patterns of each task's stimuli, half the scenes held out;
+    `purpose` ("search" or "check") draws independent sets for choosing a layout and scoring it."""
+    every = every_sample_glove(glove)
+    out = {}
+    for task_id in tasks:
+        task = study.task(task_id)
+        rng = np.random.default_rng(seed_of(study, f"{DESIGN}-{purpose}", task_id, 0, seed))
+        x, k, groups = touch_examples(every, study, task, rng, scenes=scenes, positions=positions)
+        out[task_id] = (x + rng.normal(0.0, noise, x.shape), k, groups % 2 == 1, len(stimuli_of(task)))
+    return Examples(out)
+
+
+def sample_regions(glove: Glove) -> dict[str, list[int]]:
+    """The sample points of each region of the hand: `palm` (the palm's side, z < 0), `back` (z > 0),
+    and each finger by name (its capsule, outside the palm)."""
+    samples = glove.samples
+    palm = glove.hand.in_palm(samples)
+    regions = {"palm": np.flatnonzero(palm & (samples[:, 2] < 0)).tolist(),
+               "back": np.flatnonzero(palm & (samples[:, 2] > 0)).tolist()}
+    for finger in glove.hand.fingers:
+        axis = finger.tip - finger.base
+        t = np.clip((samples - finger.base) @ axis / (axis @ axis), 0.0, 1.0)
+        near = np.sum((samples - (finger.base + t[:, None] * axis)) ** 2, axis=1) <= (finger.radius + 1e-9) ** 2
+        regions[finger.name] = np.flatnonzero(near & ~palm).tolist()
+    return regions
+
+
+def candidates_in(glove: Glove, regions: list[str] | None) -> list[int]:
+    """The sample indices of `regions` (all samples if None); an unknown region is a ConfigError."""
+    if not regions:
+        return list(range(len(glove.samples)))
+    known = sample_regions(glove)
+    unknown = [r for r in regions if r not in known]
+    if unknown:
+        raise ConfigError("command line", "--regions", f"regions of the hand: {', '.join(known)}", got=unknown[0])
+    return sorted({i for r in regions for i in known[r]})
+
+
+def layout_bits(data: Examples, places) -> dict:
+    """Bits per task (and their mean) of a layout: motors at the sample indices `places`."""
+    columns = np.asarray(list(places), dtype=int)
+    bits = {task: information_transfer(held_out_confusion(x[:, columns], k, test, n))
+            for task, (x, k, test, n) in data.tasks.items()}
+    return {"bits": bits, "mean_bits": float(np.mean(list(bits.values())))}
+
+
+def greedy_layout(data: Examples, motors: int, *, candidates=None, rounds: int = 2) -> list[int]:
+    """Greedy forward selection of `motors` places, then swaps (see the module docstring)."""
+    pool = list(range(data.samples) if candidates is None else candidates)
+    if motors > len(pool):
+        raise ConfigError("command line", "--motors", f"at most {len(pool)} motors (the places to choose from)",
+                          got=motors)
+
+    def score(places):
+        return layout_bits(data, places)["mean_bits"]
+
+    chosen: list[int] = []
+    for _ in range(motors):
+        best = max((c for c in pool if c not in chosen), key=lambda c: score(chosen + [c]))
+        chosen.append(best)
+    current = score(chosen)
+    for _ in range(rounds):
+        improved = False
+        for i in range(len(chosen)):
+            for c in pool:
+                if c in chosen:
+                    continue
+                trial = chosen[:i] + [c] + chosen[i + 1:]
+                value = score(trial)
+                if value > current + 1e-12:
+                    chosen, current, improved = trial, value, True
+        if not improved:
+            break
+    return chosen
+
+
+def _design_job(shared, kind: str, motors: int, draw: int, seed: int) -> dict:
+    search, check, candidates, rounds = shared
+    if kind == "designed":
+        places = greedy_layout(search, motors, candidates=candidates, rounds=rounds)
+    else:
+        rng = np.random.default_rng(seed)
+        places = sorted(int(p) for p in rng.choice(candidates, motors, replace=False))
+    return {"places": [int(p) for p in places], **layout_bits(check, places)}
+
+
+def design_gloves(glove: Glove, study: Study, sizes: list[int], *, tasks: list[str] | None = None,
+                  noise: float, random_layouts: int = 10, rounds: int = 2, scenes: int = 8, positions: int = 8,
+                  seed: int = 0, candidates=None, cluster: Cluster = Cluster(), cache=None,
+                  progress: bool = True) -> dict:
+    """Designed layouts of each size in `sizes`, `random_layouts` random ones of each, and the glove's
+    own layout, scored alike (bits per task and their mean)."""
+    tasks = tasks or [t.id for t in study.tasks]
+    pool = list(range(len(glove.samples))) if candidates is None else list(candidates)
+    too_many = [k for k in sizes if k > len(pool)]
+    if too_many:
+        raise ConfigError("command line", "--motors", f"at most {len(pool)} motors (the glove's sample points "
+                          "to place them at, in the regions chosen)", got=too_many[0])
+    settings = {"noise": noise, "scenes": scenes, "positions": positions, "seed": seed}
+    search = examples(glove, study, tasks, purpose="search", **settings)
+    check = examples(glove, study, tasks, purpose="check", **settings)     # scores: not the data searched
+    jobs = {f"designed-{k}": ("designed", k, 0, 0) for k in sizes}
+    jobs.update({f"random-{k}-{r}": ("random", k, r, seed_of(study, DESIGN, f"random-{k}", r, seed))
+                 for k in sizes for r in range(random_layouts)})
+    done = fan_out(_design_job, jobs, shared=(search, check, pool, rounds), cluster=cluster, cache=cache,
+                   label="layouts", progress=progress)
+    own = sorted(set(int(s) for s in glove.motor_sample))
+    result = {"study": study.name, "tasks": tasks, "noise": noise, "glove": glove.path,
+              "own": {"motors": len(glove.motor_names), "places": own, **layout_bits(check, own)}, "sizes": {}}
+    for k in sizes:
+        randoms = [done[f"random-{k}-{r}"]["mean_bits"] for r in range(random_layouts)]
+        result["sizes"][k] = {"designed": done[f"designed-{k}"],
+                              "random_mean_bits": float(np.mean(randoms)) if randoms else None,
+                              "random_sd_bits": float(np.std(randoms, ddof=1)) if len(randoms) > 1 else None,
+                              "random_best_bits": float(np.max(randoms)) if randoms else None}
+    return result
+
+
+def glove_file_of(base_path, glove: Glove, places: list[int]) -> dict:
+    """The glove file (as a mapping) of `base_path` with its motors at the sample points `places`:
+    motor k on board 1 + k // 8, channel k % 8, and as many 8-channel boards as that takes."""
+    import yaml
+
+    data = yaml.safe_load(Path(base_path).read_text())
+    data["motors"] = [{"name": f"m{k + 1:02d}-sample-{p}", "position": [round(float(c), 6) for c in glove.samples[p]],
+                       "board": 1 + k // 8, "channel": k % 8} for k, p in enumerate(places)]
+    can = dict(data.get("can") or {})
+    can["boards"] = [{"id": b + 1, "channels": 8} for b in range((len(places) + 7) // 8)]
+    data["can"] = can
+    return data
+
+
+def write_glove(path, base_path, glove: Glove, places: list[int]) -> tuple[Path, Path]:
+    """Write the designed glove file and its DBC (same name, .dbc); both are checked by loading them."""
+    import yaml
+
+    from touch4d.boards.config import load_glove_can
+    from touch4d.boards.dbc import dbc_text
+    from touch4d.tactile import load_glove
+
+    path = Path(path)
+    header = (f"# A glove designed by touch4d glove design: {len(places)} motors at sample points of the hand\n"
+              f"# of {base_path}. Its CAN frames: {path.with_suffix('.dbc').name} (touch4d glove dbc).\n")
+    path.write_text(header + yaml.safe_dump(glove_file_of(base_path, glove, places), sort_keys=False,
+                                                default_flow_style=None))
+    load_glove(path)
+    dbc = path.with_suffix(".dbc")
+    dbc.write_bytes(dbc_text(load_glove_can(path)).encode())
+    return path, dbc
+
+
+def summary_text(result: dict) -> str:
+    own = result["own"]
+    lines = [f"{result['study']}: bits per touch, mean over tasks {', '.join(result['tasks'])} (noise "
+             f"{result['noise']:.3g}); the glove's own {own['motors']} motors: {own['mean_bits']:.3f}",
+             f"{'motors':>6} {'designed':>9} {'random (mean +- sd, best)':>28}  per task (designed)"]
+    for k, size in result["sizes"].items():
+        sd = size["random_sd_bits"]
+        random = "-" if size["random_mean_bits"] is None else (
+            f"{size['random_mean_bits']:.3f}" + (f" +- {sd:.3f}" if sd is not None else "")
+            + f", {size['random_best_bits']:.3f}")
+        tasks = " ".join(f"{t} {b:.2f}" for t, b in size["designed"]["bits"].items())
+        lines.append(f"{k:>6} {size['designed']['mean_bits']:>9.3f} {random:>28}  {tasks}")
+    return "\n".join(lines)
+
+
+__all__ = ["Examples", "examples", "sample_regions", "candidates_in", "layout_bits", "greedy_layout", "design_gloves",
+           "glove_file_of", "write_glove", "summary_text"]
