@@ -108,7 +108,7 @@ class StudyServer:
         self._logged: set[str] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
-        self._invites_mtime = None
+        self._tokens: dict[str, str] | None = None    # OUT/invites.json as last adopted
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
         self._load_invites()
 
@@ -120,17 +120,23 @@ class StudyServer:
         return f"http://{self.host}:{self.port}"
 
     def _load_invites(self) -> None:
-        """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs)."""
+        """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
+        revoked there ends its holder's cookies and stops its stack. A file that cannot be read as
+        links keeps the links adopted before (logged once)."""
         try:
-            mtime = self.invites.path.stat().st_mtime_ns
-        except FileNotFoundError:
-            mtime = None
-        if mtime == self._invites_mtime:
+            tokens = self.invites.load()
+        except ValueError as exc:
+            self._log_once("invites", f"{exc}; keeping the links read before")
             return
-        self._invites_mtime = mtime
-        tokens = self.invites.load()
+        if tokens == self._tokens:
+            return
+        self._tokens = tokens
         for holder in set(self.access.holders()) - set(tokens):
             self.access.revoke(holder)
+            p = self.participants.get(holder)
+            if p is not None and p.running:
+                log.info("%s: link revoked; its stack stops", holder)
+                self._stop_stack(p, "left")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
                 self.access.issue(holder, token=token)
@@ -315,6 +321,7 @@ class StudyServer:
                                                  f"{session_dir(self.out, p.id) / 'serve.log'}\n")
         if p.state == "starting":
             p.state = "running"
+            self._await_page(p)
         raise web.HTTPSeeOther("/")
 
     async def _proxy_http(self, request: web.Request, p: Participant) -> web.StreamResponse:
@@ -379,6 +386,12 @@ class StudyServer:
             await ws.close()
             self._page_closed(p)
         return ws
+
+    def _await_page(self, p: Participant) -> None:
+        """A stack just started: if no page of its participant connects within `leave_after_s`, they
+        have left (a place is not held forever by a join whose page never came)."""
+        if p.pages == 0 and p.leave is None:
+            p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
 
     def _page_opened(self, p: Participant) -> None:
         p.pages += 1
@@ -467,8 +480,7 @@ class StudyServer:
             self.command(p.id, "pause", "the experimenter")
         elif action == "revoke":
             self.invites.revoke(p.id)
-            self._load_invites()
-            self._stop_stack(p, "left")
+            self._load_invites()       # ends its cookies, stops its stack
             log.info("%s: link revoked by the experimenter", p.id)
         raise web.HTTPSeeOther("/experimenter")
 
@@ -499,13 +511,22 @@ class StudyServer:
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants; "
               f"data in {self.out}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
+        watch = asyncio.ensure_future(self._watch_invites())
         try:
             await self._stopping.wait()
         finally:
+            watch.cancel()
             for p in self.participants.values():
                 self._stop_stack(p, p.state)
             await self.client.close()
             await runner.cleanup()
+
+    async def _watch_invites(self, period_s: float = 1.0) -> None:
+        """A link revoked with `touch4d study invite --revoke` stops its stack within `period_s`,
+        whether or not anyone makes a request."""
+        while True:
+            await asyncio.sleep(period_s)
+            self._load_invites()
 
     def run(self) -> int:
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:

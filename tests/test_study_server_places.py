@@ -1,0 +1,120 @@
+"""The study server's places, in process (a real `sleep` process stands as a participant's stack, so
+no stack needs starting): a link revoked with `touch4d study invite --revoke` stops its stack with no
+request made, a join whose page never connects gives its place back, and an unreadable invites.json
+keeps the links read before instead of failing every request."""
+from __future__ import annotations
+
+import asyncio
+import subprocess
+
+import aiohttp
+import pytest
+
+from touch4d.cli import main as cli_main
+from touch4d.study.design import load_study
+from touch4d.web.invites import Invites
+from touch4d.web.studyserver import Participant, StudyServer
+
+pytestmark = pytest.mark.timeout(60)
+
+STUDY = "config/studies/paper.yaml"
+
+
+def _server(out, **kw) -> StudyServer:
+    return StudyServer(load_study(STUDY), STUDY, out, port=0, **kw)
+
+
+def _stack(server: StudyServer, participant: str) -> Participant:
+    """A running participant whose stack is a real process (its own process group, as a stack's)."""
+    p = server.participants[participant]
+    p.proc = subprocess.Popen(["sleep", "60"], start_new_session=True)
+    p.state = "running"
+    return p
+
+
+async def _until(predicate, timeout: float) -> bool:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not predicate():
+        if loop.time() > deadline:
+            return False
+        await asyncio.sleep(0.05)
+    return True
+
+
+def _serving(server: StudyServer, body) -> None:
+    """Run `body(server)` (a coroutine function) while the server serves; stop it after."""
+    async def main():
+        serve = asyncio.ensure_future(server._serve())
+        try:
+            assert await _until(lambda: server._stopping is not None and hasattr(server, "client"), 10)
+            await asyncio.sleep(0.2)
+            await body(server)
+        finally:
+            server._stopping.set()
+            await serve
+    asyncio.run(main())
+
+
+def _reap(p: Participant, proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+
+
+def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(tmp_path):
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    p = _stack(server, "P01")
+    proc = p.proc
+    try:
+        async def body(server):
+            assert cli_main(["study", "invite", str(tmp_path), "P01", "--revoke"]) == 0
+            assert await _until(lambda: proc.poll() is not None, 10), "the revoked participant's stack still runs"
+            assert p.state == "left" and server.running() == 0
+        _serving(server, body)
+    finally:
+        _reap(p, proc)
+
+
+def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
+    server = _server(tmp_path, leave_after_s=0.3)
+    Invites(tmp_path).issue("P01")
+    Invites(tmp_path).issue("P02")
+    server._load_invites()
+    gone, stays = _stack(server, "P01"), _stack(server, "P02")
+    procs = [gone.proc, stays.proc]
+    try:
+        async def body(server):
+            server._await_page(gone)
+            server._await_page(stays)
+            server._page_opened(stays)          # P02's page came
+            assert await _until(lambda: procs[0].poll() is not None, 10), "a join without a page holds its place"
+            assert gone.state == "left" and server.counts["left"] == 1
+            await asyncio.sleep(0.5)
+            assert procs[1].poll() is None and stays.state == "running"
+        _serving(server, body)
+    finally:
+        _reap(gone, procs[0])
+        _reap(stays, procs[1])
+
+
+def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
+    server = _server(tmp_path)
+    token = Invites(tmp_path).issue("P01")
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200 and "id=join" in await response.text()
+            (tmp_path / "invites.json").write_text("{not json")
+            async with page.get(f"{url}/") as response:
+                assert response.status == 200 and "id=join" in await response.text()
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200
+            async with aiohttp.ClientSession() as stranger:
+                async with stranger.get(f"{url}/?participant=P01&token=AAAAAAAAAAAAAAAAAAAAAA") as response:
+                    assert response.status == 403
+    _serving(server, body)
