@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import subprocess
+import threading
 
 import aiohttp
 import pytest
@@ -118,3 +119,38 @@ def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
                 async with stranger.get(f"{url}/?participant=P01&token=AAAAAAAAAAAAAAAAAAAAAA") as response:
                     assert response.status == 403
     _serving(server, body)
+
+
+def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
+    """A pause from the experimenter's page needs its way back: the participant's page has no resume."""
+    from touch4d.bus import Node
+    from touch4d.bus.testing import collect, wait_until
+    from touch4d.messages import StudyCommand
+
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    server._start_bus(tmp_path)
+    probe = Node("probe", bus=server.node.bus)        # the participants' broker
+    heard = collect(probe, "P01/study/command", StudyCommand)
+    try:
+        async def body(server):
+            url = f"http://127.0.0.1:{server.port}"
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+                async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
+                    page = await response.text()
+                    assert response.status == 200 and "action=/experimenter/resume" in page
+                for action in ("pause", "resume"):
+                    await asyncio.sleep(0.3)      # the probe's subscription settles
+                    async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"}) as response:
+                        assert response.status == 200
+                    await asyncio.to_thread(wait_until, lambda: any(m.command == action for m in heard), 10)
+        spinning = threading.Thread(target=probe.spin, daemon=True)
+        spinning.start()
+        _serving(server, body)
+        assert [m.command for m in heard] == ["pause", "resume"]
+    finally:
+        probe.request_shutdown()
+        server.node.request_shutdown()
+        server._bus_thread.join(5)
+        server.broker.stop()

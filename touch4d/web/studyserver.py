@@ -13,7 +13,8 @@ resuming at the first trial without a row (a server killed and started again on 
 resumes everyone the same way). More running participants than `max_participants`: a page that
 says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once. A
 participant id in the link that is not its token's: 403. The experimenter's link opens
-/experimenter: every participant's state, trial, last message heard; pause, or revoke a link.
+/experimenter: every participant's state, trial, last message heard; pause or resume their
+trial, or revoke a link.
 """
 from __future__ import annotations
 
@@ -50,6 +51,7 @@ log = logging.getLogger("study-serve")
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
+ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
 
@@ -443,14 +445,13 @@ class StudyServer:
         if request.query.get("format") == "json":
             return web.json_response({"participants": self.status(), "counts": self.counts,
                                       "running": self.running(), "max_participants": self.max_participants})
+        buttons = lambda who: "".join(  # noqa: E731
+            f"<form method=post action=/experimenter/{action}><input type=hidden name=participant "
+            f"value='{html.escape(who, quote=True)}'><button>{action}</button></form>" for action in ACTIONS)
         rows = "".join(
             f"<tr><td>{html.escape(s['participant'])}</td><td>{s['state']}</td>"
             f"<td>{'' if s['trial'] is None else s['trial']} of {'' if s['of'] is None else s['of']}</td>"
-            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>"
-            f"<form method=post action=/experimenter/pause><input type=hidden name=participant "
-            f"value='{html.escape(s['participant'], quote=True)}'><button>pause</button></form>"
-            f"<form method=post action=/experimenter/revoke><input type=hidden name=participant "
-            f"value='{html.escape(s['participant'], quote=True)}'><button>revoke</button></form></td></tr>"
+            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>{buttons(s['participant'])}</td></tr>"
             for s in self.status())
         return web.Response(content_type="text/html", text=(
             f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(self.study.name)}: participants"
@@ -476,8 +477,8 @@ class StudyServer:
         p = self.participants.get(participant)
         if p is None:
             raise web.HTTPNotFound(text="touch4d: no such participant\n")
-        if action == "pause":
-            self.command(p.id, "pause", "the experimenter")
+        if action in ("pause", "resume"):
+            self.command(p.id, action, "the experimenter")
         elif action == "revoke":
             self.invites.revoke(p.id)
             self._load_invites()       # ends its cookies, stops its stack
@@ -500,7 +501,7 @@ class StudyServer:
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/static/{path:.*}", self._static)
         app.router.add_get("/experimenter", self._experimenter)
-        app.router.add_post("/experimenter/{action:pause|revoke|invite}", self._experimenter_action)
+        app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
         self.client = aiohttp.ClientSession()
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
