@@ -154,3 +154,33 @@ def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
         server.node.request_shutdown()
         server._bus_thread.join(5)
         server.broker.stop()
+
+
+def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
+    """Re-inviting a participant (a leaked or lost link) cuts off the old link's browsers and stack."""
+    server = _server(tmp_path)
+    old = Invites(tmp_path).issue("P01")
+    server._load_invites()
+    p = _stack(server, "P01")
+    proc = p.proc
+    try:
+        async def body(server):
+            url = f"http://127.0.0.1:{server.port}"
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as leaked:
+                async with leaked.get(f"{url}/?participant=P01&token={old}") as response:
+                    assert response.status in (200, 502)          # in (its stack is no page server here)
+                assert cli_main(["study", "invite", str(tmp_path), "P01", "--no-qr",
+                                 "--public-url", url]) == 0
+                async with leaked.get(f"{url}/") as response:
+                    assert response.status == 403, "the old link's cookie still opens the page"
+                assert await _until(lambda: proc.poll() is not None, 10), "the old link's stack still runs"
+            new = Invites(tmp_path).load()["P01"]
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+                async with page.get(f"{url}/?participant=P01&token={new}") as response:
+                    assert response.status == 200 and "id=join" in await response.text()
+            async with aiohttp.ClientSession() as stranger:
+                async with stranger.get(f"{url}/?participant=P01&token={old}") as response:
+                    assert response.status == 403
+        _serving(server, body)
+    finally:
+        _reap(p, proc)

@@ -123,7 +123,7 @@ class StudyServer:
 
     def _load_invites(self) -> None:
         """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
-        revoked there ends its holder's cookies and stops its stack. A file that cannot be read as
+        revoked or replaced there ends its holder's cookies and stops its stack. A file that cannot be read as
         links keeps the links adopted before (logged once)."""
         try:
             tokens = self.invites.load()
@@ -132,12 +132,15 @@ class StudyServer:
             return
         if tokens == self._tokens:
             return
-        self._tokens = tokens
-        for holder in set(self.access.holders()) - set(tokens):
+        before, self._tokens = self._tokens or {}, tokens
+        # A link revoked, or replaced by a new one (a leaked link is cut off with what it opened).
+        ended = set(self.access.holders()) - set(tokens)
+        ended |= {h for h, token in tokens.items() if before.get(h, token) != token}
+        for holder in ended:
             self.access.revoke(holder)
             p = self.participants.get(holder)
             if p is not None and p.running:
-                log.info("%s: link revoked; its stack stops", holder)
+                log.info("%s: link revoked or replaced; its stack stops", holder)
                 self._stop_stack(p, "left")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
