@@ -184,3 +184,27 @@ def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
         _serving(server, body)
     finally:
         _reap(p, proc)
+
+
+@pytest.mark.timeout(240)
+def test_a_stack_that_cannot_start_tells_the_participant_without_the_servers_paths(tmp_path, caplog):
+    """The page faces the internet: where the server keeps its files is the experimenter's to read."""
+    server = _server(tmp_path, overrides=["study.no_such_parameter:=1"])     # the launch refuses it
+    token = Invites(tmp_path).issue("P01")
+    server._load_invites()
+    server.tmp = tmp_path
+    server.bus_file = tmp_path / "bus.yaml"
+    server.bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 1, sub_port: 2}\nconnect: 127.0.0.1\n")
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200
+            async with page.post(f"{url}/join", timeout=aiohttp.ClientTimeout(total=200)) as response:
+                text = await response.text()
+                assert response.status == 500 and "could not start" in text
+                assert str(tmp_path) not in text and "serve.log" not in text
+    _serving(server, body)
+    assert str(tmp_path / "P01" / "serve.log") in caplog.text         # the experimenter's log says where
+    assert server.running() == 0

@@ -322,8 +322,10 @@ class StudyServer:
             log.info("%s joined: starting its stack (namespace %s, page port %d)", p.id, p.id, p.port)
         if not await self._wait_ready(p):
             self._stop_stack(p, "left")
-            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; see "
-                                                 f"{session_dir(self.out, p.id) / 'serve.log'}\n")
+            # the log's path is the experimenter's: this page faces the internet
+            log.warning("%s: its stack did not start; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
+            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; please tell "
+                                                 "the experimenter\n")
         if p.state == "starting":
             p.state = "running"
             self._await_page(p)
