@@ -80,7 +80,7 @@ def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(
 
 
 def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
-    server = _server(tmp_path, leave_after_s=0.3)
+    server = _server(tmp_path, leave_after_s=0.1, page_grace_s=0.3)
     Invites(tmp_path).issue("P01")
     Invites(tmp_path).issue("P02")
     server._load_invites()

@@ -50,6 +50,7 @@ log = logging.getLogger("study-serve")
 
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
+PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
@@ -93,11 +94,13 @@ class StudyServer:
 
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
-                 quick: bool = False, secure: bool | None = None, overrides: list[str] = ()):
+                 quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
+                 page_grace_s: float = PAGE_GRACE_S):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
+        self.page_grace_s = page_grace_s
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
@@ -395,10 +398,11 @@ class StudyServer:
         return ws
 
     def _await_page(self, p: Participant) -> None:
-        """A stack just started: if no page of its participant connects within `leave_after_s`, they
-        have left (a place is not held forever by a join whose page never came)."""
+        """A stack just started: if no page of its participant connects within `leave_after_s` (at
+        least `page_grace_s`, for a page loading on a slow headset), they have left (a place is not
+        held forever by a join whose page never came)."""
         if p.pages == 0 and p.leave is None:
-            p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
+            p.leave = self._loop.call_later(max(self.leave_after_s, self.page_grace_s), self._left, p)
 
     def _page_opened(self, p: Participant) -> None:
         p.pages += 1
