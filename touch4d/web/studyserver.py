@@ -10,8 +10,10 @@ page is today's page and the second page on a link is refused by today's rule. W
 of a participant closes, their trial pauses (`study/command` pause); the page back within
 `leave_after_s` resumes it, else the stack stops and the link's next opening starts it again,
 resuming at the first trial without a row (a server killed and started again on the same OUT
-resumes everyone the same way). More running participants than `max_participants`: a page that
-says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once. A
+resumes everyone the same way; a join whose page never connects stops so too, after `page_grace_s` at
+least). More running participants than `max_participants`: a page that
+says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once; a link
+revoked or replaced in OUT/invites.json ends its cookies and stops its stack. A
 participant id in the link that is not its token's: 403. The experimenter's link opens
 /experimenter: every participant's state, trial, last message heard; pause or resume their
 trial, or revoke a link.
