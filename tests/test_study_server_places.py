@@ -208,3 +208,21 @@ def test_a_stack_that_cannot_start_tells_the_participant_without_the_servers_pat
     _serving(server, body)
     assert str(tmp_path / "P01" / "serve.log") in caplog.text         # the experimenter's log says where
     assert server.running() == 0
+
+
+def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
+    """A row cut short by a crash is run again, so it is not done; a cell may hold a line break."""
+    from touch4d.study.store import TrialsFile
+    from touch4d.study.table import COLUMNS
+
+    trials = TrialsFile(tmp_path / "P01" / "trials.csv")
+    for index in range(3):
+        trials.write({c: "" for c in COLUMNS} | {"index": index, "response": "left\nthen right"})
+    trials.close()
+    with open(tmp_path / "P01" / "trials.csv", "a") as f:
+        f.write("P01,1,0,4,3")                                  # the fourth row, cut short
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    assert "3 trials are done" in server._welcome(server.participants["P01"])
+    assert len(TrialsFile(tmp_path / "P01" / "trials.csv").done) == 3     # the study node agrees

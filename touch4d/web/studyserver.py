@@ -44,6 +44,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
 from touch4d.study.session import session_dir, session_overrides
+from touch4d.study.store import rows_written
 
 from .access import HOLDER, Access, CookieGate
 from .invites import EXPERIMENTER, Invites, check_participant
@@ -306,12 +307,7 @@ class StudyServer:
                 f"<form method=post action=/join><button id=join type=submit>{go}</button></form></body></html>")
 
     def _rows(self, participant: str) -> int:
-        path = session_dir(self.out, participant) / "trials.csv"
-        try:
-            with open(path) as f:
-                return max(0, sum(1 for _ in f) - 1)
-        except OSError:
-            return 0
+        return rows_written(session_dir(self.out, participant))
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
