@@ -57,7 +57,7 @@ def _serving(server: StudyServer, body) -> None:
     asyncio.run(main())
 
 
-def _reap(p: Participant, proc: subprocess.Popen) -> None:
+def _reap(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.kill()
     proc.wait()
@@ -76,7 +76,7 @@ def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(
             assert p.state == "left" and server.running() == 0
         _serving(server, body)
     finally:
-        _reap(p, proc)
+        _reap(proc)
 
 
 def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
@@ -97,8 +97,8 @@ def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
             assert procs[1].poll() is None and stays.state == "running"
         _serving(server, body)
     finally:
-        _reap(gone, procs[0])
-        _reap(stays, procs[1])
+        _reap(procs[0])
+        _reap(procs[1])
 
 
 def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
@@ -183,7 +183,7 @@ def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
                     assert response.status == 403
         _serving(server, body)
     finally:
-        _reap(p, proc)
+        _reap(proc)
 
 
 @pytest.mark.timeout(240)
