@@ -2,7 +2,8 @@
 browser by a link, many at once, each in a namespace of their own on one bus.
 
 A link is `URL/?participant=P07&token=...` (`invites.Invites`, kept in OUT/invites.json). Opening
-it shows the study's consent and instructions; Join starts that participant's stack
+it shows the study's consent and instructions (and takes the token out of the address bar: the
+cookie carries on); Join starts that participant's stack
 (launch/study-serve.yaml under the namespace P07: the WebXR page's node, scene, tactile, study,
 recorder, writing OUT/P07/ as `touch4d study run` does) and the page comes through this server:
 every request and the WebSocket of the participant's cookie go to their node on loopback, so the
@@ -304,7 +305,9 @@ class StudyServer:
                 f"<h1>{html.escape(study.description or study.name)}</h1>"
                 + (f"<p>Welcome back: {rows} trials are done, the next one follows.</p>" if rows else "")
                 + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
-                f"<form method=post action=/join><button id=join type=submit>{go}</button></form></body></html>")
+                f"<form method=post action=/join><button id=join type=submit>{go}</button></form>"
+                # the link's token out of the address bar and the history (the cookie carries on)
+                "<script>history.replaceState(null, '', '/')</script></body></html>")
 
     def _rows(self, participant: str) -> int:
         return rows_written(session_dir(self.out, participant))
