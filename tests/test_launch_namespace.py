@@ -207,3 +207,24 @@ def test_two_launches_on_one_broker_each_in_its_namespace(tmp_path):
         assert len(set(seqs)) == len(seqs), f"{ns}: the listener heard another stack"
     assert {"A/example/pose", "B/example/pose", "A/example/relay", "B/example/relay"} <= set(everything)
     assert not {"example/pose", "example/relay"} & set(everything)
+
+
+def test_a_namespaced_recording_holds_its_own_stacks_heartbeats_only(tmp_path):
+    """Heartbeats share one global topic: a participant's log keeps its own nodes' beats (and nested
+    namespaces'), never another participant's (their ids and stats are not this participant's data)."""
+    log = tmp_path / "p07.mcap"
+    with running_broker() as bus:
+        recorder = Recorder(bus, log, namespace="P07", realtime=False)
+        recorder.start()
+        nodes = [Node("tracker", bus=bus, namespace=ns) for ns in ("P070", "P08", None, "P07", "P07/sub")]
+        try:
+            spin_until(nodes, lambda: recorder.received >= 2, timeout=20)   # each node beats once at start
+            for _ in range(40):                                            # the others' beats arrive too
+                for node in nodes:
+                    node.spin_once(0.005)
+        finally:
+            for node in nodes:
+                node.shutdown()
+        recorder.stop()
+    beats = [m.decode()["node"] for m in LogReader(log).messages({"node/heartbeat"})]
+    assert set(beats) == {"P07/tracker", "P07/sub/tracker"}

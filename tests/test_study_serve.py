@@ -122,7 +122,7 @@ def test_links_consent_and_refusals(tmp_path, capsys):
 
 
 def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tmp_path, capsys):
-    with serve(tmp_path, "--max-participants", "1", "--leave-after", "1") as served:
+    with serve(tmp_path, "--max-participants", "1", "--leave-after", "600") as served:   # no page opens here
         p1, p2 = Browser(), Browser()
         assert p1.get(invite(served, "P01", capsys=capsys))[0] == 200
         assert p2.get(invite(served, "P02", capsys=capsys))[0] == 200
@@ -161,24 +161,32 @@ def _processes_with(text: str) -> list[int]:
     return found
 
 
+def _starts(out: Path) -> int:
+    """How often P01's study node started its session (manifest.json; 0 before it is written)."""
+    try:
+        return len(json.loads((out / "P01" / "manifest.json").read_text())["starts"])
+    except FileNotFoundError:
+        return 0
+
+
 def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_resumes(tmp_path, capsys):
-    with serve(tmp_path) as served:
+    with serve(tmp_path, "--leave-after", "600") as served:          # no page opens here
         link = invite(served, "P01", capsys=capsys)
         page = Browser()
         page.get(link)
         assert page.get(f"{served.url}/join", data=b"")[0] == 200
         assert _processes_with(f"{served.out}/P01")                    # its nodes run
+        wait_until(lambda: _starts(served.out) >= 1, timeout=90)       # its session began
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
         served.proc.wait()
         wait_until(lambda: not _processes_with(f"{served.out}/P01"), timeout=30)
-    with serve(tmp_path) as again:
+    with serve(tmp_path, "--leave-after", "600") as again:
         page = Browser()
         status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
         assert status == 200 and "id=join" in text
         assert page.get(f"{again.url}/join", data=b"")[0] == 200
         # the study node started a second time on the same session (it resumes at the first trial without a row)
-        wait_until(lambda: len(json.loads((again.out / "P01" / "manifest.json").read_text())["starts"]) >= 2,
-                   timeout=60)
+        wait_until(lambda: _starts(again.out) >= 2, timeout=90)
 
 
 def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experimenter(tmp_path, capsys):

@@ -90,3 +90,17 @@ def test_join_touch_leave_resume_and_a_second_participant(tmp_path, capsys):
             refused_page.context.close()
         for opened in (other, page, third):
             opened.context.close()
+
+
+def test_the_welcome_page_takes_the_token_out_of_the_address_bar(tmp_path, capsys):
+    """What the browser keeps in its history or shows over a shoulder holds no secret; the cookie
+    carries the participant on (a reload still shows their welcome)."""
+    with serve(tmp_path) as served, chromium() as browser:
+        link = invite(served, "P01", capsys=capsys)
+        page = browser.new_context(**context_options(320, 180)).new_page()
+        response = page.goto(link)
+        assert response.status == 200 and page.locator("#join").count() == 1
+        page.wait_for_function("!location.search")
+        assert "token" not in page.url and page.url == f"{served.url}/"
+        assert page.reload().status == 200 and page.locator("#join").count() == 1
+        page.context.close()

@@ -1,6 +1,8 @@
 """The view and the slice as the scene node changes them: scene/command view and slice, the controller's
 buttons (the desktop's m, k, j keys), and the scene/state they publish."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -71,6 +73,27 @@ def test_the_thumbstick_pushed_forward_and_back_moves_the_slice():
     ctl = control()
     c = ctl.scene.slice_w
     ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, held)
+    assert ctl.scene.slice_w == pytest.approx(c + SLICE_STEP)
+    ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, ["thumbstick-down"])
+    assert ctl.scene.slice_w == pytest.approx(c)
+
+
+@pytest.mark.parametrize("launch", ["launch/study.yaml", "launch/study-serve.yaml"])
+def test_in_a_study_the_participant_moves_the_slice_and_no_answer_changes_the_scene(launch):
+    """A slice condition's solid is explored by moving c (what the model observers do); answering
+    never turns, selects or re-views the planned stimulus."""
+    from touch4d.bus.launchfile import load_launch
+    from touch4d.web.bridge import ANSWER_BUTTONS
+
+    params = load_launch(Path(__file__).resolve().parents[1] / launch)["scene"].params
+    ctl = control(buttons=params["buttons"], rotate=params["rotate"])
+    ctl.command("view", "slice")
+    view, c, revision = ctl.scene.view, ctl.scene.slice_w, ctl.scene.revision
+    for button in (*ANSWER_BUTTONS, "menu", "grip", "trackpad"):
+        ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, [button])
+        ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, [])
+    assert (ctl.scene.view, ctl.scene.slice_w, ctl.scene.revision) == (view, c, revision)
+    ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, ["thumbstick-up"])
     assert ctl.scene.slice_w == pytest.approx(c + SLICE_STEP)
     ctl.on_controller(np.zeros(3), np.array([0, 0, 0, 1.0]), 0.0, ["thumbstick-down"])
     assert ctl.scene.slice_w == pytest.approx(c)

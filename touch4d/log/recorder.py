@@ -22,6 +22,7 @@ from touch4d.bus.config import BusConfig
 from touch4d.bus.realtime import raise_thread_priority
 from touch4d.bus.transport import INTERNAL_PREFIX, bus_context
 from touch4d.errors import Touch4dError
+from touch4d.messages.codec import CodecError, unpack
 
 from .writer import LogWriter, WallClock
 
@@ -29,6 +30,9 @@ from .writer import LogWriter, WallClock
 def _wanted(topic: bytes, wanted: set[bytes]) -> bool:
     """Exact topics asked for (a subscription matches by prefix), or every topic but the bus's own."""
     return topic in wanted if wanted else not topic.startswith(INTERNAL_PREFIX)
+
+
+HEARTBEAT = b"node/heartbeat"
 
 
 def _size(n: int) -> str:
@@ -139,7 +143,7 @@ class Recorder:
         early: list[tuple[str, bytes, int]] = []
 
         def keep(frames: list[bytes]) -> None:
-            if _wanted(frames[0], self._wanted):
+            if self._keeps(frames):
                 early.append((self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", self._clock()))
 
         pub = transport.publisher(self._context, self.bus)
@@ -164,15 +168,29 @@ class Recorder:
             self._received.set()
 
     def _drain(self, sock: zmq.Socket) -> None:
-        wanted, append, clock, known = self._wanted, self._queue.append, self._clock, self._names
+        keeps, append, clock, known = self._keeps, self._queue.append, self._clock, self._names
         while True:
             try:
                 frames = sock.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 return
-            if _wanted(frames[0], wanted):
+            if keeps(frames):
                 append((known.get(frames[0]) or self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", clock()))
                 self.received += 1
+
+    def _keeps(self, frames: list[bytes]) -> bool:
+        """Whether a message is this recording's: a topic wanted; in a namespace, of the one global
+        heartbeat topic only its own stack's beats (another participant's nodes stay out of this
+        participant's log). A beat that cannot be read is kept."""
+        if not _wanted(frames[0], self._wanted):
+            return False
+        if not self.namespace or frames[0] != HEARTBEAT:
+            return True
+        try:
+            node = unpack(frames[-1])["node"]
+        except (CodecError, KeyError, TypeError, IndexError):
+            return True
+        return not isinstance(node, str) or f"{names.namespace_of(node)}/".startswith(f"{self.namespace}/")
 
     def _everything(self) -> list[bytes]:
         """The subscriptions of a recording of every topic (of its namespace, and the global ones)."""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from touch4d.errors import ConfigError, Touch4dError
 
-from .table import ARRIVAL_COLUMNS, COLUMNS, _cell
+from .table import ARRIVAL_COLUMNS, COLUMNS, TRIALS, _cell
 
 # A session begun before the arrival columns existed resumes in its own columns (read back empty).
 LEGACY_COLUMNS = tuple(c for c in COLUMNS if c not in ARRIVAL_COLUMNS)
@@ -34,6 +34,21 @@ def session_dir(out, participant: str) -> Path:
 
 
 # ---- trials.csv -------------------------------------------------------------------------------------
+
+
+def _complete(data: bytes) -> bytes:
+    """trials.csv's bytes up to its last whole line (a row cut short by a crash was not written)."""
+    return data if data.endswith(b"\n") else data[:data.rfind(b"\n") + 1]
+
+
+def rows_written(directory) -> int:
+    """How many trials of a session folder have their row, read only (a server showing progress while
+    the study node writes): its trials.csv's whole rows, 0 without one."""
+    try:
+        data = _complete((Path(directory) / TRIALS).read_bytes())
+    except OSError:
+        return 0
+    return sum(1 for _ in csv.DictReader(io.StringIO(data.decode(errors="replace"))))
 
 
 class TrialsFile:
@@ -60,13 +75,12 @@ class TrialsFile:
 
     def _read(self) -> None:
         data = self.path.read_bytes()
-        if not data.endswith(b"\n"):   # a row cut short by a crash: not written, so not done
-            cut = data.rfind(b"\n") + 1
+        if _complete(data) != data:   # a row cut short by a crash: not written, so not done
+            data = _complete(data)
             with open(self.path, "r+b") as f:
-                f.truncate(cut)
+                f.truncate(len(data))
                 f.flush()
                 os.fsync(f.fileno())
-            data = data[:cut]
             if not data:            # the header itself was cut short: start the file again
                 self._create()
                 return

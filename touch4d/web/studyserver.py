@@ -2,7 +2,8 @@
 browser by a link, many at once, each in a namespace of their own on one bus.
 
 A link is `URL/?participant=P07&token=...` (`invites.Invites`, kept in OUT/invites.json). Opening
-it shows the study's consent and instructions; Join starts that participant's stack
+it shows the study's consent and instructions (and takes the token out of the address bar: the
+cookie carries on); Join starts that participant's stack
 (launch/study-serve.yaml under the namespace P07: the WebXR page's node, scene, tactile, study,
 recorder, writing OUT/P07/ as `touch4d study run` does) and the page comes through this server:
 every request and the WebSocket of the participant's cookie go to their node on loopback, so the
@@ -10,10 +11,13 @@ page is today's page and the second page on a link is refused by today's rule. W
 of a participant closes, their trial pauses (`study/command` pause); the page back within
 `leave_after_s` resumes it, else the stack stops and the link's next opening starts it again,
 resuming at the first trial without a row (a server killed and started again on the same OUT
-resumes everyone the same way). More running participants than `max_participants`: a page that
-says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once. A
+resumes everyone the same way; a join whose page never connects stops so too, after `page_grace_s` at
+least). More running participants than `max_participants`: a page that
+says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once; a link
+revoked or replaced in OUT/invites.json ends its cookies and stops its stack. A
 participant id in the link that is not its token's: 403. The experimenter's link opens
-/experimenter: every participant's state, trial, last message heard; pause, or revoke a link.
+/experimenter: every participant's state, trial, last message heard; pause or resume their
+trial, or revoke a link.
 """
 from __future__ import annotations
 
@@ -41,6 +45,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
 from touch4d.study.session import session_dir, session_overrides
+from touch4d.study.store import rows_written
 
 from .access import HOLDER, Access, CookieGate
 from .invites import EXPERIMENTER, Invites, check_participant
@@ -49,7 +54,9 @@ log = logging.getLogger("study-serve")
 
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
+PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
+ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
 
@@ -91,11 +98,13 @@ class StudyServer:
 
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
-                 quick: bool = False, secure: bool | None = None, overrides: list[str] = ()):
+                 quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
+                 page_grace_s: float = PAGE_GRACE_S):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
+        self.page_grace_s = page_grace_s
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
@@ -108,7 +117,7 @@ class StudyServer:
         self._logged: set[str] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
-        self._invites_mtime = None
+        self._tokens: dict[str, str] | None = None    # OUT/invites.json as last adopted
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
         self._load_invites()
 
@@ -120,17 +129,26 @@ class StudyServer:
         return f"http://{self.host}:{self.port}"
 
     def _load_invites(self) -> None:
-        """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs)."""
+        """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
+        revoked or replaced there ends its holder's cookies and stops its stack. A file that cannot be read as
+        links keeps the links adopted before (logged once)."""
         try:
-            mtime = self.invites.path.stat().st_mtime_ns
-        except FileNotFoundError:
-            mtime = None
-        if mtime == self._invites_mtime:
+            tokens = self.invites.load()
+        except ValueError as exc:
+            self._log_once("invites", f"{exc}; keeping the links read before")
             return
-        self._invites_mtime = mtime
-        tokens = self.invites.load()
-        for holder in set(self.access.holders()) - set(tokens):
+        if tokens == self._tokens:
+            return
+        before, self._tokens = self._tokens or {}, tokens
+        # A link revoked, or replaced by a new one (a leaked link is cut off with what it opened).
+        ended = set(self.access.holders()) - set(tokens)
+        ended |= {h for h, token in tokens.items() if before.get(h, token) != token}
+        for holder in ended:
             self.access.revoke(holder)
+            p = self.participants.get(holder)
+            if p is not None and p.running:
+                log.info("%s: link revoked or replaced; its stack stops", holder)
+                self._stop_stack(p, "left")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
                 self.access.issue(holder, token=token)
@@ -287,15 +305,12 @@ class StudyServer:
                 f"<h1>{html.escape(study.description or study.name)}</h1>"
                 + (f"<p>Welcome back: {rows} trials are done, the next one follows.</p>" if rows else "")
                 + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
-                f"<form method=post action=/join><button id=join type=submit>{go}</button></form></body></html>")
+                f"<form method=post action=/join><button id=join type=submit>{go}</button></form>"
+                # the link's token out of the address bar and the history (the cookie carries on)
+                "<script>history.replaceState(null, '', '/')</script></body></html>")
 
     def _rows(self, participant: str) -> int:
-        path = session_dir(self.out, participant) / "trials.csv"
-        try:
-            with open(path) as f:
-                return max(0, sum(1 for _ in f) - 1)
-        except OSError:
-            return 0
+        return rows_written(session_dir(self.out, participant))
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
@@ -311,10 +326,13 @@ class StudyServer:
             log.info("%s joined: starting its stack (namespace %s, page port %d)", p.id, p.id, p.port)
         if not await self._wait_ready(p):
             self._stop_stack(p, "left")
-            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; see "
-                                                 f"{session_dir(self.out, p.id) / 'serve.log'}\n")
+            # the log's path is the experimenter's: this page faces the internet
+            log.warning("%s: its stack did not start; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
+            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; please tell "
+                                                 "the experimenter\n")
         if p.state == "starting":
             p.state = "running"
+            self._await_page(p)
         raise web.HTTPSeeOther("/")
 
     async def _proxy_http(self, request: web.Request, p: Participant) -> web.StreamResponse:
@@ -380,6 +398,13 @@ class StudyServer:
             self._page_closed(p)
         return ws
 
+    def _await_page(self, p: Participant) -> None:
+        """A stack just started: if no page of its participant connects within `leave_after_s` (at
+        least `page_grace_s`, for a page loading on a slow headset), they have left (a place is not
+        held forever by a join whose page never came)."""
+        if p.pages == 0 and p.leave is None:
+            p.leave = self._loop.call_later(max(self.leave_after_s, self.page_grace_s), self._left, p)
+
     def _page_opened(self, p: Participant) -> None:
         p.pages += 1
         p.last_heard = time.time()
@@ -430,14 +455,13 @@ class StudyServer:
         if request.query.get("format") == "json":
             return web.json_response({"participants": self.status(), "counts": self.counts,
                                       "running": self.running(), "max_participants": self.max_participants})
+        buttons = lambda who: "".join(  # noqa: E731
+            f"<form method=post action=/experimenter/{action}><input type=hidden name=participant "
+            f"value='{html.escape(who, quote=True)}'><button>{action}</button></form>" for action in ACTIONS)
         rows = "".join(
             f"<tr><td>{html.escape(s['participant'])}</td><td>{s['state']}</td>"
             f"<td>{'' if s['trial'] is None else s['trial']} of {'' if s['of'] is None else s['of']}</td>"
-            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>"
-            f"<form method=post action=/experimenter/pause><input type=hidden name=participant "
-            f"value='{html.escape(s['participant'], quote=True)}'><button>pause</button></form>"
-            f"<form method=post action=/experimenter/revoke><input type=hidden name=participant "
-            f"value='{html.escape(s['participant'], quote=True)}'><button>revoke</button></form></td></tr>"
+            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>{buttons(s['participant'])}</td></tr>"
             for s in self.status())
         return web.Response(content_type="text/html", text=(
             f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(self.study.name)}: participants"
@@ -463,12 +487,11 @@ class StudyServer:
         p = self.participants.get(participant)
         if p is None:
             raise web.HTTPNotFound(text="touch4d: no such participant\n")
-        if action == "pause":
-            self.command(p.id, "pause", "the experimenter")
+        if action in ("pause", "resume"):
+            self.command(p.id, action, "the experimenter")
         elif action == "revoke":
             self.invites.revoke(p.id)
-            self._load_invites()
-            self._stop_stack(p, "left")
+            self._load_invites()       # ends its cookies, stops its stack
             log.info("%s: link revoked by the experimenter", p.id)
         raise web.HTTPSeeOther("/experimenter")
 
@@ -488,7 +511,7 @@ class StudyServer:
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/static/{path:.*}", self._static)
         app.router.add_get("/experimenter", self._experimenter)
-        app.router.add_post("/experimenter/{action:pause|revoke|invite}", self._experimenter_action)
+        app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
         self.client = aiohttp.ClientSession()
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
@@ -499,13 +522,22 @@ class StudyServer:
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants; "
               f"data in {self.out}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
+        watch = asyncio.ensure_future(self._watch_invites())
         try:
             await self._stopping.wait()
         finally:
+            watch.cancel()
             for p in self.participants.values():
                 self._stop_stack(p, p.state)
             await self.client.close()
             await runner.cleanup()
+
+    async def _watch_invites(self, period_s: float = 1.0) -> None:
+        """A link revoked with `touch4d study invite --revoke` stops its stack within `period_s`,
+        whether or not anyone makes a request."""
+        while True:
+            await asyncio.sleep(period_s)
+            self._load_invites()
 
     def run(self) -> int:
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:

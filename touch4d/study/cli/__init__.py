@@ -92,7 +92,8 @@ def register(subparsers) -> None:
 
     invite = sub.add_parser("invite", help="a participant's link to a served study (a new token each time)",
                             description="Prints the link (and a QR code) for participant ID of the study "
-                                        "served with --out DIR; a second invite replaces the first link.")
+                                        "served with --out DIR; a second invite replaces the first link (the browsers "
+                                        "it opened are refused and its stack stops).")
     invite.add_argument("dir", metavar="DIR", help="the --out folder of `touch4d study serve`")
     invite.add_argument("participant", metavar="ID", help="participant id, e.g. P07")
     invite.add_argument("--public-url", metavar="URL", help="the server's address (default: the one it last served)")

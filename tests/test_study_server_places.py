@@ -1,0 +1,228 @@
+"""The study server's places, in process (a real `sleep` process stands as a participant's stack, so
+no stack needs starting): a link revoked with `touch4d study invite --revoke` stops its stack with no
+request made, a join whose page never connects gives its place back, and an unreadable invites.json
+keeps the links read before instead of failing every request."""
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import threading
+
+import aiohttp
+import pytest
+
+from touch4d.cli import main as cli_main
+from touch4d.study.design import load_study
+from touch4d.web.invites import Invites
+from touch4d.web.studyserver import Participant, StudyServer
+
+pytestmark = pytest.mark.timeout(60)
+
+STUDY = "config/studies/paper.yaml"
+
+
+def _server(out, **kw) -> StudyServer:
+    return StudyServer(load_study(STUDY), STUDY, out, port=0, **kw)
+
+
+def _stack(server: StudyServer, participant: str) -> Participant:
+    """A running participant whose stack is a real process (its own process group, as a stack's)."""
+    p = server.participants[participant]
+    p.proc = subprocess.Popen(["sleep", "60"], start_new_session=True)
+    p.state = "running"
+    return p
+
+
+async def _until(predicate, timeout: float) -> bool:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not predicate():
+        if loop.time() > deadline:
+            return False
+        await asyncio.sleep(0.05)
+    return True
+
+
+def _serving(server: StudyServer, body) -> None:
+    """Run `body(server)` (a coroutine function) while the server serves; stop it after."""
+    async def main():
+        serve = asyncio.ensure_future(server._serve())
+        try:
+            assert await _until(lambda: server._stopping is not None and hasattr(server, "client"), 10)
+            await asyncio.sleep(0.2)
+            await body(server)
+        finally:
+            server._stopping.set()
+            await serve
+    asyncio.run(main())
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+
+
+def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(tmp_path):
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    p = _stack(server, "P01")
+    proc = p.proc
+    try:
+        async def body(server):
+            assert cli_main(["study", "invite", str(tmp_path), "P01", "--revoke"]) == 0
+            assert await _until(lambda: proc.poll() is not None, 10), "the revoked participant's stack still runs"
+            assert p.state == "left" and server.running() == 0
+        _serving(server, body)
+    finally:
+        _reap(proc)
+
+
+def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
+    server = _server(tmp_path, leave_after_s=0.1, page_grace_s=0.3)
+    Invites(tmp_path).issue("P01")
+    Invites(tmp_path).issue("P02")
+    server._load_invites()
+    gone, stays = _stack(server, "P01"), _stack(server, "P02")
+    procs = [gone.proc, stays.proc]
+    try:
+        async def body(server):
+            server._await_page(gone)
+            server._await_page(stays)
+            server._page_opened(stays)          # P02's page came
+            assert await _until(lambda: procs[0].poll() is not None, 10), "a join without a page holds its place"
+            assert gone.state == "left" and server.counts["left"] == 1
+            await asyncio.sleep(0.5)
+            assert procs[1].poll() is None and stays.state == "running"
+        _serving(server, body)
+    finally:
+        _reap(procs[0])
+        _reap(procs[1])
+
+
+def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
+    server = _server(tmp_path)
+    token = Invites(tmp_path).issue("P01")
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200 and "id=join" in await response.text()
+            (tmp_path / "invites.json").write_text("{not json")
+            async with page.get(f"{url}/") as response:
+                assert response.status == 200 and "id=join" in await response.text()
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200
+            async with aiohttp.ClientSession() as stranger:
+                async with stranger.get(f"{url}/?participant=P01&token=AAAAAAAAAAAAAAAAAAAAAA") as response:
+                    assert response.status == 403
+    _serving(server, body)
+
+
+def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
+    """A pause from the experimenter's page needs its way back: the participant's page has no resume."""
+    from touch4d.bus import Node
+    from touch4d.bus.testing import collect, wait_until
+    from touch4d.messages import StudyCommand
+
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    server._start_bus(tmp_path)
+    probe = Node("probe", bus=server.node.bus)        # the participants' broker
+    heard = collect(probe, "P01/study/command", StudyCommand)
+    try:
+        async def body(server):
+            url = f"http://127.0.0.1:{server.port}"
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+                async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
+                    page = await response.text()
+                    assert response.status == 200 and "action=/experimenter/resume" in page
+                for action in ("pause", "resume"):
+                    await asyncio.sleep(0.3)      # the probe's subscription settles
+                    async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"}) as response:
+                        assert response.status == 200
+                    await asyncio.to_thread(wait_until, lambda: any(m.command == action for m in heard), 10)
+        spinning = threading.Thread(target=probe.spin, daemon=True)
+        spinning.start()
+        _serving(server, body)
+        assert [m.command for m in heard] == ["pause", "resume"]
+    finally:
+        probe.request_shutdown()
+        server.node.request_shutdown()
+        server._bus_thread.join(5)
+        server.broker.stop()
+
+
+def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
+    """Re-inviting a participant (a leaked or lost link) cuts off the old link's browsers and stack."""
+    server = _server(tmp_path)
+    old = Invites(tmp_path).issue("P01")
+    server._load_invites()
+    p = _stack(server, "P01")
+    proc = p.proc
+    try:
+        async def body(server):
+            url = f"http://127.0.0.1:{server.port}"
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as leaked:
+                async with leaked.get(f"{url}/?participant=P01&token={old}") as response:
+                    assert response.status in (200, 502)          # in (its stack is no page server here)
+                assert cli_main(["study", "invite", str(tmp_path), "P01", "--no-qr",
+                                 "--public-url", url]) == 0
+                async with leaked.get(f"{url}/") as response:
+                    assert response.status == 403, "the old link's cookie still opens the page"
+                assert await _until(lambda: proc.poll() is not None, 10), "the old link's stack still runs"
+            new = Invites(tmp_path).load()["P01"]
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+                async with page.get(f"{url}/?participant=P01&token={new}") as response:
+                    assert response.status == 200 and "id=join" in await response.text()
+            async with aiohttp.ClientSession() as stranger:
+                async with stranger.get(f"{url}/?participant=P01&token={old}") as response:
+                    assert response.status == 403
+        _serving(server, body)
+    finally:
+        _reap(proc)
+
+
+@pytest.mark.timeout(240)
+def test_a_stack_that_cannot_start_tells_the_participant_without_the_servers_paths(tmp_path, caplog):
+    """The page faces the internet: where the server keeps its files is the experimenter's to read."""
+    server = _server(tmp_path, overrides=["study.no_such_parameter:=1"])     # the launch refuses it
+    token = Invites(tmp_path).issue("P01")
+    server._load_invites()
+    server.tmp = tmp_path
+    server.bus_file = tmp_path / "bus.yaml"
+    server.bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 1, sub_port: 2}\nconnect: 127.0.0.1\n")
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+            async with page.get(f"{url}/?participant=P01&token={token}") as response:
+                assert response.status == 200
+            async with page.post(f"{url}/join", timeout=aiohttp.ClientTimeout(total=200)) as response:
+                text = await response.text()
+                assert response.status == 500 and "could not start" in text
+                assert str(tmp_path) not in text and "serve.log" not in text
+    _serving(server, body)
+    assert str(tmp_path / "P01" / "serve.log") in caplog.text         # the experimenter's log says where
+    assert server.running() == 0
+
+
+def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
+    """A row cut short by a crash is run again, so it is not done; a cell may hold a line break."""
+    from touch4d.study.store import TrialsFile
+    from touch4d.study.table import COLUMNS
+
+    trials = TrialsFile(tmp_path / "P01" / "trials.csv")
+    for index in range(3):
+        trials.write({c: "" for c in COLUMNS} | {"index": index, "response": "left\nthen right"})
+    trials.close()
+    with open(tmp_path / "P01" / "trials.csv", "a") as f:
+        f.write("P01,1,0,4,3")                                  # the fourth row, cut short
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    assert "3 trials are done" in server._welcome(server.participants["P01"])
+    assert len(TrialsFile(tmp_path / "P01" / "trials.csv").done) == 3     # the study node agrees
