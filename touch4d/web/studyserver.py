@@ -44,6 +44,7 @@ from touch4d.study.session import session_dir, session_overrides
 
 from .access import HOLDER, Access, CookieGate
 from .invites import EXPERIMENTER, Invites, check_participant
+from .wiretrace import WireTrace
 
 log = logging.getLogger("study-serve")
 
@@ -91,11 +92,14 @@ class StudyServer:
 
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
-                 quick: bool = False, secure: bool | None = None, overrides: list[str] = ()):
+                 quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
+                 wire_trace: Path | None = None):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
+        self.wire_trace = wire_trace
+        self._trace: WireTrace | None = None
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
@@ -354,10 +358,14 @@ class StudyServer:
         await ws.prepare(request)
         self._page_opened(p)
 
+        trace = self._trace
+
         async def up():
             async for msg in ws:
                 p.last_heard = time.time()
                 if msg.type == WSMsgType.TEXT:
+                    if trace is not None:
+                        trace.page_in(p.id, msg.data)
                     await upstream.send_str(msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     await upstream.send_bytes(msg.data)
@@ -366,6 +374,8 @@ class StudyServer:
             async for msg in upstream:
                 if msg.type == WSMsgType.BINARY:
                     await ws.send_bytes(msg.data)
+                    if trace is not None:
+                        trace.frame_out(p.id, msg.data)
                 elif msg.type == WSMsgType.TEXT:
                     await ws.send_str(msg.data)
 
@@ -490,6 +500,8 @@ class StudyServer:
         app.router.add_get("/experimenter", self._experimenter)
         app.router.add_post("/experimenter/{action:pause|revoke|invite}", self._experimenter_action)
         self.client = aiohttp.ClientSession()
+        if self.wire_trace is not None:
+            self._trace = WireTrace(self.wire_trace)
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
         site = web.TCPSite(runner, self.host, self.port)
@@ -506,6 +518,8 @@ class StudyServer:
                 self._stop_stack(p, p.state)
             await self.client.close()
             await runner.cleanup()
+            if self._trace is not None:
+                self._trace.close()
 
     def run(self) -> int:
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
