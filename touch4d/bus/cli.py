@@ -113,16 +113,15 @@ def _launch_names() -> list[str]:
 
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
-    from touch4d.bus.launchfile import load_launch
-    from touch4d.bus.preflight import check_launch
+    from touch4d.bus.preflight import load_checked
 
     files = [i for i in args.items if ":=" not in i]
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
-    nodes = load_launch(path, overrides, namespace=args.namespace)
-    check_launch(nodes)   # every file found and every port free before any node starts
+    # every node's parameters valid, every file found and every port free before any node starts
+    nodes = load_checked(path, overrides, namespace=args.namespace)
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
                     ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
