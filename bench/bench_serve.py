@@ -1,8 +1,9 @@
 """How many participants one study server holds: simulated participants play pages over the same
 WebSocket protocol as the WebXR page, each at 72 Hz, and the bench measures per participant the
-CPU and memory of their stack, and pose -> pulse: from the input message that moves the controller
-into (or out of) the object leaving the participant's socket to the first frame whose `haptic`
-(the controller's intensity) follows it arriving back (loopback, so about the server side).
+CPU and memory of their stack (per process: the launcher and each node), and pose -> pulse inside
+the server (its `--wire-trace`, touch4d.web.wiretrace): from the input message that moves the
+controller into (or out of) the object reaching the server to the first frame whose `haptic` (the
+controller's intensity) follows it leaving the server; and the same seen by the simulated page.
 
 Each participant: a link (`touch4d study invite`), Join, then its socket; its controller goes in and
 out of the hypercube's front cell every 300 ms. The stacks run without their study node
@@ -15,7 +16,7 @@ netem). Baseline, in the same run: one participant.
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials]
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials] [--figure PNG]
 """
 from __future__ import annotations
 
