@@ -188,9 +188,10 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 # ---- a simulated participant ----------------------------------------------------------------------------
 
 
-async def participant(base: str, link: str, seconds: float, latencies: list, lost: list, answered: list,
-                      moves: list, pid: str) -> None:
-    """Join by `link` (through `base`), then play a page: inputs at 72 Hz, the controller in and out."""
+async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
+                      answered: list, moves: list, pid: str) -> None:
+    """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
+    in and out."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -227,9 +228,10 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
                         latencies.append(time.monotonic() - since)
                         state["since"] = None
             reader = asyncio.ensure_future(read())
+            joined.append(pid)
             t0 = time.monotonic()
             inside, next_toggle, k = False, t0 + 2.0, 0     # 2 s to settle before the first move
-            while time.monotonic() - t0 < seconds + 2.0:
+            while not stop.is_set():
                 now = time.monotonic()
                 if now >= next_toggle:
                     if state["since"] is not None:
@@ -263,28 +265,37 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost, answered, moves = [], [], [], []
+            latencies, lost, answered, moves, joined = [], [], [], [], []
+            stop = asyncio.Event()
             t_start = time.monotonic()
-            tasks = [asyncio.ensure_future(participant(target, link, seconds, latencies, lost, answered, moves,
+            tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
                                                        f"S{k:02d}"))
                      for k, link in enumerate(links)]
-            # CPU over the measured stretch: every process of the server's tree (the stacks included)
-            await asyncio.sleep(5.0 + 2.0 * n)           # joins and stacks starting
+            # CPU and memory over the measured stretch, once every participant plays: every process of
+            # the server's tree (the stacks included)
+            while len(joined) < n:
+                if any(t.done() for t in tasks):
+                    await asyncio.gather(*tasks)          # a join failed: its error
+                await asyncio.sleep(0.2)
+            await asyncio.sleep(2.0)
             pids = descendants(proc.pid)
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
             roles = {p: role(p) for p in stacks}
             by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
             c0, w0, s0 = cpu(pids), time.monotonic(), cpu([proc.pid])
             rows0 = count_rows(out)
+            await asyncio.sleep(seconds)
+            c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            by_role1 = {r: cpu([p for p in stacks if roles[p] == r]) for r in by_role0}
+            rows1 = count_rows(out)
             pss = {p: pss_mb(p) for p in stacks}
             memory = sum(pss.values())
             server_mb = pss_mb(proc.pid)
+            stop.set()
             await asyncio.gather(*tasks)
-            c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
-            by_role = {r: ((cpu([p for p in stacks if roles[p] == r]) - by_role0[r]) / (w1 - w0) / n,
+            by_role = {r: ((by_role1[r] - by_role0[r]) / (w1 - w0) / n,
                            sum(pss[p] for p in stacks if roles[p] == r) / n,
                            sum(1 for p in stacks if roles[p] == r) / n) for r in by_role0}
-            rows1 = count_rows(out)
             await asyncio.sleep(1.0)                                 # the last answers' rows
             rows = count_rows(out)
             lat = np.array(latencies) * 1000
@@ -344,6 +355,7 @@ def main() -> None:
     parser.add_argument("--participants", type=int, nargs="+", default=[1, 4, 8, 16])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--no-delay-round", action="store_true", help="skip the rounds through the 50 ms relay")
+    parser.add_argument("--delay-round-only", action="store_true", help="only the rounds through the 50 ms relay")
     parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
@@ -359,7 +371,7 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
-    for delay in ([0.0] if args.no_delay_round else [0.0, DELAY_S]):
+    for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
         for n in sorted(set([1, *args.participants])):
             r = asyncio.run(run_round(n, args.seconds, delay))
             rows.append(r)
