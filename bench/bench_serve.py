@@ -357,9 +357,14 @@ def main() -> None:
     parser.add_argument("--no-delay-round", action="store_true", help="skip the rounds through the 50 ms relay")
     parser.add_argument("--delay-round-only", action="store_true", help="only the rounds through the 50 ms relay")
     parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
+    parser.add_argument("--json", metavar="FILE", help="write the rounds' figures there")
+    parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
+    if args.plot:
+        figure([r for f in args.plot for r in json.loads(Path(f).read_text())], Path(args.figure))
+        return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")
     if args.trials:
@@ -387,6 +392,8 @@ def main() -> None:
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
     if args.figure:
         figure(rows, Path(args.figure))
         print(f"figure: {args.figure}")
