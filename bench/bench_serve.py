@@ -324,26 +324,31 @@ def figure(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
-    for delay, style in ((0.0, "o-"), (2000 * DELAY_S, "s--")):
-        rs = [r for r in rows if r["delay_ms"] == delay]
-        if not rs:
-            continue
+    groups = sorted({(r.get("label", ""), r["delay_ms"]) for r in rows})
+    for k, (name, delay) in enumerate(groups):
+        rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
         n = [r["n"] for r in rs]
-        label = f"+{delay:.0f} ms round trip" if delay else "loopback"
+        style = ("o-", "s--", "^:", "v-.")[k % 4]
+        label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
         axes[0].plot(n, [r["n"] * r["cpu_per_participant"] + r["server_cpu"] for r in rs], style, label=label)
         axes[1].plot(n, [r["mb_per_participant"] for r in rs], style, label=label)
         axes[2].plot(n, [r["server_p99"] or np.nan for r in rs], style, label=label)
     cores = os.cpu_count()
     axes[0].axhline(cores, color="k", lw=0.8)
-    axes[0].text(1, cores * 1.02, f"{cores} cores: one server ends", fontsize=8)
+    axes[0].text(1, cores * 0.93, f"{cores} cores: one server ends (less: what others use)", fontsize=8)
     axes[0].set(title="CPU, all participants (cores)", xlabel="participants on one server")
     axes[1].axhline(150, color="k", lw=0.8)
-    axes[1].set(title="memory per participant (MB PSS)", xlabel="participants on one server", ylim=(0, None))
+    axes[1].text(1, 153, "target 150 MB", fontsize=8)
+    axes[1].set(title="memory per participant (MB PSS)", xlabel="participants on one server",
+                ylim=(0, 1.2 * max([150] + [r["mb_per_participant"] for r in rows])))
     axes[2].axhline(15, color="k", lw=0.8)
-    axes[2].set(title="pose -> pulse p99 in the server (ms)", xlabel="participants on one server", yscale="log")
+    axes[2].text(1, 16, "target 15 ms", fontsize=8)
+    axes[2].set(title="pose -> pulse p99 in the server (ms)", xlabel="participants on one server", yscale="log",
+                ylim=(1, 3 * max([15] + [r["server_p99"] or 0 for r in rows])))
     for ax in axes:
         ax.set_xscale("log", base=2)
-        ax.legend(fontsize=8)
+        ax.set_xticks(sorted({r["n"] for r in rows}), [str(v) for v in sorted({r["n"] for r in rows})])
+        ax.legend(fontsize=7)
     fig.suptitle(f"bench_serve on a shared {cores}-core machine (load {os.getloadavg()[0]:.0f}); more participants: "
                  "more servers, each its own --out, links split among them", fontsize=9)
     path.parent.mkdir(parents=True, exist_ok=True)
