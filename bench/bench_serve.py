@@ -1,8 +1,9 @@
 """How many participants one study server holds: simulated participants play pages over the same
 WebSocket protocol as the WebXR page, each at 72 Hz, and the bench measures per participant the
-CPU and memory of their stack, and pose -> pulse: from the input message that moves the controller
-into (or out of) the object leaving the participant's socket to the first frame whose `haptic`
-(the controller's intensity) follows it arriving back (loopback, so about the server side).
+CPU and memory of their stack (per process: the launcher and each node), and pose -> pulse inside
+the server (its `--wire-trace`, touch4d.web.wiretrace): from the input message that moves the
+controller into (or out of) the object reaching the server to the first frame whose `haptic` (the
+controller's intensity) follows it leaving the server; and the same seen by the simulated page.
 
 Each participant: a link (`touch4d study invite`), Join, then its socket; its controller goes in and
 out of the hypercube's front cell every 300 ms. The stacks run without their study node
@@ -15,7 +16,7 @@ netem). Baseline, in the same run: one participant.
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials]
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials] [--figure PNG]
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu import cpu_seconds  # noqa: E402
 
 from touch4d.web.protocol import unpack_frame  # noqa: E402
+from touch4d.web.wiretrace import Move, pose_to_pulse  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 STUDY = "config/studies/paper.yaml"
@@ -53,9 +55,10 @@ DELAY_S = 0.025                                      # each way: 50 ms round tri
 # ---- the server and its processes -----------------------------------------------------------------------
 
 
-def start_server(out: Path, participants: int, study: bool = False):
+def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None):
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
+                             *(["--wire-trace", str(trace)] if trace else []),
                              "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
                              "--leave-after", "60", *stack],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -68,6 +71,8 @@ def start_server(out: Path, participants: int, study: bool = False):
 
 
 def stop_server(proc) -> None:
+    if proc.poll() is not None:
+        return
     try:
         os.killpg(proc.pid, signal.SIGINT)
         proc.wait(30)
@@ -112,6 +117,18 @@ def pss_mb(pid: int) -> float:
     except OSError:
         pass
     return 0.0
+
+
+def role(pid: int) -> str:
+    """What a process of the server's tree is: a node's role (its --name), the launcher, or the server."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return "?"
+    argv = [a.decode(errors="replace") for a in argv]
+    if "--name" in argv:
+        return argv[argv.index("--name") + 1]
+    return "launcher" if "launch" in argv else "server"
 
 
 def cpu(pids) -> float:
@@ -171,8 +188,10 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 # ---- a simulated participant ----------------------------------------------------------------------------
 
 
-async def participant(base: str, link: str, seconds: float, latencies: list, lost: list, answered: list) -> None:
-    """Join by `link` (through `base`), then play a page: inputs at 72 Hz, the controller in and out."""
+async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
+                      answered: list, moves: list, pid: str) -> None:
+    """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
+    in and out."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -209,9 +228,10 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
                         latencies.append(time.monotonic() - since)
                         state["since"] = None
             reader = asyncio.ensure_future(read())
+            joined.append(pid)
             t0 = time.monotonic()
             inside, next_toggle, k = False, t0 + 2.0, 0     # 2 s to settle before the first move
-            while time.monotonic() - t0 < seconds + 2.0:
+            while not stop.is_set():
                 now = time.monotonic()
                 if now >= next_toggle:
                     if state["since"] is not None:
@@ -220,7 +240,10 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
                     state["want"], state["since"] = inside, now
                     next_toggle = now + TOGGLE_S
                 grip = INSIDE if inside else OUTSIDE
-                await ws.send_str(json.dumps({"type": "input", "time": time.time() * 1000.0, "tracking": True,
+                stamp = time.time() * 1000.0     # names the input in the server's wire trace
+                if state["since"] == now:
+                    moves.append(Move(pid, stamp, inside))
+                await ws.send_str(json.dumps({"type": "input", "time": stamp, "tracking": True,
                                               "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
                                               "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
                                                            "buttons": [], "joints": None}]}))
@@ -232,7 +255,8 @@ async def participant(base: str, link: str, seconds: float, latencies: list, los
 async def run_round(n: int, seconds: float, delay: float, study: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
-        proc, base = start_server(out, n, study)
+        trace = Path(tmp) / "wire.csv"
+        proc, base = start_server(out, n, study, trace)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -241,25 +265,47 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost, answered = [], [], []
+            latencies, lost, answered, moves, joined = [], [], [], [], []
+            stop = asyncio.Event()
             t_start = time.monotonic()
-            tasks = [asyncio.ensure_future(participant(target, link, seconds, latencies, lost, answered))
-                     for link in links]
-            # CPU over the measured stretch: every process of the server's tree (the stacks included)
-            await asyncio.sleep(5.0 + 2.0 * n)           # joins and stacks starting
+            tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
+                                                       f"S{k:02d}"))
+                     for k, link in enumerate(links)]
+            # CPU and memory over the measured stretch, once every participant plays: every process of
+            # the server's tree (the stacks included)
+            while len(joined) < n:
+                if any(t.done() for t in tasks):
+                    await asyncio.gather(*tasks)          # a join failed: its error
+                await asyncio.sleep(0.2)
+            await asyncio.sleep(2.0)
             pids = descendants(proc.pid)
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
+            roles = {p: role(p) for p in stacks}
+            by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
             c0, w0, s0 = cpu(pids), time.monotonic(), cpu([proc.pid])
             rows0 = count_rows(out)
-            memory = sum(pss_mb(p) for p in stacks)
-            server_mb = pss_mb(proc.pid)
-            await asyncio.gather(*tasks)
+            await asyncio.sleep(seconds)
             c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            by_role1 = {r: cpu([p for p in stacks if roles[p] == r]) for r in by_role0}
             rows1 = count_rows(out)
+            pss = {p: pss_mb(p) for p in stacks}
+            memory = sum(pss.values())
+            server_mb = pss_mb(proc.pid)
+            stop.set()
+            await asyncio.gather(*tasks)
+            by_role = {r: ((by_role1[r] - by_role0[r]) / (w1 - w0) / n,
+                           sum(pss[p] for p in stacks if roles[p] == r) / n,
+                           sum(1 for p in stacks if roles[p] == r) / n) for r in by_role0}
             await asyncio.sleep(1.0)                                 # the last answers' rows
             rows = count_rows(out)
             lat = np.array(latencies) * 1000
+            stop_server(proc)                                         # the trace complete
+            inside, missed = pose_to_pulse(trace, moves)
+            srv = np.array(inside) * 1000
+            pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
             return {"n": n, "delay_ms": 2000 * delay, "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
+                    "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
+                    "server_missed": missed, "by_role": by_role,
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
@@ -271,14 +317,59 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
             stop_server(proc)
 
 
+def figure(rows: list[dict], path: Path) -> None:
+    """CPU of the machine's cores, memory and server-side p99 against N: where one server ends."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
+    groups = sorted({(r.get("label", ""), r["delay_ms"]) for r in rows})
+    for k, (name, delay) in enumerate(groups):
+        rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
+        n = [r["n"] for r in rs]
+        style = ("o-", "s--", "^:", "v-.")[k % 4]
+        label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
+        axes[0].plot(n, [r["n"] * r["cpu_per_participant"] + r["server_cpu"] for r in rs], style, label=label)
+        axes[1].plot(n, [r["mb_per_participant"] for r in rs], style, label=label)
+        axes[2].plot(n, [r["server_p99"] or np.nan for r in rs], style, label=label)
+    cores = os.cpu_count()
+    axes[0].axhline(cores, color="k", lw=0.8)
+    axes[0].text(1, cores * 0.93, f"{cores} cores: one server ends (less: what others use)", fontsize=8)
+    axes[0].set(title="CPU, all participants (cores)", xlabel="participants on one server")
+    axes[1].axhline(150, color="k", lw=0.8)
+    axes[1].text(1, 153, "target 150 MB", fontsize=8)
+    axes[1].set(title="memory per participant (MB PSS)", xlabel="participants on one server",
+                ylim=(0, 1.2 * max([150] + [r["mb_per_participant"] for r in rows])))
+    axes[2].axhline(15, color="k", lw=0.8)
+    axes[2].text(1, 16, "target 15 ms", fontsize=8)
+    axes[2].set(title="pose -> pulse p99 in the server (ms)", xlabel="participants on one server", yscale="log",
+                ylim=(1, 3 * max([15] + [r["server_p99"] or 0 for r in rows])))
+    for ax in axes:
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(sorted({r["n"] for r in rows}), [str(v) for v in sorted({r["n"] for r in rows})])
+        ax.legend(fontsize=7)
+    fig.suptitle(f"bench_serve on a shared {cores}-core machine (load {os.getloadavg()[0]:.0f}); more participants: "
+                 "more servers, each its own --out, links split among them", fontsize=9)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--participants", type=int, nargs="+", default=[1, 4, 8, 16])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--no-delay-round", action="store_true", help="skip the rounds through the 50 ms relay")
+    parser.add_argument("--delay-round-only", action="store_true", help="only the rounds through the 50 ms relay")
+    parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
+    parser.add_argument("--json", metavar="FILE", help="write the rounds' figures there")
+    parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
+    if args.plot:
+        figure([r for f in args.plot for r in json.loads(Path(f).read_text())], Path(args.figure))
+        return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")
     if args.trials:
@@ -290,7 +381,7 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
-    for delay in ([0.0] if args.no_delay_round else [0.0, DELAY_S]):
+    for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
         for n in sorted(set([1, *args.participants])):
             r = asyncio.run(run_round(n, args.seconds, delay))
             rows.append(r)
@@ -298,9 +389,19 @@ def main() -> None:
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
             print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core and "
                   f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "
-                  f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse p50 {fmt(r['p50'])} ms, "
-                  f"p99 {fmt(r['p99'])} ms ({r['moves']} moves, {r['lost']} without a frame in 300 ms); "
-                  f"p99 x{(r['p99'] or 0) / max(base['p99'] or 1e-9, 1e-9):.2f} of N=1", flush=True)
+                  f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse in the server p50 "
+                  f"{fmt(r['server_p50'])} ms, p99 {fmt(r['server_p99'])} ms ({r['server_moves']} moves, "
+                  f"{r['server_missed']} without a following frame; p99 x{(r['server_p99'] or 0) / max(base['server_p99'] or 1e-9, 1e-9):.2f} "
+                  f"of N=1); at the client p50 {fmt(r['p50'])} ms, p99 {fmt(r['p99'])} ms ({r['lost']} of "
+                  f"{r['moves'] + r['lost']} without a frame in 300 ms); load {os.getloadavg()[0]:.1f}", flush=True)
+            print("      per participant: " + ", ".join(
+                f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
+                flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+    if args.figure:
+        figure(rows, Path(args.figure))
+        print(f"figure: {args.figure}")
 
 
 if __name__ == "__main__":

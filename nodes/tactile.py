@@ -45,7 +45,8 @@ class TactileNode(Node):
         self.counts = {"scenes_built": 0, "bad_scenes": 0, "bad_poses": 0}
         alpha = None if p["alpha"] is None else check_alpha(p["alpha"], *self.param_where("alpha"))
         beta = None if p["beta"] is None else check_beta(p["beta"], *self.param_where("beta"))
-        self.engine = TactileEngine(load_glove(p["glove"] or None), alpha=alpha, beta=beta, projection=p["projection"])
+        self.engine = TactileEngine(load_glove(p["glove"] or None), alpha=alpha, beta=beta, projection=p["projection"],
+                                    joints=p["joints"])
         self.hand = HandSource(self.engine, p["joints_timeout_s"], self.counts)
         # in every heartbeat: the counters, and which hand drives (1: the joints, 0: the pose)
         self.add_stats(lambda: {**self.counts, "hand_joints": int(self.hand.using == "joints")})

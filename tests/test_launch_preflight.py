@@ -1,6 +1,9 @@
 """What `touch4d launch` settles before any node starts: every path parameter found once, against
 the file (or the command line) that set it, and handed to the node absolute; ports free."""
+import json
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -8,7 +11,7 @@ import pytest
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus import launcher as launcher_module
 from touch4d.bus.launchfile import load_launch
-from touch4d.bus.preflight import check_launch
+from touch4d.bus.preflight import check_launch, load_checked
 from touch4d.bus.testing import collect, launch_process, wait_until
 from touch4d.cli import main
 from touch4d.errors import ConfigError
@@ -100,3 +103,38 @@ def test_broker_ports_in_use_suggest_other_ports_or_joining_the_running_broker()
     text = str(err.value)
     assert err.value.key == "broker.pub_port" and f"got {running.pub_port}" in text
     assert "--no-broker" in text and "--bus FILE" in text and "pub_port" in text
+
+
+def test_the_launcher_checks_in_a_child_and_imports_no_node_module(tmp_path):
+    """load_checked gives what load_launch and check_launch give in-process, without the node modules
+    (and their libraries) in the launcher's process; an error is the in-process one."""
+    code = (
+        "import json, sys\n"
+        "from touch4d.bus.preflight import load_checked\n"
+        "nodes = load_checked('launch/study-serve.yaml', ['tracker.port:=0'], namespace='P07')\n"
+        "print(json.dumps({'specs': {r: [s.module, s.namespace, s.params] for r, s in nodes.items()},\n"
+        "                  'imported': sorted(m for m in sys.modules if m.startswith('touch4d.nodes.')\n"
+        "                                     or m in ('scipy', 'aiohttp', 'numba'))}, default=str))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=100, check=True)
+    got = json.loads(out.stdout)
+    assert got["imported"] == []
+    nodes = load_launch(REPO / "launch/study-serve.yaml", ["tracker.port:=0"], namespace="P07")
+    check_launch(nodes)
+    expected = {r: [s.module, s.namespace, s.params] for r, s in nodes.items()}
+    assert got["specs"] == json.loads(json.dumps(expected, default=str))
+    with pytest.raises(ConfigError, match="tracker.rate"):
+        load_checked(REPO / "launch/study-serve.yaml", ["tracker.rate:=-1"])
+
+
+def test_the_served_participants_tactile_node_loads_no_finger_kernels():
+    """A held controller has no fingers: the served stack's tactile engine leaves numba unloaded."""
+    code = (
+        "import sys, numpy as np\n"
+        "from touch4d.bus.launchfile import load_launch\n"
+        "from touch4d.tactile.engine import TactileEngine\n"
+        "from touch4d.tactile.glove import load_glove\n"
+        "spec = load_launch('launch/study-serve.yaml')['tactile']\n"
+        "engine = TactileEngine(load_glove(spec.params['glove']), joints=spec.params['joints'])\n"
+        "print('numba' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=100, check=True)
+    assert out.stdout.split() == ["False"]

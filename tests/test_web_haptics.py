@@ -21,6 +21,7 @@ class Rig:
     def __init__(self, glove=CONTROLLER, **config):
         self.t = 1000.0
         self.frames = []
+        self.seen = 0
         self.bridge = WebBridge(BridgeConfig(**config), glove,
                                 load_calibration(REPO / "config/calibration.yaml", "hand_in_grip"), Placement(0.5, 0.3),
                                 publish=lambda topic, msg: None,
@@ -35,10 +36,10 @@ class Rig:
         self.bridge.on_hand_pose(HandPose(position=np.zeros(3), valid=valid))
 
     def haptic(self):
-        """The `haptic` of the frame the next tick sends (None: no frame)."""
-        before = len(self.frames)
+        """The `haptic` of the last frame sent since the last look, the next tick included (None: no frame)."""
         self.bridge.tick()
-        return self.frames[-1]["haptic"] if len(self.frames) > before else None
+        sent, self.seen = self.frames[self.seen:], len(self.frames)
+        return sent[-1]["haptic"] if sent else None
 
 
 def trial(condition, phase="stimulus"):
@@ -62,6 +63,29 @@ def test_the_frame_carries_the_intensity_and_follows_it():
     assert rig.haptic() == 0.25
     rig.motors(0.75)
     assert rig.haptic() == 0.75
+
+
+def test_a_touch_starting_or_ending_is_sent_at_once_a_level_changing_at_the_tick():
+    rig = Rig()
+    rig.hand()
+    rig.haptic()
+    rig.motors(0.5)                                 # the touch starts: its frame without waiting for a tick
+    assert [f["haptic"] for f in rig.frames[rig.seen:]] == [0.5]
+    assert rig.haptic() == 0.5 and rig.haptic() is None
+    rig.motors(0.75)                                # still touching: the next tick carries it
+    assert rig.frames[rig.seen:] == []
+    assert rig.haptic() == 0.75
+    rig.motors(0.0)                                 # the touch ends: at once
+    assert [f["haptic"] for f in rig.frames[rig.seen:]] == [0.0]
+
+
+def test_a_closed_study_gate_sends_no_touch_at_once():
+    rig = Rig(study_gate="closed")
+    rig.hand()
+    rig.haptic()
+    rig.motors(0.5)
+    assert rig.frames[rig.seen:] == []
+    assert rig.haptic() == 0.0
 
 
 def test_an_invalid_hand_gives_0():

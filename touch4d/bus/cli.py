@@ -113,8 +113,7 @@ def _launch_names() -> list[str]:
 
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
-    from touch4d.bus.launchfile import load_launch
-    from touch4d.bus.preflight import check_launch
+    from touch4d.bus.preflight import load_checked
     from touch4d.bus.process import PARENT_PID_ENV, die_with_parent
 
     die_with_parent(PARENT_PID_ENV)   # started by `touch4d study run`: its stack ends with it, even killed outright
@@ -123,8 +122,8 @@ def _launch(args) -> int:
     if len(files) > 1:
         raise ConfigError("command line", "FILE", "one launch file", got=files)
     path = launch_file_path(files[0] if files else DEFAULT_LAUNCH)
-    nodes = load_launch(path, overrides, namespace=args.namespace)
-    check_launch(nodes)   # every file found and every port free before any node starts
+    # every node's parameters valid, every file found and every port free before any node starts
+    nodes = load_checked(path, overrides, namespace=args.namespace)
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
                     ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()

@@ -11,10 +11,13 @@ places looked and a close name. A port parameter (`Param(..., port=True)`) is tr
 from __future__ import annotations
 
 import errno
+import os
+import pickle
 import socket
+import sys
 
 from touch4d.bus import registry
-from touch4d.bus.launchfile import NodeSpec
+from touch4d.bus.launchfile import NodeSpec, load_launch
 from touch4d.configfile import resolve_path
 from touch4d.errors import ConfigError
 
@@ -90,3 +93,36 @@ def check_launch(nodes: dict[str, NodeSpec]) -> None:
     check_ports(nodes)
 
 
+
+
+def load_checked(path, overrides: list[str] = (), namespace: str | None = None) -> dict[str, NodeSpec]:
+    """`load_launch` and `check_launch` in a forked child, the specs back through a pipe: checking
+    the parameters imports every node's module (numpy, scipy, aiohttp: ~70 MB) that the launcher
+    never uses again, once per launch (a study server runs one per participant). A child that
+    fails: the same checks here, so that the error is raised where it is found."""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            os.close(r)
+            with os.fdopen(w, "wb") as out:
+                nodes = load_launch(path, overrides, namespace=namespace)
+                check_launch(nodes)
+                pickle.dump(nodes, out)
+            code = 0
+        except BaseException:  # noqa: BLE001 - the parent checks again and raises it
+            pass
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+    os.close(w)
+    with os.fdopen(r, "rb") as f:
+        data = f.read()
+    _, status = os.waitpid(pid, 0)
+    if os.waitstatus_to_exitcode(status) == 0:
+        return pickle.loads(data)
+    nodes = load_launch(path, overrides, namespace=namespace)
+    check_launch(nodes)
+    return nodes

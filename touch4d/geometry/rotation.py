@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from touch4d.jit import lazy_njit
 from scipy.linalg import expm
 
 AXES = "xyzw"
@@ -49,7 +49,7 @@ def orthonormalize(r: np.ndarray) -> np.ndarray:
     return np.array([_nearest(m) for m in flat]).reshape(r.shape)
 
 
-@njit(cache=True, nogil=True)
+@lazy_njit(cache=True, nogil=True)
 def _nearest(r):
     """The rotation nearest to one 4x4 matrix: U V^T of its SVD, a reflection turned back to +1."""
     u, _, vt = np.linalg.svd(r)
@@ -59,7 +59,7 @@ def _nearest(r):
     return m
 
 
-@njit(cache=True, nogil=True)
+@lazy_njit(cache=True, nogil=True)
 def renormalize(r):
     """The rotation nearest to a near-rotation r (4x4), cheaply: for a running orientation after each update
     (the physics step's, the controller's).

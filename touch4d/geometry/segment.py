@@ -5,10 +5,10 @@ Compiled with numba so the physics step calls it per edge; from Python it costs 
 """
 from __future__ import annotations
 
-from numba import njit
+from touch4d.jit import lazy_njit
 
 
-@njit(cache=True, nogil=True)
+@lazy_njit(cache=True, nogil=True)
 def clip_segment(p0, p1, normals, offsets, tol):
     """(t0, t1): the part p0 + t (p1 - p0), 0 <= t <= 1, inside every half-space n.x <= c + tol; empty
     when t0 > t1. tol > 0 grows the region (a segment lying on a boundary is kept), tol < 0 shrinks

@@ -13,10 +13,12 @@ import math
 import numpy as np
 from numba import njit
 
-from touch4d.geometry.segment import clip_segment
+from touch4d.geometry import segment
 from touch4d.geometry.tolerance import ANGLE, POINT, RELATIVE
 
 from .arrays import Contacts, Parts, Placed
+
+clip_segment = segment.clip_segment.compiled     # called inside the compiled narrow phase
 
 MAX_POINTS = 12                        # contact points kept per pair of convex parts
 MAX_CANDIDATES = 512                   # clipped edge end points examined per pair

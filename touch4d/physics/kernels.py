@@ -18,11 +18,13 @@ import math
 import numpy as np
 from numba import njit
 
-from touch4d.geometry.rotation import renormalize
+from touch4d.geometry import rotation
 
 from .arrays import Bodies, Contacts, Motion, Options, Parts, Rows, Velocities
 from .bivector import PA, PB, compound_into, exp_into, turn_into, wedge_into
 from .collide import collide, place_parts
+
+renormalize = rotation.renormalize.compiled     # called inside the compiled step
 
 cache = dict(cache=True, nogil=True)
 

@@ -24,15 +24,17 @@ class TactileEngine:
     """Scene in, poses in, `tactile/field` and `tactile/motors` messages out.
 
     `projection`: "scene" follows the scene's projection; "orthographic" / "perspective" force one
-    (perspective uses the scene's eye distance).
+    (perspective uses the scene's eye distance). `joints`: False for a hand without fingers (a held
+    controller): the articulated hand's compiled kernels are then not loaded up front.
     """
 
     def __init__(self, glove: Glove, alpha: float | None = None, beta: float | None = None,
-                 projection: str = "scene"):
+                 projection: str = "scene", joints: bool = True):
         if projection not in PROJECTION_CHOICES:
             raise ValueError(f"projection: expected one of {', '.join(PROJECTION_CHOICES)}, got {projection!r}")
         self.glove = glove.with_constants(alpha=alpha, beta=beta)
-        self.glove.skeleton.warm_up()        # the articulated hand ready before the loop, not at its first joints
+        if joints:   # the articulated hand ready before the loop, not at its first joints (numba: ~60 MB)
+            self.glove.skeleton.warm_up()
         self.projection = projection
         self.caster = None
         self.scene_key: tuple | None = None   # (scene_digest, projection) of the adopted scene

@@ -31,7 +31,6 @@ from touch4d.messages import HandJoints
 from touch4d.glovefile import Bones
 from touch4d.hands import WEBXR_JOINTS as JOINTS, HandShape
 
-from . import bone_kernels
 from .bones import fractions as bone_fractions
 from .hand import FINGER_NAMES, Hand
 
@@ -282,7 +281,7 @@ class Skeleton:
                               f"got {p.shape} and {q.shape}")
         base, end = (self.bone_joint, self.bone_end) if index is None else (index[self.bone_joint], index[self.bone_end])
         m = np.empty((len(base), 3, 4))
-        if not bone_kernels.bone_maps(p, q, base, end, self._inv_rest2, quaternion.QUADRATIC_FORM, _N2_LOW, _N2_HIGH,
+        if not _kernels().bone_maps(p, q, base, end, self._inv_rest2, quaternion.QUADRATIC_FORM, _N2_LOW, _N2_HIGH,
                                       handedness != self.handedness, units_per_metre / self.units_per_metre, m):
             self._explain(p[base], p[end], q[base], np.sqrt(np.einsum("ij,ij->i", q[base], q[base])))
         return m
@@ -311,8 +310,15 @@ class Skeleton:
         through its own bone's map."""
         local, bone = self._placing[which]
         out = np.empty_like(local)
-        bone_kernels.place_points(m, local, bone, out)
+        _kernels().place_points(m, local, bone, out)
         return out
+
+
+def _kernels():
+    """touch4d.tactile.bone_kernels, imported at the first joint set: numba and LLVM cost a process
+    some 100 MB, which the nodes that only hold a glove (a page's node, the study node) never need."""
+    from . import bone_kernels
+    return bone_kernels
 
 
 def _outline_pairs() -> np.ndarray:

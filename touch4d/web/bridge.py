@@ -265,6 +265,10 @@ class WebBridge:
             self._intensity = msg.intensity.astype(np.float32)
             self._motors_at = self.now()
             self._dirty = True
+            if (self.haptic(self._motors_at) > 0.0) != (self._haptic > 0.0):
+                # a touch starts or ends: its frame now, not up to a tick later (at most as often as
+                # tactile/motors, the hand's rate; a level that only changes waits for the tick)
+                self.broadcast(self.frame(), True)
 
     def on_status(self, msg: MotorStatus) -> None:
         if len(msg.duty) == len(self._duty):

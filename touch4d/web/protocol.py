@@ -113,10 +113,15 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
     return bytes(out)
 
 
+def frame_header(data: bytes) -> dict:
+    """A frame's header fields (kind, fields, the array table), its arrays left unread."""
+    (n,) = _LEN.unpack_from(data, 0)
+    return json.loads(data[_LEN.size:_LEN.size + n])
+
+
 def unpack_frame(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     """A frame back into (header fields, arrays) — what the page does with typed-array views."""
-    (n,) = _LEN.unpack_from(data, 0)
-    header = json.loads(data[_LEN.size:_LEN.size + n])
+    header = frame_header(data)
     arrays = {}
     for name, (dtype, shape, offset) in header.pop("arrays").items():
         count = int(np.prod(shape)) if shape else 1

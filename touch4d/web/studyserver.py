@@ -49,6 +49,7 @@ from touch4d.study.store import rows_written
 
 from .access import HOLDER, Access, CookieGate
 from .invites import EXPERIMENTER, Invites, check_participant
+from .wiretrace import WireTrace
 
 log = logging.getLogger("study-serve")
 
@@ -99,12 +100,14 @@ class StudyServer:
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
                  quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
-                 page_grace_s: float = PAGE_GRACE_S):
+                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
         self.page_grace_s = page_grace_s
+        self.wire_trace = wire_trace
+        self._trace: WireTrace | None = None
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
@@ -372,10 +375,14 @@ class StudyServer:
         await ws.prepare(request)
         self._page_opened(p)
 
+        trace = self._trace
+
         async def up():
             async for msg in ws:
                 p.last_heard = time.time()
                 if msg.type == WSMsgType.TEXT:
+                    if trace is not None:
+                        trace.page_in(p.id, msg.data)
                     await upstream.send_str(msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     await upstream.send_bytes(msg.data)
@@ -384,6 +391,8 @@ class StudyServer:
             async for msg in upstream:
                 if msg.type == WSMsgType.BINARY:
                     await ws.send_bytes(msg.data)
+                    if trace is not None:
+                        trace.frame_out(p.id, msg.data)
                 elif msg.type == WSMsgType.TEXT:
                     await ws.send_str(msg.data)
 
@@ -513,6 +522,8 @@ class StudyServer:
         app.router.add_get("/experimenter", self._experimenter)
         app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
         self.client = aiohttp.ClientSession()
+        if self.wire_trace is not None:
+            self._trace = WireTrace(self.wire_trace)
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
         site = web.TCPSite(runner, self.host, self.port)
@@ -531,6 +542,8 @@ class StudyServer:
                 self._stop_stack(p, p.state)
             await self.client.close()
             await runner.cleanup()
+            if self._trace is not None:
+                self._trace.close()
 
     async def _watch_invites(self, period_s: float = 1.0) -> None:
         """A link revoked with `touch4d study invite --revoke` stops its stack within `period_s`,

@@ -1,0 +1,49 @@
+"""The study server's wire trace: rows written from real page messages and frames, and pose -> pulse
+paired from a known synthetic trace."""
+import csv
+import json
+
+import numpy as np
+
+from touch4d.web.protocol import pack_frame
+from touch4d.web.wiretrace import Move, WireTrace, pose_to_pulse
+
+
+def write(path, rows):
+    with open(path, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+
+
+def test_rows_from_page_inputs_and_frames(tmp_path):
+    trace = WireTrace(tmp_path / "t.csv")
+    trace.page_in("P01", json.dumps({"type": "input", "time": 1234.5678901, "tracking": True, "head": None,
+                                     "sources": []}))
+    trace.page_in("P01", json.dumps({"type": "stats", "fps": 72}))          # not an input: no row
+    trace.page_in("P01", "{not json")                                         # refused downstream: no row
+    trace.frame_out("P01", pack_frame("frame", {"n": 1, "haptic": 0.75}, {"h": np.zeros(3, np.float32)}))
+    trace.frame_out("P01", pack_frame("setup", {"tracker": True}))             # not a frame: no row
+    trace.close()
+    rows = list(csv.reader(open(tmp_path / "t.csv", newline="")))
+    assert [r[:3] for r in rows] == [["P01", "in", "1234.5678901"], ["P01", "out", "0.75"]]
+    assert int(rows[0][3]) <= int(rows[1][3])
+
+
+def test_pairs_each_move_with_the_first_following_frame(tmp_path):
+    ms = 1_000_000   # ns
+    write(tmp_path / "t.csv", [
+        ("A", "out", "0.0", 0),
+        ("A", "in", "100.0", 10 * ms),           # A moves in
+        ("A", "out", "0.0", 12 * ms),            # not yet
+        ("B", "in", "100.0", 13 * ms),           # B, same page time: another participant
+        ("A", "out", "0.6", 17 * ms),            # A's touch: 7 ms
+        ("A", "in", "200.0", 30 * ms),           # A moves out
+        ("A", "out", "0.02", 31 * ms),           # fading, not 0 yet
+        ("A", "out", "0.0", 39 * ms),            # 9 ms
+        ("B", "out", "0.04", 40 * ms),           # below the touch
+        ("B", "out", "0.3", 43 * ms),            # B's touch: 30 ms
+    ])
+    moves = [Move("A", 100.0, True), Move("B", 100.0, True), Move("A", 200.0, False),
+             Move("B", 999.0, False), Move("A", 300.0, True)]   # never arrived; arrived without a frame
+    latencies, missed = pose_to_pulse(tmp_path / "t.csv", moves)
+    assert np.allclose(latencies, [0.007, 0.030, 0.009])
+    assert missed == 2

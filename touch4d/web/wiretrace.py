@@ -1,0 +1,87 @@
+"""Pose -> pulse as the study server sees it: when each page input arrives and when each frame,
+with the controller's intensity it carries, leaves for the page (`touch4d study serve --wire-trace`).
+
+The trace is a CSV, one row per message: participant, `in` or `out`, the input's `time` (the page's
+clock, ms: it names the input) or the frame's `haptic` (0..1), and the server's monotonic clock (ns).
+`pose_to_pulse` pairs each move of a controller (the input that moves it into or out of an object)
+with the first frame after it whose intensity follows: the server's share of the latency, without
+the network or the page.
+"""
+from __future__ import annotations
+
+import bisect
+import csv
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .protocol import frame_header
+
+TOUCHING = 0.05   # a frame's haptic above this: the controller plays the touch
+
+
+class WireTrace:
+    """Appends the rows to `path` (buffered: the event loop never waits on the disk for long)."""
+
+    def __init__(self, path: Path):
+        self._file = open(path, "w", buffering=1 << 20, newline="")
+        self._rows = csv.writer(self._file)
+
+    def page_in(self, participant: str, text: str) -> None:
+        """A page's text message, at its arrival: a row when it is an input."""
+        now = time.monotonic_ns()
+        try:
+            msg = json.loads(text)
+        except ValueError:
+            return   # the participant's node refuses it, and says why
+        if isinstance(msg, dict) and msg.get("type") == "input":
+            self._rows.writerow((participant, "in", repr(msg.get("time")), now))
+
+    def frame_out(self, participant: str, data: bytes) -> None:
+        """A binary message for the page, as it leaves: a row when it is a frame."""
+        now = time.monotonic_ns()
+        try:
+            header = frame_header(data)
+        except ValueError:
+            return
+        if header.get("kind") == "frame":
+            self._rows.writerow((participant, "out", repr(float(header.get("haptic", 0.0))), now))
+
+    def close(self) -> None:
+        self._file.close()
+
+
+@dataclass(frozen=True)
+class Move:
+    """A page input that moves the controller into (`touching`) or out of an object."""
+
+    participant: str
+    time_ms: float      # the input's `time`
+    touching: bool
+
+
+def pose_to_pulse(trace: Path, moves: list[Move]) -> tuple[list[float], int]:
+    """Seconds from each move's input arriving to the first later frame for its participant whose
+    haptic follows it (above TOUCHING when touching, 0 when not); and how many moves had none (or
+    whose input never arrived)."""
+    arrivals: dict[tuple[str, float], int] = {}
+    frames: dict[str, list[tuple[int, float]]] = {}
+    with open(trace, newline="") as f:
+        for participant, way, value, ns in csv.reader(f):
+            if way == "in":
+                arrivals.setdefault((participant, float(value)), int(ns))
+            else:
+                frames.setdefault(participant, []).append((int(ns), float(value)))
+    latencies, missed = [], 0
+    for move in moves:
+        t_in = arrivals.get((move.participant, float(move.time_ms)))
+        sent = frames.get(move.participant, [])   # in the order they left: by time
+        start = len(sent) if t_in is None else bisect.bisect_right(sent, (t_in, float("inf")))
+        t_out = next((t for t, haptic in sent[start:] if (haptic > TOUCHING if move.touching else haptic == 0.0)),
+                     None)
+        if t_out is None:
+            missed += 1
+        else:
+            latencies.append((t_out - t_in) / 1e9)
+    return latencies, missed
