@@ -90,31 +90,3 @@ def _groups(geometry) -> list[_Group]:
     return entry[1]
 
 
-class _Group:
-    """The bodies of one shape in a scene geometry: their section kernel and stacked local arrays."""
-
-    def __init__(self, parts, bodies, body_object):
-        self.kernel = kernel(parts[0].topology)
-        self.body_object = np.asarray(body_object)[bodies]
-        self.vertices = np.stack([p.vertices for p in parts])     # (B, V, 4)
-        self.normals = np.stack([p.normals for p in parts])       # (B, C, 4)
-        self.colors = cell_color(np.arange(self.normals.shape[1]))  # (C, 3): the centre copies' palette
-
-
-_GROUPS: dict[int, tuple[object, list[_Group]]] = {}
-
-
-def _groups(geometry) -> list[_Group]:
-    """The geometry's bodies grouped by shape, built once per scene geometry (a revision of its shapes)."""
-    entry = _GROUPS.get(id(geometry))
-    if entry is None or entry[0] is not geometry:
-        if len(_GROUPS) > 16:
-            _GROUPS.clear()
-        by_topology: dict[int, list[int]] = {}
-        for b, part in enumerate(geometry.parts):
-            by_topology.setdefault(id(part.topology), []).append(b)
-        groups = [_Group([geometry.parts[b] for b in bodies], bodies, geometry.body_object)
-                  for bodies in by_topology.values()]
-        entry = _GROUPS[id(geometry)] = (geometry, groups)
-    return entry[1]
-
