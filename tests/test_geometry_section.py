@@ -133,18 +133,26 @@ def test_the_section_caster_agrees_with_the_hull():
     assert np.array_equal(got, expected)
 
 
-def test_the_batched_triangles_cover_each_section_surface():
+@pytest.mark.parametrize("name,c", [("tesseract", 0.05), ("24-cell", 0.05), ("120-cell", 0.05), ("5-cell", 0.05),
+                                    ("tesseract", 0.5)])     # the unturned one: its vertices in the plane
+def test_the_batched_triangles_cover_each_section_surface(name, c):
+    """Many bodies cut at once (compiled, or where vertices lie in the plane from `polygons`): per body
+    the surface and the volume of the hull of the crossings, every face wound outward."""
     rng = np.random.default_rng(11)
-    base = get_shape("tesseract").parts[0]
-    bodies = [base.transformed(special_ortho_group.rvs(4, random_state=rng), [0, 0, 0, 0.1 * k]) for k in range(5)]
+    base = get_shape(name).parts[0]
+    turn = [special_ortho_group.rvs(4, random_state=rng) for _ in range(4)] + [np.eye(4)]
+    bodies = [base.transformed(r, [0, 0, 0, 0.1 * k if k < 4 else 0.0]) for k, r in enumerate(turn)]
     k = kernel(base.topology)
-    tris, owner, cell = k.triangles(np.stack([b.vertices for b in bodies]), np.stack([b.normals for b in bodies]), 0.05)
+    tris, owner, cell = k.triangles(np.stack([b.vertices for b in bodies]), np.stack([b.normals for b in bodies]), c)
     for i, body in enumerate(bodies):
         t = tris[owner == i]
-        assert set(cell[owner == i]) <= set(range(8))
+        assert set(cell[owner == i]) <= set(range(len(body.normals)))
         area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=-1)
-        vertices, _ = independent_section(body.vertices, 0.05)
-        assert area.sum() == pytest.approx(ConvexHull(vertices).area, rel=1e-9)
+        vertices, volume = independent_section(body.vertices, c)
+        hull = ConvexHull(vertices)
+        assert area.sum() == pytest.approx(hull.area, rel=1e-9), (name, i)
+        # divergence theorem over the outward-wound fans: the hull's volume
+        assert np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6 == pytest.approx(volume, rel=1e-9)
         # wound counterclockwise seen from outside: each normal points away from the section's centre
         normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         big = area > 1e-12

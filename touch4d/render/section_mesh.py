@@ -32,27 +32,21 @@ def section_mesh(layer, c: float) -> tuple[np.ndarray, tuple[float, float] | Non
     behind_eye = layer.projection == "perspective" and c <= -layer.eye_distance   # nothing there is seen
     for group in _groups(layer.geometry):
         obj = group.body_object
-        rotation, size = t[obj, :4], t[obj, 5, 0]          # rotation[b, k] = column k of R
-        position = t[obj, 4]
-        # Only bodies whose w range holds c are cut (w = size * R[3, :] . local + p_w).
-        w = np.einsum("bvj,bj->bv", group.vertices, rotation[:, :, 3]) * size[:, None] + position[:, 3:4]
-        w_lo, w_hi = w.min(axis=1), w.max(axis=1)
-        lo, hi = min(lo, w_lo.min()), max(hi, w_hi.max())
-        hit = (w_lo <= c) & (w_hi >= c)
-        if behind_eye or not hit.any():
+        rotation, size, position = t[obj, :4], t[obj, 5, 0], t[obj, 4]      # rotation[b, k] = column k of R
+        vertices = np.matmul(group.vertices * size[:, None, None], rotation) + position[:, None]   # local @ R^T
+        w = vertices[..., 3]
+        lo, hi = min(lo, w.min()), max(hi, w.max())
+        if behind_eye:
             continue
-        r, size, position = rotation[hit], size[hit], position[hit]
-        vertices = np.matmul(group.vertices[hit] * size[:, None, None], r) + position[:, None]   # local @ R^T
-        normals = np.matmul(group.normals[hit], r)
-        tris, body, cell = group.kernel.triangles(vertices, normals, c)
+        normals = np.matmul(group.normals, rotation)
+        tris, body, cell = group.kernel.triangles(vertices, normals, c)     # bodies w = c misses give none
         if not len(tris):
             continue
-        n3 = normals[..., :3]                                       # each cell's face colour, lit: (B, C, 3)
-        lit = np.clip(n3 @ LIGHT / np.maximum(np.linalg.norm(n3, axis=-1), 1e-12), 0.0, 1.0)
-        shade = group.colors * (AMBIENT + (1 - AMBIENT) * lit)[..., None]
+        n3 = normals[body, cell, :3]                              # each triangle's cell, lit: its face colour
+        lit = np.clip(n3 @ LIGHT / np.maximum(np.linalg.norm(n3, axis=1), 1e-12), 0.0, 1.0)
         rows = np.empty((len(tris), 3, FLOATS_PER_VERTEX), np.float32)
         rows[..., :3] = tris
-        rows[..., 3:6] = shade[body, cell][:, None]
+        rows[..., 3:6] = (group.colors[cell] * (AMBIENT + (1 - AMBIENT) * lit)[:, None])[:, None]
         rows[..., 6] = 1.0
         out.append(rows.reshape(-1, FLOATS_PER_VERTEX))
     mesh = np.concatenate(out) if out else np.zeros((0, FLOATS_PER_VERTEX), np.float32)
