@@ -8,7 +8,8 @@ triangles with the other flat layers). Main-thread CPU time, best of 5. Baseline
 view of the same backend (the ratio slice / projection) and the 1 ms target of the gpu backend.
 Scenes: 64 tesseracts turned at random on a 4 x 4 x 4 grid at five depths (bench_render's), cut
 through the middle of their w range (a fifth of them cut); the same 64 all at one depth (every one
-cut); 8 tesseracts; a 120-cell (120 dodecahedral cells).
+cut); 8 tesseracts; a 120-cell (120 dodecahedral cells). Then the cut alone of the 64 all cut, compiled
+(`SectionKernel.triangles`) against the same fans from the array operations of `SectionKernel.polygons`.
 Run: .venv/bin/python bench/bench_slice.py
 """
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from touch4d.geometry.section import kernel
 from touch4d.render.context import create_headless_context
 from touch4d.render.section_mesh import section_triangles
 
@@ -73,6 +75,19 @@ def main() -> None:
                   f"{t['clip'] * 1e3:>10.2f}{t['clip'] / base['clip']:>11.2f}x"
                   f"{section * 1e3 if view != 'projection' else 0:>12.3f}{n if view != 'projection' else 0:>11}")
     ctx.release()
+    cut_alone(all_cut(tesseracts(64)))
+
+
+def cut_alone(scene) -> None:
+    """The cut of every body at one c, compiled and from `polygons`' array operations (the baseline)."""
+    parts = [p for _, p in scene.world_parts()]
+    vertices, normals = np.stack([p.vertices for p in parts]), np.stack([p.normals for p in parts])
+    k = kernel(parts[0].topology)
+    k.triangles(vertices, normals, 1.5)                     # compiled (or loaded from numba's cache) here
+    compiled = best_of(lambda: k.triangles(vertices, normals, 1.5), repeat=20)
+    arrays = best_of(lambda: k.fans(*k.polygons(vertices, normals, 1.5)), repeat=20)
+    print(f"The cut alone, {len(parts)} tesseracts all cut at w = 1.5: compiled {compiled * 1e3:.3f} ms, "
+          f"array operations {arrays * 1e3:.3f} ms ({arrays / compiled:.1f}x the compiled)")
 
 
 if __name__ == "__main__":
