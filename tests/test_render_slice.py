@@ -113,24 +113,47 @@ def test_perspective_puts_the_section_inside_the_projection(renderers):
 
 
 @pytest.mark.parametrize("view", ["slice", "both"])
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(6))
 def test_gpu_and_clip_draw_the_same_picture(renderers, view, seed):
+    """Pixel for pixel, no neighbour allowed: the same solid through the same painter, the translucent
+    projection's edges and faces where both backends put them, under the same depth rule. Colours may
+    differ by a few levels in the projection's fills only (the gpu backend blends them order-independently,
+    the clip backend in order)."""
     scene = random_scene(seed, view)
     camera = parse_camera(f"yaw={20 + 15 * seed},pitch={10 + 5 * seed},distance=3.4,target=0:0:0")
     gpu = picture(renderers["gpu"], scene, camera).astype(int)
     clip = picture(renderers["clip"], scene, camera).astype(int)
-    assert drawn(clip).sum() > 400
-    if view == "slice":                         # the same solid through the same painter: pixel for pixel
-        assert np.all(np.abs(gpu - clip) <= 2), seed
-    # A pixel agrees when the other picture has its colour there or one pixel away: the backends place
-    # the projection's 2-pixel edges (cut per fragment, or cut on the CPU) up to a pixel apart.
-    same = np.zeros(SIZE[::-1], bool)
-    padded = np.pad(clip[..., :3], ((1, 1), (1, 1), (0, 0)), mode="edge")
-    for dy in range(3):
-        for dx in range(3):
-            shifted = padded[dy:dy + SIZE[1], dx:dx + SIZE[0]]
-            same |= np.all(np.abs(gpu[..., :3] - shifted) <= 12, axis=-1)
-    assert same.mean() >= 0.995, (view, seed, same.mean())
+    assert drawn(clip).sum() > 300                 # something to compare
+    off = np.abs(gpu[..., :3] - clip[..., :3]).max(axis=-1)
+    if view == "slice":
+        assert off.max() <= 2, seed
+    either = drawn(gpu) | drawn(clip)
+    assert np.mean(off <= 12) >= 0.995 and np.mean(off[either] <= 12) >= 0.995, (view, seed)
+
+
+@pytest.mark.parametrize("backend", ["gpu", "clip"])
+def test_in_the_both_view_the_projection_behind_the_solid_is_hidden_and_in_front_tints_it(renderers, backend):
+    """Face on from +z: a tesseract cut through (its section, a solid cube) and a smaller one that w = c
+    misses (only its translucent projection drawn), partly over the solid, behind it or in front of it."""
+    r = renderers[backend]
+    cut = SceneObject(name="cut", shape="tesseract", size=1.2, position=np.array([0.0, 0.0, 0.0, 1.5]))
+
+    def scene(*z_ghost):
+        ghosts = [SceneObject(name="ghost", shape="tesseract", size=0.6, position=np.array([0.5, 0.0, z, 2.6]),
+                              color=np.array([1.0, 1.0, 0.2, 1.0])) for z in z_ghost]
+        return Scene(objects=[cut, *ghosts], view="both", slice_w=1.5)
+
+    alone, behind, front = (picture(r, scene(*z)) for z in ((), (-1.0,), (1.0,)))
+    unit, (width, height) = pixels_per_unit(), SIZE
+    cols = np.arange(width) - width / 2 + 0.5
+    rows = height / 2 - np.arange(height) + 0.5
+    inner = lambda lo, hi, v: (v > lo * unit + 3) & (v < hi * unit - 3)      # 3 pixels in from the edges
+    ghost = inner(0.2, 0.6, cols)[None] & inner(-0.3, 0.3, rows)[:, None]      # the ghost's square over the solid
+    assert ghost.sum() > 300 and drawn(alone)[ghost].all()
+    assert np.array_equal(behind[ghost], alone[ghost])                      # the solid hides what is behind it
+    tint = np.abs(front[ghost][:, :3].astype(int) - alone[ghost][:, :3]).max(axis=-1)
+    assert tint.min() >= 3                                                  # what is in front tints it
+    assert not np.array_equal(behind, alone)                                # and drawn where it sticks out
 
 
 def test_the_renderer_can_override_the_scenes_view(renderers):

@@ -3,9 +3,13 @@ alpha-blended, shared by every backend. The shaders are the GLSL ES-compatible o
 
 The flat layers are drawn without a depth buffer: what is hidden is already removed, and the
 semi-transparent fills must all show through each other. The opaque solids (the slice view's
-cross-sections) come first, before the scene, with a depth test among themselves only.
+cross-sections) come first and write depth; the scene's translucent projection after them is tested
+against it without writing it (`translucent_over_solids`): a projection surface in front of a solid
+tints it, one behind it is hidden by it.
 """
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 import moderngl
 import numpy as np
@@ -32,6 +36,26 @@ def set_uniforms(prog: moderngl.Program, **values) -> None:
             prog[name].write(data.tobytes())
         else:
             prog[name].value = value
+
+
+SOLID_OFFSET = (1.0, 1.0)      # glPolygonOffset of the solids: a projection face where a solid's lies tints it
+
+
+@contextmanager
+def translucent_over_solids(ctx: moderngl.Context, fbo: moderngl.Framebuffer | None = None):
+    """The depth rule of the translucent projection drawn into `fbo` (the bound one by default): tested
+    against the solids' depth (a surface behind a solid is hidden), not written (every translucent
+    surface in front shows through every other)."""
+    fbo = ctx.fbo if fbo is None else fbo
+    ctx.enable(moderngl.DEPTH_TEST)
+    ctx.depth_func = "<="
+    fbo.depth_mask = False
+    try:
+        yield
+    finally:
+        fbo.depth_mask = True
+        ctx.depth_func = "<"
+        ctx.disable(moderngl.DEPTH_TEST)
 
 
 class Stream:
@@ -79,24 +103,48 @@ class Painter:
         self.corners = ctx.buffer(QUAD_CORNERS.tobytes())
         self._tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
         self._solids = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
+        self._scene_tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
+        self._scene_lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
+                                   self.corners)
         self._lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
                              self.corners)
         self._points = Stream(ctx, self.point, "3f 4f 1f", ("in_position", "in_color", "in_size"))
         self._quad = Stream(ctx, self.overlay, "2f 2f", ("in_position", "in_uv"))
         self._texture = None
         self._counts = (0, 0, 0)
+        self._scene_counts = (0, 0)
         self._n_solid = 0
         self._overlay = None
 
     def upload(self, frame: Frame, triangles=(), lines=()) -> tuple[int, int, int]:
-        """Send the frame's flat layers (after `triangles` and `lines` given first, e.g. a scene mesh)
-        to the GPU; returns the (triangle vertex, line segment, point) counts."""
-        self._counts = (self._tris.upload(join([*triangles, *frame.triangles], FLOATS_PER_VERTEX)),
-                        self._lines.upload(join([*lines, *frame.lines], FLOATS_PER_VERTEX).reshape(-1, 14)),
+        """Send the frame's flat layers, and a translucent scene's `triangles` and `lines` (the clip-unit
+        mesh, drawn by `draw_scene`), to the GPU; returns the (triangle vertex, line segment, point)
+        counts of them all."""
+        self._scene_counts = (self._scene_tris.upload(join(triangles, FLOATS_PER_VERTEX)),
+                              self._scene_lines.upload(join(lines, FLOATS_PER_VERTEX).reshape(-1, 14)))
+        self._counts = (self._tris.upload(join(frame.triangles, FLOATS_PER_VERTEX)),
+                        self._lines.upload(join(frame.lines, FLOATS_PER_VERTEX).reshape(-1, 14)),
                         self._points.upload(join(frame.points, POINT_FLOATS)))
         self._overlay = frame.overlay
         self._n_solid = self._solids.upload(join(frame.solids, FLOATS_PER_VERTEX))
-        return self._counts
+        return (self._counts[0] + self._scene_counts[0], self._counts[1] + self._scene_counts[1], self._counts[2])
+
+    def draw_scene(self, mvp: np.ndarray, viewport: tuple[int, int]) -> None:
+        """The scene's triangles, then its lines, alpha-blended in their order, with the depth rule of
+        the translucent projection."""
+        ctx = self.ctx
+        n_tri, n_line = self._scene_counts
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+        with translucent_over_solids(ctx):
+            if n_tri:
+                set_uniforms(self.flat, u_mvp=mvp)
+                self._scene_tris.vao.render(moderngl.TRIANGLES, vertices=n_tri)
+            if n_line:
+                set_uniforms(self.line, u_mvp=mvp, u_viewport=tuple(float(v) for v in viewport),
+                             u_width=float(self.line_width))
+                self._scene_lines.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n_line)
 
     def draw(self, mvp: np.ndarray, viewport: tuple[int, int]) -> None:
         """Draw what `upload` sent, seen through `mvp` (3D screen -> clip, row-major numpy), blended
@@ -119,16 +167,23 @@ class Painter:
         if self._overlay is not None:
             self._draw_overlay(self._overlay, viewport)
 
+    @property
+    def has_solids(self) -> bool:
+        return self._n_solid > 0
+
     def draw_solids(self, mvp: np.ndarray) -> None:
-        """The opaque solids uploaded, nearest in front (a depth test among themselves): drawn first, so
-        that the translucent projection drawn after shows them inside it."""
+        """The opaque solids uploaded, nearest in front, writing depth (pushed back by SOLID_OFFSET):
+        drawn first, so that the translucent projection drawn after shows them inside it. Also the
+        depth-only pass of a framebuffer without colour (the GPU backend's transparency targets)."""
         if not self._n_solid:
             return
         ctx = self.ctx
         ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
         ctx.enable(moderngl.DEPTH_TEST)
+        ctx.polygon_offset = SOLID_OFFSET
         set_uniforms(self.flat, u_mvp=mvp)
         self._solids.vao.render(moderngl.TRIANGLES, vertices=self._n_solid)
+        ctx.polygon_offset = 0.0, 0.0
         ctx.disable(moderngl.DEPTH_TEST)
 
     def _draw_overlay(self, image: np.ndarray, viewport: tuple[int, int]) -> None:
@@ -149,7 +204,7 @@ class Painter:
         self._quad.vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
-        for s in (self._tris, self._solids, self._lines, self._points, self._quad):
+        for s in (self._tris, self._solids, self._scene_tris, self._scene_lines, self._lines, self._points, self._quad):
             s.release()
         for p in (self.flat, self.line, self.point, self.overlay):
             p.release()

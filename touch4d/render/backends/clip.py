@@ -47,7 +47,7 @@ class ClipBackend(Backend):
         self.painter.upload(frame, [mesh.fills, mesh.centres] if mesh else [], [mesh.edges] if mesh else [])
 
     def draw_scene(self, mvp, viewport) -> None:
-        pass                                        # the scene's pieces are drawn with the flat layers
+        self.painter.draw_scene(mvp, viewport)      # fills, centre copies, edges: uploaded by prepare
 
     def draw_identities(self, frame: Frame, mvp, viewport, what: str = "faces", layers: bool = False,
                         section=None) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from touch4d.render.draw import program, set_uniforms
+from touch4d.render.draw import program, set_uniforms, translucent_over_solids
 from touch4d.render.frame import CELL_PALETTE, Frame, SceneLayer
 from touch4d.render.scene_geometry import SceneGeometry, data_rows, data_texture
 
@@ -148,22 +148,31 @@ class GpuBackend(Backend):
         ctx.enable(moderngl.BLEND)
         # Fills, then centre copies, each layer order-independent within itself and resolved over
         # what is drawn (the clip-unit backend draws them in the same order).
-        self._transparent(["fills"], viewport)
+        self._transparent(["fills"], mvp, viewport)
         if layer.style.centres:
-            self._transparent(["centres"], viewport)
-        self._draw("edges", MODE_BLEND)
+            self._transparent(["centres"], mvp, viewport)
+        with translucent_over_solids(ctx):
+            self._draw("edges", MODE_BLEND)
 
-    def _transparent(self, layers: list[str], viewport) -> None:
-        """Draw `layers` into the weighted blended OIT targets, then resolve them over the framebuffer."""
+    def _transparent(self, layers: list[str], mvp, viewport) -> None:
+        """Draw `layers` into the weighted blended OIT targets, then resolve them over the framebuffer.
+        The targets' depth holds the solids' (drawn again there), so that the layers keep the depth rule
+        of the translucent projection."""
         ctx = self.ctx
         previous, saved_viewport = ctx.fbo, ctx.viewport
-        fbo, accum, weight = self._oit_targets(tuple(viewport))
+        fbo, depth_only, accum, weight = self._oit_targets(tuple(viewport))
         fbo.use()
         ctx.viewport = (0, 0, *viewport)
-        fbo.clear(0.0, 0.0, 0.0, 1.0)
+        fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        if self.painter.has_solids:
+            depth_only.use()
+            self.painter.draw_solids(mvp)
+            fbo.use()
+        ctx.enable(moderngl.BLEND)
         ctx.blend_func = moderngl.ONE, moderngl.ONE, moderngl.ZERO, moderngl.ONE_MINUS_SRC_ALPHA
-        for what in layers:
-            self._draw(what, MODE_OIT)
+        with translucent_over_solids(ctx, fbo):
+            for what in layers:
+                self._draw(what, MODE_OIT)
         previous.use()
         ctx.viewport = saved_viewport
         ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
@@ -196,6 +205,7 @@ class GpuBackend(Backend):
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
 
     def _oit_targets(self, size: tuple[int, int]):
+        """(framebuffer, the framebuffer of its depth alone, accum, weight) of `size`."""
         if self._oit is None or self._oit[0] != size:
             if self._oit is not None:
                 for obj in self._oit[1:]:
@@ -204,8 +214,10 @@ class GpuBackend(Backend):
             weight = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
             for t in (accum, weight):
                 t.filter = moderngl.NEAREST, moderngl.NEAREST
-            self._oit = (size, self.ctx.framebuffer(color_attachments=[accum, weight]), accum, weight)
-        return self._oit[1:]
+            depth = self.ctx.depth_renderbuffer(size)
+            self._oit = (size, self.ctx.framebuffer([accum, weight], depth),
+                         self.ctx.framebuffer(depth_attachment=depth), accum, weight, depth)
+        return self._oit[1:5]
 
     # ---- resources ----------------------------------------------------------------------------------
     def _release_geometry(self) -> None:
