@@ -105,14 +105,16 @@ const link = new Link((message) => {
 // ---- drawing --------------------------------------------------------------------------------------
 
 // One view of the world: the slice's solid (slice and both views), the scene's projection (projection
-// and both views), then the flat layers over it, alpha-blended without a depth test (as every
-// touch4d renderer draws a frame).
+// and both views) tested against the solid's depth, then the flat layers over it, alpha-blended
+// without a depth test (as every touch4d renderer draws a frame).
 function drawWorld(framebuffer, size, viewport, projection, view, model) {
   if (!scene || !hud) return;
   const mvp = multiply(projection, multiply(view, model));
   const scale = Math.hypot(model[0], model[1], model[2]);   // room metres per screen unit
   if (state.drawObjects && slice) slice.draw(framebuffer, viewport, mvp);
-  if (state.drawObjects && (!slice || slice.projection)) scene.draw(framebuffer, size, viewport, mvp);
+  if (state.drawObjects && (!slice || slice.projection)) {
+    scene.draw(framebuffer, size, viewport, mvp, slice && ((fbo) => slice.draw(fbo, viewport, mvp, true)));
+  }
   gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
   gl.viewport(...viewport);
   gl.disable(gl.DEPTH_TEST);

@@ -194,8 +194,11 @@ export class SceneRenderer {
   }
 
   // Draw into `framebuffer` (null: the canvas; an XR layer's otherwise) at `viewport` [x, y, w, h]
-  // of a framebuffer `size` [w, h]: fills and centre copies (order-independent transparency), edges.
-  draw(framebuffer, size, viewport, mvp) {
+  // of a framebuffer `size` [w, h]: fills and centre copies (order-independent transparency), edges,
+  // each tested against the depth of the solids drawn before (touch4d.render.draw.translucent_over_solids:
+  // hidden behind a solid, tinting it in front). `solids(fbo)` draws their depth alone into another
+  // framebuffer (the transparency targets).
+  draw(framebuffer, size, viewport, mvp, solids = null) {
     if (!this.geometry || !this.frame || !this.geometry.bodies) return;
     const gl = this.gl, s = this.style;
     this.perFramePasses();
@@ -203,18 +206,32 @@ export class SceneRenderer {
     gl.disable(gl.DEPTH_TEST);
     gl.disable(gl.CULL_FACE);
     gl.enable(gl.BLEND);
-    this.transparent(this.faces, 'fills', s.fill_alpha, framebuffer, size, viewport, mvp);
-    if (s.centres) this.transparent(this.centres, 'centres', s.centre_alpha, framebuffer, size, viewport, mvp);
+    this.transparent(this.faces, 'fills', s.fill_alpha, framebuffer, size, viewport, mvp, solids);
+    if (s.centres) this.transparent(this.centres, 'centres', s.centre_alpha, framebuffer, size, viewport, mvp, solids);
     gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
     this.uniforms(this.edges, mvp, viewport, s.edge_alpha, MODE_BLEND);
-    gl.bindVertexArray(this.res.edges.vao);
-    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, this.res.counts.edges);
-    gl.bindVertexArray(null);
+    this.overSolids(() => {
+      gl.bindVertexArray(this.res.edges.vao);
+      gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, this.res.counts.edges);
+      gl.bindVertexArray(null);
+    });
+  }
+
+  // The depth rule of the translucent projection: tested against the solids' depth, not written.
+  overSolids(drawing) {
+    const gl = this.gl;
+    gl.enable(gl.DEPTH_TEST);
+    gl.depthFunc(gl.LEQUAL);
+    gl.depthMask(false);
+    drawing();
+    gl.depthMask(true);
+    gl.depthFunc(gl.LESS);
+    gl.disable(gl.DEPTH_TEST);
   }
 
   // One layer into the weighted blended OIT targets (the size of the whole framebuffer, drawn at the
   // same viewport, so the resolve's gl_FragCoord finds its texels), then resolved over the picture.
-  transparent(prog, what, alpha, framebuffer, size, viewport, mvp) {
+  transparent(prog, what, alpha, framebuffer, size, viewport, mvp, solids) {
     const gl = this.gl;
     const [fbo, accum, weight] = this.oitTargets_(size);
     gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
@@ -223,11 +240,18 @@ export class SceneRenderer {
     gl.scissor(...viewport);
     gl.clearBufferfv(gl.COLOR, 0, [0, 0, 0, 1]);
     gl.clearBufferfv(gl.COLOR, 1, [0, 0, 0, 0]);
+    gl.depthMask(true);
+    gl.clearBufferfv(gl.DEPTH, 0, [1]);
     gl.disable(gl.SCISSOR_TEST);
+    if (solids) {
+      solids(fbo);
+      this.bind();
+    }
+    gl.enable(gl.BLEND);
     gl.blendFuncSeparate(gl.ONE, gl.ONE, gl.ZERO, gl.ONE_MINUS_SRC_ALPHA);
     this.uniforms(prog, mvp, viewport, alpha, MODE_OIT);
     gl.bindVertexArray(this.res[what].vao);
-    gl.drawArrays(gl.TRIANGLES, 0, this.res.counts[what]);
+    this.overSolids(() => gl.drawArrays(gl.TRIANGLES, 0, this.res.counts[what]));
     gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
     gl.viewport(...viewport);
     gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
@@ -247,8 +271,8 @@ export class SceneRenderer {
       return this.oitTargets.objects;
     }
     if (this.oitTargets) {
-      const [fbo, a, w] = this.oitTargets.objects;
-      gl.deleteFramebuffer(fbo); gl.deleteTexture(a); gl.deleteTexture(w);
+      const [fbo, a, w, depth] = this.oitTargets.objects;
+      gl.deleteFramebuffer(fbo); gl.deleteTexture(a); gl.deleteTexture(w); gl.deleteRenderbuffer(depth);
     }
     const half = () => {
       const t = gl.createTexture();
@@ -262,8 +286,12 @@ export class SceneRenderer {
     gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
     gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, accum, 0);
     gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT1, gl.TEXTURE_2D, weight, 0);
+    const depth = gl.createRenderbuffer();        // the solids' depth, drawn again here
+    gl.bindRenderbuffer(gl.RENDERBUFFER, depth);
+    gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT24, size[0], size[1]);
+    gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, depth);
     gl.drawBuffers([gl.COLOR_ATTACHMENT0, gl.COLOR_ATTACHMENT1]);
-    this.oitTargets = { size: [...size], objects: [fbo, accum, weight] };
+    this.oitTargets = { size: [...size], objects: [fbo, accum, weight, depth] };
     return this.oitTargets.objects;
   }
 

@@ -1,8 +1,9 @@
 // The slice view on the page: every object's cross-section at w = slice_w, a solid in its cells'
 // colours. The node cuts it (touch4d.render.section_mesh, the desktop renderer's own triangles) and
-// sends it with each frame; here it is drawn with the renderer's flat shaders, opaque, with a depth
-// test among its faces, before the projection (which the slice view leaves out and the both view
-// draws fainter over it), as touch4d.render.backends.Backend.draw does.
+// sends it with each frame; here it is drawn with the renderer's flat shaders, opaque, writing depth,
+// before the projection (which the slice view leaves out and the both view draws fainter, tested
+// against that depth: hidden behind the solid, tinting it in front), as
+// touch4d.render.backends.Backend.draw does.
 
 import { program, Vertices } from './gl.js';
 
@@ -38,7 +39,10 @@ export class SliceRenderer {
     return this.view !== 'slice';
   }
 
-  draw(framebuffer, viewport, mvp) {
+  // The solid, nearest in front, writing depth, pushed back by touch4d.render.draw.SOLID_OFFSET (a
+  // projection face where a solid's lies tints it); `depthOnly`: its depth alone (the projection's
+  // transparency targets).
+  draw(framebuffer, viewport, mvp, depthOnly = false) {
     if (!this.triangles.count) return;
     const gl = this.gl;
     gl.bindFramebuffer(gl.FRAMEBUFFER, framebuffer);
@@ -47,11 +51,16 @@ export class SliceRenderer {
     gl.enable(gl.DEPTH_TEST);
     gl.depthMask(true);
     gl.depthFunc(gl.LESS);
+    gl.enable(gl.POLYGON_OFFSET_FILL);
+    gl.polygonOffset(1, 1);
+    if (depthOnly) gl.colorMask(false, false, false, false);
     gl.useProgram(this.flat.program);
     gl.uniformMatrix4fv(this.flat.uniforms.u_mvp, false, mvp);
     gl.bindVertexArray(this.triangles.vao);
     gl.drawArrays(gl.TRIANGLES, 0, this.triangles.count);
     gl.bindVertexArray(null);
+    gl.colorMask(true, true, true, true);
+    gl.disable(gl.POLYGON_OFFSET_FILL);
     gl.disable(gl.DEPTH_TEST);
   }
 }
