@@ -98,3 +98,38 @@ def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
             assert cell_coloured(screenshot(page)).sum() < 50
         finally:
             context.close()
+
+
+def ghost_scene(c, *z_ghost, view="both") -> str:
+    """A tesseract cut through at w = c (its section the same cube for every c in 0.9 .. 2.1) and, for
+    each z given, a smaller one that w = c misses (only its translucent projection drawn), partly over
+    the first at that z."""
+    ghosts = "".join(f"  - {{name: ghost, shape: tesseract, size: 0.6, position: [0.5, 0.0, {z}, 2.6], "
+                     f"color: [1.0, 1.0, 0.2, 1.0]}}\n" for z in z_ghost)
+    return (f"projection: orthographic\nview: {view}\nslice_w: {c}\nobjects:\n"
+            "  - {name: cut, shape: tesseract, size: 1.2, position: [0.0, 0.0, 0.0, 1.5]}\n" + ghosts)
+
+
+def test_in_the_both_view_the_page_hides_the_projection_behind_the_solid(stack):
+    """As the desktop backends: a projection surface behind the solid is hidden, one in front tints it."""
+    with chromium() as browser:
+        context = browser.new_context(**context_options(640, 400))
+        page = context.new_page()
+        try:
+            page.goto(stack["url"])
+            wait_connected(page)
+            pictures = []
+            for c, z, view in ((1.6, (), "slice"), (1.55, (), "both"), (1.5, (-1.0,), "both"), (1.45, (1.0,), "both")):
+                command(stack, page, "load", ghost_scene(c, *z, view=view),      # c tells the scenes apart
+                        f"touch4d.view === '{view}' && Math.abs(touch4d.frame.slice_w - {c}) < 1e-6")
+                page.wait_for_timeout(300)
+                pictures.append(screenshot(page))
+            cut, alone, behind, front = pictures
+            solid = cell_coloured(cut)
+            changed = lambda image: np.abs(image - alone).max(axis=2) > 3
+            assert solid.sum() > 2000
+            assert changed(front)[solid].sum() > 300               # the ghost in front tints the solid ...
+            assert changed(behind)[solid].sum() < 20               # ... behind it, the solid hides it
+            assert changed(behind)[~solid].sum() > 100             # where it sticks out, it is drawn
+        finally:
+            context.close()
