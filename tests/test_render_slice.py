@@ -115,20 +115,18 @@ def test_perspective_puts_the_section_inside_the_projection(renderers):
 @pytest.mark.parametrize("view", ["slice", "both"])
 @pytest.mark.parametrize("seed", range(6))
 def test_gpu_and_clip_draw_the_same_picture(renderers, view, seed):
-    """Pixel for pixel, no neighbour allowed: the same solid through the same painter, the translucent
-    projection's edges and faces where both backends put them, under the same depth rule. Colours may
-    differ by a few levels in the projection's fills only (the gpu backend blends them order-independently,
-    the clip backend in order)."""
+    """Pixel for pixel, no neighbour allowed: the same solid through the same painter; the translucent
+    projection's edges and faces where both backends put them, its faces blended order-independently by
+    both, under the same depth rule."""
     scene = random_scene(seed, view)
     camera = parse_camera(f"yaw={20 + 15 * seed},pitch={10 + 5 * seed},distance=3.4,target=0:0:0")
     gpu = picture(renderers["gpu"], scene, camera).astype(int)
     clip = picture(renderers["clip"], scene, camera).astype(int)
     assert drawn(clip).sum() > 300                 # something to compare
-    off = np.abs(gpu[..., :3] - clip[..., :3]).max(axis=-1)
+    same = np.abs(gpu[..., :3] - clip[..., :3]).max(axis=-1) <= 2
     if view == "slice":
-        assert off.max() <= 2, seed
-    either = drawn(gpu) | drawn(clip)
-    assert np.mean(off <= 12) >= 0.995 and np.mean(off[either] <= 12) >= 0.995, (view, seed)
+        assert same.all(), seed
+    assert same[drawn(gpu) | drawn(clip)].mean() >= 0.995, (view, seed)
 
 
 @pytest.mark.parametrize("backend", ["gpu", "clip"])

@@ -58,6 +58,72 @@ def translucent_over_solids(ctx: moderngl.Context, fbo: moderngl.Framebuffer | N
         ctx.disable(moderngl.DEPTH_TEST)
 
 
+ACCUM_UNIT, WEIGHT_UNIT = 11, 12    # texture units of the transparency targets in the resolve (oit.frag)
+OIT_DTYPE = "f2"
+
+
+class Transparency:
+    """Weighted blended order-independent transparency, the one way every backend draws the scene's
+    translucent layers (fills, centre copies): a layer's fragments are summed into two float targets
+    (scene.frag's u_mode 1, flat_oit.frag), under the depth rule of the translucent projection (the
+    targets' depth holds the solids', drawn again there), then resolved over the framebuffer (oit.frag)."""
+
+    def __init__(self, ctx: moderngl.Context):
+        self.ctx = ctx
+        self.resolve = program(ctx, "fullscreen.vert", "oit.frag")
+        set_uniforms(self.resolve, t_accum=ACCUM_UNIT, t_weight=WEIGHT_UNIT)
+        self._vao = ctx.vertex_array(self.resolve, [])
+        self._targets = None                   # (size, framebuffer, its depth alone, accum, weight, depth)
+
+    def layer(self, draw, painter: "Painter", mvp: np.ndarray, viewport: tuple[int, int]) -> None:
+        """One translucent layer: `draw()` issues its draw calls into the targets (the programs' OIT
+        mode set), then it is resolved over the framebuffer bound before."""
+        ctx = self.ctx
+        previous, saved_viewport = ctx.fbo, ctx.viewport
+        fbo, depth_only, accum, weight = self._of_size(tuple(viewport))
+        fbo.use()
+        ctx.viewport = (0, 0, *viewport)
+        fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        if painter.has_solids:
+            depth_only.use()
+            painter.draw_solids(mvp)
+            fbo.use()
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.ONE, moderngl.ONE, moderngl.ZERO, moderngl.ONE_MINUS_SRC_ALPHA
+        with translucent_over_solids(ctx, fbo):
+            draw()
+        previous.use()
+        ctx.viewport = saved_viewport
+        ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+        accum.use(ACCUM_UNIT)
+        weight.use(WEIGHT_UNIT)
+        self._vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def _of_size(self, size: tuple[int, int]):
+        if self._targets is None or self._targets[0] != size:
+            self._release_targets()
+            accum = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
+            weight = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
+            for t in (accum, weight):
+                t.filter = moderngl.NEAREST, moderngl.NEAREST
+            depth = self.ctx.depth_renderbuffer(size)
+            self._targets = (size, self.ctx.framebuffer([accum, weight], depth),
+                             self.ctx.framebuffer(depth_attachment=depth), accum, weight, depth)
+        return self._targets[1:5]
+
+    def _release_targets(self) -> None:
+        if self._targets is not None:
+            for obj in self._targets[1:]:
+                obj.release()
+            self._targets = None
+
+    def release(self) -> None:
+        self._release_targets()
+        self._vao.release()
+        self.resolve.release()
+
+
 class Stream:
     """A vertex buffer reused across frames (grown when needed) and its vertex array."""
 
@@ -97,13 +163,15 @@ class Painter:
         self.ctx = ctx
         self.line_width = line_width
         self.flat = program(ctx, "flat.vert", "flat.frag")
+        self.flat_oit = program(ctx, "flat.vert", "flat_oit.frag")
+        self.transparency = Transparency(ctx)
         self.line = program(ctx, "line.vert", "flat.frag")
         self.point = program(ctx, "point.vert", "point.frag")
         self.overlay = program(ctx, "overlay.vert", "overlay.frag")
         self.corners = ctx.buffer(QUAD_CORNERS.tobytes())
         self._tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
         self._solids = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
-        self._scene_tris = Stream(ctx, self.flat, "3f 4f", ("in_position", "in_color"))
+        self._scene_layers: list[Stream] = []     # the scene's translucent layers, one stream each
         self._scene_lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
                                    self.corners)
         self._lines = Stream(ctx, self.line, "3f 4f 3f 4f/i", ("in_a", "in_color_a", "in_b", "in_color_b"),
@@ -112,35 +180,39 @@ class Painter:
         self._quad = Stream(ctx, self.overlay, "2f 2f", ("in_position", "in_uv"))
         self._texture = None
         self._counts = (0, 0, 0)
-        self._scene_counts = (0, 0)
+        self._scene_counts: tuple[list[int], int] = ([], 0)
         self._n_solid = 0
         self._overlay = None
 
-    def upload(self, frame: Frame, triangles=(), lines=()) -> tuple[int, int, int]:
-        """Send the frame's flat layers, and a translucent scene's `triangles` and `lines` (the clip-unit
-        mesh, drawn by `draw_scene`), to the GPU; returns the (triangle vertex, line segment, point)
-        counts of them all."""
-        self._scene_counts = (self._scene_tris.upload(join(triangles, FLOATS_PER_VERTEX)),
+    def upload(self, frame: Frame, layers=(), lines=()) -> tuple[int, int, int]:
+        """Send the frame's flat layers, and a translucent scene's triangle `layers` (each drawn as one
+        order-independent layer) and `lines` (the clip-unit mesh: fills, centre copies, edges; drawn by
+        `draw_scene`), to the GPU; returns the (triangle vertex, line segment, point) counts of them all."""
+        while len(self._scene_layers) < len(layers):
+            self._scene_layers.append(Stream(self.ctx, self.flat_oit, "3f 4f", ("in_position", "in_color")))
+        self._scene_counts = ([s.upload(join([t], FLOATS_PER_VERTEX)) for s, t in zip(self._scene_layers, layers)],
                               self._scene_lines.upload(join(lines, FLOATS_PER_VERTEX).reshape(-1, 14)))
         self._counts = (self._tris.upload(join(frame.triangles, FLOATS_PER_VERTEX)),
                         self._lines.upload(join(frame.lines, FLOATS_PER_VERTEX).reshape(-1, 14)),
                         self._points.upload(join(frame.points, POINT_FLOATS)))
         self._overlay = frame.overlay
         self._n_solid = self._solids.upload(join(frame.solids, FLOATS_PER_VERTEX))
-        return (self._counts[0] + self._scene_counts[0], self._counts[1] + self._scene_counts[1], self._counts[2])
+        return (self._counts[0] + sum(self._scene_counts[0]), self._counts[1] + self._scene_counts[1], self._counts[2])
 
     def draw_scene(self, mvp: np.ndarray, viewport: tuple[int, int]) -> None:
-        """The scene's triangles, then its lines, alpha-blended in their order, with the depth rule of
-        the translucent projection."""
+        """The scene's translucent layers, each order-independent, then its lines alpha-blended in
+        their order, with the depth rule of the translucent projection (as the gpu backend draws it)."""
         ctx = self.ctx
-        n_tri, n_line = self._scene_counts
+        counts, n_line = self._scene_counts
+        set_uniforms(self.flat_oit, u_mvp=mvp)
+        for stream, n in zip(self._scene_layers, counts):
+            if n:
+                self.transparency.layer(lambda s=stream, k=n: s.vao.render(moderngl.TRIANGLES, vertices=k), self, mvp,
+                                        viewport)
         ctx.disable(moderngl.CULL_FACE)
         ctx.enable(moderngl.BLEND)
         ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
         with translucent_over_solids(ctx):
-            if n_tri:
-                set_uniforms(self.flat, u_mvp=mvp)
-                self._scene_tris.vao.render(moderngl.TRIANGLES, vertices=n_tri)
             if n_line:
                 set_uniforms(self.line, u_mvp=mvp, u_viewport=tuple(float(v) for v in viewport),
                              u_width=float(self.line_width))
@@ -204,9 +276,10 @@ class Painter:
         self._quad.vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
-        for s in (self._tris, self._solids, self._scene_tris, self._scene_lines, self._lines, self._points, self._quad):
+        for s in (self._tris, self._solids, *self._scene_layers, self._scene_lines, self._lines, self._points, self._quad):
             s.release()
-        for p in (self.flat, self.line, self.point, self.overlay):
+        self.transparency.release()
+        for p in (self.flat, self.flat_oit, self.line, self.point, self.overlay):
             p.release()
         self.corners.release()
         if self._texture is not None:

@@ -21,7 +21,6 @@ GRID_LO, GRID_HI = -1.0, 1.0          # the body grid spans the 3D screen; outsi
 UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo": 4, "t_hi": 5,
          "t_cells0": 6, "t_cells1": 7, "t_cells2": 8, "t_cells3": 9, "t_vertices": 10,
          "t_accum": 11, "t_weight": 12, "t_centres": 13, "t_view": 14, "t_halfspace_body": 15}
-OIT_DTYPE = "f2"
 MODE_BLEND, MODE_OIT, MODE_IDS, MODE_LAYERS = 0, 1, 2, 3
 
 
@@ -39,19 +38,17 @@ class GpuBackend(Backend):
             self.bounds_prog = program(ctx, "fullscreen.vert", "bounds.frag")
             self.view_prog = program(ctx, "fullscreen.vert", "view.frag")
             self.grid_prog = program(ctx, "fullscreen.vert", "grid.frag")
-            self.oit_prog = program(ctx, "fullscreen.vert", "oit.frag")
         except moderngl.Error as exc:
             raise BackendUnavailable(f"shaders do not build: {exc}") from exc
         self.programs = [self.faces_prog, self.centres_prog, self.edges_prog, self.bounds_prog, self.view_prog,
-                         self.grid_prog, self.oit_prog]
+                         self.grid_prog]
         for prog in self.programs:
             set_uniforms(prog, **{name: unit for name, unit in UNITS.items()})
         self._fullscreen = {id(p): ctx.vertex_array(p, [])
-                            for p in (self.bounds_prog, self.view_prog, self.grid_prog, self.oit_prog)}
+                            for p in (self.bounds_prog, self.view_prog, self.grid_prog)}
         self.geometry: SceneGeometry | None = None
         self.layer: SceneLayer | None = None
         self._gpu: dict = {}                # per geometry: buffers, vertex arrays, textures, targets
-        self._oit = None                    # (size, framebuffer, accum, weight)
         self._dirty = False                 # transforms written, bounds and grid not yet rebuilt
         self._empty = ctx.texture((1, 1), 4, np.zeros(4, np.float32).tobytes(), dtype="f4")
 
@@ -155,30 +152,9 @@ class GpuBackend(Backend):
             self._draw("edges", MODE_BLEND)
 
     def _transparent(self, layers: list[str], mvp, viewport) -> None:
-        """Draw `layers` into the weighted blended OIT targets, then resolve them over the framebuffer.
-        The targets' depth holds the solids' (drawn again there), so that the layers keep the depth rule
-        of the translucent projection."""
-        ctx = self.ctx
-        previous, saved_viewport = ctx.fbo, ctx.viewport
-        fbo, depth_only, accum, weight = self._oit_targets(tuple(viewport))
-        fbo.use()
-        ctx.viewport = (0, 0, *viewport)
-        fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
-        if self.painter.has_solids:
-            depth_only.use()
-            self.painter.draw_solids(mvp)
-            fbo.use()
-        ctx.enable(moderngl.BLEND)
-        ctx.blend_func = moderngl.ONE, moderngl.ONE, moderngl.ZERO, moderngl.ONE_MINUS_SRC_ALPHA
-        with translucent_over_solids(ctx, fbo):
-            for what in layers:
-                self._draw(what, MODE_OIT)
-        previous.use()
-        ctx.viewport = saved_viewport
-        ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
-        accum.use(UNITS["t_accum"])
-        weight.use(UNITS["t_weight"])
-        self._fullscreen[id(self.oit_prog)].render(moderngl.TRIANGLES, vertices=3)
+        """Draw `layers` as one order-independent layer (`draw.Transparency`, as every backend does)."""
+        self.painter.transparency.layer(lambda: [self._draw(what, MODE_OIT) for what in layers], self.painter, mvp,
+                                        viewport)
 
     def _draw(self, what: str, mode: int) -> None:
         vao = self._gpu[f"vao_{what}"]
@@ -204,21 +180,6 @@ class GpuBackend(Backend):
         self._draw("fills" if what == "faces" else "edges", MODE_LAYERS if layers else MODE_IDS)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
 
-    def _oit_targets(self, size: tuple[int, int]):
-        """(framebuffer, the framebuffer of its depth alone, accum, weight) of `size`."""
-        if self._oit is None or self._oit[0] != size:
-            if self._oit is not None:
-                for obj in self._oit[1:]:
-                    obj.release()
-            accum = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
-            weight = self.ctx.texture(size, 4, dtype=OIT_DTYPE)
-            for t in (accum, weight):
-                t.filter = moderngl.NEAREST, moderngl.NEAREST
-            depth = self.ctx.depth_renderbuffer(size)
-            self._oit = (size, self.ctx.framebuffer([accum, weight], depth),
-                         self.ctx.framebuffer(depth_attachment=depth), accum, weight, depth)
-        return self._oit[1:5]
-
     # ---- resources ----------------------------------------------------------------------------------
     def _release_geometry(self) -> None:
         for value in self._gpu.values():
@@ -229,9 +190,6 @@ class GpuBackend(Backend):
 
     def release(self) -> None:
         self._release_geometry()
-        if self._oit is not None:
-            for obj in self._oit[1:]:
-                obj.release()
         for vao in self._fullscreen.values():
             vao.release()
         for prog in self.programs:

@@ -3,6 +3,7 @@
 // targets (1: weighted blended, see oit.frag), as its screen point, object and 4D depth w (2,
 // identities), or as one layer of its object in channel (object mod 4) (3, layer counts).
 #include "halfspace.glsl"
+#include "oit_weight.glsl"
 
 uniform int u_mode;
 uniform int u_clip;             // 0: draw what other bodies hide too (back cells stay culled)
@@ -30,11 +31,10 @@ void main() {
         float w = u_eye > 0.0 ? v_depth * u_eye / (1.0 - v_depth) : v_depth;
         out1 = vec4(w, 0.0, 0.0, 1.0);
     } else if (u_mode == 1) {
-        // Weighted blended OIT (McGuire and Bavoil 2013): nearer fragments weigh more. out0: rgb
-        // summed, alpha multiplied (revealage); out1: weights summed.
+        // Weighted blended OIT (oit_weight.glsl). out0: rgb summed, alpha multiplied (revealage);
+        // out1: weights summed.
         float a = v_color.a;
-        float z = 1.0 / gl_FragCoord.w;
-        float weight = a * clamp(10.0 / (1e-5 + pow(z / 5.0, 2.0) + pow(z / 200.0, 6.0)), 1e-2, 3e3);
+        float weight = oit_weight(a);
         out0 = vec4(v_color.rgb * weight, a);
         out1 = vec4(weight, 0.0, 0.0, 0.0);
     } else {
