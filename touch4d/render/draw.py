@@ -276,7 +276,8 @@ class Painter:
         self._quad.vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
-        for s in (self._tris, self._solids, *self._scene_layers, self._scene_lines, self._lines, self._points, self._quad):
+        for s in (self._tris, self._solids, *self._scene_layers, self._scene_lines, self._lines, self._points,
+                  self._quad):
             s.release()
         self.transparency.release()
         for p in (self.flat, self.flat_oit, self.line, self.point, self.overlay):
