@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-from scipy.integrate import quad
 from scipy.spatial import ConvexHull, Delaunay
 from scipy.stats import special_ortho_group
 
@@ -102,10 +101,15 @@ def test_turned_shapes_match_the_hull_of_the_crossings(name):
 @pytest.mark.parametrize("name,volume4", [("tesseract", 1.0), ("16-cell", 2 / 3 / 16), ("24-cell", 0.5)])
 def test_the_sections_volumes_integrate_to_the_4d_volume(name, volume4):
     body = shape(name, 1.0, special_ortho_group.rvs(4, random_state=5))
-    lo, hi = w_extent(body.vertices)
-    integral, _ = quad(lambda c: cross_section(body, c).volume, lo, hi, limit=200, epsabs=1e-10)
+    # Between two successive vertex heights the section's volume is a cubic in c: Gauss-Legendre with
+    # 3 nodes per piece integrates it exactly.
+    nodes, weights = np.polynomial.legendre.leggauss(3)
+    heights = np.unique(body.vertices[:, 3])
+    integral = sum((hi - lo) / 2 * sum(wk * cross_section(body, (lo + hi) / 2 + (hi - lo) / 2 * x).volume
+                                       for x, wk in zip(nodes, weights))
+                   for lo, hi in zip(heights[:-1], heights[1:]))
     # 16-cell: 2^4 / 4! r^4, r = 1/2; 24-cell: 2 a^4, a = 1/sqrt(2)
-    assert integral == pytest.approx(volume4, rel=1e-6)
+    assert integral == pytest.approx(volume4, rel=1e-9)
 
 
 def test_outside_its_w_extent_a_body_has_no_section():
@@ -133,7 +137,7 @@ def test_the_section_caster_agrees_with_the_hull():
     assert np.array_equal(got, expected)
 
 
-@pytest.mark.parametrize("name,c", [("tesseract", 0.05), ("24-cell", 0.05), ("120-cell", 0.05), ("5-cell", 0.05),
+@pytest.mark.parametrize("name,c", [("tesseract", 0.05), ("24-cell", 0.05), ("duoprism", 0.05), ("5-cell", 0.05),
                                     ("tesseract", 0.5)])     # the unturned one: its vertices in the plane
 def test_the_batched_triangles_cover_each_section_surface(name, c):
     """Many bodies cut at once (compiled, or where vertices lie in the plane from `polygons`): per body

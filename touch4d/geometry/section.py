@@ -234,18 +234,20 @@ def cross_section(body: Polytope, c: float, tol: float = 1e-9) -> Section:
     """The exact cross-section of a world polytope by w = c (corners merged within `tol`; faces of no
     area, where the hyperplane only touches a cell, left out)."""
     corners, starts, _, cut = kernel(body.topology).polygons(body.vertices[None], body.normals[None], c)
-    points, faces, cells, seen = [], [], [], set()
+    # Each corner merged into the first one within tol (the corners of a vertex in the plane repeat).
+    near = np.abs(corners[:, None] - corners[None]).max(axis=2) <= tol
+    used, label = np.unique(near.argmax(axis=1) if len(corners) else np.zeros(0, np.int64), return_inverse=True)
+    faces, cells, seen = [], [], set()
     for k, cell in enumerate(cut):
         face = []
-        for p in corners[starts[k]:starts[k + 1]]:
-            index = _merge(points, p, tol)
+        for index in label[starts[k]:starts[k + 1]].tolist():
             if not face or (index != face[-1] and index != face[0]):
                 face.append(index)
         if len(face) >= 3 and frozenset(face) not in seen:   # a 2-face in the plane: both its cells give it
             seen.add(frozenset(face))
             faces.append(face)
             cells.append(int(cell))
-    vertices = np.array(points, dtype=np.float64).reshape(-1, 3)
+    vertices = corners[used].reshape(-1, 3)
     keep = [k for k, f in enumerate(faces) if _area(vertices[f]) > tol]
     faces = [faces[k] for k in keep]
     face_cell = np.array([cells[k] for k in keep], dtype=np.int64)
@@ -258,14 +260,6 @@ def cross_section(body: Polytope, c: float, tol: float = 1e-9) -> Section:
     else:
         vertices = np.zeros((0, 3))
     return Section(float(c), vertices, faces, face_cell, max(volume, 0.0))
-
-
-def _merge(points: list, p: np.ndarray, tol: float) -> int:
-    for i, q in enumerate(points):
-        if np.max(np.abs(q - p)) <= tol:
-            return i
-    points.append(p)
-    return len(points) - 1
 
 
 def _area(polygon: np.ndarray) -> float:
