@@ -11,7 +11,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from touch4d.render.draw import program, set_uniforms, translucent_over_solids
+from touch4d.render.draw import ACCUM_UNIT, WEIGHT_UNIT, program, set_uniforms, translucent_over_solids
 from touch4d.render.frame import CELL_PALETTE, Frame, SceneLayer
 from touch4d.render.scene_geometry import SceneGeometry, data_rows, data_texture
 
@@ -20,7 +20,7 @@ from . import Backend, BackendUnavailable, identity_state
 GRID_LO, GRID_HI = -1.0, 1.0          # the body grid spans the 3D screen; outside, border cells take over
 UNITS = {"t_objects": 0, "t_bodies": 1, "t_halfspaces": 2, "t_colors": 3, "t_lo": 4, "t_hi": 5,
          "t_cells0": 6, "t_cells1": 7, "t_cells2": 8, "t_cells3": 9, "t_vertices": 10,
-         "t_accum": 11, "t_weight": 12, "t_centres": 13, "t_view": 14, "t_halfspace_body": 15}
+         "t_accum": ACCUM_UNIT, "t_weight": WEIGHT_UNIT, "t_centres": 13, "t_view": 14, "t_halfspace_body": 15}
 MODE_BLEND, MODE_OIT, MODE_IDS, MODE_LAYERS = 0, 1, 2, 3
 
 
@@ -144,7 +144,7 @@ class GpuBackend(Backend):
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.enable(moderngl.BLEND)
         # Fills, then centre copies, each layer order-independent within itself and resolved over
-        # what is drawn (the clip-unit backend draws them in the same order).
+        # what is drawn, then the edges (the clip-unit backend draws them the same way).
         self._transparent(["fills"], mvp, viewport)
         if layer.style.centres:
             self._transparent(["centres"], mvp, viewport)
