@@ -12,11 +12,15 @@ costs, not the trials (a trial's cost is a scene load every few seconds). Then t
 relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
 netem). Baseline, in the same run: one participant.
 
+`--process-per-node`: each round also with every node of a stack in a process of its own (the stack
+before launch files had `group`), the baseline of the memory and CPU the shared process saves.
+
 `--trials`: the stacks with their study node (the full session), every participant answering each
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials] [--figure PNG]
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--process-per-node]
+                                          [--trials] [--figure PNG] [--json FILE]
 """
 from __future__ import annotations
 
@@ -50,15 +54,24 @@ INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's c
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 TOGGLE_S = 0.3
 DELAY_S = 0.025                                      # each way: 50 ms round trip
+ROLES = ("tracker", "scene", "tactile", "study", "recorder")   # launch/study-serve.yaml's
 
 
 # ---- the server and its processes -----------------------------------------------------------------------
 
 
-def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None):
+def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None,
+                 per_node: bool = False):
+    """The server; `per_node`: each participant's nodes in processes of their own (no `group`)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
+    launch = []
+    if per_node:
+        path = out.parent / "per-node.yaml"
+        path.write_text(f"include: [{REPO / 'launch/study-serve.yaml'}]\nnodes:\n"
+                        + "".join(f"  {role}: {{group: ''}}\n" for role in ROLES))
+        launch = ["--stack", str(path)]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
-                             *(["--wire-trace", str(trace)] if trace else []),
+                             *launch, *(["--wire-trace", str(trace)] if trace else []),
                              "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
                              "--leave-after", "60", *stack],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -120,12 +133,15 @@ def pss_mb(pid: int) -> float:
 
 
 def role(pid: int) -> str:
-    """What a process of the server's tree is: a node's role (its --name), the launcher, or the server."""
+    """What a process of the server's tree is: a node's role (its --name), a group's name (its
+    --group: the participant's nodes in one process), the launcher, or the server."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
         return "?"
     argv = [a.decode(errors="replace") for a in argv]
+    if "--group" in argv:
+        return argv[argv.index("--group") + 1]
     if "--name" in argv:
         return argv[argv.index("--name") + 1]
     return "launcher" if "launch" in argv else "server"
@@ -252,11 +268,11 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
             reader.cancel()
 
 
-async def run_round(n: int, seconds: float, delay: float, study: bool = False) -> dict:
+async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_node: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
-        proc, base = start_server(out, n, study, trace)
+        proc, base = start_server(out, n, study, trace, per_node)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -303,7 +319,8 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
             inside, missed = pose_to_pulse(trace, moves)
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
-            return {"n": n, "delay_ms": 2000 * delay, "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
+            return {"n": n, "delay_ms": 2000 * delay, "label": "a process per node" if per_node else "",
+                    "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
@@ -364,6 +381,8 @@ def main() -> None:
     parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
     parser.add_argument("--json", metavar="FILE", help="write the rounds' figures there")
     parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
+    parser.add_argument("--process-per-node", action="store_true",
+                        help="each round also with every node in a process of its own: the baseline")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
@@ -381,12 +400,19 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
+    layouts = [True, False] if args.process_per_node else [False]
     for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
-        for n in sorted(set([1, *args.participants])):
-            r = asyncio.run(run_round(n, args.seconds, delay))
+        for n, per_node in ((n, p) for n in sorted(set([1, *args.participants])) for p in layouts):
+            r = asyncio.run(run_round(n, args.seconds, delay, per_node=per_node))
             rows.append(r)
-            base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"])
+            base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"] and x["label"] == r["label"])
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+            if args.process_per_node:
+                print(f"{'a process per node' if per_node else 'one process per participant (group)'}:", flush=True)
+                if not per_node:
+                    before = rows[-2]
+                    print(f"      group / process per node: memory x{r['mb_per_participant'] / before['mb_per_participant']:.2f}, "
+                          f"CPU x{r['cpu_per_participant'] / max(before['cpu_per_participant'], 1e-9):.2f}", flush=True)
             print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core and "
                   f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "
                   f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse in the server p50 "
