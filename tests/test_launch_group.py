@@ -8,6 +8,7 @@ import pytest
 
 from touch4d.bus import Executor, Node
 from touch4d.bus.launchfile import load_launch, processes
+from touch4d.bus.process import main as process_main
 from touch4d.bus.testing import collect, launch_process, pids_alive, running_broker, wait_until
 from touch4d.errors import ConfigError
 from touch4d.messages import HandPose, Heartbeat
@@ -133,3 +134,13 @@ def test_processes_group_nodes_in_file_order_and_leave_the_others_alone(tmp_path
         if launch.name != "study-serve.yaml":
             nodes = load_launch(launch)
             assert list(processes(nodes)) == list(nodes), launch.name
+
+
+@pytest.mark.parametrize("nodes, expected", [
+    ("{}", "--nodes: expected a JSON list"),
+    ("[1]", '--nodes[0]: expected an object with a "node"'),
+    ('[{"node": "no_such_node", "name": "x"}]', "node x: node 'no_such_node'"),
+])
+def test_a_group_process_with_bad_nodes_says_which_and_exits_2(nodes, expected, capsys):
+    assert process_main(["--group", "pair", "--nodes", nodes]) == 2
+    assert expected in capsys.readouterr().err

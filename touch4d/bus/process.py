@@ -110,8 +110,11 @@ def run_group(argv: list[str]) -> int:
     if entries is None:
         return 2
     members = []
-    for entry in entries:
-        ref, role = entry.get("node"), entry.get("name")
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict) or not isinstance(entry.get("node"), str):
+            print(f"group {args.group}: --nodes[{i}]: expected an object with a \"node\", got {entry!r}", file=sys.stderr)
+            return 2
+        ref, role = entry["node"], entry.get("name")
         try:
             node_class = find(ref).load()
         except NodeNotFound as exc:
