@@ -214,9 +214,10 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 
 
 async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
-                      answered: list, moves: list, pid: str) -> None:
+                      answered: list, moves: list, pid: str, dropped: list | None = None) -> None:
     """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
-    in and out."""
+    in and out. A connection the server closes (its heartbeat unanswered on a saturated machine)
+    ends the page: its id goes into `dropped`."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -268,10 +269,15 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
                 stamp = time.time() * 1000.0     # names the input in the server's wire trace
                 if state["since"] == now:
                     moves.append(Move(pid, stamp, inside))
-                await ws.send_str(json.dumps({"type": "input", "time": stamp, "tracking": True,
-                                              "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
-                                              "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
-                                                           "buttons": [], "joints": None}]}))
+                try:
+                    await ws.send_str(json.dumps({"type": "input", "time": stamp, "tracking": True,
+                                                  "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
+                                                  "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
+                                                               "buttons": [], "joints": None}]}))
+                except ConnectionError:
+                    if dropped is not None:
+                        dropped.append(pid)
+                    break
                 k += 1
                 await asyncio.sleep(max(0.0, t0 + k / RATE_HZ - time.monotonic()))
             reader.cancel()
@@ -290,11 +296,11 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost, answered, moves, joined = [], [], [], [], []
+            latencies, lost, answered, moves, joined, dropped = [], [], [], [], [], []
             stop = asyncio.Event()
             t_start = time.monotonic()
             tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
-                                                       f"S{k:02d}"))
+                                                       f"S{k:02d}", dropped))
                      for k, link in enumerate(links)]
             # CPU and memory over the measured stretch, once every participant plays: every process of
             # the server's tree (the stacks included)
@@ -341,7 +347,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                     "cpu_at_rate": (c1 - c0) / max(inputs, 1) * RATE_HZ,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
-                    "lost": len(lost), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "lost": len(lost), "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
                     "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
         finally:
             if relay_server is not None:
@@ -436,7 +442,7 @@ def main() -> None:
                   f"{fmt(r['server_p50'])} ms, p99 {fmt(r['server_p99'])} ms ({r['server_moves']} moves, "
                   f"{r['server_missed']} without a following frame; p99 x{(r['server_p99'] or 0) / max(base['server_p99'] or 1e-9, 1e-9):.2f} "
                   f"of N=1); at the client p50 {fmt(r['p50'])} ms, p99 {fmt(r['p99'])} ms ({r['lost']} of "
-                  f"{r['moves'] + r['lost']} without a frame in 300 ms); load {os.getloadavg()[0]:.1f}", flush=True)
+                  f"{r['moves'] + r['lost']} without a frame in 300 ms; {r['dropped']} pages dropped by the server); load {os.getloadavg()[0]:.1f}", flush=True)
             print(f"      CPU per page input {r['cpu_ms_per_input']:.2f} ms (server and stack; "
                   f"{r['inputs_per_s']:.0f} of {RATE_HZ:.0f} inputs/s per participant arrived): "
                   f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
