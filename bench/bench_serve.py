@@ -369,7 +369,9 @@ def figure(rows: list[dict], path: Path) -> None:
         style = ("o-", "s--", "^:", "v-.")[k % 4]
         label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
         # the server and every stack, per page input, times 72 Hz: what N participants need at full rate
-        axes[0].plot(n, [r["n"] * r.get("cpu_at_rate", r["cpu_per_participant"]) for r in rs], style, label=label)
+        # (not drawn where fewer than 90 % of the inputs arrived: the bench's pages were starved too)
+        axes[0].plot(n, [r["n"] * r.get("cpu_at_rate", r["cpu_per_participant"])
+                         if r.get("inputs_per_s", RATE_HZ) >= 0.9 * RATE_HZ else np.nan for r in rs], style, label=label)
         axes[1].plot(n, [r["mb_per_participant"] for r in rs], style, label=label)
         axes[2].plot(n, [r["server_p99"] or np.nan for r in rs], style, label=label)
     cores = os.cpu_count()
