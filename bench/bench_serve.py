@@ -362,6 +362,10 @@ def figure(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
+    first: dict = {}
+    for r in rows:   # one point per layout, delay and N: the first file given wins (--plot of several runs)
+        first.setdefault((r.get("label", ""), r["delay_ms"], r["n"]), r)
+    rows = list(first.values())
     groups = sorted({(r.get("label", ""), r["delay_ms"]) for r in rows})
     for k, (name, delay) in enumerate(groups):
         rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
