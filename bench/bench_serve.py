@@ -12,16 +12,21 @@ costs, not the trials (a trial's cost is a scene load every few seconds). Then t
 relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
 netem). Baseline, in the same run: one participant.
 
+`--process-per-node`: each round also with every node of a stack in a process of its own (the stack
+before launch files had `group`), the baseline of the memory and CPU the shared process saves.
+
 `--trials`: the stacks with their study node (the full session), every participant answering each
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--trials] [--figure PNG]
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--process-per-node]
+                                          [--trials] [--figure PNG] [--json FILE]
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
+import csv
 import json
 import os
 import platform
@@ -50,15 +55,24 @@ INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's c
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 TOGGLE_S = 0.3
 DELAY_S = 0.025                                      # each way: 50 ms round trip
+ROLES = ("tracker", "scene", "tactile", "study", "recorder")   # launch/study-serve.yaml's
 
 
 # ---- the server and its processes -----------------------------------------------------------------------
 
 
-def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None):
+def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None,
+                 per_node: bool = False):
+    """The server; `per_node`: each participant's nodes in processes of their own (no `group`)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
+    launch = []
+    if per_node:
+        path = out.parent / "per-node.yaml"
+        path.write_text(f"include: [{REPO / 'launch/study-serve.yaml'}]\nnodes:\n"
+                        + "".join(f"  {role}: {{group: ''}}\n" for role in ROLES))
+        launch = ["--stack", str(path)]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
-                             *(["--wire-trace", str(trace)] if trace else []),
+                             *launch, *(["--wire-trace", str(trace)] if trace else []),
                              "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
                              "--leave-after", "60", *stack],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -120,12 +134,15 @@ def pss_mb(pid: int) -> float:
 
 
 def role(pid: int) -> str:
-    """What a process of the server's tree is: a node's role (its --name), the launcher, or the server."""
+    """What a process of the server's tree is: a node's role (its --name), a group's name (its
+    --group: the participant's nodes in one process), the launcher, or the server."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
         return "?"
     argv = [a.decode(errors="replace") for a in argv]
+    if "--group" in argv:
+        return argv[argv.index("--group") + 1]
     if "--name" in argv:
         return argv[argv.index("--name") + 1]
     return "launcher" if "launch" in argv else "server"
@@ -139,6 +156,14 @@ def cpu(pids) -> float:
         except OSError:
             pass
     return total
+
+
+def inputs_between(trace: Path, t0: float, t1: float) -> int:
+    """Page inputs that reached the server between monotonic t0 and t1 (s): the wire trace's `in`
+    rows (its clock is this machine's monotonic clock, as time.monotonic)."""
+    lo, hi = int(t0 * 1e9), int(t1 * 1e9)
+    with open(trace, newline="") as f:
+        return sum(1 for row in csv.reader(f) if row[1] == "in" and lo <= int(row[3]) <= hi)
 
 
 def count_rows(out: Path) -> int:
@@ -189,9 +214,10 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 
 
 async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
-                      answered: list, moves: list, pid: str) -> None:
+                      answered: list, moves: list, pid: str, dropped: list | None = None) -> None:
     """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
-    in and out."""
+    in and out. A connection the server closes (its heartbeat unanswered on a saturated machine)
+    ends the page: its id goes into `dropped`."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -243,20 +269,25 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
                 stamp = time.time() * 1000.0     # names the input in the server's wire trace
                 if state["since"] == now:
                     moves.append(Move(pid, stamp, inside))
-                await ws.send_str(json.dumps({"type": "input", "time": stamp, "tracking": True,
-                                              "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
-                                              "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
-                                                           "buttons": [], "joints": None}]}))
+                try:
+                    await ws.send_str(json.dumps({"type": "input", "time": stamp, "tracking": True,
+                                                  "head": [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0],
+                                                  "sources": [{"handedness": "right", "grip": grip, "trigger": 0.0,
+                                                               "buttons": [], "joints": None}]}))
+                except ConnectionError:
+                    if dropped is not None:
+                        dropped.append(pid)
+                    break
                 k += 1
                 await asyncio.sleep(max(0.0, t0 + k / RATE_HZ - time.monotonic()))
             reader.cancel()
 
 
-async def run_round(n: int, seconds: float, delay: float, study: bool = False) -> dict:
+async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_node: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
-        proc, base = start_server(out, n, study, trace)
+        proc, base = start_server(out, n, study, trace, per_node)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -265,11 +296,11 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost, answered, moves, joined = [], [], [], [], []
+            latencies, lost, answered, moves, joined, dropped = [], [], [], [], [], []
             stop = asyncio.Event()
             t_start = time.monotonic()
             tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
-                                                       f"S{k:02d}"))
+                                                       f"S{k:02d}", dropped))
                      for k, link in enumerate(links)]
             # CPU and memory over the measured stretch, once every participant plays: every process of
             # the server's tree (the stacks included)
@@ -301,15 +332,22 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False) -
             lat = np.array(latencies) * 1000
             stop_server(proc)                                         # the trace complete
             inside, missed = pose_to_pulse(trace, moves)
+            # CPU per page input, the load-independent figure: a saturated machine runs fewer inputs
+            # per second, not cheaper ones (x 72 Hz: what a participant costs at full rate)
+            inputs = inputs_between(trace, w0, w1)
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
-            return {"n": n, "delay_ms": 2000 * delay, "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
+            return {"n": n, "delay_ms": 2000 * delay, "label": "a process per node" if per_node else "",
+                    "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
+                    "inputs_per_s": inputs / (w1 - w0) / n,
+                    "cpu_ms_per_input": 1000 * (c1 - c0) / max(inputs, 1),
+                    "cpu_at_rate": (c1 - c0) / max(inputs, 1) * RATE_HZ,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
-                    "lost": len(lost), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "lost": len(lost), "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
                     "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
         finally:
             if relay_server is not None:
@@ -324,19 +362,26 @@ def figure(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
+    first: dict = {}
+    for r in rows:   # one point per layout, delay and N: the first file given wins (--plot of several runs)
+        first.setdefault((r.get("label", ""), r["delay_ms"], r["n"]), r)
+    rows = list(first.values())
     groups = sorted({(r.get("label", ""), r["delay_ms"]) for r in rows})
     for k, (name, delay) in enumerate(groups):
         rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
         n = [r["n"] for r in rs]
         style = ("o-", "s--", "^:", "v-.")[k % 4]
         label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
-        axes[0].plot(n, [r["n"] * r["cpu_per_participant"] + r["server_cpu"] for r in rs], style, label=label)
+        # the server and every stack, per page input, times 72 Hz: what N participants need at full rate
+        # (not drawn where fewer than 90 % of the inputs arrived: the bench's pages were starved too)
+        axes[0].plot(n, [r["n"] * r.get("cpu_at_rate", r["cpu_per_participant"])
+                         if r.get("inputs_per_s", RATE_HZ) >= 0.9 * RATE_HZ else np.nan for r in rs], style, label=label)
         axes[1].plot(n, [r["mb_per_participant"] for r in rs], style, label=label)
         axes[2].plot(n, [r["server_p99"] or np.nan for r in rs], style, label=label)
     cores = os.cpu_count()
     axes[0].axhline(cores, color="k", lw=0.8)
     axes[0].text(1, cores * 0.93, f"{cores} cores: one server ends (less: what others use)", fontsize=8)
-    axes[0].set(title="CPU, all participants (cores)", xlabel="participants on one server")
+    axes[0].set(title=f"CPU at {RATE_HZ:.0f} Hz, all participants (cores)", xlabel="participants on one server")
     axes[1].axhline(150, color="k", lw=0.8)
     axes[1].text(1, 153, "target 150 MB", fontsize=8)
     axes[1].set(title="memory per participant (MB PSS)", xlabel="participants on one server",
@@ -364,6 +409,8 @@ def main() -> None:
     parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
     parser.add_argument("--json", metavar="FILE", help="write the rounds' figures there")
     parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
+    parser.add_argument("--process-per-node", action="store_true",
+                        help="each round also with every node in a process of its own: the baseline")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
@@ -381,19 +428,31 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
+    layouts = [True, False] if args.process_per_node else [False]
     for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
-        for n in sorted(set([1, *args.participants])):
-            r = asyncio.run(run_round(n, args.seconds, delay))
+        for n, per_node in ((n, p) for n in sorted(set([1, *args.participants])) for p in layouts):
+            r = asyncio.run(run_round(n, args.seconds, delay, per_node=per_node))
             rows.append(r)
-            base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"])
+            base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"] and x["label"] == r["label"])
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
-            print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core and "
+            if args.process_per_node:
+                print(f"{'a process per node' if per_node else 'one process per participant (group)'}:", flush=True)
+                if not per_node:
+                    before = rows[-2]
+                    print(f"      group / process per node: memory x{r['mb_per_participant'] / before['mb_per_participant']:.2f}, "
+                          f"CPU per input x{r['cpu_ms_per_input'] / max(before['cpu_ms_per_input'], 1e-9):.2f}", flush=True)
+            print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core (the server's "
+                  f"share included) and "
                   f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "
                   f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse in the server p50 "
                   f"{fmt(r['server_p50'])} ms, p99 {fmt(r['server_p99'])} ms ({r['server_moves']} moves, "
                   f"{r['server_missed']} without a following frame; p99 x{(r['server_p99'] or 0) / max(base['server_p99'] or 1e-9, 1e-9):.2f} "
                   f"of N=1); at the client p50 {fmt(r['p50'])} ms, p99 {fmt(r['p99'])} ms ({r['lost']} of "
-                  f"{r['moves'] + r['lost']} without a frame in 300 ms); load {os.getloadavg()[0]:.1f}", flush=True)
+                  f"{r['moves'] + r['lost']} without a frame in 300 ms; {r['dropped']} pages dropped by the server); load {os.getloadavg()[0]:.1f}", flush=True)
+            print(f"      CPU per page input {r['cpu_ms_per_input']:.2f} ms (server and stack; "
+                  f"{r['inputs_per_s']:.0f} of {RATE_HZ:.0f} inputs/s per participant arrived): "
+                  f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
+                  f"{n * r['cpu_at_rate']:.1f} cores for N={n}", flush=True)
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)

@@ -169,7 +169,13 @@ def _starts(out: Path) -> int:
         return 0
 
 
-def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_resumes(tmp_path, capsys):
+def _group_processes(out: Path) -> list[int]:
+    """P01's shared node process (launch/study-serve.yaml's `group`), not its launcher."""
+    return [pid for pid in _processes_with(f"{out}/P01")
+            if b"--group" in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")]
+
+
+def test_a_crashed_stack_comes_back_whole_a_killed_server_takes_its_stacks_and_everyone_resumes(tmp_path, capsys):
     with serve(tmp_path, "--leave-after", "600") as served:          # no page opens here
         link = invite(served, "P01", capsys=capsys)
         page = Browser()
@@ -177,6 +183,15 @@ def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_res
         assert page.get(f"{served.url}/join", data=b"")[0] == 200
         assert _processes_with(f"{served.out}/P01")                    # its nodes run
         wait_until(lambda: _starts(served.out) >= 1, timeout=90)       # its session began
+        first = _group_processes(served.out)
+        assert len(first) == 1                                         # its nodes: one process
+        os.kill(first[0], signal.SIGKILL)                              # a crash takes every node of it
+        # its launcher starts the group again: the study node resumes the same session
+        wait_until(lambda: _starts(served.out) >= 2, timeout=90)
+        back = _group_processes(served.out)
+        assert len(back) == 1 and back != first
+        log = (served.out / "P01" / "serve.log").read_text()
+        assert "group 'participant'" in log and "was killed by SIGKILL" in log and "respawning 'participant'" in log
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
         served.proc.wait()
         wait_until(lambda: not _processes_with(f"{served.out}/P01"), timeout=30)
@@ -185,8 +200,8 @@ def test_a_killed_server_takes_its_stacks_with_it_and_started_again_everyone_res
         status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
         assert status == 200 and "id=join" in text
         assert page.get(f"{again.url}/join", data=b"")[0] == 200
-        # the study node started a second time on the same session (it resumes at the first trial without a row)
-        wait_until(lambda: _starts(again.out) >= 2, timeout=90)
+        # the study node started again on the same session (it resumes at the first trial without a row)
+        wait_until(lambda: _starts(again.out) >= 3, timeout=90)
 
 
 def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experimenter(tmp_path, capsys):

@@ -40,6 +40,21 @@ def test_frame_round_trip_keeps_dtype_shape_values_and_8_byte_alignment():
     assert len(data) % 8 == 0
 
 
+@pytest.mark.parametrize("pad", [0, 1, 5, 37, 90, 9000])
+def test_frame_arrays_start_right_after_the_header_whatever_its_length(pad):
+    # the header's length moves the arrays' offsets, whose digits move the header's length
+    arrays = {f"a{k}": np.full(1000 * k + 1, k, np.float32) for k in range(12)}
+    data = pack_frame("frame", {"text": "x" * pad}, arrays)
+    length = int.from_bytes(data[:4], "little")
+    table = json.loads(data[4:4 + length])["arrays"]
+    first = min(offset for _, _, offset in table.values())
+    assert first == (4 + length + 7) // 8 * 8          # no gap, no overlap: the next 8-byte boundary
+    header, back = unpack_frame(data)
+    assert header["text"] == "x" * pad
+    for name, arr in arrays.items():
+        np.testing.assert_array_equal(back[name], arr)
+
+
 def test_frame_refuses_float64_and_nan_fields():
     with pytest.raises(ValueError, match="dtype"):
         pack_frame("frame", {}, {"x": np.zeros(3)})

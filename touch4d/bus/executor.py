@@ -1,6 +1,7 @@
 """The executor: one thread's loop of timers, socket readers and calls handed over by other threads.
 
-A node owns one (`node.executor`); it registers its sockets as readers and its timers, and
+A node owns one (`node.executor`), or shares one with the other nodes of its process (a launch
+file's `group`, touch4d.bus.group); it registers its sockets as readers and its timers, and
 `spin_once` waits for whichever comes first. Everything runs on the thread that spins, so node code
 needs no locks. A callback that raises is handed to `on_error(where, exc)` (inside the `except`, so
 a traceback can be logged) and the loop goes on.
@@ -27,6 +28,7 @@ class Timer:
     callback: Callable[[], Any]
     next_due: float
     cancelled: bool = False
+    on_error: Callable[[Any, Exception], None] | None = None   # None: the executor's
 
     def cancel(self) -> None:
         self.cancelled = True
@@ -61,10 +63,18 @@ class Executor:
         self._readers[sock] = callback
         self._poller.register(sock, zmq.POLLIN)
 
-    def create_timer(self, period: float, callback: Callable[[], Any], first_due: float | None = None) -> Timer:
+    def remove_reader(self, sock) -> None:
+        """Stop watching `sock` (a node of a shared executor shutting down); unknown: nothing."""
+        if self._readers.pop(sock, None) is not None:
+            self._poller.unregister(sock)
+
+    def create_timer(self, period: float, callback: Callable[[], Any], first_due: float | None = None,
+                     on_error: Callable[[Any, Exception], None] | None = None) -> Timer:
+        """Call `callback()` every `period` s; its exceptions go to `on_error` (default: the executor's)."""
         if not period > 0:
             raise ValueError(f"timer period must be > 0 s, got {period}")
-        timer = Timer(float(period), callback, time.monotonic() + period if first_due is None else first_due)
+        timer = Timer(float(period), callback, time.monotonic() + period if first_due is None else first_due,
+                      on_error=on_error)
         self.timers.append(timer)
         self._next_due = min(self._next_due, timer.next_due)
         return timer
@@ -160,7 +170,7 @@ class Executor:
                 try:
                     timer.callback()
                 except Exception as exc:  # noqa: BLE001 - a failing timer must not stop the loop
-                    self.on_error(timer, exc)
+                    (timer.on_error or self.on_error)(timer, exc)
                 ran += 1
             if timer.next_due < next_due:   # cancelled by its own callback: a wake for nothing
                 next_due = timer.next_due

@@ -1,4 +1,5 @@
-"""`touch4d launch`: the broker plus one process per node, their output prefixed, a clean stop.
+"""`touch4d launch`: the broker plus one process per node (or per `group` of nodes), their output
+prefixed, a clean stop.
 
 Children stay in the launcher's process group (Ctrl+C in a terminal reaches them all at once) and
 are told to die with the launcher. On Ctrl+C, SIGTERM or the end of `--duration`, every node gets
@@ -29,7 +30,7 @@ import zmq
 from touch4d.bus import names, transport
 from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
-from touch4d.bus.launchfile import NodeSpec
+from touch4d.bus.launchfile import NodeSpec, processes
 from touch4d.bus.node import HEARTBEAT_TOPIC
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
 from touch4d.bus.topology import shared_inputs, shared_text
@@ -45,7 +46,10 @@ _COLORS = ("36", "33", "35", "32", "34", "31", "96", "93", "95", "92")
 
 @dataclass
 class _Child:
-    spec: NodeSpec
+    """One process of the launch: one node, or the nodes of a group (touch4d.bus.launchfile.processes)."""
+
+    name: str
+    specs: list[NodeSpec]
     proc: subprocess.Popen | None = None
     started: float = 0.0
     buffer: bytes = b""
@@ -55,6 +59,29 @@ class _Child:
     failed: bool = False
     ready: bool = False       # the node said it is built
     ready_fd: int | None = None
+
+    @property
+    def group(self) -> bool:
+        return bool(self.specs[0].group)
+
+    @property
+    def respawn(self) -> bool:
+        return any(s.respawn for s in self.specs)   # a node that asks to come back brings its group
+
+    @property
+    def respawn_delay(self) -> float:
+        return max(s.respawn_delay for s in self.specs)
+
+    @property
+    def label(self) -> str:
+        return f"{'group' if self.group else 'node'} '{self.name}'"
+
+    @property
+    def title(self) -> str:
+        """How the launcher names it: node 'ROLE' (MODULE), or group 'NAME' (ROLE: MODULE, ...)."""
+        if not self.group:
+            return f"{self.label} ({self.specs[0].module})"
+        return f"{self.label} ({', '.join(f'{s.role}: {s.module}' for s in self.specs)})"
 
 
 class Launcher:
@@ -69,12 +96,14 @@ class Launcher:
         self.ready_file = ready_file
         self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
-        self.children = {role: _Child(spec, delay=spec.respawn_delay) for role, spec in nodes.items()}
+        self.children = {name: _Child(name, specs) for name, specs in processes(nodes).items()}
+        for child in self.children.values():
+            child.delay = child.respawn_delay
         self.namespace = next((spec.namespace for spec in nodes.values()), "")   # one per launch
-        width = max([len(r) for r in nodes] + [6])
+        width = max([len(r) for r in self.children] + [6])
         color = self.out is sys.stdout.buffer and sys.stdout.isatty()
         self._prefix = {}
-        for i, role in enumerate([*nodes, "launch"]):
+        for i, role in enumerate([*self.children, "launch"]):
             text = f"[{role}]".ljust(width + 2) + " "
             self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
         self._stop_reason: str | None = None
@@ -116,13 +145,13 @@ class Launcher:
             data = b""
         if not data:
             if child.buffer:
-                self._emit(child.spec.role, [child.buffer])
+                self._emit(child.name, [child.buffer])
                 self._remember(child, [child.buffer])
                 child.buffer = b""
             return False
         *lines, child.buffer = (child.buffer + data).split(b"\n")
         if lines:
-            self._emit(child.spec.role, lines)
+            self._emit(child.name, lines)
             self._remember(child, lines)
         return True
 
@@ -134,10 +163,15 @@ class Launcher:
     # ---- processes ---------------------------------------------------------------------------
 
     def _spawn(self, child: _Child) -> None:
-        spec = child.spec
-        cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,
-               "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
-        if spec.realtime:
+        spec = child.specs[0]
+        if child.group:
+            cmd = [sys.executable, "-u", "-m", "touch4d.bus", "--group", child.name, "--nodes", json.dumps(
+                [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source} for s in child.specs],
+                default=str)]
+        else:
+            cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,
+                   "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]
+        if any(s.realtime for s in child.specs):
             cmd.append("--realtime")
         if spec.namespace:
             cmd += ["--namespace", spec.namespace]
@@ -189,26 +223,27 @@ class Launcher:
         code = proc.returncode
         if self._stop_reason is not None:
             return
-        role, module = child.spec.role, child.spec.module
+        title = child.title
         what = f"exited with code {code}" if code >= 0 else f"was killed by {signal.Signals(-code).name}"
         failed_start = not child.ready and code != 0
         if failed_start:
             cause = child.last_lines[-1] if child.last_lines else "no output"
-            cause = cause.removeprefix(f"node {role}: ")
-            line = f"node '{role}' ({module}) failed to start: {what}: {cause}"
+            if not child.group:   # a group's cause keeps the name of the node that failed
+                cause = cause.removeprefix(f"node {child.name}: ")
+            line = f"{title} failed to start: {what}: {cause}"
             self.say(line)
         else:
-            self.say(f"node '{role}' ({module}) {what}")
-        if child.spec.respawn:
-            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if failed_start else child.spec.respawn_delay
+            self.say(f"{title} {what}")
+        if child.respawn:
+            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if failed_start else child.respawn_delay
             child.restart_at = time.monotonic() + child.delay
-            self.say(f"respawning '{role}' in {child.delay:.1f} s")
+            self.say(f"respawning '{child.name}' in {child.delay:.1f} s")
         elif code != 0:
             child.failed = True
             if failed_start and self._start_failure is None:
                 # A stack without one of its nodes is not the stack the user asked for: stop it.
                 self._start_failure = (line, code if code > 0 else 1)
-                self._stop_reason = f"node '{role}' failed to start"
+                self._stop_reason = f"{child.label} failed to start"
 
     def _running(self) -> list[_Child]:
         return [c for c in self.children.values() if c.proc is not None]
@@ -216,7 +251,7 @@ class Launcher:
     # ---- main loop ---------------------------------------------------------------------------
 
     def run(self) -> int:
-        realtime = any(c.spec.realtime for c in self.children.values())  # the loop crosses the broker
+        realtime = any(s.realtime for c in self.children.values() for s in c.specs)  # the loop crosses the broker
         broker = Broker(self.bus, realtime=realtime) if self.start_broker else None
         endpoints = broker.start() if broker else self.bus
         self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
@@ -243,8 +278,12 @@ class Launcher:
             self._open_watch(endpoints)
             for child in self.children.values():
                 self._spawn(child)
-            self.say(f"started {len(self.children)} node(s): "
-                     + ", ".join(f"{c.spec.role} ({c.spec.module})" for c in self.children.values()))
+            nodes = sum(len(c.specs) for c in self.children.values())
+            self.say(f"started {nodes} node(s)"
+                     + (f" in {len(self.children)} process(es)" if nodes != len(self.children) else "") + ": "
+                     + ", ".join(f"{c.specs[0].role} ({c.specs[0].module})" if not c.group else
+                                 f"{c.name} ({', '.join(f'{s.role}: {s.module}' for s in c.specs)})"
+                                 for c in self.children.values()))
             if self.ready_file:
                 Path(self.ready_file).write_text(endpoints.for_clients().to_json())
             self._loop()
@@ -268,7 +307,7 @@ class Launcher:
                 self._watch.close(linger=0)
             if broker:
                 broker.stop()
-        failed = [c.spec.role for c in self.children.values() if c.failed]
+        failed = [c.name for c in self.children.values() if c.failed]
         if self._output_closed:
             return EXIT_PIPE_CLOSED
         if self._start_failure is not None:
@@ -367,7 +406,7 @@ class Launcher:
                 if child.proc.poll() is not None:
                     self._reap(child)
         for child in self._running():
-            self.say(f"node '{child.spec.role}' did not stop within {STOP_GRACE} s: killing it")
+            self.say(f"{child.label} did not stop within {STOP_GRACE} s: killing it")
             child.proc.kill()
             child.proc.wait()
             self._reap(child)

@@ -12,12 +12,19 @@ nodes:
     respawn: false            # restart it when it dies
     respawn_delay: 0.5        # seconds before a restart
     realtime: false           # SCHED_FIFO priority for the haptic loop, when permitted
+    group: participant        # run in one process with the other nodes of this group; optional
 ```
 Overrides on the command line: `ROLE:=NODE` swaps a node, `+ROLE:=NODE` adds one, `ROLE:=none`
 removes one, `ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML). A swap to another node drops
 the role's `params` (they belong to the node it replaces: `rate` is Hz for a tracker but a speed
 factor for replay) and takes that node's `params_for` entry instead. `ns` is the launched file's (an
 included file's is not used); `touch4d launch FILE --namespace NS` replaces it.
+
+Nodes of one `group` share a process and its one thread (touch4d.bus.process.run_group): less
+memory and no copies between processes, but a node that blocks holds up the others. The group is
+one process to the launcher: it respawns (whole) if any of its nodes says `respawn`, after the
+longest `respawn_delay` of its nodes, and is realtime if any of them is. Without `group`, each node
+is a process of its own.
 
 Everything is checked before any process starts: every role an override names exists, every node
 exists, and every parameter is one the node declares (`PARAMS`), with a valid value.
@@ -46,6 +53,7 @@ class NodeEntry(msgspec.Struct, forbid_unknown_fields=True):
     respawn: bool | None = None
     respawn_delay: Annotated[float, msgspec.Meta(ge=0, le=schema.FINITE_MAX, description="seconds >= 0")] | None = None
     realtime: bool | None = None
+    group: Annotated[str, msgspec.Meta(description="a group name: the nodes of one group share a process")] | None = None
 
 
 class LaunchFile(msgspec.Struct, forbid_unknown_fields=True):
@@ -68,6 +76,8 @@ class NodeSpec:
     respawn_delay: float = 0.5
     realtime: bool = False
     namespace: str = ""         # every topic of the node under NAMESPACE/ (touch4d.bus.names)
+    group: str = ""             # the nodes of one group share a process; "": a process of its own
+    group_source: str = ""      # the file that set `group`
     source: str = COMMAND_LINE  # the file that last set this node's module or parameters
     # parameter -> (where it was set, its key there): a file and nodes.ROLE.params.NAME, or the override
     param_sources: dict = field(default_factory=dict)
@@ -94,6 +104,7 @@ def load_launch(path: str | Path, overrides: list[str] = (), namespace: str | No
             raise ConfigError(spec.source, f"nodes.{role}.node", "a node (the role is not defined by any included file)")
         node_class = _load_node(spec.source, f"nodes.{role}.node", spec.module)
         _check_params(node_class, spec, spec.params, f"node {spec.module} (role '{role}' of {path})")
+    processes(nodes)   # a group that clashes with a role: refused here, before anything starts
     return nodes
 
 
@@ -159,12 +170,30 @@ def _merge_node(path: Path, role: str, entry: NodeEntry, nodes: dict[str, NodeSp
         spec.realtime = entry.realtime
     if entry.respawn_delay is not None:
         spec.respawn_delay = entry.respawn_delay
+    if entry.group is not None:
+        if entry.group:
+            _check_role(path, f"{where}.group", entry.group, "a group name")
+        spec.group, spec.group_source = entry.group, str(path)
     nodes[role] = spec
 
 
-def _check_role(source, key: str, role: str) -> None:
+def _check_role(source, key: str, role: str, what: str = "a role name") -> None:
     if not role.replace("_", "").replace("-", "").isalnum():
-        raise ConfigError(source, key, "a role name of letters, digits, '_' or '-'", got=role)
+        raise ConfigError(source, key, f"{what} of letters, digits, '_' or '-'", got=role)
+
+
+def processes(nodes: dict[str, NodeSpec]) -> dict[str, list[NodeSpec]]:
+    """The processes a launch runs, by name: each group's nodes (in launch-file order) under the
+    group's name, each other node alone under its role. A group named like another node's role is
+    refused (the launcher's output and `touch4d node list` name processes by it)."""
+    out: dict[str, list[NodeSpec]] = {}
+    for role, spec in nodes.items():
+        name = spec.group or role
+        if spec.group and spec.group in nodes and nodes[spec.group].group != spec.group:
+            raise ConfigError(spec.group_source, f"nodes.{role}.group",
+                              "a group name that is not the role of a node outside the group", got=spec.group)
+        out.setdefault(name, []).append(spec)
+    return out
 
 
 def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "the launch file") -> None:

@@ -8,7 +8,8 @@ sends what `setup` published. Whatever happens, `shutdown` closes everything aga
 `setup` raises).
 
 One thread runs everything (callbacks, timers, `on_shutdown`): the node's executor
-(touch4d.bus.executor), so node code needs no locks. Each node has one publishing socket and one
+(touch4d.bus.executor), its own or one shared by the nodes of one process (touch4d.bus.group), so
+node code needs no locks. Each node has one publishing socket and one
 SUB socket, made and synchronised by touch4d.bus.transport; a subscription made after `start`
 returns only once the broker applies it (the transport's `sync`).
 """
@@ -142,10 +143,13 @@ class Node:
         context: zmq.Context | None = None,
         start: bool = True,
         namespace: str | None = None,
+        executor: Executor | None = None,
     ):
         """Check the parameters and make the sockets; then `start()` unless `start=False` (set
         attributes a test needs, e.g. a device to use, between the two). `namespace`: every topic
-        this node names lies under `NAMESPACE/` (touch4d.bus.names; '' or None: none)."""
+        this node names lies under `NAMESPACE/` (touch4d.bus.names; '' or None: none). `executor`:
+        one shared with other nodes of this process (their thread is this node's; whoever made it
+        spins and closes it); None: the node's own."""
         self.name = role or name or self.default_name
         try:
             self.namespace = names.check_namespace(namespace)
@@ -196,7 +200,9 @@ class Node:
         except BaseException:
             self._pub.close(linger=0)
             raise
-        self.executor = Executor(on_error=self._callback_failed)
+        self._owns_executor = executor is None
+        self._timers: list[Timer] = []   # on a shared executor: cancelled when this node shuts down
+        self.executor = Executor(on_error=self._callback_failed) if executor is None else executor
         self.executor.add_reader(self._sub, self._on_messages)
         self.executor.add_reader(self._pub, self._on_broker)
         # What publishing writes to: a holder until start() has connected, then the socket. (An
@@ -235,7 +241,8 @@ class Node:
             self._pub.send_multipart(frames)
         if self._heartbeat:
             self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
-            self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat, first_due=time.monotonic())
+            self._timers.append(self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat,
+                                                           first_due=time.monotonic(), on_error=self._callback_failed))
 
     # ---- what subclasses write -----------------------------------------------------------------
 
@@ -333,7 +340,9 @@ class Node:
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
         """Call `callback()` every `period` seconds (fixed rate) on the node's thread."""
-        return self.executor.create_timer(period, callback)
+        timer = self.executor.create_timer(period, callback, on_error=self._callback_failed)
+        self._timers.append(timer)
+        return timer
 
     def set_timer_period(self, timer: Timer, period: float) -> None:
         """Change a timer's period; a shorter one takes effect at once (the next tick at most
@@ -384,10 +393,11 @@ class Node:
     def call_soon_threadsafe(self, callback: Callable, *args) -> None:
         """Run `callback(*args)` on the node's thread at its next spin; safe from any thread (e.g. a
         server's event loop handing over what a client sent). The poll wakes at once."""
-        self.executor.call_soon_threadsafe(callback, *args)
+        self.executor.call_soon_threadsafe(self._call, callback, args, getattr(callback, "__name__", "call_soon"))
 
     def request_shutdown(self) -> None:
-        """Ask `spin` to return; safe from signal handlers and other threads."""
+        """Ask `spin` to return; safe from signal handlers and other threads. On a shared executor
+        this stops every node of the process (which the launcher then restarts as a whole)."""
         self.executor.request_shutdown()
 
     @property
@@ -399,7 +409,8 @@ class Node:
         what was published)."""
         if self._closed:
             return
-        self.executor.request_shutdown()
+        if self._owns_executor:
+            self.executor.request_shutdown()
         if not self._shutdown_called:
             self._shutdown_called = True
             steps = ([self.on_shutdown] if self._set_up else []) + self._cleanups[::-1]
@@ -410,9 +421,15 @@ class Node:
                 except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
                     self.log.exception("%s failed during shutdown", getattr(step, "__qualname__", step))
         self._closed = True
+        if self._owns_executor:
+            self.executor.close()
+        else:   # the other nodes of the process spin on: take this node's sockets and timers out
+            self.executor.remove_reader(self._sub)
+            self.executor.remove_reader(self._pub)
+            for timer in self._timers:
+                timer.cancel()
         self._sub.close(linger=0)
         self._pub.close()
-        self.executor.close()
 
     close = shutdown
 

@@ -3,7 +3,9 @@
 The launcher starts each node as `python -u -m touch4d.bus NODE --name ROLE --params JSON`, NODE
 as its launch file names it (touch4d.bus.registry finds the class). Once the node is built the
 process freezes its start-up heap (touch4d.bus.heap) and tells the launcher it is ready (a byte on
-the pipe `$TOUCH4D_READY_FD`); one that exits before that failed to start. SIGINT/SIGTERM make
+the pipe `$TOUCH4D_READY_FD`); one that exits before that failed to start. A launch file's
+`group` runs several nodes in one process (`python -m touch4d.bus --group NAME --nodes JSON`) on one
+executor, ready once all are built. SIGINT/SIGTERM make
 `spin` return, then `on_shutdown` runs before the sockets close and the process exits 0; a bad
 parameter or config exits 2.
 """
@@ -20,6 +22,7 @@ import sys
 import zmq
 
 from touch4d.bus.config import resolve_bus_config
+from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.realtime import PRIORITY, raise_thread_priority
 from touch4d.errors import Touch4dError, Unavailable
@@ -76,64 +79,130 @@ def run_node(node_class, argv: list[str] | None = None) -> int:
     the exit code (0 after a clean stop, 2 when the node's parameters or config are wrong, 1 when
     something it needs is unavailable)."""
     args = parse_node_args(sys.argv[1:] if argv is None else argv, getattr(node_class, "__name__", None))
+    name = args.name or node_class.__name__
+    _configure(args, name)
+    params = _params_object(args.params, f"node {args.name}: --params")
+    if params is None:
+        return 2
+    kwargs = {"params": params, "kind": args.kind, "params_source": args.params_source, "namespace": args.namespace}
+    if args.name:
+        kwargs["role"] = args.name
+    return _run([(name, node_class, kwargs)], args.bus, shared=False)
+
+
+def run_group(argv: list[str]) -> int:
+    """`python -m touch4d.bus --group NAME --nodes JSON`: several nodes in one process, on one
+    executor (one thread: node code still needs no locks). JSON: a list of {"node": NODE, "name":
+    ROLE, "params": {...}, "params_source": FILE}, built in order. The exit codes are `run_node`'s;
+    the process stops (and its launcher restarts it whole) when any of its nodes asks to."""
+    parser = argparse.ArgumentParser(prog="touch4d.bus --group", description="Run several touch4d nodes in one process.")
+    parser.add_argument("--group", required=True, help="the group's name (its launch file's `group`)")
+    parser.add_argument("--nodes", required=True, help="the nodes, as a JSON list")
+    parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+    parser.add_argument("--namespace", default="", metavar="NS", help="put every topic of the nodes under NS/")
+    parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
+    parser.add_argument("--realtime", action="store_true", help="as for one node")
+    args = parser.parse_args(argv)
+    _configure(args, args.group)
+    from touch4d.bus.registry import NodeNotFound, find
+
+    entries = _params_object(args.nodes, f"group {args.group}: --nodes", list)
+    if entries is None:
+        return 2
+    members = []
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict) or not isinstance(entry.get("node"), str):
+            print(f"group {args.group}: --nodes[{i}]: expected an object with a \"node\", got {entry!r}", file=sys.stderr)
+            return 2
+        ref, role = entry["node"], entry.get("name")
+        try:
+            node_class = find(ref).load()
+        except NodeNotFound as exc:
+            print(f"node {role}: node {ref!r}: {exc}", file=sys.stderr)
+            return 2
+        members.append((role, node_class, {"params": entry.get("params", {}), "kind": ref, "role": role,
+                                           "params_source": entry.get("params_source"),
+                                           "namespace": args.namespace}))
+    return _run(members, args.bus, shared=True)
+
+
+def _configure(args: argparse.Namespace, name: str) -> None:
+    """What every node process does first: logging, dying with the launcher, real-time priority."""
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
     die_with_parent()
-    try:
-        params = json.loads(args.params)
-        if not isinstance(params, dict):
-            raise ValueError("not an object")
-    except ValueError as exc:
-        print(f"node {args.name}: --params: expected a JSON object, got {args.params!r} ({exc})", file=sys.stderr)
-        return 2
     if args.realtime:
         # Before any thread exists: the ZeroMQ I/O threads and the node's own threads inherit it.
         if raise_thread_priority():
-            logging.getLogger(args.name or "node").info("real-time priority (SCHED_FIFO %d)", PRIORITY)
+            logging.getLogger(name).info("real-time priority (SCHED_FIFO %d)", PRIORITY)
         else:
-            logging.getLogger(args.name or "node").warning(
+            logging.getLogger(name).warning(
                 "real-time priority not permitted (needs root or CAP_SYS_NICE): running at normal priority")
-    kwargs = {"params": params, "bus": None, "kind": args.kind, "params_source": args.params_source,
-              "namespace": args.namespace}
-    if args.name:
-        kwargs["role"] = args.name
-    # Handlers go in before the node is built: a stop that arrives while it starts is kept for later.
-    holder: dict = {"node": None, "stop": False}
+
+
+def _params_object(text: str, where: str, kind: type = dict):
+    """`text` parsed as a JSON object (or list), or None after saying what was wrong on stderr."""
+    try:
+        value = json.loads(text)
+        if not isinstance(value, kind):
+            raise ValueError(f"not a{'n object' if kind is dict else ' list'}")
+    except ValueError as exc:
+        print(f"{where}: expected a JSON {'object' if kind is dict else 'list'}, got {text!r} ({exc})", file=sys.stderr)
+        return None
+    return value
+
+
+def _run(members: list[tuple[str, type, dict]], bus_file: str | None, shared: bool) -> int:
+    """Build the nodes `members` names (name, class, constructor arguments) in order, spin them until
+    SIGINT/SIGTERM, shut them down in reverse order. `shared`: on one executor (a group)."""
+    executor = Executor() if shared else None
+    built: list = []
+    # Handlers go in before the nodes are built: a stop that arrives meanwhile is kept for later.
+    holder: dict = {"stop": False}
 
     def stop(signum, frame):
         holder["stop"] = True
-        if holder["node"] is not None:
-            holder["node"].request_shutdown()
+        target = executor or (built[0] if built else None)
+        if target is not None:
+            target.request_shutdown()
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, stop)
+    name = members[0][0]
     try:
-        kwargs["bus"] = resolve_bus_config(args.bus)
-        node = holder["node"] = node_class(**kwargs)
-    except Unavailable as exc:   # a package, device or service it needs is not there
-        print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
-        return 1
-    except Touch4dError as exc:
-        print(f"node {args.name or node_class.__name__}: {exc}", file=sys.stderr)
-        return 2
-    freeze_startup_heap()   # a full collection over it would stall the loop for tens of ms
-    _tell_ready()
-    if holder["stop"]:
-        node.request_shutdown()
-    try:
-        node.spin()
+        try:
+            bus = resolve_bus_config(bus_file)
+            for name, node_class, kwargs in members:
+                built.append(node_class(**kwargs, bus=bus, **({"executor": executor} if shared else {})))
+        except Unavailable as exc:   # a package, device or service it needs is not there
+            print(f"node {name}: {exc}", file=sys.stderr)
+            return 1
+        except Touch4dError as exc:
+            print(f"node {name}: {exc}", file=sys.stderr)
+            return 2
+        freeze_startup_heap()   # a full collection over it would stall the loop for tens of ms
+        _tell_ready()
+        if holder["stop"]:
+            (executor or built[0]).request_shutdown()
+        (executor or built[0]).spin()
     finally:
-        node.shutdown()
+        for node in reversed(built):
+            node.shutdown()
+        if executor is not None:
+            executor.close()
         # Wait (up to the publisher's 1 s linger) until what on_shutdown published has left.
         zmq.Context.instance().destroy(linger=1000)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m touch4d.bus NODE [node args]`: run the node NODE names (touch4d.bus.registry)."""
+    """`python -m touch4d.bus NODE [node args]`: run the node NODE names (touch4d.bus.registry);
+    `python -m touch4d.bus --group NAME --nodes JSON ...`: several in one process (`run_group`)."""
     from touch4d.bus.registry import NodeNotFound, find
 
     argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--group":
+        return run_group(argv)
     if not argv or argv[0].startswith("-"):
         print("usage: python -m touch4d.bus NODE [--name N] [--params JSON] ...", file=sys.stderr)
         return 2

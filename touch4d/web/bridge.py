@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import logging
 import time
 from dataclasses import dataclass
@@ -69,6 +70,13 @@ PAGE_WARNINGS = 5        # distinct warnings logged per page; then its problems 
 # thumbstick press, ...); the trigger stays the object's grab. Any of them ends a break.
 ANSWER_BUTTONS = ("a", "b", "thumbstick", "squeeze", "touchpad")
 BUTTON_LABELS = {"a": "A", "b": "B", "thumbstick": "stick", "squeeze": "grip", "touchpad": "pad"}
+
+
+@functools.lru_cache(maxsize=16)
+def _style_fields(style: Style) -> dict:
+    """A style as the frame's `scene_style` (a frozen Style: one dict per style, not one per frame;
+    dataclasses.asdict cost a third of building a frame). Read only: it goes into every frame."""
+    return dataclasses.asdict(style)
 
 
 @dataclass(frozen=True)
@@ -321,7 +329,7 @@ class WebBridge:
             # the view; in the slice and both views the cross-section's triangles, cut here (static/slice.js)
             view = self.view
             fields.update(view=view.view, slice_w=view.slice_w, w_extent=list(view.extent) if view.extent else None,
-                          scene_style=dataclasses.asdict(layer.style))
+                          scene_style=_style_fields(layer.style))
             if view.section is not None:
                 arrays["section"] = np.ascontiguousarray(view.section, dtype=np.float32).ravel()
         self._last_frame = pack_frame("frame", fields, arrays)

@@ -95,16 +95,20 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
             raise ValueError(f"array {name!r}: dtype {arr.dtype} is not one of {', '.join(ARRAY_DTYPES)}")
         clean[name] = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
         table[name] = [dtype, list(arr.shape), 0]
-    # The offsets depend on the header's length, which depends on the offsets' digits: two passes.
-    for _ in range(2):
+    # The offsets depend on the header's length, which depends on the offsets' digits: encode until
+    # the arrays' start no longer moves (twice, nearly always; the header is most of a frame's cost).
+    start, header = None, b""
+    for _ in range(8):
         header = json.dumps({"kind": kind, **(fields or {}), "arrays": table}, separators=(",", ":"),
                             allow_nan=False).encode()
-        offset = _align(_LEN.size + len(header))
+        if _align(_LEN.size + len(header)) == start:
+            break
+        start = offset = _align(_LEN.size + len(header))
         for name, arr in clean.items():
             table[name][2] = offset
             offset = _align(offset + arr.nbytes)
-    header = json.dumps({"kind": kind, **(fields or {}), "arrays": table}, separators=(",", ":"),
-                        allow_nan=False).encode()
+    else:
+        raise AssertionError("frame header offsets did not settle")
     out = bytearray(_LEN.pack(len(header)) + header)
     for name, arr in clean.items():
         out += bytes(table[name][2] - len(out))

@@ -100,13 +100,14 @@ class StudyServer:
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
                  quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
-                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None):
+                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None, launch: str = LAUNCH):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port, self.max_participants = host, port, max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
         self.page_grace_s = page_grace_s
         self.wire_trace = wire_trace
+        self.launch = launch   # each participant's stack
         self._trace: WireTrace | None = None
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
@@ -204,7 +205,7 @@ class StudyServer:
         p.port = _free_port()
         p.ready_file = tmp / f"{p.id}.ready"
         p.ready_file.unlink(missing_ok=True)
-        args = [sys.executable, "-m", "touch4d.cli", "launch", LAUNCH, "--namespace", p.id, "--no-broker",
+        args = [sys.executable, "-m", "touch4d.cli", "launch", self.launch, "--namespace", p.id, "--no-broker",
                 "--bus", str(self.bus_file), "--ready-file", str(p.ready_file),
                 *session_overrides(self.study_path, p.id, self.out, quick=self.quick),
                 f"tracker.port:={p.port}", *self.overrides]

@@ -88,6 +88,8 @@ def register(subparsers) -> None:
     serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
                        help="a participant without a page this long has left: their stack stops (default 30)")
     serve.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    serve.add_argument("--stack", metavar="LAUNCH", default="launch/study-serve.yaml",
+                       help="each participant's launch file (default launch/study-serve.yaml)")
     serve.add_argument("--wire-trace", metavar="CSV", help="write when each page input arrives and each frame leaves "
                        "(with its haptic level): pose -> pulse inside the server (bench/bench_serve.py)")
     serve.set_defaults(func=run_serve)
@@ -364,7 +366,8 @@ def run_serve(args) -> int:
     server = StudyServer(_study(args.study), study_path, Path(args.out), host=args.host, port=args.port,
                          max_participants=args.max_participants, public_url=args.public_url,
                          leave_after_s=args.leave_after, quick=args.quick, overrides=args.items,
-                         wire_trace=Path(args.wire_trace) if args.wire_trace else None)
+                         wire_trace=Path(args.wire_trace) if args.wire_trace else None,
+                         launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")))
     return server.run()
 
 
