@@ -310,7 +310,7 @@ def main():
     parser.add_argument("--latency-count", type=int, default=2000)
     parser.add_argument("--latency-rate", type=float, default=1000.0)
     parser.add_argument("--throughput-count", type=int, default=60000)
-    parser.add_argument("--rounds", type=int, default=5, help="runs of each setup, interleaved; medians reported")
+    parser.add_argument("--rounds", type=int, default=7, help="runs of each setup, interleaved; medians reported")
     parser.add_argument("--no-realtime", dest="realtime", action="store_false",
                         help="latency runs at normal priority (by default SCHED_FIFO when permitted, so the "
                              "figures show the software, not the other load of a shared machine)")
@@ -351,6 +351,13 @@ def main():
         print(f"   throughput ratio {k}/raw per round: " + ", ".join(
             f"{a['rate'] / b['rate']:.2f}" for a, b in zip(rounds[k], rounds["raw"])) + "; CPU rate: " + ", ".join(
             f"{a['cpu_rate'] / b['cpu_rate']:.2f}" for a, b in zip(rounds[k], rounds["raw"])))
+    # the verdict: each round's ratio pairs runs made moments apart (so they share the machine's load), and the
+    # median of those ratios is what one loaded moment cannot move; the spread shows how much the moments differ
+    for k in ("runtime", "touch4d"):
+        ratios = np.array([a["cpu_rate"] / b["cpu_rate"] for a, b in zip(rounds[k], rounds["raw"])])
+        q1, med, q3 = np.percentile(ratios, [25, 50, 75])
+        print(f"   {k}/raw CPU rate, median of {len(ratios)} paired rounds: {med:.2f}x (quartiles {q1:.2f}-{q3:.2f}, "
+              f"range {ratios.min():.2f}-{ratios.max():.2f}; target >= 0.8x: {'met' if med >= 0.8 else 'NOT met'})")
     load = os.getloadavg()
     print(f"load average at the end {load[0]:.2f}")
 
