@@ -245,7 +245,7 @@ def main() -> None:
             print(f"{n} resting, today's staged step vs the pre-split step ({PRESPLIT}), {len(ratio)} interleaved "
                   f"blocks: {np.median(today) * 1e3:.3f} ms vs {np.median(before) * 1e3:.3f} ms (medians), "
                   f"ratio {med:.2f}x (quartiles {q1:.2f}-{q3:.2f})"
-                  + ("; target <= 1" if n == 64 else "; one body: mostly the call's cost, more named arrays in and out"))
+                  + ("; target <= 1" if n == 64 else "; one body: mostly the call's cost, more arrays in and out"))
     ok = figures[64]["colliding_ms"] < 1.0 and figures[64]["resting_ms"] < 1.0
     print(f"64 bodies in contact at 1 kHz on one core: {'yes' if ok else 'no'} "
           f"(resting {figures[64]['resting_ms']:.2f} ms, colliding {figures[64]['colliding_ms']:.2f} ms per 1 ms step)")
