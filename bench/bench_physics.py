@@ -1,8 +1,11 @@
 """4D physics step time: 1, 8, 64 and 256 bodies, free, resting on a floor and colliding, with contacts per
 step; beside a plain numpy version of the same free-body integrator (vectorised over the bodies) and the
-same compiled step run as plain Python (numba disabled, in a subprocess).
+same compiled step run as plain Python (numba disabled, in a subprocess); and 64 resting bodies beside the
+step as it was before it was split in stages (its kernels read from git history, compiled in this process,
+the two steps timed in interleaved blocks).
 
-Goal: 64 bodies in contact at 1 kHz on one core (a step under 1 ms).
+Goals: 64 bodies in contact at 1 kHz on one core (a step under 1 ms); the staged step no slower than the
+single compiled step it replaced.
 
     .venv/bin/python bench/bench_physics.py            # every figure
     .venv/bin/python bench/bench_physics.py --quick    # fewer steps
@@ -10,11 +13,13 @@ Goal: 64 bodies in contact at 1 kHz on one core (a step under 1 ms).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -118,6 +123,74 @@ def python_inner(n: int, kind: str, steps: int) -> float:
     return (time.process_time() - t0) / steps
 
 
+PRESPLIT = "ac271bb"    # the commit before "The physics step in stages": one compiled step of 35 arguments
+
+
+def presplit_kernels():
+    """The pre-split step's kernels module, read from git history (old code is not kept in the tree) and
+    imported from a cache folder (numba caches its compilation beside it); None without the history."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        src = subprocess.run(["git", "-C", str(root), "show", f"{PRESPLIT}:touch4d/physics/kernels.py"],
+                             capture_output=True, text=True, check=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    # today's tree: the bivector kernel imported absolutely, the geometry kernels compiled on first use
+    src = src.replace("from .bivector", "from touch4d.physics.bivector")
+    for module, name in (("rotation", "renormalize"), ("segment", "clip_segment")):
+        line = f"from touch4d.geometry.{module} import {name}"
+        src = src.replace(line, f"{line}\n{name} = {name}.compiled")
+    folder = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "touch4d" / "bench_presplit"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "presplit_kernels.py"
+    if not path.exists() or path.read_text() != src:
+        path.write_text(src)
+    sys.path.insert(0, str(folder))
+    try:
+        return importlib.import_module("presplit_kernels")
+    finally:
+        sys.path.remove(str(folder))
+
+
+def versus_presplit(old, n: int, rounds: int, block: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds per step of today's step and of the pre-split one, `rounds` blocks of `block` steps each,
+    interleaved (so both see the same load), on the same resting scene."""
+    world, state = from_data(scene(n, "resting"))
+    state = run(world, state, 100)
+    o = world.options
+    opts = np.zeros(old.N_OPTIONS)
+    for index, value in ((old.OPT_ITERATIONS, o.iterations), (old.OPT_POSITION_ITERATIONS, o.position_iterations),
+                         (old.OPT_MARGIN, o.margin), (old.OPT_SLOP, o.slop), (old.OPT_BAUMGARTE, o.baumgarte),
+                         (old.OPT_RESTITUTION_SPEED, o.bounce_speed), (old.OPT_STICK_SPEED, o.stick_speed)):
+        opts[index] = value
+    none = np.zeros((0, 9))
+
+    def old_step(motion, rows):
+        *motion, rows = old.step(*motion, world.inv_mass, world.axes, world.inv_plane, world.iso_inv, world.excess,
+                                 world.gravity_scale, *world.parts, world.friction_static, world.friction_kinetic,
+                                 world.restitution, world.gravity, world.dt, opts, none, rows)
+        return motion, rows
+
+    motion, rows, new = (state.x, state.v, state.r, state.L), np.zeros((0, old.C_WIDTH)), state
+    for _ in range(block):                                  # compiled (or loaded), contacts warm
+        motion, rows = old_step(motion, rows)
+        new, _ = step(world, new)
+    if len(rows) != len(new.contacts.a) or np.abs(motion[0] - new.x).max() > 1e-6:
+        raise SystemExit("the pre-split step and today's disagree on the resting scene")
+    today, before = [], []
+    for _ in range(rounds):
+        t0 = time.process_time()
+        for _ in range(block):
+            motion, rows = old_step(motion, rows)
+        t1 = time.process_time()
+        for _ in range(block):
+            new, _ = step(world, new)
+        t2 = time.process_time()
+        before.append((t1 - t0) / block)
+        today.append((t2 - t1) / block)
+    return np.array(today), np.array(before)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
@@ -159,6 +232,20 @@ def main() -> None:
         figures[n]["python_resting_ms"] = t * 1e3
         print(f"plain Python (numba disabled), {n} resting: {t * 1e3:.1f} ms per step = "
               f"{t / figures[n]['resting_ms'] * 1e3:.0f}x the compiled step")
+    old = presplit_kernels()
+    if old is None:
+        print(f"the pre-split step ({PRESPLIT}) is not in this checkout's history: no comparison")
+    else:
+        for n in (1, 64):
+            today, before = versus_presplit(old, n, 10 if args.quick else 40)
+            ratio = today / before
+            q1, med, q3 = np.percentile(ratio, [25, 50, 75])
+            figures[n]["presplit_resting_ms"] = float(np.median(before)) * 1e3
+            figures[n]["versus_presplit"] = float(med)
+            print(f"{n} resting, today's staged step vs the pre-split step ({PRESPLIT}), {len(ratio)} interleaved "
+                  f"blocks: {np.median(today) * 1e3:.3f} ms vs {np.median(before) * 1e3:.3f} ms (medians), "
+                  f"ratio {med:.2f}x (quartiles {q1:.2f}-{q3:.2f})"
+                  + ("; target <= 1" if n == 64 else "; one body: mostly the call's cost, more arrays in and out"))
     ok = figures[64]["colliding_ms"] < 1.0 and figures[64]["resting_ms"] < 1.0
     print(f"64 bodies in contact at 1 kHz on one core: {'yes' if ok else 'no'} "
           f"(resting {figures[64]['resting_ms']:.2f} ms, colliding {figures[64]['colliding_ms']:.2f} ms per 1 ms step)")

@@ -182,15 +182,19 @@ def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_cou
     """End points of the edges (of one part) clipped to the other part, whose cells are grown by margin
     times how much they face `facing` (the direction the edges' part lies in), so a point may hover up to
     margin above the contact, never beside it, and by the tolerance tol, so an edge lying on a cell is kept."""
+    # the loops index the arrays rather than take row views: each view costs two atomic reference counts
     n_cells = normals[c_start:c_start + c_count]
     grown = np.empty(c_count)
     for c in range(c_count):
-        n = n_cells[c]
-        grow = n[0] * facing[0] + n[1] * facing[1] + n[2] * facing[2] + n[3] * facing[3]
+        grow = (n_cells[c, 0] * facing[0] + n_cells[c, 1] * facing[1] + n_cells[c, 2] * facing[2]
+                + n_cells[c, 3] * facing[3])
         grown[c] = offsets[c_start + c] + margin * max(grow, 0.0)
+    p0 = np.empty(4)
+    p1 = np.empty(4)
     for e in range(e_start, e_start + e_count):
-        p0 = verts[edges[e, 0]]
-        p1 = verts[edges[e, 1]]
+        for k in range(4):
+            p0[k] = verts[edges[e, 0], k]
+            p1[k] = verts[edges[e, 1], k]
         t0, t1 = clip_segment(p0, p1, n_cells, grown, tol)
         if t0 > t1:
             continue
@@ -206,14 +210,16 @@ def _clip_edges(verts, edges, e_start, e_count, normals, offsets, c_start, c_cou
 
 
 @njit(**cache)
-def _exit_depth(q, direction, normals, offsets, c_start, c_count):
-    """How far q must move along `direction` to leave the part (negative: q is outside, that far)."""
+def _exit_depth(pts, i, direction, normals, offsets, c_start, c_count):
+    """How far the point pts[i] must move along `direction` to leave the part (negative: it is outside, that
+    far). Indexed, not sliced: a row view per cell would cost more than the arithmetic."""
     best = np.inf
     for c in range(c_start, c_start + c_count):
-        n = normals[c]
-        along = n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2] + n[3] * direction[3]
+        along = (normals[c, 0] * direction[0] + normals[c, 1] * direction[1] + normals[c, 2] * direction[2]
+                 + normals[c, 3] * direction[3])
         if along > ANGLE:
-            t = (offsets[c] - (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] + n[3] * q[3])) / along
+            t = (offsets[c] - (normals[c, 0] * pts[i, 0] + normals[c, 1] * pts[i, 1] + normals[c, 2] * pts[i, 2]
+                               + normals[c, 3] * pts[i, 3])) / along
             if t < best:
                 best = t
     return best
@@ -352,9 +358,9 @@ def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
     kept = 0
     for i in range(count):
         if i < split:    # a point of b inside a: b must move along +n to leave a
-            d = _exit_depth(cand[i], n, normals, offsets, c_start[pa], c_count[pa])
+            d = _exit_depth(cand, i, n, normals, offsets, c_start[pa], c_count[pa])
         else:            # a point of a inside b: b leaves it by moving a along -n
-            d = _exit_depth(cand[i], minus, normals, offsets, c_start[pb], c_count[pb])
+            d = _exit_depth(cand, i, minus, normals, offsets, c_start[pb], c_count[pb])
         if not d > -0.9 * margin:
             continue
         dup = False

@@ -114,33 +114,39 @@ def _apply(body, p, r, sign, v, w, dL, inv_mass, inv_inertia, tmp6):
 
 
 @njit(**cache)
-def _point_velocity(body, r, v, w, out, tmp):
-    turn_into(w[body], r, tmp)
+def _point_velocity(body, r, v, w, out, w_body, tmp):
+    """out = the velocity of body's point at offset r (w_body, tmp: scratch, so no row view is taken)."""
+    for i in range(6):
+        w_body[i] = w[body, i]
+    turn_into(w_body, r, tmp)
     for k in range(4):
         out[k] = v[body, k] + tmp[k]
 
 
 @njit(**cache)
-def _tangent_basis(n, out):
-    """out[0] = n, out[1:4] an orthonormal basis of the tangent space (from the axes least along n)."""
+def _tangent_basis(normal, c, basis, t):
+    """basis[c, 0] = normal[c], basis[c, 1:4] an orthonormal basis of the tangent space (from the axes least
+    along it); t: scratch (4,). Indexed rather than sliced, as the solver's loops are."""
     big = 0
     for k in range(1, 4):
-        if abs(n[k]) > abs(n[big]):
+        if abs(normal[c, k]) > abs(normal[c, big]):
             big = k
-    out[0] = n
+    for k in range(4):
+        basis[c, 0, k] = normal[c, k]
     row = 1
     for axis in range(4):
         if axis == big:
             continue
-        t = np.zeros(4)
+        for k in range(4):
+            t[k] = 0.0
         t[axis] = 1.0
         for j in range(row):
-            dot = t[0] * out[j, 0] + t[1] * out[j, 1] + t[2] * out[j, 2] + t[3] * out[j, 3]
+            dot = t[0] * basis[c, j, 0] + t[1] * basis[c, j, 1] + t[2] * basis[c, j, 2] + t[3] * basis[c, j, 3]
             for k in range(4):
-                t[k] -= dot * out[j, k]
+                t[k] -= dot * basis[c, j, k]
         size = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
         for k in range(4):
-            out[row, k] = t[k] / size
+            basis[c, row, k] = t[k] / size
         row += 1
 
 
@@ -225,9 +231,15 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     rb = np.empty((m, 4))
     target = np.empty(m)
     mu = np.empty(m)
+    # scratch vectors: the loops copy rows into these rather than take row views (each view costs two atomic
+    # reference counts, more than the arithmetic)
     va = np.empty(4)
     vb = np.empty(4)
     tmp4 = np.empty(4)
+    r4 = np.empty(4)
+    d4 = np.empty(4)
+    w6 = np.empty(6)
+    tmp6 = np.empty(6)
     lam = np.zeros((m, 4))
     tangent = np.zeros((m, 4))
     cursor = 0
@@ -244,21 +256,23 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
         while cursor < len(p_key) and p_key[cursor] < key:
             cursor += 1
         for c in range(start, end):
-            n = normal[c]
             for kk in range(4):
                 ra[c, kk] = point[c, kk] - x[a, kk]
                 rb[c, kk] = point[c, kk] - x[b, kk]
-            _point_velocity(a, ra[c], v, w, va, tmp4)
-            _point_velocity(b, rb[c], v, w, vb, tmp4)
+                r4[kk] = ra[c, kk]
+            _point_velocity(a, r4, v, w, va, w6, tmp4)
+            for kk in range(4):
+                r4[kk] = rb[c, kk]
+            _point_velocity(b, r4, v, w, vb, w6, tmp4)
             vn = 0.0
             for kk in range(4):
-                vn += (vb[kk] - va[kk]) * n[kk]
+                vn += (vb[kk] - va[kk]) * normal[c, kk]
             speed[c] = vn
             gap = max(-depth[c], 0.0)
             target[c] = -gap / dt                     # speculative: may close the gap, no more
             slide = 0.0
             for kk in range(4):
-                slide += (vb[kk] - va[kk] - vn * n[kk]) ** 2
+                slide += (vb[kk] - va[kk] - vn * normal[c, kk]) ** 2
             mu[c] = mus if math.sqrt(slide) < stick_speed else muk
             # warm start from the same point of the step before
             best = options.warm_distance * options.warm_distance
@@ -275,9 +289,9 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
                 lam[c, 0] = p_impulse[found]
                 along = 0.0
                 for kk in range(4):
-                    along += p_tangent[found, kk] * n[kk]
+                    along += p_tangent[found, kk] * normal[c, kk]
                 for kk in range(4):
-                    tangent[c, kk] = p_tangent[found, kk] - along * n[kk]
+                    tangent[c, kk] = p_tangent[found, kk] - along * normal[c, kk]
         # restitution: when any point of the pair closes its gap within this step, every point of the pair
         # that approaches faster than bounce_speed (and is no further than the margin) bounces, so a face
         # striking a face bounces as one whatever rounding does to each point's gap
@@ -301,15 +315,19 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     inv_mass, iso_inv = bodies.inv_mass, bodies.iso_inv
     for c in range(m):
         a, b = body_a[c], body_b[c]
-        _tangent_basis(normal[c], basis[c])
+        _tangent_basis(normal, c, basis, tmp4)
         for d in range(4):
             inv_k = inv_mass[a] + inv_mass[b]
             for side in range(2):
                 body = a if side == 0 else b
-                rr = ra[c] if side == 0 else rb[c]
                 if inv_mass[body] == 0.0:
                     continue
-                wedge_into(rr, basis[c, d], ang[c, d, side])
+                for kk in range(4):
+                    r4[kk] = ra[c, kk] if side == 0 else rb[c, kk]
+                    d4[kk] = basis[c, d, kk]
+                wedge_into(r4, d4, tmp6)
+                for i in range(6):
+                    ang[c, d, side, i] = tmp6[i]
                 for i in range(6):
                     if isotropic[body]:
                         acc = iso_inv[body] * ang[c, d, side, i]
