@@ -496,8 +496,9 @@ def test_a_bad_parameter_is_refused_with_its_name(bus, status_hz):
         MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": status_hz}, bus=bus)
 
 
-def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus):
-    r = Rig(bus, trace=True)
+def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus, tmp_path):
+    # no age check and a long watchdog: a pause of this busy process must not turn the motors off
+    r = Rig(bus, glove=glove_with(tmp_path, watchdog_s=3.0, command_max_age_s=0), trace=True)
     traces: list[MotorTrace] = []
     r.tester.create_subscription("motors/trace", MotorTrace, traces.append)
     try:
@@ -550,7 +551,20 @@ def late_intervals(sent, longer_than: float) -> int:
     return sum(int(np.sum(np.diff([t for t, board, _ in sent if board == b]) > longer_than)) for b in (1, 2, 3, 4))
 
 
-def test_an_idle_node_refreshes_the_boards_at_the_idle_rate_and_speeds_up_for_a_command(rig):
+@pytest.fixture
+def patient_rig(bus, tmp_path):
+    """A rig whose node takes a command however late this busy process hands it over (no age check):
+    a pause turns the motors off only through the watchdog, until the next command."""
+    r = Rig(bus, glove=glove_with(tmp_path, command_max_age_s=0))
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+def test_an_idle_node_refreshes_the_boards_at_the_idle_rate_and_speeds_up_for_a_command(patient_rig):
+    rig = patient_rig
+
     def window(seconds, intensity=None):
         first = len(sent)
         rig.spin(seconds, intensity=intensity)
