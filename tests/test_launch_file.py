@@ -64,6 +64,9 @@ def test_a_swapped_in_module_gets_its_own_params_not_the_replaced_ones(tmp_path)
     ("nodes:\n  tracker: example_talker\n", "nodes.tracker"),
     ("include: [missing.yaml]\n", "include[0]"),
     ("nodes: [talker]\n", "nodes"),
+    ("?\n", "None"),                                   # YAML's explicit key, empty: a null key
+    ("1: x\n", "1"),
+    ("nodes:\n  tracker: {node: example_talker, 2: x}\n", "nodes.tracker.2"),
 ])
 def test_bad_launch_files_name_the_file_and_the_key(tmp_path, text, key):
     path = write(tmp_path / "bad.yaml", text)

@@ -496,8 +496,9 @@ def test_a_bad_parameter_is_refused_with_its_name(bus, status_hz):
         MotorsNode(params={"glove": str(TEST_GLOVE), "channel": "never", "status_hz": status_hz}, bus=bus)
 
 
-def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus):
-    r = Rig(bus, trace=True)
+def test_trace_carries_each_command_source_stamp_and_a_frame_time_after_it(bus, tmp_path):
+    # no age check and a long watchdog: a pause of this busy process must not turn the motors off
+    r = Rig(bus, glove=glove_with(tmp_path, watchdog_s=3.0, command_max_age_s=0), trace=True)
     traces: list[MotorTrace] = []
     r.tester.create_subscription("motors/trace", MotorTrace, traces.append)
     try:
@@ -539,31 +540,61 @@ def test_no_trace_without_the_parameter(rig):
     assert traces == [] and "trace_traced" not in rig.node.stats_flat()
 
 
-def test_an_idle_node_refreshes_the_boards_at_the_idle_rate_and_speeds_up_for_a_command(rig):
-    def frames_per_board_per_second(seconds, intensity=None):
-        sent = record_sent(rig.node)
+def board_periods(sent) -> dict[int, float]:
+    """Each board's refresh period on the driver's clock: the median interval between its duty
+    frames, which a pause of this process (one long interval, then a catch-up burst) leaves alone."""
+    return {b: float(np.median(np.diff([t for t, board, _ in sent if board == b]))) for b in (1, 2, 3, 4)}
+
+
+def late_intervals(sent, longer_than: float) -> int:
+    """How many intervals between a board's duty frames (any board) exceeded `longer_than` s."""
+    return sum(int(np.sum(np.diff([t for t, board, _ in sent if board == b]) > longer_than)) for b in (1, 2, 3, 4))
+
+
+@pytest.fixture
+def patient_rig(bus, tmp_path):
+    """A rig whose node takes a command however late this busy process hands it over (no age check):
+    a pause turns the motors off only through the watchdog, until the next command."""
+    r = Rig(bus, glove=glove_with(tmp_path, command_max_age_s=0))
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+def test_an_idle_node_refreshes_the_boards_at_the_idle_rate_and_speeds_up_for_a_command(patient_rig):
+    rig = patient_rig
+
+    def window(seconds, intensity=None):
+        first = len(sent)
         rig.spin(seconds, intensity=intensity)
-        rig.node.driver.sent = type(rig.node.driver).sent.__get__(rig.node.driver)
-        span = max(t for t, _, _ in sent) - min(t for t, _, _ in sent)
-        return (len(sent) - 4) / 4 / span, sent
+        return sent[first:]
 
     assert rig.spin(WAIT, until=lambda: bool(rig.status) and all(b["online"] for b in rig.status[-1].boards))
     # the boards' start-up (NMT START) is paced at the full rate; then the node idles
     assert rig.spin(WAIT, until=lambda: rig.node.refresh_timer.period == pytest.approx(1 / 25))
-    idle_rate, sent = frames_per_board_per_second(1.0)
-    assert all(levels == (0,) * 8 for _, _, levels in sent)
-    # 25 Hz (the default idle_refresh_hz), not 200 (a late tick's catch-up may add one or two)
-    assert rig.node.refresh_timer.period == pytest.approx(1 / 25) and idle_rate <= 30, idle_rate
-    busy_rate, _ = frames_per_board_per_second(1.0, intensity=np.full(30, 0.5))
+    trips_before = sum(b.counters["watchdog_trips"] for b in rig.emu.boards.values())
+    sent = record_sent(rig.node)
+    idle = window(1.0)
+    assert all(levels == (0,) * 8 for _, _, levels in idle)
+    # 25 Hz (the default idle_refresh_hz), not 200, on every board
+    assert rig.node.refresh_timer.period == pytest.approx(1 / 25)
+    assert all(1 / 30 < p < 1 / 20 for p in board_periods(idle).values()), board_periods(idle)
+    busy = window(1.0, intensity=np.full(30, 0.5))
     assert rig.node.refresh_timer.period == pytest.approx(1 / 200)
-    assert busy_rate >= 2.5 * idle_rate, (busy_rate, idle_rate)   # ~200 Hz, less what a loaded machine loses
+    assert all(p < 2 / 200 for p in board_periods(busy).values()), board_periods(busy)  # 200 Hz, 5 ms
     # the idle boards were fed all along: still online, no fault, nothing tripped by their watchdog
     assert rig.spin(WAIT, until=lambda: rig.emu.motor_levels() == [0] * 30)
-    idle_again, _ = frames_per_board_per_second(1.0)
-    assert rig.node.refresh_timer.period == pytest.approx(1 / 25) and idle_again <= 30
+    idle_again = window(1.0)
+    assert rig.node.refresh_timer.period == pytest.approx(1 / 25)
+    assert all(1 / 30 < p < 1 / 20 for p in board_periods(idle_again).values()), board_periods(idle_again)
     last = rig.status[-1].boards
     assert all(b["online"] and b["faults"] == [] for b in last), last
-    # A board trips only when no frame reached it for board_watchdog_s (100 ms, 2.5 idle periods):
-    # an idle rate too slow for it trips every board about every period; one trip is a pause of
-    # this test process (a garbage collection of the whole suite's objects), not of the design.
-    assert sum(b.counters["watchdog_trips"] for b in rig.emu.boards.values()) <= 1
+    # A board trips when no frame reached it for board_watchdog_s (100 ms, 2.5 idle periods). A
+    # frame the node sent late (this process paused: a loaded machine, a garbage collection) may
+    # trip its board, and one pause between the node's clock and the boards trips all four at once;
+    # anything more is frames the boards did not take (an idle rate too slow trips every board
+    # about every period, dozens of trips here).
+    trips = sum(b.counters["watchdog_trips"] for b in rig.emu.boards.values()) - trips_before
+    late = late_intervals(sent, CFG.board_watchdog_s / 2)
+    assert trips <= late + 4, (trips, late)

@@ -150,8 +150,10 @@ def did_you_mean(word, choices) -> str | None:
     return f"did you mean '{near[0]}'?" if near else None
 
 
-def join(key: str, part: str) -> str:
-    """`key` extended by `part` (a field name or `[3]`), as keys are shown in errors."""
+def join(key: str, part) -> str:
+    """`key` extended by `part` (a field name or `[3]`), as keys are shown in errors; a YAML key that
+    is not text (`1:`, or a bare `?`, null) is shown as Python writes it."""
+    part = str(part)
     if not key:
         return part.lstrip(".")
     return key + part if part.startswith("[") else f"{key}.{part}"
