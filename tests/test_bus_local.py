@@ -86,12 +86,25 @@ def test_a_process_hears_its_own_messages_without_a_broker():
 def test_the_brokers_copies_are_recognised_a_lost_one_passed_over_and_others_kept():
     copies = LocalCopies()
     for payload in (b"a", b"b", b"c", b"d"):
-        copies.expect(b"t", payload)
+        copies.expect(b"t", payload, "A")
     assert copies.seen(b"t", b"a")
     assert copies.seen(b"t", b"c")            # b never came (lost on the way): passed over
+    assert not copies.seen(b"t", b"b")        # ... and so not skipped were it to come after all
     assert not copies.seen(b"t", b"x")        # another process's message on the topic
     assert not copies.seen(b"u", b"d")        # another topic
     assert copies.seen(b"t", b"d") and not copies.seen(b"t", b"d")
     for i in range(MAX_AWAITED + 10):          # a broker gone: what is awaited stays bounded
-        copies.expect(b"t", b"%d" % i)
+        copies.expect(b"t", b"%d" % i, "A")
     assert len(copies.awaited[b"t"]) == MAX_AWAITED
+
+
+def test_two_publishers_copies_may_come_interleaved_otherwise_and_each_is_skipped_once():
+    """Two nodes of the process publishing on one topic: two sockets, whose copies the broker may
+    forward in another order than they were handed over."""
+    copies = LocalCopies()
+    for payload, publisher in ((b"a1", "A"), (b"b1", "B"), (b"a2", "A"), (b"b2", "B")):
+        copies.expect(b"t", payload, publisher)
+    assert copies.seen(b"t", b"b1")           # before a1: a1 is A's, not lost
+    assert copies.seen(b"t", b"b2")
+    assert copies.seen(b"t", b"a1") and copies.seen(b"t", b"a2")
+    assert not copies.awaited[b"t"]

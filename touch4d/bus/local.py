@@ -38,11 +38,11 @@ class LocalRoutes:
             if not self.by_topic[topic]:
                 del self.by_topic[topic]
 
-    def hand_over(self, topic: bytes, payload: bytes, msg_type: type) -> None:
+    def hand_over(self, topic: bytes, payload: bytes, msg_type: type, publisher: str) -> None:
         """`payload`, a checked `msg_type` message just published on `topic`: each subscribing node
         here decodes its own copy on the executor's next turn and skips the broker's when it comes."""
         for node in self.by_topic[topic]:
-            node._local_copies.expect(topic, payload)
+            node._local_copies.expect(topic, payload, publisher)
             node.executor.call_soon(node._deliver_local, topic, payload, msg_type)
 
 
@@ -53,25 +53,30 @@ class LocalCopies:
         self.awaited: dict[bytes, deque] = {}
         self.queued: dict[bytes, int] = {}   # handed over, not yet delivered (latest-only skips the older)
 
-    def expect(self, topic: bytes, payload: bytes) -> None:
+    def expect(self, topic: bytes, payload: bytes, publisher: str) -> None:
         self.queued[topic] = self.queued.get(topic, 0) + 1
         awaited = self.awaited.get(topic)
         if awaited is None:
             awaited = self.awaited[topic] = deque(maxlen=MAX_AWAITED)
-        awaited.append(payload)
+        awaited.append((publisher, payload))
 
     def seen(self, topic: bytes, payload: bytes) -> bool:
         """Whether the broker's `payload` on `topic` was handed over in-process already (then it is
-        forgotten). One topic's copies come in publishing order; one that never came (lost) is
-        passed over when a later one comes. A payload from another process is none of them."""
+        forgotten). One publisher's copies come in its publishing order (one socket), so its copies
+        awaited before this one never came (lost: a full queue, a broker gone) and are passed over;
+        another publisher's may come later still. A payload from another process is none of them."""
         awaited = self.awaited.get(topic)
         if not awaited:
             return False
-        if awaited[0] == payload:
+        if awaited[0][1] == payload:
             awaited.popleft()
             return True
-        if payload not in awaited:
+        for i, (publisher, candidate) in enumerate(awaited):
+            if candidate == payload:
+                break
+        else:
             return False
-        while awaited.popleft() != payload:
-            pass
+        entries = list(awaited)
+        awaited.clear()
+        awaited.extend([e for e in entries[:i] if e[0] != publisher] + entries[i + 1:])
         return True

@@ -66,7 +66,7 @@ class Publisher:
         node._send_payload(topic, payload)
         local = node._local_routes
         if topic in local.by_topic:   # subscribers in this process: handed over (touch4d.bus.local)
-            local.hand_over(topic, payload, self.msg_type)
+            local.hand_over(topic, payload, self.msg_type, node._uid)
 
 
 class RawPublisher:
