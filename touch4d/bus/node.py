@@ -11,7 +11,8 @@ One thread runs everything (callbacks, timers, `on_shutdown`): the node's execut
 (touch4d.bus.executor), its own or one shared by the nodes of one process (touch4d.bus.group), so
 node code needs no locks. Each node has one publishing socket and one
 SUB socket, made and synchronised by touch4d.bus.transport; a subscription made after `start`
-returns only once the broker applies it (the transport's `sync`).
+returns only once the broker applies it (the transport's `sync`). A message for a node of the same
+executor is handed over in-process too (touch4d.bus.local).
 """
 from __future__ import annotations
 
