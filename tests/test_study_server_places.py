@@ -226,3 +226,39 @@ def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
     server._load_invites()
     assert "3 trials are done" in server._welcome(server.participants["P01"])
     assert len(TrialsFile(tmp_path / "P01" / "trials.csv").done) == 3     # the study node agrees
+
+
+def test_the_server_hears_each_participants_study_trial_and_nothing_else(tmp_path):
+    """The experimenter page needs each stack's study/trial only: the poses, fields and motor commands
+    every stack sends at 72 Hz must not reach the server's process. A link made while the server runs
+    is followed too."""
+    from touch4d.bus import Node
+    from touch4d.bus.testing import wait_until
+
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    heard: list[str] = []
+    server._on_bus = lambda topic, payload: heard.append(topic)
+    server._start_bus(tmp_path)
+    Invites(tmp_path).issue("P02")
+    server._load_invites()                               # a link made meanwhile (the invites file watched)
+    probe = Node("probe", bus=server.node.bus)
+    topics = ["P01/study/trial", "P02/study/trial", "P01/hand/pose", "P02/tactile/motors", "P03/study/trial"]
+    pubs = {t: probe.create_raw_publisher(f"/{t}") for t in topics}
+    try:
+        def both_heard() -> bool:
+            for pub in pubs.values():
+                pub.publish(b"\x80")
+            return {"P01/study/trial", "P02/study/trial"} <= set(heard)
+        wait_until(both_heard, timeout=20, interval=0.05)
+        before = len(heard)
+        for pub in pubs.values():                          # once more: what arrives after the trials
+            pub.publish(b"\x80")
+        wait_until(lambda: len(heard) >= before + 2, timeout=10)
+        assert set(heard) == {"P01/study/trial", "P02/study/trial"}
+    finally:
+        probe.shutdown()
+        server.node.request_shutdown()
+        server._bus_thread.join(5)
+        server.broker.stop()

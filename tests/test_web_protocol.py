@@ -55,6 +55,20 @@ def test_frame_arrays_start_right_after_the_header_whatever_its_length(pad):
         np.testing.assert_array_equal(back[name], arr)
 
 
+def test_frames_of_one_kind_shrinking_and_growing_each_start_their_arrays_right_after_the_header():
+    # each frame's first guess is the last one's layout: a stale guess must never leave a gap
+    arrays = {"a": np.arange(5, dtype=np.float32), "b": np.arange(3, dtype=np.int32)}
+    for pad in (9000, 0, 300, 1, 9000, 9000, 2):
+        data = pack_frame("shrinking", {"text": "x" * pad}, arrays)
+        length = int.from_bytes(data[:4], "little")
+        table = json.loads(data[4:4 + length])["arrays"]
+        assert table["a"][2] == (4 + length + 7) // 8 * 8 and table["b"][2] == table["a"][2] + 24
+        header, back = unpack_frame(data)
+        assert header["text"] == "x" * pad
+        np.testing.assert_array_equal(back["a"], arrays["a"])
+        np.testing.assert_array_equal(back["b"], arrays["b"])
+
+
 def test_frame_refuses_float64_and_nan_fields():
     with pytest.raises(ValueError, match="dtype"):
         pack_frame("frame", {}, {"x": np.zeros(3)})

@@ -17,6 +17,8 @@ from typing import Any, Callable
 
 import zmq
 
+from touch4d.bus.local import LocalRoutes
+
 MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
 
 
@@ -55,6 +57,7 @@ class Executor:
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self._poller.register(self._wake_r, zmq.POLLIN)
+        self.local = LocalRoutes()   # its nodes' subscriptions, for intra-process delivery (touch4d.bus.local)
 
     # ---- what runs ---------------------------------------------------------------------------
 

@@ -11,7 +11,8 @@ One thread runs everything (callbacks, timers, `on_shutdown`): the node's execut
 (touch4d.bus.executor), its own or one shared by the nodes of one process (touch4d.bus.group), so
 node code needs no locks. Each node has one publishing socket and one
 SUB socket, made and synchronised by touch4d.bus.transport; a subscription made after `start`
-returns only once the broker applies it (the transport's `sync`).
+returns only once the broker applies it (the transport's `sync`). A message for a node of the same
+executor is handed over in-process too (touch4d.bus.local).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ import zmq
 from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig, resolve_bus_config
 from touch4d.bus.executor import Executor, Timer
+from touch4d.bus.local import LocalCopies
 from touch4d.bus.params import Param, check_params
 from touch4d.bus.transport import INTERNAL_PREFIX
 from touch4d.configfile import resolve_path
@@ -63,6 +65,9 @@ class Publisher:
             raise MessageError(f"publishing on {self.topic}: {exc}") from None
         node._seq[topic] = seq + 1
         node._send_payload(topic, payload)
+        local = node._local_routes
+        if topic in local.by_topic:   # subscribers in this process: handed over (touch4d.bus.local)
+            local.hand_over(topic, payload, self.msg_type, node._uid)
 
 
 class RawPublisher:
@@ -203,6 +208,8 @@ class Node:
         self._owns_executor = executor is None
         self._timers: list[Timer] = []   # on a shared executor: cancelled when this node shuts down
         self.executor = Executor(on_error=self._callback_failed) if executor is None else executor
+        self._local_routes = self.executor.local
+        self._local_copies = LocalCopies()
         self.executor.add_reader(self._sub, self._on_messages)
         self.executor.add_reader(self._pub, self._on_broker)
         # What publishing writes to: a holder until start() has connected, then the socket. (An
@@ -323,6 +330,7 @@ class Node:
                 self._latest_only_topics.add(key)
             self._state(key)
             self._subscribe(key)
+            self._local_routes.add(key, self)
         return sub
 
     def create_raw_subscription(self, prefix: str, callback: Callable[[str, bytes], Any]) -> Subscription:
@@ -421,6 +429,7 @@ class Node:
                 except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
                     self.log.exception("%s failed during shutdown", getattr(step, "__qualname__", step))
         self._closed = True
+        self._local_routes.remove(self)
         if self._owns_executor:
             self.executor.close()
         else:   # the other nodes of the process spin on: take this node's sockets and timers out
@@ -521,6 +530,9 @@ class Node:
             if topic.startswith(INTERNAL_PREFIX):
                 continue
             subs = self._subs.get(topic)
+            if subs is not None and self._local_copies.awaited and len(frames) == 2 \
+                    and self._local_copies.seen(topic, frames[1]):
+                subs = None   # handed over in-process already (touch4d.bus.local)
             if subs is not None:
                 if handled and topic in latest_only and last.get(topic, i) == i:
                     # Callbacks ran since the drain: a newer message may have come meanwhile, and
@@ -541,7 +553,18 @@ class Node:
                         handled += 1
         return handled
 
-    def _deliver(self, topic: bytes, frames: list[bytes], subs: list[Subscription], newest: bool) -> int:
+    def _deliver_local(self, topic: bytes, payload: bytes, msg_type: type[Message]) -> None:
+        """A message published in this process (touch4d.bus.local), in publishing order; with
+        latest-only, skipped when a newer one is already handed over."""
+        queued = self._local_copies.queued
+        queued[topic] -= 1
+        subs = self._subs.get(topic)
+        if subs and not self._closed:
+            self._deliver(topic, [topic, payload], subs, queued[topic] == 0, checked=msg_type)
+
+    def _deliver(self, topic: bytes, frames: list[bytes], subs: list[Subscription], newest: bool,
+                 checked: type[Message] | None = None) -> int:
+        """`checked`: the payload is a message of that type its publisher checked (no second check)."""
         state = self._topics[topic]
         stats = state.stats
         stats["received"] += 1
@@ -549,7 +572,7 @@ class Node:
             # The usual case (one subscription, the newest message) without the general case's lists.
             sub = subs[0]
             try:
-                msg = sub.decode(frames[1])
+                msg = sub.msg_type._decode(frames[1]) if sub.msg_type is checked else sub.decode(frames[1])
             except MessageError as exc:
                 stats["malformed"] += 1
                 self._log_once(topic, str(exc))
@@ -575,7 +598,8 @@ class Node:
             msg = decoded.get(sub.msg_type)
             if msg is None:
                 try:
-                    msg = decoded[sub.msg_type] = sub.decode(frames[1])
+                    msg = decoded[sub.msg_type] = (sub.msg_type._decode(frames[1]) if sub.msg_type is checked
+                                                   else sub.decode(frames[1]))
                 except MessageError as exc:
                     stats["malformed"] += 1
                     self._log_once(topic, str(exc))

@@ -249,7 +249,7 @@ class WebBridge:
                                        "halfspaces": g.n_halfspaces, "grid_size": g.grid_size}, arrays)
 
     def on_hand_pose(self, msg: HandPose) -> None:
-        self._hand = np.r_[msg.position, msg.orientation].astype(np.float32)
+        self._hand = np.concatenate((msg.position, msg.orientation)).astype(np.float32)   # np.r_: 10x the time
         self._hand_valid = bool(msg.valid)
         self._joints.on_pose(msg.stamp)
         self._dirty = True

@@ -123,6 +123,7 @@ class StudyServer:
         self._stopping: asyncio.Event | None = None
         self._tokens: dict[str, str] | None = None    # OUT/invites.json as last adopted
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
+        self.node: Node | None = None     # the server's own on the bus (_start_bus)
         self._load_invites()
 
     # ---- links ---------------------------------------------------------------------------------
@@ -156,8 +157,19 @@ class StudyServer:
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
                 self.access.issue(holder, token=token)
-            if holder != EXPERIMENTER:
-                self.participants.setdefault(holder, Participant(holder))
+            if holder != EXPERIMENTER and holder not in self.participants:
+                self._add_participant(holder)
+
+    def _add_participant(self, holder: str) -> "Participant":
+        p = self.participants[holder] = Participant(holder)
+        if self.node is not None:   # else _start_bus follows it
+            self.node.call_soon_threadsafe(self._follow, holder)
+        return p
+
+    def _follow(self, holder: str) -> None:
+        """Hear `holder`'s study/trial (the node's thread). Only that topic: every other message of
+        every stack (poses, fields, frames at 72 Hz) would cost this process a receive for nothing."""
+        self.node.create_raw_subscription(f"/{holder}/study/trial", self._on_bus)
 
     # ---- the bus -------------------------------------------------------------------------------
 
@@ -169,7 +181,8 @@ class StudyServer:
         self.bus_file.write_text(f"broker: {{bind: 127.0.0.1, pub_port: {bus.pub_port}, sub_port: {bus.sub_port}}}\n"
                                  "connect: 127.0.0.1\n")
         self.node = Node("study-serve", bus=bus.for_clients())
-        self.node.create_raw_subscription("", self._on_bus)
+        for holder in list(self.participants):
+            self._follow(holder)
         self._commands: dict[str, object] = {}
         def spin():
             try:
@@ -180,7 +193,7 @@ class StudyServer:
         self._bus_thread.start()
 
     def _on_bus(self, topic: str, payload: bytes) -> None:
-        """Every participant's study/trial (the node's thread): the experimenter page's state."""
+        """A participant's study/trial (the node's thread): the experimenter page's state."""
         ns, _, name = topic.partition("/")
         if name != "study/trial" or ns not in self.participants:
             return
@@ -290,7 +303,7 @@ class StudyServer:
             raise web.HTTPFound("/experimenter")
         p = self.participants.get(holder)
         if p is None:   # a holder the access layer knows is invited
-            p = self.participants[holder] = Participant(holder)
+            p = self._add_participant(holder)
         return p
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
