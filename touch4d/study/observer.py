@@ -171,9 +171,15 @@ class _Cue:
 
     def log_posterior(self, features: np.ndarray) -> np.ndarray:
         """Summed (tempered) log posterior of each option over the rows of `features` (K, D)."""
-        z = log_softmax(self.model.predict_log_proba(np.atleast_2d(features)) / self.temperature, axis=1)
-        total = z.sum(axis=0)
-        return np.array([total[c] if c is not None else -np.inf for c in self.columns])
+        return self.log_posteriors(np.atleast_2d(features)[None])[0]
+
+    def log_posteriors(self, features: np.ndarray) -> np.ndarray:
+        """`log_posterior` of each of B trials at once: features (B, K, D) -> (B, options)."""
+        b, k, d = features.shape
+        z = log_softmax(self.model.predict_log_proba(features.reshape(b * k, d)) / self.temperature, axis=1)
+        total = z.reshape(b, k, -1).sum(axis=1)
+        missing = np.full((b, 1), -np.inf)
+        return np.hstack([total[:, [c]] if c is not None else missing for c in self.columns])
 
 
 class ModelObserver:
@@ -216,8 +222,7 @@ class ModelObserver:
             seen = view_features(in_view(copy.copy(scene), view))
             total += self.view_cue(trial.task, view).log_posterior(
                 seen + rng.normal(0.0, self.visual_noise, seen.shape))
-        best = np.flatnonzero(total >= total.max() - 1e-9) if np.isfinite(total.max()) else np.arange(len(options))
-        return options[int(rng.choice(best))]
+        return options[int(rng.choice(np.flatnonzero(best_options(total[None])[0])))]
 
     # -- training ------------------------------------------------------------------------------------
 
@@ -266,6 +271,13 @@ class ModelObserver:
         return np.random.default_rng([self.seed, salt])
 
 
+def best_options(total: np.ndarray) -> np.ndarray:
+    """Which options have the highest summed log posterior, per row of `total` (B, options): the
+    observer answers one of them at random (every option when no cue favours any)."""
+    top = total.max(axis=1, keepdims=True)
+    return np.where(np.isfinite(top), total >= top - 1e-9, True)
+
+
 def chance(trial_or_options) -> float:
     """The chance rate of a trial's (or a list of options') choice."""
     options = getattr(trial_or_options, "options", trial_or_options)
@@ -273,4 +285,4 @@ def chance(trial_or_options) -> float:
 
 
 __all__ = ["ModelObserver", "Exploration", "every_sample_glove", "patterns_at", "view_features", "touch_examples",
-           "view_examples", "chance"]
+           "view_examples", "best_options", "chance"]

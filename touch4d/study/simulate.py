@@ -86,11 +86,19 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
 def session_rows(own: ModelObserver, glove: Glove, study: Study, participant: str, trials: list[Trial], *,
                  seed: int = 0, timing: Timing = Timing(), session: str = "1") -> list[dict]:
     """The table rows (`table.trial_row`) of a participant's trials answered by the observer `own`."""
+    return table_rows(trials, participant, lambda trial: simulate_trial(own, glove, study, trial, seed=seed,
+                                                                        timing=timing), timing=timing, session=session)
+
+
+def table_rows(trials: list[Trial], participant: str, result_of, *, timing: Timing = Timing(),
+               session: str = "1") -> list[dict]:
+    """The table rows of `trials` on the simulated clock, `result_of(trial)` giving each one's answer
+    and measures (as `simulate_trial` returns them)."""
     rows, clock = [], 0.0
     for trial in trials:
         if trial.break_before:
             clock += timing.break_s
-        result = simulate_trial(own, glove, study, trial, seed=seed, timing=timing)
+        result = result_of(trial)
         rows.append(trial_row(trial, participant=participant, session=session, response=result["response"],
                               onset=clock, response_stamp=None if result["response"] is None else clock + result["rt_s"],
                               time_touching_s=result["time_touching_s"], mean_intensity=result["mean_intensity"],
@@ -157,5 +165,5 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["Timing", "answer_time", "simulate_trial", "session_rows", "simulate_session", "simulate_study",
+__all__ = ["Timing", "answer_time", "simulate_trial", "session_rows", "table_rows", "simulate_session", "simulate_study",
            "participant_observer"]
