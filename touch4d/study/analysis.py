@@ -215,7 +215,7 @@ def fit_psychometric_many(level, positive, start=None) -> dict:
     def fit_from(x):
         value, damping = nll(x, slice(None)), np.full(b, 1e-3)
         rows = np.arange(b)                                  # the fits not yet at their minimum
-        for _ in range(200):
+        for _ in range(100):
             xr, lo, hi, kr, nr = x[rows], low[rows], high[rows], k[rows], n[rows]
             p, sigma, z, phi = probability(xr, rows)
             density = (1.0 - xr[:, 2:3]) * np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
@@ -235,7 +235,7 @@ def fit_psychometric_many(level, positive, start=None) -> dict:
             step = -np.linalg.solve(info + (damping[rows, None, None] + 1e-12) * np.eye(3) * scale,
                                     grad[..., None])[..., 0]
             improved, before = np.zeros(len(rows), bool), value[rows]
-            for _ in range(20):                                      # halve each step until nll drops
+            for _ in range(10):                                      # halve each step until nll drops
                 candidate = np.clip(xr + step, lo, hi)
                 new = nll(candidate, rows)
                 better = (new <= value[rows]) & ~improved
@@ -247,7 +247,7 @@ def fit_psychometric_many(level, positive, start=None) -> dict:
                 step = np.where(improved[:, None], step, step / 2.0)
             flat = improved & (before - value[rows] < 1e-9)          # a step that gains nothing: at the minimum
             damping[rows] = np.where(improved, damping[rows] / 3.0, damping[rows] * 10.0)
-            rows = rows[(improved & ~flat) | (~improved & (damping[rows] < 1e6))]   # else: done
+            rows = rows[(improved & ~flat) | (~improved & (damping[rows] < 1e3))]   # else: at its minimum
             if not len(rows):
                 break
         return x, value
