@@ -38,6 +38,7 @@ from touch4d.tactile import Glove, compute_stimulus
 from .conditions import split_condition
 from .design import Study, Task
 from .plan import Trial, draw_jitter, stimuli_of
+from .psychophysics import HUMAN_NOISE
 from .stimuli import in_view, stimulus_scene
 
 FACING = np.array([0.0, 0.0, 0.0, 1.0])   # the hand's identity pose: palm toward -z, fingers up (+y)
@@ -185,7 +186,7 @@ class _Cue:
 class ModelObserver:
     """A simulated participant for a study and a glove (see the module's docstring)."""
 
-    def __init__(self, glove: Glove, study: Study, *, noise: float = 0.08, visual_noise: float = 0.5,
+    def __init__(self, glove: Glove, study: Study, *, noise: float = HUMAN_NOISE, visual_noise: float = 0.5,
                  lapse: float = 0.03, seed: int = 0, exploration: Exploration | None = None,
                  train_scenes: int = 12, train_positions: int = 20, view_scenes: int = 30):
         for key, value, ok in (("noise", noise, noise >= 0), ("visual_noise", visual_noise, visual_noise >= 0),

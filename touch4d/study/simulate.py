@@ -24,6 +24,7 @@ from .design import Study
 from .gate import allowed
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
+from .psychophysics import HUMAN_NOISE
 from .stimuli import trial_scene
 from .table import TRIALS, trial_row, write_rows
 
@@ -133,7 +134,7 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
 
 
 def simulate_study(study: Study, participants: list[str], out, *, glove: Glove, seed: int = 0, quick: bool = False,
-                   noise: float = 0.08, visual_noise: float = 0.5, lapse: float = 0.03, spread: float = 0.25,
+                   noise: float = HUMAN_NOISE, visual_noise: float = 0.5, lapse: float = 0.03, spread: float = 0.25,
                    timing: Timing = Timing(), observer: ModelObserver | None = None, settings: dict | None = None,
                    echo=None) -> list[Path]:
     """Simulated participants, one session folder each under `out`; one observer trained for them all."""
