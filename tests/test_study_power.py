@@ -57,17 +57,17 @@ def test_the_power_of_a_difference_of_two_proportions_matches_statsmodels_within
 
 @pytest.mark.timeout(400)
 def test_answer_shares_are_right_as_often_as_the_observer_run_on_every_trial():
-    """The observer's whole pipeline on every trial of 24 sessions against draws from its answer
+    """The observer's whole pipeline on every trial of 16 sessions against draws from its answer
     shares (measured on other trials), per condition, at its own noise and at twice it (a point
     between the shares' grid points): the accuracies agree within their joint sampling error."""
     study, glove = load_study(STUDY), load_glove()
     observer = ModelObserver(glove, study, noise=0.3, lapse=0.0, train_scenes=3, train_positions=6,
                              view_scenes=6).train()
-    model = answer_model(observer, study, spread=0.4, samples=300, cluster=Cluster(workers=0), progress=False)
+    model = answer_model(observer, study, spread=0.4, samples=200, cluster=Cluster(workers=0), progress=False)
     assert len(model.log_factors) == 9 and not np.isclose(np.log(2.0), model.log_factors).any()
     for factor in (1.0, 2.0):
         exact, drawn = [], []
-        for i, participant in enumerate(participant_ids(24)):
+        for i, participant in enumerate(participant_ids(16)):
             trials = plan_session(study, participant)
             exact += session_rows(observer.with_noise(factor), glove, study, participant, trials, seed=i)
             drawn += answered_rows(model, factor, 0.0, participant, trials, seed=i, touches=6)
@@ -78,7 +78,7 @@ def test_answer_shares_are_right_as_often_as_the_observer_run_on_every_trial():
             shares = [model.probabilities("lookalikes", condition, s, factor, 0.0)[model.options["lookalikes"].index(a)]
                       for s, a in zip(rows["stimulus"], rows["answer"])]
             expected = float(np.mean(shares))
-            spread = np.sqrt(expected * (1 - expected) * (1 / n + 1 / 300) + 1e-4)
+            spread = np.sqrt(expected * (1 - expected) * (1 / n + 1 / 200) + 1e-4)
             assert abs(k / n - expected) < 3.5 * spread, (factor, condition, k / n, expected)
             assert abs(drawn.loc[drawn["condition"] == condition, "correct"].mean() - expected) < 3.5 * spread
     assert exact.groupby("condition")["correct"].mean().max() - exact.groupby("condition")["correct"].mean().min() > 0.2
