@@ -39,7 +39,8 @@ def test_the_power_of_a_difference_of_two_proportions_matches_statsmodels_within
     simulations, participants, trials, p_visual, p_both = 60, 20, 5, 0.6, 0.75
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        outcomes = [study_outcome(two_proportions(np.random.default_rng(s), participants, trials, p_visual, p_both))
+        outcomes = [study_outcome(two_proportions(np.random.default_rng(s), participants, trials, p_visual, p_both),
+                                  mixed=False)
                     for s in range(simulations)]
     power = summarise({participants: outcomes})["t"]["effects"]["visual+touch"]["gee"][0]
     expected = NormalIndPower().power(proportion_effectsize(p_both, p_visual), nobs1=participants * trials,
@@ -50,7 +51,8 @@ def test_the_power_of_a_difference_of_two_proportions_matches_statsmodels_within
     # no effect: the test rejects at about its level, not at the power of the effect above
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        null = [study_outcome(two_proportions(np.random.default_rng(1000 + s), participants, trials, 0.6, 0.6))
+        null = [study_outcome(two_proportions(np.random.default_rng(1000 + s), participants, trials, 0.6, 0.6),
+                              mixed=False)
                 for s in range(30)]
     assert summarise({participants: null})["t"]["effects"]["visual+touch"]["gee"][0]["power"] <= 0.2
 

@@ -113,13 +113,14 @@ def stimulus_shares(job: _Job, task_id: str, index: int) -> dict:
 
 
 def answer_model(observer: ModelObserver, study: Study, *, spread: float, samples: int = SAMPLES, seed: int = 0,
-                 cluster: Cluster = Cluster(), cache=None, progress: bool = True) -> AnswerModel:
+                 cluster: Cluster = Cluster(), cache=None, progress: bool = True, client=None) -> AnswerModel:
     """The observer's answer shares for every task x condition x stimulus of `study` (see the module
-    docstring), one Dask job per stimulus; `cache`: a folder that keeps finished stimuli."""
+    docstring), one Dask job per stimulus (`client`: one open on `cluster`, if any); `cache`: a folder
+    that keeps finished stimuli."""
     log_factors = factor_grid(spread)
     jobs = {f"{task.id}-{k}": (task.id, k) for task in study.tasks for k in range(len(stimuli_of(task)))}
     done = fan_out(stimulus_shares, jobs, shared=_Job(observer, study, log_factors, samples, seed), cluster=cluster,
-                   cache=cache, label="answer shares", progress=progress)
+                   cache=cache, label="answer shares", progress=progress, client=client)
     shares = {}
     for task in study.tasks:
         for k, (name, _, _) in enumerate(stimuli_of(task)):

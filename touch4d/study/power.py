@@ -15,6 +15,7 @@ a hundred times slower).
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 from dataclasses import dataclass, field, replace
 
@@ -24,7 +25,7 @@ from touch4d.errors import ConfigError
 from touch4d.tactile import Glove
 
 from .design import Study
-from .fanout import Cluster, fan_out, seed_of, signature
+from .fanout import Cluster, dask_client, fan_out, seed_of, signature
 from .answers import SAMPLES, AnswerModel, answer_model, answered_rows
 from .observer import ModelObserver
 from .plan import participant_ids, plan_session, quick_plan
@@ -201,13 +202,16 @@ def power_curves(setup: PowerSetup, sizes: list[int], simulations: int, *, clust
            "bootstrap": setup.bootstrap, "seed": setup.seed, "alpha": setup.alpha, "mixed": setup.mixed,
            "exact": setup.exact, **({} if setup.exact else {"samples": setup.samples})}
     cache = Path(out) / "cache" / signature(run) if out is not None else None
-    if not setup.exact and setup.answers is None:
-        setup = replace(setup, answers=answer_model(
-            setup.observer, setup.study, spread=setup.population.spread, samples=setup.samples, seed=setup.seed,
-            cluster=cluster, cache=None if cache is None else cache / "answers", progress=progress))
     jobs = {f"n{n}-s{s}": (n, s) for n in sizes for s in range(simulations)}
-    done = fan_out(simulate_outcome, jobs, shared=setup, cluster=cluster, cache=cache, label="studies",
-                   progress=progress)
+    with contextlib.ExitStack() as stack:          # one Dask client for the answer shares and the studies
+        client = None if cluster.workers == 0 and not cluster.scheduler else stack.enter_context(dask_client(cluster))
+        if not setup.exact and setup.answers is None:
+            setup = replace(setup, answers=answer_model(
+                setup.observer, setup.study, spread=setup.population.spread, samples=setup.samples,
+                seed=setup.seed, cluster=cluster, cache=None if cache is None else cache / "answers",
+                progress=progress, client=client))
+        done = fan_out(simulate_outcome, jobs, shared=setup, cluster=cluster, cache=cache, label="studies",
+                       progress=progress, client=client)
     outcomes = {n: [done[f"n{n}-s{s}"] for s in range(simulations)] for n in sizes}
     return {**run, "sizes": list(sizes), "simulations": simulations, "curves": summarise(outcomes),
             "population_source": setup.population.source}
