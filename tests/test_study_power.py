@@ -90,7 +90,7 @@ def test_answer_shares_are_right_as_often_as_the_observer_run_on_every_trial():
 def test_power_command_writes_curves_report_and_json_and_resumes(tmp_path, capsys):
     out = tmp_path / "power"
     args = ["study", "power", STUDY, "--participants", "2,3", "--simulations", "2", "--bootstrap", "0",
-            "--workers", "0", "--quick", "--out", str(out), "--json"]
+            "--workers", "0", "--quick", "--samples", "30", "--out", str(out), "--json"]
     assert main(args) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["sizes"] == [2, 3] and result["simulations"] == 2 and result["study"] == "lookalikes"
