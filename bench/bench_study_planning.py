@@ -1,27 +1,32 @@
 """Benchmark: planning a study before recruiting, on Dask.
 
-1. Simulated participants per second (whole sessions of the study, the model observer answering)
-   on 1 and on N local worker processes (`--workers`, default 2), measured in the same run: the
-   speed-up and its ratio to linear.
-2. A power curve: seconds per simulated-and-analysed study at each of 5 sizes, measured on a few
-   simulations per size (`--power-simulations`), and from them the estimated time of the full
-   500-simulation curve at those sizes on 1 and on N workers (an estimate from the smaller run).
-3. Power against a known answer: a difference of two binomial proportions, `--validation`
+1. Simulated participants per second (whole sessions of the study, the model observer's pipeline on
+   every trial) on 1 and on N local worker processes (`--workers`, default 2), measured in the same
+   run: the speed-up and its ratio to linear.
+2. Power: the observer's answer shares measured once (`touch4d.study.answers`), then seconds per
+   simulated-and-analysed study at each of 5 sizes, answers drawn from the shares, against the same
+   studies with the observer's pipeline on every trial (`--exact`, the slow path) measured in this
+   run (`--power-simulations` each); and, with `--curve S`, the measured time of a whole S-simulation
+   power curve at those 5 sizes on N workers (`touch4d study power`'s defaults: S = 500).
+3. `--check-exact S`: the GEE power of S studies of 4 and 8 participants answered by the shares
+   beside the same studies run through the observer's pipeline on every trial (Wilson intervals).
+4. Power against a known answer: a difference of two binomial proportions, `--validation`
    simulated studies analysed by the GEE of `study analyze`, beside statsmodels' power.
-4. Pilot fits: coverage of the 95% profile intervals over 100 pilots drawn from a known accuracy
+5. Pilot fits: coverage of the 95% profile intervals over 100 pilots drawn from a known accuracy
    surface (closed form), per parameter.
-5. Glove design (`--design`; slow: a layout is scored in ~0.3 s here, so K = 30 takes about an hour on
+6. Glove design (`--design`; slow: a layout is scored in ~0.3 s here, so K = 30 takes about an hour on
    the shared 2-core VM): bits per touch (mean over the study's tasks, scored on examples the
    search did not see) of designed layouts of K = 1, 2, 6, 10, 30 motors beside random layouts of K
    and the paper's 30.
 
     .venv/bin/python bench/bench_study_planning.py [--workers 2] [--participants 8]
-        [--power-simulations 2] [--validation 500] [--design]
+        [--power-simulations 2] [--curve 500] [--check-exact 60] [--validation 500] [--design]
 """
 from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 import time
 import warnings
 
@@ -32,7 +37,8 @@ from touch4d.study.design import load_study
 from touch4d.study.fanout import Cluster, fan_out, seed_of
 from touch4d.study.observer import ModelObserver
 from touch4d.study.plan import plan_session
-from touch4d.study.power import Population, PowerSetup, simulate_outcome, study_outcome, summarise
+from touch4d.study.answers import answer_model
+from touch4d.study.power import Population, PowerSetup, power_curves, simulate_outcome, study_outcome, summarise
 from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.study.simulate import session_rows
 from touch4d.tactile import load_glove
@@ -55,6 +61,7 @@ def participants_per_second(setup, count: int, workers: int) -> float:
 
 
 def power_timing(setup, sizes, simulations: int) -> dict:
+    """Seconds per simulated-and-analysed study at each size (the mean of `simulations`)."""
     seconds = {}
     for n in sizes:
         started = time.perf_counter()
@@ -62,6 +69,17 @@ def power_timing(setup, sizes, simulations: int) -> dict:
             simulate_outcome(setup, n, s)
         seconds[n] = (time.perf_counter() - started) / simulations
     return seconds
+
+
+def check_exact(setup, exact, simulations: int, workers: int) -> None:
+    """GEE power at N = 4 and 8: answers drawn from the shares against the pipeline on every trial."""
+    for name, each in (("answer shares", setup), ("every trial (exact)", exact)):
+        started = time.perf_counter()
+        curves = power_curves(each, [4, 8], simulations, cluster=Cluster(workers=workers), progress=False)["curves"]
+        cells = [f"{task} {effect}: " + ", ".join(f"N={n} {p['power']:.2f} [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]"
+                                                 for n, p in zip(entry["sizes"], entry["gee"]))
+                 for task, value in curves.items() for effect, entry in value["effects"].items()]
+        print(f"power, {name} ({simulations} studies a size, {time.perf_counter() - started:.0f} s): " + "; ".join(cells))
 
 
 def validation(simulations: int) -> None:
@@ -136,6 +154,9 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--participants", type=int, default=8, help="simulated participants per speed run")
     parser.add_argument("--power-simulations", type=int, default=2, help="simulations per size timed")
+    parser.add_argument("--samples", type=int, default=1000, help="trials a stimulus behind the answer shares")
+    parser.add_argument("--curve", type=int, default=0, metavar="S", help="also time a whole S-simulation curve")
+    parser.add_argument("--check-exact", type=int, default=0, metavar="S", help="power of S studies both ways")
     parser.add_argument("--validation", type=int, default=500, help="simulated two-proportion studies")
     parser.add_argument("--design", action="store_true", help="also the glove designs (slow)")
     args = parser.parse_args(argv)
@@ -143,24 +164,41 @@ def main(argv=None) -> int:
     population = Population()
     observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
                              lapse=population.lapse).train()
-    setup = PowerSetup(observer, glove, study, population, bootstrap=100)
+    exact = PowerSetup(observer, glove, study, population, bootstrap=100, exact=True)
 
-    one = participants_per_second(setup, args.participants, 1)
-    many = participants_per_second(setup, args.participants, args.workers)
+    one = participants_per_second(exact, args.participants, 1)
+    many = participants_per_second(exact, args.participants, args.workers)
     print(f"simulated participants (whole {study.name} sessions) per second: 1 worker {one:.2f}, {args.workers} "
           f"workers {many:.2f}; speed-up {many / one:.2f} ({many / one / args.workers:.0%} of linear)")
 
+    started = time.perf_counter()
+    answers = answer_model(observer, study, spread=population.spread, samples=args.samples,
+                           cluster=Cluster(workers=args.workers), progress=False)
+    shares_s = time.perf_counter() - started
+    setup = PowerSetup(observer, glove, study, population, bootstrap=100, samples=args.samples, answers=answers)
     sizes = [4, 8, 12, 16, 24]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        seconds = power_timing(setup, sizes, args.power_simulations)
-    per_curve = 500 * sum(seconds.values())
-    print("power: seconds per simulated and analysed study (bootstrap 100): "
-          + ", ".join(f"N={n} {s:.1f}" for n, s in seconds.items()))
-    print(f"estimated 500-simulation curve at N = {sizes}: {per_curve / 3600:.1f} h on 1 worker, "
-          f"{per_curve / 3600 / (many / one):.1f} h on {args.workers} (measured "
-          f"speed-up), {per_curve / 3600 / 16:.2f} h on 16 at linear speed-up (estimated from "
-          f"{args.power_simulations} simulations per size)")
+        fast = power_timing(setup, sizes, args.power_simulations)
+        slow = power_timing(exact, sizes, args.power_simulations)
+    per_curve, per_curve_exact = 500 * sum(fast.values()), 500 * sum(slow.values())
+    print(f"power: the answer shares ({answers.samples} trials a stimulus) in {shares_s:.0f} s on {args.workers} "
+          f"workers; seconds per simulated and analysed study (bootstrap 100), answers drawn / every trial: "
+          + ", ".join(f"N={n} {fast[n]:.2f} / {slow[n]:.1f}" for n in sizes)
+          + f"; ratio {sum(slow.values()) / sum(fast.values()):.1f}x")
+    print(f"500-simulation curve at N = {sizes}, estimated from {args.power_simulations} simulations a size: "
+          f"{per_curve / 60:.0f} min on 1 worker ({per_curve_exact / 3600:.1f} h with every trial simulated)")
+    if args.curve:
+        started = time.perf_counter()
+        power_curves(setup, sizes, args.curve, cluster=Cluster(workers=args.workers), progress=False)
+        took = time.perf_counter() - started
+        print(f"measured: a {args.curve}-simulation curve at N = {sizes} on {args.workers} workers in {took / 60:.1f} "
+              f"min; the estimate above for it on 1 worker: {per_curve * args.curve / 500 / 60:.1f} min "
+              f"(ratio {per_curve * args.curve / 500 / took:.2f})")
+    if args.check_exact:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            check_exact(replace(setup, bootstrap=0), replace(exact, bootstrap=0), args.check_exact, args.workers)
 
     validation(args.validation)
     coverage()

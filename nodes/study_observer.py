@@ -25,6 +25,7 @@ from touch4d.study.design import load_study
 from touch4d.study.gate import allowed
 from touch4d.study.observer import FACING, ModelObserver
 from touch4d.study.plan import participant_hash, plan_session, quick_plan
+from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.study.simulate import Timing, answer_time
 from touch4d.tactile.glove import load_glove
 
@@ -43,7 +44,8 @@ class StudyObserverNode(Node):
                        type=int, min=1),
         "glove": Param("config/glove.yaml", "the glove file (the tactile node's)", path="glove file"),
         "seed": Param(None, "observer seed (default: from the participant id)", type=int),
-        "noise": Param(0.08, "sensory noise on every motor, fraction of full drive", min=0),
+        "noise": Param(HUMAN_NOISE, "sensory noise on every motor, fraction of full drive (default: the "
+                       "fingertip's amplitude discrimination)", min=0),
         "lapse": Param(0.03, "chance of a random answer", min=0, max=1),
         "look_s": Param(Timing.look_s, "time to look when objects are drawn", unit="s", min=0),
         "dwell_s": Param(Timing.dwell_s, "time at each position after its motor command arrived, when the motors run",

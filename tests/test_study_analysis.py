@@ -9,7 +9,7 @@ import pytest
 from scipy.special import ndtr
 
 from touch4d.cli import main
-from touch4d.study.analysis import analyze, cell_summary, fit_psychometric, load, psychometric
+from touch4d.study.analysis import analyze, cell_summary, fit_psychometric, fit_psychometric_many, load, psychometric
 from touch4d.study.infotransfer import information_transfer, transfer_beyond_chance
 from touch4d.study.table import COLUMNS, write_rows
 
@@ -148,6 +148,38 @@ def test_a_steeper_observer_gets_a_lower_threshold():
         level = np.array([r["level"] for r in rows])
         positive = np.array([r["response"] == "right" for r in rows], dtype=float)
         assert fit_psychometric(level, positive)["sigma_deg"] == pytest.approx(sigma, rel=0.3)
+
+
+def test_fitting_many_resamples_at_once_finds_each_ones_maximum_likelihood():
+    """Against scipy's Nelder-Mead from a grid of starts on each resample alone (an independent
+    optimiser): the batch's log-likelihood is never lower, and its estimates agree where both agree."""
+    from scipy.optimize import minimize
+    from scipy.special import xlogy
+
+    rng = np.random.default_rng(11)
+    levels = np.repeat([-12.0, -8, -4, -2, 2, 4, 8, 12], 6)
+    truth = 0.03 + 0.94 * ndtr((levels - 1.0) / 3.0)
+    samples = [(levels, (rng.random(levels.size) < truth).astype(float)) for _ in range(12)]
+    level, positive = np.array([s[0] for s in samples]), np.array([s[1] for s in samples])
+    batch = fit_psychometric_many(level, positive, (1.0, 3.0, 0.03))
+
+    def nll(theta, lv, pos):
+        pse, sigma, lapse = theta
+        if not (sigma > 1e-3 and 0.0 <= lapse <= 0.2):
+            return 1e9
+        p = np.clip(lapse / 2 + (1 - lapse) * ndtr((lv - pse) / sigma), 1e-12, 1 - 1e-12)
+        return -float(np.sum(xlogy(pos, p) + xlogy(1 - pos, 1 - p)))
+
+    for i, (lv, pos) in enumerate(samples):
+        best = min((minimize(nll, start, args=(lv, pos), method="Nelder-Mead",
+                             options={"xatol": 1e-8, "fatol": 1e-10, "maxiter": 4000})
+                    for start in [(0.0, s, l) for s in (0.5, 2.0, 6.0) for l in (0.01, 0.1)]), key=lambda f: f.fun)
+        ours = (batch["pse_deg"][i], batch["sigma_deg"][i], batch["lapse"][i])
+        assert nll(ours, lv, pos) <= best.fun + 1e-6
+        if nll(ours, lv, pos) > best.fun - 1e-6:             # the same maximum: the same estimates
+            assert np.allclose(ours, best.x, atol=2e-3 * max(1.0, best.x[1]))
+    single = fit_psychometric(level[0], positive[0])
+    assert single["threshold_deg"] == pytest.approx(batch["threshold_deg"][0], rel=1e-4)
 
 
 # ---- the effect of condition --------------------------------------------------------------------------------

@@ -87,7 +87,7 @@ def test_power_is_the_same_on_a_dask_cluster_on_a_local_worker_and_in_process(lo
 
     glove = load_glove()
     observer = ModelObserver(glove, lookalikes, train_scenes=3, train_positions=6, view_scenes=6).train()
-    setup = PowerSetup(observer, glove, lookalikes, Population(), bootstrap=0)
+    setup = PowerSetup(observer, glove, lookalikes, Population(), bootstrap=0, samples=20)
     sizes, simulations = [2, 3], 2
     port = _free_port()
     processes = _dask_processes(port)

@@ -82,10 +82,12 @@ def dask_client(cluster: Cluster, *, timeout: str = "20s"):
 
 
 def fan_out(function: Callable, jobs: dict[str, tuple], *, shared=None, cluster: Cluster = Cluster(),
-            cache: Path | None = None, label: str = "simulations", progress: bool = True) -> dict[str, dict]:
-    """`function(shared, *args)` for every `key: args` of `jobs`, on `cluster`; returns {key: result}
-    (each result a JSON-ready dict). With `cache`, finished results are read from and written to
-    `cache/<key>.json`: an interrupted run (Ctrl+C) keeps them and the next one skips them."""
+            cache: Path | None = None, label: str = "simulations", progress: bool = True, client=None
+            ) -> dict[str, dict]:
+    """`function(shared, *args)` for every `key: args` of `jobs`, on `cluster` (through `client`, a
+    distributed.Client already open on it, if given); returns {key: result} (each result a JSON-ready
+    dict). With `cache`, finished results are read from and written to `cache/<key>.json`: an
+    interrupted run (Ctrl+C) keeps them and the next one skips them."""
     results: dict[str, dict] = {}
     if cache is not None:
         cache = Path(cache)
@@ -114,7 +116,7 @@ def fan_out(function: Callable, jobs: dict[str, tuple], *, shared=None, cluster:
         elif todo:
             from distributed import as_completed
 
-            with dask_client(cluster) as client:
+            with (contextlib.nullcontext(client) if client is not None else dask_client(cluster)) as client:
                 handle = client.scatter(shared, broadcast=True) if shared is not None else None
                 futures = {client.submit(function, handle, *args, key=f"{label}-{key}-{signature([args])}",
                                          pure=False): key for key, args in todo.items()}

@@ -22,6 +22,7 @@ from touch4d.tactile import Glove
 from .design import Study
 from .observer import Exploration, classifier, touch_examples
 from .plan import stimuli_of
+from .psychophysics import HUMAN_NOISE
 
 
 def information_transfer(confusion) -> float:
@@ -81,7 +82,7 @@ def _bits(stimulus, answer, shape) -> np.ndarray:
     return np.maximum(mi, 0.0).reshape(stimulus.shape[:-1])
 
 
-def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = 0.08, scenes: int = 16,
+def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = HUMAN_NOISE, scenes: int = 16,
                        positions: int = 12, seed: int = 0, exploration: Exploration | None = None) -> dict:
     """What one touch tells about a task's stimuli with this glove: an LDA trained on noisy patterns
     (`noise` on every motor) of half the jittered scenes at random hand positions, tested on the

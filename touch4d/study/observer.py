@@ -38,6 +38,7 @@ from touch4d.tactile import Glove, compute_stimulus
 from .conditions import split_condition
 from .design import Study, Task
 from .plan import Trial, draw_jitter, stimuli_of
+from .psychophysics import HUMAN_NOISE
 from .stimuli import in_view, stimulus_scene
 
 FACING = np.array([0.0, 0.0, 0.0, 1.0])   # the hand's identity pose: palm toward -z, fingers up (+y)
@@ -171,15 +172,21 @@ class _Cue:
 
     def log_posterior(self, features: np.ndarray) -> np.ndarray:
         """Summed (tempered) log posterior of each option over the rows of `features` (K, D)."""
-        z = log_softmax(self.model.predict_log_proba(np.atleast_2d(features)) / self.temperature, axis=1)
-        total = z.sum(axis=0)
-        return np.array([total[c] if c is not None else -np.inf for c in self.columns])
+        return self.log_posteriors(np.atleast_2d(features)[None])[0]
+
+    def log_posteriors(self, features: np.ndarray) -> np.ndarray:
+        """`log_posterior` of each of B trials at once: features (B, K, D) -> (B, options)."""
+        b, k, d = features.shape
+        z = log_softmax(self.model.predict_log_proba(features.reshape(b * k, d)) / self.temperature, axis=1)
+        total = z.reshape(b, k, -1).sum(axis=1)
+        missing = np.full((b, 1), -np.inf)
+        return np.hstack([total[:, [c]] if c is not None else missing for c in self.columns])
 
 
 class ModelObserver:
     """A simulated participant for a study and a glove (see the module's docstring)."""
 
-    def __init__(self, glove: Glove, study: Study, *, noise: float = 0.08, visual_noise: float = 0.5,
+    def __init__(self, glove: Glove, study: Study, *, noise: float = HUMAN_NOISE, visual_noise: float = 0.5,
                  lapse: float = 0.03, seed: int = 0, exploration: Exploration | None = None,
                  train_scenes: int = 12, train_positions: int = 20, view_scenes: int = 30):
         for key, value, ok in (("noise", noise, noise >= 0), ("visual_noise", visual_noise, visual_noise >= 0),
@@ -216,8 +223,7 @@ class ModelObserver:
             seen = view_features(in_view(copy.copy(scene), view))
             total += self.view_cue(trial.task, view).log_posterior(
                 seen + rng.normal(0.0, self.visual_noise, seen.shape))
-        best = np.flatnonzero(total >= total.max() - 1e-9) if np.isfinite(total.max()) else np.arange(len(options))
-        return options[int(rng.choice(best))]
+        return options[int(rng.choice(np.flatnonzero(best_options(total[None])[0])))]
 
     # -- training ------------------------------------------------------------------------------------
 
@@ -266,6 +272,13 @@ class ModelObserver:
         return np.random.default_rng([self.seed, salt])
 
 
+def best_options(total: np.ndarray) -> np.ndarray:
+    """Which options have the highest summed log posterior, per row of `total` (B, options): the
+    observer answers one of them at random (every option when no cue favours any)."""
+    top = total.max(axis=1, keepdims=True)
+    return np.where(np.isfinite(top), total >= top - 1e-9, True)
+
+
 def chance(trial_or_options) -> float:
     """The chance rate of a trial's (or a list of options') choice."""
     options = getattr(trial_or_options, "options", trial_or_options)
@@ -273,4 +286,4 @@ def chance(trial_or_options) -> float:
 
 
 __all__ = ["ModelObserver", "Exploration", "every_sample_glove", "patterns_at", "view_features", "touch_examples",
-           "view_examples", "chance"]
+           "view_examples", "best_options", "chance"]

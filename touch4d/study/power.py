@@ -4,16 +4,20 @@ For each sample size N, `simulations` whole studies are simulated, participants 
 population (the model observers' noise and lapse, from a pilot's fit or the defaults), and each is
 analysed with the models of `touch4d study analyze` (GEE and the mixed-effects logistic model, the
 psychometric fit of tilt tasks). The power to find an effect is the share of simulated studies that
-find it: GEE p < alpha, or a 95% credible interval of the mixed model that excludes 0; a tilt task
-also reports its threshold's bootstrap interval width. Participant i of simulation s is the same
-person at every N (seeds of (study, "power", participant, simulation)): the curve's points share
-their random numbers, so it is smooth in N.
+find it: GEE p < alpha, or a 95% credible interval of the mixed model that excludes 0 (`mixed`: the
+slower model, off by default); a tilt task also reports its threshold's bootstrap interval width.
+Participant i of simulation s is the same person at every N (seeds of (study, "power", participant,
+simulation)): the curve's points share their random numbers, so it is smooth in N. A participant
+answers by draws from the observer's answer shares (`touch4d.study.answers`, measured once per run);
+`exact` runs the observer's whole pipeline on every trial instead (the same answers in distribution,
+a hundred times slower).
 """
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,7 +25,8 @@ from touch4d.errors import ConfigError
 from touch4d.tactile import Glove
 
 from .design import Study
-from .fanout import Cluster, fan_out, seed_of, signature
+from .fanout import Cluster, dask_client, fan_out, seed_of, signature
+from .answers import SAMPLES, AnswerModel, answer_model, answered_rows
 from .observer import ModelObserver
 from .plan import participant_ids, plan_session, quick_plan
 from .psychophysics import HUMAN_NOISE
@@ -56,9 +61,13 @@ class Population:
             raise ConfigError(path, "population", "noise, visual_noise, lapse and spread (numbers) as "
                               "touch4d study fit writes them") from None
 
+    def factor(self, rng: np.random.Generator) -> float:
+        """One participant's noise factor: exp(N(0, spread))."""
+        return float(np.exp(rng.normal(0.0, self.spread))) if self.spread > 0 else 1.0
+
     def participant(self, observer: ModelObserver, rng: np.random.Generator) -> ModelObserver:
-        """One participant: the population's trained observer with its noise times exp(N(0, spread))."""
-        return observer.with_noise(float(np.exp(rng.normal(0.0, self.spread))) if self.spread > 0 else 1.0)
+        """One participant: the population's trained observer with its noise times `factor`."""
+        return observer.with_noise(self.factor(rng))
 
 
 @dataclass
@@ -73,42 +82,62 @@ class PowerSetup:
     bootstrap: int = 100
     seed: int = 0
     alpha: float = ALPHA
+    mixed: bool = False               # also the mixed-effects model (slow; its intervals too narrow, see docs)
+    exact: bool = False               # the observer's pipeline on every trial, not its answer shares
+    samples: int = SAMPLES            # trials per stimulus behind the answer shares
+    answers: AnswerModel | None = None
+    _plans: dict = field(default_factory=dict, repr=False)
+
+    def trials(self, participant: str):
+        """A participant's planned trials (the same in every simulation: kept once per process)."""
+        if participant not in self._plans:
+            self._plans[participant] = (quick_plan if self.quick else plan_session)(self.study, participant)
+        return self._plans[participant]
 
 
 def simulated_data(setup: PowerSetup, n: int, simulation: int):
     """The trials (a DataFrame, practice left out) of one simulated study of `n` participants."""
     import pandas as pd
 
+    if not setup.exact and setup.answers is None:
+        raise ValueError("PowerSetup: answer shares are needed unless exact (power_curves measures them)")
     rows = []
     for participant in participant_ids(n):
         seed = seed_of(setup.study, DESIGN, participant, simulation, setup.seed)
-        own = setup.population.participant(setup.observer, np.random.default_rng(seed))
-        trials = quick_plan(setup.study, participant) if setup.quick else plan_session(setup.study, participant)
-        rows += session_rows(own, setup.glove, setup.study, participant, trials, seed=seed)
+        rng = np.random.default_rng(seed)
+        trials = setup.trials(participant)
+        if setup.exact:
+            own = setup.population.participant(setup.observer, rng)
+            rows += session_rows(own, setup.glove, setup.study, participant, trials, seed=seed)
+        else:
+            rows += answered_rows(setup.answers, setup.population.factor(rng), setup.population.lapse, participant,
+                                  trials, seed=seed, touches=setup.observer.exploration.touches)
     data = pd.DataFrame(rows)
     return data[~data["practice"]].reset_index(drop=True)
 
 
-def study_outcome(data, *, bootstrap: int = 100, seed: int = 0, alpha: float = ALPHA) -> dict:
+def study_outcome(data, *, bootstrap: int = 100, seed: int = 0, alpha: float = ALPHA, mixed: bool = True) -> dict:
     """What one (simulated) study finds, per task: each condition effect's GEE p and whether the mixed
-    model's 95% interval excludes 0, and per tilt condition the threshold's 95% interval width."""
+    model's 95% interval excludes 0 (None if `mixed` is False), and per tilt condition the threshold's
+    95% interval width."""
     from .analysis import conditions_in, condition_tests, psychometric, tasks_in
 
     conditions = conditions_in(data)
     outcome = {}
     for task in tasks_in(data):
         rows = data[data["task"] == task]
-        tests = condition_tests(rows, conditions)
-        gee, mixed = tests.get("gee", {}), tests.get("mixed", {})
+        tests = condition_tests(rows, conditions, mixed=mixed)
+        gee, mixed_fit = tests.get("gee", {}), tests.get("mixed", {})
         found = {"joint_p": gee.get("p"), "effects": {}}
         for name, effect in gee.get("effects", {}).items():
-            credible = mixed.get("effects", {}).get(name, {}).get("credible")
+            credible = mixed_fit.get("effects", {}).get(name, {}).get("credible")
             found["effects"][name] = {"gee_p": effect["p"], "gee_found": bool(effect["p"] < alpha),
                                       "mixed_found": bool(credible) if credible is not None else None}
         if (rows["kind"] == "tilt").any():
             widths = {}
             for condition in conditions:
-                fit = psychometric(rows[rows["condition"] == condition], bootstrap=bootstrap, seed=seed)
+                fit = psychometric(rows[rows["condition"] == condition], bootstrap=bootstrap, seed=seed,
+                                 by_participant=False)
                 ci = fit.get("ci95", {}).get("threshold_deg")
                 widths[condition] = (ci[1] - ci[0]) if ci and fit.get("within_range") else None
             found["threshold_ci_width_deg"] = widths
@@ -123,7 +152,7 @@ def simulate_outcome(setup: PowerSetup, n: int, simulation: int) -> dict:
     data = simulated_data(setup, n, simulation)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return study_outcome(data, bootstrap=setup.bootstrap, seed=simulation, alpha=setup.alpha)
+        return study_outcome(data, bootstrap=setup.bootstrap, seed=simulation, alpha=setup.alpha, mixed=setup.mixed)
 
 
 def summarise(outcomes: dict[int, list[dict]]) -> dict:
@@ -170,11 +199,19 @@ def power_curves(setup: PowerSetup, sizes: list[int], simulations: int, *, clust
                           "participants needs two)", got=sizes)
     run = {"design": DESIGN, "study": setup.study.name, "study_seed": setup.study.seed, "glove": setup.glove.path,
            "motors": len(setup.glove.motor_names), "population": setup.population.__dict__, "quick": setup.quick,
-           "bootstrap": setup.bootstrap, "seed": setup.seed, "alpha": setup.alpha}
+           "bootstrap": setup.bootstrap, "seed": setup.seed, "alpha": setup.alpha, "mixed": setup.mixed,
+           "exact": setup.exact, **({} if setup.exact else {"samples": setup.samples})}
     cache = Path(out) / "cache" / signature(run) if out is not None else None
     jobs = {f"n{n}-s{s}": (n, s) for n in sizes for s in range(simulations)}
-    done = fan_out(simulate_outcome, jobs, shared=setup, cluster=cluster, cache=cache, label="studies",
-                   progress=progress)
+    with contextlib.ExitStack() as stack:          # one Dask client for the answer shares and the studies
+        client = None if cluster.workers == 0 and not cluster.scheduler else stack.enter_context(dask_client(cluster))
+        if not setup.exact and setup.answers is None:
+            setup = replace(setup, answers=answer_model(
+                setup.observer, setup.study, spread=setup.population.spread, samples=setup.samples,
+                seed=setup.seed, cluster=cluster, cache=None if cache is None else cache / "answers",
+                progress=progress, client=client))
+        done = fan_out(simulate_outcome, jobs, shared=setup, cluster=cluster, cache=cache, label="studies",
+                       progress=progress, client=client)
     outcomes = {n: [done[f"n{n}-s{s}"] for s in range(simulations)] for n in sizes}
     return {**run, "sizes": list(sizes), "simulations": simulations, "curves": summarise(outcomes),
             "population_source": setup.population.source}

@@ -11,9 +11,7 @@ fingertip's published one; `amplitude_discrimination` measures it by simulation 
 from __future__ import annotations
 
 import math
-
-import numpy as np
-from scipy.stats import norm
+from statistics import NormalDist
 
 # Published vibrotactile amplitude discrimination (see docs/planning.md for the sources).
 FINGERTIP_WEBER_DB = (2.2, 2.5)       # dB: 20 log10(1 + Weber fraction)
@@ -32,9 +30,10 @@ def db_from_weber(fraction: float) -> float:
 
 def noise_for_weber(fraction: float, reference: float = REFERENCE_DRIVE) -> float:
     """The per-motor noise whose 75%-correct amplitude step at `reference` is `fraction` x reference."""
-    return fraction * reference / (math.sqrt(2.0) * float(norm.ppf(0.75)))
+    return fraction * reference / (math.sqrt(2.0) * NormalDist().inv_cdf(0.75))
 
 
+# The one default touch noise of every observer (simulate, power, fit, transfer, glove design, the node).
 HUMAN_NOISE = noise_for_weber(weber_from_db(sum(FINGERTIP_WEBER_DB) / 2.0))   # ~0.16 of full drive
 
 
@@ -43,6 +42,8 @@ def amplitude_discrimination(noise: float, *, reference: float = REFERENCE_DRIVE
     """Two-interval amplitude discrimination through the observer's touch noise: comparisons at
     reference + step (steps signed, as fractions of the reference), `trials` each; the psychometric
     fit of P(comparison felt stronger) gives the 75% step, the Weber fraction and its level in dB."""
+    import numpy as np
+
     from .analysis import fit_psychometric
 
     steps = np.asarray(steps if steps is not None else [-0.8, -0.5, -0.3, -0.15, 0.15, 0.3, 0.5, 0.8])

@@ -24,6 +24,7 @@ from .design import Study
 from .gate import allowed
 from .observer import ModelObserver, patterns_at
 from .plan import Trial, condition_order, participant_hash, plan_session, quick_plan
+from .psychophysics import HUMAN_NOISE
 from .stimuli import trial_scene
 from .table import TRIALS, trial_row, write_rows
 
@@ -86,11 +87,19 @@ def simulate_trial(observer: ModelObserver, glove: Glove, study: Study, trial: T
 def session_rows(own: ModelObserver, glove: Glove, study: Study, participant: str, trials: list[Trial], *,
                  seed: int = 0, timing: Timing = Timing(), session: str = "1") -> list[dict]:
     """The table rows (`table.trial_row`) of a participant's trials answered by the observer `own`."""
+    return table_rows(trials, participant, lambda trial: simulate_trial(own, glove, study, trial, seed=seed,
+                                                                        timing=timing), timing=timing, session=session)
+
+
+def table_rows(trials: list[Trial], participant: str, result_of, *, timing: Timing = Timing(),
+               session: str = "1") -> list[dict]:
+    """The table rows of `trials` on the simulated clock, `result_of(trial)` giving each one's answer
+    and measures (as `simulate_trial` returns them)."""
     rows, clock = [], 0.0
     for trial in trials:
         if trial.break_before:
             clock += timing.break_s
-        result = simulate_trial(own, glove, study, trial, seed=seed, timing=timing)
+        result = result_of(trial)
         rows.append(trial_row(trial, participant=participant, session=session, response=result["response"],
                               onset=clock, response_stamp=None if result["response"] is None else clock + result["rt_s"],
                               time_touching_s=result["time_touching_s"], mean_intensity=result["mean_intensity"],
@@ -125,7 +134,7 @@ def simulate_session(observer: ModelObserver, glove: Glove, study: Study, partic
 
 
 def simulate_study(study: Study, participants: list[str], out, *, glove: Glove, seed: int = 0, quick: bool = False,
-                   noise: float = 0.08, visual_noise: float = 0.5, lapse: float = 0.03, spread: float = 0.25,
+                   noise: float = HUMAN_NOISE, visual_noise: float = 0.5, lapse: float = 0.03, spread: float = 0.25,
                    timing: Timing = Timing(), observer: ModelObserver | None = None, settings: dict | None = None,
                    echo=None) -> list[Path]:
     """Simulated participants, one session folder each under `out`; one observer trained for them all."""
@@ -157,5 +166,5 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["Timing", "answer_time", "simulate_trial", "session_rows", "simulate_session", "simulate_study",
+__all__ = ["Timing", "answer_time", "simulate_trial", "session_rows", "table_rows", "simulate_session", "simulate_study",
            "participant_observer"]

@@ -16,6 +16,8 @@ from touch4d.errors import ConfigError, Unavailable
 
 
 def register(subparsers) -> None:
+    from ..psychophysics import HUMAN_NOISE   # the observers' one default touch noise
+
     study = subparsers.add_parser("study", help="studies with many participants: check, plan, run, analyze",
                                   description="Measure what touch adds to vision: study files, participants' "
                                               "plans, simulated participants and the analysis.")
@@ -62,8 +64,9 @@ def register(subparsers) -> None:
     sim.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
     sim.add_argument("--every-sample", action="store_true",
                      help="a motor at every sample point of the glove (the finest actuator resolution)")
-    sim.add_argument("--noise", type=_nonnegative, default=0.08, metavar="X",
-                     help="sensory noise on each motor, in units of full drive (default 0.08)")
+    sim.add_argument("--noise", type=_nonnegative, default=HUMAN_NOISE, metavar="X",
+                     help=f"sensory noise on each motor, in units of full drive (default {HUMAN_NOISE:.3f}: the "
+                          "fingertip's amplitude discrimination)")
     sim.add_argument("--visual-noise", type=_nonnegative, default=0.5, metavar="X",
                      help="noise on the view's features (default 0.5)")
     sim.add_argument("--lapse", type=_probability, default=0.03, metavar="P", help="lapse rate (default 0.03)")
@@ -116,8 +119,8 @@ def register(subparsers) -> None:
     transfer.add_argument("--every-sample", action="store_true",
                           help="also a motor at every sample point of the glove, side by side")
     transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
-    transfer.add_argument("--noise", type=_nonnegative, default=0.08, metavar="X",
-                          help="sensory noise on each motor, in units of full drive (default 0.08)")
+    transfer.add_argument("--noise", type=_nonnegative, default=HUMAN_NOISE, metavar="X",
+                          help=f"sensory noise on each motor, in units of full drive (default {HUMAN_NOISE:.3f})")
     transfer.add_argument("--scenes", type=_count, default=20, metavar="N",
                           help="jittered scenes per stimulus, half of them held out (default 20)")
     transfer.add_argument("--positions", type=_count, default=16, metavar="N",

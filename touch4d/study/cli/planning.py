@@ -33,6 +33,12 @@ def register(sub, *, count, count0, probability) -> None:
     power.add_argument("--bootstrap", type=count0, default=100, metavar="N",
                        help="bootstrap resamples for the tilt threshold's interval (default 100)")
     power.add_argument("--alpha", type=probability, default=0.05, metavar="A", help="test level (default 0.05)")
+    power.add_argument("--mixed", action="store_true", help="also the mixed-effects model (slow; its variational "
+                                                            "intervals are too narrow: plan on the GEE)")
+    power.add_argument("--samples", type=count, default=1000, metavar="N",
+                       help="simulated trials per stimulus behind the observer's answer shares (default 1000)")
+    power.add_argument("--exact", action="store_true", help="run the observer's whole pipeline on every trial of "
+                                                            "every participant (slow) instead of its answer shares")
     power.add_argument("--json", action="store_true", help="print the result as JSON")
     add_cluster_options(power)
     power.set_defaults(func=run_power)
@@ -172,7 +178,7 @@ def run_power(args) -> int:
     observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
                              lapse=population.lapse, seed=args.seed, **training).train()
     setup = PowerSetup(observer, glove, study, population, quick=args.quick, bootstrap=args.bootstrap,
-                       seed=args.seed, alpha=args.alpha)
+                       seed=args.seed, alpha=args.alpha, mixed=args.mixed, exact=args.exact, samples=args.samples)
     started = time.perf_counter()
     cluster = cluster_of(args)
     try:
