@@ -10,7 +10,7 @@ is simulated.
    beside the bare tactile model on the same trials (scene and motor patterns only), measured in the
    same run.
 
-    .venv/bin/python bench/bench_study.py [--noise 0.08] [--scenes 20] [--positions 16] [--participants 3]
+    .venv/bin/python bench/bench_study.py [--noise N] [--scenes 20] [--positions 16] [--participants 3]
 """
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ from touch4d.study.design import load_study
 from touch4d.study.infotransfer import predicted_transfer
 from touch4d.study.observer import ModelObserver, every_sample_glove, patterns_at
 from touch4d.study.plan import participant_ids, quick_plan
+from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.study.simulate import Timing, simulate_trial
 from touch4d.study.stimuli import trial_scene
 from touch4d.tactile import load_glove
@@ -32,7 +33,8 @@ from touch4d.tactile import load_glove
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--study", default="config/studies/paper.yaml")
-    parser.add_argument("--noise", type=float, default=0.08, help="sensory noise per motor (full drive = 1)")
+    parser.add_argument("--noise", type=float, default=HUMAN_NOISE,
+                        help="sensory noise per motor (full drive = 1); default: the observers' one default")
     parser.add_argument("--scenes", type=int, default=20, help="jittered scenes per stimulus (half to test)")
     parser.add_argument("--positions", type=int, default=16, help="hand positions per scene")
     parser.add_argument("--participants", type=int, default=3, help="simulated participants (quick plans)")
@@ -56,7 +58,7 @@ def main(argv=None) -> int:
     tilt = next((t.id for t in study.tasks if t.kind == "tilt"), None)
     if tilt is not None:
         cells = []
-        for noise in (0.02, 0.05, 0.08, 0.15):
+        for noise in (0.02, 0.05, 0.08, 0.15, round(HUMAN_NOISE, 3)):
             few, many = (predicted_transfer(g, study, tilt, noise=noise, scenes=args.scenes, positions=args.positions)
                          for g in (glove, dense))
             cells.append(f"{noise:g}: {few['bits']:.2f} / {many['bits']:.2f}")
