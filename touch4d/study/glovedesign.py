@@ -49,7 +49,7 @@ class Examples:
         return next(iter(self.tasks.values()))[0].shape[1]
 
 
-def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scenes: int = 8, positions: int = 8,
+def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scenes: int = 16, positions: int = 12,
              seed: int = 0, purpose: str = "search") -> Examples:
     """The every-sample glove's noisy patterns of each task's stimuli, half the scenes held out;
     each `purpose` (`PURPOSES`) draws an independent set."""
@@ -161,8 +161,8 @@ def _design_job(shared, kind: str, motors: int, draw: int, seed: int) -> dict:
 
 
 def design_gloves(glove: Glove, study: Study, sizes: list[int], *, tasks: list[str] | None = None,
-                  noise: float, random_layouts: int = 10, rounds: int = 2, tries: int = 10, scenes: int = 8,
-                  positions: int = 8, seed: int = 0, candidates=None, cluster: Cluster = Cluster(), cache=None,
+                  noise: float, random_layouts: int = 10, rounds: int = 2, tries: int = 10, scenes: int = 16,
+                  positions: int = 12, seed: int = 0, candidates=None, cluster: Cluster = Cluster(), cache=None,
                   progress: bool = True) -> dict:
     """Designed layouts of each size in `sizes` (at the glove's own motor count also one searched from
     its own layout, the better on validation kept; `starts` holds both), `random_layouts` random ones of each, and the

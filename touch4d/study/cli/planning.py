@@ -96,8 +96,9 @@ def register_glove_design(sub) -> None:
                         help="swap passes after the greedy steps (default 2)")
     design.add_argument("--tries", type=_count0, default=10, metavar="N",
                         help="other places tried for each chosen one in a swap pass (default 10)")
-    design.add_argument("--scenes", type=motors, default=8, metavar="N", help="jittered scenes per stimulus")
-    design.add_argument("--positions", type=motors, default=8, metavar="N", help="hand positions per scene")
+    design.add_argument("--scenes", type=motors, default=16, metavar="N",
+                        help="jittered scenes per stimulus in each set of examples (default 16)")
+    design.add_argument("--positions", type=motors, default=12, metavar="N", help="hand positions per scene (default 12)")
     design.add_argument("--seed", type=int, default=0, metavar="S")
     design.add_argument("-o", "--output", required=True, metavar="NEW.yaml", help="the designed glove file")
     design.add_argument("--json", action="store_true", help="print the comparison as JSON")
