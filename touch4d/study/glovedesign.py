@@ -11,9 +11,9 @@ noise: greedy forward selection on the search set (each step tries a random samp
 all of them for small K: the stochastic greedy of Mirzasoleiman et al. 2015); then swap passes
 judged on the validation set; at the glove's own motor count the search also starts from its own
 layout (filled up by greedy steps where two motors share a sample), and the start that ends better
-on validation is kept. Every layout (the designed, random
-ones of K as the baseline, the glove's own) is reported on the test set, which neither saw. Random
-draws come from the run's seed: the same seed, the same glove. Layouts fan out on Dask.
+on validation is kept. Every layout (the designed, random ones of K as the baseline, the glove's
+own) is reported on the test set, which neither saw. Random draws come from the run's seed: the
+same seed, the same glove. Layouts fan out on Dask.
 """
 from __future__ import annotations
 
