@@ -18,7 +18,9 @@ probability `lapse` it answers at random instead.
 
 `explore(trial, rng)` gives the positions of the scripted hand (screen units); `respond(trial,
 patterns, scene, rng)` the answer, where `patterns` is None in the visual condition (motors held
-off) and `scene` None in the touch condition (nothing drawn).
+off) and `scene` None in the touch condition (nothing drawn). Where it feels a vibration
+(`localisation_mm`, `localisation()`) is set from the palm's published localisation
+(`psychophysics`); identifying a stimulus does not need it, the motors' places being known.
 """
 from __future__ import annotations
 
