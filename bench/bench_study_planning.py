@@ -14,13 +14,14 @@
    simulated studies analysed by the GEE of `study analyze`, beside statsmodels' power.
 5. Pilot fits: coverage of the 95% profile intervals over 100 pilots drawn from a known accuracy
    surface (closed form), per parameter.
-6. Glove design (`--design`; slow: a layout is scored in ~0.3 s here, so K = 30 takes about an hour on
-   the shared 2-core VM): bits per touch (mean over the study's tasks, scored on examples the
-   search did not see) of designed layouts of K = 1, 2, 6, 10, 30 motors beside random layouts of K
-   and the paper's 30.
+6. Glove design (`--design`, or `--design-only`): bits per touch (mean over the study's tasks, scored
+   on test examples neither the search nor its validation saw) of designed layouts of K = 1, 2, 6,
+   10, 30 motors beside 10 random layouts of K (ratio designed / random mean) and the paper's 30
+   (ratio designed / paper's), and which start the K = 30 design kept.
 
     .venv/bin/python bench/bench_study_planning.py [--workers 2] [--participants 8]
         [--power-simulations 2] [--curve 500] [--check-exact 60] [--validation 500] [--design]
+    .venv/bin/python bench/bench_study_planning.py --design-only [--workers 2] [--seed 0]
 """
 from __future__ import annotations
 
@@ -133,19 +134,23 @@ def coverage() -> None:
           f"({(time.perf_counter() - started) * 10:.1f} ms a fit)")
 
 
-def design(study, glove, workers: int) -> None:
+def design(study, glove, workers: int, *, seed: int = 0, random_layouts: int = 10) -> None:
     from touch4d.study.glovedesign import design_gloves
 
     started = time.perf_counter()
-    result = design_gloves(glove, study, [1, 2, 6, 10, 30], noise=HUMAN_NOISE, random_layouts=10, rounds=1,
-                           cluster=Cluster(workers=workers), progress=False)
+    result = design_gloves(glove, study, [1, 2, 6, 10, 30], noise=HUMAN_NOISE, random_layouts=random_layouts,
+                           seed=seed, cluster=Cluster(workers=workers), progress=False)
     own = result["own"]["mean_bits"]
-    print(f"glove design ({time.perf_counter() - started:.0f} s, {workers} workers): bits per touch, mean over "
-          f"{', '.join(result['tasks'])}; the paper's 30 motors: {own:.3f}")
-    print(f"{'K':>3} {'designed':>9} {'random mean':>11} {'random sd':>9} {'designed / paper 30':>20}")
+    print(f"glove design ({time.perf_counter() - started:.0f} s, {workers} workers, seed {seed}): bits per touch on "
+          f"test examples, mean over {', '.join(result['tasks'])}; the paper's 30 motors: {own:.3f}")
+    print(f"{'K':>3} {'designed':>9} {'random mean':>11} {'random sd':>9} {'random best':>11} "
+          f"{'designed / random':>17} {'designed / paper 30':>19}  start kept (test bits of each start)")
     for k, size in result["sizes"].items():
-        print(f"{k:>3} {size['designed']['mean_bits']:>9.3f} {size['random_mean_bits']:>11.3f} "
-              f"{size['random_sd_bits']:>9.3f} {size['designed']['mean_bits'] / own:>20.3f}")
+        designed = size["designed"]["mean_bits"]
+        starts = ", ".join(f"{name} {d['mean_bits']:.3f}" for name, d in size["starts"].items())
+        print(f"{k:>3} {designed:>9.3f} {size['random_mean_bits']:>11.3f} {size['random_sd_bits']:>9.3f} "
+              f"{size['random_best_bits']:>11.3f} {designed / size['random_mean_bits']:>17.3f} {designed / own:>19.3f}"
+              f"  {size['designed']['start']} ({starts})")
 
 
 def main(argv=None) -> int:
@@ -159,8 +164,13 @@ def main(argv=None) -> int:
     parser.add_argument("--check-exact", type=int, default=0, metavar="S", help="power of S studies both ways")
     parser.add_argument("--validation", type=int, default=500, help="simulated two-proportion studies")
     parser.add_argument("--design", action="store_true", help="also the glove designs (slow)")
+    parser.add_argument("--design-only", action="store_true", help="only the glove designs")
+    parser.add_argument("--seed", type=int, default=0, help="the glove designs' seed")
     args = parser.parse_args(argv)
     study, glove = load_study(args.study), load_glove()
+    if args.design_only:
+        design(study, glove, args.workers, seed=args.seed)
+        return 0
     population = Population()
     observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
                              lapse=population.lapse).train()
@@ -203,7 +213,7 @@ def main(argv=None) -> int:
     validation(args.validation)
     coverage()
     if args.design:
-        design(study, glove, args.workers)
+        design(study, glove, args.workers, seed=args.seed)
     return 0
 
 

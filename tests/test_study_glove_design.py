@@ -1,27 +1,31 @@
 """A glove designed: the file it writes is a working glove (tactile model, CAN boards and channels,
 DBC) that `study transfer --glove` accepts; the designed layout tells more than random layouts of the
-same size; more motors than sample points is a clear error."""
+same size on test examples; the greedy steps and the swaps find the informative places of known
+synthetic data, swaps only on what the validation examples show; the search is deterministic by
+seed and also starts from the glove's own layout; more motors than sample points is a clear error."""
 import json
 
 import cantools
+import numpy as np
 import pytest
 
 from touch4d.boards.config import load_glove_can
 from touch4d.cli import main
 from touch4d.study.design import load_study
 from touch4d.study.fanout import Cluster
-from touch4d.study.glovedesign import design_gloves
+from touch4d.study.glovedesign import Examples, design_gloves, greedy_layout, improve_by_swaps, step_sample
 from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.tactile import load_glove
 
 STUDY = "tests/data/studies/lookalikes.yaml"
 
 
-@pytest.mark.timeout(400)
+@pytest.mark.timeout(200)
 def test_glove_design_writes_a_working_glove_that_study_transfer_accepts(tmp_path, capsys):
-    out = tmp_path / "designed.yaml"
-    assert main(["glove", "design", "--motors", "10", "--study", STUDY, "--random", "2", "--rounds", "0",
-                 "--scenes", "4", "--positions", "4", "--workers", "0", "-o", str(out), "--json"]) == 0
+    out = tmp_path / "designed.yaml"            # 10 motors among the index's and middle's 30 places: two boards
+    assert main(["glove", "design", "--motors", "10", "--study", STUDY, "--regions", "index", "middle", "--random",
+                 "0", "--rounds", "0", "--scenes", "3", "--positions", "3", "--workers", "0", "-o", str(out),
+                 "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     places = result["sizes"]["10"]["designed"]["places"]
     assert len(set(places)) == 10
@@ -39,14 +43,64 @@ def test_glove_design_writes_a_working_glove_that_study_transfer_accepts(tmp_pat
     assert transfer["results"][0]["motors"] == 10 and 0.0 <= transfer["results"][0]["bits"] <= 1.585 + 1e-9
 
 
-@pytest.mark.timeout(400)
-def test_a_designed_pair_of_motors_tells_more_than_random_pairs():
+@pytest.mark.timeout(200)
+def test_a_designed_pair_of_motors_tells_more_than_random_pairs_on_test_examples():
     study, glove = load_study(STUDY), load_glove()
-    result = design_gloves(glove, study, [2], noise=HUMAN_NOISE, random_layouts=8, rounds=1, scenes=6, positions=6,
-                           progress=False, cluster=Cluster(workers=0))
+    result = design_gloves(glove, study, [2], noise=HUMAN_NOISE, random_layouts=8, rounds=1, tries=4, scenes=5,
+                           positions=5, progress=False, cluster=Cluster(workers=0))
     size = result["sizes"][2]
     assert size["designed"]["mean_bits"] > size["random_mean_bits"] + size["random_sd_bits"]
     assert 0.0 <= size["designed"]["mean_bits"] <= 1.585 + 1e-9
+
+
+def synthetic(informative, *, samples=8, rows=120, seed=0) -> Examples:
+    """Two stimuli told apart only by the columns `informative` (a shift of 3 sd), every other column
+    pure noise; odd rows held out."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(rows) % 2
+    x = rng.normal(0.0, 1.0, (rows, samples))
+    x[:, informative] += 3.0 * k[:, None]
+    return Examples({"task": (x, k, (np.arange(rows) // 2) % 2 == 1, 2)})
+
+
+def test_greedy_steps_pick_the_informative_place_of_known_data():
+    assert greedy_layout(synthetic([5]), 1) == [5]
+    assert greedy_layout(synthetic([5]), 1, candidates=[0, 1, 2, 3]) in ([0], [1], [2], [3])
+    assert greedy_layout(synthetic([5, 6]), 2, start=[6]) == [6, 5]
+
+
+def test_swaps_follow_the_validation_examples_not_the_search_ones():
+    validation = synthetic([2], seed=1)       # the search would have liked 5; validation shows 2
+    places, bits = improve_by_swaps(validation, [5], candidates=range(8), rounds=2, tries=7,
+                                    rng=np.random.default_rng(0))
+    assert places == [2] and bits > 0.6         # 3-sd shift: ~93% correct, ~0.63 bits
+    kept, kept_bits = improve_by_swaps(validation, [2], candidates=range(8), rounds=2, tries=7,
+                                       rng=np.random.default_rng(0))
+    assert kept == [2] and kept_bits == bits    # nothing on validation beats it: no swap
+
+
+def test_the_greedy_sample_shrinks_with_k_so_a_design_costs_about_the_same_at_any_k():
+    assert step_sample(247, 1) == step_sample(247, 2) == 247            # small K: every place tried
+    assert step_sample(247, 30) == 38                                   # 247 / 30 ln 100 = 37.9
+    assert 30 * step_sample(247, 30) < 1.2 * 247 * np.log(100)
+
+
+@pytest.mark.timeout(200)
+def test_the_search_is_deterministic_by_seed_and_at_the_gloves_motor_count_also_starts_from_its_layout():
+    study, glove = load_study(STUDY), load_glove()
+    own = sorted(set(int(s) for s in glove.motor_sample))
+    pool = sorted(set(own) | set(range(0, 247, 25)))          # its 29 places and a few others: a quick search
+    kw = dict(noise=HUMAN_NOISE, random_layouts=0, rounds=1, tries=2, scenes=3, positions=3, candidates=pool,
+              progress=False, cluster=Cluster(workers=0))
+    first, again = (design_gloves(glove, study, [30], **kw) for _ in range(2))
+    size = first["sizes"][30]
+    assert set(size["starts"]) == {"greedy", "the glove's own"}
+    assert size["designed"] == max(size["starts"].values(), key=lambda d: d["validation_bits"])
+    assert again["sizes"][30]["designed"]["places"] == size["designed"]["places"]
+    assert {s: d["places"] for s, d in again["sizes"][30]["starts"].items()} == \
+        {s: d["places"] for s, d in size["starts"].items()}
+    no_swaps = design_gloves(glove, study, [30], **{**kw, "rounds": 0})["sizes"][30]["starts"]["the glove's own"]
+    assert set(own) < set(no_swaps["places"]) and len(no_swaps["places"]) == 30   # its 29 places, one added
 
 
 def test_more_motors_than_sample_points_is_a_clear_error(capsys):

@@ -14,6 +14,7 @@ from touch4d.study.design import load_study
 from touch4d.study.infotransfer import predicted_transfer
 from touch4d.study.observer import ModelObserver, every_sample_glove, patterns_at
 from touch4d.study.plan import plan_session
+from touch4d.study.psychophysics import PALM_LOCALISATION_MM
 from touch4d.study.simulate import Timing, simulate_trial
 from touch4d.study.stimuli import trial_scene
 from touch4d.study.table import COLUMNS
@@ -164,3 +165,13 @@ def test_few_training_scenes_train_or_are_refused_naming_the_setting(paper, glov
     assert all(np.isfinite(observer.view_cue(task.id).temperature) for task in paper.tasks)
     with pytest.raises(ConfigError, match="view_scenes"):     # one view per stimulus: no more than the answers
         ModelObserver(glove, paper, seed=1, train_scenes=4, train_positions=8, view_scenes=1).train()
+
+
+def test_the_default_observer_localises_a_vibration_on_the_palm_as_people_do(paper, glove):
+    observer = ModelObserver(glove, paper)
+    measured = observer.localisation(trials=3000, seed=1)
+    low, high = PALM_LOCALISATION_MM
+    assert low <= measured["mean_error_mm"] <= high, measured
+    assert ModelObserver(glove, paper, localisation_mm=2.0).localisation(trials=3000, seed=1)["mean_error_mm"] < low
+    with pytest.raises(ConfigError, match="localisation_mm"):
+        ModelObserver(glove, paper, localisation_mm=-1.0)

@@ -18,7 +18,9 @@ probability `lapse` it answers at random instead.
 
 `explore(trial, rng)` gives the positions of the scripted hand (screen units); `respond(trial,
 patterns, scene, rng)` the answer, where `patterns` is None in the visual condition (motors held
-off) and `scene` None in the touch condition (nothing drawn).
+off) and `scene` None in the touch condition (nothing drawn). Where it feels a vibration
+(`localisation_mm`, `localisation()`) is set from the palm's published localisation
+(`psychophysics`); identifying a stimulus does not need it, the motors' places being known.
 """
 from __future__ import annotations
 
@@ -38,7 +40,7 @@ from touch4d.tactile import Glove, compute_stimulus
 from .conditions import split_condition
 from .design import Study, Task
 from .plan import Trial, draw_jitter, stimuli_of
-from .psychophysics import HUMAN_NOISE
+from .psychophysics import HUMAN_NOISE, LOCALISATION_MM, vibration_localisation
 from .stimuli import in_view, stimulus_scene
 
 FACING = np.array([0.0, 0.0, 0.0, 1.0])   # the hand's identity pose: palm toward -z, fingers up (+y)
@@ -188,14 +190,17 @@ class ModelObserver:
 
     def __init__(self, glove: Glove, study: Study, *, noise: float = HUMAN_NOISE, visual_noise: float = 0.5,
                  lapse: float = 0.03, seed: int = 0, exploration: Exploration | None = None,
-                 train_scenes: int = 12, train_positions: int = 20, view_scenes: int = 30):
+                 train_scenes: int = 12, train_positions: int = 20, view_scenes: int = 30,
+                 localisation_mm: float = LOCALISATION_MM):
         for key, value, ok in (("noise", noise, noise >= 0), ("visual_noise", visual_noise, visual_noise >= 0),
+                               ("localisation_mm", localisation_mm, localisation_mm >= 0),
                                ("lapse", lapse, 0 <= lapse <= 1)):
             if not ok:
                 raise ConfigError("model observer", key, "a number in 0..1" if key == "lapse" else "a number >= 0",
                                   got=value)
         self.glove, self.study = glove, study
         self.noise, self.visual_noise, self.lapse = float(noise), float(visual_noise), float(lapse)
+        self.localisation_mm = float(localisation_mm)   # where a vibration is felt (psychophysics)
         self.exploration = exploration or Exploration()
         self.train_scenes, self.train_positions, self.view_scenes = train_scenes, train_positions, view_scenes
         self.seed = int(seed)
@@ -224,6 +229,13 @@ class ModelObserver:
             total += self.view_cue(trial.task, view).log_posterior(
                 seen + rng.normal(0.0, self.visual_noise, seen.shape))
         return options[int(rng.choice(np.flatnonzero(best_options(total[None])[0])))]
+
+    def localisation(self, *, trials: int = 2000, seed: int = 0) -> dict:
+        """The palm's localisation task through this observer: one of its glove's palm motors vibrates,
+        it points where it felt it (`psychophysics.vibration_localisation`, sd `localisation_mm`)."""
+        positions = self.glove.motor_positions
+        palm = self.glove.hand.in_palm(positions) & (positions[:, 2] < 0)
+        return vibration_localisation(positions[palm], self.localisation_mm, trials=trials, seed=seed)
 
     # -- training ------------------------------------------------------------------------------------
 

@@ -7,6 +7,11 @@ probability Phi(d / (noise sqrt 2)): 75% correct at d = noise sqrt(2) Phi^-1(0.7
 of that over A. `HUMAN_NOISE` is the noise whose Weber fraction at `REFERENCE_DRIVE` is the
 fingertip's published one; `amplitude_discrimination` measures it by simulation (a psychometric fit,
 `analysis.fit_psychometric`), the check that the observer lands inside the published range.
+
+Where a vibration is felt: at its motor's place on the skin plus Gaussian noise of sd
+`LOCALISATION_MM` on each axis of the palm's plane (the hand frame's x and y), so the mean distance
+between where a motor is and where it is felt is LOCALISATION_MM sqrt(pi/2) (a Rayleigh mean), set
+to the middle of the palm's published 5-15 mm; `vibration_localisation` runs that task.
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from statistics import NormalDist
 FINGERTIP_WEBER_DB = (2.2, 2.5)       # dB: 20 log10(1 + Weber fraction)
 THENAR_WEBER = 0.2                   # the thenar eminence at 125 Hz
 REFERENCE_DRIVE = 0.5                # the drive (units of full drive) at which the fraction is matched
+PALM_LOCALISATION_MM = (5.0, 15.0)    # vibration localisation on the palm: mean error, mm
 
 
 def weber_from_db(db: float) -> float:
@@ -35,6 +41,11 @@ def noise_for_weber(fraction: float, reference: float = REFERENCE_DRIVE) -> floa
 
 # The one default touch noise of every observer (simulate, power, fit, transfer, glove design, the node).
 HUMAN_NOISE = noise_for_weber(weber_from_db(sum(FINGERTIP_WEBER_DB) / 2.0))   # ~0.16 of full drive
+# The thenar eminence's noise (its Weber fraction at 125 Hz): finer than the fingertip's; the observer
+# keeps one noise for every motor, the fingertip's (the coarser, so predictions do not flatter the glove).
+THENAR_NOISE = noise_for_weber(THENAR_WEBER)                                    # ~0.105 of full drive
+# Where a vibration is felt (module docstring): sd per axis whose mean error is the range's middle, 10 mm.
+LOCALISATION_MM = sum(PALM_LOCALISATION_MM) / 2.0 / math.sqrt(math.pi / 2.0)   # ~7.98 mm
 
 
 def amplitude_discrimination(noise: float, *, reference: float = REFERENCE_DRIVE, steps=None, trials: int = 400,
@@ -57,5 +68,28 @@ def amplitude_discrimination(noise: float, *, reference: float = REFERENCE_DRIVE
             "trials": int(len(level))}
 
 
-__all__ = ["HUMAN_NOISE", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE", "noise_for_weber",
+def felt_positions(positions, sd_mm: float, rng):
+    """Where vibrations at `positions` (N, 3; hand frame, metres) are felt: each moved by Gaussian noise
+    of sd `sd_mm` millimetres along x and y, the palm's plane (module docstring)."""
+    import numpy as np
+
+    felt = np.array(positions, dtype=float, ndmin=2)
+    felt[:, :2] += rng.normal(0.0, sd_mm / 1000.0, (len(felt), 2))
+    return felt
+
+
+def vibration_localisation(positions, sd_mm: float, *, trials: int = 2000, seed: int = 0) -> dict:
+    """The localisation task: one of `positions` (motors, hand frame, metres), drawn at random, vibrates
+    and the observer points where it felt it; the distances between the two, in mm."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    where = np.asarray(positions, dtype=float)[rng.integers(len(positions), size=trials)]
+    error = 1000.0 * np.linalg.norm(felt_positions(where, sd_mm, rng) - where, axis=1)
+    return {"sd_mm": sd_mm, "mean_error_mm": float(error.mean()), "median_error_mm": float(np.median(error)),
+            "trials": int(trials)}
+
+
+__all__ = ["HUMAN_NOISE", "THENAR_NOISE", "LOCALISATION_MM", "PALM_LOCALISATION_MM", "felt_positions",
+           "vibration_localisation", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE", "noise_for_weber",
            "weber_from_db", "db_from_weber", "amplitude_discrimination"]

@@ -77,7 +77,8 @@ def register_glove_design(sub) -> None:
     design = sub.add_parser("design", help="choose K motor places for a study, write a working glove file",
                             description="Choose K actuator places among the hand's sample points to maximise the "
                                         "bits one touch tells about the study's stimuli (study transfer's measure, "
-                                        "mean over tasks) by greedy forward selection with swaps; write the glove "
+                                        "mean over tasks) by greedy forward selection, then swaps judged on "
+                                        "separate validation examples; write the glove "
                                         "file (boards and channels assigned) and its DBC; compare with random "
                                         "layouts of K and the glove's own layout.")
     design.add_argument("--motors", required=True, type=motors, metavar="K", help="number of motors")
@@ -93,8 +94,11 @@ def register_glove_design(sub) -> None:
                         help="random layouts to compare (default 10)")
     design.add_argument("--rounds", type=_count0, default=2, metavar="N",
                         help="swap passes after the greedy steps (default 2)")
-    design.add_argument("--scenes", type=motors, default=8, metavar="N", help="jittered scenes per stimulus")
-    design.add_argument("--positions", type=motors, default=8, metavar="N", help="hand positions per scene")
+    design.add_argument("--tries", type=_count0, default=10, metavar="N",
+                        help="other places tried for each chosen one in a swap pass (default 10)")
+    design.add_argument("--scenes", type=motors, default=16, metavar="N",
+                        help="jittered scenes per stimulus in each set of examples (default 16)")
+    design.add_argument("--positions", type=motors, default=12, metavar="N", help="hand positions per scene (default 12)")
     design.add_argument("--seed", type=int, default=0, metavar="S")
     design.add_argument("-o", "--output", required=True, metavar="NEW.yaml", help="the designed glove file")
     design.add_argument("--json", action="store_true", help="print the comparison as JSON")
@@ -112,7 +116,7 @@ def run_glove_design(args) -> int:
     tasks = [study.task(t).id for t in args.task] if args.task else None
     result = design_gloves(glove, study, [args.motors], tasks=tasks,
                            noise=HUMAN_NOISE if args.noise is None else args.noise, random_layouts=args.random,
-                           rounds=args.rounds, scenes=args.scenes, positions=args.positions, seed=args.seed,
+                           rounds=args.rounds, tries=args.tries, scenes=args.scenes, positions=args.positions, seed=args.seed,
                            candidates=candidates_in(glove, args.regions), cluster=cluster_of(args),
                            progress=not args.json)
     places = result["sizes"][args.motors]["designed"]["places"]
