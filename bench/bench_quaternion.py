@@ -9,6 +9,8 @@ Candidates, each for a stack (K, 4) and a single (4,):
                   constant (16, 9) in one matrix product
   scipy           Rotation.from_quat(q).as_matrix()
 Each figure: CPU microseconds per conversion (median of 5 rounds), and its ratio to the fastest of the load.
+Then one pose's product and canonical form (a served participant's hand, per input): the library's,
+on Python floats, against the same formulas on numpy's scalars.
 
     .venv/bin/python bench/bench_quaternion.py [--number 20000]
 """
@@ -36,6 +38,18 @@ def closed_form(q: np.ndarray) -> np.ndarray:
 
 def scipy_rotation(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
+
+
+def multiply_on_numpy_scalars(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def canonical_in_numpy(q: np.ndarray) -> np.ndarray:
+    q = q / np.sqrt(q @ q)
+    return -q if q[3] < 0 else q
 
 
 CANDIDATES = {"closed form": closed_form, "quadratic form": quaternion.to_matrix, "scipy": scipy_rotation}
@@ -68,6 +82,14 @@ def main(argv=None) -> int:
         us = {name: per_call(fn, q, args.number) for name, fn in CANDIDATES.items()}
         best = min(us.values())
         print(f"{load:<14}" + "".join(f"{t:>14.2f} ({t / best:4.2f}x)" for t in us.values()))
+    a, b = Rotation.random(2, random_state=4).as_quat()
+    b = -3.0 * b   # not unit, w < 0: canonical has both to do
+    for name, library, numpy_scalars, q in (("multiply", lambda q: quaternion.multiply(a, q), lambda q:
+                                             multiply_on_numpy_scalars(a, q), b),
+                                            ("canonical", quaternion.canonical, canonical_in_numpy, b)):
+        assert np.allclose(library(q), numpy_scalars(q), rtol=0, atol=1e-15), name   # equal to rounding
+        new, old = per_call(library, q, args.number), per_call(numpy_scalars, q, args.number)
+        print(f"{name:<14}{new:>8.2f} us (Python floats) vs {old:.2f} us (numpy scalars): {new / old:.2f}x")
     return 0
 
 

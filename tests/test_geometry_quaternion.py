@@ -37,6 +37,21 @@ def test_small_rotations_stay_exact_and_canonical_picks_w_positive():
                        Rotation.from_rotvec([0, 0, 5e-4]).as_matrix())
 
 
+@pytest.mark.parametrize("a, scale", [(a, k) for (a, _), k in zip(PAIRS[:10], (0.5, -2.0, 3.0, -0.1, 1.0) * 2)])
+def test_canonical_is_scipys_unit_quaternion_with_w_positive(a, scale):
+    expected = a.as_quat()
+    expected = -expected if expected[3] < 0 else expected
+    got = qt.canonical(scale * a.as_quat())
+    assert np.allclose(got, expected, rtol=0, atol=1e-15) and got[3] >= 0
+    assert np.allclose(qt.canonical(tuple(-got)), expected, rtol=0, atol=1e-15)   # a sequence too
+
+
+def test_canonical_of_a_zero_or_nan_quaternion_is_nan():
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert np.isnan(qt.canonical([0.0, 0.0, 0.0, 0.0])).all()
+        assert np.isnan(qt.canonical([np.nan, 0.0, 0.0, 1.0])).all()
+
+
 def rodrigues(axis, angle: float) -> np.ndarray:
     """The rotation by `angle` about the unit `axis`: cos I + sin [k]x + (1 - cos) k k^T."""
     k = np.asarray(axis, dtype=float)

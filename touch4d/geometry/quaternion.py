@@ -9,6 +9,8 @@ than the entries written out and 2.5x than scipy; one quaternion ~1 us slower th
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -16,8 +18,9 @@ IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation b followed by a (Hamilton product a * b)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
+    # on Python floats: numpy's scalars cost ~5x more for these sixteen products
+    ax, ay, az, aw = np.asarray(a, dtype=float).tolist()
+    bx, by, bz, bw = np.asarray(b, dtype=float).tolist()
     return np.array([
         aw * bx + ax * bw + ay * bz - az * by,
         aw * by - ax * bz + ay * bw + az * bx,
@@ -34,8 +37,13 @@ def conjugate(q: np.ndarray) -> np.ndarray:
 def canonical(q: np.ndarray) -> np.ndarray:
     """q and -q are the same rotation; the one with w >= 0, normalised, so equal poses give equal numbers."""
     q = np.asarray(q, dtype=float)
-    q = q / np.sqrt(q @ q)
-    return -q if q[3] < 0 else q
+    x, y, z, w = q.tolist()                   # Python floats: ~2x quicker than q @ q and q / n
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not n > 0:
+        return q / n                          # numpy's answer for a zero (or NaN) quaternion: NaN
+    if w < 0:
+        n = -n
+    return np.array([x / n, y / n, z / n, w / n])
 
 
 def _quadratic_form() -> np.ndarray:
