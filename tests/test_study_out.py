@@ -16,6 +16,7 @@ import pytest
 
 from touch4d.cli import main
 from touch4d.errors import ConfigError
+from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.study.design import load_study, study_file_path
 from touch4d.study.lock import LOCK, WRITER, SessionLock
 from touch4d.study.plan import condition_order, order_table, participant_index
@@ -210,4 +211,4 @@ def test_analyze_refuses_sessions_that_ran_otherwise(tmp_path, capsys):
     capsys.readouterr()
     assert main(["study", "analyze", str(tmp_path / "a"), "--no-report"]) == 2
     err = capsys.readouterr().err
-    assert str(tmp_path / "a" / "P02") in err and "simulation.noise 0.2 where P01 has 0.08" in err
+    assert str(tmp_path / "a" / "P02") in err and f"simulation.noise 0.2 where P01 has {HUMAN_NOISE}" in err     # P01 ran at the default

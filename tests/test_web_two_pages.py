@@ -58,8 +58,8 @@ def test_a_second_page_cannot_take_the_hand_from_the_one_that_drives_it():
                         await a.send_str(tracked(GRIP["a"]))
                         await b.send_str(tracked(GRIP["b"]))
                         await asyncio.sleep(0.01)
+                    probe_mark.append(time.time())            # before a goes: b's backlog may drive at once
                     await a.close()                            # the driving page goes
-                    probe_mark.append(time.time())
                     for _ in range(30):
                         await b.send_str(tracked(GRIP["b"]))
                         await asyncio.sleep(0.01)
