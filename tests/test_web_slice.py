@@ -7,6 +7,7 @@ screen says where it cuts, and the solid drawn in both eyes follows."""
 from __future__ import annotations
 
 import io
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -65,43 +66,50 @@ def command(stack, page, name, argument, expect):
     raise AssertionError(f"the page never showed {expect}")
 
 
-def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
+@contextmanager
+def desktop_page(stack):
+    """The stack's page in a desktop browser window, connected to its node."""
     with chromium() as browser:
         context = browser.new_context(**context_options(640, 400))
         page = context.new_page()
         try:
             page.goto(stack["url"])
             wait_connected(page)
-            page.wait_for_function("touch4d.geometry !== null && touch4d.frames > 5")
-            command(stack, page, "view", "projection", "touch4d.view === 'projection'")
-            page.wait_for_timeout(300)
-            projection = screenshot(page)
-            command(stack, page, "view", "slice", "touch4d.view === 'slice'")
-            command(stack, page, "slice", "1.5", "touch4d.frame.slice_w === 1.5")
-            page.wait_for_timeout(300)
-            cut = screenshot(page)
-            drawn = np.abs(cut - BACKGROUND).sum(axis=2) > 30
-            # the hypercube's section (a cube of its size, 1.2) is a solid in its cells' colours ...
-            assert cell_coloured(cut).sum() > 2000 and cell_coloured(cut).sum() > 0.5 * drawn.sum() - 2000
-            # ... where the projection showed translucent faces
-            assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
-            assert page.evaluate("touch4d.panel") == ["slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)"]
-            status = page.inner_text("#status")
-            assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
-            # both: the same solid, seen through the projection drawn faintly around it
-            command(stack, page, "view", "both", "touch4d.view === 'both'")
-            page.wait_for_timeout(300)
-            both = screenshot(page)
-            solid = cell_coloured(cut)
-            assert np.abs(both - cut)[solid].mean() < 40                    # the solid, faintly tinted
-            assert (np.abs(both - cut).sum(axis=2) > 60).sum() > 300        # and the projection's edges
-            # moved out of the object's w range: nothing left to draw but the frame and the hand's cube
-            command(stack, page, "view", "slice", "touch4d.view === 'slice'")
-            command(stack, page, "slice", "2.5", "touch4d.frame.slice_w === 2.5")
-            page.wait_for_timeout(300)
-            assert cell_coloured(screenshot(page)).sum() < 50
+            yield page
         finally:
             context.close()
+
+
+def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
+    with desktop_page(stack) as page:
+        page.wait_for_function("touch4d.geometry !== null && touch4d.frames > 5")
+        command(stack, page, "view", "projection", "touch4d.view === 'projection'")
+        page.wait_for_timeout(300)
+        projection = screenshot(page)
+        command(stack, page, "view", "slice", "touch4d.view === 'slice'")
+        command(stack, page, "slice", "1.5", "touch4d.frame.slice_w === 1.5")
+        page.wait_for_timeout(300)
+        cut = screenshot(page)
+        drawn = np.abs(cut - BACKGROUND).sum(axis=2) > 30
+        # the hypercube's section (a cube of its size, 1.2) is a solid in its cells' colours ...
+        assert cell_coloured(cut).sum() > 2000 and cell_coloured(cut).sum() > 0.5 * drawn.sum() - 2000
+        # ... where the projection showed translucent faces
+        assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
+        assert page.evaluate("touch4d.panel") == ["slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)"]
+        status = page.inner_text("#status")
+        assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
+        # both: the same solid, seen through the projection drawn faintly around it
+        command(stack, page, "view", "both", "touch4d.view === 'both'")
+        page.wait_for_timeout(300)
+        both = screenshot(page)
+        solid = cell_coloured(cut)
+        assert np.abs(both - cut)[solid].mean() < 40                    # the solid, faintly tinted
+        assert (np.abs(both - cut).sum(axis=2) > 60).sum() > 300        # and the projection's edges
+        # moved out of the object's w range: nothing left to draw but the frame and the hand's cube
+        command(stack, page, "view", "slice", "touch4d.view === 'slice'")
+        command(stack, page, "slice", "2.5", "touch4d.frame.slice_w === 2.5")
+        page.wait_for_timeout(300)
+        assert cell_coloured(screenshot(page)).sum() < 50
 
 
 def ghost_scene(c, *z_ghost, view="both") -> str:
@@ -116,27 +124,20 @@ def ghost_scene(c, *z_ghost, view="both") -> str:
 
 def test_in_the_both_view_the_page_hides_the_projection_behind_the_solid(stack):
     """As the desktop backends: a projection surface behind the solid is hidden, one in front tints it."""
-    with chromium() as browser:
-        context = browser.new_context(**context_options(640, 400))
-        page = context.new_page()
-        try:
-            page.goto(stack["url"])
-            wait_connected(page)
-            pictures = []
-            for c, z, view in ((1.6, (), "slice"), (1.55, (), "both"), (1.5, (-1.0,), "both"), (1.45, (1.0,), "both")):
-                command(stack, page, "load", ghost_scene(c, *z, view=view),      # c tells the scenes apart
-                        f"touch4d.view === '{view}' && Math.abs(touch4d.frame.slice_w - {c}) < 1e-6")
-                page.wait_for_timeout(300)
-                pictures.append(screenshot(page))
-            cut, alone, behind, front = pictures
-            solid = cell_coloured(cut)
-            changed = lambda image: np.abs(image - alone).max(axis=2) > 3
-            assert solid.sum() > 2000
-            assert changed(front)[solid].sum() > 300               # the ghost in front tints the solid ...
-            assert changed(behind)[solid].sum() < 20               # ... behind it, the solid hides it
-            assert changed(behind)[~solid].sum() > 100             # where it sticks out, it is drawn
-        finally:
-            context.close()
+    with desktop_page(stack) as page:
+        pictures = []
+        for c, z, view in ((1.6, (), "slice"), (1.55, (), "both"), (1.5, (-1.0,), "both"), (1.45, (1.0,), "both")):
+            command(stack, page, "load", ghost_scene(c, *z, view=view),      # c tells the scenes apart
+                    f"touch4d.view === '{view}' && Math.abs(touch4d.frame.slice_w - {c}) < 1e-6")
+            page.wait_for_timeout(300)
+            pictures.append(screenshot(page))
+        cut, alone, behind, front = pictures
+        solid = cell_coloured(cut)
+        changed = lambda image: np.abs(image - alone).max(axis=2) > 3
+        assert solid.sum() > 2000
+        assert changed(front)[solid].sum() > 300               # the ghost in front tints the solid ...
+        assert changed(behind)[solid].sum() < 20               # ... behind it, the solid hides it
+        assert changed(behind)[~solid].sum() > 100             # where it sticks out, it is drawn
 
 
 def push(page, y: float, expect_w: float) -> None:
