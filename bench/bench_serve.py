@@ -20,7 +20,10 @@ trial as soon as its frame shows it: trials per second written to the participan
 and rows against answers sent (none lost).
 
     .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--process-per-node]
-                                          [--trials] [--figure PNG] [--json FILE]
+                                          [--over 32] [--trials] [--figure PNG] [--json FILE]
+
+`--over N`: then N pages at once against a server left at its default cap (two per core): how many
+it admits and refuses (HTTP 503), and whether the admitted keep their touch within the budget.
 """
 from __future__ import annotations
 
@@ -45,7 +48,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu import cpu_seconds  # noqa: E402
 
-from touch4d.web.protocol import unpack_frame  # noqa: E402
+from touch4d.web.protocol import frame_header  # noqa: E402
 from touch4d.web.wiretrace import Move, pose_to_pulse  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,9 +64,10 @@ ROLES = ("tracker", "scene", "tactile", "study", "recorder")   # launch/study-se
 # ---- the server and its processes -----------------------------------------------------------------------
 
 
-def start_server(out: Path, participants: int, study: bool = False, trace: Path | None = None,
+def start_server(out: Path, participants: int | None, study: bool = False, trace: Path | None = None,
                  per_node: bool = False):
-    """The server; `per_node`: each participant's nodes in processes of their own (no `group`)."""
+    """The server; `per_node`: each participant's nodes in processes of their own (no `group`);
+    `participants` None: the server's own default cap (two per core)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
     launch = []
     if per_node:
@@ -73,7 +77,8 @@ def start_server(out: Path, participants: int, study: bool = False, trace: Path 
         launch = ["--stack", str(path)]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
                              *launch, *(["--wire-trace", str(trace)] if trace else []),
-                             "--port", "0", *([] if study else ["--quick"]), "--max-participants", str(participants),
+                             "--port", "0", *([] if study else ["--quick"]),
+                             *([] if participants is None else ["--max-participants", str(participants)]),
                              "--leave-after", "60", *stack],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
@@ -214,10 +219,11 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 
 
 async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
-                      answered: list, moves: list, pid: str, dropped: list | None = None) -> None:
+                      answered: list, moves: list, pid: str, dropped: list | None = None,
+                      refused: list | None = None) -> None:
     """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
     in and out. A connection the server closes (its heartbeat unanswered on a saturated machine)
-    ends the page: its id goes into `dropped`."""
+    ends the page: its id goes into `dropped`; a join the server refuses as full (503), into `refused`."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -225,6 +231,9 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
             await r.read()
         async with http.post(f"{base}/join", timeout=aiohttp.ClientTimeout(total=300)) as r:
             await r.read()
+            if r.status == 503 and refused is not None:
+                refused.append(pid)
+                return
             if r.status != 200:
                 raise RuntimeError(f"join: HTTP {r.status}")
         ws_url = base.replace("http://", "ws://") + "/ws"
@@ -235,7 +244,7 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
                 async for msg in ws:
                     if msg.type != aiohttp.WSMsgType.BINARY:
                         continue
-                    header = unpack_frame(msg.data)[0]
+                    header = frame_header(msg.data)    # what the page reads; its arrays are not needed
                     if header.get("kind") != "frame":
                         continue
                     trial = header.get("study")
@@ -283,11 +292,13 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
             reader.cancel()
 
 
-async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_node: bool = False) -> dict:
+async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_node: bool = False,
+                    capped: bool = False) -> dict:
+    """`capped`: N pages try to join a server with its default cap; the figures are the admitted's."""
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
-        proc, base = start_server(out, n, study, trace, per_node)
+        proc, base = start_server(out, None if capped else n, study, trace, per_node)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -296,18 +307,20 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                 box: list = []
                 relay_server = await relay(box, int(base.rsplit(":", 1)[1]), delay)
                 target = f"http://127.0.0.1:{box[0]}"
-            latencies, lost, answered, moves, joined, dropped = [], [], [], [], [], []
+            latencies, lost, answered, moves, joined, dropped, refused = [], [], [], [], [], [], []
             stop = asyncio.Event()
             t_start = time.monotonic()
             tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
-                                                       f"S{k:02d}", dropped))
+                                                       f"S{k:02d}", dropped, refused))
                      for k, link in enumerate(links)]
             # CPU and memory over the measured stretch, once every participant plays: every process of
             # the server's tree (the stacks included)
-            while len(joined) < n:
-                if any(t.done() for t in tasks):
-                    await asyncio.gather(*tasks)          # a join failed: its error
+            while len(joined) + len(refused) < n:
+                failed = [t for t in tasks if t.done() and t.exception() is not None]
+                if failed:
+                    await failed[0]                       # a join failed: its error
                 await asyncio.sleep(0.2)
+            offered, n = n, len(joined)                   # the figures below: the admitted's
             await asyncio.sleep(2.0)
             pids = descendants(proc.pid)
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
@@ -337,7 +350,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             inputs = inputs_between(trace, w0, w1)
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
-            return {"n": n, "delay_ms": 2000 * delay, "label": "a process per node" if per_node else "",
+            return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": "a process per node" if per_node else "",
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
@@ -411,6 +424,8 @@ def main() -> None:
     parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
     parser.add_argument("--process-per-node", action="store_true",
                         help="each round also with every node in a process of its own: the baseline")
+    parser.add_argument("--over", type=int, metavar="N",
+                        help="then N pages against the server's default cap (two per core): admitted and refused")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
@@ -456,6 +471,16 @@ def main() -> None:
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)
+    if args.over:
+        r = asyncio.run(run_round(args.over, args.seconds, 0.0, capped=True))
+        r["label"] = "default cap"
+        rows.append(r)
+        fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+        print(f"N={r['offered']} offered to a server with its default cap: {r['n']} admitted, {r['refused']} refused "
+              f"(HTTP 503); the admitted: pose->pulse in the server p50 {fmt(r['server_p50'])} ms, p99 "
+              f"{fmt(r['server_p99'])} ms ({r['server_moves']} moves, {r['server_missed']} without a following frame), "
+              f"{r['lost']} moves without a frame in 300 ms, {r['dropped']} pages dropped; "
+              f"load {os.getloadavg()[0]:.1f}", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
     if args.figure:

@@ -12,8 +12,8 @@ of a participant closes, their trial pauses (`study/command` pause); the page ba
 `leave_after_s` resumes it, else the stack stops and the link's next opening starts it again,
 resuming at the first trial without a row (a server killed and started again on the same OUT
 resumes everyone the same way; a join whose page never connects stops so too, after `page_grace_s` at
-least). More running participants than `max_participants`: a page that
-says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once; a link
+least). More running participants than `max_participants` (by default as many as this machine's
+cores keep within the touch's latency budget, `default_max_participants`): a page that says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGate), logged once; a link
 revoked or replaced in OUT/invites.json ends its cookies and stops its stack. A
 participant id in the link that is not its token's: 403. The experimenter's link opens
 /experimenter: every participant's state, trial, last message heard; pause or resume their
@@ -57,8 +57,19 @@ LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
 PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
+# Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
+# ms, server-side) at 72 Hz each. bench/bench_serve.py measured 4 on a 2-core machine and saturation
+# at 8 (each participant's stack costs about a sixth of a core); more would slow everyone's touch.
+PARTICIPANTS_PER_CORE = 2
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
+
+
+def default_max_participants() -> int:
+    """Participants at once when the experimenter does not say: PARTICIPANTS_PER_CORE per core this
+    process may run on (its CPU affinity), at least 2."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(2, PARTICIPANTS_PER_CORE * cores)
 
 
 def _free_port() -> int:
@@ -98,11 +109,12 @@ class StudyServer:
     """The server; `run()` serves until SIGINT/SIGTERM (or `stop()`)."""
 
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
-                 max_participants: int = 16, public_url: str | None = None, leave_after_s: float = 30.0,
+                 max_participants: int | None = None, public_url: str | None = None, leave_after_s: float = 30.0,
                  quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
                  page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None, launch: str = LAUNCH):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
-        self.host, self.port, self.max_participants = host, port, max_participants
+        self.host, self.port = host, port
+        self.max_participants = default_max_participants() if max_participants is None else max_participants
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
         self.page_grace_s = page_grace_s
