@@ -22,6 +22,7 @@
     .venv/bin/python bench/bench_study_planning.py [--workers 2] [--participants 8]
         [--power-simulations 2] [--curve 500] [--check-exact 60] [--validation 500] [--design]
     .venv/bin/python bench/bench_study_planning.py --design-only [--workers 2] [--seed 0]
+    .venv/bin/python bench/bench_study_planning.py --speed-only [--workers 2] [--participants 8]
 """
 from __future__ import annotations
 
@@ -165,6 +166,7 @@ def main(argv=None) -> int:
     parser.add_argument("--validation", type=int, default=500, help="simulated two-proportion studies")
     parser.add_argument("--design", action="store_true", help="also the glove designs (slow)")
     parser.add_argument("--design-only", action="store_true", help="only the glove designs")
+    parser.add_argument("--speed-only", action="store_true", help="only simulated participants per second (1.)")
     parser.add_argument("--seed", type=int, default=0, help="the glove designs' seed")
     args = parser.parse_args(argv)
     study, glove = load_study(args.study), load_glove()
@@ -180,6 +182,8 @@ def main(argv=None) -> int:
     many = participants_per_second(exact, args.participants, args.workers)
     print(f"simulated participants (whole {study.name} sessions) per second: 1 worker {one:.2f}, {args.workers} "
           f"workers {many:.2f}; speed-up {many / one:.2f} ({many / one / args.workers:.0%} of linear)")
+    if args.speed_only:
+        return 0
 
     started = time.perf_counter()
     answers = answer_model(observer, study, spread=population.spread, samples=args.samples,
