@@ -115,6 +115,8 @@ class StudyServer:
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port = host, port
         self.max_participants = default_max_participants() if max_participants is None else max_participants
+        self._cap_note = (f" ({PARTICIPANTS_PER_CORE} per core here; --max-participants N to change)"
+                          if max_participants is None else "")
         self.public_url = public_url
         self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
         self.page_grace_s = page_grace_s
@@ -556,8 +558,8 @@ class StudyServer:
         await site.start()
         self.port = runner.addresses[0][1]
         (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
-        print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants; "
-              f"data in {self.out}", flush=True)
+        print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants"
+              f"{self._cap_note}; data in {self.out}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
         watch = asyncio.ensure_future(self._watch_invites())
         try:
