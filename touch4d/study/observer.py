@@ -226,8 +226,7 @@ class ModelObserver:
         total = np.zeros(len(options))
         if patterns is not None and len(patterns):
             felt = np.asarray(patterns, dtype=float)
-            total += self.touch_cue(trial.task, view).log_posterior(
-                felt + rng.normal(0.0, self.noise_per_motor, felt.shape))
+            total += self.touch_cue(trial.task, view).log_posterior(self.feel(felt, rng))
         if scene is not None:
             seen = view_features(in_view(copy.copy(scene), view))
             total += self.view_cue(trial.task, view).log_posterior(
@@ -251,8 +250,7 @@ class ModelObserver:
             x, k, groups = touch_examples(self.glove, self.study, task, rng, scenes=self.train_scenes,
                                           positions=self.train_positions, exploration=self.exploration, view=view)
             answers = np.array([a for _, _, a in stimuli_of(task)])[k]
-            self._touch[task_id, view] = _Cue(x + rng.normal(0.0, self.noise_per_motor, x.shape), answers, groups,
-                                              list(task.options))
+            self._touch[task_id, view] = _Cue(self.feel(x, rng), answers, groups, list(task.options))
         return self._touch[task_id, view]
 
     def view_cue(self, task_id: str, view: str = "projection") -> _Cue:
@@ -270,6 +268,12 @@ class ModelObserver:
     def noise_per_motor(self) -> np.ndarray:
         """The sd of the noise on each motor (M,): `noise` (the fingertip's) scaled by its skin's ratio."""
         return self.noise * self._skin
+
+    def feel(self, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Motor patterns (..., M) as felt: each motor's intensity plus Gaussian noise of its skin's sd
+        (`noise_per_motor`); what the touch cue is trained on and answers from."""
+        patterns = np.asarray(patterns, dtype=float)
+        return patterns + rng.normal(0.0, self.noise_per_motor, patterns.shape)
 
     def with_noise(self, factor: float) -> "ModelObserver":
         """The same trained observer with its sensory noise (touch and sight) scaled by `factor`: a
