@@ -61,7 +61,7 @@ def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scen
         task = study.task(task_id)
         rng = np.random.default_rng(seed_of(study, f"{DESIGN}-{purpose}", task_id, 0, seed))
         x, k, groups = touch_examples(every, study, task, rng, scenes=scenes, positions=positions)
-        x = x + rng.normal(0.0, motor_noise(every, noise), x.shape)     # each sample's skin: its noise
+        x = x + rng.normal(0.0, motor_noise(every, noise), x.shape)   # each sample felt as its skin
         out[task_id] = (x, k, groups % 2 == 1, len(stimuli_of(task)))
     return Examples(out)
 

@@ -85,8 +85,9 @@ def _bits(stimulus, answer, shape) -> np.ndarray:
 def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = HUMAN_NOISE, scenes: int = 16,
                        positions: int = 12, seed: int = 0, exploration: Exploration | None = None) -> dict:
     """What one touch tells about a task's stimuli with this glove: an LDA trained on noisy patterns
-    (`noise` the fingertip's, `psychophysics.motor_noise` per motor) of half the jittered scenes at random hand positions, tested on the
-    other half; returns bits, their maximum log2(stimuli), accuracy and the confusion matrix."""
+    (`noise` the fingertip's; per motor, `psychophysics.motor_noise`) of half the jittered scenes at
+    random hand positions, tested on the other half; returns bits, their maximum log2(stimuli),
+    accuracy and the confusion matrix."""
     task = study.task(task_id)
     rng = np.random.default_rng([int(seed), len(glove.motor_names)])
     x, k, groups = touch_examples(glove, study, task, rng, scenes=scenes, positions=positions, exploration=exploration)
