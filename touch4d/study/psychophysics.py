@@ -45,7 +45,7 @@ def noise_for_weber(fraction: float, reference: float = REFERENCE_DRIVE) -> floa
     return fraction * reference / (math.sqrt(2.0) * NormalDist().inv_cdf(0.75))
 
 
-# The one default touch noise of every observer (simulate, power, fit, transfer, glove design, the node).
+# The one default touch noise of every observer, a finger's (simulate, power, fit, transfer, glove design, the node).
 HUMAN_NOISE = noise_for_weber(weber_from_db(sum(FINGERTIP_WEBER_DB) / 2.0))   # ~0.16 of full drive
 # The thenar eminence's noise (its Weber fraction at 125 Hz): finer than the fingertip's.
 THENAR_NOISE = noise_for_weber(THENAR_WEBER)                                    # ~0.105 of full drive
