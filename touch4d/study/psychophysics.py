@@ -4,9 +4,10 @@ The observer feels each motor's intensity (units of full drive) plus Gaussian no
 the skin the motor sits on (`motor_noise`; `ModelObserver.feel`, in training and on each trial). In
 a two-interval amplitude discrimination of a reference drive A and a comparison A + d on one motor,
 an observer who answers the interval felt stronger is right with probability Phi(d / (noise sqrt 2)):
-75% correct at d = noise sqrt(2) Phi^-1(0.75), a Weber fraction of that over A. `HUMAN_NOISE` is the noise whose Weber fraction at `REFERENCE_DRIVE` is the
-fingertip's published one; `amplitude_discrimination` measures it by simulation (a psychometric fit,
-`analysis.fit_psychometric`), the check that the observer lands inside the published range.
+75% correct at d = noise sqrt(2) Phi^-1(0.75), a Weber fraction of that over A. `HUMAN_NOISE` is
+the noise whose Weber fraction at `REFERENCE_DRIVE` is the fingertip's published one;
+`amplitude_discrimination` measures it by simulation (a psychometric fit, `analysis.fit_psychometric`),
+the check that the observer lands inside the published range.
 
 Where a vibration is felt: at its motor's place on the skin plus Gaussian noise of sd
 `LOCALISATION_MM` on each axis of the palm's plane (the hand frame's x and y), so the mean distance
@@ -113,5 +114,5 @@ def vibration_localisation(positions, sd_mm: float, *, trials: int = 2000, seed:
 
 
 __all__ = ["HUMAN_NOISE", "THENAR_NOISE", "THENAR_RATIO", "motor_noise", "LOCALISATION_MM", "PALM_LOCALISATION_MM",
-           "felt_positions", "vibration_localisation", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE", "noise_for_weber",
-           "weber_from_db", "db_from_weber", "amplitude_discrimination"]
+           "felt_positions", "vibration_localisation", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE",
+           "noise_for_weber", "weber_from_db", "db_from_weber", "amplitude_discrimination"]
