@@ -34,7 +34,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--study", default="config/studies/paper.yaml")
     parser.add_argument("--noise", type=float, default=HUMAN_NOISE,
-                        help="sensory noise per motor (full drive = 1); default: the observers' one default")
+                        help="sensory noise of a finger's motors (full drive = 1; the palm's: x0.64); default: the "
+                             "observers' one default")
     parser.add_argument("--scenes", type=int, default=20, help="jittered scenes per stimulus (half to test)")
     parser.add_argument("--positions", type=int, default=16, help="hand positions per scene")
     parser.add_argument("--participants", type=int, default=3, help="simulated participants (quick plans)")
@@ -43,8 +44,8 @@ def main(argv=None) -> int:
     glove = load_glove()
     dense = every_sample_glove(glove)
 
-    print(f"information transfer per touch (one motor pattern), noise {args.noise} per motor, "
-          f"{args.scenes} jittered scenes x {args.positions} hand positions per stimulus, half of the scenes held out")
+    print(f"information transfer per touch (one motor pattern), noise {args.noise:.3g} per finger motor (x0.64 on "
+          f"the palm), {args.scenes} jittered scenes x {args.positions} hand positions per stimulus, half of the scenes held out")
     print(f"{'task':<12} {'stimuli':>7} {'max bits':>8} {'30 motors':>10} {'247 motors':>11} {'ratio':>6}   "
           f"accuracy 30 / 247")
     for task in study.tasks:
@@ -62,7 +63,7 @@ def main(argv=None) -> int:
             few, many = (predicted_transfer(g, study, tilt, noise=noise, scenes=args.scenes, positions=args.positions)
                          for g in (glove, dense))
             cells.append(f"{noise:g}: {few['bits']:.2f} / {many['bits']:.2f}")
-        print(f"{tilt}, bits by noise per motor (30 / 247 motors): " + "; ".join(cells))
+        print(f"{tilt}, bits by noise per finger motor (30 / 247 motors): " + "; ".join(cells))
 
     observer = ModelObserver(glove, study, seed=1)
     cpu = time.process_time()

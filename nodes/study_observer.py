@@ -44,8 +44,8 @@ class StudyObserverNode(Node):
                        type=int, min=1),
         "glove": Param("config/glove.yaml", "the glove file (the tactile node's)", path="glove file"),
         "seed": Param(None, "observer seed (default: from the participant id)", type=int),
-        "noise": Param(HUMAN_NOISE, "sensory noise on every motor, fraction of full drive (default: the "
-                       "fingertip's amplitude discrimination)", min=0),
+        "noise": Param(HUMAN_NOISE, "sensory noise on a finger's motors, fraction of full drive (default: the "
+                       "fingertip's amplitude discrimination; the palm's: x0.64, the thenar's)", min=0),
         "lapse": Param(0.03, "chance of a random answer", min=0, max=1),
         "look_s": Param(Timing.look_s, "time to look when objects are drawn", unit="s", min=0),
         "dwell_s": Param(Timing.dwell_s, "time at each position after its motor command arrived, when the motors run",

@@ -122,3 +122,20 @@ def test_regions_restrict_the_places_and_an_unknown_region_is_a_clear_error(caps
     assert main(["glove", "design", "--motors", "2", "--study", STUDY, "--regions", "wrist", "--workers", "0",
                  "-o", "x.yaml"]) != 0
     assert "--regions': expected regions of the hand: palm, back, thumb" in capsys.readouterr().err
+
+
+def test_the_designs_examples_feel_each_sample_with_the_noise_of_its_skin():
+    # the same seed draws the same scenes and hand places; what the noise adds is the difference
+    from touch4d.study.glovedesign import examples, sample_regions
+    from touch4d.study.psychophysics import THENAR_WEBER, noise_for_weber
+
+    glove, study = load_glove(), load_study("tests/data/studies/lookalikes.yaml")
+    settings = {"scenes": 4, "positions": 6, "seed": 3}
+    task = study.tasks[0].id
+    noisy = examples(glove, study, [task], noise=HUMAN_NOISE, **settings).tasks[task][0]
+    clean = examples(glove, study, [task], noise=0.0, **settings).tasks[task][0]
+    regions = sample_regions(glove)
+    added = noisy - clean
+    assert np.std(added[:, regions["palm"]]) == pytest.approx(noise_for_weber(THENAR_WEBER), rel=0.05)
+    fingers = regions["thumb"] + regions["index"] + regions["middle"] + regions["ring"] + regions["little"]
+    assert np.std(added[:, fingers + regions["back"]]) == pytest.approx(HUMAN_NOISE, rel=0.05)

@@ -14,11 +14,14 @@ from touch4d.study.design import load_study
 from touch4d.study.infotransfer import predicted_transfer
 from touch4d.study.observer import ModelObserver, every_sample_glove, patterns_at
 from touch4d.study.plan import plan_session
-from touch4d.study.psychophysics import PALM_LOCALISATION_MM
+from touch4d.study.glovedesign import glove_file_of
+from touch4d.study.psychophysics import (FINGERTIP_WEBER_DB, HUMAN_NOISE, PALM_LOCALISATION_MM, REFERENCE_DRIVE,
+                                         THENAR_WEBER, noise_for_weber, weber_from_db)
 from touch4d.study.simulate import Timing, simulate_trial
 from touch4d.study.stimuli import trial_scene
 from touch4d.study.table import COLUMNS
 from touch4d.tactile import compute_stimulus, load_glove
+from touch4d.tactile.glove import glove_from_dict
 
 
 @pytest.fixture(scope="module")
@@ -175,3 +178,48 @@ def test_the_default_observer_localises_a_vibration_on_the_palm_as_people_do(pap
     assert ModelObserver(glove, paper, localisation_mm=2.0).localisation(trials=3000, seed=1)["mean_error_mm"] < low
     with pytest.raises(ConfigError, match="localisation_mm"):
         ModelObserver(glove, paper, localisation_mm=-1.0)
+
+
+# Each skin's published amplitude discrimination: its Weber fraction and the noise that gives it (closed form).
+FINGERTIP = weber_from_db(sum(FINGERTIP_WEBER_DB) / 2.0)
+SKIN = {"palm": (THENAR_WEBER, noise_for_weber(THENAR_WEBER)), "finger": (FINGERTIP, noise_for_weber(FINGERTIP))}
+
+
+def felt_noise(observer, motors: int, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """The sd per motor of what the observer feels of a steady drive at the reference, and what it felt."""
+    rng = np.random.default_rng(seed)
+    drive = np.full((20000, motors), REFERENCE_DRIVE)
+    felt = observer.feel(drive, rng)
+    return np.std(felt - drive, axis=0), felt
+
+
+@pytest.mark.parametrize("region, skin", [("palm", "palm"), ("index", "finger"), ("thumb", "finger"),
+                                          ("back", "finger")])
+def test_a_motor_is_felt_with_the_noise_of_the_skin_it_sits_on(paper, glove, region, skin):
+    # a glove whose motors all sit in one region of the hand; the participant's one noise: the fingertip's
+    places = glove.hand.regions(glove.samples)[region]
+    observer = ModelObserver(glove_from_dict(glove_file_of(glove.path, glove, places)), paper, noise=HUMAN_NOISE)
+    weber, sd = SKIN[skin]
+    spread, reference = felt_noise(observer, len(places))
+    assert spread == pytest.approx(np.full(len(places), sd), rel=0.03)
+    # two-interval amplitude discrimination at the skin's published 75% step
+    comparison = observer.feel(np.full(reference.shape, REFERENCE_DRIVE * (1.0 + weber)), np.random.default_rng(8))
+    assert np.mean(comparison > reference) == pytest.approx(0.75, abs=0.01)
+    # one free parameter a participant: a noisier one is noisier on every skin alike
+    assert felt_noise(observer.with_noise(2.0), len(places))[0] == pytest.approx(np.full(len(places), 2 * sd), rel=0.03)
+
+
+def test_the_every_sample_glove_feels_its_palm_samples_with_the_thenars_noise(paper, glove):
+    observer = ModelObserver(every_sample_glove(glove), paper)
+    spread, _ = felt_noise(observer, len(glove.samples))
+    regions = glove.hand.regions(glove.samples)
+    assert spread[regions["palm"]] == pytest.approx(np.full(len(regions["palm"]), SKIN["palm"][1]), rel=0.04)
+    for region in ("back", "index", "little"):
+        assert spread[regions[region]] == pytest.approx(np.full(len(regions[region]), SKIN["finger"][1]), rel=0.04)
+
+
+def test_a_held_controller_vibrates_the_hand_around_its_grip_so_it_is_felt_with_the_fingertips_noise(paper):
+    controller = load_glove("config/gloves/quest-controller.yaml")
+    assert controller.hand.regions(controller.motor_positions)["palm"] == [0]    # its grip lies under the palm
+    spread, _ = felt_noise(ModelObserver(controller, paper), 1)
+    assert spread == pytest.approx([SKIN["finger"][1]], rel=0.03)

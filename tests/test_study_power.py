@@ -108,6 +108,24 @@ def test_power_command_writes_curves_report_and_json_and_resumes(tmp_path, capsy
     assert sorted(p.stat().st_mtime_ns for p in (out / "cache").rglob("*.json")) == cached
 
 
+
+@pytest.mark.timeout(400)
+def test_a_glove_whose_motors_moved_to_other_skin_does_not_reuse_the_power_cache(tmp_path, capsys):
+    # the same glove file, its two motors moved from a finger to the palm: felt with other noise, so
+    # the simulations cached for the finger must not answer for the palm
+    from touch4d.study.glovedesign import write_glove
+
+    glove, path, out = load_glove(), tmp_path / "glove.yaml", tmp_path / "power"
+    regions = glove.hand.regions(glove.samples)
+    args = ["study", "power", STUDY, "--glove", str(path), "--participants", "2", "--simulations", "1",
+            "--bootstrap", "0", "--workers", "0", "--quick", "--samples", "10", "--out", str(out), "--json"]
+    for region in ("index", "palm"):
+        write_glove(path, glove.path, glove, regions[region][:2])
+        assert main(args) == 0
+        capsys.readouterr()
+    assert len([d for d in (out / "cache").iterdir() if d.is_dir()]) == 2
+
+
 def test_a_fit_of_another_study_is_a_clear_error(tmp_path, capsys):
     fit = tmp_path / "fit.json"
     fit.write_text(json.dumps({"study": "paper", "population": {"noise": 0.1, "visual_noise": 0.5, "lapse": 0.02,

@@ -102,7 +102,7 @@ def stimulus_shares(job: _Job, task_id: str, index: int) -> dict:
             factor, total = math.exp(log_factor), np.zeros((job.samples, len(options)))
             if condition.motors:
                 total += observer.touch_cue(task_id, condition.view).log_posteriors(
-                    patterns + factor * observer.noise * touch_z)
+                    patterns + factor * observer.noise_per_motor * touch_z)
             if condition.objects:
                 total += observer.view_cue(task_id, condition.view).log_posteriors(
                     (features + factor * observer.visual_noise * view_z)[:, None, :])

@@ -31,6 +31,7 @@ from .fanout import Cluster, fan_out, seed_of
 from .infotransfer import held_out_confusion, information_transfer
 from .observer import every_sample_glove, touch_examples
 from .plan import stimuli_of
+from .psychophysics import motor_noise
 
 DESIGN = "glove-design"
 PURPOSES = ("search", "validation", "test")   # independent sets of examples (module docstring)
@@ -51,31 +52,23 @@ class Examples:
 
 def examples(glove: Glove, study: Study, tasks: list[str], *, noise: float, scenes: int = 16, positions: int = 12,
              seed: int = 0, purpose: str = "search") -> Examples:
-    """The every-sample glove's noisy patterns of each task's stimuli, half the scenes held out;
-    each `purpose` (`PURPOSES`) draws an independent set."""
+    """The every-sample glove's noisy patterns of each task's stimuli (`noise` the fingertip's, per
+    sample as `psychophysics.motor_noise`), half the scenes held out; each `purpose` (`PURPOSES`)
+    draws an independent set."""
     every = every_sample_glove(glove)
     out = {}
     for task_id in tasks:
         task = study.task(task_id)
         rng = np.random.default_rng(seed_of(study, f"{DESIGN}-{purpose}", task_id, 0, seed))
         x, k, groups = touch_examples(every, study, task, rng, scenes=scenes, positions=positions)
-        out[task_id] = (x + rng.normal(0.0, noise, x.shape), k, groups % 2 == 1, len(stimuli_of(task)))
+        x = x + rng.normal(0.0, motor_noise(every, noise), x.shape)   # each sample felt as its skin
+        out[task_id] = (x, k, groups % 2 == 1, len(stimuli_of(task)))
     return Examples(out)
 
 
 def sample_regions(glove: Glove) -> dict[str, list[int]]:
-    """The sample points of each region of the hand: `palm` (the palm's side, z < 0), `back` (z > 0),
-    and each finger by name (its capsule, outside the palm)."""
-    samples = glove.samples
-    palm = glove.hand.in_palm(samples)
-    regions = {"palm": np.flatnonzero(palm & (samples[:, 2] < 0)).tolist(),
-               "back": np.flatnonzero(palm & (samples[:, 2] > 0)).tolist()}
-    for finger in glove.hand.fingers:
-        axis = finger.tip - finger.base
-        t = np.clip((samples - finger.base) @ axis / (axis @ axis), 0.0, 1.0)
-        near = np.sum((samples - (finger.base + t[:, None] * axis)) ** 2, axis=1) <= (finger.radius + 1e-9) ** 2
-        regions[finger.name] = np.flatnonzero(near & ~palm).tolist()
-    return regions
+    """The sample points of each region of the hand (`Hand.regions`: palm, back, each finger)."""
+    return glove.hand.regions(glove.samples)
 
 
 def candidates_in(glove: Glove, regions: list[str] | None) -> list[int]:

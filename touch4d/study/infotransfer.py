@@ -22,7 +22,7 @@ from touch4d.tactile import Glove
 from .design import Study
 from .observer import Exploration, classifier, touch_examples
 from .plan import stimuli_of
-from .psychophysics import HUMAN_NOISE
+from .psychophysics import HUMAN_NOISE, motor_noise
 
 
 def information_transfer(confusion) -> float:
@@ -85,12 +85,13 @@ def _bits(stimulus, answer, shape) -> np.ndarray:
 def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = HUMAN_NOISE, scenes: int = 16,
                        positions: int = 12, seed: int = 0, exploration: Exploration | None = None) -> dict:
     """What one touch tells about a task's stimuli with this glove: an LDA trained on noisy patterns
-    (`noise` on every motor) of half the jittered scenes at random hand positions, tested on the
-    other half; returns bits, their maximum log2(stimuli), accuracy and the confusion matrix."""
+    (`noise` the fingertip's; per motor, `psychophysics.motor_noise`) of half the jittered scenes at
+    random hand positions, tested on the other half; returns bits, their maximum log2(stimuli),
+    accuracy and the confusion matrix."""
     task = study.task(task_id)
     rng = np.random.default_rng([int(seed), len(glove.motor_names)])
     x, k, groups = touch_examples(glove, study, task, rng, scenes=scenes, positions=positions, exploration=exploration)
-    x = x + rng.normal(0.0, noise, x.shape)
+    x = x + rng.normal(0.0, motor_noise(glove, noise), x.shape)
     test = groups % 2 == 1                     # scenes, not only positions, are new to the observer
     names = [name for name, _, _ in stimuli_of(task)]
     confusion = held_out_confusion(x, k, test, len(names))

@@ -1,8 +1,10 @@
 """Model observers: simulated participants that answer from what they receive.
 
 Touch: the glove's motor pattern (paper eq. 1-3, computed by `touch4d.tactile.compute_stimulus`) at
-each hand position its scripted hand visits, plus Gaussian sensory noise (`noise`, in units of full
-drive) on every motor. Vision: the projected geometry, i.e. what the view shows: which points of the
+each hand position its scripted hand visits, plus Gaussian sensory noise on every motor, in units of
+full drive: `noise` (the fingertip's) on a finger, noise x `THENAR_RATIO` on the palm's side of the
+palm, whose skin discriminates finer, and `noise` elsewhere (`psychophysics.motor_noise`; training
+and trials alike). Vision: the projected geometry, i.e. what the view shows: which points of the
 3D screen the object's projection covers, on a grid, plus noise (`visual_noise`). The view does not
 show how far each point lies in w, which is the depth the paper adds by touch. In a slice view the
 observer moves the slice through the object and sees, at each c it explores (`SLICE_OFFSETS` about
@@ -40,7 +42,7 @@ from touch4d.tactile import Glove, compute_stimulus
 from .conditions import split_condition
 from .design import Study, Task
 from .plan import Trial, draw_jitter, stimuli_of
-from .psychophysics import HUMAN_NOISE, LOCALISATION_MM, vibration_localisation
+from .psychophysics import HUMAN_NOISE, LOCALISATION_MM, motor_noise, vibration_localisation
 from .stimuli import in_view, stimulus_scene
 
 FACING = np.array([0.0, 0.0, 0.0, 1.0])   # the hand's identity pose: palm toward -z, fingers up (+y)
@@ -201,6 +203,7 @@ class ModelObserver:
         self.glove, self.study = glove, study
         self.noise, self.visual_noise, self.lapse = float(noise), float(visual_noise), float(lapse)
         self.localisation_mm = float(localisation_mm)   # where a vibration is felt (psychophysics)
+        self._skin = motor_noise(glove, 1.0)             # each motor's noise over the fingertip's
         self.exploration = exploration or Exploration()
         self.train_scenes, self.train_positions, self.view_scenes = train_scenes, train_positions, view_scenes
         self.seed = int(seed)
@@ -223,7 +226,7 @@ class ModelObserver:
         total = np.zeros(len(options))
         if patterns is not None and len(patterns):
             felt = np.asarray(patterns, dtype=float)
-            total += self.touch_cue(trial.task, view).log_posterior(felt + rng.normal(0.0, self.noise, felt.shape))
+            total += self.touch_cue(trial.task, view).log_posterior(self.feel(felt, rng))
         if scene is not None:
             seen = view_features(in_view(copy.copy(scene), view))
             total += self.view_cue(trial.task, view).log_posterior(
@@ -234,7 +237,7 @@ class ModelObserver:
         """The palm's localisation task through this observer: one of its glove's palm motors vibrates,
         it points where it felt it (`psychophysics.vibration_localisation`, sd `localisation_mm`)."""
         positions = self.glove.motor_positions
-        palm = self.glove.hand.in_palm(positions) & (positions[:, 2] < 0)
+        palm = self.glove.hand.regions(positions)["palm"]
         return vibration_localisation(positions[palm], self.localisation_mm, trials=trials, seed=seed)
 
     # -- training ------------------------------------------------------------------------------------
@@ -247,8 +250,7 @@ class ModelObserver:
             x, k, groups = touch_examples(self.glove, self.study, task, rng, scenes=self.train_scenes,
                                           positions=self.train_positions, exploration=self.exploration, view=view)
             answers = np.array([a for _, _, a in stimuli_of(task)])[k]
-            self._touch[task_id, view] = _Cue(x + rng.normal(0.0, self.noise, x.shape), answers, groups,
-                                              list(task.options))
+            self._touch[task_id, view] = _Cue(self.feel(x, rng), answers, groups, list(task.options))
         return self._touch[task_id, view]
 
     def view_cue(self, task_id: str, view: str = "projection") -> _Cue:
@@ -262,9 +264,21 @@ class ModelObserver:
                                              list(task.options), setting="view_scenes")
         return self._view[task_id, view]
 
+    @property
+    def noise_per_motor(self) -> np.ndarray:
+        """The sd of the noise on each motor (M,): `noise` (the fingertip's) scaled by its skin's ratio."""
+        return self.noise * self._skin
+
+    def feel(self, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Motor patterns (..., M) as felt: each motor's intensity plus Gaussian noise of its skin's sd
+        (`noise_per_motor`); what the touch cue is trained on and answers from."""
+        patterns = np.asarray(patterns, dtype=float)
+        return patterns + rng.normal(0.0, self.noise_per_motor, patterns.shape)
+
     def with_noise(self, factor: float) -> "ModelObserver":
         """The same trained observer with its sensory noise (touch and sight) scaled by `factor`: a
-        participant of the same population who feels and sees more or less sharply."""
+        participant of the same population who feels and sees more or less sharply (every motor's
+        noise scales alike: one free parameter a participant)."""
         other = copy.copy(self)                      # shares the trained cues
         other.noise, other.visual_noise = self.noise * factor, self.visual_noise * factor
         return other

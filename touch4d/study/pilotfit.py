@@ -139,7 +139,8 @@ def accuracy_surface(observer: ModelObserver, glove, study, *, points: int = 7, 
                 jobs[key] = (cell, noise, visual, trials)
                 where[key] = (cell, i, j)
     run = {"design": DESIGN, "study": study.name, "study_seed": study.seed, "glove": getattr(glove, "path", ""),
-           "noise": observer.noise, "visual_noise": observer.visual_noise, "seed": seed, "points": points,
+           "noise": observer.noise, "noise_per_motor": observer.noise_per_motor.tolist(),
+           "visual_noise": observer.visual_noise, "seed": seed, "points": points,
            "trials": trials, "observer_seed": observer.seed}
     cache = Path(cache) / signature(run) if cache is not None else None
     done = fan_out(_grid_point, jobs, shared=setup, cluster=cluster, cache=cache, label="accuracy surface",

@@ -199,6 +199,7 @@ def power_curves(setup: PowerSetup, sizes: list[int], simulations: int, *, clust
                           "participants needs two)", got=sizes)
     run = {"design": DESIGN, "study": setup.study.name, "study_seed": setup.study.seed, "glove": setup.glove.path,
            "motors": len(setup.glove.motor_names), "population": setup.population.__dict__, "quick": setup.quick,
+           "noise_per_motor": setup.observer.noise_per_motor.tolist(),   # another skin, another cache
            "bootstrap": setup.bootstrap, "seed": setup.seed, "alpha": setup.alpha, "mixed": setup.mixed,
            "exact": setup.exact, **({} if setup.exact else {"samples": setup.samples})}
     cache = Path(out) / "cache" / signature(run) if out is not None else None

@@ -1,17 +1,24 @@
 """The model observer's touch noise set from human data (sources in docs/planning.md).
 
-The observer feels each motor's intensity (units of full drive) plus Gaussian noise of sd `noise`
-(`ModelObserver.respond`). In a two-interval amplitude discrimination of a reference drive A and a
-comparison A + d on one motor, an observer who answers the interval felt stronger is right with
-probability Phi(d / (noise sqrt 2)): 75% correct at d = noise sqrt(2) Phi^-1(0.75), a Weber fraction
-of that over A. `HUMAN_NOISE` is the noise whose Weber fraction at `REFERENCE_DRIVE` is the
-fingertip's published one; `amplitude_discrimination` measures it by simulation (a psychometric fit,
-`analysis.fit_psychometric`), the check that the observer lands inside the published range.
+The observer feels each motor's intensity (units of full drive) plus Gaussian noise of the sd of
+the skin the motor sits on (`motor_noise`; `ModelObserver.feel`, in training and on each trial). In
+a two-interval amplitude discrimination of a reference drive A and a comparison A + d on one motor,
+an observer who answers the interval felt stronger is right with probability Phi(d / (noise sqrt 2)):
+75% correct at d = noise sqrt(2) Phi^-1(0.75), a Weber fraction of that over A. `HUMAN_NOISE` is
+the noise whose Weber fraction at `REFERENCE_DRIVE` is the fingertip's published one;
+`amplitude_discrimination` measures it by simulation (a psychometric fit, `analysis.fit_psychometric`),
+the check that the observer lands inside the published range.
 
 Where a vibration is felt: at its motor's place on the skin plus Gaussian noise of sd
 `LOCALISATION_MM` on each axis of the palm's plane (the hand frame's x and y), so the mean distance
 between where a motor is and where it is felt is LOCALISATION_MM sqrt(pi/2) (a Rayleigh mean), set
 to the middle of the palm's published 5-15 mm; `vibration_localisation` runs that task.
+
+Per motor: a participant has one free parameter, `noise`, the fingertip's sd. A motor on the palm's
+side of the palm (the thenar eminence's skin) is felt with noise x `THENAR_RATIO` (its published
+Weber fraction over the fingertip's); one on a finger with `noise`; any other (the back of the hand, a
+held controller that vibrates the whole hand around its grip) with `noise` too: no published figure
+says it is finer, and the coarser keeps the predictions from flattering the glove.
 """
 from __future__ import annotations
 
@@ -39,13 +46,29 @@ def noise_for_weber(fraction: float, reference: float = REFERENCE_DRIVE) -> floa
     return fraction * reference / (math.sqrt(2.0) * NormalDist().inv_cdf(0.75))
 
 
-# The one default touch noise of every observer (simulate, power, fit, transfer, glove design, the node).
+# The one default touch noise of every observer, a finger's (simulate, power, fit, transfer, glove design, the node).
 HUMAN_NOISE = noise_for_weber(weber_from_db(sum(FINGERTIP_WEBER_DB) / 2.0))   # ~0.16 of full drive
-# The thenar eminence's noise (its Weber fraction at 125 Hz): finer than the fingertip's; the observer
-# keeps one noise for every motor, the fingertip's (the coarser, so predictions do not flatter the glove).
+# The thenar eminence's noise (its Weber fraction at 125 Hz): finer than the fingertip's.
 THENAR_NOISE = noise_for_weber(THENAR_WEBER)                                    # ~0.105 of full drive
+# A palm motor's noise over a finger motor's, for any participant (`motor_noise`): their Weber fractions' ratio.
+THENAR_RATIO = THENAR_NOISE / HUMAN_NOISE                                       # ~0.64
 # Where a vibration is felt (module docstring): sd per axis whose mean error is the range's middle, 10 mm.
 LOCALISATION_MM = sum(PALM_LOCALISATION_MM) / 2.0 / math.sqrt(math.pi / 2.0)   # ~7.98 mm
+
+
+def motor_noise(glove, noise: float):
+    """Each motor's noise sd (M,) for a participant of fingertip noise `noise` (module docstring): the
+    palm's side of the palm noise x THENAR_RATIO, every other motor `noise`. A motor that covers
+    other samples than its own (a held controller's, `covers`) vibrates the hand around it: `noise`."""
+    import numpy as np
+
+    skin = np.ones(len(glove.motor_names))
+    own_sample = np.ones(len(skin), bool) if glove.motor_weights is None else (
+        np.count_nonzero(glove.motor_weights, axis=1) == 1)
+    palm = np.zeros(len(skin), bool)
+    palm[glove.hand.regions(glove.motor_positions)["palm"]] = True
+    skin[palm & own_sample] = THENAR_RATIO
+    return float(noise) * skin
 
 
 def amplitude_discrimination(noise: float, *, reference: float = REFERENCE_DRIVE, steps=None, trials: int = 400,
@@ -90,6 +113,6 @@ def vibration_localisation(positions, sd_mm: float, *, trials: int = 2000, seed:
             "trials": int(trials)}
 
 
-__all__ = ["HUMAN_NOISE", "THENAR_NOISE", "LOCALISATION_MM", "PALM_LOCALISATION_MM", "felt_positions",
-           "vibration_localisation", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE", "noise_for_weber",
-           "weber_from_db", "db_from_weber", "amplitude_discrimination"]
+__all__ = ["HUMAN_NOISE", "THENAR_NOISE", "THENAR_RATIO", "motor_noise", "LOCALISATION_MM", "PALM_LOCALISATION_MM",
+           "felt_positions", "vibration_localisation", "FINGERTIP_WEBER_DB", "THENAR_WEBER", "REFERENCE_DRIVE",
+           "noise_for_weber", "weber_from_db", "db_from_weber", "amplitude_discrimination"]

@@ -25,6 +25,12 @@ class Finger:
         """The point on the finger's axis `fraction` of the way from base (0) to tip (1)."""
         return self.base + fraction * (self.tip - self.base)
 
+    def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Which of `points` (N, 3) lie inside the capsule (boundary included)."""
+        points, axis = np.asarray(points, dtype=float), self.tip - self.base
+        t = np.clip((points - self.base) @ axis / (axis @ axis), 0.0, 1.0)
+        return np.sum((points - (self.base + t[:, None] * axis)) ** 2, axis=1) <= (self.radius + tol) ** 2
+
 
 @dataclass(frozen=True)
 class Hand:
@@ -70,10 +76,7 @@ class Hand:
         points = np.asarray(points, dtype=float)
         inside = self.in_palm(points, tol)
         for f in self.fingers:
-            axis = f.tip - f.base
-            t = np.clip((points - f.base) @ axis / (axis @ axis), 0.0, 1.0)
-            nearest = f.base + t[:, None] * axis
-            inside |= np.sum((points - nearest) ** 2, axis=1) <= (f.radius + tol) ** 2
+            inside |= f.contains(points, tol)
         return inside
 
     def in_palm(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -81,6 +84,17 @@ class Hand:
         hx, hy, hz = self.palm_half
         dx = np.maximum(np.abs(points[:, 0]) - (hx - hz), 0.0)
         return (np.abs(points[:, 1]) <= hy + tol) & (dx**2 + points[:, 2] ** 2 <= (hz + tol) ** 2)
+
+    def regions(self, points: np.ndarray) -> dict[str, list[int]]:
+        """The indices of `points` (N, 3) in each region of the hand: `palm` (the palm's side of the
+        slab, z < 0), `back` (z > 0), and each finger by name (its capsule, outside the palm)."""
+        points = np.asarray(points, dtype=float)
+        palm = self.in_palm(points)
+        regions = {"palm": np.flatnonzero(palm & (points[:, 2] < 0)).tolist(),
+                   "back": np.flatnonzero(palm & (points[:, 2] > 0)).tolist()}
+        for f in self.fingers:
+            regions[f.name] = np.flatnonzero(f.contains(points) & ~palm).tolist()
+        return regions
 
     def grid_samples(self, n: int | tuple[int, int, int]) -> np.ndarray:
         """Sample points: an n x n x n grid over the bounding box, keeping those inside the hand (paper §6)."""

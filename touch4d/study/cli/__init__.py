@@ -65,8 +65,8 @@ def register(subparsers) -> None:
     sim.add_argument("--every-sample", action="store_true",
                      help="a motor at every sample point of the glove (the finest actuator resolution)")
     sim.add_argument("--noise", type=_nonnegative, default=HUMAN_NOISE, metavar="X",
-                     help=f"sensory noise on each motor, in units of full drive (default {HUMAN_NOISE:.3f}: the "
-                          "fingertip's amplitude discrimination)")
+                     help=f"sensory noise on a finger's motors, in units of full drive (default {HUMAN_NOISE:.3f}: "
+                          "the fingertip's amplitude discrimination; the palm's motors: x0.64, the thenar's)")
     sim.add_argument("--visual-noise", type=_nonnegative, default=0.5, metavar="X",
                      help="noise on the view's features (default 0.5)")
     sim.add_argument("--lapse", type=_probability, default=0.03, metavar="P", help="lapse rate (default 0.03)")
@@ -121,7 +121,8 @@ def register(subparsers) -> None:
                           help="also a motor at every sample point of the glove, side by side")
     transfer.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
     transfer.add_argument("--noise", type=_nonnegative, default=HUMAN_NOISE, metavar="X",
-                          help=f"sensory noise on each motor, in units of full drive (default {HUMAN_NOISE:.3f})")
+                          help=f"sensory noise on a finger's motors, in units of full drive (default {HUMAN_NOISE:.3f}; "
+                               "the palm's motors: x0.64)")
     transfer.add_argument("--scenes", type=_count, default=20, metavar="N",
                           help="jittered scenes per stimulus, half of them held out (default 20)")
     transfer.add_argument("--positions", type=_count, default=16, metavar="N",
@@ -338,6 +339,7 @@ def run_transfer(args) -> int:
 
     from ..infotransfer import predicted_transfer
     from ..observer import every_sample_glove
+    from ..psychophysics import THENAR_RATIO
 
     study = _study(args.study)
     files = [resolve_path(g, COMMAND_LINE, key="--glove", what="glove file") for g in args.glove] if args.glove \
@@ -352,7 +354,7 @@ def run_transfer(args) -> int:
                                  "noise": args.noise, "results": results})))
         return 0
     print(f"{study.name}: information transferred by one touch ({', '.join(g.path for g in loaded)}; "
-          f"noise {args.noise} per motor)")
+          f"noise {args.noise:.3g} per finger motor, {args.noise * THENAR_RATIO:.3g} per palm motor)")
     print(transfer_table(results, named=len(gloves) > 1))
     return 0
 

@@ -89,7 +89,8 @@ def register_glove_design(sub) -> None:
                         help="place motors only here: palm, back, thumb, index, middle, ring, little (default: "
                              "anywhere on the hand)")
     design.add_argument("--noise", type=_nonnegative, default=None, metavar="X",
-                        help="sensory noise per motor (default: the fingertip's, touch4d.study.psychophysics)")
+                        help="sensory noise of a finger's motors (default: the fingertip's; the palm's: x0.64, "
+                             "touch4d.study.psychophysics)")
     design.add_argument("--random", type=_count0, default=10, metavar="N",
                         help="random layouts to compare (default 10)")
     design.add_argument("--rounds", type=_count0, default=2, metavar="N",
