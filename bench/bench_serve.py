@@ -22,7 +22,7 @@ and rows against answers sent (none lost).
     .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--process-per-node]
                                           [--over 32] [--trials] [--figure PNG] [--json FILE]
 
-`--over N`: then N pages at once against a server left at its default cap (two per core): how many
+`--over N`: then N pages at once against a server left at its default cap (three per core): how many
 it admits and refuses (HTTP 503), and whether the admitted keep their touch within the budget.
 """
 from __future__ import annotations
@@ -67,7 +67,7 @@ ROLES = ("tracker", "scene", "tactile", "study", "recorder")   # launch/study-se
 def start_server(out: Path, participants: int | None, study: bool = False, trace: Path | None = None,
                  per_node: bool = False):
     """The server; `per_node`: each participant's nodes in processes of their own (no `group`);
-    `participants` None: the server's own default cap (two per core)."""
+    `participants` None: the server's own default cap (three per core)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open", "recorder:=none"]
     launch = []
     if per_node:
@@ -425,7 +425,7 @@ def main() -> None:
     parser.add_argument("--process-per-node", action="store_true",
                         help="each round also with every node in a process of its own: the baseline")
     parser.add_argument("--over", type=int, metavar="N",
-                        help="then N pages against the server's default cap (two per core): admitted and refused")
+                        help="then N pages against the server's default cap (three per core): admitted and refused")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()

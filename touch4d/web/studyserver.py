@@ -58,9 +58,10 @@ SERVED = "serve.json"             # OUT/serve.json: the address served, for `tou
 PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
-# ms, server-side) at 72 Hz each. bench/bench_serve.py measured 4 on a 2-core machine and saturation
-# at 8 (each participant's stack costs about a sixth of a core); more would slow everyone's touch.
-PARTICIPANTS_PER_CORE = 2
+# ms, server-side) at 72 Hz each, with room to spare. bench/bench_serve.py on a quiet 2-core machine:
+# p99 6 ms at 6 participants (also through 50 ms of round trip), 8 ms at 8 (19 through it), 128 ms
+# at 16 (each participant costs about a fifth of a core): more would slow everyone's touch.
+PARTICIPANTS_PER_CORE = 3
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
