@@ -114,6 +114,17 @@ def test_power_is_the_same_on_a_dask_cluster_on_a_local_worker_and_in_process(lo
     assert cached == ["n2-s0.json", "n2-s1.json", "n3-s0.json", "n3-s1.json"]
 
 
+def test_one_client_runs_the_same_shared_data_twice():
+    """Two fan-outs in a row on one open client with equal shared data (a bench's warm-up, then its run)."""
+    from touch4d.study.fanout import dask_client
+
+    jobs = {f"k{i}": (i,) for i in range(4)}
+    with dask_client(Cluster(workers=1)) as client:
+        runs = [fan_out(_square, jobs, shared={"fail": set()}, cluster=Cluster(workers=1), client=client,
+                        progress=False) for _ in range(3)]
+    assert runs == [{f"k{i}": {"value": i * i} for i in range(4)}] * 3
+
+
 def test_a_scheduler_that_is_not_there_is_a_clear_error(paper):
     from touch4d.errors import ConfigError
     from touch4d.study.fanout import dask_client

@@ -15,6 +15,7 @@ import hashlib
 import json
 import logging
 import os
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -117,8 +118,12 @@ def fan_out(function: Callable, jobs: dict[str, tuple], *, shared=None, cluster:
             from distributed import as_completed
 
             with (contextlib.nullcontext(client) if client is not None else dask_client(cluster)) as client:
-                handle = client.scatter(shared, broadcast=True) if shared is not None else None
-                futures = {client.submit(function, handle, *args, key=f"{label}-{key}-{signature([args])}",
+                # In a list: a dict would be scattered as named pieces. hash=False: a key of its own, so that
+                # the same `shared` scattered again on this client (a second call) is not the key the first
+                # call's release is deleting.
+                handle = client.scatter([shared], broadcast=True, hash=False)[0] if shared is not None else None
+                run = uuid.uuid4().hex[:8]   # this call's: a task of an earlier call may still be being released
+                futures = {client.submit(function, handle, *args, key=f"{label}-{key}-{run}",
                                          pure=False): key for key, args in todo.items()}
                 try:
                     for future in as_completed(futures):
