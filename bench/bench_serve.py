@@ -73,7 +73,7 @@ def start_server(out: Path, participants: int | None, study: bool = False, trace
     if per_node:
         path = out.parent / "per-node.yaml"
         path.write_text(f"include: [{REPO / 'launch/study-serve.yaml'}]\nnodes:\n"
-                        + "".join(f"  {role}: {{group: ''}}\n" for role in ROLES))
+                        + "".join(f"  {role}: {{group: '', private: []}}\n" for role in ROLES))
         launch = ["--stack", str(path)]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
                              *launch, *(["--wire-trace", str(trace)] if trace else []),

@@ -31,6 +31,7 @@ class RecorderNode(Node):
             raise self.param_error("topics", "a list of topic names")
         self.recorder = Recorder(self.bus, path, topics, namespace=self.namespace)
         self.recorder.start()
+        self.tap_private(self.recorder.offer)     # its group's private topics: no socket brings them
         self.create_timer(0.25, self.on_timer)   # a full disk is said at once; the other nodes go on
         self.log.info("recording %s to %s", ", ".join(topics) if topics else "all topics", path)
 

@@ -108,3 +108,39 @@ def test_two_publishers_copies_may_come_interleaved_otherwise_and_each_is_skippe
     assert copies.seen(b"t", b"b2")
     assert copies.seen(b"t", b"a1") and copies.seen(b"t", b"a2")
     assert not copies.awaited[b"t"]
+
+
+def test_a_private_topic_reaches_its_process_typed_and_raw_and_never_the_broker():
+    """A group's private topic (a launch file's `private`): its subscribers and raw subscribers (a
+    recorder) in the process get every message in order; a node of another executor on the same
+    broker gets none, while a public topic of the same publisher still reaches it."""
+    with running_broker() as bus:
+        shared = Executor()
+        shared.local.private = frozenset({b"P07/example/pose"})
+        talker = Node("talker", bus=bus, executor=shared, namespace="P07")
+        local = Node("local", bus=bus, executor=shared, namespace="P07")
+        outside = Node("outside", bus=bus, namespace="P07")                 # another process, as far as the bus goes
+        try:
+            heard = collect(local, "example/pose", HandPose)
+            recorded = []
+            local.create_raw_subscription("", lambda topic, payload: recorded.append(topic))
+            heard_outside = collect(outside, "example/pose", HandPose)
+            public_outside = collect(outside, "example/public", HandPose)
+            raw_outside = []
+            outside.create_raw_subscription("example/", lambda topic, payload: raw_outside.append(topic))
+            pub, public = talker.create_publisher("example/pose", HandPose), talker.create_publisher("example/public", HandPose)
+            for i in range(N):
+                pub.publish(_pose(i))
+                public.publish(_pose(i))
+            _spin_until([shared, outside.executor], lambda: len(heard) >= N and len(public_outside) >= N)
+            _spin_until([shared, outside.executor], lambda: False, timeout=0.3)   # a stray copy comes meanwhile
+            assert [m.seq for m in heard] == list(range(N))                      # each once, in order
+            np.testing.assert_array_equal([m.position for m in heard], [_pose(i).position for i in range(N)])
+            assert recorded.count("example/pose") == N                             # relative to the namespace
+            assert heard_outside == [] and "example/pose" not in raw_outside
+            assert len(public_outside) == N and raw_outside.count("example/public") == N
+            assert not local._local_copies.awaited.get(b"P07/example/pose")      # no broker copy awaited
+        finally:
+            for node in (talker, local, outside):
+                node.shutdown()
+            shared.close()

@@ -113,6 +113,11 @@ def test_a_group_whose_node_fails_to_start_stops_the_launch_naming_the_node_and_
     ("nodes:\n  talker: {node: example_talker, group: [a]}\n", "nodes.talker.group", "a group name"),
     ("nodes:\n  talker: {node: example_talker, group: listener}\n  listener: {node: example_listener}\n",
      "nodes.talker.group", "not the role of a node outside the group"),
+    ("nodes:\n  talker: {node: example_talker, private: [example/pose]}\n", "nodes.talker.private", "a `group`"),
+    ("nodes:\n  talker: {node: example_talker, group: g, private: [safety/stop]}\n", "nodes.talker.private[0]",
+     "the heartbeats or the stop"),
+    ("nodes:\n  talker: {node: example_talker, group: g, private: [example/pose, /abs]}\n",
+     "nodes.talker.private[1]", "a topic of the node's namespace"),
 ])
 def test_a_bad_group_is_refused_naming_the_file_and_the_key(tmp_path, text, key, expected):
     path = tmp_path / "bad.yaml"

@@ -4,9 +4,11 @@ actuator's `pulse`, here only), leave and come back to resume, two at once each 
 namespace and folder; a third is told the study is full (503), a forged or mismatched link refused."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from touch4d.bus.testing import wait_until
+from touch4d.log.reader import LogReader
 from touch4d.study.design import load_study
 from touch4d.study.plan import quick_plan
 from touch4d.web.testing import chromium, context_options, enter_vr, headset_page, wait_connected
@@ -90,6 +92,13 @@ def test_join_touch_leave_resume_and_a_second_participant(tmp_path, capsys):
             refused_page.context.close()
         for opened in (other, page, third):
             opened.context.close()
+    # the participant's recorder, in their stack's process, logged the haptic loop's private topics
+    # (launch/study-serve.yaml: no other process hears them), the touch included
+    logs = sorted((served.out / "P03").rglob("*.mcap"))
+    topics = {t for log in logs for t in LogReader(log).topics()}
+    assert {"hand/pose", "controller/state", "tactile/field", "tactile/motors"} <= topics, topics
+    felt = [np.max(m.decode()["intensity"]) for log in logs for m in LogReader(log).messages({"tactile/motors"})]
+    assert max(felt) > 0.05
 
 
 def test_the_welcome_page_takes_the_token_out_of_the_address_bar(tmp_path, capsys):

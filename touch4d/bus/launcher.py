@@ -166,7 +166,8 @@ class Launcher:
         spec = child.specs[0]
         if child.group:
             cmd = [sys.executable, "-u", "-m", "touch4d.bus", "--group", child.name, "--nodes", json.dumps(
-                [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source} for s in child.specs],
+                [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source,
+                  **({"private": s.private} if s.private else {})} for s in child.specs],
                 default=str)]
         else:
             cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,

@@ -13,6 +13,7 @@ nodes:
     respawn_delay: 0.5        # seconds before a restart
     realtime: false           # SCHED_FIFO priority for the haptic loop, when permitted
     group: participant        # run in one process with the other nodes of this group; optional
+    private: [hand/pose]      # topics its group keeps to itself (with `group` only); optional
 ```
 Overrides on the command line: `ROLE:=NODE` swaps a node, `+ROLE:=NODE` adds one, `ROLE:=none`
 removes one, `ROLE.PARAM:=VALUE` sets a parameter (VALUE read as YAML). A swap to another node drops
@@ -24,7 +25,10 @@ Nodes of one `group` share a process and its one thread (touch4d.bus.process.run
 memory and no copies between processes, but a node that blocks holds up the others. The group is
 one process to the launcher: it respawns (whole) if any of its nodes says `respawn`, after the
 longest `respawn_delay` of its nodes, and is realtime if any of them is. Without `group`, each node
-is a process of its own.
+is a process of its own. A group's `private` topics (the union of its nodes' lists) stay in its
+process: published there, they go to its subscribers in-process and never to the broker, and its
+nodes do not listen for them on the broker (touch4d.bus.local): what a served participant's haptic
+loop saves, at the price of no other process hearing them (no `topic echo`, no recorder outside).
 
 Everything is checked before any process starts: every role an override names exists, every node
 exists, and every parameter is one the node declares (`PARAMS`), with a valid value.
@@ -54,6 +58,7 @@ class NodeEntry(msgspec.Struct, forbid_unknown_fields=True):
     respawn_delay: Annotated[float, msgspec.Meta(ge=0, le=schema.FINITE_MAX, description="seconds >= 0")] | None = None
     realtime: bool | None = None
     group: Annotated[str, msgspec.Meta(description="a group name: the nodes of one group share a process")] | None = None
+    private: list[str] | None = None   # topics the node's group keeps in its process
 
 
 class LaunchFile(msgspec.Struct, forbid_unknown_fields=True):
@@ -78,6 +83,7 @@ class NodeSpec:
     namespace: str = ""         # every topic of the node under NAMESPACE/ (touch4d.bus.names)
     group: str = ""             # the nodes of one group share a process; "": a process of its own
     group_source: str = ""      # the file that set `group`
+    private: list = field(default_factory=list)   # topics its group keeps in its process (touch4d.bus.local)
     source: str = COMMAND_LINE  # the file that last set this node's module or parameters
     # parameter -> (where it was set, its key there): a file and nodes.ROLE.params.NAME, or the override
     param_sources: dict = field(default_factory=dict)
@@ -174,6 +180,13 @@ def _merge_node(path: Path, role: str, entry: NodeEntry, nodes: dict[str, NodeSp
         if entry.group:
             _check_role(path, f"{where}.group", entry.group, "a group name")
         spec.group, spec.group_source = entry.group, str(path)
+    if entry.private is not None:
+        for i, topic in enumerate(entry.private):
+            # the stop and the heartbeats reach every process, always (safety, the monitor)
+            if not topic or topic.startswith(("_bus/", "/")) or topic in names.GLOBAL_TOPICS | names.BROADCAST_TOPICS:
+                raise ConfigError(path, f"{where}.private[{i}]", "a topic of the node's namespace (not _bus/..., "
+                                  "absolute, the heartbeats or the stop)", got=topic)
+        spec.private = list(entry.private)
     nodes[role] = spec
 
 
@@ -189,6 +202,9 @@ def processes(nodes: dict[str, NodeSpec]) -> dict[str, list[NodeSpec]]:
     out: dict[str, list[NodeSpec]] = {}
     for role, spec in nodes.items():
         name = spec.group or role
+        if spec.private and not spec.group:
+            raise ConfigError(spec.source, f"nodes.{role}.private", "a `group` for the node (private topics stay "
+                              "in a group's process)", got=spec.private)
         if spec.group and spec.group in nodes and nodes[spec.group].group != spec.group:
             raise ConfigError(spec.group_source, f"nodes.{role}.group",
                               "a group name that is not the role of a node outside the group", got=spec.group)

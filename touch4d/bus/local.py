@@ -8,6 +8,11 @@ checked it: no second check) on the executor's next turn, in publishing order; i
 receives the broker's copy, which it recognises by its bytes (`LocalCopies.seen`) and skips. What
 this saves per message: the broker round trip's latency and the decode's check; per topic with two
 subscribers in the process (hand/pose: the page's node and the tactile model), one of the decodes.
+
+A group's private topics (a launch file's `private`, touch4d.bus.launchfile) go no further: nothing
+is sent to the broker, no copy comes back, and the process's raw subscribers (a recorder in the
+group) get them in-process too. What that saves a served participant's haptic loop (four topics at
+the page's rate): a fifth of the CPU per page input, and the broker's share in the study server.
 """
 from __future__ import annotations
 
@@ -21,15 +26,21 @@ MAX_AWAITED = 1024   # broker copies awaited per topic; more are lost on the way
 
 
 class LocalRoutes:
-    """Per executor: topic -> the nodes on it that subscribe (typed) to it."""
+    """Per executor: topic -> the nodes on it that subscribe (typed) to it; the raw subscriptions
+    (prefix, node, subscription) of its nodes; the topics kept in the process (`private`)."""
 
     def __init__(self):
         self.by_topic: dict[bytes, list["Node"]] = {}
+        self.raw: list[tuple[bytes, "Node", object]] = []
+        self.private: frozenset[bytes] = frozenset()
 
     def add(self, topic: bytes, node: "Node") -> None:
         nodes = self.by_topic.setdefault(topic, [])
         if node not in nodes:
             nodes.append(node)
+
+    def add_raw(self, prefix: bytes, node: "Node", sub) -> None:
+        self.raw.append((prefix, node, sub))
 
     def remove(self, node: "Node") -> None:
         """A node shutting down: nothing is handed to it any more."""
@@ -37,13 +48,29 @@ class LocalRoutes:
             self.by_topic[topic].remove(node)
             if not self.by_topic[topic]:
                 del self.by_topic[topic]
+        self.raw = [entry for entry in self.raw if entry[1] is not node]
 
-    def hand_over(self, topic: bytes, payload: bytes, msg_type: type, publisher: str) -> None:
-        """`payload`, a checked `msg_type` message just published on `topic`: each subscribing node
-        here decodes its own copy on the executor's next turn and skips the broker's when it comes."""
+    def hand_over(self, topic: bytes, payload: bytes, msg_type: type | None, publisher: str) -> None:
+        """`payload`, a checked `msg_type` message just published on `topic` (None: a raw publisher's,
+        checked on decoding): each subscribing node here decodes its own copy on the executor's next
+        turn and skips the broker's when it comes (a private topic: none comes)."""
+        broker = topic not in self.private
         for node in self.by_topic[topic]:
-            node._local_copies.expect(topic, payload, publisher)
+            node._local_copies.expect(topic, payload, publisher, broker)
             node.executor.call_soon(node._deliver_local, topic, payload, msg_type)
+
+    def keep(self, topic: bytes, payload: bytes, msg_type: type | None, publisher: str) -> None:
+        """A private topic's message: to this process's subscribers, typed and raw, and no further."""
+        if topic in self.by_topic:
+            self.hand_over(topic, payload, msg_type, publisher)
+        if self.raw:
+            self.hand_over_raw(topic, payload)
+
+    def hand_over_raw(self, topic: bytes, payload: bytes) -> None:
+        """A private topic's payload to the raw subscribers here whose prefix it has (a recorder)."""
+        for prefix, node, sub in self.raw:
+            if topic.startswith(prefix):
+                node.executor.call_soon(node._deliver_raw_local, topic, payload, sub)
 
 
 class LocalCopies:
@@ -53,8 +80,10 @@ class LocalCopies:
         self.awaited: dict[bytes, deque] = {}
         self.queued: dict[bytes, int] = {}   # handed over, not yet delivered (latest-only skips the older)
 
-    def expect(self, topic: bytes, payload: bytes, publisher: str) -> None:
+    def expect(self, topic: bytes, payload: bytes, publisher: str, broker: bool = True) -> None:
         self.queued[topic] = self.queued.get(topic, 0) + 1
+        if not broker:
+            return    # a private topic: no copy will come
         awaited = self.awaited.get(topic)
         if awaited is None:
             awaited = self.awaited[topic] = deque(maxlen=MAX_AWAITED)

@@ -64,8 +64,11 @@ class Publisher:
         except MessageError as exc:
             raise MessageError(f"publishing on {self.topic}: {exc}") from None
         node._seq[topic] = seq + 1
-        node._send_payload(topic, payload)
         local = node._local_routes
+        if topic in local.private:    # kept in this process (touch4d.bus.local)
+            local.keep(topic, payload, self.msg_type, node._uid)
+            return
+        node._send_payload(topic, payload)
         if topic in local.by_topic:   # subscribers in this process: handed over (touch4d.bus.local)
             local.hand_over(topic, payload, self.msg_type, node._uid)
 
@@ -329,7 +332,8 @@ class Node:
             if latest_only:
                 self._latest_only_topics.add(key)
             self._state(key)
-            self._subscribe(key)
+            if key not in self._local_routes.private:   # a private topic never comes from the broker
+                self._subscribe(key)
             self._local_routes.add(key, self)
         return sub
 
@@ -343,8 +347,16 @@ class Node:
             keys += sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)
         for key in (k.encode() for k in keys):
             self._raw_subs.append((key, sub))
+            self._local_routes.add_raw(key, self, sub)   # the process's private topics
             self._subscribe(key)
         return sub
+
+    def tap_private(self, callback: Callable[[str, bytes], Any]) -> None:
+        """Call `callback(topic, payload_bytes)` for every message of this process's private topics
+        (a launch file's `private`; touch4d.bus.local), which no socket hears: how a recorder in the
+        group logs them. Topics named as for a raw subscription; nothing when there are none."""
+        for key in sorted(self._local_routes.private):
+            self._local_routes.add_raw(key, self, Subscription(key.decode(), None, callback, raw=True))
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
         """Call `callback()` every `period` seconds (fixed rate) on the node's thread."""
@@ -465,6 +477,9 @@ class Node:
 
     def _send_raw(self, topic: bytes, payload: bytes) -> None:
         self._seq[topic] = self._seq.get(topic, 0) + 1
+        if topic in self._local_routes.private:
+            self._local_routes.keep(topic, payload, None, self._uid)
+            return
         self._send_payload(topic, payload)
 
     def _on_messages(self) -> int:
@@ -546,12 +561,19 @@ class Node:
             if self._raw_subs and len(frames) == 2:
                 for prefix, sub in self._raw_subs:
                     if sub.active and topic.startswith(prefix):
-                        name = topic.decode(errors="replace")
-                        if self.namespace:
-                            name = names.relative(name, self.namespace) or name
-                        self._call(sub.callback, (name, frames[1]), sub.topic)
+                        self._call(sub.callback, (self._raw_name(topic), frames[1]), sub.topic)
                         handled += 1
         return handled
+
+    def _raw_name(self, topic: bytes) -> str:
+        """A topic as a raw subscriber of this node sees it: relative to its namespace."""
+        name = topic.decode(errors="replace")
+        return (names.relative(name, self.namespace) or name) if self.namespace else name
+
+    def _deliver_raw_local(self, topic: bytes, payload: bytes, sub: Subscription) -> None:
+        """A private topic's message published in this process, to a raw subscriber (touch4d.bus.local)."""
+        if sub.active and not self._closed:
+            self._call(sub.callback, (self._raw_name(topic), payload), sub.topic)
 
     def _deliver_local(self, topic: bytes, payload: bytes, msg_type: type[Message]) -> None:
         """A message published in this process (touch4d.bus.local), in publishing order; with

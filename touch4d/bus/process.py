@@ -21,6 +21,7 @@ import sys
 
 import zmq
 
+from touch4d.bus import names
 from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
@@ -109,7 +110,7 @@ def run_group(argv: list[str]) -> int:
     entries = _params_object(args.nodes, f"group {args.group}: --nodes", list)
     if entries is None:
         return 2
-    members = []
+    members, private = [], set()
     for i, entry in enumerate(entries):
         if not isinstance(entry, dict) or not isinstance(entry.get("node"), str):
             print(f"group {args.group}: --nodes[{i}]: expected an object with a \"node\", got {entry!r}", file=sys.stderr)
@@ -123,7 +124,12 @@ def run_group(argv: list[str]) -> int:
         members.append((role, node_class, {"params": entry.get("params", {}), "kind": ref, "role": role,
                                            "params_source": entry.get("params_source"),
                                            "namespace": args.namespace}))
-    return _run(members, args.bus, shared=True)
+        topics = entry.get("private", [])
+        if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
+            print(f"group {args.group}: --nodes[{i}].private: expected a list of topics, got {topics!r}", file=sys.stderr)
+            return 2
+        private.update(names.resolve(t, args.namespace) for t in topics)
+    return _run(members, args.bus, shared=True, private=private)
 
 
 def _configure(args: argparse.Namespace, name: str) -> None:
@@ -152,10 +158,13 @@ def _params_object(text: str, where: str, kind: type = dict):
     return value
 
 
-def _run(members: list[tuple[str, type, dict]], bus_file: str | None, shared: bool) -> int:
+def _run(members: list[tuple[str, type, dict]], bus_file: str | None, shared: bool, private=()) -> int:
     """Build the nodes `members` names (name, class, constructor arguments) in order, spin them until
-    SIGINT/SIGTERM, shut them down in reverse order. `shared`: on one executor (a group)."""
+    SIGINT/SIGTERM, shut them down in reverse order. `shared`: on one executor (a group), which keeps
+    the bus topics `private` in the process (touch4d.bus.local)."""
     executor = Executor() if shared else None
+    if executor is not None:
+        executor.local.private = frozenset(t.encode() for t in private)
     built: list = []
     # Handlers go in before the nodes are built: a stop that arrives meanwhile is kept for later.
     holder: dict = {"stop": False}

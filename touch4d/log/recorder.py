@@ -109,6 +109,7 @@ class Recorder:
         self._started = 0.0
         self.error = ""
         self.received = 0
+        self.offered = 0   # handed over in-process (offer)
 
     def start(self, timeout: float = 5.0) -> None:
         """Open the file, subscribe, start the threads; returns once the broker forwards to us.
@@ -177,6 +178,15 @@ class Recorder:
             if keeps(frames):
                 append((known.get(frames[0]) or self._name(frames[0]), frames[-1] if len(frames) > 1 else b"", clock()))
                 self.received += 1
+
+    def offer(self, topic: str, payload: bytes) -> None:
+        """A message no socket brings (a group's private topic, `Node.tap_private`; `topic` relative to
+        the namespace), from the thread that published it: recorded as if received (deque appends
+        are atomic; the receive thread's count is its own)."""
+        bus_topic = names.resolve(topic, self.namespace).encode()
+        if not self._stopping.is_set() and self._keeps([bus_topic, payload]):
+            self._queue.append((topic, payload, self._clock()))
+            self.offered += 1
 
     def _keeps(self, frames: list[bytes]) -> bool:
         """Whether a message is this recording's: a topic wanted; in a namespace, of the one global
