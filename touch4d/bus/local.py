@@ -12,7 +12,7 @@ subscribers in the process (hand/pose: the page's node and the tactile model), o
 A group's private topics (a launch file's `private`, touch4d.bus.launchfile) go no further: nothing
 is sent to the broker, no copy comes back, and the process's raw subscribers (a recorder in the
 group) get them in-process too. What that saves a served participant's haptic loop (four topics at
-the page's rate): a fifth of the CPU per page input, and the broker's share in the study server.
+the page's rate): 15-20% of the CPU per page input, a third of the study server's (docs/bus.md).
 """
 from __future__ import annotations
 

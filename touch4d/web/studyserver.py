@@ -59,8 +59,9 @@ PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or 
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
 # ms, server-side) at 72 Hz each, with room to spare. bench/bench_serve.py on a quiet 2-core machine:
-# p99 6 ms at 6 participants (also through 50 ms of round trip), 8 ms at 8 (19 through it), 128 ms
-# at 16 (each participant costs about a fifth of a core): more would slow everyone's touch.
+# p99 4.9 ms at 6 participants (4.5 through 50 ms of round trip), 6.2 at 8 (7.6; but 9-16 ms in
+# other runs), 52 ms at 12, 81 ms at 16 (each costs about a sixth of a core): more would slow
+# everyone's touch.
 PARTICIPANTS_PER_CORE = 3
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
