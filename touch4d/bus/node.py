@@ -64,13 +64,7 @@ class Publisher:
         except MessageError as exc:
             raise MessageError(f"publishing on {self.topic}: {exc}") from None
         node._seq[topic] = seq + 1
-        local = node._local_routes
-        if topic in local.private:    # kept in this process (touch4d.bus.local)
-            local.keep(topic, payload, self.msg_type, node._uid)
-            return
-        node._send_payload(topic, payload)
-        if topic in local.by_topic:   # subscribers in this process: handed over (touch4d.bus.local)
-            local.hand_over(topic, payload, self.msg_type, node._uid)
+        node._route(topic, payload, self.msg_type)
 
 
 class RawPublisher:
@@ -477,10 +471,19 @@ class Node:
 
     def _send_raw(self, topic: bytes, payload: bytes) -> None:
         self._seq[topic] = self._seq.get(topic, 0) + 1
-        if topic in self._local_routes.private:
-            self._local_routes.keep(topic, payload, None, self._uid)
+        self._route(topic, payload, None)
+
+    def _route(self, topic: bytes, payload: bytes, msg_type: type[Message] | None) -> None:
+        """Where a published message goes (touch4d.bus.local): a private topic's stays in this process;
+        any other goes to the broker and, when `msg_type` says its publisher checked it, is handed
+        over to this process's subscribers (a raw publisher's come back through the broker)."""
+        local = self._local_routes
+        if topic in local.private:
+            local.keep(topic, payload, msg_type, self._uid)
             return
         self._send_payload(topic, payload)
+        if msg_type is not None and topic in local.by_topic:
+            local.hand_over(topic, payload, msg_type, self._uid)
 
     def _on_messages(self) -> int:
         return self._dispatch(self._drain())
