@@ -96,8 +96,9 @@ def test_the_page_draws_the_slice_and_says_where_it_cuts(stack):
         # ... where the projection showed translucent faces
         assert cell_coloured(projection).sum() < 0.2 * cell_coloured(cut).sum()
         assert page.evaluate("touch4d.panel") == ["slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)"]
-        status = page.inner_text("#status")
-        assert "slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)" in status
+        # the status line is rewritten once a second (with the frame rate): wait for its next turn
+        page.wait_for_function("document.getElementById('status').textContent"
+                               ".includes('slice view: slice at w = 1.50 (objects span w 0.90 .. 2.10)')", timeout=5_000)
         # both: the same solid, seen through the projection drawn faintly around it
         command(stack, page, "view", "both", "touch4d.view === 'both'")
         page.wait_for_timeout(300)
@@ -181,6 +182,8 @@ def test_the_thumbstick_moves_the_slice_and_the_headset_shows_it(stack, tmp_path
             page.wait_for_timeout(300)
             back = eyes(page)
             assert all(cell_coloured(eye).sum() > 300 for eye in back)
-            assert "slice at w = 2.05" in page.inner_text("#status")
+            # the status line is rewritten once a second (with the frame rate): wait for its next turn
+            page.wait_for_function("document.getElementById('status').textContent.includes('slice at w = 2.05')",
+                                   timeout=5_000)
         finally:
             page.context.close()
