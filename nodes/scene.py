@@ -54,7 +54,7 @@ class SceneNode(Node):
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
         self.create_timer(1.0 / p["rate"], self.publish)
-        self.create_timer(self.min_period, self.flush)
+        self.flush_due = None   # the deferred publish of a change that came under min_period after the last
         if config.spin_plane is not None:
             spin_rate = p["spin_rate"]
             self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
@@ -90,12 +90,16 @@ class SceneNode(Node):
         """Publish a change now, or on the next flush if the last message went out under min_period ago."""
         if not changed:
             return
-        if time.monotonic() - self.last_publish >= self.min_period:
+        since = time.monotonic() - self.last_publish
+        if since >= self.min_period:
             self.publish()
         else:
             self.dirty = True
+            if self.flush_due is None:   # a deadline, not a max_rate timer polling `dirty` (one wake per change)
+                self.flush_due = self.call_later(self.min_period - since, self.flush)
 
     def flush(self) -> None:
+        self.flush_due = None
         if self.dirty:
             self.publish()
 

@@ -49,3 +49,15 @@ def test_a_shorter_period_takes_effect_at_once_and_a_cancelled_timer_stops():
     ex.spin(0.05)
     assert len(ticks) == n and ex.timers == []
     ex.close()
+
+
+def test_call_later_runs_once_at_its_deadline_and_a_cancelled_one_never():
+    ex = Executor()
+    fired, never = [], []
+    start = time.monotonic()
+    ex.call_later(0.03, lambda: fired.append(time.monotonic() - start))
+    ex.call_later(0.02, lambda: never.append(1)).cancel()
+    ex.spin(0.15)
+    assert len(fired) == 1 and 0.03 <= fired[0] < 0.15 and never == []
+    assert ex.timers == []                                 # nothing left behind to wake the loop
+    ex.close()

@@ -82,6 +82,20 @@ class Executor:
         self._next_due = min(self._next_due, timer.next_due)
         return timer
 
+    def call_later(self, delay: float, callback: Callable[[], Any],
+                   on_error: Callable[[Any, Exception], None] | None = None) -> Timer:
+        """Call `callback()` once, `delay` s from now (cancel the returned timer to call nothing): a
+        deadline costs one wake-up, where a timer that polls a flag wakes the thread at its rate."""
+        timer: Timer
+
+        def once() -> None:
+            timer.cancel()
+            callback()
+
+        timer = self.create_timer(max(float(delay), 1e-6), once, first_due=time.monotonic() + max(0.0, delay),
+                                  on_error=on_error)
+        return timer
+
     def set_timer_period(self, timer: Timer, period: float) -> None:
         """Change a timer's period; a shorter one takes effect at once (the next tick at most
         `period` from now), a longer one after the tick already due."""

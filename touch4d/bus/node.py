@@ -358,6 +358,13 @@ class Node:
         self._timers.append(timer)
         return timer
 
+    def call_later(self, delay: float, callback: Callable[[], Any]) -> Timer:
+        """Call `callback()` once, `delay` s from now, on the node's thread; `cancel()` the timer to
+        call nothing."""
+        timer = self.executor.call_later(delay, callback, on_error=self._callback_failed)
+        self._timers = [t for t in self._timers if not t.cancelled] + [timer]   # fired ones go
+        return timer
+
     def set_timer_period(self, timer: Timer, period: float) -> None:
         """Change a timer's period; a shorter one takes effect at once (the next tick at most
         `period` from now), a longer one after the tick already due."""

@@ -506,11 +506,15 @@ class PageServer:
             while not ws.closed:
                 await client.wake.wait()
                 client.wake.clear()
+                # asyncio.timeout, not wait_for: no task per frame (a send that needs no drain
+                # completes in this step; wait_for's task cost a loop turn and a Task each time)
                 while client.queue:
-                    await asyncio.wait_for(ws.send_bytes(client.queue.popleft()), self.send_timeout_s)
+                    async with asyncio.timeout(self.send_timeout_s):
+                        await ws.send_bytes(client.queue.popleft())
                 if client.latest is not None:
                     data, client.latest = client.latest, None
-                    await asyncio.wait_for(ws.send_bytes(data), self.send_timeout_s)
+                    async with asyncio.timeout(self.send_timeout_s):
+                        await ws.send_bytes(data)
         except (asyncio.TimeoutError, TimeoutError):
             self._drop(client, f"its socket took no frame within {self.send_timeout_s:g} s")
         except (ConnectionError, RuntimeError):
