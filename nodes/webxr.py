@@ -105,9 +105,11 @@ class WebXRNode(Node):
                                 broadcast=lambda data, latest: self.server.broadcast(data, latest),
                                 send=lambda conn, data: self.server.send(conn, data),
                                 save_calibration=self._save_calibration)
-        # The server's thread hands every event to this node's thread (one thread runs the bridge).
-        # Each page's messages wait in its bounded inbox; the node's thread takes them (server.deliver).
+        # The server runs on the executor's loop, on this node's thread (touch4d.bus.executor); its
+        # events still reach the bridge as the node's calls, on the executor's next turn (one thread
+        # runs the bridge). Each page's messages wait in its bounded inbox until then (server.deliver).
         self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
+                                 loop=self.executor.asyncio_loop(),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],
                                  on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
                                                                                    self.server.peer(conn)),

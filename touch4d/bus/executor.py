@@ -5,11 +5,19 @@ file's `group`, touch4d.bus.group); it registers its sockets as readers and its 
 `spin_once` waits for whichever comes first. Everything runs on the thread that spins, so node code
 needs no locks. A callback that raises is handed to `on_error(where, exc)` (inside the `except`, so
 a traceback can be logged) and the loop goes on.
+
+A process that serves pages (touch4d.web.server) asks for `asyncio_loop()`: from then on the
+executor spins on that asyncio loop (its sockets watched by the loop, its timers the loop's), and the
+page server runs on it too, so pages and nodes share one thread: a page's message and the frame it
+causes are not handed between threads (each hand-over cost a wake-up of the other thread, and the
+two contended for the interpreter lock).
 """
 from __future__ import annotations
 
+import asyncio
 import math
 import socket
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -57,6 +65,15 @@ class Executor:
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self._poller.register(self._wake_r, zmq.POLLIN)
+        self._loop: asyncio.AbstractEventLoop | None = None   # set by asyncio_loop(): spin on it
+        self._fds: dict = {}           # reader -> the file descriptor the loop watches for it
+        self._loop_thread: int | None = None
+        self._step_pending = False
+        self._timer_handle: asyncio.TimerHandle | None = None
+        self._armed_due = math.nan
+        self._spun = 0                 # handled during a spin on the loop (spin_once's answer)
+        self._in_step = False
+        self._once = False
         self.local = LocalRoutes()   # its nodes' subscriptions, for intra-process delivery (touch4d.bus.local)
 
     # ---- what runs ---------------------------------------------------------------------------
@@ -65,11 +82,16 @@ class Executor:
         """Call `callback()` when `sock` (a ZeroMQ socket or a file descriptor) is readable."""
         self._readers[sock] = callback
         self._poller.register(sock, zmq.POLLIN)
+        if self._loop is not None:
+            self._watch(sock)
 
     def remove_reader(self, sock) -> None:
         """Stop watching `sock` (a node of a shared executor shutting down); unknown: nothing."""
         if self._readers.pop(sock, None) is not None:
             self._poller.unregister(sock)
+            fd = self._fds.pop(sock, None)
+            if fd is not None and not self._loop.is_closed():
+                self._loop.remove_reader(fd)
 
     def create_timer(self, period: float, callback: Callable[[], Any], first_due: float | None = None,
                      on_error: Callable[[Any, Exception], None] | None = None) -> Timer:
@@ -80,6 +102,7 @@ class Executor:
                       on_error=on_error)
         self.timers.append(timer)
         self._next_due = min(self._next_due, timer.next_due)
+        self._rearm()
         return timer
 
     def call_later(self, delay: float, callback: Callable[[], Any],
@@ -104,15 +127,21 @@ class Executor:
         timer.period = float(period)
         timer.next_due = min(timer.next_due, time.monotonic() + timer.period)
         self._next_due = min(self._next_due, timer.next_due)
+        self._rearm()
 
     def call_soon(self, callback: Callable, *args) -> None:
         """Run `callback(*args)` at the next spin; from the executor's own thread."""
         self._calls.append((callback, args))
+        if self._loop is not None:
+            self._step_soon()
 
     def call_soon_threadsafe(self, callback: Callable, *args) -> None:
         """Run `callback(*args)` at the next spin; safe from any thread. The poll wakes at once."""
         self._calls.append((callback, args))
-        self._wake(b"c")
+        if self._loop is not None and threading.get_ident() == self._loop_thread:
+            self._step_soon()   # from the loop's own thread (a page server's callback): no wake-up to send
+        else:
+            self._wake(b"c")
 
     def request_shutdown(self) -> None:
         """Ask `spin` to return; safe from signal handlers and other threads."""
@@ -127,6 +156,8 @@ class Executor:
 
     def spin_once(self, timeout: float = 0.1) -> int:
         """Wait up to `timeout` s for a reader or a due timer and handle them; returns how many."""
+        if self._loop is not None:
+            return self._spin_loop(timeout, once=True)
         handled = self.run_timers() + self.run_calls()
         if handled or self._stopping:
             timeout = 0.0
@@ -147,6 +178,9 @@ class Executor:
 
     def spin(self, duration: float | None = None) -> None:
         """Spin until `request_shutdown()` (or for `duration` seconds)."""
+        if self._loop is not None:
+            self._spin_loop(duration)
+            return
         end = None if duration is None else time.monotonic() + duration
         while not self._stopping:
             left = 0.1 if end is None else end - time.monotonic()
@@ -199,12 +233,113 @@ class Executor:
         return ran
 
     def close(self) -> None:
-        """Stop and release the wake-up pipe (the readers' sockets are their owners' to close)."""
+        """Stop and release the wake-up pipe (the readers' sockets are their owners' to close), and
+        the asyncio loop if any (what still runs on it is cancelled first)."""
         self._stopping = True
         if not self._closed:
             self._closed = True
+            loop = self._loop
+            if loop is not None and not loop.is_closed() and not loop.is_running():
+                for fd in self._fds.values():
+                    loop.remove_reader(fd)
+                loop.remove_reader(self._wake_r.fileno())
+                tasks = asyncio.all_tasks(loop)
+                for task in tasks:
+                    task.cancel()
+                if tasks:
+                    loop.run_until_complete(asyncio.wait(tasks, timeout=1.0))
+                loop.close()
             self._wake_r.close()
             self._wake_w.close()
+
+    # ---- on an asyncio loop ------------------------------------------------------------------
+
+    def asyncio_loop(self) -> asyncio.AbstractEventLoop:
+        """The asyncio loop this executor spins on from now on (made at the first call, before the
+        first spin): a page server given it serves on the executor's thread (see the module's doc)."""
+        if self._loop is None:
+            self._loop = asyncio.new_event_loop()
+            for sock in self._readers:
+                self._watch(sock)
+            self._loop.add_reader(self._wake_r.fileno(), self._step_soon)
+        return self._loop
+
+    def _watch(self, sock) -> None:
+        # A ZeroMQ socket's FD only says "look": the step asks every socket (poll with no wait),
+        # which also re-arms it, so a level-triggered watch of it neither misses nor spins.
+        fd = sock.getsockopt(zmq.FD) if isinstance(sock, zmq.Socket) else sock
+        self._fds[sock] = fd
+        self._loop.add_reader(fd, self._step_soon)
+
+    def _spin_loop(self, duration: float | None, once: bool = False) -> int:
+        loop = self._loop
+        self._loop_thread = threading.get_ident()
+        self._spun, self._once = 0, once
+        stop = loop.call_later(max(0.0, duration), loop.stop) if duration is not None else None
+        self._step_soon()
+        try:
+            loop.run_forever()
+        finally:
+            if stop is not None:
+                stop.cancel()
+            self._once = False
+        return self._spun
+
+    def _rearm(self) -> None:
+        """A timer changed outside a step: a step soon arms the loop's wake-up for it (a step re-arms
+        at its end anyway)."""
+        if self._loop is not None and not self._in_step:
+            self._step_soon()
+
+    def _step_soon(self) -> None:
+        if not self._step_pending:
+            self._step_pending = True
+            self._loop.call_soon(self._step)
+
+    def _timer_due(self) -> None:
+        self._timer_handle, self._armed_due = None, math.nan
+        self._step()
+
+    def _step(self) -> None:
+        """One turn on the loop: due timers, calls, and every socket with something to read (asked
+        again until none has: a callback's send on a socket may have taken its FD's signal)."""
+        self._step_pending = False
+        self._in_step = True
+        try:
+            self._turn()
+        finally:
+            self._in_step = False
+
+    def _turn(self) -> None:
+        handled = self.run_timers() + self.run_calls()
+        for _ in range(8):
+            events = self._poller.poll(0)
+            if not events:
+                break
+            for sock, _ in events:
+                reader = self._readers.get(sock)
+                if reader is not None:
+                    handled += reader()
+                else:
+                    try:
+                        self._wake_r.recv(4096)
+                    except BlockingIOError:
+                        pass
+            handled += self.run_calls()
+        else:
+            self._step_soon()   # still busy: the loop's other work gets a turn first
+        handled += self.run_timers()
+        self._spun += handled
+        if self._stopping or (self._once and self._spun):
+            self._loop.stop()
+        elif self._calls:
+            self._step_soon()
+        due = self._next_due
+        if due != self._armed_due:
+            if self._timer_handle is not None:
+                self._timer_handle.cancel()
+            self._armed_due = due
+            self._timer_handle = self._loop.call_at(due, self._timer_due) if math.isfinite(due) else None
 
     def _wake(self, byte: bytes) -> None:
         try:

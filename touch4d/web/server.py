@@ -1,5 +1,6 @@
-"""The page's server: aiohttp on an asyncio loop in a thread of its own, serving the page and its
-files from the package and one WebSocket per open page.
+"""The page's server: aiohttp on an asyncio loop, serving the page and its files from the package
+and one WebSocket per open page. The loop is the node's (`loop`: its executor's, which then runs the
+node and the server on one thread, touch4d.bus.executor), or one in a thread of its own.
 
 It holds no touch4d state: what pages send goes to `on_message(conn, data, arrival)` (data: the
 text, the bytes, or the WebSocket error that closed the connection, e.g. a message over the page
@@ -229,7 +230,8 @@ class PageServer:
                  on_connect: Callable[[int], None] = lambda conn: None,
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None,
-                 on_pending: Callable[[int], None] | None = None, static_dir: Path = STATIC_DIR):
+                 on_pending: Callable[[int], None] | None = None, static_dir: Path = STATIC_DIR,
+                 loop: asyncio.AbstractEventLoop | None = None):
         self.host, self.port, self.access, self.ssl_context = host, port, access, ssl_context
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
         self.on_pending = on_pending
@@ -260,6 +262,7 @@ class PageServer:
         self._guards: dict = {}
         self._inboxes: dict[int, Inbox] = {}     # until the last delivery after a page closed
         self._ids = itertools.count(1)
+        self._given_loop = loop            # its owner runs it; None: a thread of the server's own
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
@@ -277,7 +280,18 @@ class PageServer:
     # ---- lifecycle (any thread) ------------------------------------------------------------------
 
     def start(self, timeout: float = 10.0) -> int:
-        """Bind and serve; returns the port (useful with port 0). Raises OSError if it cannot bind."""
+        """Bind and serve; returns the port (useful with port 0). Raises OSError if it cannot bind.
+        On a given loop: before its owner runs it (it serves once the owner spins)."""
+        if self._given_loop is not None:
+            if self._given_loop.is_running():
+                raise RuntimeError("a page server on a given loop starts before the loop runs")
+            self._loop = self._given_loop
+            try:
+                self._given_loop.run_until_complete(self._serve())
+            except BaseException:
+                self._loop = None
+                raise
+            return self.port
         self._thread = threading.Thread(target=self._run, name="webxr-server", daemon=True)
         self._thread.start()
         if not self._started.wait(timeout):
@@ -288,6 +302,18 @@ class PageServer:
 
     def stop(self, timeout: float = 3.0) -> None:
         loop = self._loop
+        if self._given_loop is not None:
+            if loop is None or loop.is_closed():
+                return
+            if loop.is_running():     # from a callback on it: the rest happens on its next turns
+                loop.create_task(self._shutdown())
+            else:
+                try:
+                    loop.run_until_complete(asyncio.wait_for(self._shutdown(), timeout))
+                except Exception as exc:  # noqa: BLE001 - stopping must finish whatever the loop says
+                    log.debug("page server shutdown: %s", exc)
+            self._loop = None
+            return
         if loop is None or self._thread is None:
             return
         try:
@@ -299,8 +325,7 @@ class PageServer:
 
     def send(self, conn: int, data: bytes) -> None:
         """Queue a frame for one page (in order, never dropped)."""
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._enqueue, conn, data, False, True)
+        self._on_loop(self._enqueue, conn, data, False, True)
 
     def peer(self, conn: int) -> str:
         """The address (host:port) of a connected page, for the log; '' once it has gone."""
@@ -314,8 +339,22 @@ class PageServer:
 
     def broadcast(self, data: bytes, latest: bool = False) -> None:
         """Queue a frame for every page; `latest` frames replace an unsent one."""
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._enqueue_all, data, latest)
+        self._on_loop(self._enqueue_all, data, latest)
+
+    def _on_loop(self, callback: Callable, *args) -> None:
+        """Run `callback(*args)` on the server's loop: at once from the loop's own thread (the node's,
+        on a given loop), else handed over (any other thread)."""
+        loop = self._loop
+        if loop is None:
+            return
+        try:
+            here = asyncio.get_running_loop() is loop
+        except RuntimeError:
+            here = False
+        if here:
+            callback(*args)
+        else:
+            loop.call_soon_threadsafe(callback, *args)
 
     def deliver(self, conn: int) -> None:
         """Call `on_message` for what the page has sent since (the node's thread, after `on_pending`;
@@ -474,8 +513,9 @@ class PageServer:
         wake, release_at = client.inbox.offer(data, arrival, not final and message_type(data) == "input",
                                               always=final)
         if release_at is not None and client.release is None:
-            client.release = self._loop.call_at(self._loop.time() + max(0.0, release_at - time.time()),
-                                                self._release_input, conn, client)
+            loop = asyncio.get_running_loop()
+            client.release = loop.call_at(loop.time() + max(0.0, release_at - time.time()),
+                                          self._release_input, conn, client)
         if wake:
             self._pending(conn)
 
@@ -492,8 +532,7 @@ class PageServer:
 
     def _revoked(self, holder: str) -> None:
         """A holder's access ended: its open pages close too (any thread)."""
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._close_holder, holder)
+        self._on_loop(self._close_holder, holder)
 
     def _close_holder(self, holder: str) -> None:
         for client in list(self.clients.values()):
