@@ -2,9 +2,10 @@
 answered 101): what one side reads is written to the other as it comes, no frame parsed.
 
 Flow control: a side whose unsent bytes pass `high_water` stops the other side reading until they
-drain below `low_water` (a slow browser cannot grow the server's memory without bound). When a side
-closes, the other's unsent bytes get `grace_s` to leave before it is cut (a vanished peer never
-drains them).
+drain below `low_water` (a slow browser cannot grow the server's memory without bound). A side that
+stays over the mark for `stall_s` is taken for gone and both are cut: the side stopped reading
+would not even notice its peer's end. When a side closes, the other's unsent bytes get `grace_s`
+to leave before it is cut (a vanished peer never drains them).
 """
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ from typing import Callable
 HIGH_WATER = 256 * 1024     # bytes a side may hold unsent before the other side stops reading
 LOW_WATER = 64 * 1024       # ... and reads again once they drained below this
 GRACE_S = 5.0               # a side closed: the other's unsent bytes leave within this, or it is cut
+STALL_S = 10.0              # a side that takes nothing of its unsent bytes for this long is cut (twice
+                            # the page server's own limit for a page that takes no frame)
 MAX_HEAD = 16 * 1024        # an upstream response head longer than this is not an HTTP server's
 MAX_BODY = 64 * 1024        # a refusal's body passed on, at most
 
@@ -34,6 +37,7 @@ class _End(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.other: _End | None = None
         self.lost = False
+        self._stall: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport) -> None:
         self.transport = transport
@@ -50,13 +54,19 @@ class _End(asyncio.Protocol):
         # this side's unsent bytes passed the high-water mark: the other side stops reading
         if not self.other.transport.is_closing():
             self.other.transport.pause_reading()
+        self._stall = asyncio.get_running_loop().call_later(self.splice.stall_s, self.splice.abort)
 
     def resume_writing(self) -> None:
+        if self._stall is not None:
+            self._stall.cancel()
+            self._stall = None
         if not self.other.transport.is_closing():
             self.other.transport.resume_reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.lost = True
+        if self._stall is not None:
+            self._stall.cancel()
         self.splice._lost()
 
 
@@ -96,12 +106,13 @@ class Splice:
     `closed` is done when every connection of it is."""
 
     def __init__(self, to_server: Tap | None = None, to_client: Tap | None = None, *,
-                 high_water: int = HIGH_WATER, low_water: int = LOW_WATER, grace_s: float = GRACE_S):
+                 high_water: int = HIGH_WATER, low_water: int = LOW_WATER, grace_s: float = GRACE_S,
+                 stall_s: float = STALL_S):
         self._loop = asyncio.get_running_loop()
         self.client = _End(self, to_server)
         self.server = _Upstream(self, to_client)
         self.client.other, self.server.other = self.server, self.client
-        self.high_water, self.low_water, self.grace_s = high_water, low_water, grace_s
+        self.high_water, self.low_water, self.grace_s, self.stall_s = high_water, low_water, grace_s, stall_s
         self.closed: asyncio.Future = self._loop.create_future()
         self._head_end = 0
         self._cut: asyncio.TimerHandle | None = None
@@ -166,9 +177,10 @@ class Splice:
             if end.transport is not None and not end.transport.is_closing():
                 end.transport.close()
         if not self._ended() and self._cut is None:
-            self._cut = self._loop.call_later(self.grace_s, self._abort)
+            self._cut = self._loop.call_later(self.grace_s, self.abort)
 
-    def _abort(self) -> None:
+    def abort(self) -> None:
+        """Cut both connections, their unsent bytes dropped."""
         for end in (self.client, self.server):
             if end.transport is not None and not end.lost:
                 end.transport.abort()
