@@ -10,7 +10,6 @@ import asyncio
 import csv
 import json
 import logging
-import os
 import threading
 
 import aiohttp
@@ -20,7 +19,7 @@ from touch4d.bus import Node
 from touch4d.bus.testing import collect
 from touch4d.messages import StudyCommand
 from touch4d.web.invites import Invites
-from touch4d.web.protocol import MAX_PAGE_MESSAGE, frame_header, pack_frame
+from touch4d.web.protocol import MAX_PAGE_MESSAGE, pack_frame
 from touch4d.web.server import WS_HEARTBEAT_S, PageServer
 
 from test_study_server_places import _reap, _server, _serving, _stack, _until
