@@ -1,8 +1,8 @@
 """The page's WebSocket through the study server, in process, to a real page server (PageServer, as a
 participant's node serves it; a `sleep` process stands as the rest of the stack): spliced byte for
 byte, messages and frames pass unchanged, the participant's page counted open and, when either side
-closes or the headset vanishes (no pong: the page server's heartbeat), paused; a second page gets the
-page server's 503; its message limit holds; the wire trace rows; after the splice nothing more reaches
+closes or the headset vanishes (no pong: the page server's heartbeat), paused; a page over its
+max_pages gets the page server's 503; its message limit holds; the wire trace rows; after the splice nothing more reaches
 the browser and aiohttp logs nothing."""
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def test_messages_and_frames_pass_unchanged_a_second_page_gets_503_and_a_close_p
         stack.page.send(stack.opened[0], frame)
         msg = await ws.receive(10)
         assert msg.type == aiohttp.WSMsgType.BINARY and msg.data == frame
-        # a second page of the participant: the page server's refusal, passed on (not parsed here)
+        # a page over the page server's max_pages: its refusal (503) passed on, not parsed here
         with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
             await session.ws_connect(f"{url}/ws", origin=url)
         assert refused.value.status == 503 and p.pages == 1

@@ -444,11 +444,13 @@ class StudyServer:
             status, headers, body = await splice.upgrade("127.0.0.1", p.port, upgrade, UPSTREAM_TIMEOUT_S)
         except (OSError, TimeoutError):
             raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} is not answering\n") from None
-        if status != 101:   # the page server's refusal (a second page: 503), passed on
+        if status != 101:   # the page server's refusal (over its max_pages: 503), passed on
             if not 400 <= status < 600:
                 raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} did not take the WebSocket\n")
             return web.Response(status=status, body=body,
                                 headers={"Content-Type": headers.get("Content-Type", "text/plain")})
+        # A browser sends nothing before the 101 (RFC 6455 4.1): the connection has no bytes of its
+        # own left with aiohttp when it is taken.
         if splice.join(request.transport):
             self._page_opened(p)
             self._splices.add(splice)
