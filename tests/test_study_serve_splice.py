@@ -2,8 +2,8 @@
 participant's node serves it; a `sleep` process stands as the rest of the stack): spliced byte for
 byte, messages and frames pass unchanged, the participant's page counted open and, when either side
 closes or the headset vanishes (no pong: the page server's heartbeat), paused; a page over its
-max_pages gets the page server's 503; its message limit holds; the wire trace rows; after the splice nothing more reaches
-the browser and aiohttp logs nothing."""
+max_pages gets the page server's 503; its message limit holds; the wire trace rows; after the
+splice nothing more reaches the browser and aiohttp logs nothing."""
 from __future__ import annotations
 
 import asyncio
