@@ -1,9 +1,13 @@
-"""The study server's wire trace: rows written from real page messages and frames, and pose -> pulse
-paired from a known synthetic trace."""
+"""The study server's wire trace: rows written from real page messages and frames (and from their
+bytes on the wire), and pose -> pulse paired from a known synthetic trace."""
+import asyncio
 import csv
 import json
+from types import SimpleNamespace
 
 import numpy as np
+from aiohttp import WSMsgType
+from aiohttp.http import WebSocketWriter
 
 from touch4d.web.protocol import pack_frame
 from touch4d.web.wiretrace import Move, WireTrace, pose_to_pulse
@@ -64,12 +68,6 @@ class _Wire:
 
 def _wire(masked: bool, messages) -> bytes:
     """The bytes of `messages` (str: text, bytes: binary) as aiohttp's writer frames them."""
-    import asyncio
-    from types import SimpleNamespace
-
-    from aiohttp.http import WebSocketWriter
-    from aiohttp import WSMsgType
-
     wire = _Wire()
     writer = WebSocketWriter(SimpleNamespace(_paused=False), wire, use_mask=masked)
 
