@@ -89,7 +89,7 @@ def _upgrade_request(request: web.Request, port: int) -> bytes | None:
     for name in HANDSHAKE_HEADERS:
         value = request.headers.get(name)
         if value is not None:
-            if not value.isprintable():   # no header of the browser's own smuggled in
+            if not (value.isascii() and value.isprintable()):   # no header of the browser's own smuggled in
                 return None
             lines.append(f"{name}: {value}")
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
