@@ -115,17 +115,15 @@ def test_messages_and_frames_pass_unchanged_a_second_page_gets_503_and_a_close_p
     assert int(rows[0][3]) < int(rows[1][3])
 
 
-async def _upgrade(url: str, session: aiohttp.ClientSession):
-    """A raw connection through the study server's /ws (the cookie's), its upgrade answered: (reader,
-    writer, the response head)."""
+async def _upgrade(url: str, session: aiohttp.ClientSession, key: bytes = b"dGhlIHNhbXBsZSBub25jZQ=="):
+    """A raw connection through the study server's /ws (the cookie's): (reader, writer, the response head)."""
     port = int(url.rsplit(":", 1)[1])
     cookie = "; ".join(f"{c.key}={c.value}" for c in session.cookie_jar)
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     writer.write((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: {url}\r\nCookie: {cookie}\r\n"
-                  "Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
-                  "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n").encode())
+                  "Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n").encode()
+                 + b"Sec-WebSocket-Key: " + key + b"\r\n\r\n")
     head = await reader.readuntil(b"\r\n\r\n")
-    assert head.startswith(b"HTTP/1.1 101 ") and b"s3pPLMBiTxaQ9kYGzzhZRbK+xOo=" in head   # RFC 6455's example
     return reader, writer, head
 
 
@@ -143,7 +141,11 @@ def test_a_headset_that_vanished_is_noticed_by_the_page_servers_heartbeat_and_no
 
     async def body(server, stack, url, session):
         p = server.participants["P01"]
+        _, refused, head = await _upgrade(url, session, key="€".encode())   # no header to pass on
+        assert head.startswith(b"HTTP/1.1 400 ")
+        refused.close()
         reader, writer, head = await _upgrade(url, session)
+        assert head.startswith(b"HTTP/1.1 101 ") and b"s3pPLMBiTxaQ9kYGzzhZRbK+xOo=" in head   # RFC 6455's example
         assert await _until(lambda: p.pages == 1, 10)
         # it reads nothing more and answers no ping (a headset gone without a word): the page server's
         # heartbeat closes it, and the splice with it
