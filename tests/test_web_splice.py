@@ -141,7 +141,7 @@ def test_either_sides_close_closes_the_other_after_its_last_bytes(closing):
 def test_a_client_that_never_reads_is_cut_once_it_stalled_and_after_the_grace_once_upstream_went():
     async def main():
         # stalled: the upstream (not read meanwhile) went, as the page server cuts a page taking no frame
-        splice, reader, writer, up_reader, up_writer, upstream = await spliced(high_water=1 << 16, stall_s=1.0)
+        splice, reader, writer, up_reader, up_writer, upstream = await spliced(high_water=1 << 16, stall_s=2.0)
         up_writer.write(os.urandom(32 << 20))    # more than the client's kernel buffers: it stays unsent
         await asyncio.sleep(0.3)
         assert not splice.server.transport.is_reading()
