@@ -36,10 +36,11 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 from urllib.parse import quote, urlsplit
 
 import aiohttp
-from aiohttp import WSMsgType, web
+from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.messages import StudyCommand, StudyTrial, decode
@@ -49,6 +50,7 @@ from touch4d.study.store import rows_written
 
 from .access import HOLDER, Access, CookieGate
 from .invites import EXPERIMENTER, Invites, check_participant
+from .splice import Splice
 from .wiretrace import WireTrace
 
 log = logging.getLogger("study-serve")
@@ -64,6 +66,8 @@ READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a load
 # everyone's touch.
 PARTICIPANTS_PER_CORE = 3
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
+HANDSHAKE_HEADERS = ("Sec-WebSocket-Key", "Sec-WebSocket-Version", "Sec-WebSocket-Protocol")
+UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket upgrade within this, else 502
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
 
@@ -72,6 +76,35 @@ def default_max_participants() -> int:
     process may run on (its CPU affinity), at least 2."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(2, PARTICIPANTS_PER_CORE * cores)
+
+
+def _upgrade_request(request: web.Request, port: int) -> bytes | None:
+    """The WebSocket upgrade sent to a participant's page server: its own Host and Origin (the study
+    server checked the browser's), and of the browser's headers only the WebSocket handshake's (no
+    cookie, no compression offered). None when the request is not a WebSocket upgrade."""
+    if request.headers.get("Upgrade", "").lower() != "websocket":
+        return None
+    lines = ["GET /ws HTTP/1.1", f"Host: 127.0.0.1:{port}", f"Origin: http://127.0.0.1:{port}",
+             "Upgrade: websocket", "Connection: Upgrade"]
+    for name in HANDSHAKE_HEADERS:
+        value = request.headers.get(name)
+        if value is not None:
+            if not (value.isascii() and value.isprintable()):   # no header of the browser's own smuggled in
+                return None
+            lines.append(f"{name}: {value}")
+    return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
+
+
+def _heard(p: Participant, feed: Callable[[bytes], None] | None) -> Callable[[bytes], None]:
+    """Called with each chunk the page sends: when it was last heard (and the wire trace's feed)."""
+    if feed is None:
+        def heard(data: bytes) -> None:
+            p.last_heard = time.time()
+    else:
+        def heard(data: bytes) -> None:
+            p.last_heard = time.time()
+            feed(data)
+    return heard
 
 
 def _free_port() -> int:
@@ -98,7 +131,7 @@ class Participant:
     proc: subprocess.Popen | None = None
     ready_file: Path | None = None
     pages: int = 0                     # its pages connected now
-    last_heard: float = 0.0            # wall clock of its page's last message
+    last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
 
@@ -125,6 +158,7 @@ class StudyServer:
         self.wire_trace = wire_trace
         self.launch = launch   # each participant's stack
         self._trace: WireTrace | None = None
+        self._splices: set[Splice] = set()     # the pages' WebSockets, spliced to their page servers
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
@@ -390,52 +424,46 @@ class StudyServer:
         return await self._proxy_http(request, p)
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        """The page's WebSocket, spliced byte for byte to its participant's page server once that
+        answered the upgrade 101 (touch4d.web.splice): this server parses no frame. The page server
+        enforces its limits (message size, flood, its heartbeat closing a page that vanished); either
+        side closing ends both, and the participant's page with them."""
         p = self._participant(request)
         origin = request.headers.get("Origin")
         if origin is not None and urlsplit(origin).netloc != request.host:
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
         if not p.running:
             raise web.HTTPNotFound(text="touch4d: join first\n")
-        try:
-            upstream = await self.client.ws_connect(f"ws://127.0.0.1:{p.port}/ws", max_msg_size=0,
-                                                    origin=f"http://127.0.0.1:{p.port}")
-        except aiohttp.ClientError:
-            raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} is not answering\n") from None
-        ws = web.WebSocketResponse(max_msg_size=1 << 20, compress=False, heartbeat=5.0)
-        await ws.prepare(request)
-        self._page_opened(p)
-
+        upgrade = _upgrade_request(request, p.port)
+        if upgrade is None or request.transport is None:
+            raise web.HTTPBadRequest(text="touch4d: /ws takes a WebSocket upgrade\n")
         trace = self._trace
-
-        async def up():
-            async for msg in ws:
-                p.last_heard = time.time()
-                if msg.type == WSMsgType.TEXT:
-                    if trace is not None:
-                        trace.page_in(p.id, msg.data)
-                    await upstream.send_str(msg.data)
-                elif msg.type == WSMsgType.BINARY:
-                    await upstream.send_bytes(msg.data)
-
-        async def down():
-            async for msg in upstream:
-                if msg.type == WSMsgType.BINARY:
-                    await ws.send_bytes(msg.data)
-                    if trace is not None:
-                        trace.frame_out(p.id, msg.data)
-                elif msg.type == WSMsgType.TEXT:
-                    await ws.send_str(msg.data)
-
-        tasks = [asyncio.ensure_future(up()), asyncio.ensure_future(down())]
+        splice = Splice(_heard(p, None if trace is None else trace.page_bytes(p.id)),
+                        None if trace is None else trace.frame_bytes(p.id))
         try:
-            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for task in tasks:
-                task.cancel()
-            await upstream.close()
-            await ws.close()
-            self._page_closed(p)
-        return ws
+            status, headers, body = await splice.upgrade("127.0.0.1", p.port, upgrade, UPSTREAM_TIMEOUT_S)
+        except (OSError, TimeoutError):
+            raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} is not answering\n") from None
+        if status != 101:   # the page server's refusal (over its max_pages: 503), passed on
+            if not 400 <= status < 600:
+                raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} did not take the WebSocket\n")
+            return web.Response(status=status, body=body,
+                                headers={"Content-Type": headers.get("Content-Type", "text/plain")})
+        # A browser sends nothing before the 101 (RFC 6455 4.1): the connection has no bytes of its
+        # own left with aiohttp when it is taken.
+        if splice.join(request.transport):
+            self._page_opened(p)
+            self._splices.add(splice)
+            try:
+                await splice.closed
+            finally:
+                splice.close()
+                self._splices.discard(splice)
+                self._page_closed(p)
+                # aiohttp's handler of the connection forgets it (it would have heard the close but
+                # for the splice); the response below finds no transport and writes nothing
+                request.protocol.connection_lost(None)
+        return web.Response()
 
     def _await_page(self, p: Participant) -> None:
         """A stack just started: if no page of its participant connects within `leave_after_s` (at
@@ -570,6 +598,8 @@ class StudyServer:
             watch.cancel()
             for p in self.participants.values():
                 self._stop_stack(p, p.state)
+            for splice in list(self._splices):
+                splice.close()
             await self.client.close()
             await runner.cleanup()
             if self._trace is not None:

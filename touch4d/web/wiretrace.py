@@ -1,6 +1,10 @@
 """Pose -> pulse as the study server sees it: when each page input arrives and when each frame,
 with the controller's intensity it carries, leaves for the page (`touch4d study serve --wire-trace`).
 
+With the page's WebSocket spliced byte for byte (touch4d.web.splice), `page_bytes` and `frame_bytes`
+are fed each direction's bytes as they pass and read them into messages with aiohttp's own
+WebSocket frame reader, only while a trace is asked for.
+
 The trace is a CSV, one row per message: participant, `in` or `out`, the input's `time` (the page's
 clock, ms: it names the input) or the frame's `haptic` (0..1), and the server's monotonic clock (ns).
 `pose_to_pulse` pairs each move of a controller (the input that moves it into or out of an object)
@@ -15,8 +19,13 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
-from .protocol import frame_header
+from aiohttp import WSMessage, WSMsgType
+from aiohttp._websocket.reader import WebSocketDataQueue   # the queue aiohttp's WebSocketResponse reads
+from aiohttp.http import WebSocketReader
+
+from .protocol import MAX_PAGE_MESSAGE, frame_header
 
 TOUCHING = 0.05   # a frame's haptic above this: the controller plays the touch
 
@@ -48,8 +57,42 @@ class WireTrace:
         if header.get("kind") == "frame":
             self._rows.writerow((participant, "out", repr(float(header.get("haptic", 0.0))), now))
 
+    def page_bytes(self, participant: str) -> Callable[[bytes], None]:
+        """A feed for the bytes a page sends (its WebSocket frames, masked): `page_in` for each text
+        message as its last byte arrives."""
+        def message(msg: WSMessage) -> None:
+            if msg.type == WSMsgType.TEXT:
+                self.page_in(participant, msg.data)
+        return _frames(message, MAX_PAGE_MESSAGE)
+
+    def frame_bytes(self, participant: str) -> Callable[[bytes], None]:
+        """A feed for the bytes sent to a page, called once they left: `frame_out` for each binary
+        message they complete."""
+        def message(msg: WSMessage) -> None:
+            if msg.type == WSMsgType.BINARY:
+                self.frame_out(participant, msg.data)
+        return _frames(message, 0)   # the participant's own node: no limit to its frames
+
     def close(self) -> None:
         self._file.close()
+
+
+class _Messages(WebSocketDataQueue):
+    """aiohttp's WebSocket message queue, but each message handed on as the reader completes it
+    (nothing is queued: nobody awaits `read()`, and the reader never stalls)."""
+
+    def __init__(self, on_message: Callable[[WSMessage], None]):
+        super().__init__(None, 1 << 16, loop=None)   # no protocol to pause, no loop: never awaited
+        self.on_message = on_message
+
+    def feed_data(self, data: WSMessage, size: int) -> None:
+        self.on_message(data)
+
+
+def _frames(on_message: Callable[[WSMessage], None], max_msg_size: int) -> Callable[[bytes], None]:
+    """Bytes of one direction of a WebSocket in, `on_message` per message out (aiohttp's frame reader;
+    after a protocol error it reads nothing more: the page's node closes that connection)."""
+    return WebSocketReader(_Messages(on_message), max_msg_size, compress=False, decode_text=True).feed_data
 
 
 @dataclass(frozen=True)
