@@ -20,6 +20,7 @@ repeated. At the end: phase `done` (motors gated off, nothing drawn) and a `safe
 from __future__ import annotations
 
 import json
+import math
 import time
 
 from touch4d.boards.config import load_glove_can
@@ -58,7 +59,6 @@ class StudyNode(Node):
         "break_s": Param(0.0, "a break ends by itself after this long (0: when the participant goes on)", unit="s",
                          min=0),
         "rate": Param(5.0, "study/trial repeats, so a (re)started node gates at once", unit="Hz", above=0, max=100),
-        "tick_hz": Param(100.0, "how often the trial's clock is checked", unit="Hz", above=0, max=1000),
     }
 
     def setup(self) -> None:
@@ -108,7 +108,7 @@ class StudyNode(Node):
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors)
         self.create_subscription("hand/pose", HandPose, self.on_pose)
-        self.create_timer(1.0 / p["tick_hz"], self.tick)
+        self._check = None   # the one-shot timer at the machine's next deadline (TrialMachine.next_check)
         self.create_timer(1.0 / p["rate"], self.publish_trial)
         self.log.info("study %s, participant %s: %d trials (%s), %d already done; writing %s", self.study.name,
                       p["participant"], len(self.plan), ", ".join(order), len(self.plan) - len(remaining),
@@ -134,6 +134,18 @@ class StudyNode(Node):
             elif isinstance(event, Finished):
                 self.stop_pub.publish(Stop(reason="study session complete", origin=self.name))
                 self.log.info("session complete: %d trials in %s", len(self.trials.rows), self.directory / TRIALS)
+        self._schedule()
+
+    def _schedule(self) -> None:
+        """Check the trial's clock when the machine next has something to do (an onset, a timeout, the
+        end of a break, a scene to send again), not at a polling rate: a participant's process wakes
+        for its trials' deadlines only."""
+        due = self.machine.next_check()
+        if self._check is not None:
+            self._check.cancel()
+            self._check = None
+        if math.isfinite(due):
+            self._check = self.call_later(max(0.0, due - time.time()), self.tick)
 
     def _write(self, done: TrialDone) -> None:
         self.trials.write(done.row)                    # fsync'd before anything else happens
@@ -180,6 +192,7 @@ class StudyNode(Node):
 
     def on_scene(self, msg: SceneState) -> None:
         self.machine.scene_shown(msg)
+        self._schedule()   # the trial's scene shown: its onset may be due
 
     def on_motors(self, msg: MotorCommand) -> None:
         self.machine.motors(msg.stamp, msg.intensity)

@@ -224,3 +224,29 @@ def test_exploration_counts_what_the_glove_delivered_in_the_trial_window(study):
     assert row["time_touching_s"] == pytest.approx(0.25)
     assert row["mean_intensity"] == pytest.approx((0.25 * 0.5 + 0.75 * 0.01) / 1.0)
     assert json.loads(row["transform"]) == [list(p) for p in plan[2].transform]
+
+
+def test_next_check_is_the_next_deadline_on_the_machines_clock(study):
+    """What a runner waits for instead of polling: the end of the inter-trial interval once the scene is
+    shown, the time limit from the onset, a scene sent again while missing; nothing while paused."""
+    import math
+    machine, clock = make(study)
+    assert machine.next_check() == math.inf              # not started
+    machine.start()
+    machine.drain()
+    assert machine.next_check() == START + RELOAD_PERIOD_S     # its scene not shown yet: sent again then
+    if machine.phase == Phase.BREAK:
+        shown(machine)
+        assert machine.next_check() == math.inf          # a break without break_s waits for the participant
+        machine.go_on()
+        machine.drain()
+    shown(machine)
+    assert machine.phase == Phase.IDLE and machine.next_check() == pytest.approx(clock.now + ITI)
+    clock.now += ITI - 0.01
+    machine.tick()
+    assert machine.phase == Phase.IDLE                   # a check before the deadline does nothing
+    clock.now += 0.01
+    machine.tick()
+    assert machine.phase == Phase.STIMULUS and machine.next_check() == pytest.approx(clock.now + STUDY["time_limit_s"])
+    machine.pause(True, "test")
+    assert machine.next_check() == math.inf

@@ -23,6 +23,7 @@ answers' stamps compare with the onset); a test passes a fake and moves it by ha
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -152,6 +153,23 @@ class TrialMachine:
         elif self.phase == Phase.STIMULUS:
             if now - self.onset >= self.current.time_limit_s:
                 self._end_trial(None, None)
+
+    def next_check(self) -> float:
+        """When (on the machine's clock) `tick` next has something to do unless an event comes first;
+        inf: only an event moves the session on. A runner waits for it instead of polling `tick`."""
+        if self.phase in (Phase.DONE, Phase.PAUSED) or self.current is None:
+            return math.inf
+        wrong = not self._scene_kind_ok if self.phase == Phase.STIMULUS else not self._scene_ok
+        due = self._loaded_at + RELOAD_PERIOD_S if wrong else math.inf
+        if self.phase == Phase.BREAK:
+            if self.break_s > 0:
+                due = min(due, self.since + self.break_s)
+        elif self.phase == Phase.IDLE:
+            if self._scene_ok:
+                due = min(due, self.since + self.iti_s)
+        elif self.phase == Phase.STIMULUS:
+            due = min(due, self.onset + self.current.time_limit_s)
+        return due
 
     def _advance(self, first: bool = False) -> None:
         """Go to the next unanswered trial: a break first at a block's start or where the plan offers one."""
