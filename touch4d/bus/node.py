@@ -39,6 +39,7 @@ HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
 _HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
 _MAX_BATCH = 4096
+_MAX_RAW_NAMES = 4096   # topic names kept decoded for raw subscribers (a flood of new topics is not kept)
 _SNDMORE, _NOBLOCK, _RCVMORE = zmq.SNDMORE, zmq.NOBLOCK, zmq.RCVMORE
 _MAX_LOGGED_CAUSES = 200
 
@@ -203,6 +204,7 @@ class Node:
             self._pub.close(linger=0)
             raise
         self._owns_executor = executor is None
+        self._raw_names: dict[bytes, str] = {}
         self._timers: list[Timer] = []   # on a shared executor: cancelled when this node shuts down
         self.executor = Executor(on_error=self._callback_failed) if executor is None else executor
         self._local_routes = self.executor.local
@@ -576,9 +578,15 @@ class Node:
         return handled
 
     def _raw_name(self, topic: bytes) -> str:
-        """A topic as a raw subscriber of this node sees it: relative to its namespace."""
-        name = topic.decode(errors="replace")
-        return (names.relative(name, self.namespace) or name) if self.namespace else name
+        """A topic as a raw subscriber of this node sees it: relative to its namespace (worked out once
+        per topic: a recorder's tap asks for every message)."""
+        name = self._raw_names.get(topic)
+        if name is None:
+            text = topic.decode(errors="replace")
+            name = (names.relative(text, self.namespace) or text) if self.namespace else text
+            if len(self._raw_names) < _MAX_RAW_NAMES:
+                self._raw_names[topic] = name
+        return name
 
     def _deliver_raw_local(self, topic: bytes, payload: bytes, sub: Subscription) -> None:
         """A private topic's message published in this process, to a raw subscriber (touch4d.bus.local)."""

@@ -33,6 +33,9 @@ def _wanted(topic: bytes, wanted: set[bytes]) -> bool:
 
 
 HEARTBEAT = b"node/heartbeat"
+WRITE_PERIOD_S = 0.05   # the writer thread looks for messages this often when idle: it wakes (and takes
+                        # the interpreter lock from the node's thread) 20 times a second, not 100; a crash
+                        # loses at most this more than the flush interval
 
 
 def _size(n: int) -> str:
@@ -101,6 +104,7 @@ class Recorder:
         self._context = context or bus_context(realtime)
         self._queue: deque[tuple[str, bytes, int]] = deque()   # (topic, payload, receive time ns)
         self._names: dict[bytes, str] = {}
+        self._resolved: dict[str, bytes] = {}   # an offered topic -> its name on the bus
         self._stopping = threading.Event()
         self._received = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -183,7 +187,9 @@ class Recorder:
         """A message no socket brings (a group's private topic, `Node.tap_private`; `topic` relative to
         the namespace), from the thread that published it: recorded as if received (deque appends
         are atomic; the receive thread's count is its own)."""
-        bus_topic = names.resolve(topic, self.namespace).encode()
+        bus_topic = self._resolved.get(topic)
+        if bus_topic is None:
+            bus_topic = self._resolved[topic] = names.resolve(topic, self.namespace).encode()
         if not self._stopping.is_set() and self._keeps([bus_topic, payload]):
             self._queue.append((topic, payload, self._clock()))
             self.offered += 1
@@ -233,7 +239,7 @@ class Recorder:
                 if not n:
                     if done:
                         break
-                    time.sleep(0.01)
+                    time.sleep(WRITE_PERIOD_S)
         except Exception as exc:  # noqa: BLE001 - disk full, I/O error: stop and say so, never hang
             self.error = self._write_error(exc)
             self._stopping.set()
