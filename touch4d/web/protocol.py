@@ -84,9 +84,18 @@ class PageError(Touch4dError, ValueError):
 # ---- node -> page ----------------------------------------------------------------------------------
 
 
-def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None) -> bytes:
-    """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned."""
+def json_members(fields: dict) -> bytes:
+    """`fields` as the members of a JSON object (`"key":value,...`, no braces): a frame's fields that
+    change rarely, encoded once per change and given to every `pack_frame` until then."""
+    return json.dumps(fields, separators=(",", ":"), allow_nan=False).encode()[1:-1]
+
+
+def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None,
+               members: bytes = b"") -> bytes:
+    """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
+    `members`: more fields already encoded (`json_members`), none of them also in `fields`."""
     arrays = arrays or {}
+    opening = b'{"kind":' + json.dumps(kind).encode() + b"," + (members + b"," if members else b"")
     table, blobs = {}, []
     clean = {}
     for name, arr in arrays.items():
@@ -106,8 +115,8 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
             for name, arr in clean.items():
                 table[name][2] = offset
                 offset = _align(offset + arr.nbytes)
-        header = json.dumps({"kind": kind, **(fields or {}), "arrays": table}, separators=(",", ":"),
-                            allow_nan=False).encode()
+        header = opening + json.dumps({**(fields or {}), "arrays": table}, separators=(",", ":"),
+                                      allow_nan=False).encode()[1:]
         if _align(_LEN.size + len(header)) == start:
             break
         start = _align(_LEN.size + len(header))
