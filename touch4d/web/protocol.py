@@ -94,29 +94,32 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
                members: bytes = b"") -> bytes:
     """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
     `members`: more fields already encoded (`json_members`), none of them also in `fields`."""
-    arrays = arrays or {}
-    opening = b'{"kind":' + json.dumps(kind).encode() + b"," + (members + b"," if members else b"")
-    table, blobs = {}, []
-    clean = {}
-    for name, arr in arrays.items():
+    head = b'{"kind":' + json.dumps(kind).encode() + b","
+    if members:
+        head += members + b","
+    if fields:
+        head += json_members(fields) + b","
+    head += b'"arrays":{'
+    entries, clean = [], []
+    for name, arr in (arrays or {}).items():
         arr = np.ascontiguousarray(arr)
-        dtype = arr.dtype.newbyteorder("<").str[1:]
-        if dtype not in ARRAY_DTYPES:
-            raise ValueError(f"array {name!r}: dtype {arr.dtype} is not one of {', '.join(ARRAY_DTYPES)}")
-        clean[name] = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
-        table[name] = [dtype, list(arr.shape), 0]
-    # The offsets depend on the header's length, which depends on the offsets' digits: encode until
-    # the arrays' start no longer moves. The first guess is where the last frame of this kind had
-    # them (the header is most of a frame's cost: per tick, one encode instead of two or three).
-    start, header = _last_start.get(kind), b""
+        entry = _entry(name, arr)
+        if arr.dtype.byteorder == ">":
+            arr = arr.astype(arr.dtype.newbyteorder("<"))
+        entries.append(entry)
+        clean.append(arr)
+    # The offsets depend on the header's length, which depends on the offsets' digits: until the
+    # arrays' start no longer moves, only the array table is written again. The first guess is where
+    # the last frame of this kind had them.
+    start, header, offsets = _last_start.get(kind), b"", []
     for _ in range(8):
         if start is not None:
-            offset = start
-            for name, arr in clean.items():
-                table[name][2] = offset
+            offsets, offset = [], start
+            for arr in clean:
+                offsets.append(offset)
                 offset = _align(offset + arr.nbytes)
-        header = opening + json.dumps({**(fields or {}), "arrays": table}, separators=(",", ":"),
-                                      allow_nan=False).encode()[1:]
+        header = head + ",".join(f"{entry}{offset}]" for entry, offset in
+                                 zip(entries, offsets or [0] * len(entries))).encode() + b"}}"
         if _align(_LEN.size + len(header)) == start:
             break
         start = _align(_LEN.size + len(header))
@@ -124,11 +127,28 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
         raise AssertionError("frame header offsets did not settle")
     _last_start[kind] = start
     out = bytearray(_LEN.pack(len(header)) + header)
-    for name, arr in clean.items():
-        out += bytes(table[name][2] - len(out))
+    for offset, arr in zip(offsets, clean):
+        out += bytes(offset - len(out))
         out += arr.tobytes()
     out += bytes(_align(len(out)) - len(out))
     return bytes(out)
+
+
+_ENTRIES: dict[tuple, str] = {}   # (name, dtype, shape) -> its array table entry up to the offset
+
+
+def _entry(name: str, arr: np.ndarray) -> str:
+    """`"name":["f4",[shape],` (JSON): an array's entry in the frame's table, its offset to follow."""
+    key = (name, arr.dtype, arr.shape)
+    entry = _ENTRIES.get(key)
+    if entry is None:
+        dtype = arr.dtype.newbyteorder("<").str[1:]
+        if dtype not in ARRAY_DTYPES:
+            raise ValueError(f"array {name!r}: dtype {arr.dtype} is not one of {', '.join(ARRAY_DTYPES)}")
+        if len(_ENTRIES) >= 1024:   # shapes that vary (a section's triangles) must not grow it without bound
+            _ENTRIES.clear()
+        entry = _ENTRIES[key] = json.dumps({name: [dtype, list(arr.shape)]}, separators=(",", ":"))[1:-2] + ","
+    return entry
 
 
 def frame_header(data: bytes) -> dict:
