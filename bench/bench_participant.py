@@ -9,9 +9,10 @@ and encoded once by its publisher, decoded without a second check by each subscr
 the page's node, the tactile model and the study node; controller/state by the scene node;
 tactile/field by the page's node; tactile/motors by the page's node and the study node). The page's
 inputs are bench/bench_serve.py's: the grip in and out of the hypercube's front cell every 300 ms,
-at 72 Hz on a simulated clock, and the node's 90 Hz tick sends a frame whenever one is due. Not
-here: the sockets (the page server's thread), the study and scene nodes' own handling of what they
-decode, the recorder.
+at 72 Hz on a simulated clock, and the node's 90 Hz tick sends a frame whenever one is due; the
+study node measures each pose and motor command (touch4d.study.measures, as in a trial's stimulus).
+Not here: the sockets (the page server's thread), the executor, the scene node's handling of
+controller/state (nothing while the trigger is released), the recorder.
 
 Figures, CPU microseconds per input (time.process_time: other load on the machine is not counted;
 the best of a few repeats): the whole path; then the same path with each stage timed (its own time,
@@ -35,6 +36,7 @@ import touch4d.web.bridge as bridge_module
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, HandPose, MotorCommand, StudyTrial, TactileField
 from touch4d.tactile.engine import HandSource, TactileEngine
+from touch4d.study.measures import TrialMeasures
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import load_calibration, load_placement
@@ -101,6 +103,8 @@ class Participant:
         self.engine = TactileEngine(glove, joints=False)
         self.engine.set_scene(load_scene(SCENE).to_message())
         self.hand = HandSource(self.engine)
+        # the study node's share: in a trial's stimulus its machine measures every pose and motor command
+        self.measures = TrialMeasures(threshold=glove.touch_threshold)
         self.frames = 0
         self.haptic_frames = 0
         self.bridge = WebBridge(BridgeConfig(tracker=True, hand="right", hand_source="controller",
@@ -114,10 +118,12 @@ class Participant:
                               condition="touch", options=["a", "b"], onset=1.0))
         self.subscribers = {   # topic -> (type, callback) per subscribing node, as the nodes subscribe
             "hand/pose": [(HandPose, wrap("bridge: on_hand_pose", b.on_hand_pose)),
-                          (HandPose, wrap("tactile: on_pose", self.on_pose)), (HandPose, None)],
+                          (HandPose, wrap("tactile: on_pose", self.on_pose)),
+                          (HandPose, wrap("study: pose", lambda m: self.measures.add_pose(m.stamp, m.position, m.valid)))],
             "controller/state": [(ControllerState, None)],
             "tactile/field": [(TactileField, wrap("bridge: on_field", b.on_field))],
-            "tactile/motors": [(MotorCommand, wrap("bridge: on_motors", b.on_motors)), (MotorCommand, None)],
+            "tactile/motors": [(MotorCommand, wrap("bridge: on_motors", b.on_motors)),
+                               (MotorCommand, wrap("study: motors", lambda m: self.measures.add_motors(m.stamp, m.intensity)))],
         }
         self.encode = wrap("publish: check + encode", lambda msg, seq: msg.publish_payload(seq))
         self.decode = wrap("decode", lambda cls, payload: cls._decode(payload))

@@ -32,7 +32,9 @@ class TrialMeasures:
         self._poses = self._poses[-1:]
 
     def add_motors(self, stamp: float, intensity: np.ndarray) -> None:
-        intensity = np.nan_to_num(np.asarray(intensity, dtype=float))
+        intensity = np.asarray(intensity, dtype=float)
+        if not np.isfinite(intensity.sum()):     # NaN as 0 (a finite sum proves every value finite: as is)
+            intensity = np.nan_to_num(intensity)
         mean = float(intensity.mean()) if intensity.size else 0.0
         self._motors.append((stamp, bool((intensity > self.threshold).any()), mean))
 
