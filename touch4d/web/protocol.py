@@ -126,12 +126,12 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
     else:
         raise AssertionError("frame header offsets did not settle")
     _last_start[kind] = start
-    out = bytearray(_LEN.pack(len(header)) + header)
+    parts, end = [_LEN.pack(len(header)), header], _LEN.size + len(header)
     for offset, arr in zip(offsets, clean):
-        out += bytes(offset - len(out))
-        out += arr.tobytes()
-    out += bytes(_align(len(out)) - len(out))
-    return bytes(out)
+        parts += (bytes(offset - end), arr.tobytes())
+        end = offset + arr.nbytes
+    parts.append(bytes(_align(end) - end))
+    return b"".join(parts)
 
 
 _ENTRIES: dict[tuple, str] = {}   # (name, dtype, shape) -> its array table entry up to the offset
