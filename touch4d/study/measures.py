@@ -2,6 +2,7 @@
 the table's columns time touching, mean intensity and hand path (touch4d.study.table)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +34,7 @@ class TrialMeasures:
 
     def add_motors(self, stamp: float, intensity: np.ndarray) -> None:
         intensity = np.asarray(intensity, dtype=float)
-        if not np.isfinite(intensity.sum()):     # NaN as 0 (a finite sum proves every value finite: as is)
+        if not math.isfinite(intensity.sum()):     # NaN as 0 (a finite sum proves every value finite: as is)
             intensity = np.nan_to_num(intensity)
         mean = float(intensity.mean()) if intensity.size else 0.0
         self._motors.append((stamp, bool((intensity > self.threshold).any()), mean))

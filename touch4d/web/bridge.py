@@ -33,6 +33,7 @@ import collections
 import dataclasses
 import functools
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -269,7 +270,7 @@ class WebBridge:
         if len(msg.h) == len(self._h):
             h = msg.h.astype(np.float32)
             # NaN as 0; a finite sum proves every value finite (then nan_to_num would change nothing)
-            self._h = h if np.isfinite(h.sum(dtype=np.float64)) else np.nan_to_num(msg.h).astype(np.float32)
+            self._h = h if math.isfinite(h.sum(dtype=np.float64)) else np.nan_to_num(msg.h).astype(np.float32)
             self._touched = np.isfinite(msg.l).astype(np.uint8)
             self._dirty = True
 
