@@ -94,7 +94,9 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
                members: bytes = b"") -> bytes:
     """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
     `members`: more fields already encoded (`json_members`), none of them also in `fields`."""
-    head = b'{"kind":' + json.dumps(kind).encode() + b","
+    head = _HEADS.get(kind)
+    if head is None:
+        head = _HEADS[kind] = b'{"kind":' + json.dumps(kind).encode() + b","
     if members:
         head += members + b","
     if fields:
@@ -134,6 +136,7 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
     return b"".join(parts)
 
 
+_HEADS: dict[str, bytes] = {}      # kind -> the header's start, `{"kind":"frame",`
 _ENTRIES: dict[tuple, str] = {}   # (name, dtype, shape) -> its array table entry up to the offset
 
 
