@@ -36,8 +36,8 @@ import numpy as np
 import touch4d.web.bridge as bridge_module
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, HandPose, MotorCommand, StudyTrial, TactileField
-from touch4d.tactile.engine import HandSource, TactileEngine
 from touch4d.study.measures import TrialMeasures
+from touch4d.tactile.engine import HandSource, TactileEngine
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import load_calibration, load_placement
@@ -108,7 +108,6 @@ class Participant:
         # the study node's share: in a trial's stimulus its machine measures every pose and motor command
         self.measures = TrialMeasures(threshold=glove.touch_threshold)
         self.frames = 0
-        self.haptic_frames = 0
         self.bridge = WebBridge(BridgeConfig(tracker=True, hand="right", hand_source="controller",
                                              controller_hand="right", study_gate="closed", stale_s=0.06),
                                 glove, load_calibration(CALIBRATION, "hand_in_grip"), load_placement(CALIBRATION),
