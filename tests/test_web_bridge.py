@@ -311,3 +311,18 @@ def test_each_change_of_boards_study_or_scene_shows_in_the_next_frame_and_stays(
     assert again["n"] == header["n"] + 1 and again["time"] == rig.clock.t and again["hand_valid"] is True
     assert {k: v for k, v in again.items() if k not in ("n", "time", "hand_valid", "arrays")} == \
         {k: v for k, v in header.items() if k not in ("n", "time", "hand_valid", "arrays")}
+
+
+def test_the_frame_shows_a_nan_strength_as_zero_and_keeps_the_others():
+    rig = Rig(tracker=False)
+    n = len(GLOVE.samples)
+    h = np.linspace(0.0, 1.0, n)
+    h[3] = np.nan                                  # a field handed over unchecked (on_field is called directly)
+    rig.bridge.on_field(TactileField(positions=np.zeros((n, 3)), l=np.full(n, 0.5), s=h, h=h))
+    _, arrays = unpack_frame(rig.bridge.frame())
+    expected = np.linspace(0.0, 1.0, n).astype(np.float32)
+    expected[3] = 0.0
+    np.testing.assert_array_equal(arrays["h"], expected)
+    rig.bridge.on_field(TactileField(positions=np.zeros((n, 3)), l=np.full(n, 0.5), s=h, h=np.full(n, 0.25)))
+    _, arrays = unpack_frame(rig.bridge.frame())
+    assert arrays["h"].tolist() == [0.25] * n
