@@ -66,6 +66,7 @@ MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
 BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b) | frozenset(THUMBSTICK_BUTTONS)
 _LEN = struct.Struct("<I")
+_to_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode   # json.dumps's, made once (per frame)
 _last_start: dict[str, int] = {}   # kind -> where the arrays of its last frame started (pack_frame's first guess)
 
 
@@ -87,7 +88,7 @@ class PageError(Touch4dError, ValueError):
 def json_members(fields: dict) -> bytes:
     """`fields` as the members of a JSON object (`"key":value,...`, no braces): a frame's fields that
     change rarely, encoded once per change and given to every `pack_frame` until then."""
-    return json.dumps(fields, separators=(",", ":"), allow_nan=False).encode()[1:-1]
+    return _to_json(fields).encode()[1:-1]
 
 
 def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None,
