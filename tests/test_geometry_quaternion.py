@@ -85,3 +85,19 @@ def test_to_matrix_turns_x_to_y_at_90_degrees_about_z_and_scales_by_the_squared_
     assert np.allclose(qt.to_matrix(q) @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
     assert np.array_equal(qt.to_matrix([0, 0, 0, 1]), np.eye(3))
     assert np.allclose(qt.to_matrix(2.0 * q), 4.0 * rodrigues([0, 0, 1], np.pi / 2), atol=1e-14)
+
+
+@pytest.mark.parametrize("a, b", PAIRS[:10])
+def test_the_float_forms_match_scipy(a, b):
+    # product, unit and rotate: the per-pose path's Python-float forms of multiply, canonical and to_matrix @ v
+    got = qt.product(a.as_quat().tolist(), b.as_quat().tolist())
+    assert isinstance(got, tuple) and all(type(v) is float for v in got)
+    assert np.allclose(Rotation.from_quat(got).as_matrix(), (a * b).as_matrix(), rtol=0, atol=1e-14)
+    expected = a.as_quat() if a.as_quat()[3] >= 0 else -a.as_quat()
+    assert np.allclose(qt.unit((-3.0 * a.as_quat()).tolist()), expected, rtol=0, atol=1e-15)
+    v = RNG.uniform(-2, 2, 3)
+    assert np.allclose(qt.rotate(a.as_quat().tolist(), v.tolist()), a.apply(v), rtol=0, atol=1e-14)
+
+
+def test_unit_of_a_zero_or_nan_quaternion_is_nan():
+    assert np.isnan(qt.unit((0.0, 0.0, 0.0, 0.0))).all() and np.isnan(qt.unit((np.nan, 0.0, 0.0, 1.0))).all()

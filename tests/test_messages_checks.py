@@ -502,3 +502,17 @@ def test_a_message_is_not_checked_until_it_is_published():
         msg.publish_payload(0)
     msg.intensity = np.array([1.0, 0.5])
     assert decode(msg.publish_payload(0), MotorCommand).intensity.tolist() == [1.0, 0.5]
+
+
+@pytest.mark.parametrize("n", [1, 30, 64, 65, 500])
+def test_a_negative_motor_intensity_is_refused_on_publish_and_on_decode(n):
+    for k in (0, n // 2, n - 1):
+        intensity = np.full(n, 0.25, np.float32)
+        intensity[k] = -1e-6
+        msg = MotorCommand(names=[f"m{i}" for i in range(n)], intensity=intensity)
+        with pytest.raises(MessageError, match=r"^MotorCommand.intensity: expected values >= 0"):
+            msg.publish_payload(0)
+        with pytest.raises(MessageError, match=r"^MotorCommand.intensity: expected values >= 0"):
+            decode(pack(msg))   # written without the check, as another process might
+    ok = MotorCommand(names=[f"m{i}" for i in range(n)], intensity=np.zeros(n))
+    assert decode(ok.publish_payload(0), MotorCommand).intensity.tolist() == [0.0] * n

@@ -125,6 +125,15 @@ def test_measures_hold_each_sample_until_the_next_and_clip_to_the_window():
     assert later.time_touching_s == pytest.approx(1.0) and later.path_length == 0.0
 
 
+def test_a_motor_command_with_nan_counts_it_as_zero():
+    m = TrialMeasures(threshold=0.02)
+    m.add_motors(10.0, np.array([np.nan, 0.6, 0.0]))    # mean (0 + 0.6 + 0) / 3, touching
+    m.add_motors(11.0, np.array([np.nan, np.nan, 0.01]))   # below the threshold: not touching
+    result = m.measure(onset=10.0, end=12.0)
+    assert result.time_touching_s == pytest.approx(1.0)
+    assert result.mean_intensity == pytest.approx((0.2 + 0.01 / 3) / 2)
+
+
 def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_overrides_win(tmp_path):
     from touch4d.bus.launchfile import load_launch
     from touch4d.cli import build_parser

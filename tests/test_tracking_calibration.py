@@ -99,3 +99,21 @@ def test_node_rates_must_be_finite_and_in_range(value):
         rate.check(value)
     assert str(err.value) == "a finite number > 0 and <= 1000 (Hz)" and err.value.got is value
     assert rate.check(1000) == 1000.0 and isinstance(rate.check(1000), float)
+
+
+def test_hand_from_controller_is_scipys_composition_for_any_calibration():
+    # independent: scipy's Rotation composes the frames, numpy maps the point
+    rng = np.random.default_rng(8)
+    cal = make(center=(0.3, 1.1, -0.4), steps=[("y", 35), ("x", -10)], edge=0.6, offset=(0.02, -0.03, 0.1),
+               hand_steps=[("x", -90), ("z", 20)])
+    for _ in range(20):
+        position = rng.uniform(-1, 2, 3)
+        controller = Rotation.random(random_state=rng)
+        pos, quat = cal.hand_from_controller(position, controller.as_quat() * rng.choice([-1.0, 1.0]))
+        hand_room = position + controller.apply([0.02, -0.03, 0.1])
+        expected_pos = cal.screen_rotation.inv().apply(hand_room - cal.center_m) * (2.0 / 0.6)
+        expected = cal.screen_rotation.inv() * controller * cal.hand_rotation
+        assert isinstance(pos, np.ndarray) and pos.shape == (3,) and quat.shape == (4,)
+        np.testing.assert_allclose(pos, expected_pos, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), expected.as_matrix(), rtol=0, atol=1e-12)
+        assert quat[3] >= 0 and abs(np.linalg.norm(quat) - 1.0) < 1e-15

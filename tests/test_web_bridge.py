@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from touch4d.geometry.scene import load_scene
-from touch4d.messages import HandPose, MotorCommand, MotorStatus, TactileField
+from touch4d.messages import HandPose, MotorCommand, MotorStatus, StudyTrial, TactileField
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import Placement, load_calibration
 from touch4d.web.bridge import BridgeConfig, ClockMap, WebBridge
@@ -281,3 +281,48 @@ def test_clock_map_removes_the_offset_and_keeps_the_delay_above_the_best():
         kept.append(arrival - clock.stamp(page, arrival))
     # what the stamp keeps of each delay: all of it above the best one seen so far (4 ms, then 2 ms)
     assert kept == pytest.approx([0.0, 0.0, 0.008, 0.001], abs=1e-9)
+
+
+def test_each_change_of_boards_study_or_scene_shows_in_the_next_frame_and_stays():
+    # the frame's rarely changing fields are encoded once per change: every change must still reach the page
+    rig = Rig(tracker=False)
+    rig.bridge.on_scene(SCENE.to_message())
+    first, _ = unpack_frame(rig.bridge.frame())
+    assert first["boards"] == [] and first["study"] is None and first["revision"] == SCENE.revision
+    board = dict(id=2, online=False, faults=[], last_frame=1.0, state="bus-off")
+    rig.bridge.on_status(MotorStatus(boards=[board], duty=np.zeros(len(GLOVE.motor_names)), bus_load=0.1, errors={}))
+    header, _ = unpack_frame(rig.bridge.frame())
+    assert header["boards"] == [{"id": 2, "online": False, "state": "bus-off"}]
+    rig.bridge.on_trial(StudyTrial(study="s", participant="P01", phase="stimulus", index=3, total=9,
+                                   condition="visual", prompt="Which?", options=["x", "y"], onset=1.0))
+    header, _ = unpack_frame(rig.bridge.frame())
+    assert header["study"]["prompt"] == "Which?" and header["study"]["index"] == 3
+    assert header["boards"] == [{"id": 2, "online": False, "state": "bus-off"}]
+    turned = SCENE.copy()
+    turned.revision, turned.selected = SCENE.revision + 7, 0
+    turned.objects[0].position = turned.objects[0].position + np.array([0.25, 0, 0, 0])
+    rig.bridge.on_scene(turned.to_message())
+    header, arrays = unpack_frame(rig.bridge.frame())
+    assert header["revision"] == SCENE.revision + 7 and header["study"]["prompt"] == "Which?"
+    np.testing.assert_allclose(arrays["t_objects"].reshape(-1, 4)[4], turned.objects[0].position, rtol=1e-6)
+    rig.clock.t += 1.0
+    rig.bridge.on_hand_pose(HandPose(position=[0.1, 0.2, 0.3], valid=True))
+    again, _ = unpack_frame(rig.bridge.frame())
+    assert again["n"] == header["n"] + 1 and again["time"] == rig.clock.t and again["hand_valid"] is True
+    assert {k: v for k, v in again.items() if k not in ("n", "time", "hand_valid", "arrays")} == \
+        {k: v for k, v in header.items() if k not in ("n", "time", "hand_valid", "arrays")}
+
+
+def test_the_frame_shows_a_nan_strength_as_zero_and_keeps_the_others():
+    rig = Rig(tracker=False)
+    n = len(GLOVE.samples)
+    h = np.linspace(0.0, 1.0, n)
+    h[3] = np.nan                                  # a field handed over unchecked (on_field is called directly)
+    rig.bridge.on_field(TactileField(positions=np.zeros((n, 3)), l=np.full(n, 0.5), s=h, h=h))
+    _, arrays = unpack_frame(rig.bridge.frame())
+    expected = np.linspace(0.0, 1.0, n).astype(np.float32)
+    expected[3] = 0.0
+    np.testing.assert_array_equal(arrays["h"], expected)
+    rig.bridge.on_field(TactileField(positions=np.zeros((n, 3)), l=np.full(n, 0.5), s=h, h=np.full(n, 0.25)))
+    _, arrays = unpack_frame(rig.bridge.frame())
+    assert arrays["h"].tolist() == [0.25] * n

@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from touch4d.web.protocol import MAX_PAGE_MESSAGE, PageError, pack_frame, parse_page_message, unpack_frame
+from touch4d.web.protocol import (MAX_PAGE_MESSAGE, PageError, json_members, pack_frame, parse_page_message,
+                                  unpack_frame)
 
 GRIP = [0.1, 1.2, -0.4, 0.0, 0.0, 0.0, 1.0]
 
@@ -67,6 +68,17 @@ def test_frames_of_one_kind_shrinking_and_growing_each_start_their_arrays_right_
         assert header["text"] == "x" * pad
         np.testing.assert_array_equal(back["a"], arrays["a"])
         np.testing.assert_array_equal(back["b"], arrays["b"])
+
+
+def test_fields_encoded_beforehand_read_as_the_frames_own():
+    steady = {"study": {"prompt": "Which?", "options": ["a", "b"]}, "boards": [], "eye": 2.5, "view": None}
+    arrays = {"h": np.arange(5, dtype=np.float32)}
+    header, back = unpack_frame(pack_frame("frame", {"n": 4, "time": 12.5}, arrays, json_members(steady)))
+    assert header == {"kind": "frame", "n": 4, "time": 12.5, **steady}
+    np.testing.assert_array_equal(back["h"], arrays["h"])
+    assert unpack_frame(pack_frame("frame", None, None, json_members({"x": 1})))[0] == {"kind": "frame", "x": 1}
+    with pytest.raises(ValueError):
+        json_members({"t": float("inf")})
 
 
 def test_frame_refuses_float64_and_nan_fields():

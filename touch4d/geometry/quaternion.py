@@ -1,4 +1,5 @@
-"""Unit quaternions (x, y, z, w) for one pose at a time, in plain numpy.
+"""Unit quaternions (x, y, z, w) for one pose at a time, in plain numpy (and on Python floats:
+`product`, `unit`, `rotate`, for a pose's few steps without an array between them).
 
 scipy's Rotation is the reference (the tests compare against it) and reads config, but costs tens
 of microseconds per call on single rotations; a tracker at 1 kHz composes several per pose, so the
@@ -18,15 +19,18 @@ IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation b followed by a (Hamilton product a * b)."""
-    # on Python floats: numpy's scalars cost ~5x more for these sixteen products
-    ax, ay, az, aw = np.asarray(a, dtype=float).tolist()
-    bx, by, bz, bw = np.asarray(b, dtype=float).tolist()
-    return np.array([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ])
+    return np.array(product(np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()))
+
+
+def product(a, b) -> tuple[float, float, float, float]:
+    """`multiply` on Python floats (sequences of four in, a tuple out): numpy's scalars cost ~5x more
+    for these sixteen products, and a pose's few steps need no array between them."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
 
 
 def conjugate(q: np.ndarray) -> np.ndarray:
@@ -44,6 +48,26 @@ def canonical(q: np.ndarray) -> np.ndarray:
     if w < 0:
         n = -n
     return np.array([x / n, y / n, z / n, w / n])
+
+
+def unit(q) -> tuple[float, float, float, float]:
+    """`canonical` on Python floats (a sequence of four in, a tuple out; NaNs for a zero or NaN quaternion)."""
+    x, y, z, w = q
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not n > 0:
+        return (math.nan,) * 4
+    if w < 0:
+        n = -n
+    return (x / n, y / n, z / n, w / n)
+
+
+def rotate(q, v) -> tuple[float, float, float]:
+    """The vector v (three floats) turned by the unit quaternion q (four floats): R(q) v on Python
+    floats, as v + 2 w (u x v) + 2 u x (u x v) with u the vector part."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)   # 2 u x v
+    return (vx + w * tx + y * tz - z * ty, vy + w * ty + z * tx - x * tz, vz + w * tz + x * ty - y * tx)
 
 
 def _quadratic_form() -> np.ndarray:

@@ -2,6 +2,7 @@
 the table's columns time touching, mean intensity and hand path (touch4d.study.table)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,8 +33,11 @@ class TrialMeasures:
         self._poses = self._poses[-1:]
 
     def add_motors(self, stamp: float, intensity: np.ndarray) -> None:
-        intensity = np.nan_to_num(np.asarray(intensity, dtype=float))
-        mean = float(intensity.mean()) if intensity.size else 0.0
+        intensity = np.asarray(intensity, dtype=float)
+        if not math.isfinite(intensity.sum()):     # NaN as 0 (a finite sum proves every value finite: as is)
+            intensity = np.nan_to_num(intensity)
+        # the mean as ndarray.mean computes it (the same sum, the same division), without its wrapper's cost
+        mean = float(np.add.reduce(intensity) / intensity.size) if intensity.size else 0.0
         self._motors.append((stamp, bool((intensity > self.threshold).any()), mean))
 
     def add_pose(self, stamp: float, position, valid: bool) -> None:

@@ -6,6 +6,7 @@ them along +w through a scene (eq. 4-7, by `touch4d.geometry.raycast.RayCaster`)
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,7 +41,7 @@ def relative_strength(l: np.ndarray, alpha: float) -> np.ndarray:
     """Eq. 1: s_i = max(alpha (l_min - l_i) + 1, 0), l_min over the touched samples; 0 where l is NaN."""
     depth = np.where(np.isnan(l), np.inf, l)
     l_min = depth.min(initial=np.inf)
-    if not np.isfinite(l_min):
+    if not math.isfinite(l_min):
         return np.zeros(np.shape(l))
     return np.maximum(alpha * (l_min - depth) + 1.0, 0.0)
 

@@ -33,6 +33,7 @@ import collections
 import dataclasses
 import functools
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -55,7 +56,7 @@ from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
 from .haptics import HAPTIC_COUNTERS, haptic_level
-from .protocol import PageError, pack_frame, parse_page_message, printable
+from .protocol import PageError, json_members, pack_frame, parse_page_message, printable
 
 log = logging.getLogger(__name__)
 
@@ -179,9 +180,11 @@ class WebBridge:
         self._duty = np.zeros(m, np.float32)
         self._motors_at = -np.inf           # when tactile/motors last arrived (node clock)
         self._haptic = 0.0                  # the page's controller intensity in the last frame
+        self._level = 0.0                   # haptic_level of the last tactile/motors, computed once per message
         self._boards: list = []
         self._dirty = False
         self._last_frame: bytes | None = None
+        self._steady: tuple[bytes, dict] | None = None   # the frame's rarely changing part (_steady_part)
         self._frame_count = 0
         self.gate = StudyGate(config.study_gate)
 
@@ -238,6 +241,7 @@ class WebBridge:
             self._geometry_frame = self.geometry_frame(geometry, f"g{self._geometries}")
             self.broadcast(self._geometry_frame, False)
         self._scene = msg
+        self._steady = None
         self._dirty = True
 
     @staticmethod
@@ -264,13 +268,16 @@ class WebBridge:
 
     def on_field(self, msg: TactileField) -> None:
         if len(msg.h) == len(self._h):
-            self._h = np.nan_to_num(msg.h).astype(np.float32)
+            h = msg.h.astype(np.float32)
+            # NaN as 0; a finite sum proves every value finite (then nan_to_num would change nothing)
+            self._h = h if math.isfinite(h.sum(dtype=np.float64)) else np.nan_to_num(msg.h).astype(np.float32)
             self._touched = np.isfinite(msg.l).astype(np.uint8)
             self._dirty = True
 
     def on_motors(self, msg: MotorCommand) -> None:
         if len(msg.intensity) == len(self._intensity):
             self._intensity = msg.intensity.astype(np.float32)
+            self._level = haptic_level(self._intensity, True)
             self._motors_at = self.now()
             self._dirty = True
             if (self.haptic(self._motors_at) > 0.0) != (self._haptic > 0.0):
@@ -282,12 +289,14 @@ class WebBridge:
         if len(msg.duty) == len(self._duty):
             self._duty = msg.duty.astype(np.float32)
         self._boards = [{"id": b["id"], "online": b["online"], "state": b["state"]} for b in msg.boards]
+        self._steady = None
         self._dirty = True
 
     def on_trial(self, msg: StudyTrial) -> None:
         """A study's state: the pages show its prompt and hide objects where its condition says so."""
         previous = self.gate.trial
         self.gate.update(msg)
+        self._steady = None
         if previous is None or _shown(previous) != _shown(msg):
             self._dirty = True
 
@@ -308,9 +317,7 @@ class WebBridge:
         self._dirty = False
         self._frame_count += 1
         self._haptic = self.haptic(self.now())
-        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "boards": self._boards, "haptic": self._haptic,
-                  "geometry": f"g{self._geometries}" if self._geometries else None, "time": self.now(),
-                  **self.study_fields()}
+        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "haptic": self._haptic, "time": self.now()}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
         articulated = self._joints.current() if self._hand_valid else None
@@ -320,6 +327,19 @@ class WebBridge:
             fields["hand_source"] = "joints"
             arrays["hand_samples"] = articulated.samples.astype(np.float32).ravel()
             arrays["hand_joints"] = articulated.joints.astype(np.float32).ravel()
+        if self._steady is None:
+            self._steady = self._steady_part()
+        members, steady_arrays = self._steady
+        arrays.update(steady_arrays)
+        self._last_frame = pack_frame("frame", fields, arrays, members)
+        return self._last_frame
+
+    def _steady_part(self) -> tuple[bytes, dict]:
+        """What of a frame changes only with the scene, the study or the boards (on_scene, on_trial,
+        on_status drop it): its fields JSON-encoded, and the scene's arrays."""
+        fields = {"boards": self._boards, "geometry": f"g{self._geometries}" if self._geometries else None,
+                  **self.study_fields()}
+        arrays = {}
         layer = self.view.layer
         if layer is not None:
             # the same texels the GPU backend writes into its t_objects texture
@@ -332,14 +352,13 @@ class WebBridge:
                           scene_style=_style_fields(layer.style))
             if view.section is not None:
                 arrays["section"] = np.ascontiguousarray(view.section, dtype=np.float32).ravel()
-        self._last_frame = pack_frame("frame", fields, arrays)
-        return self._last_frame
+        return json_members(fields), arrays
 
     def haptic(self, now: float) -> float:
         """What the page's controller plays now (touch4d.web.haptics): 0 while the study's condition
         holds the motors off, the hand is invalid or tactile/motors is stale."""
         fresh = now - self._motors_at <= self.config.motors_stale_s
-        return haptic_level(self._intensity, self.gate.motors and self._hand_valid and fresh)
+        return self._level if self.gate.motors and self._hand_valid and fresh else 0.0
 
     def tick(self) -> None:
         """The node's timer: send the frame (at once when the controller's intensity must change),

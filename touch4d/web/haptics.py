@@ -13,6 +13,8 @@ node's frames stop (STALE_MS in haptics.js).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # the heartbeat's counts of connected pages by what they can vibrate
@@ -23,5 +25,5 @@ def haptic_level(intensity: np.ndarray, on: bool) -> float:
     """The controller's intensity 0..1: the strongest motor's, clipped; 0 when not `on` or no motor."""
     if not on or len(intensity) == 0:
         return 0.0
-    top = float(np.max(intensity))
-    return min(max(top, 0.0), 1.0) if np.isfinite(top) else 0.0
+    top = float(intensity.max())
+    return min(max(top, 0.0), 1.0) if math.isfinite(top) else 0.0

@@ -66,6 +66,7 @@ MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
 BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b) | frozenset(THUMBSTICK_BUTTONS)
 _LEN = struct.Struct("<I")
+_to_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode   # json.dumps's, made once (per frame)
 _last_start: dict[str, int] = {}   # kind -> where the arrays of its last frame started (pack_frame's first guess)
 
 
@@ -84,42 +85,74 @@ class PageError(Touch4dError, ValueError):
 # ---- node -> page ----------------------------------------------------------------------------------
 
 
-def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None) -> bytes:
-    """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned."""
-    arrays = arrays or {}
-    table, blobs = {}, []
-    clean = {}
-    for name, arr in arrays.items():
+def json_members(fields: dict) -> bytes:
+    """`fields` as the members of a JSON object (`"key":value,...`, no braces): a frame's fields that
+    change rarely, encoded once per change and given to every `pack_frame` until then."""
+    return _to_json(fields).encode()[1:-1]
+
+
+def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None,
+               members: bytes = b"") -> bytes:
+    """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
+    `members`: more fields already encoded (`json_members`), none of them also in `fields`."""
+    head = _HEADS.get(kind)
+    if head is None:
+        head = _HEADS[kind] = b'{"kind":' + json.dumps(kind).encode() + b","
+    if members:
+        head += members + b","
+    if fields:
+        head += json_members(fields) + b","
+    head += b'"arrays":{'
+    entries, clean = [], []
+    for name, arr in (arrays or {}).items():
         arr = np.ascontiguousarray(arr)
-        dtype = arr.dtype.newbyteorder("<").str[1:]
-        if dtype not in ARRAY_DTYPES:
-            raise ValueError(f"array {name!r}: dtype {arr.dtype} is not one of {', '.join(ARRAY_DTYPES)}")
-        clean[name] = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
-        table[name] = [dtype, list(arr.shape), 0]
-    # The offsets depend on the header's length, which depends on the offsets' digits: encode until
-    # the arrays' start no longer moves. The first guess is where the last frame of this kind had
-    # them (the header is most of a frame's cost: per tick, one encode instead of two or three).
-    start, header = _last_start.get(kind), b""
+        entry = _entry(name, arr)
+        if arr.dtype.byteorder == ">":
+            arr = arr.astype(arr.dtype.newbyteorder("<"))
+        entries.append(entry)
+        clean.append(arr)
+    # The offsets depend on the header's length, which depends on the offsets' digits: until the
+    # arrays' start no longer moves, only the array table is written again. The first guess is where
+    # the last frame of this kind had them.
+    start, header, offsets = _last_start.get(kind), b"", []
     for _ in range(8):
         if start is not None:
-            offset = start
-            for name, arr in clean.items():
-                table[name][2] = offset
+            offsets, offset = [], start
+            for arr in clean:
+                offsets.append(offset)
                 offset = _align(offset + arr.nbytes)
-        header = json.dumps({"kind": kind, **(fields or {}), "arrays": table}, separators=(",", ":"),
-                            allow_nan=False).encode()
+        header = head + ",".join(f"{entry}{offset}]" for entry, offset in
+                                 zip(entries, offsets or [0] * len(entries))).encode() + b"}}"
         if _align(_LEN.size + len(header)) == start:
             break
         start = _align(_LEN.size + len(header))
     else:
         raise AssertionError("frame header offsets did not settle")
     _last_start[kind] = start
-    out = bytearray(_LEN.pack(len(header)) + header)
-    for name, arr in clean.items():
-        out += bytes(table[name][2] - len(out))
-        out += arr.tobytes()
-    out += bytes(_align(len(out)) - len(out))
-    return bytes(out)
+    parts, end = [_LEN.pack(len(header)), header], _LEN.size + len(header)
+    for offset, arr in zip(offsets, clean):
+        parts += (bytes(offset - end), arr.tobytes())
+        end = offset + arr.nbytes
+    parts.append(bytes(_align(end) - end))
+    return b"".join(parts)
+
+
+_HEADS: dict[str, bytes] = {}      # kind -> the header's start, `{"kind":"frame",`
+_ENTRIES: dict[tuple, str] = {}   # (name, dtype, shape) -> its array table entry up to the offset
+
+
+def _entry(name: str, arr: np.ndarray) -> str:
+    """`"name":["f4",[shape],` (JSON): an array's entry in the frame's table, its offset to follow."""
+    key = (name, arr.dtype, arr.shape)
+    entry = _ENTRIES.get(key)
+    if entry is None:
+        dtype = arr.dtype.newbyteorder("<").str[1:]
+        if dtype not in ARRAY_DTYPES:
+            raise ValueError(f"array {name!r}: dtype {arr.dtype} is not one of {', '.join(ARRAY_DTYPES)}")
+        if len(_ENTRIES) >= 1024:   # shapes that vary (a section's triangles) must not grow it without bound
+            _ENTRIES.clear()
+        entry = _ENTRIES[key] = json.dumps({name: [dtype, list(arr.shape)]}, separators=(",", ":"))[1:-2] + ","
+    return entry
 
 
 def frame_header(data: bytes) -> dict:
