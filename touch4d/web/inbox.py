@@ -1,5 +1,6 @@
-"""What one page sent, on its way from the server's thread to the node's: bounded whatever the page
-sends, so a flood from one page can neither grow a queue nor take the node's thread.
+"""What one page sent, on its way from the server's loop to the node's callbacks (one thread or two:
+touch4d.web.server): bounded whatever the page sends, so a flood from one page can neither grow a
+queue nor take the node's thread.
 
 - Inputs (poses, at a headset's frame rate) are paced: one is handed over at most every
   1 / `input_hz` seconds; one arriving sooner is held, and a newer one replaces it (the node gets
