@@ -211,13 +211,16 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
         queue: asyncio.Queue = asyncio.Queue()
 
         async def send():
-            while True:
-                due, data = await queue.get()
-                if data is None:
-                    break
-                await asyncio.sleep(max(0.0, due - time.monotonic()))
-                writer.write(data)
-                await writer.drain()
+            try:
+                while True:
+                    due, data = await queue.get()
+                    if data is None:
+                        break
+                    await asyncio.sleep(max(0.0, due - time.monotonic()))
+                    writer.write(data)
+                    await writer.drain()
+            except ConnectionError:
+                pass   # the other end went (a round's end): nothing more to pass on
             writer.close()
         sender = asyncio.ensure_future(send())
         try:
