@@ -109,7 +109,7 @@ class WebXRNode(Node):
         # events still reach the bridge as the node's calls, on the executor's next turn (one thread
         # runs the bridge). Each page's messages wait in its bounded inbox until then (server.deliver).
         self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
-                                 loop=self.executor.asyncio_loop(),
+                                 loop=self.executor.asyncio_loop(serves_tls=ssl_context is not None),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],
                                  on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
                                                                                    self.server.peer(conn)),

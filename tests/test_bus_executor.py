@@ -1,8 +1,14 @@
 """The executor alone, without sockets: fixed-rate timers, errors handed on, wake-ups from other threads."""
+import asyncio
 import threading
 import time
 
+import pytest
+import zmq
+
+import touch4d.bus.executor as executor_module
 from touch4d.bus.executor import Executor, Timer
+from touch4d.eventloop import new_event_loop
 
 
 def test_a_timer_keeps_its_rate_and_a_failing_one_is_reported_without_stopping_the_loop():
@@ -61,3 +67,53 @@ def test_call_later_runs_once_at_its_deadline_and_a_cancelled_one_never():
     assert len(fired) == 1 and 0.03 <= fired[0] < 0.15 and never == []
     assert ex.timers == []                                 # nothing left behind to wake the loop
     ex.close()
+
+
+@pytest.mark.parametrize("factory", [lambda serves_tls=False: asyncio.new_event_loop(), new_event_loop],
+                         ids=["asyncio", "default"])
+def test_on_an_asyncio_loop_timers_readers_calls_and_the_loops_own_work_share_one_thread(monkeypatch, factory):
+    """A page-serving process's executor (asyncio_loop): its timers keep their rate, a socket's
+    messages are read, a call from another thread wakes it, the loop's own callbacks (a page server's)
+    run on the same thread, spin_once answers, and a shutdown request ends spin at once."""
+    monkeypatch.setattr(executor_module, "new_event_loop", factory)
+    ex = Executor()
+    loop = ex.asyncio_loop()
+    ticks, got, threads = [], [], set()
+    ex.create_timer(0.01, lambda: ticks.append(time.monotonic()))
+    ctx = zmq.Context.instance()
+    inbound, outbound = ctx.socket(zmq.PAIR), ctx.socket(zmq.PAIR)
+    inbound.bind("inproc://executor-on-a-loop")
+    outbound.connect("inproc://executor-on-a-loop")
+
+    def read() -> int:
+        n = 0
+        while True:
+            try:
+                got.append(inbound.recv(zmq.NOBLOCK))
+            except zmq.Again:
+                return n
+            threads.add(threading.get_ident())
+            n += 1
+
+    ex.add_reader(inbound, read)
+    threading.Timer(0.05, lambda: outbound.send(b"from the socket")).start()
+    threading.Timer(0.08, lambda: ex.call_soon_threadsafe(got.append, b"from a thread")).start()
+    loop.call_later(0.1, lambda: ex.call_soon_threadsafe(lambda: (got.append(b"from the loop"),
+                                                                    threads.add(threading.get_ident()))))
+    start = time.monotonic()
+    ex.spin(0.3)
+    elapsed = time.monotonic() - start
+    assert got == [b"from the socket", b"from a thread", b"from the loop"]
+    assert threads == {threading.get_ident()}
+    assert elapsed / 0.01 / 3 <= len(ticks) <= elapsed / 0.01 + 1
+    outbound.send(b"again")
+    assert ex.spin_once(1.0) >= 1 and got[-1] == b"again"
+    threading.Timer(0.05, ex.request_shutdown).start()
+    start = time.monotonic()
+    ex.spin()
+    assert time.monotonic() - start < 1.0
+    ex.remove_reader(inbound)
+    ex.close()
+    assert loop.is_closed()
+    inbound.close(linger=0)
+    outbound.close(linger=0)

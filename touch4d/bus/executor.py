@@ -26,6 +26,7 @@ from typing import Any, Callable
 import zmq
 
 from touch4d.bus.local import LocalRoutes
+from touch4d.eventloop import new_event_loop
 
 MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
 
@@ -254,11 +255,12 @@ class Executor:
 
     # ---- on an asyncio loop ------------------------------------------------------------------
 
-    def asyncio_loop(self) -> asyncio.AbstractEventLoop:
+    def asyncio_loop(self, serves_tls: bool = False) -> asyncio.AbstractEventLoop:
         """The asyncio loop this executor spins on from now on (made at the first call, before the
-        first spin): a page server given it serves on the executor's thread (see the module's doc)."""
+        first spin; `serves_tls`: touch4d.eventloop): a page server given it serves on the
+        executor's thread (see the module's doc)."""
         if self._loop is None:
-            self._loop = asyncio.new_event_loop()
+            self._loop = new_event_loop(serves_tls)
             for sock in self._readers:
                 self._watch(sock)
             self._loop.add_reader(self._wake_r.fileno(), self._step_soon)

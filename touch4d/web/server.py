@@ -37,6 +37,8 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
+from touch4d.eventloop import new_event_loop
+
 from .access import COOKIE, HOLDER, Access, CookieGate, is_loopback, lan_addresses
 from .inbox import MAX_INPUT_HZ, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
@@ -380,7 +382,7 @@ class PageServer:
     # ---- the server's thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
-        loop = asyncio.new_event_loop()
+        loop = new_event_loop(serves_tls=self.ssl_context is not None)
         self._loop = loop
         asyncio.set_event_loop(loop)
         try:

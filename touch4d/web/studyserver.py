@@ -43,6 +43,7 @@ import aiohttp
 from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
+from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
 from touch4d.study.session import session_dir, session_overrides
@@ -617,7 +618,8 @@ class StudyServer:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
             try:
-                asyncio.run(self._serve())
+                with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
+                    runner.run(self._serve())
             finally:
                 self.node.request_shutdown()
                 self._bus_thread.join(5)
