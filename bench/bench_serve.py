@@ -27,7 +27,7 @@ The simulated pages run in this process at a lower priority than the server and 
 (`--pages-nice`, 10 by default; where the system lets the server's priority be restored, e.g. as
 root): they stand in for headsets on other machines, and must not take the cores from the server.
 
-`--over N`: then N pages at once against a server left at its default cap (three per core): how many
+`--over N`: then N pages at once against a server left at its default cap (four per core): how many
 it admits and refuses (HTTP 503), and whether the admitted keep their touch within the budget.
 """
 from __future__ import annotations
@@ -53,6 +53,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu import cpu_seconds  # noqa: E402
 
+from touch4d import eventloop  # noqa: E402
 from touch4d.web.protocol import frame_header  # noqa: E402
 from touch4d.web.wiretrace import Move, pose_to_pulse  # noqa: E402
 
@@ -93,7 +94,7 @@ def server_nice() -> int:
 def start_server(out: Path, participants: int | None, study: bool = False, trace: Path | None = None,
                  per_node: bool = False):
     """The server; `per_node`: each participant's nodes in processes of their own (no `group`);
-    `participants` None: the server's own default cap (three per core)."""
+    `participants` None: the server's own default cap (four per core)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open"]
     launch = []
     if per_node:
@@ -454,7 +455,7 @@ def main() -> None:
     parser.add_argument("--process-per-node", action="store_true",
                         help="each round also with every node in a process of its own: the baseline")
     parser.add_argument("--over", type=int, metavar="N",
-                        help="then N pages against the server's default cap (three per core): admitted and refused")
+                        help="then N pages against the server's default cap (four per core): admitted and refused")
     parser.add_argument("--pages-nice", type=int, default=PAGES_NICE, metavar="N",
                         help=f"the simulated pages' niceness above the server's (default {PAGES_NICE}; 0: equal)")
     parser.add_argument("--trials", action="store_true",
@@ -465,7 +466,8 @@ def main() -> None:
         return
     os.nice(args.pages_nice)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"load {os.getloadavg()[0]:.1f}; the simulated pages at nice {os.nice(0)}, the server at {server_nice()}")
+          f"load {os.getloadavg()[0]:.1f}; the simulated pages at nice {os.nice(0)}, the server at {server_nice()}; "
+          f"its loops {eventloop.kind()}")
     if args.trials:
         for n in sorted(set([1, *args.participants])):
             r = asyncio.run(run_round(n, args.seconds, 0.0, study=True))

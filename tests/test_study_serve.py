@@ -98,8 +98,8 @@ def experimenter_view(served):
 
 def test_links_consent_and_refusals(tmp_path, capsys):
     with serve(tmp_path) as served:
-        # no --max-participants: three per core this process may use
-        assert f"for up to {3 * len(os.sched_getaffinity(0))} participants" in served.text
+        # no --max-participants: four per core this process may use
+        assert f"for up to {4 * len(os.sched_getaffinity(0))} participants" in served.text
         link = invite(served, "P01", capsys=capsys)
         assert link.startswith(f"{served.url}/?participant=P01&token=")
         page = Browser()
@@ -210,7 +210,7 @@ def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experime
     with serve(tmp_path) as served:
         lab = Browser()
         status, text = lab.get(served.experimenter)
-        assert status == 200 and f"0 of {3 * len(os.sched_getaffinity(0))} running" in text
+        assert status == 200 and f"0 of {4 * len(os.sched_getaffinity(0))} running" in text
         status, text = lab.get(f"{served.url}/experimenter/invite", data=b"participant=P09")
         link = re.search(r"(http://\S+participant=P09&amp;token=[\w-]+)", text).group(1).replace("&amp;", "&")
         participant = Browser()

@@ -61,11 +61,11 @@ SERVED = "serve.json"             # OUT/serve.json: the address served, for `tou
 PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
-# ms, server-side) at 72 Hz each, with room to spare. bench/bench_serve.py on a quiet 2-core machine:
-# p99 4.9 ms at 6 participants (4.5 through 50 ms of round trip), 6.2 at 8 (7.6; but 9-16 ms in
-# other runs), 52 ms at 12, 81 ms at 16 (each costs about a sixth of a core): more would slow
-# everyone's touch.
-PARTICIPANTS_PER_CORE = 3
+# ms, server-side) at 72 Hz each, with room to spare (a session's study node and trials come on
+# top). bench/bench_serve.py on a quiet 2-core machine, recorder included: p99 3.7-4.8 ms at 8
+# participants (4.6 through 50 ms of round trip), 8-14 ms at 12, 13-48 ms at 16 (each costs about
+# an eighth of a core; 16 fill the two cores): more would slow everyone's touch.
+PARTICIPANTS_PER_CORE = 4
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 HANDSHAKE_HEADERS = ("Sec-WebSocket-Key", "Sec-WebSocket-Version", "Sec-WebSocket-Protocol")
 UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket upgrade within this, else 502
