@@ -109,6 +109,7 @@ class StudyNode(Node):
         self.create_subscription("tactile/motors", MotorCommand, self.on_motors)
         self.create_subscription("hand/pose", HandPose, self.on_pose)
         self._check = None   # the one-shot timer at the machine's next deadline (TrialMachine.next_check)
+        self._check_due = math.nan
         self.create_timer(1.0 / p["rate"], self.publish_trial)
         self.log.info("study %s, participant %s: %d trials (%s), %d already done; writing %s", self.study.name,
                       p["participant"], len(self.plan), ", ".join(order), len(self.plan) - len(remaining),
@@ -141,9 +142,12 @@ class StudyNode(Node):
         end of a break, a scene to send again), not at a polling rate: a participant's process wakes
         for its trials' deadlines only."""
         due = self.machine.next_check()
+        if self._check is not None and due == self._check_due and not self._check.cancelled:
+            return   # the same deadline (a scene state repeated): its timer stands
         if self._check is not None:
             self._check.cancel()
             self._check = None
+        self._check_due = due
         if math.isfinite(due):
             self._check = self.call_later(max(0.0, due - time.time()), self.tick)
 

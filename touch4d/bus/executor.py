@@ -165,7 +165,12 @@ class Executor:
         elif self._next_due - time.monotonic() < timeout:
             timeout = max(0.0, self._next_due - time.monotonic())
         # Round up: a sub-millisecond wait rounded down to 0 would busy-poll until the timer is due.
-        events = self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0)
+        handled += self._read(self._poller.poll(math.ceil(timeout * 1000) if timeout > 0 else 0))
+        return handled + self.run_calls() + self.run_timers()
+
+    def _read(self, events) -> int:
+        """Call the reader of each socket the poll found readable (the wake-up pipe: drained)."""
+        handled = 0
         for sock, _ in events:
             reader = self._readers.get(sock)
             if reader is not None:
@@ -175,7 +180,7 @@ class Executor:
                     self._wake_r.recv(4096)
                 except BlockingIOError:
                     pass
-        return handled + self.run_calls() + self.run_timers()
+        return handled
 
     def spin(self, duration: float | None = None) -> None:
         """Spin until `request_shutdown()` (or for `duration` seconds)."""
@@ -318,16 +323,7 @@ class Executor:
             events = self._poller.poll(0)
             if not events:
                 break
-            for sock, _ in events:
-                reader = self._readers.get(sock)
-                if reader is not None:
-                    handled += reader()
-                else:
-                    try:
-                        self._wake_r.recv(4096)
-                    except BlockingIOError:
-                        pass
-            handled += self.run_calls()
+            handled += self._read(events) + self.run_calls()
         else:
             self._step_soon()   # still busy: the loop's other work gets a turn first
         handled += self.run_timers()
