@@ -161,10 +161,14 @@ def test_the_node_counts_garbage_and_keeps_serving():
                         await ws.send_str(json.dumps({"type": "input", "pad": "x" * 50000}))   # ends it
                     async with session.ws_connect(url) as ws:   # a message over 1 MiB ends its connection
                         await ws.receive_bytes()
-                        await ws.send_str("y" * (2 << 20))
-                        while (msg := await ws.receive()).type == aiohttp.WSMsgType.BINARY:
-                            pass                                # frames sent before the close
-                        assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+                        try:
+                            await ws.send_str("y" * (2 << 20))
+                        except ConnectionError:
+                            pass    # closed by the server, having read the frame's header, before all was sent
+                        else:
+                            while (msg := await ws.receive()).type == aiohttp.WSMsgType.BINARY:
+                                pass                                # frames sent before the close
+                            assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
                     async with session.ws_connect(url) as ws:   # and the node still serves
                         assert unpack_frame(await ws.receive_bytes())[0]["kind"] == "setup"
                         await ws.send_str(good(time.time()))
