@@ -2,7 +2,7 @@
 
 Serves the page (touch4d/web/static) and a WebSocket to it; sends the page `scene/state`,
 `hand/pose`, `tactile/field`, `tactile/motors` and `motors/status` (geometry once per change of
-what the scene is made of, then per tick only transforms and tactile values). With `tracker:
+what the scene is made of, then per change only transforms and tactile values). With `tracker:
 true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
 grip or from hand tracking: `hand_source`), `controller/state` and the tracked hands' joints
 (`hand/joints`: the glove hand, which the tactile node follows; `hand/joints/other`: the other).
@@ -19,6 +19,7 @@ the link's token for a cookie on first load (touch4d.web.access).
 """
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -93,7 +94,7 @@ class WebXRNode(Node):
         config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
                               recenter_button=p["recenter_button"], stale_s=p["stale_s"],
-                              study_gate=p["study_gate"])
+                              study_gate=p["study_gate"], frame_period_s=1.0 / p["rate"])
         self.publishers = {"study/response": self.create_publisher("study/response", StudyResponse)}
         if p["tracker"]:
             self.publishers |= {"hand/pose": self.create_publisher("hand/pose", HandPose),
@@ -111,20 +112,28 @@ class WebXRNode(Node):
         self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
                                  loop=self.executor.asyncio_loop(serves_tls=ssl_context is not None),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],
-                                 on_connect=lambda conn: self.call_soon_threadsafe(self.bridge.connected, conn,
-                                                                                   self.server.peer(conn)),
+                                 on_connect=lambda conn: self.call_soon_threadsafe(
+                                     self._then_schedule(self.bridge.connected), conn, self.server.peer(conn)),
                                  on_message=self.bridge.page_message,
-                                 on_pending=lambda conn: self.call_soon_threadsafe(self.server.deliver, conn),
-                                 on_close=lambda conn: self.call_soon_threadsafe(self.bridge.closed, conn))
-        self.create_subscription("scene/state", SceneState, self.bridge.on_scene, latest_only=True)
-        self.create_subscription("hand/pose", HandPose, self.bridge.on_hand_pose, latest_only=True)
-        self.create_subscription("hand/joints", HandJoints, self.bridge.on_hand_joints, latest_only=True,
-                                 optional=True)
-        self.create_subscription("tactile/field", TactileField, self.bridge.on_field, latest_only=True)
-        self.create_subscription("tactile/motors", MotorCommand, self.bridge.on_motors, latest_only=True)
-        self.create_subscription("motors/status", MotorStatus, self.bridge.on_status, latest_only=True)
-        self.create_subscription("study/trial", StudyTrial, self.bridge.on_trial, latest_only=True, optional=True)
-        self.create_timer(1.0 / p["rate"], self.bridge.tick)
+                                 on_pending=lambda conn: self.call_soon_threadsafe(self._deliver_page, conn),
+                                 on_close=lambda conn: self.call_soon_threadsafe(
+                                     self._then_schedule(self.bridge.closed), conn))
+        # The bridge's work without an event (a change's frame, stale vibration or hand, invalid poses,
+        # a placement to store) runs at its next deadline (WebBridge.next_due), re-armed after every
+        # event, not on a timer at the frame rate: with pages sending at 72 Hz, a 90 Hz timer was a
+        # second wake-up of the participant's process per input.
+        self._tick_timer, self._tick_due = None, math.inf
+        for topic, msg_type, callback, optional in (
+                ("scene/state", SceneState, self.bridge.on_scene, False),
+                ("hand/pose", HandPose, self.bridge.on_hand_pose, False),
+                ("hand/joints", HandJoints, self.bridge.on_hand_joints, True),
+                ("tactile/field", TactileField, self.bridge.on_field, False),
+                ("tactile/motors", MotorCommand, self.bridge.on_motors, False),
+                ("motors/status", MotorStatus, self.bridge.on_status, False),
+                ("study/trial", StudyTrial, self.bridge.on_trial, True)):
+            self.create_subscription(topic, msg_type, self._then_schedule(callback), latest_only=True,
+                                     optional=optional)
+        self._schedule()
         try:
             bound = self.server.start()
         except OSError as exc:
@@ -171,6 +180,43 @@ class WebXRNode(Node):
         if why is not None:
             raise self.param_error("token", f"in {where}: {why}", got=None)
         return token
+
+    def _then_schedule(self, callback):
+        """`callback`, then the bridge's next deadline re-armed (it may have come nearer)."""
+        def run(*args) -> None:
+            try:
+                callback(*args)
+            finally:
+                self._schedule()
+        return run
+
+    def _deliver_page(self, conn: int) -> None:
+        try:
+            self.server.deliver(conn)
+        finally:
+            self._schedule()
+
+    def _tick(self) -> None:
+        self._tick_timer = None
+        try:
+            self.bridge.tick()
+        finally:
+            self._schedule()
+
+    def _schedule(self) -> None:
+        """Arm the one deadline at the bridge's next_due, unless one as early already stands (it
+        comes, ticks and re-arms: so an input that only moves a deadline later costs no timer)."""
+        due = self.bridge.next_due()
+        if self._tick_timer is not None:
+            if self._tick_due <= due:
+                return
+            self._tick_timer.cancel()
+            self._tick_timer = None
+        self._tick_due = due
+        if math.isfinite(due):
+            self._tick_timer = self.call_later(max(0.0, due - self.bridge.now()), self._tick)
+        elif due < 0:   # -inf: due now
+            self._tick_timer = self.call_later(0.0, self._tick)
 
     def _publish(self, topic: str, msg) -> None:
         self.publishers[topic].publish(msg)

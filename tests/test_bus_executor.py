@@ -69,6 +69,33 @@ def test_call_later_runs_once_at_its_deadline_and_a_cancelled_one_never():
     ex.close()
 
 
+def test_on_a_loop_a_timer_costs_one_turn_a_tick_and_a_deadline_is_never_early():
+    """The page-serving loop's clock counts milliseconds (libuv's under uvloop): a 90 Hz timer still
+    costs one turn a tick, not a turn that finds nothing due and more until the due time; and a
+    deadline (call_later) still never runs before its delay."""
+    ex = Executor()
+    ex.asyncio_loop()
+    turns, ticks, early = [], [], []
+    turn = ex._turn
+    ex._turn = lambda: (turns.append(1), turn())
+    ex.create_timer(1 / 90, lambda: ticks.append(1))
+
+    def ask(delay: float) -> None:
+        asked = time.monotonic()
+        ex.call_later(delay, lambda: fired(delay, asked))
+
+    def fired(delay: float, asked: float) -> None:
+        early.append(time.monotonic() - asked < delay)
+        if len(early) < 40:
+            ask(delay + 0.0003)
+
+    ask(0.0031)
+    ex.spin(0.5)
+    assert len(ticks) >= 20 and len(early) >= 20 and not any(early)
+    assert len(turns) <= len(ticks) + len(early) + 10      # one turn a tick or deadline, and a few more
+    ex.close()
+
+
 @pytest.mark.parametrize("factory", [lambda serves_tls=False: asyncio.new_event_loop(), new_event_loop],
                          ids=["asyncio", "default"])
 def test_on_an_asyncio_loop_timers_readers_calls_and_the_loops_own_work_share_one_thread(monkeypatch, factory):

@@ -29,6 +29,10 @@ from touch4d.bus.local import LocalRoutes
 from touch4d.eventloop import new_event_loop
 
 MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
+# s: a timer due this soon runs now. An event loop's clock counts whole milliseconds (libuv's, under
+# uvloop), so its wake-up for a timer may come up to a millisecond early: without the slack that turn
+# would find nothing due and the loop would turn again, and again, until the due time.
+TIMER_SLACK = 0.001
 
 
 @dataclass
@@ -108,16 +112,17 @@ class Executor:
 
     def call_later(self, delay: float, callback: Callable[[], Any],
                    on_error: Callable[[Any, Exception], None] | None = None) -> Timer:
-        """Call `callback()` once, `delay` s from now (cancel the returned timer to call nothing): a
-        deadline costs one wake-up, where a timer that polls a flag wakes the thread at its rate."""
+        """Call `callback()` once, `delay` s from now and never sooner (cancel the returned timer to call
+        nothing): a deadline costs one wake-up, where a timer that polls a flag wakes the thread at its
+        rate. Its due time has TIMER_SLACK added, so the slack never runs it early."""
         timer: Timer
 
         def once() -> None:
             timer.cancel()
             callback()
 
-        timer = self.create_timer(max(float(delay), 1e-6), once, first_due=time.monotonic() + max(0.0, delay),
-                                  on_error=on_error)
+        timer = self.create_timer(max(float(delay), 1e-6), once,
+                                  first_due=time.monotonic() + max(0.0, delay) + TIMER_SLACK, on_error=on_error)
         return timer
 
     def set_timer_period(self, timer: Timer, period: float) -> None:
@@ -206,8 +211,9 @@ class Executor:
         return ran
 
     def run_timers(self) -> int:
-        """Run the due timers; keeps `_next_due`, when the next one is due, for `spin_once`'s wait."""
-        now = time.monotonic()
+        """Run the due timers (due within TIMER_SLACK); keeps `_next_due`, when the next one is due,
+        for `spin_once`'s wait."""
+        now = time.monotonic() + TIMER_SLACK
         if now < self._next_due or self._stopping:
             return 0   # the common case of a spin woken by a message: nothing due
         ran = 0

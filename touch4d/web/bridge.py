@@ -1,8 +1,11 @@
 """Topics <-> pages, without a bus or a network: what the WebXR node sends its pages and publishes
-for them. The node wires it to its subscriptions, its timer and its server (one thread).
+for them. The node wires it to its subscriptions, its server and one deadline (one thread): it
+calls `tick` at `next_due`, when something is next due without an event (a change's frame, the
+vibration or the hand going stale, invalid poses repeated, a placement stored), not at a rate.
 
 Bus -> pages: a "setup" frame when a page connects, a "geometry" frame when what the scene is
-made of changes, and at most one "frame" per tick with the latest transforms and tactile values.
+made of changes, and a "frame" with the latest transforms and tactile values after a change, at
+most one per `frame_period_s`.
 
 Pages -> bus (when the page is the tracker): `hand/pose`, `controller/state`, and the tracked glove
 hand's joints on `hand/joints` (just before the pose of the same instant, with its stamp; the other
@@ -90,6 +93,7 @@ class BridgeConfig:
     controller_hand: str = "right"      # the controller (or tracked hand) that turns the object
     recenter_button: str = "a"          # on the controller: re-centre the screen in front of the user
     stale_s: float = 0.05               # tracker page silent this long -> invalid poses
+    frame_period_s: float = 1 / 90      # frames at most this often (a touch's start or end: at once)
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
     study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
     motors_stale_s: float = 0.06        # tactile/motors older than this: the page's controller plays 0
@@ -183,6 +187,7 @@ class WebBridge:
         self._level = 0.0                   # haptic_level of the last tactile/motors, computed once per message
         self._boards: list = []
         self._dirty = False
+        self._frame_at = -np.inf            # when the last frame was made (node clock)
         self._last_frame: bytes | None = None
         self._steady: tuple[bytes, dict] | None = None   # the frame's rarely changing part (_steady_part)
         self._frame_count = 0
@@ -316,8 +321,9 @@ class WebBridge:
             return None
         self._dirty = False
         self._frame_count += 1
-        self._haptic = self.haptic(self.now())
-        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "haptic": self._haptic, "time": self.now()}
+        now = self._frame_at = self.now()
+        self._haptic = self.haptic(now)
+        fields = {"n": self._frame_count, "hand_valid": self._hand_valid, "haptic": self._haptic, "time": now}
         arrays = {"hand": self._hand, "h": self._h, "touched": self._touched,
                   "intensity": self._intensity, "duty": self._duty}
         articulated = self._joints.current() if self._hand_valid else None
@@ -361,15 +367,36 @@ class WebBridge:
         return self._level if self.gate.motors and self._hand_valid and fresh else 0.0
 
     def tick(self) -> None:
-        """The node's timer: send the frame (at once when the controller's intensity must change),
-        and keep the hand invalid while no page tracks."""
-        if self.haptic(self.now()) != self._haptic:
+        """Whatever is due now: the frame of a change (its period allowing), the frame that stops the
+        controller when its stimulus went stale, invalid poses while no page tracks, a placement to
+        store. Called at `next_due`; calling it more often changes nothing."""
+        now = self.now()
+        if self.haptic(now) != self._haptic:
             self._dirty = True
-        frame = self.frame()
-        if frame is not None:
-            self.broadcast(frame, True)
-        self.check_tracking(self.now())
-        self._save_due(self.now())
+        if now >= self._frame_at + self.config.frame_period_s:
+            frame = self.frame()
+            if frame is not None:
+                self.broadcast(frame, True)
+        self.check_tracking(now)
+        self._save_due(now)
+
+    def next_due(self) -> float:
+        """When (node clock) `tick` next has something to do unless an event comes first: a change's
+        frame, the vibration's stimulus going stale (frame at 0), the driving page's input going stale
+        (hand invalid), the next invalid pose, a placement's time to be stored. A runner waits for it
+        instead of ticking at a rate (a participant's process then wakes for its pages' inputs)."""
+        due = self._frame_at + self.config.frame_period_s if self._dirty else math.inf
+        if self._haptic != 0.0:
+            due = min(due, self._motors_at + self.config.motors_stale_s)
+        if self.config.tracker:
+            page = self.pages.get(self.owner) if self.owner is not None else None
+            if page is not None and page.tracking and self.now() - page.last_input <= self.config.stale_s:
+                due = min(due, page.last_input + self.config.stale_s)
+            else:
+                due = min(due, -math.inf if self._was_live else self._invalid_at + self.config.invalid_period_s)
+        if self._unsaved is not None:
+            due = min(due, self._saved_at + self.config.save_min_s)
+        return due
 
     # ---- connections -----------------------------------------------------------------------------
 
