@@ -95,6 +95,34 @@ def test_two_namespaces_on_one_broker_do_not_hear_each_other():
         assert set(everything) - {"node/heartbeat"} == {"A/hand/pose"}
 
 
+def test_every_listener_hears_every_stacks_beats_and_a_stack_can_listen_to_its_own_alone():
+    """Heartbeats stay one global topic to whoever listens to node/heartbeat (a node in a namespace
+    too), while on the wire a namespaced node's beat carries its namespace: a socket subscribed to
+    names.heartbeat_key("A") (how a stack's recorder and launcher listen) gets stack A's beats only,
+    and no other stack's wakes it."""
+    import zmq
+    from touch4d.bus import transport
+    from touch4d.messages import decode
+
+    with running_broker() as bus, Node("a", bus=bus, namespace="A") as a, Node("b", bus=bus, namespace="B") as b, \
+            Node("g", bus=bus) as g, Node("probe", bus=bus, heartbeat=False, namespace="C") as probe:
+        beats = collect(probe, "node/heartbeat", Heartbeat)
+        everything = raw_topics(probe)
+        own = transport.subscriber(zmq.Context.instance(), bus, topics=[names.heartbeat_key("A")])
+        try:
+            spin_until([a, b, g, probe], lambda: {"A/a", "B/b", "g"} <= {m.node for m in beats}, timeout=15)
+            spin_until([a, b, g, probe], lambda: len([m for m in beats if m.node == "B/b"]) >= 2, timeout=15)
+            frames = []
+            while own.poll(0):
+                frames.append(own.recv_multipart())
+        finally:
+            own.close(linger=0)
+    assert {m.node for m in beats} >= {"A/a", "B/b", "g"}
+    assert set(everything) == {"node/heartbeat"}               # as the bus names it, from every stack
+    assert frames and {f[0] for f in frames} == {b"node/heartbeat/A/"}
+    assert {decode(f[-1], Heartbeat).node for f in frames} == {"A/a"}
+
+
 def test_the_broadcast_stop_reaches_every_namespace_a_namespaced_one_only_its_own():
     with running_broker() as bus, Node("a", bus=bus, namespace="A") as a, Node("b", bus=bus, namespace="B") as b, \
             Node("console", bus=bus) as console:

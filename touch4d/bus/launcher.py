@@ -31,7 +31,6 @@ from touch4d.bus import names, transport
 from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec, processes
-from touch4d.bus.node import HEARTBEAT_TOPIC
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
 from touch4d.bus.topology import shared_inputs, shared_text
 from touch4d.errors import ConfigError
@@ -354,7 +353,7 @@ class Launcher:
         """Listen to the nodes' heartbeats (what each publishes) to warn about shared inputs."""
         try:
             self._watch = transport.subscriber(zmq.Context.instance(), endpoints.for_clients(),
-                                               topics=[HEARTBEAT_TOPIC.encode()])
+                                               topics=[names.heartbeat_key(self.namespace)])
         except ConfigError:
             self._watch = None   # no client keys on this machine: nothing to listen with
 

@@ -2,7 +2,8 @@
 `TOPIC` its code names, so several stacks (participants) share one broker and never hear each other.
 
 What stays global: `node/heartbeat` (every node beats on the one topic, named `NS/ROLE`, its topic
-lists relative to its namespace) and the broadcast stop: a node that subscribes `safety/stop` hears
+lists relative to its namespace; on the wire a namespaced node's beat carries its namespace, see
+`heartbeat_key`) and the broadcast stop: a node that subscribes `safety/stop` hears
 both its own `NS/safety/stop` and the global `safety/stop` (a stop published outside any namespace
 stops every stack; one published inside stops that stack). A topic written `/TOPIC` is absolute.
 """
@@ -11,6 +12,8 @@ from __future__ import annotations
 import re
 
 GLOBAL_TOPICS = frozenset({"node/heartbeat"})        # never prefixed
+_BEAT = b"node/heartbeat"
+_BEAT_IN = _BEAT + b"/"
 BROADCAST_TOPICS = frozenset({"safety/stop"})        # a namespaced subscriber hears the global one too
 _SEGMENT = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
 EXPECTED = "a namespace: segments of letters, digits, _ . - (starting with a letter or digit) joined by '/'"
@@ -42,6 +45,20 @@ def relative(topic: str, ns: str) -> str | None:
         return topic
     prefix = ns + "/"
     return topic[len(prefix):] if topic.startswith(prefix) else None
+
+
+def heartbeat_key(ns: str) -> bytes:
+    """The wire topic of the beats of a node in `ns`: `node/heartbeat`, and in a namespace
+    `node/heartbeat/NS/`. ZeroMQ matches a subscription by prefix, so whoever listens to
+    node/heartbeat still hears every stack's beats (as `node/heartbeat`: `bus_key`), while a stack's
+    own recorder and launcher listen to their namespace's alone: with N stacks on one broker each
+    of them was woken by every stack's beats, N² wake-ups a second in all."""
+    return b"%s/%s/" % (_BEAT, ns.encode()) if ns else _BEAT
+
+
+def bus_key(key: bytes) -> bytes:
+    """A wire topic as the bus names it: a namespaced heartbeat's is `node/heartbeat`."""
+    return _BEAT if key.startswith(_BEAT_IN) else key
 
 
 def node_name(role: str, ns: str) -> str:

@@ -38,6 +38,7 @@ from touch4d.messages import Heartbeat, Message, MessageError, decoder
 HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
 _HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
+_HEARTBEAT_IN = _HEARTBEAT_KEY + b"/"
 _MAX_BATCH = 4096
 _MAX_RAW_NAMES = 4096   # topic names kept decoded for raw subscribers (a flood of new topics is not kept)
 _SNDMORE, _NOBLOCK, _RCVMORE = zmq.SNDMORE, zmq.NOBLOCK, zmq.RCVMORE
@@ -247,6 +248,7 @@ class Node:
             self._pub.send_multipart(frames)
         if self._heartbeat:
             self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
+            self._heartbeat_pub._topic = names.heartbeat_key(self.namespace)   # the global topic, by namespace
             self._timers.append(self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat,
                                                            first_due=time.monotonic(), on_error=self._callback_failed))
 
@@ -557,6 +559,9 @@ class Node:
             if topic.startswith(INTERNAL_PREFIX):
                 continue
             subs = self._subs.get(topic)
+            if subs is None and topic.startswith(_HEARTBEAT_IN):
+                topic = _HEARTBEAT_KEY          # a namespaced node's beat (names.heartbeat_key)
+                subs = self._subs.get(topic)
             if subs is not None and self._local_copies.awaited and len(frames) == 2 \
                     and self._local_copies.seen(topic, frames[1]):
                 subs = None   # handed over in-process already (touch4d.bus.local)

@@ -122,7 +122,7 @@ class Recorder:
         existed = os.path.lexists(self.path)
         self._writer = LogWriter(self.path, chunk_size=self.chunk_size)   # an unwritable path fails first
         sock = transport.subscriber(self._context, self.bus, hwm=0,  # unbounded: a slow disk queues, never drops
-                                    topics=sorted(self._wanted) or self._everything())
+                                    topics=self._subscriptions())
         self._started = time.monotonic()
         try:
             early = self._sync(sock, timeout)
@@ -198,9 +198,10 @@ class Recorder:
         """Whether a message is this recording's: a topic wanted; in a namespace, of the one global
         heartbeat topic only its own stack's beats (another participant's nodes stay out of this
         participant's log). A beat that cannot be read is kept."""
-        if not _wanted(frames[0], self._wanted):
+        topic = names.bus_key(frames[0])
+        if not _wanted(topic, self._wanted):
             return False
-        if not self.namespace or frames[0] != HEARTBEAT:
+        if not self.namespace or topic != HEARTBEAT:
             return True
         try:
             node = unpack(frames[-1])["node"]
@@ -208,17 +209,20 @@ class Recorder:
             return True
         return not isinstance(node, str) or f"{names.namespace_of(node)}/".startswith(f"{self.namespace}/")
 
-    def _everything(self) -> list[bytes]:
-        """The subscriptions of a recording of every topic (of its namespace, and the global ones)."""
+    def _subscriptions(self) -> list[bytes]:
+        """The topics asked for, or every topic (of its namespace, and the global ones); in a
+        namespace, of the heartbeats only its own stack's (names.heartbeat_key)."""
         if not self.namespace:
-            return [b""]
-        return [f"{self.namespace}/".encode()] + [t.encode() for t in sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)]
+            return sorted(self._wanted) or [b""]
+        keys = sorted(self._wanted) or [f"{self.namespace}/".encode()] + [
+            t.encode() for t in sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)]
+        return [names.heartbeat_key(self.namespace) if k == HEARTBEAT else k for k in keys]
 
     def _name(self, topic: bytes) -> str:
         """A topic's name as text (relative to the namespace), decoded once per topic."""
         name = self._names.get(topic)
         if name is None:
-            text = topic.decode("utf-8", "replace")
+            text = names.bus_key(topic).decode("utf-8", "replace")
             name = self._names[topic] = (names.relative(text, self.namespace) or text) if self.namespace else text
         return name
 
