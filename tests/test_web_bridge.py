@@ -235,6 +235,29 @@ def test_the_hand_turns_invalid_at_once_when_the_page_stops_tracking(how):
     assert len(rig.topic("hand/pose")) == count + 1 and not rig.topic("hand/pose")[-1].valid
 
 
+def test_a_tracker_bridge_is_next_due_when_its_page_would_fall_silent_then_every_invalid_period():
+    """WebBridge.next_due, on a hand-moved clock: stale_s after the driving page's last input (each
+    input moves it on), then the invalid pose, then every invalid_period_s while nobody tracks."""
+    rig = Rig()
+    rig.bridge.connected(1)
+    t1 = rig.clock.t
+    rig.input(1)
+    rig.bridge.tick()
+    assert rig.bridge.next_due() == t1 + 0.05
+    rig.clock.t = t1 + 0.02
+    rig.input(1)
+    rig.bridge.tick()
+    assert rig.bridge.next_due() == (t1 + 0.02) + 0.05
+    rig.clock.t = (t1 + 0.02) + 0.05 + 1e-6
+    rig.bridge.tick()
+    assert not rig.topic("hand/pose")[-1].valid
+    assert rig.bridge.next_due() == rig.clock.t + 0.1
+    count = len(rig.topic("hand/pose"))
+    rig.clock.t += 0.1
+    rig.bridge.tick()
+    assert len(rig.topic("hand/pose")) == count + 1 and rig.bridge.next_due() == rig.clock.t + 0.1
+
+
 def test_no_invalid_pose_while_the_page_tracks():
     rig = Rig()
     rig.bridge.connected(1)

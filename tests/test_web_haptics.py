@@ -2,6 +2,7 @@
 `haptic` follows tactile/motors, and is 0 whenever the glove would be off (study gate, invalid hand,
 stale motors); what each page can vibrate is counted for the heartbeat."""
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -140,3 +141,28 @@ def test_what_pages_can_vibrate_is_counted_and_bad_outputs_are_dropped():
     assert rig.bridge.counts["page_malformed"] == 1
     rig.bridge.closed(1)
     assert rig.bridge.haptic_outputs()["haptics_pulse"] == 0
+
+
+def test_the_bridge_is_next_due_for_a_changes_frame_and_when_the_vibration_goes_stale():
+    """WebBridge.next_due on a hand-moved clock: a change's frame at once, then no sooner than a frame
+    period after the last; the frame that turns the controller to 0 motors_stale_s after the last
+    tactile/motors; nothing at all when nothing waits (the node then sleeps until an event)."""
+    rig = Rig(frame_period_s=0.01)
+    t0 = rig.t
+    rig.hand(True)
+    assert rig.bridge.next_due() == -math.inf                # a change, and no frame yet
+    assert rig.haptic() == 0.0 and rig.bridge.next_due() == math.inf
+    rig.motors(0.5)                                          # a touch starts: its frame at once
+    assert rig.frames[-1]["haptic"] == 0.5
+    rig.seen = len(rig.frames)
+    assert rig.bridge.next_due() == t0 + 0.06                # motors_stale_s after it
+    rig.t = t0 + 0.004
+    rig.motors(0.625)                                        # a level that only changes waits its period
+    assert rig.bridge.next_due() == t0 + 0.01
+    assert rig.haptic() is None                              # ticked too early: nothing sent
+    rig.t = t0 + 0.01
+    assert rig.haptic() == 0.625
+    assert rig.bridge.next_due() == t0 + 0.004 + 0.06
+    rig.t = t0 + 0.004 + 0.06 + 1e-6
+    assert rig.haptic() == 0.0                               # stale: 0, within the deadline
+    assert rig.bridge.next_due() == math.inf
