@@ -121,6 +121,10 @@ def test_every_listener_hears_every_stacks_beats_and_a_stack_can_listen_to_its_o
     assert set(everything) == {"node/heartbeat"}               # as the bus names it, from every stack
     assert frames and {f[0] for f in frames} == {b"node/heartbeat/A/"}
     assert {decode(f[-1], Heartbeat).node for f in frames} == {"A/a"}
+    with Node("forger", bus=bus, heartbeat=False, start=False) as forger:   # the wire prefix is the beats' own
+        for topic in ("node/heartbeat/A/", "/node/heartbeat/B/x"):
+            with pytest.raises(ValueError, match="node/heartbeat/"):
+                forger.create_publisher(topic, Heartbeat)
 
 
 def test_the_broadcast_stop_reaches_every_namespace_a_namespaced_one_only_its_own():

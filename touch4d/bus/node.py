@@ -712,6 +712,8 @@ class Node:
 
 
 def _check_topic(topic: str) -> None:
-    if not isinstance(topic, str) or not topic or topic.encode().startswith(INTERNAL_PREFIX):
-        raise ValueError(f"topic must be a non-empty string not starting with '_bus/', got {topic!r}")
+    if not isinstance(topic, str) or not topic or topic.encode().startswith(INTERNAL_PREFIX) \
+            or topic.lstrip("/").encode().startswith(_HEARTBEAT_IN):
+        raise ValueError("topic must be a non-empty string not starting with '_bus/' nor 'node/heartbeat/' "
+                         f"(the heartbeats' wire topics, names.heartbeat_key), got {topic!r}")
 
