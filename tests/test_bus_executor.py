@@ -69,6 +69,24 @@ def test_call_later_runs_once_at_its_deadline_and_a_cancelled_one_never():
     ex.close()
 
 
+def test_a_timer_runs_within_its_slack_but_a_fast_one_never_twice_in_a_row(monkeypatch):
+    """The slack, on a hand-moved clock: a 90 Hz tick due within a millisecond runs now; a 1 kHz
+    tick's slack is a quarter of its period, so the turn after a tick does not run the next one."""
+    clock = [100.0]
+    monkeypatch.setattr(executor_module.time, "monotonic", lambda: clock[0])
+    slow_ex, fast_ex = Executor(), Executor()
+    slow, fast = [], []
+    slow_ex.create_timer(1 / 90, lambda: slow.append(clock[0]))
+    fast_ex.create_timer(0.001, lambda: fast.append(clock[0]))
+    clock[0] = 100.0 + 1 / 90 - 0.0009                      # 0.9 ms before the slow tick's due time
+    assert slow_ex.run_timers() == 1 and len(slow) == 1
+    clock[0] = 100.0 + 0.0010005                             # just after the fast tick's due time
+    assert fast_ex.run_timers() == 1
+    assert fast_ex.run_timers() == 0 and len(fast) == 1    # the next turn: its next tick is 1 ms away
+    slow_ex.close()
+    fast_ex.close()
+
+
 def test_on_a_loop_a_timer_costs_one_turn_a_tick_and_a_deadline_is_never_early():
     """The page-serving loop's clock counts milliseconds (libuv's under uvloop): a 90 Hz timer still
     costs one turn a tick, not a turn that finds nothing due and more until the due time; and a

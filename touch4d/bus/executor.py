@@ -31,7 +31,8 @@ from touch4d.eventloop import new_event_loop
 MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its missed ticks
 # s: a timer due this soon runs now. An event loop's clock counts whole milliseconds (libuv's, under
 # uvloop), so its wake-up for a timer may come up to a millisecond early: without the slack that turn
-# would find nothing due and the loop would turn again, and again, until the due time.
+# would find nothing due and the loop would turn again, and again, until the due time. A periodic
+# timer's slack is at most a quarter of its period (a 1 kHz tick is never run twice in a row).
 TIMER_SLACK = 0.001
 
 
@@ -44,6 +45,7 @@ class Timer:
     next_due: float
     cancelled: bool = False
     on_error: Callable[[Any, Exception], None] | None = None   # None: the executor's
+    slack: float = 0.0    # run when due within this (TIMER_SLACK, at most a quarter of the period)
 
     def cancel(self) -> None:
         self.cancelled = True
@@ -104,7 +106,7 @@ class Executor:
         if not period > 0:
             raise ValueError(f"timer period must be > 0 s, got {period}")
         timer = Timer(float(period), callback, time.monotonic() + period if first_due is None else first_due,
-                      on_error=on_error)
+                      on_error=on_error, slack=min(TIMER_SLACK, period / 4))
         self.timers.append(timer)
         self._next_due = min(self._next_due, timer.next_due)
         self._rearm()
@@ -123,6 +125,7 @@ class Executor:
 
         timer = self.create_timer(max(float(delay), 1e-6), once,
                                   first_due=time.monotonic() + max(0.0, delay) + TIMER_SLACK, on_error=on_error)
+        timer.slack = TIMER_SLACK   # the whole slack, as it was added to its due time
         return timer
 
     def set_timer_period(self, timer: Timer, period: float) -> None:
@@ -131,6 +134,7 @@ class Executor:
         if not period > 0:
             raise ValueError(f"timer period must be > 0 s, got {period}")
         timer.period = float(period)
+        timer.slack = min(TIMER_SLACK, timer.period / 4)
         timer.next_due = min(timer.next_due, time.monotonic() + timer.period)
         self._next_due = min(self._next_due, timer.next_due)
         self._rearm()
@@ -213,8 +217,8 @@ class Executor:
     def run_timers(self) -> int:
         """Run the due timers (due within TIMER_SLACK); keeps `_next_due`, when the next one is due,
         for `spin_once`'s wait."""
-        now = time.monotonic() + TIMER_SLACK
-        if now < self._next_due or self._stopping:
+        now = time.monotonic()
+        if now + TIMER_SLACK < self._next_due or self._stopping:
             return 0   # the common case of a spin woken by a message: nothing due
         ran = 0
         next_due, cancelled = math.inf, False
@@ -223,7 +227,7 @@ class Executor:
             if timer.cancelled:
                 cancelled = True
                 continue
-            if timer.next_due <= now and not self._stopping:
+            if timer.next_due <= now + timer.slack and not self._stopping:
                 # Fixed rate: a late tick (poll wakes at millisecond granularity) is made up on the
                 # next spins, so a 1 kHz timer averages 1 kHz; after a stall of more than
                 # MAX_CATCH_UP the missed ticks are skipped rather than fired in a burst.
