@@ -109,15 +109,17 @@ class WebXRNode(Node):
         # The server runs on the executor's loop, on this node's thread (touch4d.bus.executor); its
         # events still reach the bridge as the node's calls, on the executor's next turn (one thread
         # runs the bridge). Each page's messages wait in its bounded inbox until then (server.deliver).
+        # each page event, then the bridge's deadline re-armed
+        connected, closed = self._then_schedule(self.bridge.connected), self._then_schedule(self.bridge.closed)
+        deliver = self._then_schedule(lambda conn: self.server.deliver(conn))
         self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
                                  loop=self.executor.asyncio_loop(serves_tls=ssl_context is not None),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],
-                                 on_connect=lambda conn: self.call_soon_threadsafe(
-                                     self._then_schedule(self.bridge.connected), conn, self.server.peer(conn)),
+                                 on_connect=lambda conn: self.call_soon_threadsafe(connected, conn,
+                                                                                   self.server.peer(conn)),
                                  on_message=self.bridge.page_message,
-                                 on_pending=lambda conn: self.call_soon_threadsafe(self._deliver_page, conn),
-                                 on_close=lambda conn: self.call_soon_threadsafe(
-                                     self._then_schedule(self.bridge.closed), conn))
+                                 on_pending=lambda conn: self.call_soon_threadsafe(deliver, conn),
+                                 on_close=lambda conn: self.call_soon_threadsafe(closed, conn))
         # The bridge's work without an event (a change's frame, stale vibration or hand, invalid poses,
         # a placement to store) runs at its next deadline (WebBridge.next_due), re-armed after every
         # event, not on a timer at the frame rate: with pages sending at 72 Hz, a 90 Hz timer was a
@@ -189,12 +191,6 @@ class WebXRNode(Node):
             finally:
                 self._schedule()
         return run
-
-    def _deliver_page(self, conn: int) -> None:
-        try:
-            self.server.deliver(conn)
-        finally:
-            self._schedule()
 
     def _tick(self) -> None:
         self._tick_timer = None

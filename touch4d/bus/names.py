@@ -13,7 +13,7 @@ import re
 
 GLOBAL_TOPICS = frozenset({"node/heartbeat"})        # never prefixed
 _BEAT = b"node/heartbeat"
-_BEAT_IN = _BEAT + b"/"
+HEARTBEAT_IN = _BEAT + b"/"    # the wire topics of namespaced nodes' beats start so (heartbeat_key)
 BROADCAST_TOPICS = frozenset({"safety/stop"})        # a namespaced subscriber hears the global one too
 _SEGMENT = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
 EXPECTED = "a namespace: segments of letters, digits, _ . - (starting with a letter or digit) joined by '/'"
@@ -58,7 +58,7 @@ def heartbeat_key(ns: str) -> bytes:
 
 def bus_key(key: bytes) -> bytes:
     """A wire topic as the bus names it: a namespaced heartbeat's is `node/heartbeat`."""
-    return _BEAT if key.startswith(_BEAT_IN) else key
+    return _BEAT if key.startswith(HEARTBEAT_IN) else key
 
 
 def node_name(role: str, ns: str) -> str:

@@ -38,7 +38,6 @@ from touch4d.messages import Heartbeat, Message, MessageError, decoder
 HEARTBEAT_TOPIC = "node/heartbeat"
 HEARTBEAT_PERIOD = 1.0
 _HEARTBEAT_KEY = HEARTBEAT_TOPIC.encode()
-_HEARTBEAT_IN = _HEARTBEAT_KEY + b"/"
 _MAX_BATCH = 4096
 _MAX_RAW_NAMES = 4096   # topic names kept decoded for raw subscribers (a flood of new topics is not kept)
 _SNDMORE, _NOBLOCK, _RCVMORE = zmq.SNDMORE, zmq.NOBLOCK, zmq.RCVMORE
@@ -559,9 +558,8 @@ class Node:
             if topic.startswith(INTERNAL_PREFIX):
                 continue
             subs = self._subs.get(topic)
-            if subs is None and topic.startswith(_HEARTBEAT_IN):
-                topic = _HEARTBEAT_KEY          # a namespaced node's beat (names.heartbeat_key)
-                subs = self._subs.get(topic)
+            if subs is None and (bus_key := names.bus_key(topic)) is not topic:
+                topic, subs = bus_key, self._subs.get(bus_key)   # a namespaced node's beat
             if subs is not None and self._local_copies.awaited and len(frames) == 2 \
                     and self._local_copies.seen(topic, frames[1]):
                 subs = None   # handed over in-process already (touch4d.bus.local)
@@ -713,7 +711,7 @@ class Node:
 
 def _check_topic(topic: str) -> None:
     if not isinstance(topic, str) or not topic or topic.encode().startswith(INTERNAL_PREFIX) \
-            or topic.lstrip("/").encode().startswith(_HEARTBEAT_IN):
+            or topic.lstrip("/").encode().startswith(names.HEARTBEAT_IN):
         raise ValueError("topic must be a non-empty string not starting with '_bus/' nor 'node/heartbeat/' "
                          f"(the heartbeats' wire topics, names.heartbeat_key), got {topic!r}")
 

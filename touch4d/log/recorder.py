@@ -22,7 +22,6 @@ from touch4d.bus.config import BusConfig
 from touch4d.bus.realtime import raise_thread_priority
 from touch4d.bus.transport import INTERNAL_PREFIX, bus_context
 from touch4d.errors import Touch4dError
-from touch4d.messages.codec import CodecError, unpack
 
 from .writer import LogWriter, WallClock
 
@@ -195,19 +194,10 @@ class Recorder:
             self.offered += 1
 
     def _keeps(self, frames: list[bytes]) -> bool:
-        """Whether a message is this recording's: a topic wanted; in a namespace, of the one global
-        heartbeat topic only its own stack's beats (another participant's nodes stay out of this
-        participant's log). A beat that cannot be read is kept."""
-        topic = names.bus_key(frames[0])
-        if not _wanted(topic, self._wanted):
-            return False
-        if not self.namespace or topic != HEARTBEAT:
-            return True
-        try:
-            node = unpack(frames[-1])["node"]
-        except (CodecError, KeyError, TypeError, IndexError):
-            return True
-        return not isinstance(node, str) or f"{names.namespace_of(node)}/".startswith(f"{self.namespace}/")
+        """Whether a message is this recording's: a topic wanted. (In a namespace, of the heartbeats
+        only its own stack's come: `_subscriptions`, so another participant's nodes stay out of this
+        participant's log.)"""
+        return _wanted(names.bus_key(frames[0]), self._wanted)
 
     def _subscriptions(self) -> list[bytes]:
         """The topics asked for, or every topic (of its namespace, and the global ones); in a

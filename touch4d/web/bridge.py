@@ -389,9 +389,9 @@ class WebBridge:
         if self._haptic != 0.0:
             due = min(due, self._motors_at + self.config.motors_stale_s)
         if self.config.tracker:
-            page = self.pages.get(self.owner) if self.owner is not None else None
-            if page is not None and page.tracking and self.now() - page.last_input <= self.config.stale_s:
-                due = min(due, page.last_input + self.config.stale_s)
+            driver = self.driving(self.now())
+            if driver is not None:
+                due = min(due, self.pages[driver].last_input + self.config.stale_s)
             else:
                 due = min(due, -math.inf if self._was_live else self._invalid_at + self.config.invalid_period_s)
         if self._unsaved is not None:
