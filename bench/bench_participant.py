@@ -9,9 +9,10 @@ and encoded once by its publisher, decoded without a second check by each subscr
 the page's node, the tactile model and the study node; controller/state by the scene node;
 tactile/field by the page's node; tactile/motors by the page's node and the study node). The page's
 inputs are bench/bench_serve.py's: the grip in and out of the hypercube's front cell every 300 ms,
-at 72 Hz on a simulated clock, and the node's 90 Hz tick sends a frame whenever one is due; the
+at 72 Hz on a simulated clock, and the bridge ticks at its deadlines (WebBridge.next_due, as the
+node's `call_later` does, a millisecond's slack after each): a change's frame, stale checks; the
 study node measures each pose and motor command (touch4d.study.measures, as in a trial's stimulus).
-Not here: the sockets (the page server's thread), the executor, the scene node's handling of
+Not here: the sockets (the page server on the node's loop), the executor, the scene node's handling of
 controller/state (nothing while the trigger is released), the recorder.
 
 Figures, CPU microseconds per input (time.process_time: other load on the machine is not counted;
@@ -48,7 +49,8 @@ REPO = Path(__file__).resolve().parents[1]
 GLOVE = REPO / "config/gloves/quest-controller.yaml"
 SCENE = REPO / "config/scenes/hypercube.yaml"
 CALIBRATION = REPO / "config/calibration.yaml"
-RATE_HZ, TICK_HZ, TOGGLE_S = 72.0, 90.0, 0.3
+RATE_HZ, TOGGLE_S = 72.0, 0.3
+SLACK_S = 0.001   # a deadline runs this long after its time (call_later adds touch4d.bus.executor.TIMER_SLACK)
 INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's centre: in the front cell
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 HEAD = [0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0]
@@ -88,18 +90,16 @@ def page_inputs(n: int) -> list[tuple[float, str]]:
     return out
 
 
-def events(n: int) -> list[tuple[float, str | None]]:
-    """The inputs and the 90 Hz ticks between them, in time order (text None: a tick)."""
-    inputs = page_inputs(n)
-    ticks = [(k / TICK_HZ, None) for k in range(int(inputs[-1][0] * TICK_HZ) + 1)]
-    return sorted(inputs + ticks, key=lambda e: (e[0], e[1] is None))
+def events(n: int) -> list[tuple[float, str]]:
+    """The page's inputs, in time order (the bridge's deadlines come between them: Participant.run)."""
+    return page_inputs(n)
 
 
 class Participant:
     """The participant's nodes in one thread, the private topics handed over in-process."""
 
     def __init__(self, stages: Stages | None = None):
-        self.clock = 0.0
+        self.clock = 1.7e9   # the simulated clock (the inputs arrive from here on)
         glove = load_glove(GLOVE)
         wrap = stages.wrap if stages is not None else (lambda name, fn: fn)
         self.engine = TactileEngine(glove, joints=False)
@@ -172,12 +172,13 @@ class Participant:
         b, n = self.bridge, 0
         t0 = time.process_time()
         for t, text in timeline:
-            self.clock = 1.7e9 + t
-            if text is None:
+            arrival = 1.7e9 + t
+            while (due := b.next_due()) <= arrival:   # the node's deadline, before this input came
+                self.clock = max(self.clock, due + SLACK_S)
                 b.tick()
-            else:
-                b.page_message(CONN, text, self.clock)
-                n += 1
+            self.clock = arrival
+            b.page_message(CONN, text, self.clock)
+            n += 1
         return time.process_time() - t0, n
 
 
@@ -194,11 +195,7 @@ def empty_loop(timeline: list) -> float:
     sink = []
     t0 = time.process_time()
     for t, text in timeline:
-        clock = 1.7e9 + t
-        if text is None:
-            sink.append(clock)
-        else:
-            sink.append(text)
+        sink.append((1.7e9 + t, text))
     return time.process_time() - t0
 
 
@@ -258,7 +255,7 @@ def main() -> None:
         for name, s in stages.seconds.items():
             per_stage[name] = min(per_stage.get(name, float("inf")), s / n * 1e6)
 
-    print(f"one participant's process, per page input ({n} inputs at {RATE_HZ:.0f} Hz, ticks at {TICK_HZ:.0f} Hz, "
+    print(f"one participant's process, per page input ({n} inputs at {RATE_HZ:.0f} Hz, ticks at the bridge's deadlines, "
           f"{frames} frames sent; CPU time, best of {args.repeat})")
     print(f"  whole path                         {best:8.1f} us   ({best / max(empty, 1e-9):.0f}x the empty loop, "
           f"{best * RATE_HZ / 1e4:.2f}% of a core at {RATE_HZ:.0f} Hz)")

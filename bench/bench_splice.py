@@ -23,16 +23,18 @@ import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy load
 import aiohttp
 from aiohttp import WSMsgType, web
 
+from touch4d.eventloop import new_event_loop
 from touch4d.web.splice import Splice
 from touch4d.web.studyserver import _upgrade_request
 from touch4d.web.wiretrace import WireTrace
 
 
 class Loop:
-    """An event loop in a thread of its own; `call(coro)` runs a coroutine there and returns its result."""
+    """An event loop in a thread of its own (the study server's kind: touch4d.eventloop); `call(coro)`
+    runs a coroutine there and returns its result."""
 
     def __init__(self):
-        self.loop = asyncio.new_event_loop()
+        self.loop = new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
 
@@ -118,11 +120,7 @@ def splice_front(port: int, trace: WireTrace | None) -> web.Application:
         if status != 101:
             return web.Response(status=status, body=body)
         if splice.join(request.transport):
-            try:
-                await splice.closed
-            finally:
-                splice.close()
-                request.protocol.connection_lost(None)
+            await splice.finish(request.protocol)
         return web.Response()
     app = web.Application()
     app.router.add_get("/ws", ws_handler)

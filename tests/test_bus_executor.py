@@ -69,6 +69,30 @@ def test_call_later_runs_once_at_its_deadline_and_a_cancelled_one_never():
     ex.close()
 
 
+def test_after_its_spin_the_loop_runs_a_page_servers_shutdown_to_the_end_without_node_work():
+    """Once spin has returned, the loop may run someone else's coroutine (a page server closing its
+    pages): a wake-up, a call or a timer then neither stops that loop half-way nor runs node work."""
+    for _ in range(5):                                      # a race: each round may lose it
+        ex = Executor()
+        loop = ex.asyncio_loop()
+        ticks, calls = [], []
+        ex.create_timer(0.005, lambda: ticks.append(1))
+        threading.Timer(0.05, ex.request_shutdown).start()
+        ex.spin()
+        assert ticks
+        ex.request_shutdown()                              # again, as a node's shutdown does: a wake-up
+        ex.call_soon_threadsafe(calls.append, 1)
+        n = len(ticks)
+
+        async def closing() -> str:
+            await asyncio.sleep(0.03)
+            return "closed"
+
+        assert loop.run_until_complete(closing()) == "closed"
+        assert len(ticks) == n and calls == []
+        ex.close()
+
+
 def test_a_timer_runs_within_its_slack_but_a_fast_one_never_twice_in_a_row(monkeypatch):
     """The slack, on a hand-moved clock: a 90 Hz tick due within a millisecond runs now; a 1 kHz
     tick's slack is a quarter of its period, so the turn after a tick does not run the next one."""

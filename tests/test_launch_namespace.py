@@ -115,6 +115,7 @@ def test_every_listener_hears_every_stacks_beats_and_a_stack_can_listen_to_its_o
             frames = []
             while own.poll(0):
                 frames.append(own.recv_multipart())
+            assert a.stats_flat()["published"] == 0                 # its own beats are not its messages
         finally:
             own.close(linger=0)
     assert {m.node for m in beats} >= {"A/a", "B/b", "g"}

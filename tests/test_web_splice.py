@@ -193,3 +193,20 @@ def test_a_refusal_comes_back_with_its_status_and_body_and_no_answer_is_an_error
         with pytest.raises(OSError):                         # nobody listening
             await Splice().upgrade("127.0.0.1", port, REQUEST, timeout=10)
     asyncio.run(main())
+
+
+def test_a_client_gone_while_the_upstream_answered_closes_the_upstream():
+    """The browser left during the upgrade (aiohttp's request then has no transport): join says so,
+    and the participant's page server sees its connection closed, its page slot free again."""
+    async def main():
+        upstream = Upstream(HEAD)
+        port = await upstream.start()
+        splice = Splice(lambda data: None, lambda data: None)
+        status, _, _ = await splice.upgrade("127.0.0.1", port, REQUEST, timeout=10)
+        up_reader, up_writer = await upstream.streams
+        assert status == 101
+        assert splice.join(None) is False
+        assert await asyncio.wait_for(up_reader.read(), 10) == b""   # end of stream: closed
+        up_writer.close()
+        await upstream.close()
+    asyncio.run(main())

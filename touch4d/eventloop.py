@@ -16,7 +16,7 @@ def new_event_loop(serves_tls: bool = False) -> asyncio.AbstractEventLoop:
     """A new event loop of the kind above (not set as the thread's current loop). `serves_tls`: a
     loop whose server starts TLS itself (touch4d.web.server's guard, `start_tls`) is asyncio's:
     on uvloop's, a browser's secure WebSocket to that server never opened (tests/test_web_browser.py)."""
-    return uvloop.new_event_loop() if uvloop is not None and not serves_tls else asyncio.new_event_loop()
+    return uvloop.new_event_loop() if kind(serves_tls) == "uvloop" else asyncio.new_event_loop()
 
 
 def kind(serves_tls: bool = False) -> str:

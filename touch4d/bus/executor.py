@@ -80,6 +80,8 @@ class Executor:
         self._armed_due = math.nan
         self._spun = 0                 # handled during a spin on the loop (spin_once's answer)
         self._in_step = False
+        self._serves_tls = False
+        self._spinning = False   # our spin runs the loop (not a page server starting or stopping)
         self._once = False
         self.local = LocalRoutes()   # its nodes' subscriptions, for intra-process delivery (touch4d.bus.local)
 
@@ -215,8 +217,8 @@ class Executor:
         return ran
 
     def run_timers(self) -> int:
-        """Run the due timers (due within TIMER_SLACK); keeps `_next_due`, when the next one is due,
-        for `spin_once`'s wait."""
+        """Run the due timers (each due within its `slack`); keeps `_next_due`, when the next one is
+        due, for `spin_once`'s wait."""
         now = time.monotonic()
         if now + TIMER_SLACK < self._next_due or self._stopping:
             return 0   # the common case of a spin woken by a message: nothing due
@@ -274,7 +276,11 @@ class Executor:
         """The asyncio loop this executor spins on from now on (made at the first call, before the
         first spin; `serves_tls`: touch4d.eventloop): a page server given it serves on the
         executor's thread (see the module's doc)."""
+        if self._loop is not None and serves_tls != self._serves_tls:
+            raise ValueError("one executor's loop serves TLS itself or not: a second page server "
+                             f"{'with' if serves_tls else 'without'} TLS in this process cannot share it")
         if self._loop is None:
+            self._serves_tls = serves_tls
             self._loop = new_event_loop(serves_tls)
             for sock in self._readers:
                 self._watch(sock)
@@ -293,12 +299,17 @@ class Executor:
         self._loop_thread = threading.get_ident()
         self._spun, self._once = 0, once
         stop = loop.call_later(max(0.0, duration), loop.stop) if duration is not None else None
+        self._spinning = True
         self._step_soon()
         try:
             loop.run_forever()
         finally:
+            self._spinning = False
             if stop is not None:
                 stop.cancel()
+            if self._timer_handle is not None:   # the next spin arms its own
+                self._timer_handle.cancel()
+                self._timer_handle, self._armed_due = None, math.nan
             self._once = False
         return self._spun
 
@@ -321,6 +332,8 @@ class Executor:
         """One turn on the loop: due timers, calls, and every socket with something to read (asked
         again until none has: a callback's send on a socket may have taken its FD's signal)."""
         self._step_pending = False
+        if not self._spinning:
+            return   # the loop runs for someone else (a page server starting or stopping): the next spin turns
         self._in_step = True
         try:
             self._turn()
@@ -339,6 +352,9 @@ class Executor:
         handled += self.run_timers()
         self._spun += handled
         if self._stopping or (self._once and self._spun):
+            # once a spin: uvloop's stop queues its stop as a callback, and a second one left queued
+            # would stop whatever runs the loop next (a page server closing its pages) at once
+            self._spinning = False
             self._loop.stop()
         elif self._calls:
             self._step_soon()

@@ -47,11 +47,11 @@ _MAX_LOGGED_CAUSES = 200
 class Publisher:
     """Publishes one message type on one topic; `publish` fills the header."""
 
-    def __init__(self, node: "Node", topic: str, msg_type: type[Message]):
+    def __init__(self, node: "Node", topic: str, msg_type: type[Message], wire_key: bytes | None = None):
         self.node = node
         self.topic = topic
         self.msg_type = msg_type
-        self._topic = topic.encode()
+        self._topic = topic.encode() if wire_key is None else wire_key   # on the wire (the heartbeat's differs)
 
     def publish(self, msg: Message) -> None:
         """Check, stamp (if 0), number and send `msg` (Message.publish_payload); raises MessageError,
@@ -179,6 +179,7 @@ class Node:
         self._set_up = False
         self._started = False
         self._heartbeat = heartbeat
+        self._heartbeat_key = names.heartbeat_key(self.namespace)   # its beats on the wire (names)
         self._seq: dict[bytes, int] = {}  # next seq per published topic = messages published on it
         self._publishes: set[str] = set()
         self._subs: dict[bytes, list[Subscription]] = {}
@@ -246,8 +247,7 @@ class Node:
         for frames in held.messages:
             self._pub.send_multipart(frames)
         if self._heartbeat:
-            self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat)
-            self._heartbeat_pub._topic = names.heartbeat_key(self.namespace)   # the global topic, by namespace
+            self._heartbeat_pub = Publisher(self, HEARTBEAT_TOPIC, Heartbeat, self._heartbeat_key)
             self._timers.append(self.executor.create_timer(HEARTBEAT_PERIOD, self._send_heartbeat,
                                                            first_due=time.monotonic(), on_error=self._callback_failed))
 
@@ -398,7 +398,7 @@ class Node:
             for name, value in counters.items():
                 out[name] += value
                 out[f"{topic}:{name}"] = value
-        out["published"] = sum(n for t, n in self._seq.items() if t != _HEARTBEAT_KEY)
+        out["published"] = sum(n for t, n in self._seq.items() if t != self._heartbeat_key)
         out.update(self._counters)
         for source in self._stat_sources:
             out.update(source())

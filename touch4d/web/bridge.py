@@ -578,10 +578,10 @@ class WebBridge:
         for a moment: a silent controller moves nothing, and a grab (§4.4) survives the hiccup."""
         if not self.config.tracker:
             return
+        if self.driving(now) is not None:
+            return
         page = self.pages.get(self.owner) if self.owner is not None else None
         tracking = page is not None and page.tracking
-        if tracking and now - page.last_input <= self.config.stale_s:
-            return
         if self._was_live or now - self._invalid_at >= self.config.invalid_period_s:
             self._was_live = False
             self._invalid_at = now

@@ -44,6 +44,7 @@ import json
 import math
 import re
 import struct
+import sys
 from typing import Annotated, Literal, Union
 
 import msgspec
@@ -91,6 +92,9 @@ def json_members(fields: dict) -> bytes:
     return _to_json(fields).encode()[1:-1]
 
 
+_BIG_ENDIAN = (">", "=") if sys.byteorder == "big" else (">",)   # dtype byte orders that are big-endian here
+
+
 def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarray] | None = None,
                members: bytes = b"") -> bytes:
     """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
@@ -107,7 +111,7 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
     for name, arr in (arrays or {}).items():
         arr = np.ascontiguousarray(arr)
         entry = _entry(name, arr)
-        if arr.dtype.byteorder == ">":
+        if arr.dtype.byteorder in _BIG_ENDIAN:   # the page reads little-endian
             arr = arr.astype(arr.dtype.newbyteorder("<"))
         entries.append(entry)
         clean.append(arr)

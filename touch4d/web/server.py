@@ -265,6 +265,7 @@ class PageServer:
         self._inboxes: dict[int, Inbox] = {}     # until the last delivery after a page closed
         self._ids = itertools.count(1)
         self._given_loop = loop            # its owner runs it; None: a thread of the server's own
+        self._closing: asyncio.Task | None = None   # a stop from a callback on the given loop
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
@@ -308,7 +309,7 @@ class PageServer:
             if loop is None or loop.is_closed():
                 return
             if loop.is_running():     # from a callback on it: the rest happens on its next turns
-                loop.create_task(self._shutdown())
+                self._closing = loop.create_task(self._shutdown())   # kept: a task only weakly held may vanish
             else:
                 try:
                     loop.run_until_complete(asyncio.wait_for(self._shutdown(), timeout))

@@ -152,10 +152,11 @@ class Splice:
         self.close()
         return status, headers, body
 
-    def join(self, transport: asyncio.Transport) -> bool:
+    def join(self, transport: asyncio.Transport | None) -> bool:
         """Take `transport` (the client's, from whoever served it until now), write it the upstream's
-        101 head and what followed it, then pass bytes both ways. False: the client had gone."""
-        if transport.is_closing():
+        101 head and what followed it, then pass bytes both ways. False, the upstream closed: the
+        client had gone (its transport None or closing: it may have left while the upstream answered)."""
+        if transport is None or transport.is_closing():
             self.close()
             return False
         server = self.server
@@ -170,6 +171,16 @@ class Splice:
         if not transport.is_reading():
             transport.resume_reading()
         return True
+
+    async def finish(self, protocol: asyncio.BaseProtocol) -> None:
+        """Once joined: wait until either side closes, close both, and tell `protocol` (aiohttp's
+        handler of the client's connection, which the splice took) that its connection is gone, so
+        the response its handler then returns writes nothing."""
+        try:
+            await self.closed
+        finally:
+            self.close()
+            protocol.connection_lost(None)
 
     def close(self) -> None:
         """Close both connections (their unsent bytes get `grace_s` to leave, then they are cut)."""

@@ -451,19 +451,16 @@ class StudyServer:
             return web.Response(status=status, body=body,
                                 headers={"Content-Type": headers.get("Content-Type", "text/plain")})
         # A browser sends nothing before the 101 (RFC 6455 4.1): the connection has no bytes of its
-        # own left with aiohttp when it is taken.
+        # own left with aiohttp when it is taken. Its transport is read again: the browser may have
+        # gone while the page server answered.
         if splice.join(request.transport):
             self._page_opened(p)
             self._splices.add(splice)
             try:
-                await splice.closed
+                await splice.finish(request.protocol)
             finally:
-                splice.close()
                 self._splices.discard(splice)
                 self._page_closed(p)
-                # aiohttp's handler of the connection forgets it (it would have heard the close but
-                # for the splice); the response below finds no transport and writes nothing
-                request.protocol.connection_lost(None)
         return web.Response()
 
     def _await_page(self, p: Participant) -> None:

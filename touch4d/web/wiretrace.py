@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Callable
 
 from aiohttp import WSMessage, WSMsgType
-from aiohttp._websocket.reader import WebSocketDataQueue   # the queue aiohttp's WebSocketResponse reads
 from aiohttp.http import WebSocketReader
 
 from .protocol import MAX_PAGE_MESSAGE, frame_header
@@ -77,22 +76,22 @@ class WireTrace:
         self._file.close()
 
 
-class _Messages(WebSocketDataQueue):
-    """aiohttp's WebSocket message queue, but each message handed on as the reader completes it
-    (nothing is queued: nobody awaits `read()`, and the reader never stalls)."""
-
-    def __init__(self, on_message: Callable[[WSMessage], None]):
-        super().__init__(None, 1 << 16, loop=None)   # no protocol to pause, no loop: never awaited
-        self.on_message = on_message
-
-    def feed_data(self, data: WSMessage, size: int) -> None:
-        self.on_message(data)
-
-
 def _frames(on_message: Callable[[WSMessage], None], max_msg_size: int) -> Callable[[bytes], None]:
     """Bytes of one direction of a WebSocket in, `on_message` per message out (aiohttp's frame reader;
-    after a protocol error it reads nothing more: the page's node closes that connection)."""
-    return WebSocketReader(_Messages(on_message), max_msg_size, compress=False, decode_text=True).feed_data
+    after a protocol error it reads nothing more: the page's node closes that connection). Its
+    message queue is aiohttp's own (3.11 on, an internal module: imported only when a trace is
+    asked for), but each message is handed on as the reader completes it (nothing is queued: nobody
+    awaits `read()`, and the reader never stalls)."""
+    from aiohttp._websocket.reader import WebSocketDataQueue
+
+    class Messages(WebSocketDataQueue):
+        def __init__(self):
+            super().__init__(None, 1 << 16, loop=None)   # no protocol to pause, no loop: never awaited
+
+        def feed_data(self, data: WSMessage, size: int = 0) -> None:
+            on_message(data)
+
+    return WebSocketReader(Messages(), max_msg_size, compress=False, decode_text=True).feed_data
 
 
 @dataclass(frozen=True)
