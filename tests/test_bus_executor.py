@@ -186,3 +186,14 @@ def test_on_an_asyncio_loop_timers_readers_calls_and_the_loops_own_work_share_on
     assert loop.is_closed()
     inbound.close(linger=0)
     outbound.close(linger=0)
+
+
+def test_one_executor_loop_serves_tls_itself_or_not_never_both():
+    """A second page server of the other kind in one process is refused, not given a loop on which
+    its secure WebSockets would never open (touch4d.eventloop)."""
+    ex = Executor()
+    loop = ex.asyncio_loop(serves_tls=False)
+    assert ex.asyncio_loop(serves_tls=False) is loop
+    with pytest.raises(ValueError, match="TLS"):
+        ex.asyncio_loop(serves_tls=True)
+    ex.close()

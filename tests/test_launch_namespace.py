@@ -113,8 +113,12 @@ def test_every_listener_hears_every_stacks_beats_and_a_stack_can_listen_to_its_o
             spin_until([a, b, g, probe], lambda: {"A/a", "B/b", "g"} <= {m.node for m in beats}, timeout=15)
             spin_until([a, b, g, probe], lambda: len([m for m in beats if m.node == "B/b"]) >= 2, timeout=15)
             frames = []
-            while own.poll(0):
-                frames.append(own.recv_multipart())
+
+            def own_heard() -> bool:                               # its subscription needs a moment too
+                while own.poll(0):
+                    frames.append(own.recv_multipart())
+                return len(frames) >= 2
+            spin_until([a, b, g, probe], own_heard, timeout=15)
             assert a.stats_flat()["published"] == 0                 # its own beats are not its messages
         finally:
             own.close(linger=0)
