@@ -452,9 +452,10 @@ def test_the_tracked_hands_fingers_drive_the_glove_and_pointing_changes_which_mo
         assert not any(n.startswith(("palm-", "back-")) for n in relaxed)
         t0 = time.time()
         wait_until(lambda: board_on_since(glove, 4, t0), timeout=10)       # ring and little on board 4
-        tactile = wait_until(lambda: [b for b in beats if b.node == "tactile" and b.stats.get("joints", 0) > 0],
-                             timeout=10, spin=watcher)[-1]
-        assert tactile.stats["hand_joints"] == 1
+        # the tactile node follows the joints (a beat of it saying so; a page that stalls past the
+        # joints' timeout on a loaded machine hands the glove to the pose for a moment: not that beat)
+        wait_until(lambda: [b for b in beats if b.node == "tactile" and b.stats.get("joints", 0) > 0
+                            and b.stats.get("hand_joints") == 1], timeout=10, spin=watcher)
 
         page.evaluate("xr.hands.right.poseId = 'point'")
         pointing = wait_until(lambda: (on := motors_on()) and not any(n.startswith(("ring-", "little-", "middle-"))
