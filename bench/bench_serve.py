@@ -13,14 +13,16 @@ logs the haptic loop at the page's rate, as in every session. Then the same thro
 relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
 netem). Baseline, in the same run: one participant.
 
-`--process-per-node`: each round also with every node of a stack in a process of its own (the stack
-before launch files had `group`), the baseline of the memory and CPU the shared process saves.
+`--per-process K [K ...]`: each round once per K, the participants' stacks sharing processes K at a
+time (containers, touch4d.bus.container; the server's default when not given): `--per-process 1 8`
+gives a process per participant, the baseline of the CPU and memory that sharing saves, in the
+same run.
 
 `--trials`: the stacks with their study node (the full session), every participant answering each
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
-    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--process-per-node]
+    .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--per-process 1 8]
                                           [--over 32] [--trials] [--figure PNG] [--json FILE]
 
 The simulated pages run in this process at a lower priority than the server and its stacks
@@ -64,7 +66,6 @@ INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's c
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 TOGGLE_S = 0.3
 DELAY_S = 0.025                                      # each way: 50 ms round trip
-ROLES = ("tracker", "scene", "tactile", "study", "recorder")   # launch/study-serve.yaml's
 PAGES_NICE = 10        # the simulated pages run this much nicer than the server and its stacks: on a real
                        # deployment the headsets are elsewhere; here they share the cores, and must not
                        # take them from the server they measure (the server's priority is restored in
@@ -92,16 +93,11 @@ def server_nice() -> int:
 
 
 def start_server(out: Path, participants: int | None, study: bool = False, trace: Path | None = None,
-                 per_node: bool = False):
-    """The server; `per_node`: each participant's nodes in processes of their own (no `group`);
+                 per_process: int | None = None):
+    """The server; `per_process`: participants' stacks per process (None: the server's default);
     `participants` None: the server's own default cap (four per core)."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open"]
-    launch = []
-    if per_node:
-        path = out.parent / "per-node.yaml"
-        path.write_text(f"include: [{REPO / 'launch/study-serve.yaml'}]\nnodes:\n"
-                        + "".join(f"  {role}: {{group: '', private: []}}\n" for role in ROLES))
-        launch = ["--stack", str(path)]
+    launch = [] if per_process is None else ["--per-process", str(per_process)]
     proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
                              *launch, *(["--wire-trace", str(trace)] if trace else []),
                              "--port", "0", *([] if study else ["--quick"]),
@@ -166,13 +162,15 @@ def pss_mb(pid: int) -> float:
 
 
 def role(pid: int) -> str:
-    """What a process of the server's tree is: a node's role (its --name), a group's name (its
-    --group: the participant's nodes in one process), the launcher, or the server."""
+    """What a process of the server's tree is: a container (participants' stacks), a node's role
+    (its --name), a group's name (its --group), a launcher, or the server."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
         return "?"
     argv = [a.decode(errors="replace") for a in argv]
+    if "--container" in argv:
+        return "container"
     if "--group" in argv:
         return argv[argv.index("--group") + 1]
     if "--name" in argv:
@@ -322,13 +320,13 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
             reader.cancel()
 
 
-async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_node: bool = False,
+async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_process: int | None = None,
                     capped: bool = False) -> dict:
     """`capped`: N pages try to join a server with its default cap; the figures are the admitted's."""
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
-        proc, base = start_server(out, None if capped else n, study, trace, per_node)
+        proc, base = start_server(out, None if capped else n, study, trace, per_process)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -380,7 +378,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             inputs = inputs_between(trace, w0, w1)
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
-            return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": "a process per node" if per_node else "",
+            return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": f"{per_process} per process" if per_process else "",
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
@@ -452,8 +450,8 @@ def main() -> None:
     parser.add_argument("--figure", metavar="PNG", help="plot the rounds: CPU, memory and p99 against N")
     parser.add_argument("--json", metavar="FILE", help="write the rounds' figures there")
     parser.add_argument("--plot", metavar="JSON", nargs="+", help="no rounds: plot --figure from these --json files")
-    parser.add_argument("--process-per-node", action="store_true",
-                        help="each round also with every node in a process of its own: the baseline")
+    parser.add_argument("--per-process", type=int, nargs="+", metavar="K",
+                        help="each round once per K: participants' stacks per process (1: a process each, the baseline)")
     parser.add_argument("--over", type=int, metavar="N",
                         help="then N pages against the server's default cap (four per core): admitted and refused")
     parser.add_argument("--pages-nice", type=int, default=PAGES_NICE, metavar="N",
@@ -477,19 +475,19 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
-    layouts = [True, False] if args.process_per_node else [False]
+    layouts = args.per_process or [None]
     for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
-        for n, per_node in ((n, p) for n in sorted(set([1, *args.participants])) for p in layouts):
-            r = asyncio.run(run_round(n, args.seconds, delay, per_node=per_node))
+        for n, per_process in ((n, k) for n in sorted(set([1, *args.participants])) for k in layouts):
+            r = asyncio.run(run_round(n, args.seconds, delay, per_process=per_process))
             rows.append(r)
             base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"] and x["label"] == r["label"])
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
-            if args.process_per_node:
-                print(f"{'a process per node' if per_node else 'one process per participant (group)'}:", flush=True)
-                if not per_node:
-                    before = rows[-2]
-                    print(f"      group / process per node: memory x{r['mb_per_participant'] / before['mb_per_participant']:.2f}, "
-                          f"CPU per input x{r['cpu_ms_per_input'] / max(before['cpu_ms_per_input'], 1e-9):.2f}", flush=True)
+            if len(layouts) > 1:
+                first = next(x for x in rows if x["n"] == n and x["delay_ms"] == r["delay_ms"])
+                print(f"{per_process} participant(s) per process:", flush=True)
+                if first is not r:
+                    print(f"      against {first['label']}: memory x{r['mb_per_participant'] / first['mb_per_participant']:.2f}, "
+                          f"CPU per input x{r['cpu_ms_per_input'] / max(first['cpu_ms_per_input'], 1e-9):.2f}", flush=True)
             print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core (the server's "
                   f"share included) and "
                   f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "

@@ -137,7 +137,7 @@ def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tm
         states = {p["participant"]: p["state"] for p in view["participants"]}
         assert states == {"P01": "running", "P02": "invited"} and view["counts"]["full"] == 1
         log = (served.out / "P01" / "serve.log").read_text()
-        assert "every topic under P01/" in log
+        assert "every topic under P01/" in log and "loaded in container participants-1" in log
         wait_until(lambda: (served.out / "P01" / "manifest.json").exists(), timeout=60)
         # the study node runs P01's session (its namespace's study/trial reaches the experimenter's page)
         wait_until(lambda: [p for p in experimenter_view(served)["participants"]
@@ -163,42 +163,61 @@ def _processes_with(text: str) -> list[int]:
     return found
 
 
-def _starts(out: Path) -> int:
-    """How often P01's study node started its session (manifest.json; 0 before it is written)."""
+def _starts(out: Path, participant: str = "P01") -> int:
+    """How often a participant's study node started its session (manifest.json; 0 before it is written)."""
     try:
-        return len(json.loads((out / "P01" / "manifest.json").read_text())["starts"])
+        return len(json.loads((out / participant / "manifest.json").read_text())["starts"])
     except FileNotFoundError:
         return 0
 
 
-def _group_processes(out: Path) -> list[int]:
-    """P01's shared node process (launch/study-serve.yaml's `group`), not its launcher."""
-    return [pid for pid in _processes_with(f"{out}/P01")
-            if b"--group" in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")]
+def _containers(server_pid: int) -> list[int]:
+    """The server's containers (touch4d.bus.container): the processes of participants' stacks."""
+    found = []
+    for pid in _processes_with("--container"):
+        try:
+            if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]) == server_pid:
+                found.append(pid)
+        except (OSError, ValueError, IndexError):
+            pass
+    return found
 
 
-def test_a_crashed_stack_comes_back_whole_a_killed_server_takes_its_stacks_and_everyone_resumes(tmp_path, capsys):
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_and_everyone_resumes(tmp_path, capsys):
     with serve(tmp_path, "--leave-after", "600") as served:          # no page opens here
-        link = invite(served, "P01", capsys=capsys)
-        page = Browser()
-        page.get(link)
-        assert page.get(f"{served.url}/join", data=b"")[0] == 200
-        assert _processes_with(f"{served.out}/P01")                    # its nodes run
-        wait_until(lambda: _starts(served.out) >= 1, timeout=90)       # its session began
-        first = _group_processes(served.out)
-        assert len(first) == 1                                         # its nodes: one process
-        os.kill(first[0], signal.SIGKILL)                              # a crash takes every node of it
-        # its launcher starts the group again: the study node resumes the same session
-        wait_until(lambda: _starts(served.out) >= 2, timeout=90)
-        back = _group_processes(served.out)
+        links = {}
+        for participant in ("P01", "P02"):
+            links[participant] = invite(served, participant, capsys=capsys)
+            page = Browser()
+            page.get(links[participant])
+            assert page.get(f"{served.url}/join", data=b"")[0] == 200
+        for participant in ("P01", "P02"):
+            wait_until(lambda: _starts(served.out, participant) >= 1, timeout=90)   # its session began
+        first = _containers(served.proc.pid)
+        assert len(first) == 1                                         # both stacks: one process
+        os.kill(first[0], signal.SIGKILL)                              # a crash takes every stack of it
+        # the server starts the container again with both: each study node resumes its session
+        for participant in ("P01", "P02"):
+            wait_until(lambda: _starts(served.out, participant) >= 2, timeout=90)
+        back = _containers(served.proc.pid)
         assert len(back) == 1 and back != first
+        wait_until(lambda: "participants-1 was killed by SIGKILL: starting it again with its 2 group(s): P01, P02"
+                   in served.text, timeout=10)
         log = (served.out / "P01" / "serve.log").read_text()
-        assert "group 'participant'" in log and "was killed by SIGKILL" in log and "respawning 'participant'" in log
+        assert log.count("P01: 5 node(s) loaded in container") == 2
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
         served.proc.wait()
-        wait_until(lambda: not _processes_with(f"{served.out}/P01"), timeout=30)
+        wait_until(lambda: not _alive(back[0]), timeout=30)            # its containers go with it
     with serve(tmp_path, "--leave-after", "600") as again:
         page = Browser()
+        link = links["P01"]
         status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
         assert status == 200 and "id=join" in text
         assert page.get(f"{again.url}/join", data=b"")[0] == 200

@@ -50,8 +50,8 @@ def served(tmp_path, body, **kw):
     spinning = threading.Thread(target=probe.spin, daemon=True)
     spinning.start()
     stack = Stack()
-    p = _stack(server, "P01")
-    p.port, proc = stack.port, p.proc
+    p, proc = _stack(server, "P01")
+    p.port = stack.port
     try:
         async def main(server):
             url = f"http://127.0.0.1:{server.port}"

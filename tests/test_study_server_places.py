@@ -1,5 +1,5 @@
-"""The study server's places, in process (a real `sleep` process stands as a participant's stack, so
-no stack needs starting): a link revoked with `touch4d study invite --revoke` stops its stack with no
+"""The study server's places, in process (a real `sleep` process stands as a participant's stack, in
+place of the server's containers, so no stack needs starting): a link revoked with `touch4d study invite --revoke` stops its stack with no
 request made, a join whose page never connects gives its place back, and an unreadable invites.json
 keeps the links read before instead of failing every request."""
 from __future__ import annotations
@@ -25,12 +25,42 @@ def _server(out, **kw) -> StudyServer:
     return StudyServer(load_study(STUDY), STUDY, out, port=0, **kw)
 
 
-def _stack(server: StudyServer, participant: str) -> Participant:
+class SleepStacks:
+    """Stands for the server's ContainerPool (touch4d.bus.container): each participant's stack a real
+    `sleep` process, which unloading ends."""
+
+    def __init__(self):
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, participant: str) -> subprocess.Popen:
+        proc = self.procs[participant] = subprocess.Popen(["sleep", "60"], start_new_session=True)
+        return proc
+
+    def unload(self, participant: str) -> None:
+        proc = self.procs.pop(participant, None)
+        if proc is not None:
+            proc.terminate()
+
+    def running(self, participant: str) -> bool:
+        proc = self.procs.get(participant)
+        return proc is not None and proc.poll() is None
+
+    def check(self) -> list[str]:
+        return []
+
+    def close(self) -> None:
+        for participant in list(self.procs):
+            self.unload(participant)
+
+
+def _stack(server: StudyServer, participant: str) -> tuple[Participant, subprocess.Popen]:
     """A running participant whose stack is a real process (its own process group, as a stack's)."""
+    if server.pool is None:
+        server.pool = SleepStacks()
     p = server.participants[participant]
-    p.proc = subprocess.Popen(["sleep", "60"], start_new_session=True)
+    proc = server.pool.start(participant)
     p.state = "running"
-    return p
+    return p, proc
 
 
 async def _until(predicate, timeout: float) -> bool:
@@ -67,8 +97,7 @@ def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(
     server = _server(tmp_path)
     Invites(tmp_path).issue("P01")
     server._load_invites()
-    p = _stack(server, "P01")
-    proc = p.proc
+    p, proc = _stack(server, "P01")
     try:
         async def body(server):
             assert cli_main(["study", "invite", str(tmp_path), "P01", "--revoke"]) == 0
@@ -84,8 +113,8 @@ def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
     Invites(tmp_path).issue("P01")
     Invites(tmp_path).issue("P02")
     server._load_invites()
-    gone, stays = _stack(server, "P01"), _stack(server, "P02")
-    procs = [gone.proc, stays.proc]
+    (gone, gone_proc), (stays, stays_proc) = _stack(server, "P01"), _stack(server, "P02")
+    procs = [gone_proc, stays_proc]
     try:
         async def body(server):
             server._await_page(gone)
@@ -161,8 +190,7 @@ def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
     server = _server(tmp_path)
     old = Invites(tmp_path).issue("P01")
     server._load_invites()
-    p = _stack(server, "P01")
-    proc = p.proc
+    p, proc = _stack(server, "P01")
     try:
         async def body(server):
             url = f"http://127.0.0.1:{server.port}"

@@ -34,6 +34,10 @@ MAX_CATCH_UP = 0.05  # s: how far behind a timer may fall and still make up its 
 # would find nothing due and the loop would turn again, and again, until the due time. A periodic
 # timer's slack is at most a quarter of its period (a 1 kHz tick is never run twice in a row).
 TIMER_SLACK = 0.001
+# s: on an asyncio loop a turn asks only the sockets whose FD fired (and those that still held messages),
+# not all of them (a container holds hundreds); every socket is asked at least this often anyway, for an
+# edge that an operation on a socket took without its FD saying so (ZeroMQ's FD is edge-triggered).
+FULL_POLL_S = 0.1
 
 
 @dataclass
@@ -83,6 +87,9 @@ class Executor:
         self._serves_tls = False
         self._spinning = False   # our spin runs the loop (not a page server starting or stopping)
         self._once = False
+        self._ready: set = set()     # on a loop: readers whose FD fired, or that held more than one turn took
+        self._full_poll_due = 0.0
+        self._interrupted = False   # interrupt(): the current spin returns (its spinner has work between spins)
         self.local = LocalRoutes()   # its nodes' subscriptions, for intra-process delivery (touch4d.bus.local)
 
     # ---- what runs ---------------------------------------------------------------------------
@@ -98,6 +105,7 @@ class Executor:
         """Stop watching `sock` (a node of a shared executor shutting down); unknown: nothing."""
         if self._readers.pop(sock, None) is not None:
             self._poller.unregister(sock)
+            self._ready.discard(sock)
             fd = self._fds.pop(sock, None)
             if fd is not None and not self._loop.is_closed():
                 self._loop.remove_reader(fd)
@@ -160,6 +168,16 @@ class Executor:
         self._stopping = True
         self._wake(b"x")
 
+    def interrupt(self) -> None:
+        """Make the current (or next) `spin` return soon, without shutting down: whoever spins has
+        work to do between spins (a container loading a group: a page server binds on the loop while
+        it is not running). Safe from any thread."""
+        self._interrupted = True
+        if self._loop is not None and threading.get_ident() == self._loop_thread:
+            self._step_soon()
+        else:
+            self._wake(b"i")
+
     @property
     def stopping(self) -> bool:
         return self._stopping
@@ -199,11 +217,12 @@ class Executor:
             self._spin_loop(duration)
             return
         end = None if duration is None else time.monotonic() + duration
-        while not self._stopping:
+        while not self._stopping and not self._interrupted:
             left = 0.1 if end is None else end - time.monotonic()
             if left <= 0:
                 break
             self.spin_once(min(left, 0.1))
+        self._interrupted = False
 
     def run_calls(self) -> int:
         ran = 0
@@ -284,7 +303,7 @@ class Executor:
             self._loop = new_event_loop(serves_tls)
             for sock in self._readers:
                 self._watch(sock)
-            self._loop.add_reader(self._wake_r.fileno(), self._step_soon)
+            self._loop.add_reader(self._wake_r.fileno(), self._fd_ready, self._wake_r)
         return self._loop
 
     def _watch(self, sock) -> None:
@@ -292,7 +311,36 @@ class Executor:
         # which also re-arms it, so a level-triggered watch of it neither misses nor spins.
         fd = sock.getsockopt(zmq.FD) if isinstance(sock, zmq.Socket) else sock
         self._fds[sock] = fd
-        self._loop.add_reader(fd, self._step_soon)
+        self._loop.add_reader(fd, self._fd_ready, sock)
+
+    def _fd_ready(self, sock) -> None:
+        self._ready.add(sock)
+        self._step_soon()
+
+    def _poll_ready(self) -> list:
+        """The readable among the readers whose FD fired (a turn's poll without asking every socket);
+        every FULL_POLL_S, all of them."""
+        now = time.monotonic()
+        if now >= self._full_poll_due:
+            self._full_poll_due = now + FULL_POLL_S
+            self._ready.clear()
+            events = self._poller.poll(0)
+        elif not self._ready:
+            return []
+        else:
+            socks, self._ready = self._ready, set()
+            events = []
+            for sock in socks:
+                if isinstance(sock, zmq.Socket):
+                    try:
+                        if not sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:   # also re-arms its FD
+                            continue
+                    except zmq.ZMQError:   # closed meanwhile
+                        continue
+                events.append((sock, zmq.POLLIN))   # a plain FD: the loop watches it level-triggered
+        # a ZeroMQ socket may hold more than its reader takes at once, and its FD will not say so again
+        self._ready.update(sock for sock, _ in events if isinstance(sock, zmq.Socket))
+        return events
 
     def _spin_loop(self, duration: float | None, once: bool = False) -> int:
         loop = self._loop
@@ -311,6 +359,7 @@ class Executor:
                 self._timer_handle.cancel()
                 self._timer_handle, self._armed_due = None, math.nan
             self._once = False
+            self._interrupted = False
         return self._spun
 
     def _rearm(self) -> None:
@@ -343,7 +392,7 @@ class Executor:
     def _turn(self) -> None:
         handled = self.run_timers() + self.run_calls()
         for _ in range(8):
-            events = self._poller.poll(0)
+            events = self._poll_ready()
             if not events:
                 break
             handled += self._read(events) + self.run_calls()
@@ -351,7 +400,7 @@ class Executor:
             self._step_soon()   # still busy: the loop's other work gets a turn first
         handled += self.run_timers()
         self._spun += handled
-        if self._stopping or (self._once and self._spun):
+        if self._stopping or self._interrupted or (self._once and self._spun):
             # once a spin: uvloop's stop queues its stop as a callback, and a second one left queued
             # would stop whatever runs the loop next (a page server closing its pages) at once
             self._spinning = False

@@ -30,7 +30,7 @@ import zmq
 from touch4d.bus import names, transport
 from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
-from touch4d.bus.launchfile import NodeSpec, processes
+from touch4d.bus.launchfile import NodeSpec, group_entries, processes
 from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
 from touch4d.bus.topology import shared_inputs, shared_text
 from touch4d.errors import ConfigError
@@ -164,10 +164,8 @@ class Launcher:
     def _spawn(self, child: _Child) -> None:
         spec = child.specs[0]
         if child.group:
-            cmd = [sys.executable, "-u", "-m", "touch4d.bus", "--group", child.name, "--nodes", json.dumps(
-                [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source,
-                  **({"private": s.private} if s.private else {})} for s in child.specs],
-                default=str)]
+            cmd = [sys.executable, "-u", "-m", "touch4d.bus", "--group", child.name, "--nodes",
+                   json.dumps(group_entries(child.specs), default=str)]
         else:
             cmd = [sys.executable, "-u", "-m", "touch4d.bus", spec.module, "--name", spec.role,
                    "--params", json.dumps(spec.params, default=str), "--params-source", spec.source]

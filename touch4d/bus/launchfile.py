@@ -212,6 +212,13 @@ def processes(nodes: dict[str, NodeSpec]) -> dict[str, list[NodeSpec]]:
     return out
 
 
+def group_entries(specs: list[NodeSpec]) -> list[dict]:
+    """A group's nodes as its process (or a container) is given them: `--nodes`'s JSON list
+    (touch4d.bus.process.group_members reads it)."""
+    return [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source,
+             **({"private": s.private} if s.private else {})} for s in specs]
+
+
 def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "the launch file") -> None:
     """Apply `ROLE:=NODE`, `+ROLE:=NODE`, `ROLE:=none` and `ROLE.PARAM:=VALUE` to `nodes`, in order."""
     removed: list[str] = []          # roles an earlier `ROLE:=none` took out: still what a typo may mean

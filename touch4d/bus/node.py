@@ -170,7 +170,8 @@ class Node:
                 source, key = self.param_where(pname)
                 self.params[pname] = resolve_path(self.params[pname], source, key=key, what=param.path_what)
         self.bus = bus if bus is not None else resolve_bus_config()
-        self.log = logging.getLogger(self.name)
+        self.log = logging.getLogger(names.node_name(self.name, self.namespace))   # NS/ROLE: a container's groups apart
+        self.group_stop: Callable[[], Any] | None = None   # set by a container: request_shutdown stops this group alone
         self.pid = os.getpid()
         self.connect_timeout = connect_timeout
         self.connected = False
@@ -351,8 +352,11 @@ class Node:
     def tap_private(self, callback: Callable[[str, bytes], Any]) -> None:
         """Call `callback(topic, payload_bytes)` for every message of this process's private topics
         (a launch file's `private`; touch4d.bus.local), which no socket hears: how a recorder in the
-        group logs them. Topics named as for a raw subscription; nothing when there are none."""
+        group logs them. Topics named as for a raw subscription; nothing when there are none. In a
+        container, only those of this node's namespace (another group's are theirs)."""
         for key in sorted(self._local_routes.private):
+            if self.namespace and names.relative(key.decode(), self.namespace) is None:
+                continue
             self._local_routes.add_raw(key, self, Subscription(key.decode(), None, callback, raw=True))
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
@@ -421,8 +425,12 @@ class Node:
 
     def request_shutdown(self) -> None:
         """Ask `spin` to return; safe from signal handlers and other threads. On a shared executor
-        this stops every node of the process (which the launcher then restarts as a whole)."""
-        self.executor.request_shutdown()
+        this stops every node of the process (which the launcher then restarts as a whole); in a
+        container (touch4d.bus.container), every node of this node's group (which it loads again)."""
+        if self.group_stop is not None:
+            self.group_stop()
+        else:
+            self.executor.request_shutdown()
 
     @property
     def stopping(self) -> bool:

@@ -105,31 +105,45 @@ def run_group(argv: list[str]) -> int:
     parser.add_argument("--realtime", action="store_true", help="as for one node")
     args = parser.parse_args(argv)
     _configure(args, args.group)
-    from touch4d.bus.registry import NodeNotFound, find
 
     entries = _params_object(args.nodes, f"group {args.group}: --nodes", list)
     if entries is None:
         return 2
+    try:
+        members, private = group_members(entries, args.namespace, f"group {args.group}: --nodes")
+    except GroupError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    return _run(members, args.bus, shared=True, private=private)
+
+
+class GroupError(ValueError):
+    """A group's node list that cannot be run: the text names the entry and what was expected."""
+
+
+def group_members(entries: list, namespace: str, where: str) -> tuple[list[tuple[str, type, dict]], set[str]]:
+    """A group's nodes (`--nodes`, the launcher's JSON list: node, name, params, params_source,
+    private) as (role, class, constructor arguments) under `namespace`, and the bus topics the group
+    keeps in its process. Raises GroupError naming the entry."""
+    from touch4d.bus.registry import NodeNotFound, find
+
     members, private = [], set()
     for i, entry in enumerate(entries):
         if not isinstance(entry, dict) or not isinstance(entry.get("node"), str):
-            print(f"group {args.group}: --nodes[{i}]: expected an object with a \"node\", got {entry!r}", file=sys.stderr)
-            return 2
+            raise GroupError(f"{where}[{i}]: expected an object with a \"node\", got {entry!r}")
         ref, role = entry["node"], entry.get("name")
         try:
             node_class = find(ref).load()
         except NodeNotFound as exc:
-            print(f"node {role}: node {ref!r}: {exc}", file=sys.stderr)
-            return 2
+            raise GroupError(f"node {role}: node {ref!r}: {exc}") from None
         members.append((role, node_class, {"params": entry.get("params", {}), "kind": ref, "role": role,
                                            "params_source": entry.get("params_source"),
-                                           "namespace": args.namespace}))
+                                           "namespace": namespace}))
         topics = entry.get("private", [])
         if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
-            print(f"group {args.group}: --nodes[{i}].private: expected a list of topics, got {topics!r}", file=sys.stderr)
-            return 2
-        private.update(names.resolve(t, args.namespace) for t in topics)
-    return _run(members, args.bus, shared=True, private=private)
+            raise GroupError(f"{where}[{i}].private: expected a list of topics, got {topics!r}")
+        private.update(names.resolve(t, namespace) for t in topics)
+    return members, private
 
 
 def _configure(args: argparse.Namespace, name: str) -> None:
@@ -206,12 +220,17 @@ def _run(members: list[tuple[str, type, dict]], bus_file: str | None, shared: bo
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m touch4d.bus NODE [node args]`: run the node NODE names (touch4d.bus.registry);
-    `python -m touch4d.bus --group NAME --nodes JSON ...`: several in one process (`run_group`)."""
+    `python -m touch4d.bus --group NAME --nodes JSON ...`: several in one process (`run_group`);
+    `python -m touch4d.bus --container NAME`: groups loaded and unloaded while it runs (touch4d.bus.container)."""
     from touch4d.bus.registry import NodeNotFound, find
 
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--group":
         return run_group(argv)
+    if argv and argv[0] == "--container":
+        from touch4d.bus.container import run_container
+
+        return run_container(argv)
     if not argv or argv[0].startswith("-"):
         print("usage: python -m touch4d.bus NODE [--name N] [--params JSON] ...", file=sys.stderr)
         return 2

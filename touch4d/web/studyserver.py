@@ -29,8 +29,6 @@ import logging
 import os
 import signal
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -43,6 +41,9 @@ import aiohttp
 from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
+from touch4d.bus.container import ContainerPool
+from touch4d.bus.launchfile import group_entries, load_launch, processes
+from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
@@ -59,6 +60,8 @@ log = logging.getLogger("study-serve")
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
 PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
+PER_PROCESS = 8               # participants' stacks per process (a container): see default_per_process
+CONTAINERS = "containers"     # OUT/containers/NAME.log: each container's output
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
 # ms, server-side) at 72 Hz each, with room to spare (a session's study node and trials come on
@@ -128,17 +131,12 @@ class Participant:
 
     id: str
     state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
-    port: int = 0
-    proc: subprocess.Popen | None = None
-    ready_file: Path | None = None
+    port: int = 0                      # its page server's, on loopback
+    ready_file: Path | None = None     # its container writes "ready" (or "failed: ...") there
     pages: int = 0                     # its pages connected now
     last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
-
-    @property
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
 
 
 class StudyServer:
@@ -147,7 +145,8 @@ class StudyServer:
     def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
                  max_participants: int | None = None, public_url: str | None = None, leave_after_s: float = 30.0,
                  quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
-                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None, launch: str = LAUNCH):
+                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None, launch: str = LAUNCH,
+                 per_process: int = PER_PROCESS):
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
         self.host, self.port = host, port
         self.max_participants = default_max_participants() if max_participants is None else max_participants
@@ -158,6 +157,8 @@ class StudyServer:
         self.page_grace_s = page_grace_s
         self.wire_trace = wire_trace
         self.launch = launch   # each participant's stack
+        self.per_process = per_process   # participants' stacks per process (touch4d.bus.container)
+        self.pool: ContainerPool | None = None   # made at the first join
         self._trace: WireTrace | None = None
         self._splices: set[Splice] = set()     # the pages' WebSockets, spliced to their page servers
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
@@ -202,7 +203,7 @@ class StudyServer:
         for holder in ended:
             self.access.revoke(holder)
             p = self.participants.get(holder)
-            if p is not None and p.running:
+            if p is not None and self._running(p):
                 log.info("%s: link revoked or replaced; its stack stops", holder)
                 self._stop_stack(p, "left")
         for holder, token in tokens.items():
@@ -265,30 +266,52 @@ class StudyServer:
 
     # ---- participants' stacks ------------------------------------------------------------------
 
-    def _start_stack(self, p: Participant, tmp: Path) -> None:
+    def _start_stack(self, p: Participant, tmp: Path) -> bool:
+        """Place the participant's stack in a container (touch4d.bus.container); False when its
+        launch cannot be made (said in its serve.log)."""
         p.port = _free_port()
         p.ready_file = tmp / f"{p.id}.ready"
-        p.ready_file.unlink(missing_ok=True)
-        args = [sys.executable, "-m", "touch4d.cli", "launch", self.launch, "--namespace", p.id, "--no-broker",
-                "--bus", str(self.bus_file), "--ready-file", str(p.ready_file),
-                *session_overrides(self.study_path, p.id, self.out, quick=self.quick),
-                f"tracker.port:={p.port}", *self.overrides]
+        try:
+            self._stack_command(p)   # a launch that cannot be made is said now, not in a container
+        except Touch4dError as exc:
+            with open(session_dir(self.out, p.id) / "serve.log", "a") as f:
+                f.write(f"{p.id}: {exc}\n")
+            return False
+        if self.pool is None:
+            self.pool = ContainerPool(self.per_process, self.bus_file, self.out / CONTAINERS, prefix="participants",
+                                      popen={"start_new_session": True, "preexec_fn": _die_with_server})
+        self.pool.load(p.id, lambda: self._stack_command(p))
+        p.state = "starting"
+        return True
+
+    def _stack_command(self, p: Participant) -> dict:
+        """The participant's group as its container loads it: launch/study-serve.yaml under its namespace,
+        its session's overrides (the recorder's next segment: made anew at each load)."""
+        overrides = [*session_overrides(self.study_path, p.id, self.out, quick=self.quick),
+                     f"tracker.port:={p.port}", *self.overrides]
         directory = session_dir(self.out, p.id)
         directory.mkdir(parents=True, exist_ok=True)
-        logfile = open(directory / "serve.log", "ab")   # the stack's output, for the experimenter
-        try:
-            p.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=logfile, stderr=subprocess.STDOUT,
-                                      start_new_session=True, preexec_fn=_die_with_server)
-        finally:
-            logfile.close()
-        p.state = "starting"
+        specs = processes(load_launch(self.launch, overrides, namespace=p.id))
+        (group, *more) = specs.values()
+        if more or not group[0].group:
+            raise ConfigError(self.launch, "nodes", "every node in one `group` (a participant's stack is one "
+                              "container's group)", got=", ".join(specs))
+        p.ready_file.unlink(missing_ok=True)
+        return {"namespace": p.id, "nodes": group_entries(group), "ready_file": str(p.ready_file),
+                "log": str(directory / "serve.log")}
 
     async def _wait_ready(self, p: Participant) -> bool:
         deadline = time.monotonic() + READY_TIMEOUT_S
         while time.monotonic() < deadline:
-            if not p.running:
+            if not self._running(p):
                 return False
-            if p.ready_file.exists() and p.ready_file.stat().st_size > 0:
+            try:
+                said = p.ready_file.read_text()
+            except OSError:
+                said = ""
+            if said.startswith("failed"):
+                return False
+            if said.startswith("ready"):
                 try:   # and its page is served
                     async with self.client.get(f"http://127.0.0.1:{p.port}/") as response:
                         if response.status == 200:
@@ -302,26 +325,24 @@ class StudyServer:
         if p.leave is not None:
             p.leave.cancel()
             p.leave = None
-        proc, p.proc = p.proc, None
         p.state = state
-        if proc is None or proc.poll() is not None:
-            return
-        try:
-            os.killpg(proc.pid, signal.SIGINT)   # the launcher stops its nodes (the study keeps its rows)
-        except ProcessLookupError:
-            return
-        threading.Thread(target=self._reap, args=(proc,), daemon=True).start()
+        if self.pool is not None:
+            self.pool.unload(p.id)   # its nodes shut down (the study keeps its rows)
 
-    @staticmethod
-    def _reap(proc: subprocess.Popen) -> None:
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    def _running(self, p: Participant) -> bool:
+        return self.pool is not None and self.pool.running(p.id)
 
     def running(self) -> int:
-        return sum(1 for p in self.participants.values() if p.running)
+        return sum(1 for p in self.participants.values() if self._running(p))
+
+    async def _watch_stacks(self, period_s: float = 0.5) -> None:
+        """A container that died is started again with its participants' stacks: each study node
+        resumes at its first trial without a row, and each page reconnects to the same port."""
+        while True:
+            await asyncio.sleep(period_s)
+            if self.pool is not None:
+                for participant in self.pool.check():
+                    log.warning("%s: its stack's process died; started again", participant)
 
     # ---- HTTP ----------------------------------------------------------------------------------
 
@@ -359,7 +380,7 @@ class StudyServer:
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
-        if p.running and p.state in ("running", "paused"):
+        if self._running(p) and p.state in ("running", "paused"):
             return await self._proxy_http(request, p)
         return web.Response(text=self._welcome(p), content_type="text/html")
 
@@ -382,7 +403,7 @@ class StudyServer:
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
-        if not p.running:
+        if not self._running(p):
             if self.running() >= self.max_participants:
                 self.counts["full"] += 1
                 return web.Response(status=503, content_type="text/html", text=(
@@ -390,8 +411,9 @@ class StudyServer:
                     "full right now</h1><p>Every place is taken. Please open your link again in a few minutes."
                     "</p></body></html>"))
             self.counts["resumed" if self._rows(p.id) else "joined"] += 1
-            self._start_stack(p, self.tmp)
-            log.info("%s joined: starting its stack (namespace %s, page port %d)", p.id, p.id, p.port)
+            if self._start_stack(p, self.tmp):
+                log.info("%s joined: starting its stack (namespace %s, page port %d, %s)", p.id, p.id, p.port,
+                         self.pool.container_of(p.id))
         if not await self._wait_ready(p):
             self._stop_stack(p, "left")
             # the log's path is the experimenter's: this page faces the internet
@@ -420,7 +442,7 @@ class StudyServer:
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
-        if not p.running:
+        if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         return await self._proxy_http(request, p)
 
@@ -433,7 +455,7 @@ class StudyServer:
         origin = request.headers.get("Origin")
         if origin is not None and urlsplit(origin).netloc != request.host:
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
-        if not p.running:
+        if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         upgrade = _upgrade_request(request, p.port)
         if upgrade is None or request.transport is None:
@@ -483,7 +505,7 @@ class StudyServer:
 
     def _page_closed(self, p: Participant) -> None:
         p.pages -= 1
-        if p.pages > 0 or not p.running:
+        if p.pages > 0 or not self._running(p):
             return
         p.state = "paused"
         self.command(p.id, "pause", "the participant's page closed")
@@ -492,7 +514,7 @@ class StudyServer:
 
     def _left(self, p: Participant) -> None:
         p.leave = None
-        if p.pages == 0 and p.running:
+        if p.pages == 0 and self._running(p):
             self.counts["left"] += 1
             log.info("%s left: its stack stops (its link resumes it)", p.id)
             self._stop_stack(p, "left")
@@ -590,12 +612,16 @@ class StudyServer:
               f"{self._cap_note}; data in {self.out}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
         watch = asyncio.ensure_future(self._watch_invites())
+        stacks = asyncio.ensure_future(self._watch_stacks())
         try:
             await self._stopping.wait()
         finally:
             watch.cancel()
+            stacks.cancel()
             for p in self.participants.values():
                 self._stop_stack(p, p.state)
+            if self.pool is not None:
+                await asyncio.get_running_loop().run_in_executor(None, self.pool.close)
             for splice in list(self._splices):
                 splice.close()
             await self.client.close()

@@ -92,6 +92,10 @@ def register(subparsers) -> None:
     serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
                        help="a participant without a page this long has left: their stack stops (default 30)")
     serve.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
+    serve.add_argument("--per-process", type=_count, default=None, metavar="K",
+                       help="participants' stacks sharing one process (a container, touch4d.bus.container): "
+                            "fewer processes cost less CPU per participant, and a crash ends the current trial "
+                            "of the K sharing it (1: a process each). Default: the study server's PER_PROCESS")
     serve.add_argument("--stack", metavar="LAUNCH", default="launch/study-serve.yaml",
                        help="each participant's launch file (default launch/study-serve.yaml)")
     serve.add_argument("--wire-trace", metavar="CSV", help="write when each page input arrives and each frame leaves "
@@ -373,7 +377,8 @@ def run_serve(args) -> int:
                          max_participants=args.max_participants, public_url=args.public_url,
                          leave_after_s=args.leave_after, quick=args.quick, overrides=args.items,
                          wire_trace=Path(args.wire_trace) if args.wire_trace else None,
-                         launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")))
+                         launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")),
+                         **({"per_process": args.per_process} if args.per_process else {}))
     return server.run()
 
 

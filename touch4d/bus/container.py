@@ -1,0 +1,427 @@
+"""A container: the groups of several launches in one process, loaded and unloaded while it runs
+(ROS 2's component container). Every node of every group shares one executor (one thread); each
+group keeps its namespace, its private topics (touch4d.bus.local) and its page server's port.
+
+Why: a study server's participants each run the same five nodes. Sixteen interpreters each keep
+their own copy of the code's objects and data warm in the caches; one interpreter for eight
+participants keeps one, and the same page input costs about half the CPU (docs/bus.md). The price is
+isolation: a crash takes every group of the container, which its supervisor then loads again in a
+new one (each participant loses at most the trial it was in, as when the server is killed).
+
+    python -m touch4d.bus --container NAME [--bus FILE] [--log-level LEVEL]
+
+Commands come on stdin, one JSON object a line:
+  {"load": ID, "namespace": NS, "nodes": [...], "ready_file": PATH, "log": PATH}
+      `nodes` as a group's `--nodes` (touch4d.bus.process.group_members); the ready file gets
+      "ready" once every node is built, or "failed: REASON" (what was built is shut down again);
+      `log`, optional: the group's log lines (its nodes' loggers, NS/ROLE) are appended there too.
+  {"unload": ID}
+      its nodes shut down, in reverse order; the others spin on.
+A node that asks to stop (`Node.request_shutdown`) stops its own group, which is loaded again after
+RESPAWN_DELAY_S, as a launcher restarts a group's process. End of stdin (the supervisor gone),
+SIGINT or SIGTERM: every group is unloaded and the process exits.
+
+Loads and unloads run between spins (`Executor.interrupt`): a page server binds its port while the
+loop is not running. Meanwhile the other groups wait: a load costs them the time its nodes take to
+build (tens of ms), once per participant joining.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zmq
+
+from touch4d.bus import names
+from touch4d.bus.config import resolve_bus_config
+from touch4d.bus.executor import Executor
+from touch4d.bus.heap import freeze_startup_heap
+from touch4d.bus.process import GroupError, _configure, _tell_ready, group_members
+
+log = logging.getLogger("container")
+
+RESPAWN_DELAY_S = 0.5     # a group whose node asked to stop is built again after this
+MAX_LINE = 1 << 20        # bytes of one command: a group's node list is a few kB
+
+
+@dataclass
+class Group:
+    """One loaded group: its command (to load it again), its nodes, its private topics, its log."""
+
+    id: str
+    command: dict
+    nodes: list = field(default_factory=list)
+    private: frozenset = frozenset()
+    handler: logging.Handler | None = None
+
+
+class _InNamespace(logging.Filter):
+    """The records of one namespace's loggers (a node's logger is named NS/ROLE)."""
+
+    def __init__(self, namespace: str):
+        super().__init__()
+        self.prefix = f"{namespace}/"
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.name.startswith(self.prefix)
+
+
+class Container:
+    """The groups loaded on `executor`; `commands` come from the supervisor (`feed`)."""
+
+    def __init__(self, executor: Executor, bus, name: str = "container"):
+        self.executor, self.bus, self.name = executor, bus, name
+        self.groups: dict[str, Group] = {}
+        self.pending: list[dict] = []
+        self._buffer = b""
+        self._respawn: dict[str, float] = {}   # group id -> when to load it again
+        self._frozen = False
+
+    # ---- commands ----------------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> None:
+        """Bytes read from the supervisor: each whole line a command, run after the current spin."""
+        self._buffer += data
+        *lines, self._buffer = self._buffer.split(b"\n")
+        if len(self._buffer) > MAX_LINE:
+            log.error("stdin: a command longer than %d bytes without a newline: dropped", MAX_LINE)
+            self._buffer = b""
+        for line in lines:
+            if not line.strip():
+                continue
+            try:
+                command = json.loads(line)
+                if not isinstance(command, dict) or not ({"load", "unload"} & command.keys()):
+                    raise ValueError("not an object with \"load\" or \"unload\"")
+            except ValueError as exc:
+                log.error("stdin: expected a JSON command {\"load\": ID, ...} or {\"unload\": ID}, got %.200r (%s)",
+                          line, exc)
+                continue
+            self.pending.append(command)
+        if self.pending:
+            self.executor.interrupt()
+
+    def run_pending(self) -> None:
+        """The commands received, and the groups due to be loaded again (between spins)."""
+        commands, self.pending = self.pending, []
+        for command in commands:
+            if "load" in command:
+                self.load(command)
+            else:
+                self.unload(str(command["unload"]))
+        now = time.monotonic()
+        for gid, due in list(self._respawn.items()):
+            if due <= now:
+                del self._respawn[gid]
+                group = self.groups.get(gid)
+                if group is not None:
+                    log.warning("%s: a node asked to stop: loading the group again", gid)
+                    self.unload(gid)
+                    self.load(group.command)
+
+    def next_respawn(self) -> float | None:
+        """Seconds until a group is due to be loaded again (None: none is)."""
+        return max(0.0, min(self._respawn.values()) - time.monotonic()) if self._respawn else None
+
+    # ---- groups ------------------------------------------------------------------------------
+
+    def load(self, command: dict) -> None:
+        """Build a group's nodes on the shared executor; its ready file says how it went."""
+        gid, ready = str(command.get("load")), command.get("ready_file")
+        if gid in self.groups:
+            self._tell(ready, f"failed: a group {gid!r} is loaded already")
+            return
+        namespace = command.get("namespace") or ""
+        group = Group(gid, command)
+        try:
+            namespace = names.check_namespace(namespace)
+            nodes = command.get("nodes")
+            if not isinstance(nodes, list):
+                raise GroupError(f"load {gid}: nodes: expected a JSON list, got {nodes!r}")
+            members, private = group_members(nodes, namespace, f"load {gid}: nodes")
+        except (GroupError, ValueError) as exc:
+            log.error("%s", exc)
+            self._tell(ready, f"failed: {exc}")
+            return
+        if command.get("log"):
+            try:
+                group.handler = logging.FileHandler(command["log"])
+            except OSError as exc:
+                log.warning("%s: log %s: %s (its lines go to the container's output only)", gid, command["log"], exc)
+            else:
+                group.handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+                group.handler.addFilter(_InNamespace(namespace))
+                logging.getLogger().addHandler(group.handler)
+        group.private = frozenset(t.encode() for t in private)
+        self.groups[gid] = group
+        self._set_private()
+        try:
+            for role, node_class, kwargs in members:
+                node = node_class(**kwargs, bus=self.bus, executor=self.executor)
+                node.group_stop = lambda gid=gid: self._stop_requested(gid)
+                group.nodes.append(node)
+        except Exception as exc:  # noqa: BLE001 - one group that cannot start must not stop the others
+            self._log(group).error("%s: node %s could not start: %s", gid, role, exc,
+                                   exc_info=not isinstance(exc, (OSError, ValueError)))
+            self.unload(gid)
+            self._tell(ready, f"failed: node {role}: {exc}")
+            return
+        if not self._frozen:
+            freeze_startup_heap()   # the imports' objects, once: a later group's are its own to collect
+            self._frozen = True
+        self._log(group).info("%s: %d node(s) loaded in container %s (pid %d): %s", gid, len(group.nodes), self.name,
+                              os.getpid(), f"every topic under {namespace}/" if namespace else "no namespace")
+        self._tell(ready, "ready")
+
+    def unload(self, gid: str) -> None:
+        """Shut a group's nodes down (reverse order); an unknown id: nothing."""
+        group = self.groups.pop(gid, None)
+        self._respawn.pop(gid, None)
+        if group is None:
+            return
+        for node in reversed(group.nodes):
+            try:
+                node.shutdown()
+            except Exception:  # noqa: BLE001 - every node of the group must get its shutdown
+                log.exception("%s: node %s failed to shut down", gid, node.name)
+        self._set_private()
+        self._log(group).info("%s: unloaded", gid)
+        if group.handler is not None:
+            logging.getLogger().removeHandler(group.handler)
+            group.handler.close()
+
+    def unload_all(self) -> None:
+        for gid in list(self.groups)[::-1]:
+            self.unload(gid)
+
+    @staticmethod
+    def _log(group: Group) -> logging.Logger:
+        """The container's lines about a group, in the group's log too (NS/container)."""
+        return logging.getLogger(names.node_name("container", group.command.get("namespace") or ""))
+
+    def _stop_requested(self, gid: str) -> None:
+        if gid in self.groups and gid not in self._respawn:
+            self._respawn[gid] = time.monotonic() + RESPAWN_DELAY_S
+            self.executor.call_later(RESPAWN_DELAY_S, self.executor.interrupt)
+
+    def _set_private(self) -> None:
+        self.executor.local.private = frozenset().union(*(g.private for g in self.groups.values()))
+
+    @staticmethod
+    def _tell(ready_file, text: str) -> None:
+        if not ready_file:
+            return
+        try:
+            tmp = Path(f"{ready_file}.tmp")
+            tmp.write_text(text + "\n")
+            os.replace(tmp, ready_file)   # whole or absent: the supervisor never reads half a line
+        except OSError as exc:
+            log.error("ready file %s: %s", ready_file, exc)
+
+
+def run_container(argv: list[str]) -> int:
+    """`python -m touch4d.bus --container NAME`: see the module's doc."""
+    parser = argparse.ArgumentParser(prog="touch4d.bus --container",
+                                     description="Run the groups a supervisor loads, in one process.")
+    parser.add_argument("--container", required=True, help="the container's name (its log lines)")
+    parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
+    parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
+    args = parser.parse_args(argv)
+    args.realtime = False   # a container's groups share its thread: no node of them asks for more
+    _configure(args, args.container)
+    executor = Executor()
+    container = Container(executor, resolve_bus_config(args.bus), args.container)
+
+    def stop(signum, frame):
+        executor.request_shutdown()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, stop)
+    stdin = sys.stdin.fileno()
+    os.set_blocking(stdin, False)
+
+    def read() -> int:
+        try:
+            data = os.read(stdin, 65536)
+        except BlockingIOError:
+            return 0
+        if not data:   # the supervisor is gone
+            executor.remove_reader(stdin)
+            executor.request_shutdown()
+            return 0
+        container.feed(data)
+        return 1
+
+    executor.add_reader(stdin, read)
+    _tell_ready()
+    try:
+        while not executor.stopping:
+            executor.spin()
+            container.run_pending()
+    finally:
+        container.unload_all()
+        executor.close()
+        zmq.Context.instance().destroy(linger=1000)
+    return 0
+
+
+# ---- the supervisor's side -------------------------------------------------------------------------
+
+
+class _Process:
+    """One container process and the groups placed in it."""
+
+    def __init__(self, name: str, proc, log_file):
+        self.name, self.proc, self.log_file = name, proc, log_file
+        self.groups: set[str] = set()
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def send(self, command: dict) -> bool:
+        try:
+            self.proc.stdin.write(json.dumps(command, default=str).encode() + b"\n")
+            self.proc.stdin.flush()
+            return True
+        except (BrokenPipeError, ValueError, OSError):   # it died (check() starts it again)
+            return False
+
+
+class ContainerPool:
+    """Groups placed in containers of at most `per_container` groups each, started as they are
+    needed (the first with room takes a new group); one that dies is started again and its groups
+    loaded again, each from its `make` (called anew: a command may name a new file each time).
+
+    `bus_file`: the containers' bus; `log_dir`: each container's output (NAME.log); `popen`:
+    extra subprocess.Popen arguments (the supervisor's `preexec_fn`, say)."""
+
+    def __init__(self, per_container: int, bus_file, log_dir, *, prefix: str = "container", popen: dict | None = None):
+        if per_container < 1:
+            raise ValueError(f"groups per container: expected at least 1, got {per_container}")
+        self.per_container = per_container
+        self.bus_file, self.log_dir, self.prefix = str(bus_file), Path(log_dir), prefix
+        self.popen = popen or {}
+        self.processes: list[_Process] = []
+        self._make: dict[str, object] = {}     # group id -> its command's maker
+        self._where: dict[str, _Process] = {}
+        self._count = 0
+        self.restarts = 0
+
+    def load(self, gid: str, make) -> str:
+        """Place group `gid` (`make()` -> its load command without "load") in a container; returns
+        the container's name. The command's ready file says when it is built."""
+        if gid in self._where:
+            raise ValueError(f"group {gid!r} is placed already")
+        proc = next((p for p in self.processes if p.alive and len(p.groups) < self.per_container), None)
+        if proc is None:
+            proc = self._start()
+        self._make[gid] = make
+        self._place(gid, proc)
+        return proc.name
+
+    def unload(self, gid: str) -> None:
+        """Take group `gid` out of its container (unknown: nothing); a container left empty stops."""
+        proc = self._where.pop(gid, None)
+        self._make.pop(gid, None)
+        if proc is None:
+            return
+        proc.groups.discard(gid)
+        proc.send({"unload": gid})
+        if not proc.groups:
+            self._stop(proc)
+
+    def running(self, gid: str) -> bool:
+        """Whether group `gid` is placed in a container that is alive."""
+        proc = self._where.get(gid)
+        return proc is not None and proc.alive
+
+    def container_of(self, gid: str) -> str | None:
+        proc = self._where.get(gid)
+        return proc.name if proc is not None else None
+
+    def pids(self) -> list[int]:
+        return [p.proc.pid for p in self.processes if p.alive]
+
+    def check(self) -> list[str]:
+        """Start again each container that died and load its groups there; returns their ids."""
+        reloaded = []
+        for proc in [p for p in self.processes if not p.alive]:
+            self.processes.remove(proc)
+            proc.log_file.close()
+            groups = sorted(proc.groups)
+            if not groups:
+                continue
+            self.restarts += 1
+            code = proc.proc.returncode
+            how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
+            log.warning("container %s %s: starting it again with its %d group(s): %s", proc.name, how,
+                        len(groups), ", ".join(groups))
+            again = self._start()
+            for gid in groups:
+                self._place(gid, again)
+            reloaded += groups
+        return reloaded
+
+    def close(self, timeout: float = 15.0) -> None:
+        """Every container told to stop (end of its stdin): unloads its groups; killed after `timeout`."""
+        for proc in self.processes:
+            self._stop(proc, wait=False)
+        deadline = time.monotonic() + timeout
+        for proc in self.processes:
+            try:
+                proc.proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.proc.kill()
+                proc.proc.wait()
+            proc.log_file.close()
+        self.processes.clear()
+        self._where.clear()
+
+    def _place(self, gid: str, proc: _Process) -> None:
+        proc.groups.add(gid)
+        self._where[gid] = proc
+        proc.send({"load": gid, **self._make[gid]()})
+
+    def _start(self) -> _Process:
+        self._count += 1
+        name = f"{self.prefix}-{self._count}"
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log_file = open(self.log_dir / f"{name}.log", "ab")
+        try:
+            popen = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.bus", "--container", name, "--bus",
+                                      self.bus_file], stdin=subprocess.PIPE, stdout=log_file,
+                                     stderr=subprocess.STDOUT, **self.popen)
+        except BaseException:
+            log_file.close()
+            raise
+        proc = _Process(name, popen, log_file)
+        self.processes.append(proc)
+        return proc
+
+    def _stop(self, proc: _Process, wait: bool = True) -> None:
+        try:
+            proc.proc.stdin.close()    # its end of input: it unloads what is left and exits
+        except OSError:
+            pass
+        if wait:
+            self.processes.remove(proc)
+
+            def reap():
+                try:
+                    proc.proc.wait(15)
+                except subprocess.TimeoutExpired:
+                    proc.proc.kill()
+                    proc.proc.wait()
+                proc.log_file.close()
+
+            threading.Thread(target=reap, daemon=True).start()
