@@ -1,0 +1,139 @@
+"""A container (touch4d.bus.container): several groups, each under its namespace, on one executor in
+one process, loaded and unloaded while it runs; a dead container started again with its groups by
+its pool; a node that asks to stop restarts its own group only."""
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from touch4d.bus import Executor, Node
+from touch4d.bus import container as container_module
+from touch4d.bus.container import Container, ContainerPool
+from touch4d.bus.testing import collect, running_broker, wait_until
+from touch4d.log.reader import LogReader
+from touch4d.messages import HandPose
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _pair(rate: float = 50.0) -> list[dict]:
+    """launch/example.yaml's talker and listener as a group, the talker's poses kept in the process."""
+    return [{"node": "example_talker", "name": "talker", "params": {"topic": "example/pose", "rate": rate},
+             "private": ["example/pose"]},
+            {"node": "example_listener", "name": "listener",
+             "params": {"topic": "example/pose", "relay_topic": "example/relay"}}]
+
+
+def _bus_file(tmp_path: Path, bus) -> Path:
+    path = tmp_path / "bus.yaml"
+    path.write_text(f"broker: {{bind: 127.0.0.1, pub_port: {bus.pub_port}, sub_port: {bus.sub_port}}}\n"
+                    "connect: 127.0.0.1\n")
+    return path
+
+
+def _said(path: Path) -> str:
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return ""
+
+
+def test_two_groups_share_a_container_each_in_its_namespace_one_unloaded_one_bad_and_a_dead_container_comes_back(tmp_path):
+    with running_broker() as bus, Node("probe", bus=bus.for_clients(), heartbeat=False) as probe:
+        relayed = {ns: collect(probe, f"{ns}/example/relay", HandPose) for ns in ("A", "B")}
+        private: list = []
+        probe.create_raw_subscription("A/example/pose", lambda topic, payload: private.append(topic))
+        pool = ContainerPool(2, _bus_file(tmp_path, bus), tmp_path / "logs")
+        try:
+            def command(ns, nodes=None):
+                return lambda: {"namespace": ns, "nodes": nodes or _pair(), "ready_file": str(tmp_path / f"{ns}.ready"),
+                                "log": str(tmp_path / f"{ns}.log")}
+
+            assert pool.load("A", command("A")) == pool.load("B", command("B"))     # one process for both
+            assert len(pool.pids()) == 1
+            first = pool.pids()[0]
+            wait_until(lambda: _said(tmp_path / "A.ready") == _said(tmp_path / "B.ready") == "ready", timeout=60)
+            wait_until(lambda: len(relayed["A"]) >= 5 and len(relayed["B"]) >= 5, timeout=30, spin=probe)
+            assert private == []           # a group's private topic never reaches the broker
+            # each group's log holds its own nodes' lines, and what the container says of it
+            log_a = (tmp_path / "A.log").read_text()
+            assert "A/listener" in log_a and "B/" not in log_a and "every topic under A/" in log_a
+
+            # a third group cannot start (no such node): said in its ready file; the others go on
+            assert pool.load("C", command("C", [{"node": "no_such_node", "name": "x"}])) != pool.container_of("A")
+            wait_until(lambda: _said(tmp_path / "C.ready").startswith("failed: node x: node 'no_such_node'"),
+                       timeout=60)
+            pool.unload("C")
+
+            pool.unload("A")               # its nodes stop; B's go on in the same process
+            time.sleep(0.5)
+            probe.spin(0.3)
+            a_count, b_count = len(relayed["A"]), len(relayed["B"])
+            probe.spin(1.0)
+            assert len(relayed["A"]) == a_count and len(relayed["B"]) >= b_count + 20
+            assert pool.pids() == [first]
+            assert "A: unloaded" in (tmp_path / "A.log").read_text()
+
+            os.kill(first, signal.SIGKILL)  # the container dies: started again with B
+            wait_until(lambda: not pool.running("B"), timeout=10)
+            (tmp_path / "B.ready").unlink()
+            assert pool.check() == ["B"] and pool.running("B") and pool.pids() != [first]
+            wait_until(lambda: _said(tmp_path / "B.ready") == "ready", timeout=60)
+            b_count = len(relayed["B"])
+            wait_until(lambda: len(relayed["B"]) >= b_count + 5, timeout=30, spin=probe)
+            assert pool.restarts == 1
+            survivor = pool.pids()[0]
+        finally:
+            pool.close()
+        assert pool.pids() == []
+        wait_until(lambda: not Path(f"/proc/{survivor}").exists() or "Z" in
+                   Path(f"/proc/{survivor}/stat").read_text().rsplit(")", 1)[1].split()[0], timeout=10)
+
+
+def test_a_node_that_asks_to_stop_restarts_its_own_group_and_the_others_run_on(tmp_path, monkeypatch):
+    monkeypatch.setattr(container_module, "RESPAWN_DELAY_S", 0.1)
+    with running_broker() as bus:
+        executor = Executor()
+        box = Container(executor, bus.for_clients())
+        try:
+            for ns in ("A", "B"):
+                recorder = {"node": "recorder", "name": "recorder", "params": {"file": str(tmp_path / f"{ns}.mcap")}}
+                box.load({"load": ns, "namespace": ns, "nodes": [*_pair(), recorder],
+                          "ready_file": str(tmp_path / f"{ns}.ready")})
+            assert _said(tmp_path / "A.ready") == "ready" and _said(tmp_path / "B.ready") == "ready"
+            executor.spin(0.5)
+            assert executor.local.private == {b"A/example/pose", b"B/example/pose"}
+            a_nodes, b_nodes = list(box.groups["A"].nodes), list(box.groups["B"].nodes)
+            a_nodes[1].request_shutdown()          # e.g. a recorder whose disk is full (its group's recorder: its log ends)
+            deadline = time.monotonic() + 10
+            while box.groups["A"].nodes == a_nodes and time.monotonic() < deadline:
+                executor.spin(0.5)                 # returns early: the container has work between spins
+                box.run_pending()
+            assert not executor.stopping           # the process runs on
+            assert box.groups["A"].nodes != a_nodes and all(n._closed for n in a_nodes)
+            assert box.groups["B"].nodes == b_nodes and not any(n._closed for n in b_nodes)
+            box.unload("B")
+            assert executor.local.private == {b"A/example/pose"}
+            # each group's recorder logged its own private poses, not the other group's
+            topics = set(LogReader(tmp_path / "B.mcap").topics())
+            assert "example/pose" in topics and not any(t.startswith("A/") for t in topics)
+        finally:
+            box.unload_all()
+            executor.close()
+
+
+def test_bad_commands_are_said_and_the_container_goes_on(caplog):
+    executor = Executor()
+    box = Container(executor, bus=None)
+    box.feed(b'{"load": "A", "nodes": "not a list"}\n[1, 2]\nnot json\n{"unl')
+    assert [c.get("load") for c in box.pending] == ["A"]
+    assert "got b'[1, 2]'" in caplog.text and "got b'not json'" in caplog.text
+    box.feed(b'oad": "B"}\n')
+    assert box.pending[-1] == {"unload": "B"}
+    box.run_pending()   # the load refused (its nodes are no list), the unload of nothing: nothing happens
+    assert "load A: nodes: expected a JSON list" in caplog.text and box.groups == {}
+    executor.close()
