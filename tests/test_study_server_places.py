@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import subprocess
 import threading
+from pathlib import Path
 
 import aiohttp
 import pytest
@@ -290,3 +291,16 @@ def test_the_server_hears_each_participants_study_trial_and_nothing_else(tmp_pat
         server.node.request_shutdown()
         server._bus_thread.join(5)
         server.broker.stop()
+
+
+def test_a_stack_that_is_not_one_group_or_cannot_be_made_fails_the_server_at_start(tmp_path, capsys):
+    """A participant's stack is one group in a container: a launch file that splits it, or an
+    override it refuses, stops `study serve` before it serves anyone, naming the file and the key."""
+    split = tmp_path / "split.yaml"
+    split.write_text(f"include: [{Path('launch/study-serve.yaml').resolve()}]\nnodes:\n  scene: {{group: other}}\n")
+    assert cli_main(["study", "serve", STUDY, "--out", str(tmp_path / "a"), "--port", "0", "--stack", str(split)]) == 2
+    err = capsys.readouterr().err
+    assert f"{split}: key 'nodes': expected every node in one `group`" in err and "got 'participant, other'" in err
+    assert cli_main(["study", "serve", STUDY, "--out", str(tmp_path / "b"), "--port", "0", "study.nope:=1"]) == 2
+    assert "key 'study.nope:=1': expected a parameter of node study" in capsys.readouterr().err
+    assert not (tmp_path / "b" / "serve.json").exists()     # it never served

@@ -274,6 +274,7 @@ class StudyServer:
         try:
             self._stack_command(p)   # a launch that cannot be made is said now, not in a container
         except Touch4dError as exc:
+            session_dir(self.out, p.id).mkdir(parents=True, exist_ok=True)
             with open(session_dir(self.out, p.id) / "serve.log", "a") as f:
                 f.write(f"{p.id}: {exc}\n")
             return False
@@ -287,18 +288,24 @@ class StudyServer:
     def _stack_command(self, p: Participant) -> dict:
         """The participant's group as its container loads it: launch/study-serve.yaml under its namespace,
         its session's overrides (the recorder's next segment: made anew at each load)."""
-        overrides = [*session_overrides(self.study_path, p.id, self.out, quick=self.quick),
-                     f"tracker.port:={p.port}", *self.overrides]
+        group = self.stack_group(p.id, p.port)
         directory = session_dir(self.out, p.id)
         directory.mkdir(parents=True, exist_ok=True)
-        specs = processes(load_launch(self.launch, overrides, namespace=p.id))
-        (group, *more) = specs.values()
-        if more or not group[0].group:
-            raise ConfigError(self.launch, "nodes", "every node in one `group` (a participant's stack is one "
-                              "container's group)", got=", ".join(specs))
         p.ready_file.unlink(missing_ok=True)
         return {"namespace": p.id, "nodes": group_entries(group), "ready_file": str(p.ready_file),
                 "log": str(directory / "serve.log")}
+
+    def stack_group(self, participant: str, port: int) -> list:
+        """A participant's stack: the launch file's one group (its NodeSpecs) under their namespace.
+        Raises ConfigError when the launch cannot be made or is not one group (checked at start too)."""
+        overrides = [*session_overrides(self.study_path, participant, self.out, quick=self.quick),
+                     f"tracker.port:={port}", *self.overrides]
+        specs = processes(load_launch(self.launch, overrides, namespace=participant))
+        (group, *more) = specs.values()
+        if more or not group[0].group:
+            raise ConfigError(self.launch, "nodes", "every node in one `group` (a participant's stack is one "
+                              "group in a container)", got=", ".join(specs))
+        return group
 
     async def _wait_ready(self, p: Participant) -> bool:
         deadline = time.monotonic() + READY_TIMEOUT_S
@@ -637,6 +644,7 @@ class StudyServer:
             self._load_invites()
 
     def run(self) -> int:
+        self.stack_group("P00", 0)   # a launch that cannot make a participant's stack fails now, not at a join
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
