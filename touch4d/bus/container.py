@@ -51,6 +51,11 @@ log = logging.getLogger("container")
 
 RESPAWN_DELAY_S = 0.5     # a group whose node asked to stop is built again after this
 MAX_LINE = 1 << 20        # bytes of one command: a group's node list is a few kB
+# s: how long a thread that wants the interpreter lock waits for the one holding it (CPython's default
+# 5 ms). Each group's recorder writes from threads of its own: eight groups' writers made the loop
+# wait up to 5 ms at a time, each; at 0.5 ms, p99 pose -> pulse at 16 participants fell from 18-24 ms
+# to 12-13 ms (bench/bench_serve.py, back to back).
+SWITCH_INTERVAL_S = 0.0005
 
 
 @dataclass
@@ -236,6 +241,7 @@ def run_container(argv: list[str]) -> int:
     parser.add_argument("--bus", help="bus config file (default: $TOUCH4D_BUS, else config/bus.yaml)")
     parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
     args = parser.parse_args(argv)
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     args.realtime = False   # a container's groups share its thread: no node of them asks for more
     _configure(args, args.container)
     executor = Executor()
