@@ -67,6 +67,7 @@ def test_two_groups_share_a_container_each_in_its_namespace_one_unloaded_one_bad
             assert pool.load("C", command("C", [{"node": "no_such_node", "name": "x"}])) != pool.container_of("A")
             wait_until(lambda: _said(tmp_path / "C.ready").startswith("failed: node x: node 'no_such_node'"),
                        timeout=60)
+            assert not pool.running("C") and pool.running("A")   # placed, but it said it failed
             pool.unload("C")
 
             pool.unload("A")               # its nodes stop; B's go on in the same process
@@ -92,6 +93,27 @@ def test_two_groups_share_a_container_each_in_its_namespace_one_unloaded_one_bad
         assert pool.pids() == []
         wait_until(lambda: not Path(f"/proc/{survivor}").exists() or "Z" in
                    Path(f"/proc/{survivor}/stat").read_text().rsplit(")", 1)[1].split()[0], timeout=10)
+
+
+def test_a_pool_spreads_groups_over_its_containers_first_then_fills_the_least_loaded(tmp_path):
+    with running_broker() as bus:
+        pool = ContainerPool(3, _bus_file(tmp_path, bus), tmp_path / "logs", spread=2)
+        try:
+            def empty(gid):
+                return lambda: {"namespace": gid, "nodes": [], "ready_file": str(tmp_path / f"{gid}.ready")}
+            placed = [pool.load(gid, empty(gid)) for gid in "ABCDEF"]
+            assert placed == ["container-1", "container-2", "container-1", "container-2", "container-1", "container-2"]
+            pool.unload("A")
+            pool.unload("C")
+            assert pool.load("G", empty("G")) == "container-1"         # the least loaded
+            assert pool.load("H", empty("H")) == "container-1"
+            assert pool.load("I", empty("I")) == "container-3"         # both full (3 each): a third
+            wait_until(lambda: all(_said(tmp_path / f"{g}.ready") == "ready" for g in "BDEFGHI"), timeout=60)
+            for gid in "BDF":
+                pool.unload(gid)
+            assert len(pool.pids()) == 2                                # container-2 left empty: stopped
+        finally:
+            pool.close()
 
 
 def test_a_node_that_asks_to_stop_restarts_its_own_group_and_the_others_run_on(tmp_path, monkeypatch):
@@ -136,4 +158,7 @@ def test_bad_commands_are_said_and_the_container_goes_on(caplog):
     assert box.pending[-1] == {"unload": "B"}
     box.run_pending()   # the load refused (its nodes are no list), the unload of nothing: nothing happens
     assert "load A: nodes: expected a JSON list" in caplog.text and box.groups == {}
+    box.groups["X"] = container_module.Group("X", {"namespace": "A"})   # a group loaded under A already
+    box.load({"load": "Y", "namespace": "A", "nodes": []})
+    assert "load Y: namespace 'A' is another loaded group's" in caplog.text and set(box.groups) == {"X"}
     executor.close()

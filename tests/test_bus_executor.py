@@ -3,6 +3,7 @@ import asyncio
 import threading
 import time
 
+import numpy as np
 import pytest
 import zmq
 
@@ -196,4 +197,76 @@ def test_one_executor_loop_serves_tls_itself_or_not_never_both():
     assert ex.asyncio_loop(serves_tls=False) is loop
     with pytest.raises(ValueError, match="TLS"):
         ex.asyncio_loop(serves_tls=True)
+    ex.close()
+
+
+def test_on_a_loop_a_turn_asks_only_the_sockets_that_fired_and_each_message_still_comes_at_once():
+    """A container's executor watches hundreds of sockets: a turn reads those whose FD fired (and
+    those that held more than one read took), every socket only every FULL_POLL_S; a message that
+    comes meanwhile is read at once, and a burst larger than one read is read to its end."""
+    ex = Executor()
+    ex.asyncio_loop()
+    ctx = zmq.Context.instance()
+    idle = [ctx.socket(zmq.PULL) for _ in range(60)]         # sockets nothing is sent to
+    for k, sock in enumerate(idle):
+        sock.bind(f"inproc://idle-{k}")
+        ex.add_reader(sock, lambda: 0)
+    inbound, outbound = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    inbound.bind("inproc://busy")
+    outbound.connect("inproc://busy")
+    got, lag = [], []
+
+    def read() -> int:                                        # one message a read: the rest wait a turn
+        try:
+            sent = float(inbound.recv(zmq.NOBLOCK))
+        except zmq.Again:
+            return 0
+        got.append(sent)
+        lag.append(time.monotonic() - sent)
+        return 1
+
+    ex.add_reader(inbound, read)
+    polls = []
+    poll = ex._poller.poll
+    ex._poller.poll = lambda timeout=None: (polls.append(1), poll(timeout))[1]
+    stop = time.monotonic() + 0.6
+
+    def send(burst: int) -> None:
+        for _ in range(burst):
+            outbound.send(repr(time.monotonic()).encode())
+        if time.monotonic() < stop:
+            threading.Timer(0.01, send, args=(1 if burst > 1 else 5,)).start()
+
+    threading.Timer(0.05, send, args=(1,)).start()
+    ex.spin(0.8)
+    assert len(got) >= 100                                    # every message of every burst read
+    assert np.percentile(lag, 99) < 0.05                      # none waited for the next full poll
+    assert len(polls) <= 0.8 / executor_module.FULL_POLL_S + 3   # every socket asked only that often
+    for sock in [*idle, inbound]:
+        ex.remove_reader(sock)
+        sock.close(linger=0)
+    outbound.close(linger=0)
+    ex.close()
+
+
+@pytest.mark.parametrize("on_loop", [False, True], ids=["poll", "loop"])
+def test_interrupt_returns_from_spin_without_shutting_down_and_the_next_spin_spins(on_loop):
+    """A container's commands run between spins: `interrupt` (from a callback or another thread)
+    ends the current spin soon; the executor is not stopping, and the next spin runs as before."""
+    ex = Executor()
+    if on_loop:
+        ex.asyncio_loop()
+    ticks = []
+    ex.create_timer(0.01, lambda: ticks.append(1))
+    threading.Timer(0.05, ex.interrupt).start()
+    start = time.monotonic()
+    ex.spin(5.0)
+    assert time.monotonic() - start < 1.0 and not ex.stopping
+    ex.call_soon(ex.interrupt)                                # from a callback on its own thread
+    start = time.monotonic()
+    ex.spin(5.0)
+    assert time.monotonic() - start < 1.0
+    ticks.clear()
+    ex.spin(0.2)                                              # no interrupt left over: it spins its time
+    assert len(ticks) >= 10
     ex.close()

@@ -201,17 +201,18 @@ def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_a
         for participant in ("P01", "P02"):
             wait_until(lambda: _starts(served.out, participant) >= 1, timeout=90)   # its session began
         first = _containers(served.proc.pid)
-        assert len(first) == 1                                         # both stacks: one process
-        os.kill(first[0], signal.SIGKILL)                              # a crash takes every stack of it
-        # the server starts the container again with both: each study node resumes its session
+        assert 1 <= len(first) <= 2                                    # spread over the cores first, then shared
+        for pid in first:
+            os.kill(pid, signal.SIGKILL)                               # a crash takes every stack of it
+        # the server starts each container again with its stacks: each study node resumes its session
         for participant in ("P01", "P02"):
             wait_until(lambda: _starts(served.out, participant) >= 2, timeout=90)
         back = _containers(served.proc.pid)
-        assert len(back) == 1 and back != first
-        wait_until(lambda: "participants-1 was killed by SIGKILL: starting it again with its 2 group(s): P01, P02"
-                   in served.text, timeout=10)
-        log = (served.out / "P01" / "serve.log").read_text()
-        assert log.count("P01: 5 node(s) loaded in container") == 2
+        assert len(back) == len(first) and not set(back) & set(first)
+        wait_until(lambda: len(re.findall(r"participants-\d was killed by SIGKILL: starting it again with its "
+                                          r"\d group\(s\)", served.text)) == len(first), timeout=10)
+        wait_until(lambda: (served.out / "P01" / "serve.log").read_text().count("P01: 5 node(s) loaded in container")
+                   == 2, timeout=30)
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
         served.proc.wait()
         wait_until(lambda: not _alive(back[0]), timeout=30)            # its containers go with it

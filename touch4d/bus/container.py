@@ -133,10 +133,6 @@ class Container:
                     self.unload(gid)
                     self.load(group.command)
 
-    def next_respawn(self) -> float | None:
-        """Seconds until a group is due to be loaded again (None: none is)."""
-        return max(0.0, min(self._respawn.values()) - time.monotonic()) if self._respawn else None
-
     # ---- groups ------------------------------------------------------------------------------
 
     def load(self, command: dict) -> None:
@@ -149,6 +145,8 @@ class Container:
         group = Group(gid, command)
         try:
             namespace = names.check_namespace(namespace)
+            if namespace and any(g.command.get("namespace") == namespace for g in self.groups.values()):
+                raise ValueError(f"load {gid}: namespace {namespace!r} is another loaded group's")
             nodes = command.get("nodes")
             if not isinstance(nodes, list):
                 raise GroupError(f"load {gid}: nodes: expected a JSON list, got {nodes!r}")
@@ -174,7 +172,7 @@ class Container:
                 node = node_class(**kwargs, bus=self.bus, executor=self.executor)
                 node.group_stop = lambda gid=gid: self._stop_requested(gid)
                 group.nodes.append(node)
-        except Exception as exc:  # noqa: BLE001 - one group that cannot start must not stop the others
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - one group that cannot start must not stop the others
             self._log(group).error("%s: node %s could not start: %s", gid, role, exc,
                                    exc_info=not isinstance(exc, (OSError, ValueError)))
             self.unload(gid)
@@ -304,41 +302,52 @@ class _Process:
 
 
 class ContainerPool:
-    """Groups placed in containers of at most `per_container` groups each, started as they are
-    needed (the first with room takes a new group); one that dies is started again and its groups
-    loaded again, each from its `make` (called anew: a command may name a new file each time).
+    """Groups placed in containers of at most `per_container` groups each: up to `spread`
+    containers are started before any takes a second group (one thread each: on a machine of that
+    many cores, a few groups do not queue behind each other on one), then the least loaded with room
+    takes the next. One that dies is started again and its groups loaded again, each from its `make`
+    (called anew: a command may name a new file each time).
 
     `bus_file`: the containers' bus; `log_dir`: each container's output (NAME.log); `popen`:
     extra subprocess.Popen arguments (the supervisor's `preexec_fn`, say)."""
 
-    def __init__(self, per_container: int, bus_file, log_dir, *, prefix: str = "container", popen: dict | None = None):
-        if per_container < 1:
-            raise ValueError(f"groups per container: expected at least 1, got {per_container}")
-        self.per_container = per_container
+    def __init__(self, per_container: int, bus_file, log_dir, *, spread: int = 1, prefix: str = "container",
+                 popen: dict | None = None):
+        if per_container < 1 or spread < 1:
+            raise ValueError(f"groups per container and containers to spread over: expected at least 1, got "
+                             f"{per_container} and {spread}")
+        self.per_container, self.spread = per_container, spread
         self.bus_file, self.log_dir, self.prefix = str(bus_file), Path(log_dir), prefix
         self.popen = popen or {}
         self.processes: list[_Process] = []
         self._make: dict[str, object] = {}     # group id -> its command's maker
+        self._commands: dict[str, dict] = {}   # group id -> its last command
         self._where: dict[str, _Process] = {}
         self._count = 0
         self.restarts = 0
 
     def load(self, gid: str, make) -> str:
-        """Place group `gid` (`make()` -> its load command without "load") in a container; returns
-        the container's name. The command's ready file says when it is built."""
+        """Place group `gid` (`make()` -> its load command without "load", e.g. its namespace, nodes and
+        ready file) in a container; returns the container's name. Raises what `make` raises (nothing is
+        placed then)."""
         if gid in self._where:
             raise ValueError(f"group {gid!r} is placed already")
-        proc = next((p for p in self.processes if p.alive and len(p.groups) < self.per_container), None)
-        if proc is None:
+        command = make()
+        alive = [p for p in self.processes if p.alive]
+        room = [p for p in alive if len(p.groups) < self.per_container]
+        if not room or len(alive) < self.spread:
             proc = self._start()
+        else:
+            proc = min(room, key=lambda p: len(p.groups))   # the least loaded
         self._make[gid] = make
-        self._place(gid, proc)
+        self._place(gid, proc, command)
         return proc.name
 
     def unload(self, gid: str) -> None:
         """Take group `gid` out of its container (unknown: nothing); a container left empty stops."""
         proc = self._where.pop(gid, None)
         self._make.pop(gid, None)
+        self._commands.pop(gid, None)
         if proc is None:
             return
         proc.groups.discard(gid)
@@ -347,9 +356,16 @@ class ContainerPool:
             self._stop(proc)
 
     def running(self, gid: str) -> bool:
-        """Whether group `gid` is placed in a container that is alive."""
+        """Whether group `gid` is placed in a container that is alive, and has not said it failed (in
+        its ready file: at its load, or at a reload after a node asked to stop)."""
         proc = self._where.get(gid)
-        return proc is not None and proc.alive
+        if proc is None or not proc.alive:
+            return False
+        ready = self._commands.get(gid, {}).get("ready_file")
+        try:
+            return not (ready and Path(ready).read_text().startswith("failed"))
+        except OSError:
+            return True   # not written yet: loading
 
     def container_of(self, gid: str) -> str | None:
         proc = self._where.get(gid)
@@ -374,8 +390,16 @@ class ContainerPool:
                         len(groups), ", ".join(groups))
             again = self._start()
             for gid in groups:
-                self._place(gid, again)
-            reloaded += groups
+                try:
+                    command = self._make[gid]()
+                except Exception as exc:  # noqa: BLE001 - the others are loaded again all the same
+                    log.error("%s cannot be loaded again: %s", gid, exc)
+                    self._make.pop(gid, None)
+                    self._where.pop(gid, None)
+                    self._commands.pop(gid, None)
+                    continue
+                self._place(gid, again, command)
+                reloaded.append(gid)
         return reloaded
 
     def close(self, timeout: float = 15.0) -> None:
@@ -393,10 +417,11 @@ class ContainerPool:
         self.processes.clear()
         self._where.clear()
 
-    def _place(self, gid: str, proc: _Process) -> None:
+    def _place(self, gid: str, proc: _Process, command: dict) -> None:
         proc.groups.add(gid)
         self._where[gid] = proc
-        proc.send({"load": gid, **self._make[gid]()})
+        self._commands[gid] = command
+        proc.send({"load": gid, **command})   # a container that just died: check() loads it again
 
     def _start(self) -> _Process:
         self._count += 1

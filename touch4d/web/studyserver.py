@@ -60,7 +60,7 @@ log = logging.getLogger("study-serve")
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
 PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or leave_after_s if longer)
-PER_PROCESS = 8               # participants' stacks per process (a container): see default_per_process
+PER_PROCESS = 8               # participants' stacks per process at most (a container: docs/bus.md)
 CONTAINERS = "containers"     # OUT/containers/NAME.log: each container's output
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
@@ -75,11 +75,15 @@ UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket 
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
 
+def _cores() -> int:
+    """The cores this process may run on (its CPU affinity)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def default_max_participants() -> int:
     """Participants at once when the experimenter does not say: PARTICIPANTS_PER_CORE per core this
-    process may run on (its CPU affinity), at least 2."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(2, PARTICIPANTS_PER_CORE * cores)
+    process may run on, at least 2."""
+    return max(2, PARTICIPANTS_PER_CORE * _cores())
 
 
 def _upgrade_request(request: web.Request, port: int) -> bytes | None:
@@ -271,17 +275,18 @@ class StudyServer:
         launch cannot be made (said in its serve.log)."""
         p.port = _free_port()
         p.ready_file = tmp / f"{p.id}.ready"
+        if self.pool is None:
+            self.pool = ContainerPool(self.per_process, self.bus_file, self.out / CONTAINERS, spread=_cores(),
+                                      prefix="participants",
+                                      popen={"start_new_session": True, "preexec_fn": _die_with_server})
+        self.pool.unload(p.id)   # a stack that said it failed is still placed: out first
         try:
-            self._stack_command(p)   # a launch that cannot be made is said now, not in a container
-        except Touch4dError as exc:
+            self.pool.load(p.id, lambda: self._stack_command(p))
+        except Touch4dError as exc:   # its launch cannot be made (the file changed since the start)
             session_dir(self.out, p.id).mkdir(parents=True, exist_ok=True)
             with open(session_dir(self.out, p.id) / "serve.log", "a") as f:
                 f.write(f"{p.id}: {exc}\n")
             return False
-        if self.pool is None:
-            self.pool = ContainerPool(self.per_process, self.bus_file, self.out / CONTAINERS, prefix="participants",
-                                      popen={"start_new_session": True, "preexec_fn": _die_with_server})
-        self.pool.load(p.id, lambda: self._stack_command(p))
         p.state = "starting"
         return True
 
@@ -350,6 +355,14 @@ class StudyServer:
             if self.pool is not None:
                 for participant in self.pool.check():
                     log.warning("%s: its stack's process died; started again", participant)
+                    asyncio.ensure_future(self._back(self.participants[participant]))
+
+    async def _back(self, p: Participant) -> None:
+        """A stack loaded again after its container died: if it does not come up, its place is
+        given back (the link starts it again)."""
+        if not await self._wait_ready(p):
+            log.warning("%s: its stack did not start again; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
+            self._stop_stack(p, "left")
 
     # ---- HTTP ----------------------------------------------------------------------------------
 

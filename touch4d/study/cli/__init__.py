@@ -87,7 +87,8 @@ def register(subparsers) -> None:
     serve.add_argument("--port", type=int, default=8095, help="TCP port (default 8095; 0: any free one)")
     serve.add_argument("--max-participants", type=_count, default=None, metavar="N",
                        help="participants running at once; one more gets a page that says so (HTTP 503). "
-                            "Default: 3 per CPU core, what keeps each one's touch within 15 ms (bench/bench_serve.py)")
+                            "Default: 4 per CPU core (bench/bench_serve.py: 16 on two cores kept their touch within 15 ms, the study "
+                            "node aside)")
     serve.add_argument("--public-url", metavar="URL", help="the address participants use (a reverse proxy's https URL)")
     serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
                        help="a participant without a page this long has left: their stack stops (default 30)")
