@@ -22,12 +22,19 @@ overhead", so the stages are a guide to where the time goes, not a sum); the bas
 measured in the same run is the empty driver loop (the same events, no work). And one frame's
 packing beside its previous form in the same run: every field JSON-encoded each frame.
 
-    .venv/bin/python bench/bench_participant.py [--inputs 3000] [--repeat 3]
+`--paced N K`: instead, N participants at once at the page's real rate (72 Hz, sleeping between
+inputs, as a served participant's process does), first each in a process of its own (the
+baseline), then K to a process (a container, touch4d.bus.container), and the CPU per input of each:
+what sharing a process saves when the code's caches are not kept warm by a tight loop.
+
+    .venv/bin/python bench/bench_participant.py [--inputs 3000] [--repeat 3] [--paced 16 8]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -223,11 +230,61 @@ def frame_packing(p: Participant, number: int, repeat: int) -> tuple[float, floa
     return out[0], out[1]
 
 
+def paced(k: int, seconds: float) -> float:
+    """CPU us per input of `k` participants in this process, each at 72 Hz in real time (their inputs
+    interleaved, the process asleep between rounds), over `seconds` after a second's warm-up."""
+    participants = [Participant() for _ in range(k)]
+    timeline = page_inputs(int((seconds + 1.0) * RATE_HZ))
+    spent, counted = 0.0, 0
+    start = time.monotonic()
+    for i, (t, text) in enumerate(timeline):
+        arrival = 1.7e9 + t
+        for p in participants:
+            b = p.bridge
+            t0 = time.thread_time()
+            while (due := b.next_due()) <= arrival:
+                p.clock = max(p.clock, due + SLACK_S)
+                b.tick()
+            p.clock = arrival
+            b.page_message(CONN, text, p.clock)
+            if t >= 1.0:
+                spent += time.thread_time() - t0
+                counted += 1
+        time.sleep(max(0.0, start + (i + 1) / RATE_HZ - time.monotonic()))
+    return spent / max(counted, 1) * 1e6
+
+
+def run_paced(n: int, k: int, seconds: float) -> None:
+    """N participants as N processes of one, then as processes of K: CPU us per input of each."""
+    def layout(per: int) -> float:
+        counts = [per] * (n // per) + ([n % per] if n % per else [])
+        procs = [subprocess.Popen([sys.executable, __file__, "--paced-worker", str(c), str(seconds)],
+                                  stdout=subprocess.PIPE, text=True) for c in counts]
+        results = [(c, float(proc.communicate()[0].split()[-1])) for c, proc in zip(counts, procs)]
+        return sum(c * us for c, us in results) / n
+
+    one = layout(1)
+    shared = layout(k)
+    print(f"{n} participants at {RATE_HZ:.0f} Hz for {seconds:g} s, CPU time per page input (the path above, paced):")
+    print(f"  baseline: a process each          {one:8.1f} us")
+    print(f"  {k} to a process                   {shared:8.1f} us   ({shared / one:.2f}x)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--inputs", type=int, default=3000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--paced", type=int, nargs=2, metavar=("N", "K"),
+                    help="N participants at 72 Hz: a process each, then K to a process")
+    ap.add_argument("--seconds", type=float, default=8.0, help="--paced: how long each layout runs")
+    ap.add_argument("--paced-worker", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.paced_worker:
+        print(f"{paced(int(args.paced_worker[0]), float(args.paced_worker[1])):.3f}")
+        return
+    if args.paced:
+        run_paced(args.paced[0], args.paced[1], args.seconds)
+        return
     timeline = events(args.inputs)
     n = args.inputs
 
