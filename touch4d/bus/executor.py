@@ -307,8 +307,8 @@ class Executor:
         return self._loop
 
     def _watch(self, sock) -> None:
-        # A ZeroMQ socket's FD only says "look": the step asks every socket (poll with no wait),
-        # which also re-arms it, so a level-triggered watch of it neither misses nor spins.
+        # A ZeroMQ socket's FD only says "look": the step asks that socket (ZMQ_EVENTS), which also
+        # re-arms it, so a level-triggered watch of it neither misses nor spins (_poll_ready).
         fd = sock.getsockopt(zmq.FD) if isinstance(sock, zmq.Socket) else sock
         self._fds[sock] = fd
         self._loop.add_reader(fd, self._fd_ready, sock)
