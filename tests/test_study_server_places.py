@@ -46,6 +46,9 @@ class SleepStacks:
         proc = self.procs.get(participant)
         return proc is not None and proc.poll() is None
 
+    def container_of(self, participant: str) -> str | None:
+        return "sleep" if participant in self.procs else None
+
     def check(self) -> list[str]:
         return []
 

@@ -24,6 +24,7 @@ def test_rows_from_page_inputs_and_frames(tmp_path):
                                      "sources": []}))
     trace.page_in("P01", json.dumps({"type": "stats", "fps": 72}))          # not an input: no row
     trace.page_in("P01", "{not json")                                         # refused downstream: no row
+    trace.page_in("P01", '{"type":"input","time":1e}')                       # not a number: no row, no error
     trace.frame_out("P01", pack_frame("frame", {"n": 1, "haptic": 0.75}, {"h": np.zeros(3, np.float32)}))
     trace.frame_out("P01", pack_frame("setup", {"tracker": True}))             # not a frame: no row
     trace.close()

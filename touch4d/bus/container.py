@@ -170,7 +170,8 @@ class Container:
         try:
             for role, node_class, kwargs in members:
                 node = node_class(**kwargs, bus=self.bus, executor=self.executor)
-                node.group_stop = lambda gid=gid: self._stop_requested(gid)
+                # request_shutdown may come from any thread: the respawn is arranged on the executor's
+                node.group_stop = lambda gid=gid: self.executor.call_soon_threadsafe(self._stop_requested, gid)
                 group.nodes.append(node)
         except (Exception, SystemExit) as exc:  # noqa: BLE001 - one group that cannot start must not stop the others
             self._log(group).error("%s: node %s could not start: %s", gid, role, exc,
@@ -323,6 +324,7 @@ class ContainerPool:
         self._make: dict[str, object] = {}     # group id -> its command's maker
         self._commands: dict[str, dict] = {}   # group id -> its last command
         self._where: dict[str, _Process] = {}
+        self._retiring: list[_Process] = []    # stopped (left empty), not yet exited
         self._count = 0
         self.restarts = 0
 
@@ -378,17 +380,17 @@ class ContainerPool:
         """Start again each container that died and load its groups there; returns their ids."""
         reloaded = []
         for proc in [p for p in self.processes if not p.alive]:
+            groups = sorted(proc.groups)
+            again = self._start() if groups else None   # may raise: the dead one stays, tried again next check
             self.processes.remove(proc)
             proc.log_file.close()
-            groups = sorted(proc.groups)
-            if not groups:
+            if again is None:
                 continue
             self.restarts += 1
             code = proc.proc.returncode
             how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
             log.warning("container %s %s: starting it again with its %d group(s): %s", proc.name, how,
                         len(groups), ", ".join(groups))
-            again = self._start()
             for gid in groups:
                 try:
                     command = self._make[gid]()
@@ -403,11 +405,12 @@ class ContainerPool:
         return reloaded
 
     def close(self, timeout: float = 15.0) -> None:
-        """Every container told to stop (end of its stdin): unloads its groups; killed after `timeout`."""
+        """Every container told to stop (end of its stdin): unloads its groups; killed after `timeout`
+        (those already stopping too)."""
         for proc in self.processes:
             self._stop(proc, wait=False)
         deadline = time.monotonic() + timeout
-        for proc in self.processes:
+        for proc in [*self.processes, *self._retiring]:
             try:
                 proc.proc.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
@@ -415,6 +418,7 @@ class ContainerPool:
                 proc.proc.wait()
             proc.log_file.close()
         self.processes.clear()
+        self._retiring.clear()
         self._where.clear()
 
     def _place(self, gid: str, proc: _Process, command: dict) -> None:
@@ -446,6 +450,7 @@ class ContainerPool:
             pass
         if wait:
             self.processes.remove(proc)
+            self._retiring.append(proc)   # close() waits for it too
 
             def reap():
                 try:
@@ -454,5 +459,7 @@ class ContainerPool:
                     proc.proc.kill()
                     proc.proc.wait()
                 proc.log_file.close()
+                if proc in self._retiring:
+                    self._retiring.remove(proc)
 
             threading.Thread(target=reap, daemon=True).start()

@@ -407,7 +407,8 @@ class Executor:
             self._loop.stop()
         elif self._calls:
             self._step_soon()
-        due = self._next_due
+        # the next timer, or the next full poll while sockets are watched (an edge taken unseen: FULL_POLL_S)
+        due = min(self._next_due, self._full_poll_due) if self._fds else self._next_due
         if due != self._armed_due:
             if self._timer_handle is not None:
                 self._timer_handle.cancel()

@@ -344,6 +344,10 @@ class StudyServer:
     def _running(self, p: Participant) -> bool:
         return self.pool is not None and self.pool.running(p.id)
 
+    def _placed(self, p: Participant) -> bool:
+        """Its stack is in a container, running or being loaded again after its container died."""
+        return self.pool is not None and self.pool.container_of(p.id) is not None
+
     def running(self) -> int:
         return sum(1 for p in self.participants.values() if self._running(p))
 
@@ -352,10 +356,16 @@ class StudyServer:
         resumes at its first trial without a row, and each page reconnects to the same port."""
         while True:
             await asyncio.sleep(period_s)
-            if self.pool is not None:
-                for participant in self.pool.check():
-                    log.warning("%s: its stack's process died; started again", participant)
-                    asyncio.ensure_future(self._back(self.participants[participant]))
+            if self.pool is None:
+                continue
+            try:
+                back = self.pool.check()
+            except Exception:  # noqa: BLE001 - the watch must go on (the dead ones are tried again)
+                log.exception("starting a dead container again failed; trying again in %g s", period_s)
+                continue
+            for participant in back:
+                log.warning("%s: its stack's process died; started again", participant)
+                asyncio.ensure_future(self._back(self.participants[participant]))
 
     async def _back(self, p: Participant) -> None:
         """A stack loaded again after its container died: if it does not come up, its place is
@@ -363,6 +373,8 @@ class StudyServer:
         if not await self._wait_ready(p):
             log.warning("%s: its stack did not start again; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
             self._stop_stack(p, "left")
+        elif p.pages == 0:
+            self._await_page(p)   # its page gone with the container: back within the grace, or it has left
 
     # ---- HTTP ----------------------------------------------------------------------------------
 
@@ -525,7 +537,7 @@ class StudyServer:
 
     def _page_closed(self, p: Participant) -> None:
         p.pages -= 1
-        if p.pages > 0 or not self._running(p):
+        if p.pages > 0 or not self._placed(p):   # placed: its container may be dead and loading it again
             return
         p.state = "paused"
         self.command(p.id, "pause", "the participant's page closed")

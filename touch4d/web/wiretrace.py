@@ -49,8 +49,12 @@ class WireTrace:
         if _INPUT.search(text, 0, 64) is None:
             return   # not an input (its type comes first, as every page writes it)
         stamp = _TIME.search(text)
-        if stamp is not None:
-            self._rows.writerow((participant, "in", repr(float(stamp.group(1))), now))
+        try:
+            page_time = float(stamp.group(1)) if stamp is not None else None
+        except ValueError:
+            return   # not a number ("1e"): the participant's node refuses it, and says why
+        if page_time is not None:
+            self._rows.writerow((participant, "in", repr(page_time), now))
 
     def frame_out(self, participant: str, data: bytes) -> None:
         """A binary message for the page, as it leaves: a row when it is a frame (its header read by
@@ -59,7 +63,11 @@ class WireTrace:
         if not data.startswith(_FRAME, _LEN_SIZE):
             return
         haptic = _HAPTIC.search(data, _LEN_SIZE, _LEN_SIZE + int.from_bytes(data[:_LEN_SIZE], "little"))
-        self._rows.writerow((participant, "out", repr(float(haptic.group(1)) if haptic else 0.0), now))
+        try:
+            level = float(haptic.group(1)) if haptic else 0.0
+        except ValueError:
+            return
+        self._rows.writerow((participant, "out", repr(level), now))
 
     def page_bytes(self, participant: str) -> Callable[[bytes], None]:
         """A feed for the bytes a page sends (its WebSocket frames, masked): `page_in` for each text
