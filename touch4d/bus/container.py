@@ -4,7 +4,7 @@ group keeps its namespace, its private topics (touch4d.bus.local) and its page s
 
 Why: a study server's participants each run the same five nodes. Sixteen interpreters each keep
 their own copy of the code's objects and data warm in the caches; one interpreter for eight
-participants keeps one, and the same page input costs about half the CPU (docs/bus.md). The price is
+participants keeps one, and the same page input costs a quarter to a third less CPU (docs/bus.md). The price is
 isolation: a crash takes every group of the container, which its supervisor then loads again in a
 new one (each participant loses at most the trial it was in, as when the server is killed).
 
@@ -88,7 +88,7 @@ class Container:
         self.groups: dict[str, Group] = {}
         self.pending: list[dict] = []
         self._buffer = b""
-        self._respawn: dict[str, float] = {}   # group id -> when to load it again
+        self._respawn: set[str] = set()   # groups a node of which asked to stop: loaded again soon
         self._frozen = False
 
     # ---- commands ----------------------------------------------------------------------------
@@ -111,27 +111,22 @@ class Container:
                 log.error("stdin: expected a JSON command {\"load\": ID, ...} or {\"unload\": ID}, got %.200r (%s)",
                           line, exc)
                 continue
-            self.pending.append(command)
-        if self.pending:
-            self.executor.interrupt()
+            self._queue(command)
 
     def run_pending(self) -> None:
         """The commands received, and the groups due to be loaded again (between spins)."""
         commands, self.pending = self.pending, []
         for command in commands:
-            if "load" in command:
+            if "reload" in command:   # from _stop_requested, after RESPAWN_DELAY_S
+                group = self.groups.get(command["reload"])
+                if group is not None and group.id in self._respawn:
+                    log.warning("%s: a node asked to stop: loading the group again", group.id)
+                    self.unload(group.id)
+                    self.load(group.command)
+            elif "load" in command:
                 self.load(command)
             else:
                 self.unload(str(command["unload"]))
-        now = time.monotonic()
-        for gid, due in list(self._respawn.items()):
-            if due <= now:
-                del self._respawn[gid]
-                group = self.groups.get(gid)
-                if group is not None:
-                    log.warning("%s: a node asked to stop: loading the group again", gid)
-                    self.unload(gid)
-                    self.load(group.command)
 
     # ---- groups ------------------------------------------------------------------------------
 
@@ -189,7 +184,7 @@ class Container:
     def unload(self, gid: str) -> None:
         """Shut a group's nodes down (reverse order); an unknown id: nothing."""
         group = self.groups.pop(gid, None)
-        self._respawn.pop(gid, None)
+        self._respawn.discard(gid)
         if group is None:
             return
         for node in reversed(group.nodes):
@@ -214,8 +209,12 @@ class Container:
 
     def _stop_requested(self, gid: str) -> None:
         if gid in self.groups and gid not in self._respawn:
-            self._respawn[gid] = time.monotonic() + RESPAWN_DELAY_S
-            self.executor.call_later(RESPAWN_DELAY_S, self.executor.interrupt)
+            self._respawn.add(gid)
+            self.executor.call_later(RESPAWN_DELAY_S, lambda: self._queue({"reload": gid}))
+
+    def _queue(self, command: dict) -> None:
+        self.pending.append(command)
+        self.executor.interrupt()
 
     def _set_private(self) -> None:
         self.executor.local.private = frozenset().union(*(g.private for g in self.groups.values()))
@@ -283,11 +282,10 @@ def run_container(argv: list[str]) -> int:
 
 
 class _Process:
-    """One container process and the groups placed in it."""
+    """One container process."""
 
     def __init__(self, name: str, proc, log_file):
         self.name, self.proc, self.log_file = name, proc, log_file
-        self.groups: set[str] = set()
 
     @property
     def alive(self) -> bool:
@@ -300,6 +298,15 @@ class _Process:
             return True
         except (BrokenPipeError, ValueError, OSError):   # it died (check() starts it again)
             return False
+
+
+@dataclass
+class _Placed:
+    """A group placed in a container: where, how its command is made, and the last one sent."""
+
+    proc: _Process
+    make: object
+    command: dict
 
 
 class ContainerPool:
@@ -321,10 +328,8 @@ class ContainerPool:
         self.bus_file, self.log_dir, self.prefix = str(bus_file), Path(log_dir), prefix
         self.popen = popen or {}
         self.processes: list[_Process] = []
-        self._make: dict[str, object] = {}     # group id -> its command's maker
-        self._commands: dict[str, dict] = {}   # group id -> its last command
-        self._where: dict[str, _Process] = {}
-        self._retiring: list[_Process] = []    # stopped (left empty), not yet exited
+        self._placed: dict[str, _Placed] = {}   # group id -> where it is
+        self._retiring: list[_Process] = []     # stopped (left empty), not yet exited
         self._count = 0
         self.restarts = 0
 
@@ -332,46 +337,42 @@ class ContainerPool:
         """Place group `gid` (`make()` -> its load command without "load", e.g. its namespace, nodes and
         ready file) in a container; returns the container's name. Raises what `make` raises (nothing is
         placed then)."""
-        if gid in self._where:
+        if gid in self._placed:
             raise ValueError(f"group {gid!r} is placed already")
         command = make()
         alive = [p for p in self.processes if p.alive]
-        room = [p for p in alive if len(p.groups) < self.per_container]
+        room = [p for p in alive if len(self._groups(p)) < self.per_container]
         if not room or len(alive) < self.spread:
             proc = self._start()
         else:
-            proc = min(room, key=lambda p: len(p.groups))   # the least loaded
-        self._make[gid] = make
-        self._place(gid, proc, command)
+            proc = min(room, key=lambda p: len(self._groups(p)))   # the least loaded
+        self._place(gid, proc, make, command)
         return proc.name
 
     def unload(self, gid: str) -> None:
         """Take group `gid` out of its container (unknown: nothing); a container left empty stops."""
-        proc = self._where.pop(gid, None)
-        self._make.pop(gid, None)
-        self._commands.pop(gid, None)
-        if proc is None:
+        placed = self._placed.pop(gid, None)
+        if placed is None:
             return
-        proc.groups.discard(gid)
-        proc.send({"unload": gid})
-        if not proc.groups:
-            self._stop(proc)
+        placed.proc.send({"unload": gid})
+        if not self._groups(placed.proc):
+            self._retire(placed.proc)
 
     def running(self, gid: str) -> bool:
         """Whether group `gid` is placed in a container that is alive, and has not said it failed (in
         its ready file: at its load, or at a reload after a node asked to stop)."""
-        proc = self._where.get(gid)
-        if proc is None or not proc.alive:
+        placed = self._placed.get(gid)
+        if placed is None or not placed.proc.alive:
             return False
-        ready = self._commands.get(gid, {}).get("ready_file")
+        ready = placed.command.get("ready_file")
         try:
             return not (ready and Path(ready).read_text().startswith("failed"))
         except OSError:
             return True   # not written yet: loading
 
     def container_of(self, gid: str) -> str | None:
-        proc = self._where.get(gid)
-        return proc.name if proc is not None else None
+        placed = self._placed.get(gid)
+        return placed.proc.name if placed is not None else None
 
     def pids(self) -> list[int]:
         return [p.proc.pid for p in self.processes if p.alive]
@@ -380,7 +381,7 @@ class ContainerPool:
         """Start again each container that died and load its groups there; returns their ids."""
         reloaded = []
         for proc in [p for p in self.processes if not p.alive]:
-            groups = sorted(proc.groups)
+            groups = self._groups(proc)
             again = self._start() if groups else None   # may raise: the dead one stays, tried again next check
             self.processes.remove(proc)
             proc.log_file.close()
@@ -392,15 +393,13 @@ class ContainerPool:
             log.warning("container %s %s: starting it again with its %d group(s): %s", proc.name, how,
                         len(groups), ", ".join(groups))
             for gid in groups:
+                make = self._placed.pop(gid).make
                 try:
-                    command = self._make[gid]()
+                    command = make()
                 except Exception as exc:  # noqa: BLE001 - the others are loaded again all the same
                     log.error("%s cannot be loaded again: %s", gid, exc)
-                    self._make.pop(gid, None)
-                    self._where.pop(gid, None)
-                    self._commands.pop(gid, None)
                     continue
-                self._place(gid, again, command)
+                self._place(gid, again, make, command)
                 reloaded.append(gid)
         return reloaded
 
@@ -408,7 +407,7 @@ class ContainerPool:
         """Every container told to stop (end of its stdin): unloads its groups; killed after `timeout`
         (those already stopping too)."""
         for proc in self.processes:
-            self._stop(proc, wait=False)
+            _end_input(proc)
         deadline = time.monotonic() + timeout
         for proc in [*self.processes, *self._retiring]:
             try:
@@ -419,12 +418,13 @@ class ContainerPool:
             proc.log_file.close()
         self.processes.clear()
         self._retiring.clear()
-        self._where.clear()
+        self._placed.clear()
 
-    def _place(self, gid: str, proc: _Process, command: dict) -> None:
-        proc.groups.add(gid)
-        self._where[gid] = proc
-        self._commands[gid] = command
+    def _groups(self, proc: _Process) -> list[str]:
+        return sorted(gid for gid, placed in self._placed.items() if placed.proc is proc)
+
+    def _place(self, gid: str, proc: _Process, make, command: dict) -> None:
+        self._placed[gid] = _Placed(proc, make, command)
         proc.send({"load": gid, **command})   # a container that just died: check() loads it again
 
     def _start(self) -> _Process:
@@ -443,23 +443,28 @@ class ContainerPool:
         self.processes.append(proc)
         return proc
 
-    def _stop(self, proc: _Process, wait: bool = True) -> None:
-        try:
-            proc.proc.stdin.close()    # its end of input: it unloads what is left and exits
-        except OSError:
-            pass
-        if wait:
-            self.processes.remove(proc)
-            self._retiring.append(proc)   # close() waits for it too
+    def _retire(self, proc: _Process) -> None:
+        """A container left empty: told to stop, reaped (killed after 15 s) by a thread of its own."""
+        _end_input(proc)
+        self.processes.remove(proc)
+        self._retiring.append(proc)   # close() waits for it too
 
-            def reap():
-                try:
-                    proc.proc.wait(15)
-                except subprocess.TimeoutExpired:
-                    proc.proc.kill()
-                    proc.proc.wait()
-                proc.log_file.close()
-                if proc in self._retiring:
-                    self._retiring.remove(proc)
+        def reap():
+            try:
+                proc.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.proc.kill()
+                proc.proc.wait()
+            proc.log_file.close()
+            if proc in self._retiring:
+                self._retiring.remove(proc)
 
-            threading.Thread(target=reap, daemon=True).start()
+        threading.Thread(target=reap, daemon=True).start()
+
+
+def _end_input(proc: _Process) -> None:
+    """Close a container's stdin: it unloads what is left and exits."""
+    try:
+        proc.proc.stdin.close()
+    except OSError:
+        pass

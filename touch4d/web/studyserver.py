@@ -136,7 +136,6 @@ class Participant:
     id: str
     state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
     port: int = 0                      # its page server's, on loopback
-    ready_file: Path | None = None     # its container writes "ready" (or "failed: ...") there
     pages: int = 0                     # its pages connected now
     last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
@@ -270,11 +269,10 @@ class StudyServer:
 
     # ---- participants' stacks ------------------------------------------------------------------
 
-    def _start_stack(self, p: Participant, tmp: Path) -> bool:
+    def _start_stack(self, p: Participant) -> bool:
         """Place the participant's stack in a container (touch4d.bus.container); False when its
         launch cannot be made (said in its serve.log)."""
         p.port = _free_port()
-        p.ready_file = tmp / f"{p.id}.ready"
         if self.pool is None:
             self.pool = ContainerPool(self.per_process, self.bus_file, self.out / CONTAINERS, spread=_cores(),
                                       prefix="participants",
@@ -296,9 +294,13 @@ class StudyServer:
         group = self.stack_group(p.id, p.port)
         directory = session_dir(self.out, p.id)
         directory.mkdir(parents=True, exist_ok=True)
-        p.ready_file.unlink(missing_ok=True)
-        return {"namespace": p.id, "nodes": group_entries(group), "ready_file": str(p.ready_file),
+        self._ready_file(p).unlink(missing_ok=True)
+        return {"namespace": p.id, "nodes": group_entries(group), "ready_file": str(self._ready_file(p)),
                 "log": str(directory / "serve.log")}
+
+    def _ready_file(self, p: Participant) -> Path:
+        """Where its container writes "ready" (or "failed: ...") at each load."""
+        return self.tmp / f"{p.id}.ready"
 
     def stack_group(self, participant: str, port: int) -> list:
         """A participant's stack: the launch file's one group (its NodeSpecs) under their namespace.
@@ -318,7 +320,7 @@ class StudyServer:
             if not self._running(p):
                 return False
             try:
-                said = p.ready_file.read_text()
+                said = self._ready_file(p).read_text()
             except OSError:
                 said = ""
             if said.startswith("failed"):
@@ -443,7 +445,7 @@ class StudyServer:
                     "full right now</h1><p>Every place is taken. Please open your link again in a few minutes."
                     "</p></body></html>"))
             self.counts["resumed" if self._rows(p.id) else "joined"] += 1
-            if self._start_stack(p, self.tmp):
+            if self._start_stack(p):
                 log.info("%s joined: starting its stack (namespace %s, page port %d, %s)", p.id, p.id, p.port,
                          self.pool.container_of(p.id))
         if not await self._wait_ready(p):
