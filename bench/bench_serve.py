@@ -4,9 +4,15 @@ CPU and memory of their stack (per process: the launcher and each node), and pos
 the server (its `--wire-trace`, touch4d.web.wiretrace): from the input message that moves the
 controller into (or out of) the object reaching the server to the first frame whose `haptic` (the
 controller's intensity) follows it leaving the server; and the same seen by the simulated page.
+The figures are the measured stretch's, which begins 2 s after the last page joined; the server's
+p99 over every move, those made while others were joining included, is given beside it (a join
+holds its container's other participants while its nodes are built).
 
 Each participant: a link (`touch4d study invite`), Join, then its socket; its controller goes in and
-out of the hypercube's front cell every 300 ms. The stacks run without their study node
+out of the hypercube's front cell every 300 ms. Each page's frame clock and its moves start at a
+phase of its own (seeded per page), as independent headsets do: pages that got their join's answer
+in the same instant would otherwise send and move in lockstep, a few participants of one container
+moving at the same moment every 300 ms. The stacks run without their study node
 (`study:=none`, the page's gate open): what is measured is the per-frame loop that every participant
 costs, not the trials (a trial's cost is a scene load every few seconds). Their recorder runs: it
 logs the haptic loop at the page's rate, as in every session. Then the same through a
@@ -28,6 +34,11 @@ and rows against answers sent (none lost).
 The simulated pages run in this process at a lower priority than the server and its stacks
 (`--pages-nice`, 10 by default; where the system lets the server's priority be restored, e.g. as
 root): they stand in for headsets on other machines, and must not take the cores from the server.
+
+Each round also says how quick the machine was as it ran (`machine_speed`: one participant's page
+input in a tight loop, CPU microseconds, before and after the round): on a shared virtual machine
+the same code's CPU per input has varied 2.4-fold within an hour, and the tail with it; a round's
+p99 is read beside that figure.
 
 `--over N`: then N pages at once against a server left at its default cap (four per core): how many
 it admits and refuses (HTTP 503), and whether the admitted keep their touch within the budget.
@@ -248,10 +259,11 @@ async def relay(listen_port_box: list, target_port: int, delay: float) -> asynci
 
 async def participant(base: str, link: str, stop: asyncio.Event, joined: list, latencies: list, lost: list,
                       answered: list, moves: list, pid: str, dropped: list | None = None,
-                      refused: list | None = None) -> None:
+                      refused: list | None = None, phase: tuple[float, float] = (0.0, 0.0)) -> None:
     """Join by `link` (through `base`), then play a page until `stop`: inputs at 72 Hz, the controller
     in and out. A connection the server closes (its heartbeat unanswered on a saturated machine)
-    ends the page: its id goes into `dropped`; a join the server refuses as full (503), into `refused`."""
+    ends the page: its id goes into `dropped`; a join the server refuses as full (503), into `refused`.
+    `phase`: where in a frame period and in a move's period (fractions) this page's clock starts."""
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as http:
         link = re.sub(r"^http://[^/]+", base, link)
@@ -288,17 +300,17 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
                     haptic = header.get("haptic", 0.0)
                     want, since = state["want"], state["since"]
                     if since is not None and ((want and haptic > 0.05) or (not want and haptic == 0.0)):
-                        latencies.append(time.monotonic() - since)
+                        latencies.append((since, time.monotonic() - since))
                         state["since"] = None
             reader = asyncio.ensure_future(read())
             joined.append(pid)
-            t0 = time.monotonic()
-            inside, next_toggle, k = False, t0 + 2.0, 0     # 2 s to settle before the first move
+            t0 = time.monotonic() + phase[0] / RATE_HZ
+            inside, next_toggle, k = False, t0 + 2.0 + phase[1] * TOGGLE_S, 0     # 2 s to settle before the first move
             while not stop.is_set():
                 now = time.monotonic()
                 if now >= next_toggle:
                     if state["since"] is not None:
-                        lost.append(1)                       # no frame followed the last move in 300 ms
+                        lost.append(state["since"])          # no frame followed the last move in 300 ms
                     inside = not inside
                     state["want"], state["since"] = inside, now
                     next_toggle = now + TOGGLE_S
@@ -339,7 +351,8 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             stop = asyncio.Event()
             t_start = time.monotonic()
             tasks = [asyncio.ensure_future(participant(target, link, stop, joined, latencies, lost, answered, moves,
-                                                       f"S{k:02d}", dropped, refused))
+                                                       f"S{k:02d}", dropped, refused,
+                                                       tuple(np.random.default_rng(k).random(2))))
                      for k, link in enumerate(links)]
             # CPU and memory over the measured stretch, once every participant plays: every process of
             # the server's tree (the stacks included)
@@ -354,10 +367,10 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
             roles = {p: role(p) for p in stacks}
             by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
-            c0, w0, s0 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            c0, w0, s0, wall0 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
             rows0 = count_rows(out)
             await asyncio.sleep(seconds)
-            c1, w1, s1 = cpu(pids), time.monotonic(), cpu([proc.pid])
+            c1, w1, s1, wall1 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
             by_role1 = {r: cpu([p for p in stacks if roles[p] == r]) for r in by_role0}
             rows1 = count_rows(out)
             pss = {p: pss_mb(p) for p in stacks}
@@ -370,9 +383,13 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                            sum(1 for p in stacks if roles[p] == r) / n) for r in by_role0}
             await asyncio.sleep(1.0)                                 # the last answers' rows
             rows = count_rows(out)
-            lat = np.array(latencies) * 1000
+            # the latencies of the measured stretch (every page playing, none joining): a join stalls the
+            # pages already playing in its container while it loads, counted apart (`server_p99_joins`)
+            lat = np.array([d for since, d in latencies if w0 <= since < w1]) * 1000
             stop_server(proc)                                         # the trace complete
-            inside, missed = pose_to_pulse(trace, moves)
+            steady = [m for m in moves if 1000 * wall0 <= m.time_ms < 1000 * wall1]
+            inside, missed = pose_to_pulse(trace, steady)
+            with_joins, _ = pose_to_pulse(trace, moves)
             # CPU per page input, the load-independent figure: a saturated machine runs fewer inputs
             # per second, not cheaper ones (x 72 Hz: what a participant costs at full rate)
             inputs = inputs_between(trace, w0, w1)
@@ -382,18 +399,29 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
+                    "server_p99_joins": pct(np.array(with_joins) * 1000, 99), "moves_joins": len(with_joins),
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "inputs_per_s": inputs / (w1 - w0) / n,
                     "cpu_ms_per_input": 1000 * (c1 - c0) / max(inputs, 1),
                     "cpu_at_rate": (c1 - c0) / max(inputs, 1) * RATE_HZ,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
-                    "lost": len(lost), "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "lost": sum(1 for since in lost if w0 <= since < w1), "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
                     "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
         finally:
             if relay_server is not None:
                 relay_server.close()
             stop_server(proc)
+
+
+def machine_speed(inputs: int = 600) -> float:
+    """CPU microseconds of one participant's page input in a tight loop (bench_participant.py's whole
+    path, no sockets): how quick this machine is now, whatever else its host runs."""
+    from bench_participant import Participant, events
+
+    Participant().run(events(100))   # warm (first frames, caches)
+    seconds, n = Participant().run(events(inputs))
+    return seconds / n * 1e6
 
 
 def figure(rows: list[dict], path: Path) -> None:
@@ -478,7 +506,9 @@ def main() -> None:
     layouts = args.per_process or [None]
     for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
         for n, per_process in ((n, k) for n in sorted(set([1, *args.participants])) for k in layouts):
+            before = machine_speed()
             r = asyncio.run(run_round(n, args.seconds, delay, per_process=per_process))
+            r["machine_us"] = (before, machine_speed())
             rows.append(r)
             base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"] and x["label"] == r["label"])
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
@@ -494,7 +524,7 @@ def main() -> None:
                   f"{100 * r['server_cpu']:.0f}%, {r['server_mb']:.0f} MB); pose->pulse in the server p50 "
                   f"{fmt(r['server_p50'])} ms, p99 {fmt(r['server_p99'])} ms ({r['server_moves']} moves, "
                   f"{r['server_missed']} without a following frame; p99 x{(r['server_p99'] or 0) / max(base['server_p99'] or 1e-9, 1e-9):.2f} "
-                  f"of N=1); at the client p50 {fmt(r['p50'])} ms, p99 {fmt(r['p99'])} ms ({r['lost']} of "
+                  f"of N=1; with the joins {fmt(r['server_p99_joins'])} ms over {r['moves_joins']}); at the client p50 {fmt(r['p50'])} ms, p99 {fmt(r['p99'])} ms ({r['lost']} of "
                   f"{r['moves'] + r['lost']} without a frame in 300 ms; {r['dropped']} pages dropped by the server); load {os.getloadavg()[0]:.1f}", flush=True)
             print(f"      CPU per page input {r['cpu_ms_per_input']:.2f} ms (server and stack; "
                   f"{r['inputs_per_s']:.0f} of {RATE_HZ:.0f} inputs/s per participant arrived): "
@@ -503,6 +533,8 @@ def main() -> None:
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)
+            print(f"      the machine's speed: a page input in a tight loop {r['machine_us'][0]:.0f} us before the round, "
+                  f"{r['machine_us'][1]:.0f} us after (bench_participant.py)", flush=True)
     if args.over:
         r = asyncio.run(run_round(args.over, args.seconds, 0.0, capped=True))
         r["label"] = "default cap"

@@ -4,7 +4,8 @@ What a node builds before it spins (modules, config, geometry, codecs: some 60k 
 long as the process. CPython's full collection walks every tracked object; over a node's start-up
 heap that takes 30-60 ms (a motor node at 1 kHz poses: one full collection mid-run, 53 ms, the
 run's worst latency). Frozen (gc.freeze), those objects are skipped, and a full collection walks
-only what came later. Garbage made later is collected as before; a reference cycle among frozen
+only what came later. The study server freezes its own once it serves (a full collection over its
+90k objects held every participant's touch for ~50 ms). Garbage made later is collected as before; a reference cycle among frozen
 objects that later becomes garbage is not (a node that rebuilds its start-up structures keeps the
 first ones' cycles, once).
 """

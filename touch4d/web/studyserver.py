@@ -42,6 +42,7 @@ from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.container import ContainerPool
+from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
@@ -641,6 +642,7 @@ class StudyServer:
         site = web.TCPSite(runner, self.host, self.port)
         await site.start()
         self.port = runner.addresses[0][1]
+        freeze_startup_heap()   # its 90k objects: a full collection over them stalled every participant ~50 ms
         (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants"
               f"{self._cap_note}; data in {self.out}", flush=True)
