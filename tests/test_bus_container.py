@@ -82,7 +82,7 @@ def test_two_groups_share_a_container_each_in_its_namespace_one_unloaded_one_bad
             os.kill(first, signal.SIGKILL)  # the container dies: started again with B
             wait_until(lambda: not pool.running("B"), timeout=10)
             (tmp_path / "B.ready").unlink()
-            assert pool.check() == ["B"] and pool.running("B") and pool.pids() != [first]
+            assert pool.check() == {"B": "again"} and pool.running("B") and pool.pids() != [first]
             wait_until(lambda: _said(tmp_path / "B.ready") == "ready", timeout=60)
             b_count = len(relayed["B"])
             wait_until(lambda: len(relayed["B"]) >= b_count + 5, timeout=30, spin=probe)
@@ -162,3 +162,63 @@ def test_bad_commands_are_said_and_the_container_goes_on(caplog):
     box.load({"load": "Y", "namespace": "A", "nodes": []})
     assert "load Y: namespace 'A' is another loaded group's" in caplog.text and set(box.groups) == {"X"}
     executor.close()
+
+
+CRASHER = '''
+import os
+from touch4d.bus import Node, Param
+
+
+class Crasher(Node):
+    """Kills its whole process a moment after it starts (as a native fault in a node would)."""
+
+    PARAMS = {"after_s": Param(0.3, "how long it runs first", unit="s")}
+
+    def setup(self) -> None:
+        self.call_later(self.params["after_s"], lambda: os._exit(3))
+'''
+
+
+def test_a_group_that_keeps_killing_its_container_ends_up_alone_then_stopped_and_the_others_run_on(tmp_path):
+    (tmp_path / "crasher_node.py").write_text(CRASHER)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")]))}
+    with running_broker() as bus, Node("probe", bus=bus.for_clients(), heartbeat=False) as probe:
+        relayed = {ns: collect(probe, f"{ns}/example/relay", HandPose) for ns in ("A", "B")}
+        pool = ContainerPool(4, _bus_file(tmp_path, bus), tmp_path / "logs", popen={"env": env})
+
+        def command(ns, nodes):
+            return lambda: {"namespace": ns, "nodes": nodes, "ready_file": str(tmp_path / f"{ns}.ready"),
+                            "log": str(tmp_path / f"{ns}.log")}
+
+        def next_death() -> dict:
+            wait_until(lambda: any(not p.alive for p in pool.processes), timeout=60)
+            return pool.check()
+
+        try:
+            pool.load("A", command("A", _pair()))
+            pool.load("B", command("B", _pair()))
+            pool.load("X", command("X", [{"node": "crasher_node:Crasher", "name": "crasher"}]))
+            assert len(pool.pids()) == 1                                    # the three share a process
+            # the first death: all three together again, in one new process
+            assert next_death() == {"A": "again", "B": "again", "X": "again"} and len(pool.pids()) == 1
+            # the second within the window: each alone
+            assert next_death() == {"A": "alone", "B": "alone", "X": "alone"} and len(pool.pids()) == 3
+            assert len({pool.container_of(g) for g in "ABX"}) == 3
+            # the third, X alone in its process: not started again, and it says why
+            assert next_death() == {"X": "given up"}
+            assert not pool.running("X") and pool.container_of("X") is None
+            assert _said(tmp_path / "X.ready") == f"failed: its process died 3 times in {container_module.CRASH_WINDOW_S:g} s; not started again"
+            assert "not started again" in (tmp_path / "X.log").read_text()
+            # the others run on, each in its own process; nothing else dies
+            wait_until(lambda: _said(tmp_path / "A.ready") == _said(tmp_path / "B.ready") == "ready", timeout=60)
+            counts = {ns: len(relayed[ns]) for ns in "AB"}
+            wait_until(lambda: all(len(relayed[ns]) >= counts[ns] + 10 for ns in "AB"), timeout=30, spin=probe)
+            assert pool.check() == {} and pool.restarts == 1 + 3 and len(pool.pids()) == 2
+            # a group that kept dying is loaded alone from then on (e.g. its participant's link opened again)
+            assert pool.load("X", command("X", [{"node": "crasher_node:Crasher", "name": "crasher", "params": {"after_s": 60}}])) \
+                not in {pool.container_of("A"), pool.container_of("B")}
+            assert pool.load("C", command("C", [])) in {pool.container_of("A"), pool.container_of("B")} or \
+                len(pool.pids()) == 4
+        finally:
+            pool.close()
+        assert pool.pids() == []

@@ -209,8 +209,9 @@ def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_a
             wait_until(lambda: _starts(served.out, participant) >= 2, timeout=90)
         back = _containers(served.proc.pid)
         assert len(back) == len(first) and not set(back) & set(first)
-        wait_until(lambda: len(re.findall(r"participants-\d was killed by SIGKILL: starting it again with its "
-                                          r"\d group\(s\)", served.text)) == len(first), timeout=10)
+        wait_until(lambda: len(re.findall(r"participants-\d was killed by SIGKILL with \d group\(s\)", served.text))
+                   == len(first), timeout=10)
+        assert all(f"{participant}: its stack's process died; started again" in served.text for participant in ("P01", "P02"))
         wait_until(lambda: (served.out / "P01" / "serve.log").read_text().count("P01: 5 node(s) loaded in container")
                    == 2, timeout=30)
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed

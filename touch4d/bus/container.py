@@ -50,6 +50,14 @@ from touch4d.bus.process import GroupError, _configure, _tell_ready, group_membe
 log = logging.getLogger("container")
 
 RESPAWN_DELAY_S = 0.5     # a group whose node asked to stop is built again after this
+# A container that keeps dying (a node that crashes its process: a native fault, memory) must not take
+# its other groups down with it again and again. A group whose containers died ISOLATE_AFTER times
+# within CRASH_WINDOW_S is loaded alone from then on (a container of its own), and one whose
+# containers died GIVE_UP_AFTER times is not loaded again (its ready file says why): the group at
+# fault ends up alone and stopped, the others lose at most ISOLATE_AFTER trials each.
+CRASH_WINDOW_S = 600.0
+ISOLATE_AFTER = 2
+GIVE_UP_AFTER = 3
 MAX_LINE = 1 << 20        # bytes of one command: a group's node list is a few kB
 # s: how long a thread that wants the interpreter lock waits for the one holding it (CPython's default
 # 5 ms). Each group's recorder writes from threads of its own: eight groups' writers made the loop
@@ -282,10 +290,11 @@ def run_container(argv: list[str]) -> int:
 
 
 class _Process:
-    """One container process."""
+    """One container process; `solo`: it holds one group only (a group whose containers kept dying)."""
 
-    def __init__(self, name: str, proc, log_file):
-        self.name, self.proc, self.log_file = name, proc, log_file
+    def __init__(self, name: str, proc, log_file, solo: bool = False):
+        self.name, self.proc, self.log_file, self.solo = name, proc, log_file, solo
+        self.counted = False   # its death counted against its groups (once, however often check() sees it)
 
     @property
     def alive(self) -> bool:
@@ -314,7 +323,9 @@ class ContainerPool:
     containers are started before any takes a second group (one thread each: on a machine of that
     many cores, a few groups do not queue behind each other on one), then the least loaded with room
     takes the next. One that dies is started again and its groups loaded again, each from its `make`
-    (called anew: a command may name a new file each time).
+    (called anew: a command may name a new file each time); a group in ISOLATE_AFTER containers that
+    died within CRASH_WINDOW_S is loaded alone from then on, and one in GIVE_UP_AFTER is not loaded
+    again.
 
     `bus_file`: the containers' bus; `log_dir`: each container's output (NAME.log); `popen`:
     extra subprocess.Popen arguments (the supervisor's `preexec_fn`, say)."""
@@ -330,6 +341,8 @@ class ContainerPool:
         self.processes: list[_Process] = []
         self._placed: dict[str, _Placed] = {}   # group id -> where it is
         self._retiring: list[_Process] = []     # stopped (left empty), not yet exited
+        self._deaths: dict[str, list[float]] = {}   # group id -> when containers it was in died (monotonic)
+        self._alone: set[str] = set()           # groups loaded alone from now on
         self._count = 0
         self.restarts = 0
 
@@ -340,9 +353,11 @@ class ContainerPool:
         if gid in self._placed:
             raise ValueError(f"group {gid!r} is placed already")
         command = make()
-        alive = [p for p in self.processes if p.alive]
+        alive = [p for p in self.processes if p.alive and not p.solo]
         room = [p for p in alive if len(self._groups(p)) < self.per_container]
-        if not room or len(alive) < self.spread:
+        if gid in self._alone:
+            proc = self._start(solo=True)
+        elif not room or len(alive) < self.spread:
             proc = self._start()
         else:
             proc = min(room, key=lambda p: len(self._groups(p)))   # the least loaded
@@ -377,31 +392,68 @@ class ContainerPool:
     def pids(self) -> list[int]:
         return [p.proc.pid for p in self.processes if p.alive]
 
-    def check(self) -> list[str]:
-        """Start again each container that died and load its groups there; returns their ids."""
-        reloaded = []
+    def check(self) -> dict[str, str]:
+        """Start again each container that died and load its groups again: together in a new one,
+        alone (a group in ISOLATE_AFTER dead containers within CRASH_WINDOW_S), or not at all (in
+        GIVE_UP_AFTER: its ready file and log say so, and it is no longer placed). Returns what became
+        of each of their groups: "again", "alone" or "given up"."""
+        outcome: dict[str, str] = {}
+        now = time.monotonic()
         for proc in [p for p in self.processes if not p.alive]:
             groups = self._groups(proc)
-            again = self._start() if groups else None   # may raise: the dead one stays, tried again next check
+            if not proc.counted:
+                proc.counted = True
+                for gid in groups:
+                    self._deaths[gid] = [t for t in self._deaths.get(gid, []) if now - t < CRASH_WINDOW_S] + [now]
+            deaths = {gid: len(self._deaths.get(gid, [])) for gid in groups}
+            together = [gid for gid in groups if deaths[gid] < ISOLATE_AFTER and gid not in self._alone]
+            again = self._start() if together else None   # may raise: the dead one stays, tried again next check
             self.processes.remove(proc)
             proc.log_file.close()
-            if again is None:
+            if not groups:
                 continue
-            self.restarts += 1
             code = proc.proc.returncode
             how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
-            log.warning("container %s %s: starting it again with its %d group(s): %s", proc.name, how,
-                        len(groups), ", ".join(groups))
+            log.warning("container %s %s with %d group(s): %s", proc.name, how, len(groups),
+                        ", ".join(f"{gid} ({deaths[gid]} in {CRASH_WINDOW_S:g} s)" for gid in groups))
+            if again is not None:
+                self.restarts += 1
             for gid in groups:
-                make = self._placed.pop(gid).make
+                placed = self._placed.pop(gid)
+                if deaths[gid] >= GIVE_UP_AFTER:
+                    self._give_up(gid, placed.command, f"its process died {deaths[gid]} times in "
+                                                       f"{CRASH_WINDOW_S:g} s; not started again")
+                    outcome[gid] = "given up"
+                    continue
+                make = placed.make
                 try:
                     command = make()
+                    target = again if gid in together else self._start(solo=True)
                 except Exception as exc:  # noqa: BLE001 - the others are loaded again all the same
-                    log.error("%s cannot be loaded again: %s", gid, exc)
+                    self._give_up(gid, placed.command, f"cannot be loaded again: {exc}")
+                    outcome[gid] = "given up"
                     continue
-                self._place(gid, again, make, command)
-                reloaded.append(gid)
-        return reloaded
+                if target is not again:
+                    self.restarts += 1
+                    if gid not in self._alone:
+                        self._alone.add(gid)
+                        log.warning("%s: loaded alone from now on (its containers died %d times in %g s)", gid,
+                                    deaths[gid], CRASH_WINDOW_S)
+                self._place(gid, target, make, command)
+                outcome[gid] = "again" if target is again else "alone"
+        return outcome
+
+    @staticmethod
+    def _give_up(gid: str, command: dict, why: str) -> None:
+        """A group not loaded again (out of the pool already): `why` in its ready file and its log."""
+        log.error("%s: %s", gid, why)
+        for key, mode, text in (("ready_file", "w", f"failed: {why}\n"), ("log", "a", f"{gid}: {why}\n")):
+            if command.get(key):
+                try:
+                    with open(command[key], mode) as f:
+                        f.write(text)
+                except OSError as exc:
+                    log.error("%s: cannot write %s: %s", gid, command[key], exc)
 
     def close(self, timeout: float = 15.0) -> None:
         """Every container told to stop (end of its stdin): unloads its groups; killed after `timeout`
@@ -427,7 +479,7 @@ class ContainerPool:
         self._placed[gid] = _Placed(proc, make, command)
         proc.send({"load": gid, **command})   # a container that just died: check() loads it again
 
-    def _start(self) -> _Process:
+    def _start(self, solo: bool = False) -> _Process:
         self._count += 1
         name = f"{self.prefix}-{self._count}"
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -439,7 +491,7 @@ class ContainerPool:
         except BaseException:
             log_file.close()
             raise
-        proc = _Process(name, popen, log_file)
+        proc = _Process(name, popen, log_file, solo)
         self.processes.append(proc)
         return proc
 

@@ -366,8 +366,10 @@ class StudyServer:
             except Exception:  # noqa: BLE001 - the watch must go on (the dead ones are tried again)
                 log.exception("starting a dead container again failed; trying again in %g s", period_s)
                 continue
-            for participant in back:
-                log.warning("%s: its stack's process died; started again", participant)
+            for participant, how in back.items():
+                log.warning("%s: its stack's process died; %s", participant,
+                            {"again": "started again", "alone": "started again, alone in a process (its processes "
+                             "kept dying)"}.get(how, "not started again (its processes kept dying)"))
                 asyncio.ensure_future(self._back(self.participants[participant]))
 
     async def _back(self, p: Participant) -> None:
