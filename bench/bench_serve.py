@@ -38,7 +38,9 @@ root): they stand in for headsets on other machines, and must not take the cores
 Each round also says how quick the machine was as it ran (`machine_speed`: one participant's page
 input in a tight loop, CPU microseconds, before and after the round): on a shared virtual machine
 the same code's CPU per input has varied 2.4-fold within an hour, and the tail with it; a round's
-p99 is read beside that figure.
+p99 is read beside that figure. And how often the host held the machine's CPUs during the measured
+stretch (`PAUSE_PROBE`: a real-time thread's 2 ms sleeps that woke more than 6 ms late; run as root
+for real-time priority, else our own load counts too).
 
 `--over N`: then N pages at once against a server left at its default cap (four per core): how many
 it admits and refuses (HTTP 503), and whether the admitted keep their touch within the budget.
@@ -367,10 +369,12 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
             roles = {p: role(p) for p in stacks}
             by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
+            probe = start_pause_probe(Path(tmp) / "pauses.txt")
             c0, w0, s0, wall0 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
             rows0 = count_rows(out)
             await asyncio.sleep(seconds)
             c1, w1, s1, wall1 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
+            pauses = host_pauses(probe, Path(tmp) / "pauses.txt")
             by_role1 = {r: cpu([p for p in stacks if roles[p] == r]) for r in by_role0}
             rows1 = count_rows(out)
             pss = {p: pss_mb(p) for p in stacks}
@@ -406,12 +410,45 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                     "cpu_at_rate": (c1 - c0) / max(inputs, 1) * RATE_HZ,
                     "mb_per_participant": memory / n, "p50": float(np.percentile(lat, 50)) if len(lat) else None,
                     "p99": float(np.percentile(lat, 99)) if len(lat) else None, "moves": len(lat),
-                    "lost": sum(1 for since in lost if w0 <= since < w1), "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
+                    "lost": sum(1 for since in lost if w0 <= since < w1), "pauses": pauses, "dropped": len(dropped), "wall": time.monotonic() - t_start, "answered": len(set(answered)),
                     "answers": len(answered), "rows": rows, "trials_per_s": (rows1 - rows0) / (w1 - w0)}
         finally:
             if relay_server is not None:
                 relay_server.close()
             stop_server(proc)
+
+
+# A real-time thread that sleeps 2 ms at a time: a wake-up more than 6 ms late means no CPU of this
+# machine ran it (at real-time priority nothing of ours comes first): the host held them. Its lines:
+# "ms late" per overrun; where real-time priority is refused, "normal" first (then our load counts too).
+PAUSE_PROBE = """
+import os, sys, time
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+except (OSError, AttributeError):
+    print("normal", flush=True)
+prev = time.monotonic()
+while True:
+    time.sleep(0.002)
+    now = time.monotonic()
+    if now - prev > 0.006:
+        print(f"{1000 * (now - prev - 0.002):.1f}", flush=True)
+    prev = now
+"""
+
+
+def start_pause_probe(path: Path) -> subprocess.Popen:
+    """PAUSE_PROBE in a process of its own, writing to `path` until terminated."""
+    return subprocess.Popen([sys.executable, "-c", PAUSE_PROBE], stdout=open(path, "w"), stderr=subprocess.DEVNULL)
+
+
+def host_pauses(probe: subprocess.Popen, path: Path) -> dict:
+    """The probe's overruns: how many, their sum and the longest (ms), and whether it ran real-time."""
+    probe.terminate()
+    probe.wait()
+    lines = path.read_text().split()
+    late = [float(x) for x in lines if x != "normal"]
+    return {"count": len(late), "ms": sum(late), "longest": max(late, default=0.0), "realtime": "normal" not in lines}
 
 
 def machine_speed(inputs: int = 600) -> float:
@@ -533,8 +570,11 @@ def main() -> None:
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)
+            pz = r["pauses"]
             print(f"      the machine's speed: a page input in a tight loop {r['machine_us'][0]:.0f} us before the round, "
-                  f"{r['machine_us'][1]:.0f} us after (bench_participant.py)", flush=True)
+                  f"{r['machine_us'][1]:.0f} us after (bench_participant.py); the host held its CPUs {pz['count']} "
+                  f"times in the measured stretch, {pz['ms']:.0f} ms in all, the longest {pz['longest']:.0f} ms"
+                  f"{'' if pz['realtime'] else ' (no real-time priority here: our own load counted too)'}", flush=True)
     if args.over:
         r = asyncio.run(run_round(args.over, args.seconds, 0.0, capped=True))
         r["label"] = "default cap"
