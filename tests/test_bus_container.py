@@ -215,10 +215,34 @@ def test_a_group_that_keeps_killing_its_container_ends_up_alone_then_stopped_and
             wait_until(lambda: all(len(relayed[ns]) >= counts[ns] + 10 for ns in "AB"), timeout=30, spin=probe)
             assert pool.check() == {} and pool.restarts == 1 + 3 and len(pool.pids()) == 2
             # a group that kept dying is loaded alone from then on (e.g. its participant's link opened again)
-            assert pool.load("X", command("X", [{"node": "crasher_node:Crasher", "name": "crasher", "params": {"after_s": 60}}])) \
-                not in {pool.container_of("A"), pool.container_of("B")}
-            assert pool.load("C", command("C", [])) in {pool.container_of("A"), pool.container_of("B")} or \
-                len(pool.pids()) == 4
+            pool.load("X", command("X", [{"node": "crasher_node:Crasher", "name": "crasher", "params": {"after_s": 60}}]))
+            assert pool.processes[-1].solo and len(pool.pids()) == 3
+            # a group that never died shares as before, never with a solo one: a container of its own here
+            # (A's and B's are solo), which is not solo: the next ordinary group joins it
+            assert pool.load("C", command("C", [])) not in {pool.container_of(g) for g in "ABX"}
+            assert not pool.processes[-1].solo and len(pool.pids()) == 4
+            assert pool.load("D", command("D", [])) == pool.container_of("C")
         finally:
             pool.close()
         assert pool.pids() == []
+
+
+def test_a_death_counts_even_when_its_group_is_taken_out_before_the_pool_looks(tmp_path):
+    """The study server may see a stack gone (and unload it) before the pool's check: the death counts."""
+    (tmp_path / "crasher_node.py").write_text(CRASHER)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")]))}
+    with running_broker() as bus:
+        pool = ContainerPool(4, _bus_file(tmp_path, bus), tmp_path / "logs", popen={"env": env})
+        crasher = lambda: {"namespace": "X", "nodes": [{"node": "crasher_node:Crasher", "name": "crasher"}],  # noqa: E731
+                           "ready_file": str(tmp_path / "X.ready")}
+        try:
+            for _ in range(container_module.ISOLATE_AFTER):
+                pool.load("X", crasher)
+                assert not pool.processes[-1].solo
+                wait_until(lambda: not pool.running("X"), timeout=60)
+                pool.unload("X")                   # out before any check()
+            assert pool.check() == {}
+            pool.load("X", crasher)                # died ISOLATE_AFTER times within the window: alone from now on
+            assert pool.processes[-1].solo
+        finally:
+            pool.close()

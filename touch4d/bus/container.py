@@ -355,7 +355,8 @@ class ContainerPool:
         command = make()
         alive = [p for p in self.processes if p.alive and not p.solo]
         room = [p for p in alive if len(self._groups(p)) < self.per_container]
-        if gid in self._alone:
+        if gid in self._alone or self._recent_deaths(gid) >= ISOLATE_AFTER:
+            self._alone.add(gid)
             proc = self._start(solo=True)
         elif not room or len(alive) < self.spread:
             proc = self._start()
@@ -366,9 +367,11 @@ class ContainerPool:
 
     def unload(self, gid: str) -> None:
         """Take group `gid` out of its container (unknown: nothing); a container left empty stops."""
-        placed = self._placed.pop(gid, None)
+        placed = self._placed.get(gid)
         if placed is None:
             return
+        self._note_death(placed.proc)   # a dead container's groups taken out before check() saw it still count
+        del self._placed[gid]
         placed.proc.send({"unload": gid})
         if not self._groups(placed.proc):
             self._retire(placed.proc)
@@ -396,28 +399,31 @@ class ContainerPool:
         """Start again each container that died and load its groups again: together in a new one,
         alone (a group in ISOLATE_AFTER dead containers within CRASH_WINDOW_S), or not at all (in
         GIVE_UP_AFTER: its ready file and log say so, and it is no longer placed). Returns what became
-        of each of their groups: "again", "alone" or "given up"."""
+        of each of their groups: "again", "alone", "given up", or "failed" (its command could not be
+        made again; its ready file and log say why). A container that cannot be started stays
+        listed, with the groups it was to take, and is tried again at the next check."""
         outcome: dict[str, str] = {}
-        now = time.monotonic()
         for proc in [p for p in self.processes if not p.alive]:
+            self._note_death(proc)
             groups = self._groups(proc)
-            if not proc.counted:
-                proc.counted = True
-                for gid in groups:
-                    self._deaths[gid] = [t for t in self._deaths.get(gid, []) if now - t < CRASH_WINDOW_S] + [now]
-            deaths = {gid: len(self._deaths.get(gid, [])) for gid in groups}
-            together = [gid for gid in groups if deaths[gid] < ISOLATE_AFTER and gid not in self._alone]
-            again = self._start() if together else None   # may raise: the dead one stays, tried again next check
-            self.processes.remove(proc)
-            proc.log_file.close()
-            if not groups:
+            deaths = {gid: self._recent_deaths(gid) for gid in groups}
+            for gid in groups:
+                if deaths[gid] >= ISOLATE_AFTER:
+                    self._alone.add(gid)
+            together = [gid for gid in groups if gid not in self._alone]
+            try:
+                again = self._start() if together else None
+            except OSError as exc:
+                log.error("container %s died and cannot be started again (%s); trying again soon", proc.name, exc)
                 continue
-            code = proc.proc.returncode
-            how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
-            log.warning("container %s %s with %d group(s): %s", proc.name, how, len(groups),
-                        ", ".join(f"{gid} ({deaths[gid]} in {CRASH_WINDOW_S:g} s)" for gid in groups))
+            if groups:
+                code = proc.proc.returncode
+                how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
+                log.warning("container %s %s with %d group(s): %s", proc.name, how, len(groups),
+                            ", ".join(f"{gid} ({deaths[gid]} in {CRASH_WINDOW_S:g} s)" for gid in groups))
             if again is not None:
                 self.restarts += 1
+            left = []   # groups whose own container could not be started: with the dead one, tried again
             for gid in groups:
                 placed = self._placed.pop(gid)
                 if deaths[gid] >= GIVE_UP_AFTER:
@@ -425,23 +431,45 @@ class ContainerPool:
                                                        f"{CRASH_WINDOW_S:g} s; not started again")
                     outcome[gid] = "given up"
                     continue
-                make = placed.make
                 try:
-                    command = make()
-                    target = again if gid in together else self._start(solo=True)
+                    command = placed.make()
                 except Exception as exc:  # noqa: BLE001 - the others are loaded again all the same
                     self._give_up(gid, placed.command, f"cannot be loaded again: {exc}")
-                    outcome[gid] = "given up"
+                    outcome[gid] = "failed"
                     continue
-                if target is not again:
+                if gid in together:
+                    target = again
+                else:
+                    try:
+                        target = self._start(solo=True)
+                    except OSError as exc:
+                        log.error("%s: a container of its own cannot be started (%s); trying again soon", gid, exc)
+                        self._placed[gid] = placed
+                        left.append(gid)
+                        continue
                     self.restarts += 1
-                    if gid not in self._alone:
-                        self._alone.add(gid)
+                    if deaths[gid] == ISOLATE_AFTER:
                         log.warning("%s: loaded alone from now on (its containers died %d times in %g s)", gid,
                                     deaths[gid], CRASH_WINDOW_S)
-                self._place(gid, target, make, command)
+                self._place(gid, target, placed.make, command)
                 outcome[gid] = "again" if target is again else "alone"
+            if not left:
+                self.processes.remove(proc)
+                proc.log_file.close()
         return outcome
+
+    def _note_death(self, proc: _Process) -> None:
+        """Count a dead container's death against each group in it, once."""
+        if proc.counted or proc.alive:
+            return
+        proc.counted = True
+        now = time.monotonic()
+        for gid in self._groups(proc):
+            self._deaths[gid] = [t for t in self._deaths.get(gid, []) if now - t < CRASH_WINDOW_S] + [now]
+
+    def _recent_deaths(self, gid: str) -> int:
+        now = time.monotonic()
+        return sum(1 for t in self._deaths.get(gid, []) if now - t < CRASH_WINDOW_S)
 
     @staticmethod
     def _give_up(gid: str, command: dict, why: str) -> None:

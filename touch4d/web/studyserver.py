@@ -369,7 +369,8 @@ class StudyServer:
             for participant, how in back.items():
                 log.warning("%s: its stack's process died; %s", participant,
                             {"again": "started again", "alone": "started again, alone in a process (its processes "
-                             "kept dying)"}.get(how, "not started again (its processes kept dying)"))
+                             "kept dying)", "given up": "not started again (its processes kept dying)"}.get(
+                                how, "its stack cannot be made again (see its serve.log)"))
                 asyncio.ensure_future(self._back(self.participants[participant]))
 
     async def _back(self, p: Participant) -> None:
