@@ -246,3 +246,35 @@ def test_a_death_counts_even_when_its_group_is_taken_out_before_the_pool_looks(t
             assert pool.processes[-1].solo
         finally:
             pool.close()
+
+
+def test_a_container_that_reads_no_commands_never_holds_its_supervisor_and_is_started_again(tmp_path, monkeypatch):
+    monkeypatch.setattr(container_module, "UNREAD_LIMIT_S", 1.0)
+    with running_broker() as bus:
+        pool = ContainerPool(100, _bus_file(tmp_path, bus), tmp_path / "logs")
+
+        def empty(gid):   # padded: twenty of them are more than a pipe holds (64 kB)
+            return lambda: {"namespace": gid, "nodes": [], "ready_file": str(tmp_path / f"{gid}.ready"),
+                            "note": "x" * 4096}
+        try:
+            pool.load("A", empty("A"))
+            wait_until(lambda: _said(tmp_path / "A.ready") == "ready", timeout=60)
+            stuck = pool.pids()[0]
+            os.kill(stuck, signal.SIGSTOP)            # hung: it reads nothing more
+            started = time.monotonic()
+            groups = [f"G{k:02d}" for k in range(20)]
+            for gid in groups:
+                pool.load(gid, empty(gid))            # a blocking write would wait here for ever
+            assert time.monotonic() - started < 5
+            assert pool.check() == {} and pool.pids() == [stuck]   # not yet taken for hung
+            time.sleep(1.5)
+            (tmp_path / "A.ready").unlink()
+            outcome = pool.check()                    # now: killed, and started again with every group
+            assert outcome == {gid: "again" for gid in ["A", *groups]}
+            assert stuck not in pool.pids() and len(pool.pids()) == 1
+            # the new one takes its commands as it reads them: what its pipe did not take goes at each
+            # check (the study server checks every half second)
+            wait_until(lambda: pool.check() == {} and all(_said(tmp_path / f"{g}.ready") == "ready"
+                                                          for g in ["A", *groups]), timeout=60)
+        finally:
+            pool.close()

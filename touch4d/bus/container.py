@@ -58,6 +58,10 @@ RESPAWN_DELAY_S = 0.5     # a group whose node asked to stop is built again afte
 CRASH_WINDOW_S = 600.0
 ISOLATE_AFTER = 2
 GIVE_UP_AFTER = 3
+# s: a container whose command pipe stays full this long (it reads none of its commands: hung in a
+# node's C code, say) is taken for hung and killed, and started again as one that died. The
+# supervisor never waits on a container: commands the pipe does not take wait in its memory.
+UNREAD_LIMIT_S = 10.0
 MAX_LINE = 1 << 20        # bytes of one command: a group's node list is a few kB
 # s: how long a thread that wants the interpreter lock waits for the one holding it (CPython's default
 # 5 ms). Each group's recorder writes from threads of its own: eight groups' writers made the loop
@@ -295,18 +299,38 @@ class _Process:
     def __init__(self, name: str, proc, log_file, solo: bool = False):
         self.name, self.proc, self.log_file, self.solo = name, proc, log_file, solo
         self.counted = False   # its death counted against its groups (once, however often check() sees it)
+        self._unsent = bytearray()       # command lines its pipe has not taken yet
+        self._refused_since: float | None = None   # since when the pipe took none of them
+        os.set_blocking(proc.stdin.fileno(), False)
 
     @property
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def send(self, command: dict) -> bool:
-        try:
-            self.proc.stdin.write(json.dumps(command, default=str).encode() + b"\n")
-            self.proc.stdin.flush()
-            return True
-        except (BrokenPipeError, ValueError, OSError):   # it died (check() starts it again)
-            return False
+    def send(self, command: dict) -> None:
+        """Queue a command line and write what the pipe takes now; the rest goes at the next send or
+        `flush` (a container that died drops it: check() loads its groups again)."""
+        self._unsent += json.dumps(command, default=str).encode() + b"\n"
+        self.flush()
+
+    def flush(self) -> None:
+        while self._unsent:
+            try:
+                written = os.write(self.proc.stdin.fileno(), self._unsent)
+            except BlockingIOError:
+                if self._refused_since is None:
+                    self._refused_since = time.monotonic()
+                return
+            except (OSError, ValueError):   # it died, or its input was closed
+                self._unsent.clear()
+                break
+            del self._unsent[:written]
+            self._refused_since = None
+        self._refused_since = None
+
+    def hung(self, now: float) -> bool:
+        """Its pipe has taken none of its commands for UNREAD_LIMIT_S."""
+        return self._refused_since is not None and now - self._refused_since > UNREAD_LIMIT_S
 
 
 @dataclass
@@ -322,10 +346,11 @@ class ContainerPool:
     """Groups placed in containers of at most `per_container` groups each: up to `spread`
     containers are started before any takes a second group (one thread each: on a machine of that
     many cores, a few groups do not queue behind each other on one), then the least loaded with room
-    takes the next. One that dies is started again and its groups loaded again, each from its `make`
-    (called anew: a command may name a new file each time); a group in ISOLATE_AFTER containers that
-    died within CRASH_WINDOW_S is loaded alone from then on, and one in GIVE_UP_AFTER is not loaded
-    again.
+    takes the next. Commands are written without waiting (a container that reads none for
+    UNREAD_LIMIT_S is killed as hung). One that dies is started again and its groups loaded again,
+    each from its `make` (called anew: a command may name a new file each time); a group in
+    ISOLATE_AFTER containers that died within CRASH_WINDOW_S is loaded alone from then on, and one
+    in GIVE_UP_AFTER is not loaded again.
 
     `bus_file`: the containers' bus; `log_dir`: each container's output (NAME.log); `popen`:
     extra subprocess.Popen arguments (the supervisor's `preexec_fn`, say)."""
@@ -401,8 +426,19 @@ class ContainerPool:
         GIVE_UP_AFTER: its ready file and log say so, and it is no longer placed). Returns what became
         of each of their groups: "again", "alone", "given up", or "failed" (its command could not be
         made again; its ready file and log say why). A container that cannot be started stays
-        listed, with the groups it was to take, and is tried again at the next check."""
+        listed, with the groups it was to take, and is tried again at the next check. Call it
+        periodically: it also writes the commands a container's pipe did not take yet, and kills a
+        container that read none for UNREAD_LIMIT_S (started again here, as one that died)."""
         outcome: dict[str, str] = {}
+        now = time.monotonic()
+        for proc in self.processes:
+            if proc.alive:
+                proc.flush()
+                if proc.hung(now):
+                    log.error("container %s has read none of its commands for %g s: taken for hung, killed",
+                              proc.name, UNREAD_LIMIT_S)
+                    proc.proc.kill()
+                    proc.proc.wait()
         for proc in [p for p in self.processes if not p.alive]:
             self._note_death(proc)
             groups = self._groups(proc)
@@ -544,6 +580,7 @@ class ContainerPool:
 
 def _end_input(proc: _Process) -> None:
     """Close a container's stdin: it unloads what is left and exits."""
+    proc.flush()   # what the pipe takes now: at the end of its input the container unloads every group anyway
     try:
         proc.proc.stdin.close()
     except OSError:
