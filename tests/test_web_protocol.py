@@ -151,3 +151,13 @@ def test_other_page_messages():
     assert parse_page_message('{"type": "session", "mode": "immersive", "active": true}')["active"] is True
     head = parse_page_message('{"type": "recenter", "head": [0, 1.6, 0, 0, 0, 0, 1]}')["head"]
     np.testing.assert_array_equal(head, [0, 1.6, 0, 0, 0, 0, 1])
+
+
+def test_a_frames_kind_and_header_are_found_without_parsing_it():
+    from touch4d.web.protocol import header_span, is_kind
+    data = pack_frame("frame", {"haptic": 0.5}, {"h": np.arange(3, dtype=np.float32)})
+    n = int.from_bytes(data[:4], "little")                  # the layout: a uint32 length, then the JSON header
+    assert header_span(data) == (4, 4 + n)
+    assert json.loads(data[4:4 + n])["haptic"] == 0.5
+    assert is_kind(data, "frame") and not is_kind(data, "geometry") and not is_kind(data[:3], "frame")
+    assert is_kind(pack_frame("geometry", {"key": "g1"}), "geometry")

@@ -99,9 +99,7 @@ def pack_frame(kind: str, fields: dict | None = None, arrays: dict[str, np.ndarr
                members: bytes = b"") -> bytes:
     """One binary frame: a JSON header (kind, fields, array table) then the arrays, 8-byte aligned.
     `members`: more fields already encoded (`json_members`), none of them also in `fields`."""
-    head = _HEADS.get(kind)
-    if head is None:
-        head = _HEADS[kind] = b'{"kind":' + json.dumps(kind).encode() + b","
+    head = _head(kind)
     if members:
         head += members + b","
     if fields:
@@ -159,10 +157,29 @@ def _entry(name: str, arr: np.ndarray) -> str:
     return entry
 
 
+def _head(kind: str) -> bytes:
+    """How a header of this kind begins (its kind first: `is_kind` reads it without parsing)."""
+    head = _HEADS.get(kind)
+    if head is None:
+        head = _HEADS[kind] = b'{"kind":' + json.dumps(kind).encode() + b","
+    return head
+
+
+def header_span(data: bytes) -> tuple[int, int]:
+    """Where a frame's JSON header lies in it (start, end)."""
+    (n,) = _LEN.unpack_from(data, 0)
+    return _LEN.size, _LEN.size + n
+
+
+def is_kind(data: bytes, kind: str) -> bool:
+    """Whether a frame is of this kind, its header not parsed (a tap on the wire: touch4d.web.wiretrace)."""
+    return data.startswith(_head(kind), _LEN.size)
+
+
 def frame_header(data: bytes) -> dict:
     """A frame's header fields (kind, fields, the array table), its arrays left unread."""
-    (n,) = _LEN.unpack_from(data, 0)
-    return json.loads(data[_LEN.size:_LEN.size + n])
+    start, end = header_span(data)
+    return json.loads(data[start:end])
 
 
 def unpack_frame(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:

@@ -24,14 +24,12 @@ from typing import Callable
 from aiohttp import WSMessage, WSMsgType
 from aiohttp.http import WebSocketReader
 
-from .protocol import MAX_PAGE_MESSAGE
+from .protocol import MAX_PAGE_MESSAGE, header_span, is_kind
 
 TOUCHING = 0.05   # a frame's haptic above this: the controller plays the touch
 _INPUT = re.compile(r'"type"\s*:\s*"input"')
 _TIME = re.compile(r'"time"\s*:\s*(-?[0-9][0-9.eE+-]*)')
 _HAPTIC = re.compile(rb'"haptic":(-?[0-9][0-9.eE+-]*)')   # the node writes its frames without spaces
-_FRAME = b'{"kind":"frame",'                                # protocol.pack_frame: the kind first
-_LEN_SIZE = 4                                               # the header's length, little-endian uint32
 
 
 class WireTrace:
@@ -60,9 +58,9 @@ class WireTrace:
         """A binary message for the page, as it leaves: a row when it is a frame (its header read by
         pattern, as `page_in`)."""
         now = time.monotonic_ns()
-        if not data.startswith(_FRAME, _LEN_SIZE):
+        if not is_kind(data, "frame"):
             return
-        haptic = _HAPTIC.search(data, _LEN_SIZE, _LEN_SIZE + int.from_bytes(data[:_LEN_SIZE], "little"))
+        haptic = _HAPTIC.search(data, *header_span(data))
         try:
             level = float(haptic.group(1)) if haptic else 0.0
         except ValueError:
