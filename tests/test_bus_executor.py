@@ -2,6 +2,7 @@
 import asyncio
 import threading
 import time
+import uuid
 
 import numpy as np
 import pytest
@@ -152,8 +153,11 @@ def test_on_an_asyncio_loop_timers_readers_calls_and_the_loops_own_work_share_on
     ex.create_timer(0.01, lambda: ticks.append(time.monotonic()))
     ctx = zmq.Context.instance()
     inbound, outbound = ctx.socket(zmq.PAIR), ctx.socket(zmq.PAIR)
-    inbound.bind("inproc://executor-on-a-loop")
-    outbound.connect("inproc://executor-on-a-loop")
+    # an address of its own each run: a closed socket's inproc name is freed later, by ZeroMQ's reaper
+    # thread, so the next parameter's bind of the same name could find it still taken
+    address = f"inproc://executor-on-a-loop-{uuid.uuid4().hex}"
+    inbound.bind(address)
+    outbound.connect(address)
 
     def read() -> int:
         n = 0
