@@ -360,8 +360,13 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             # the server's tree (the stacks included)
             while len(joined) + len(refused) < n:
                 failed = [t for t in tasks if t.done() and t.exception() is not None]
-                if failed:
-                    await failed[0]                       # a join failed: its error
+                if failed:                                # a join failed: why, from its stack's log
+                    for log in sorted(out.glob("*/serve.log")):
+                        said = [line for line in log.read_text(errors="replace").splitlines()
+                                if "ERROR" in line or "failed" in line or "Traceback" in line]
+                        if said:
+                            print(f"{log.parent.name}'s serve.log:", *said[-8:], sep="\n  ", file=sys.stderr)
+                    await failed[0]
                 await asyncio.sleep(0.2)
             offered, n = n, len(joined)                   # the figures below: the admitted's
             await asyncio.sleep(2.0)

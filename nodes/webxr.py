@@ -183,6 +183,10 @@ class WebXRNode(Node):
             raise self.param_error("token", f"in {where}: {why}", got=None)
         return token
 
+    def endpoints(self) -> dict[str, int]:
+        server = getattr(self, "server", None)
+        return {"page": server.port} if server is not None and server.port else {}
+
     def _then_schedule(self, callback):
         """`callback`, then the bridge's next deadline re-armed (it may have come nearer)."""
         def run(*args) -> None:

@@ -3,8 +3,10 @@ one process, loaded and unloaded while it runs; a dead container started again w
 its pool; a node that asks to stop restarts its own group only."""
 from __future__ import annotations
 
+import json
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -143,6 +145,35 @@ def test_a_node_that_asks_to_stop_restarts_its_own_group_and_the_others_run_on(t
             # each group's recorder logged its own private poses, not the other group's
             topics = set(LogReader(tmp_path / "B.mcap").topics())
             assert "example/pose" in topics and not any(t.startswith("A/") for t in topics)
+        finally:
+            box.unload_all()
+            executor.close()
+
+
+def test_the_ready_file_names_the_port_a_page_server_bound_for_port_0(tmp_path):
+    """A port picked by the supervisor and bound later in the container could be taken meanwhile (any
+    connection's own end may get it): the node binds any free one, and the ready file says which."""
+    import urllib.request
+    with running_broker() as bus:
+        executor = Executor()
+        box = Container(executor, bus.for_clients())
+        try:
+            tracker = {"node": "webxr", "name": "tracker",
+                       "params": {"port": 0, "save_calibration": False, "cert_dir": str(tmp_path / "tls")}}
+            box.load({"load": "A", "namespace": "A", "nodes": [tracker], "ready_file": str(tmp_path / "A.ready")})
+            box.load({"load": "B", "namespace": "B", "nodes": _pair(), "ready_file": str(tmp_path / "B.ready")})
+            said = _said(tmp_path / "A.ready")
+            assert said.startswith("ready {") and _said(tmp_path / "B.ready") == "ready"   # B serves nothing
+            port = json.loads(said.removeprefix("ready"))["tracker"]["page"]
+            assert port == box.groups["A"].nodes[0].server.port > 0
+            served = threading.Thread(target=executor.spin, args=(3.0,))
+            served.start()
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as response:
+                    assert response.status == 200 and b"<canvas" in response.read()
+            finally:
+                executor.request_shutdown()
+                served.join()
         finally:
             box.unload_all()
             executor.close()

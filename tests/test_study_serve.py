@@ -192,14 +192,16 @@ def _alive(pid: int) -> bool:
 
 def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_and_everyone_resumes(tmp_path, capsys):
     with serve(tmp_path, "--leave-after", "600") as served:          # no page opens here
-        links = {}
+        links, pages = {}, {}
         for participant in ("P01", "P02"):
             links[participant] = invite(served, participant, capsys=capsys)
-            page = Browser()
+            page = pages[participant] = Browser()
             page.get(links[participant])
             assert page.get(f"{served.url}/join", data=b"")[0] == 200
         for participant in ("P01", "P02"):
             wait_until(lambda: _starts(served.out, participant) >= 1, timeout=90)   # its session began
+            status, text = pages[participant].get(f"{served.url}/")
+            assert status == 200 and '<canvas id="view">' in text                  # its page, from its stack
         first = _containers(served.proc.pid)
         assert 1 <= len(first) <= 2                                    # spread over the cores first, then shared
         for pid in first:
@@ -214,6 +216,10 @@ def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_a
         assert all(f"{participant}: its stack's process died; started again" in served.text for participant in ("P01", "P02"))
         wait_until(lambda: (served.out / "P01" / "serve.log").read_text().count("P01: 5 node(s) loaded in container")
                    == 2, timeout=30)
+        # each page is served again, from the port its stack's new process bound (its ready file says which)
+        for participant in ("P01", "P02"):
+            assert wait_until(lambda: pages[participant].get(f"{served.url}/")[0] == 200, timeout=30)
+            assert '<canvas id="view">' in pages[participant].get(f"{served.url}/")[1]
         served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
         served.proc.wait()
         wait_until(lambda: not _alive(back[0]), timeout=30)            # its containers go with it

@@ -14,6 +14,8 @@ Commands come on stdin, one JSON object a line:
   {"load": ID, "namespace": NS, "nodes": [...], "ready_file": PATH, "log": PATH}
       `nodes` as a group's `--nodes` (touch4d.bus.process.group_members); the ready file gets
       "ready" once every node is built, or "failed: REASON" (what was built is shut down again);
+      after "ready", the ports its nodes bound as JSON where any serves one (`Node.endpoints`:
+      `ready {"tracker": {"page": 40123}}`), so a port 0 asked for is found here, never raced for;
       `log`, optional: the group's log lines (its nodes' loggers, NS/ROLE) are appended there too.
   {"unload": ID}
       its nodes shut down, in reverse order; the others spin on.
@@ -191,7 +193,8 @@ class Container:
             self._frozen = True
         self._log(group).info("%s: %d node(s) loaded in container %s (pid %d): %s", gid, len(group.nodes), self.name,
                               os.getpid(), f"every topic under {namespace}/" if namespace else "no namespace")
-        self._tell(ready, "ready")
+        served = {node.name: node.endpoints() for node in group.nodes if node.endpoints()}
+        self._tell(ready, f"ready {json.dumps(served)}" if served else "ready")
 
     def unload(self, gid: str) -> None:
         """Shut a group's nodes down (reverse order); an unknown id: nothing."""

@@ -349,6 +349,11 @@ class Node:
             self._subscribe(key)
         return sub
 
+    def endpoints(self) -> dict[str, int]:
+        """What this node serves outside the bus: a name -> the TCP port it bound (a port 0 asked for
+        is known only here). A container says them in its ready file, for whoever placed the group."""
+        return {}
+
     def tap_private(self, callback: Callable[[str, bytes], Any]) -> None:
         """Call `callback(topic, payload_bytes)` for every message of this process's private topics
         (a launch file's `private`; touch4d.bus.local), which no socket hears: how a recorder in the

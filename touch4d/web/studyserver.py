@@ -28,7 +28,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import tempfile
 import threading
 import time
@@ -64,6 +63,7 @@ PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or 
 PER_PROCESS = 8               # participants' stacks per process at most (a container: docs/bus.md)
 CONTAINERS = "containers"     # OUT/containers/NAME.log: each container's output
 READY_TIMEOUT_S = 90.0        # a participant's stack starts within this (a loaded machine: tens of seconds)
+PAGE_ROLE = "tracker"         # the node of a participant's stack that serves its page (launch/study-serve.yaml)
 # Participants at once by default: as many as keep pose -> pulse within the touch's budget (p99 <= 15
 # ms, server-side) at 72 Hz each, with room to spare (a session's study node and trials come on
 # top). bench/bench_serve.py on a quiet 2-core machine, recorder included: p99 3.7-4.8 ms at 8
@@ -116,10 +116,15 @@ def _heard(p: Participant, feed: Callable[[bytes], None] | None) -> Callable[[by
     return heard
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+def _page_port(ready: str) -> int | None:
+    """The page server's port in a container's ready file (`ready {"tracker": {"page": PORT}}`), or None."""
+    if not ready.startswith("ready"):
+        return None
+    try:
+        port = json.loads(ready[len("ready"):].strip() or "{}").get(PAGE_ROLE, {}).get("page")
+    except (ValueError, AttributeError):
+        return None
+    return port if isinstance(port, int) and 0 < port < 65536 else None
 
 
 def _die_with_server() -> None:
@@ -136,7 +141,7 @@ class Participant:
 
     id: str
     state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
-    port: int = 0                      # its page server's, on loopback
+    port: int = 0                      # its page server's, on loopback (as its container's ready file said)
     pages: int = 0                     # its pages connected now
     last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
@@ -163,6 +168,7 @@ class StudyServer:
         self.launch = launch   # each participant's stack
         self.per_process = per_process   # participants' stacks per process (touch4d.bus.container)
         self.pool: ContainerPool | None = None   # made at the first join
+        self.tmp: Path | None = None             # the ready files' folder, while it serves
         self._trace: WireTrace | None = None
         self._splices: set[Splice] = set()     # the pages' WebSockets, spliced to their page servers
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
@@ -273,7 +279,7 @@ class StudyServer:
     def _start_stack(self, p: Participant) -> bool:
         """Place the participant's stack in a container (touch4d.bus.container); False when its
         launch cannot be made (said in its serve.log)."""
-        p.port = _free_port()
+        p.port = 0     # its page server binds any free port and its container's ready file says which
         if self.pool is None:
             self.pool = ContainerPool(self.per_process, self.bus_file, self.out / CONTAINERS, spread=_cores(),
                                       prefix="participants",
@@ -292,7 +298,7 @@ class StudyServer:
     def _stack_command(self, p: Participant) -> dict:
         """The participant's group as its container loads it: launch/study-serve.yaml under its namespace,
         its session's overrides (the recorder's next segment: made anew at each load)."""
-        group = self.stack_group(p.id, p.port)
+        group = self.stack_group(p.id)
         directory = session_dir(self.out, p.id)
         directory.mkdir(parents=True, exist_ok=True)
         self._ready_file(p).unlink(missing_ok=True)
@@ -303,11 +309,13 @@ class StudyServer:
         """Where its container writes "ready" (or "failed: ...") at each load."""
         return self.tmp / f"{p.id}.ready"
 
-    def stack_group(self, participant: str, port: int) -> list:
-        """A participant's stack: the launch file's one group (its NodeSpecs) under their namespace.
-        Raises ConfigError when the launch cannot be made or is not one group (checked at start too)."""
+    def stack_group(self, participant: str) -> list:
+        """A participant's stack: the launch file's one group (its NodeSpecs) under their namespace,
+        its page served on a port the page server picks (a port picked here and bound there later
+        could be taken meanwhile: any connection's own end may get it). Raises ConfigError when the
+        launch cannot be made or is not one group (checked at start too)."""
         overrides = [*session_overrides(self.study_path, participant, self.out, quick=self.quick),
-                     f"tracker.port:={port}", *self.overrides]
+                     f"{PAGE_ROLE}.port:=0", *self.overrides]
         specs = processes(load_launch(self.launch, overrides, namespace=participant))
         (group, *more) = specs.values()
         if more or not group[0].group:
@@ -327,6 +335,12 @@ class StudyServer:
             if said.startswith("failed"):
                 return False
             if said.startswith("ready"):
+                port = _page_port(said)
+                if port is None:
+                    log.error("%s: its stack serves no page (its ready file: %r; the launch's %s node serves it)",
+                              p.id, said.strip(), PAGE_ROLE)
+                    return False
+                p.port = port
                 try:   # and its page is served
                     async with self.client.get(f"http://127.0.0.1:{p.port}/") as response:
                         if response.status == 200:
@@ -450,8 +464,7 @@ class StudyServer:
                     "</p></body></html>"))
             self.counts["resumed" if self._rows(p.id) else "joined"] += 1
             if self._start_stack(p):
-                log.info("%s joined: starting its stack (namespace %s, page port %d, %s)", p.id, p.id, p.port,
-                         self.pool.container_of(p.id))
+                log.info("%s joined: starting its stack (namespace %s, %s)", p.id, p.id, self.pool.container_of(p.id))
         if not await self._wait_ready(p):
             self._stop_stack(p, "left")
             # the log's path is the experimenter's: this page faces the internet
@@ -463,8 +476,18 @@ class StudyServer:
             self._await_page(p)
         raise web.HTTPSeeOther("/")
 
+    def _current_port(self, p: Participant) -> int:
+        """Its page server's port now: its container, started again, says a new one."""
+        try:
+            port = _page_port(self._ready_file(p).read_text()) if self.tmp is not None else None
+        except OSError:
+            port = None
+        if port is not None:
+            p.port = port
+        return p.port
+
     async def _proxy_http(self, request: web.Request, p: Participant) -> web.StreamResponse:
-        url = f"http://127.0.0.1:{p.port}{request.path}"
+        url = f"http://127.0.0.1:{self._current_port(p)}{request.path}"
         try:
             async with self.client.get(url) as upstream:
                 body = await upstream.read()
@@ -495,14 +518,15 @@ class StudyServer:
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
         if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
-        upgrade = _upgrade_request(request, p.port)
+        port = self._current_port(p)
+        upgrade = _upgrade_request(request, port)
         if upgrade is None or request.transport is None:
             raise web.HTTPBadRequest(text="touch4d: /ws takes a WebSocket upgrade\n")
         trace = self._trace
         splice = Splice(_heard(p, None if trace is None else trace.page_bytes(p.id)),
                         None if trace is None else trace.frame_bytes(p.id))
         try:
-            status, headers, body = await splice.upgrade("127.0.0.1", p.port, upgrade, UPSTREAM_TIMEOUT_S)
+            status, headers, body = await splice.upgrade("127.0.0.1", port, upgrade, UPSTREAM_TIMEOUT_S)
         except (OSError, TimeoutError):
             raise web.HTTPBadGateway(text=f"touch4d: the session of {p.id} is not answering\n") from None
         if status != 101:   # the page server's refusal (over its max_pages: 503), passed on
@@ -676,7 +700,7 @@ class StudyServer:
             self._load_invites()
 
     def run(self) -> int:
-        self.stack_group("P00", 0)   # a launch that cannot make a participant's stack fails now, not at a join
+        self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
