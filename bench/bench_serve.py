@@ -17,7 +17,9 @@ moving at the same moment every 300 ms. The stacks run without their study node
 costs, not the trials (a trial's cost is a scene load every few seconds). Their recorder runs: it
 logs the haptic loop at the page's rate, as in every session. Then the same through a
 relay on loopback that delays every byte by 25 ms each way (50 ms round trip; this kernel has no
-netem). Baseline, in the same run: one participant.
+netem). Baseline, in the same run: one participant. The simulated pages run on this machine too
+(at a lower priority): the CPU they took in the measured stretch is printed beside the server's,
+being load that a study's headsets would not put on its server.
 
 `--per-process K [K ...]`: each round once per K, the participants' stacks sharing processes K at a
 time (containers, touch4d.bus.container; the server's default when not given): `--per-process 1 8`
@@ -376,9 +378,11 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
             probe = start_pause_probe(Path(tmp) / "pauses.txt")
             c0, w0, s0, wall0 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
+            pages0 = time.process_time()
             rows0 = count_rows(out)
             await asyncio.sleep(seconds)
             c1, w1, s1, wall1 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
+            pages_cpu = (time.process_time() - pages0) / (w1 - w0)   # this process: the simulated pages
             pauses = host_pauses(probe, Path(tmp) / "pauses.txt")
             by_role1 = {r: cpu([p for p in stacks if roles[p] == r]) for r in by_role0}
             rows1 = count_rows(out)
@@ -405,7 +409,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
             return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": f"{per_process} per process" if per_process else "",
-                    "cpu_per_participant": (c1 - c0) / (w1 - w0) / n,
+                    "cpu_per_participant": (c1 - c0) / (w1 - w0) / n, "pages_cpu": pages_cpu,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
                     "server_p99_joins": pct(np.array(with_joins) * 1000, 99), "moves_joins": len(with_joins),
@@ -571,7 +575,8 @@ def main() -> None:
             print(f"      CPU per page input {r['cpu_ms_per_input']:.2f} ms (server and stack; "
                   f"{r['inputs_per_s']:.0f} of {RATE_HZ:.0f} inputs/s per participant arrived): "
                   f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
-                  f"{n * r['cpu_at_rate']:.1f} cores for N={n}", flush=True)
+                  f"{n * r['cpu_at_rate']:.1f} cores for N={n}; the simulated pages took {100 * r['pages_cpu']:.0f}% of a "
+                  "core of this machine beside it", flush=True)
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)
