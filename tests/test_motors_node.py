@@ -132,7 +132,7 @@ def test_silence_turns_every_motor_off_within_the_watchdog(rig):
         assert after and after[0] == (0,) * 8
     assert rig.node.driver.errors["watchdog_off"] >= 1
     # the node keeps refreshing zeros: the boards do not trip their own watchdog
-    assert not any(b.watchdog_tripped for b in rig.emu.boards.values())
+    assert_no_trip_but_from_a_pause(rig, frames)
 
 
 def test_a_receive_failure_does_not_stop_the_refresh_or_the_watchdog(rig):
@@ -142,12 +142,31 @@ def test_a_receive_failure_does_not_stop_the_refresh_or_the_watchdog(rig):
     def broken(msg):
         raise RuntimeError("decoder bug")  # not a FrameError: escapes the frame handling
 
+    frames = record_sent(rig.node)
     rig.node.protocol.decode = broken
     assert rig.spin(WAIT, until=lambda: not any(rig.emu.motor_levels()))
     assert rig.node.driver.errors["receive_error"] >= 1
     assert rig.node.driver.errors["watchdog_off"] >= 1
-    # the zeros came from the node's refresh, not from the boards' own watchdog
-    assert not any(b.watchdog_tripped for b in rig.emu.boards.values())
+    # the zeros came from the node's refresh, not from the boards' own watchdog: each board's first
+    # frame after the watchdog's expiry is all zero, and the refresh goes on
+    expiry = rig.node.driver.last_command_at + CFG.watchdog_s
+    for board in (1, 2, 3, 4):
+        after = [levels for t, b, levels in frames if b == board and t > expiry]
+        assert after and after[0] == (0,) * 8
+    more = len(frames)
+    rig.spin(0.3)
+    assert {b for _, b, _ in frames[more:]} == {1, 2, 3, 4}
+    assert_no_trip_but_from_a_pause(rig, frames)
+
+
+def assert_no_trip_but_from_a_pause(rig, frames) -> None:
+    """No board tripped its own watchdog (the node's refresh fed them all), unless this busy test
+    process paused between two of that board's frames for half the board's watchdog or more: a
+    trip then is the pause's, not the node's (the frames' times are the driver's, when each was sent)."""
+    paused = {b for b in (1, 2, 3, 4)
+              if np.any(np.diff([t for t, board, _ in frames if board == b]) >= CFG.board_watchdog_s / 2)}
+    tripped = {board for board, b in rig.emu.boards.items() if b.watchdog_tripped}
+    assert tripped <= paused, (tripped, paused)
 
 
 def test_stale_commands_never_turn_a_motor_on(bus, tmp_path):
