@@ -15,7 +15,7 @@ import pytest
 from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
 from touch4d.web.invites import Invites
-from touch4d.web.studyserver import Participant, StudyServer
+from touch4d.web.studyserver import Participant, StudyServer, _page_port
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -307,3 +307,12 @@ def test_a_stack_that_is_not_one_group_or_cannot_be_made_fails_the_server_at_sta
     assert cli_main(["study", "serve", STUDY, "--out", str(tmp_path / "b"), "--port", "0", "study.nope:=1"]) == 2
     assert "key 'study.nope:=1': expected a parameter of node study" in capsys.readouterr().err
     assert not (tmp_path / "b" / "serve.json").exists()     # it never served
+
+
+def test_the_page_port_is_read_from_the_ready_file_and_anything_else_is_no_port():
+    assert _page_port('ready {"tracker": {"page": 40123}}\n') == 40123
+    assert _page_port('ready {"scene": {}, "tracker": {"page": 8090}}') == 8090
+    for said in ("ready", "ready\n", "failed: node tracker: port", 'ready {"tracker": {"page": 0}}',
+                 'ready {"tracker": {"page": 70000}}', 'ready {"tracker": {"page": "80"}}', "ready [1, 2]",
+                 'ready {"tracker": 5}', "ready {not json", 'ready {"recorder": {"page": 40123}}', ""):
+        assert _page_port(said) is None, said

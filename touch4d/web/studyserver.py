@@ -337,8 +337,9 @@ class StudyServer:
             if said.startswith("ready"):
                 port = _page_port(said)
                 if port is None:
-                    log.error("%s: its stack serves no page (its ready file: %r; the launch's %s node serves it)",
-                              p.id, said.strip(), PAGE_ROLE)
+                    log.error("%s: its stack started but names no page port (its ready file says %r; expected "
+                              "the launch's %s node's, as ready {\"%s\": {\"page\": PORT}})",
+                              p.id, said.strip(), PAGE_ROLE, PAGE_ROLE)
                     return False
                 p.port = port
                 try:   # and its page is served
