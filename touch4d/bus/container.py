@@ -193,7 +193,7 @@ class Container:
             self._frozen = True
         self._log(group).info("%s: %d node(s) loaded in container %s (pid %d): %s", gid, len(group.nodes), self.name,
                               os.getpid(), f"every topic under {namespace}/" if namespace else "no namespace")
-        served = {node.name: node.endpoints() for node in group.nodes if node.endpoints()}
+        served = {node.name: ends for node in group.nodes if (ends := node.endpoints())}
         self._tell(ready, f"ready {json.dumps(served)}" if served else "ready")
 
     def unload(self, gid: str) -> None:
