@@ -26,12 +26,19 @@ time (containers, touch4d.bus.container; the server's default when not given): `
 gives a process per participant, the baseline of the CPU and memory that sharing saves, in the
 same run.
 
+`--priority realtime normal`: each round once per choice. launch/study-serve.yaml's haptic loop is
+`realtime`: where permitted (root, CAP_SYS_NICE) the server's loop thread and each container's run
+SCHED_FIFO, each thread alone; `normal` starts the server without that right (CAP_SYS_NICE dropped
+with `setpriv`), as a plain user runs it: the baseline, in the same run. Each round says how many of
+its processes' loops ran real-time.
+
 `--trials`: the stacks with their study node (the full session), every participant answering each
 trial as soon as its frame shows it: trials per second written to the participants' trials.csv,
 and rows against answers sent (none lost).
 
     .venv/bin/python bench/bench_serve.py [--participants 1 4 8 16] [--seconds 10] [--per-process 1 8]
-                                          [--over 32] [--trials] [--figure PNG] [--json FILE]
+                                          [--priority realtime normal] [--over 32] [--trials]
+                                          [--figure PNG] [--json FILE]
 
 The simulated pages run in this process at a lower priority than the server and its stacks
 (`--pages-nice`, 10 by default; where the system lets the server's priority be restored, e.g. as
@@ -97,6 +104,11 @@ def _server_priority() -> None:
         pass
 
 
+# The server and its containers without the right to real-time scheduling: their loops' `realtime`
+# (launch/study-serve.yaml) is then refused and they run at normal priority, as for a plain user.
+NO_REALTIME = ["setpriv", "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"]
+
+
 def server_nice() -> int:
     """The niceness a server started now runs at."""
     out = subprocess.run([sys.executable, "-c", "import os; print(os.nice(0))"], capture_output=True, text=True,
@@ -108,12 +120,14 @@ def server_nice() -> int:
 
 
 def start_server(out: Path, participants: int | None, study: bool = False, trace: Path | None = None,
-                 per_process: int | None = None):
+                 per_process: int | None = None, realtime: bool = True):
     """The server; `per_process`: participants' stacks per process (None: the server's default);
-    `participants` None: the server's own default cap (four per core)."""
+    `participants` None: the server's own default cap (four per core); `realtime` False: without the
+    right to real-time scheduling (CAP_SYS_NICE dropped), as a server run by a plain user."""
     stack = ["study.iti_s:=0.05"] if study else ["study:=none", "tracker.study_gate:=open"]
     launch = [] if per_process is None else ["--per-process", str(per_process)]
-    proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
+    plain = [] if realtime else NO_REALTIME
+    proc = subprocess.Popen([*plain, sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
                              *launch, *(["--wire-trace", str(trace)] if trace else []),
                              "--port", "0", *([] if study else ["--quick"]),
                              *([] if participants is None else ["--max-participants", str(participants)]),
@@ -191,6 +205,14 @@ def role(pid: int) -> str:
     if "--name" in argv:
         return argv[argv.index("--name") + 1]
     return "launcher" if "launch" in argv else "server"
+
+
+def realtime_loop(pid: int) -> bool:
+    """Whether the process's main thread (its loop) runs SCHED_FIFO."""
+    try:
+        return os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+    except OSError:
+        return False
 
 
 def cpu(pids) -> float:
@@ -337,12 +359,12 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
 
 
 async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_process: int | None = None,
-                    capped: bool = False) -> dict:
+                    capped: bool = False, realtime: bool = True) -> dict:
     """`capped`: N pages try to join a server with its default cap; the figures are the admitted's."""
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
-        proc, base = start_server(out, None if capped else n, study, trace, per_process)
+        proc, base = start_server(out, None if capped else n, study, trace, per_process, realtime)
         relay_server = None
         try:
             links = [invite(out, f"S{k:02d}") for k in range(n)]
@@ -375,6 +397,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             pids = descendants(proc.pid)
             stacks = [p for p in pids if p != proc.pid]          # the participants' launches and nodes
             roles = {p: role(p) for p in stacks}
+            fifo = [p for p in pids if realtime_loop(p)]        # whose loop thread runs SCHED_FIFO
             by_role0 = {r: cpu([p for p in stacks if roles[p] == r]) for r in set(roles.values())}
             probe = start_pause_probe(Path(tmp) / "pauses.txt")
             c0, w0, s0, wall0 = cpu(pids), time.monotonic(), cpu([proc.pid]), time.time()
@@ -408,10 +431,12 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
             inputs = inputs_between(trace, w0, w1)
             srv = np.array(inside) * 1000
             pct = lambda a, q: float(np.percentile(a, q)) if len(a) else None  # noqa: E731
-            return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": f"{per_process} per process" if per_process else "",
+            return {"n": n, "offered": offered, "refused": len(refused), "delay_ms": 2000 * delay, "label": ", ".join([*([f"{per_process} per process"] if per_process else []),
+                                                                                            *([] if realtime else ["normal priority"])]),
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n, "pages_cpu": pages_cpu,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
+                    "realtime_loops": f"{len(fifo)} of {len(pids)}",
                     "server_p99_joins": pct(np.array(with_joins) * 1000, 99), "moves_joins": len(with_joins),
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "inputs_per_s": inputs / (w1 - w0) / n,
@@ -530,6 +555,9 @@ def main() -> None:
                         help="then N pages against the server's default cap (four per core): admitted and refused")
     parser.add_argument("--pages-nice", type=int, default=PAGES_NICE, metavar="N",
                         help=f"the simulated pages' niceness above the server's (default {PAGES_NICE}; 0: equal)")
+    parser.add_argument("--priority", nargs="+", choices=["realtime", "normal"], default=["realtime"],
+                        help="each round once per choice: the server as it runs (its loops real-time where "
+                             "permitted: root) and/or without the right to (CAP_SYS_NICE dropped: normal priority)")
     parser.add_argument("--trials", action="store_true",
                         help="instead: with the study node, every participant answering at once: trials per second")
     args = parser.parse_args()
@@ -549,21 +577,22 @@ def main() -> None:
                   f"answer of each may still be in flight)", flush=True)
         return
     rows = []
-    layouts = args.per_process or [None]
+    layouts = [(k, priority == "realtime") for k in args.per_process or [None] for priority in args.priority]
     for delay in ([0.0] if args.no_delay_round else [DELAY_S] if args.delay_round_only else [0.0, DELAY_S]):
-        for n, per_process in ((n, k) for n in sorted(set([1, *args.participants])) for k in layouts):
+        for n, (per_process, realtime) in ((n, k) for n in sorted(set([1, *args.participants])) for k in layouts):
             before = machine_speed()
-            r = asyncio.run(run_round(n, args.seconds, delay, per_process=per_process))
+            r = asyncio.run(run_round(n, args.seconds, delay, per_process=per_process, realtime=realtime))
             r["machine_us"] = (before, machine_speed())
             rows.append(r)
             base = next(x for x in rows if x["n"] == 1 and x["delay_ms"] == r["delay_ms"] and x["label"] == r["label"])
             fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
             if len(layouts) > 1:
                 first = next(x for x in rows if x["n"] == n and x["delay_ms"] == r["delay_ms"])
-                print(f"{per_process} participant(s) per process:", flush=True)
+                print(f"{r['label'] or 'as served'}:", flush=True)
                 if first is not r:
-                    print(f"      against {first['label']}: memory x{r['mb_per_participant'] / first['mb_per_participant']:.2f}, "
-                          f"CPU per input x{r['cpu_ms_per_input'] / max(first['cpu_ms_per_input'], 1e-9):.2f}", flush=True)
+                    print(f"      against {first['label'] or 'as served'}: memory x{r['mb_per_participant'] / first['mb_per_participant']:.2f}, "
+                          f"CPU per input x{r['cpu_ms_per_input'] / max(first['cpu_ms_per_input'], 1e-9):.2f}, "
+                          f"p99 in the server x{(r['server_p99'] or 0) / max(first['server_p99'] or 1e-9, 1e-9):.2f}", flush=True)
             print(f"N={n:>2} rtt+{r['delay_ms']:.0f} ms: CPU {100 * r['cpu_per_participant']:.0f}% of a core (the server's "
                   f"share included) and "
                   f"{r['mb_per_participant']:.0f} MB (PSS) per participant (the server itself "
@@ -577,6 +606,8 @@ def main() -> None:
                   f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
                   f"{n * r['cpu_at_rate']:.1f} cores for N={n}; the simulated pages took {100 * r['pages_cpu']:.0f}% of a "
                   "core of this machine beside it", flush=True)
+            print(f"      real-time loops (SCHED_FIFO): {r['realtime_loops']} processes (the server and its containers)",
+                  flush=True)
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),
                 flush=True)

@@ -15,6 +15,7 @@ import pytest
 from touch4d.bus import Executor, Node
 from touch4d.bus import container as container_module
 from touch4d.bus.container import Container, ContainerPool
+from touch4d.bus.realtime import realtime_permitted
 from touch4d.bus.testing import collect, running_broker, wait_until
 from touch4d.log.reader import LogReader
 from touch4d.messages import HandPose
@@ -114,6 +115,45 @@ def test_a_pool_spreads_groups_over_its_containers_first_then_fills_the_least_lo
             for gid in "BDF":
                 pool.unload(gid)
             assert len(pool.pids()) == 2                                # container-2 left empty: stopped
+        finally:
+            pool.close()
+
+
+def _policies(pid: int) -> dict[int, int]:
+    """Each thread of process `pid`: its scheduling policy (os.SCHED_OTHER, os.SCHED_FIFO, ...)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            out[int(task.name)] = os.sched_getscheduler(int(task.name)) & ~os.SCHED_RESET_ON_FORK
+        except OSError:   # a thread that ended meanwhile
+            pass
+    return out
+
+
+@pytest.mark.skipif(not realtime_permitted(), reason="SCHED_FIFO not permitted here (needs root or CAP_SYS_NICE)")
+def test_a_realtime_group_raises_its_containers_loop_thread_alone_and_a_plain_one_none(tmp_path):
+    """A group whose node says `realtime` (a served participant's haptic loop): its container's loop
+    thread runs SCHED_FIFO, and the threads started after it do not inherit that; the container of a
+    group that does not ask stays as it was."""
+    with running_broker() as bus:
+        pool = ContainerPool(1, _bus_file(tmp_path, bus), tmp_path / "logs", spread=2)
+        try:
+            def command(ns, realtime):
+                recorder = {"node": "recorder", "name": "recorder", "params": {"file": str(tmp_path / f"{ns}.mcap")}}
+                talker, listener = _pair()
+                talker = {**talker, "realtime": True} if realtime else talker
+                return lambda: {"namespace": ns, "nodes": [talker, listener, recorder],
+                                "ready_file": str(tmp_path / f"{ns}.ready"), "log": str(tmp_path / f"{ns}.log")}
+
+            assert pool.load("R", command("R", True)) != pool.load("N", command("N", False))
+            wait_until(lambda: _said(tmp_path / "R.ready") == _said(tmp_path / "N.ready") == "ready", timeout=60)
+            raised, plain = _policies(pool.processes[0].proc.pid), _policies(pool.processes[1].proc.pid)
+            assert raised.pop(pool.processes[0].proc.pid) == os.SCHED_FIFO    # the loop thread
+            assert plain.pop(pool.processes[1].proc.pid) == os.SCHED_OTHER
+            # The same nodes' other threads, thread for thread: the recorder's writer and its pool stay
+            # normal (the receiver, which stamps, and ZeroMQ's I/O threads are real-time in both).
+            assert sorted(raised.values()) == sorted(plain.values()) and os.SCHED_OTHER in raised.values()
+            assert "real-time priority (SCHED_FIFO" in (tmp_path / "R.log").read_text()
         finally:
             pool.close()
 

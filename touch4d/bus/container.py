@@ -48,6 +48,7 @@ from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.process import GroupError, _configure, _tell_ready, group_members
+from touch4d.bus.realtime import PRIORITY, raise_loop_priority
 
 log = logging.getLogger("container")
 
@@ -104,6 +105,7 @@ class Container:
         self._buffer = b""
         self._respawn: set[str] = set()   # groups a node of which asked to stop: loaded again soon
         self._frozen = False
+        self._realtime: bool | None = None   # the loop thread's real-time priority: None until a group asks
 
     # ---- commands ----------------------------------------------------------------------------
 
@@ -174,6 +176,8 @@ class Container:
                 group.handler.addFilter(_InNamespace(namespace))
                 logging.getLogger().addHandler(group.handler)
         group.private = frozenset(t.encode() for t in private)
+        if any(entry.get("realtime") is True for entry in nodes):
+            self._raise_priority(group)
         self.groups[gid] = group
         self._set_private()
         try:
@@ -195,6 +199,20 @@ class Container:
                               os.getpid(), f"every topic under {namespace}/" if namespace else "no namespace")
         served = {node.name: ends for node in group.nodes if (ends := node.endpoints())}
         self._tell(ready, f"ready {json.dumps(served)}" if served else "ready")
+
+    def _raise_priority(self, group: Group) -> None:
+        """A group whose node asks for `realtime` (its haptic loop): the container's loop thread runs
+        SCHED_FIFO from then on, where permitted, and it alone (touch4d.bus.realtime.raise_loop_priority:
+        a recorder's writer thread stays below the loop it records). Raised once, kept while it runs."""
+        if self._realtime is not None:
+            return
+        self._realtime = raise_loop_priority()
+        if self._realtime:
+            self._log(group).info("%s: the container's loop runs at real-time priority (SCHED_FIFO %d) from now on",
+                                  group.id, PRIORITY)
+        else:
+            self._log(group).warning("%s: real-time priority not permitted (needs root or CAP_SYS_NICE): the "
+                                     "container's loop runs at normal priority", group.id)
 
     def unload(self, gid: str) -> None:
         """Shut a group's nodes down (reverse order); an unknown id: nothing."""

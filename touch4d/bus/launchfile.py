@@ -11,7 +11,8 @@ nodes:
       replay: {file: session.mcap}
     respawn: false            # restart it when it dies
     respawn_delay: 0.5        # seconds before a restart
-    realtime: false           # SCHED_FIFO priority for the haptic loop, when permitted
+    realtime: false           # SCHED_FIFO priority for the haptic loop, when permitted (in a
+                              # container: its loop thread alone, touch4d.bus.container)
     group: participant        # run in one process with the other nodes of this group; optional
     private: [hand/pose]      # topics its group keeps to itself (with `group` only); optional
 ```
@@ -216,7 +217,8 @@ def group_entries(specs: list[NodeSpec]) -> list[dict]:
     """A group's nodes as its process (or a container) is given them: `--nodes`'s JSON list
     (touch4d.bus.process.group_members reads it)."""
     return [{"node": s.module, "name": s.role, "params": s.params, "params_source": s.source,
-             **({"private": s.private} if s.private else {})} for s in specs]
+             **({"private": s.private} if s.private else {}), **({"realtime": True} if s.realtime else {})}
+            for s in specs]
 
 
 def apply_overrides(nodes: dict[str, NodeSpec], overrides, launch_file: str = "the launch file") -> None:

@@ -23,6 +23,18 @@ def raise_thread_priority(priority: int = PRIORITY) -> bool:
     return True
 
 
+def raise_loop_priority(priority: int = PRIORITY) -> bool:
+    """Make the calling thread, and it alone, SCHED_FIFO at `priority`: the threads and processes it
+    starts afterwards run at normal priority (SCHED_RESET_ON_FORK), so a loop shared by many nodes
+    (a container's, a study server's) preempts their background threads (a recorder's writer)
+    instead of lending them its priority. False (and unchanged) if not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
 def reset_thread_priority() -> None:
     """Back to normal scheduling for the calling thread."""
     try:

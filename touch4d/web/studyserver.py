@@ -41,6 +41,7 @@ from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.container import ContainerPool
+from touch4d.bus.realtime import PRIORITY, raise_loop_priority
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
 from touch4d.errors import ConfigError, Touch4dError
@@ -700,11 +701,25 @@ class StudyServer:
             await asyncio.sleep(period_s)
             self._load_invites()
 
+    @staticmethod
+    def _raise_priority(stack: list) -> None:
+        """A stack whose haptic loop asks for `realtime`: this thread's loop, which every page message
+        and pulse passes through (the splice), runs SCHED_FIFO where permitted, and it alone (the
+        containers it starts raise their own loops when they load such a stack)."""
+        if not any(spec.realtime for spec in stack):
+            return
+        if raise_loop_priority():
+            log.info("the server's loop runs at real-time priority (SCHED_FIFO %d)", PRIORITY)
+        else:
+            log.warning("real-time priority not permitted (needs root or CAP_SYS_NICE): the server's loop and "
+                        "the participants' runs at normal priority")
+
     def run(self) -> int:
-        self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
+        stack = self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
+            self._raise_priority(stack)   # after the bus's threads started: they keep normal priority
             try:
                 with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
                     runner.run(self._serve())
