@@ -43,6 +43,8 @@ and rows against answers sent (none lost).
 The simulated pages run in this process at a lower priority than the server and its stacks
 (`--pages-nice`, 10 by default; where the system lets the server's priority be restored, e.g. as
 root): they stand in for headsets on other machines, and must not take the cores from the server.
+In a round whose server loops run real-time, the pages and the relay run SCHED_FIFO one step below
+them (`pages_priority`), so that they send on time without taking a core from the loops.
 
 Each round also says how quick the machine was as it ran (`machine_speed`: one participant's page
 input in a tight loop, CPU microseconds, before and after the round): on a shared virtual machine
@@ -68,6 +70,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import touch4d  # noqa: F401  first: it caps BLAS thread pools before numpy loads
@@ -78,6 +81,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu import cpu_seconds  # noqa: E402
 
 from touch4d import eventloop  # noqa: E402
+from touch4d.bus.realtime import PRIORITY, raise_loop_priority, reset_thread_priority  # noqa: E402
 from touch4d.web.protocol import frame_header  # noqa: E402
 from touch4d.web.wiretrace import Move, pose_to_pulse  # noqa: E402
 
@@ -88,6 +92,7 @@ INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's c
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 TOGGLE_S = 0.3
 DELAY_S = 0.025                                      # each way: 50 ms round trip
+PAGES_PRIORITY = PRIORITY - 5   # in a real-time round the pages run SCHED_FIFO below the server's loops
 PAGES_NICE = 10        # the simulated pages run this much nicer than the server and its stacks: on a real
                        # deployment the headsets are elsewhere; here they share the cores, and must not
                        # take them from the server they measure (the server's priority is restored in
@@ -358,10 +363,25 @@ async def participant(base: str, link: str, stop: asyncio.Event, joined: list, l
             reader.cancel()
 
 
+@contextmanager
+def pages_priority(realtime: bool):
+    """In a round whose server runs its loops real-time: the simulated pages and the relay (this
+    thread) run SCHED_FIFO below those loops, where permitted. They stand in for headsets and a
+    network elsewhere, so they must neither take a core from the loops nor wait behind the server's
+    background threads (the recorders' writers) to send on time: starved, they sent in bursts, and a
+    burst of sixteen inputs queued in the containers. Otherwise they stay as they are (nice 10)."""
+    raised = realtime and raise_loop_priority(PAGES_PRIORITY)
+    try:
+        yield raised
+    finally:
+        if raised:
+            reset_thread_priority()
+
+
 async def run_round(n: int, seconds: float, delay: float, study: bool = False, per_process: int | None = None,
                     capped: bool = False, realtime: bool = True) -> dict:
     """`capped`: N pages try to join a server with its default cap; the figures are the admitted's."""
-    with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
+    with pages_priority(realtime) as pages_realtime, tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         out = Path(tmp) / "out"
         trace = Path(tmp) / "wire.csv"
         proc, base = start_server(out, None if capped else n, study, trace, per_process, realtime)
@@ -436,7 +456,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n, "pages_cpu": pages_cpu,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
-                    "realtime_loops": f"{len(fifo)} of {len(pids)}",
+                    "realtime_loops": f"{len(fifo)} of {len(pids)}", "pages_realtime": pages_realtime,
                     "server_p99_joins": pct(np.array(with_joins) * 1000, 99), "moves_joins": len(with_joins),
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "inputs_per_s": inputs / (w1 - w0) / n,
@@ -511,6 +531,8 @@ def figure(rows: list[dict], path: Path) -> None:
         rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
         n = [r["n"] for r in rs]
         style = ("o-", "s--", "^:", "v-.")[k % 4]
+        if not name and any(r.get("pages_realtime") is not None for r in rs):
+            name = "real-time loops" if any(r.get("realtime_loops", "0 of").split()[0] != "0" for r in rs) else ""
         label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
         # the server and every stack, per page input, times 72 Hz: what N participants need at full rate
         # (not drawn where fewer than 90 % of the inputs arrived: the bench's pages were starved too)
@@ -534,7 +556,7 @@ def figure(rows: list[dict], path: Path) -> None:
         ax.set_xscale("log", base=2)
         ax.set_xticks(sorted({r["n"] for r in rows}), [str(v) for v in sorted({r["n"] for r in rows})])
         ax.legend(fontsize=7)
-    fig.suptitle(f"bench_serve on a shared {cores}-core machine (load {os.getloadavg()[0]:.0f}); more participants: "
+    fig.suptitle(f"bench_serve on a shared {cores}-core machine; more participants: "
                  "more servers, each its own --out, links split among them", fontsize=9)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -606,7 +628,8 @@ def main() -> None:
                   f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
                   f"{n * r['cpu_at_rate']:.1f} cores for N={n}; the simulated pages took {100 * r['pages_cpu']:.0f}% of a "
                   "core of this machine beside it", flush=True)
-            print(f"      real-time loops (SCHED_FIFO): {r['realtime_loops']} processes (the server and its containers)",
+            print(f"      real-time loops (SCHED_FIFO): {r['realtime_loops']} processes (the server and its containers); "
+                  f"the simulated pages {f'SCHED_FIFO {PAGES_PRIORITY}, below them' if r['pages_realtime'] else f'at nice {os.nice(0)}'}",
                   flush=True)
             print("      per participant: " + ", ".join(
                 f"{name} {count:.0f}x {100 * c:.0f}% {mb:.0f} MB" for name, (c, mb, count) in sorted(r["by_role"].items())),

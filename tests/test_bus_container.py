@@ -158,6 +158,26 @@ def test_a_realtime_group_raises_its_containers_loop_thread_alone_and_a_plain_on
             pool.close()
 
 
+def test_a_realtime_group_where_that_is_not_permitted_loads_at_normal_priority_and_says_so(tmp_path, monkeypatch, caplog):
+    asked = []
+    monkeypatch.setattr(container_module, "raise_loop_priority", lambda: asked.append(1) or False)
+    with running_broker() as bus:
+        executor = Executor()
+        box = Container(executor, bus.for_clients())
+        try:
+            for gid in ("A", "B"):
+                talker, listener = _pair()
+                box.load({"load": gid, "namespace": gid, "nodes": [{**talker, "realtime": True}, listener],
+                          "ready_file": str(tmp_path / f"{gid}.ready")})
+                assert _said(tmp_path / f"{gid}.ready") == "ready"
+            assert asked == [1]                  # asked once, at the first such group
+            assert "A: real-time priority not permitted (needs root or CAP_SYS_NICE)" in caplog.text
+            assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == os.SCHED_OTHER
+        finally:
+            box.unload_all()
+            executor.close()
+
+
 def test_a_node_that_asks_to_stop_restarts_its_own_group_and_the_others_run_on(tmp_path, monkeypatch):
     monkeypatch.setattr(container_module, "RESPAWN_DELAY_S", 0.1)
     with running_broker() as bus:

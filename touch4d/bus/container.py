@@ -20,8 +20,10 @@ Commands come on stdin, one JSON object a line:
   {"unload": ID}
       its nodes shut down, in reverse order; the others spin on.
 A node that asks to stop (`Node.request_shutdown`) stops its own group, which is loaded again after
-RESPAWN_DELAY_S, as a launcher restarts a group's process. End of stdin (the supervisor gone),
-SIGINT or SIGTERM: every group is unloaded and the process exits.
+RESPAWN_DELAY_S, as a launcher restarts a group's process. A group with a `realtime` node (an
+entry's "realtime": true) raises the container's loop thread, and it alone, to SCHED_FIFO where
+permitted. End of stdin (the supervisor gone), SIGINT or SIGTERM: every group is unloaded and the
+process exits.
 
 Loads and unloads run between spins (`Executor.interrupt`): a page server binds its port while the
 loop is not running. Meanwhile the other groups wait: a load costs them the time its nodes take to

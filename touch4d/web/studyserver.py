@@ -41,9 +41,9 @@ from aiohttp import web
 
 from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.container import ContainerPool
-from touch4d.bus.realtime import PRIORITY, raise_loop_priority
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
+from touch4d.bus.realtime import PRIORITY, raise_loop_priority
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
