@@ -81,7 +81,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu import cpu_seconds  # noqa: E402
 
 from touch4d import eventloop  # noqa: E402
-from touch4d.bus.realtime import PRIORITY, raise_loop_priority, reset_thread_priority  # noqa: E402
+from touch4d.bus.realtime import LOOP_PRIORITY, raise_loop_priority, reset_thread_priority  # noqa: E402
 from touch4d.web.protocol import frame_header  # noqa: E402
 from touch4d.web.wiretrace import Move, pose_to_pulse  # noqa: E402
 
@@ -92,7 +92,7 @@ INSIDE = [0.0, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]      # the grip at the screen's c
 OUTSIDE = [0.6, 1.2, -0.45, 0.0, 0.0, 0.0, 1.0]     # beside the screen
 TOGGLE_S = 0.3
 DELAY_S = 0.025                                      # each way: 50 ms round trip
-PAGES_PRIORITY = PRIORITY - 5   # in a real-time round the pages run SCHED_FIFO below the server's loops
+PAGES_PRIORITY = LOOP_PRIORITY - 4   # in a real-time round the pages run SCHED_FIFO below the server's loops
 PAGES_NICE = 10        # the simulated pages run this much nicer than the server and its stacks: on a real
                        # deployment the headsets are elsewhere; here they share the cores, and must not
                        # take them from the server they measure (the server's priority is restored in

@@ -12,6 +12,11 @@ import os
 import zmq
 
 PRIORITY = 10  # low among real-time priorities: above every normal process, below kernel threads
+# A loop that many nodes share (a container's, a study server's) runs one below the threads that feed
+# it (ZeroMQ's I/O threads, a recorder's receiver, the broker: PRIORITY): a FIFO thread is never
+# preempted by one of its own priority, so a loop that spun waiting for their work on their core
+# would wait for ever; below them, they always get to run.
+LOOP_PRIORITY = PRIORITY - 1
 
 
 def raise_thread_priority(priority: int = PRIORITY) -> bool:
@@ -23,7 +28,7 @@ def raise_thread_priority(priority: int = PRIORITY) -> bool:
     return True
 
 
-def raise_loop_priority(priority: int = PRIORITY) -> bool:
+def raise_loop_priority(priority: int = LOOP_PRIORITY) -> bool:
     """Make the calling thread, and it alone, SCHED_FIFO at `priority`: the threads and processes it
     starts afterwards run at normal priority (SCHED_RESET_ON_FORK), so a loop shared by many nodes
     (a container's, a study server's) preempts their background threads (a recorder's writer)

@@ -43,7 +43,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.container import ContainerPool
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
-from touch4d.bus.realtime import PRIORITY, raise_loop_priority
+from touch4d.bus.realtime import LOOP_PRIORITY, raise_loop_priority
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
@@ -709,7 +709,7 @@ class StudyServer:
         if not any(spec.realtime for spec in stack):
             return
         if raise_loop_priority():
-            log.info("the server's loop runs at real-time priority (SCHED_FIFO %d)", PRIORITY)
+            log.info("the server's loop runs at real-time priority (SCHED_FIFO %d)", LOOP_PRIORITY)
         else:
             log.warning("real-time priority not permitted (needs root or CAP_SYS_NICE): the server's loop and "
                         "the participants' runs at normal priority")
