@@ -456,7 +456,7 @@ async def run_round(n: int, seconds: float, delay: float, study: bool = False, p
                     "cpu_per_participant": (c1 - c0) / (w1 - w0) / n, "pages_cpu": pages_cpu,
                     "server_p50": pct(srv, 50), "server_p99": pct(srv, 99), "server_moves": len(srv),
                     "server_missed": missed, "by_role": by_role,
-                    "realtime_loops": f"{len(fifo)} of {len(pids)}", "pages_realtime": pages_realtime,
+                    "realtime_loops": len(fifo), "processes": len(pids), "pages_realtime": pages_realtime,
                     "server_p99_joins": pct(np.array(with_joins) * 1000, 99), "moves_joins": len(with_joins),
                     "server_cpu": (s1 - s0) / (w1 - w0), "server_mb": server_mb,
                     "inputs_per_s": inputs / (w1 - w0) / n,
@@ -531,8 +531,8 @@ def figure(rows: list[dict], path: Path) -> None:
         rs = sorted((r for r in rows if (r.get("label", ""), r["delay_ms"]) == (name, delay)), key=lambda r: r["n"])
         n = [r["n"] for r in rs]
         style = ("o-", "s--", "^:", "v-.")[k % 4]
-        if not name and any(r.get("pages_realtime") is not None for r in rs):
-            name = "real-time loops" if any(r.get("realtime_loops", "0 of").split()[0] != "0" for r in rs) else ""
+        if not name and any(r.get("realtime_loops") for r in rs):
+            name = "real-time loops"
         label = (f"+{delay:.0f} ms round trip" if delay else "loopback") + (f", {name}" if name else "")
         # the server and every stack, per page input, times 72 Hz: what N participants need at full rate
         # (not drawn where fewer than 90 % of the inputs arrived: the bench's pages were starved too)
@@ -628,7 +628,7 @@ def main() -> None:
                   f"{100 * r['cpu_at_rate']:.0f}% of a core per participant at {RATE_HZ:.0f} Hz, "
                   f"{n * r['cpu_at_rate']:.1f} cores for N={n}; the simulated pages took {100 * r['pages_cpu']:.0f}% of a "
                   "core of this machine beside it", flush=True)
-            print(f"      real-time loops (SCHED_FIFO): {r['realtime_loops']} processes (the server and its containers); "
+            print(f"      real-time loops (SCHED_FIFO): {r['realtime_loops']} of {r['processes']} processes (the server and its containers); "
                   f"the simulated pages {f'SCHED_FIFO {PAGES_PRIORITY}, below them' if r['pages_realtime'] else f'at nice {os.nice(0)}'}",
                   flush=True)
             print("      per participant: " + ", ".join(
