@@ -11,12 +11,13 @@ import csv
 import json
 import logging
 import threading
+import time
 
 import aiohttp
 import pytest
 
 from touch4d.bus import Node
-from touch4d.bus.testing import collect
+from touch4d.bus.testing import collect, wait_until
 from touch4d.messages import StudyCommand
 from touch4d.web.invites import Invites
 from touch4d.web.protocol import MAX_PAGE_MESSAGE, pack_frame
@@ -38,9 +39,11 @@ class Stack:
         self.port = self.page.start()
 
 
-def served(tmp_path, body, **kw):
+def served(tmp_path, body, expect: int, **kw):
     """Run `body(server, stack, url, session)` against a study server whose P01 runs `Stack`; returns
-    the pause/resume commands P01's study node was sent."""
+    the pause/resume commands P01's study node was sent: once `expect` of them have arrived (the
+    server sends them from its node's thread, so the last may still be on its way when `body` ends),
+    and any that follow within a moment, or what came in 10 s."""
     server = _server(tmp_path, **kw)
     token = Invites(tmp_path).issue("P01")
     server._load_invites()
@@ -60,6 +63,11 @@ def served(tmp_path, body, **kw):
                     assert response.status == 200 and '<canvas id="view">' in await response.text()
                 await body(server, stack, url, session)
         _serving(server, main)
+        try:
+            wait_until(lambda: len(heard) >= expect, timeout=10)
+            time.sleep(0.3)    # an unexpected extra command would come as soon
+        except TimeoutError:
+            pass               # the test's assertion shows what came
     finally:
         stack.page.stop()
         _reap(proc)
@@ -108,7 +116,7 @@ def test_messages_and_frames_pass_unchanged_a_second_page_gets_503_and_a_close_p
             assert response.status == 400
         assert len(stack.opened) == 2
 
-    commands = served(tmp_path, body, wire_trace=trace_path)
+    commands = served(tmp_path, body, expect=3, wire_trace=trace_path)
     assert commands == ["pause", "resume", "pause"]
     rows = list(csv.reader(open(trace_path, newline="")))
     assert [r[:3] for r in rows] == [["P01", "in", "1234.5"], ["P01", "out", "0.75"]]
@@ -157,7 +165,7 @@ def test_a_headset_that_vanished_is_noticed_by_the_page_servers_heartbeat_and_no
         assert kinds <= {aiohttp.WSMsgType.PING, aiohttp.WSMsgType.CLOSE} and aiohttp.WSMsgType.PING in kinds
         assert b"HTTP/1.1" not in rest
 
-    assert served(tmp_path, body) == ["pause"]
+    assert served(tmp_path, body, expect=1) == ["pause"]
     noise = [r for r in caplog.records if r.name.startswith(("aiohttp", "asyncio")) and
              (r.levelno >= logging.INFO or "disconnection" in r.getMessage())]
     assert not noise, [r.getMessage() for r in noise]
