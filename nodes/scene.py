@@ -53,7 +53,8 @@ class SceneNode(Node):
         self.pub = self.create_publisher("scene/state", SceneState)
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
-        self.create_timer(1.0 / p["rate"], self.publish)
+        # the steady re-publish for late joiners goes through `changed`, so it too keeps max_rate's spacing
+        self.create_timer(1.0 / p["rate"], lambda: self.changed(True))
         self.flush_due = None   # the deferred publish of a change that came under min_period after the last
         if config.spin_plane is not None:
             spin_rate = p["spin_rate"]

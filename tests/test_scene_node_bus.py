@@ -178,30 +178,38 @@ def test_a_late_joiner_gets_the_scene_within_the_steady_period(probe):
 
 
 def test_turns_faster_than_max_rate_go_out_at_most_at_that_rate_and_the_last_one_is_never_lost():
-    """A turn every 20 ms for a second at max_rate 4 Hz: the turning states are at least a quarter
-    second apart (not one per change), and the last turn goes out within one such period."""
+    """A turn every 20 ms for over a second at max_rate 4 Hz: the turning states are at least a quarter
+    second apart (not one per change), yet they keep coming while the hand turns (not only the last),
+    and the last turn goes out within about one such period, long before the 2 s re-publish."""
     with running_broker() as bus:
         params = {"scene": "config/scenes/multi-object.yaml", "gains": {"translation": GAIN, "rotation": 1.0},
                   "rate": 0.5, "max_rate": 4.0}
         with node_process("scene", bus, params=params):
             p = Probe(bus)
             arrivals = []
-            p.node.create_subscription("scene/state", SceneState, lambda m: arrivals.append((time.monotonic(), m)))
+            # (when each state was published, by its stamp; when the probe saw it, which a loaded machine delays)
+            p.node.create_subscription("scene/state", SceneState, lambda m: arrivals.append((m.stamp, time.monotonic(), m)))
             try:
                 before = p.latest()
                 p.hold_still(CENTER)
-                for k in range(1, 51):
+                # keep turning for 1.2 s after the first turn is seen: a loaded machine may start the node's
+                # handling late, and the window then still holds the node at work
+                k, first_seen, deadline = 0, None, time.monotonic() + 20
+                while time.monotonic() < deadline and (first_seen is None or time.monotonic() - first_seen < 1.2):
+                    k += 1
                     p.send(CENTER + [0.001 * k, 0, 0], pause=0.02)
-                last_sent = time.monotonic()
+                    if first_seen is None and any(m.revision > before.revision for _, _, m in arrivals):
+                        first_seen = time.monotonic()
+                last_sent = time.time()
                 p.settle(1.0)
-                turns = [(t, m) for t, m in arrivals if m.revision > before.revision]
+                turns = [(stamp, m) for stamp, _, m in arrivals if m.revision > before.revision]
                 revisions = sorted({m.revision for _, m in turns})
                 changes = [next(t for t, m in turns if m.revision == r) for r in revisions]
-                assert 3 <= len(changes) <= 6, np.diff(changes)       # ~1 s at 4 Hz, not 50
+                assert 3 <= len(changes) <= (changes[-1] - changes[0]) / 0.2 + 1, np.diff(changes)   # ~4 Hz, not 50
                 assert min(np.diff(changes)) >= 0.2
                 final = turns[-1][1]
-                assert next(t for t, m in turns if m.revision == final.revision) - last_sent <= 0.35
+                assert next(t for t, m in turns if m.revision == final.revision) - last_sent <= 0.5
                 _, d = planes_of(before.objects[0]["orientation"], final.objects[0]["orientation"])
-                assert np.arctan2(d[3, 0], d[0, 0]) == pytest.approx(GAIN * 0.05)   # the last sample's turn
+                assert np.arctan2(d[3, 0], d[0, 0]) == pytest.approx(GAIN * 0.001 * k)   # the last sample's turn
             finally:
                 p.node.shutdown()
