@@ -50,7 +50,7 @@ from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.process import GroupError, _configure, _tell_ready, group_members
-from touch4d.bus.realtime import LOOP_PRIORITY, raise_loop_priority
+from touch4d.bus.realtime import LOOP_PRIORITY, NOT_PERMITTED, raise_loop_priority
 
 log = logging.getLogger("container")
 
@@ -213,8 +213,7 @@ class Container:
             self._log(group).info("%s: the container's loop runs at real-time priority (SCHED_FIFO %d) from now on",
                                   group.id, LOOP_PRIORITY)
         else:
-            self._log(group).warning("%s: real-time priority not permitted (needs root or CAP_SYS_NICE): the "
-                                     "container's loop runs at normal priority", group.id)
+            self._log(group).warning("%s: %s: the container's loop runs at normal priority", group.id, NOT_PERMITTED)
 
     def unload(self, gid: str) -> None:
         """Shut a group's nodes down (reverse order); an unknown id: nothing."""

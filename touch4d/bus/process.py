@@ -25,7 +25,7 @@ from touch4d.bus import names
 from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
-from touch4d.bus.realtime import PRIORITY, raise_thread_priority
+from touch4d.bus.realtime import NOT_PERMITTED, PRIORITY, raise_thread_priority
 from touch4d.errors import Touch4dError, Unavailable
 
 LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
@@ -156,8 +156,7 @@ def _configure(args: argparse.Namespace, name: str) -> None:
         if raise_thread_priority():
             logging.getLogger(name).info("real-time priority (SCHED_FIFO %d)", PRIORITY)
         else:
-            logging.getLogger(name).warning(
-                "real-time priority not permitted (needs root or CAP_SYS_NICE): running at normal priority")
+            logging.getLogger(name).warning("%s: running at normal priority", NOT_PERMITTED)
 
 
 def _params_object(text: str, where: str, kind: type = dict):

@@ -19,25 +19,24 @@ PRIORITY = 10  # low among real-time priorities: above every normal process, bel
 LOOP_PRIORITY = PRIORITY - 1
 
 
-def raise_thread_priority(priority: int = PRIORITY) -> bool:
-    """Make the calling thread SCHED_FIFO at `priority`; False (and unchanged) if not permitted."""
+NOT_PERMITTED = "real-time priority not permitted (needs root or CAP_SYS_NICE)"   # what the logs say then
+
+
+def raise_thread_priority(priority: int = PRIORITY, *, alone: bool = False) -> bool:
+    """Make the calling thread SCHED_FIFO at `priority`; False (and unchanged) if not permitted.
+    `alone`: the threads and processes it starts afterwards run at normal priority (SCHED_RESET_ON_FORK)."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, os.SCHED_FIFO | (os.SCHED_RESET_ON_FORK if alone else 0), os.sched_param(priority))
     except (OSError, AttributeError):
         return False
     return True
 
 
 def raise_loop_priority(priority: int = LOOP_PRIORITY) -> bool:
-    """Make the calling thread, and it alone, SCHED_FIFO at `priority`: the threads and processes it
-    starts afterwards run at normal priority (SCHED_RESET_ON_FORK), so a loop shared by many nodes
-    (a container's, a study server's) preempts their background threads (a recorder's writer)
-    instead of lending them its priority. False (and unchanged) if not permitted."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
-    except (OSError, AttributeError):
-        return False
-    return True
+    """A loop shared by many nodes (a container's, a study server's): the calling thread alone at
+    `priority`, so it preempts their background threads (a recorder's writer) instead of lending them
+    its priority. False (and unchanged) if not permitted."""
+    return raise_thread_priority(priority, alone=True)
 
 
 def reset_thread_priority() -> None:

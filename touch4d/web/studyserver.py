@@ -43,7 +43,7 @@ from touch4d.bus import Broker, BusConfig, Node
 from touch4d.bus.container import ContainerPool
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
-from touch4d.bus.realtime import LOOP_PRIORITY, raise_loop_priority
+from touch4d.bus.realtime import LOOP_PRIORITY, NOT_PERMITTED, raise_loop_priority
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
@@ -711,15 +711,14 @@ class StudyServer:
         if raise_loop_priority():
             log.info("the server's loop runs at real-time priority (SCHED_FIFO %d)", LOOP_PRIORITY)
         else:
-            log.warning("real-time priority not permitted (needs root or CAP_SYS_NICE): the server's loop and "
-                        "the participants' runs at normal priority")
+            log.warning("%s: the server's loop and the participants' run at normal priority", NOT_PERMITTED)
 
     def run(self) -> int:
         stack = self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
         with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
-            self._raise_priority(stack)   # after the bus's threads started: they keep normal priority
+            self._raise_priority(stack)   # this thread alone: the bus's threads keep their own priorities
             try:
                 with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
                     runner.run(self._serve())
