@@ -110,3 +110,21 @@ def test_an_empty_pilot_or_a_pilot_of_another_study_is_a_clear_error(tmp_path, c
                    observer=ModelObserver(glove, study, train_scenes=3, train_positions=6, view_scenes=6))
     assert main(["study", "fit", str(pilot), "--study", "config/studies/paper.yaml", "--workers", "0"]) != 0
     assert "expected the study of the pilot's sessions (lookalikes), got 'paper'" in capsys.readouterr().err
+
+
+def test_an_interval_at_a_parameters_bound_says_it_is_open_there_not_certain():
+    from touch4d.study.pilotfit import summary_text
+
+    surface = closed_form_surface()
+    perfect = fit_participant(surface, {cell: (60, 60) for cell in surface.values})   # no lapse seen: lapse 0
+    assert perfect["lapse"]["estimate"] == 0.0
+    # three participants with the same estimate: the noises vary less than their own error, spread 0
+    alike = {f"P{i}": {"noise": {"estimate": 0.3, "ci95": [0.2, 0.45]}, "visual_noise": {"estimate": 1.0},
+                       "lapse": {"estimate": 0.02}} for i in range(3)}
+    population = population_of(alike, bootstrap=50)
+    assert population["spread"] == 0.0 and population["spread_ci95"] == [0.0, 0.0]
+    text = summary_text({"study": "synthetic", "participants": {"P01": perfect}, "population": population})
+    assert "[0, 0]" not in text and "<0," not in text, text
+    assert "spread 0 [0 (bound), 0 (bound)] at the bound" in text, text
+    participant = next(line for line in text.splitlines() if line.startswith("P01"))
+    assert "0 [0 (bound), " in participant and "at the bound" in participant, participant

@@ -170,20 +170,21 @@ def tilt_name(level: float) -> str:
     return f"tilt{level:+g}"
 
 
-def study_file_path(name) -> Path:
+def study_file_path(name, named_in=COMMAND_LINE, *, key: str = "STUDY") -> Path:
     """The study file a user named: a path, or a bare name such as `paper` for
     `config/studies/paper.yaml` (a path wins when it exists; the name is then found like any path,
-    yours first, else the packaged one), as `touch4d launch demo` finds launch/demo.yaml."""
-    given = Path(name)
-    if len(given.parts) == 1 and not given.suffix and not given.exists():
+    yours first, else the packaged one), as `touch4d launch demo` finds launch/demo.yaml. The one
+    place a study's name becomes its file: every command and node that takes a study goes through it."""
+    given = Path(name) if isinstance(name, (str, Path)) else None
+    if given is not None and len(given.parts) == 1 and not given.suffix and not given.exists():
         try:
-            return resolve_path(f"{STUDIES}/{name}.yaml", COMMAND_LINE, key="STUDY", what="study file")
+            return resolve_path(f"{STUDIES}/{name}.yaml", named_in, key=key, what="study file")
         except PathNotFound as exc:
             near = [Path(n).stem for n in exc.near]
-            raise ConfigError(COMMAND_LINE, "STUDY", f"a study file: a path, or the name of one in {STUDIES}/ "
+            raise ConfigError(named_in, key, f"a study file: a path, or the name of one in {STUDIES}/ "
                               f"({', '.join(study_names()) or 'none found'})", got=name, detail=exc.detail,
                               hint=f"did you mean {' or '.join(repr(n) for n in near)}?" if near else None) from None
-    return resolve_path(name, COMMAND_LINE, key="STUDY", what="study file")
+    return resolve_path(name, named_in, key=key, what="study file")
 
 
 def study_names() -> list[str]:
@@ -194,9 +195,10 @@ def study_names() -> list[str]:
                    for p in folder.glob("*.yaml")})
 
 
-def load_study(path=None) -> Study:
-    """Read and check a study file (default: the paper's study), found by `resolve_path`."""
-    path = resolve_path(path if path is not None else DEFAULT_STUDY, what="study file")
+def load_study(path=None, named_in=COMMAND_LINE, *, key: str = "STUDY") -> Study:
+    """Read and check a study file (default: the paper's study): a path or a packaged study's name,
+    found by `study_file_path` (`named_in`, `key`: who named it, for errors)."""
+    path = study_file_path(path if path is not None else DEFAULT_STUDY, named_in, key=key)
     return parse_study(schema.read_yaml(path, "study file"), path)
 
 

@@ -277,27 +277,40 @@ def population_of(participants: dict, *, seed: int = 0, bootstrap: int = 500) ->
             "participants": len(fits)}
 
 
+def interval_text(estimate: float, low: float, high: float, *, open_low: bool = False, open_high: bool = False,
+                  bound: float | None = None) -> str:
+    """`estimate [low, high]`, an end open at the grid's end marked < or >, an end at the parameter's
+    least value `bound` (a lapse or a spread of 0) marked `(bound)` and an estimate there `at the bound`:
+    the data put it below what they can tell apart, which is not certainty that it is exactly that."""
+    at = (lambda x: bound is not None and x <= bound)
+    lo = f"{low:.3g} (bound)" if at(low) else ("<" if open_low else "") + f"{low:.3g}"
+    hi = f"{high:.3g} (bound)" if at(high) else (">" if open_high else "") + f"{high:.3g}"
+    return f"{estimate:.3g} [{lo}, {hi}]" + (" at the bound" if at(estimate) else "")
+
+
 def summary_text(fit: dict) -> str:
     lines = [f"{fit['study']}: {len(fit['participants'])} participants fitted (maximum likelihood, 95% profile "
-             f"intervals; < or > marks an interval open at the grid's end)"]
+             f"intervals; < or > marks an interval open at the grid's end, (bound) one open at the parameter's "
+             f"least value: the true value may lie above it)"]
     lines.append(f"{'participant':<12} {'trials':>6}  {'touch noise':<24} {'visual noise':<24} {'lapse':<22}")
 
-    def show(p):
-        low = ("<" if p["open_low"] else "") + f"{p['ci95'][0]:.3g}"
-        high = (">" if p["open_high"] else "") + f"{p['ci95'][1]:.3g}"
-        return f"{p['estimate']:.3g} [{low}, {high}]"
+    def show(p, bound=None):
+        return interval_text(p["estimate"], *p["ci95"], open_low=p["open_low"], open_high=p["open_high"],
+                             bound=bound)
 
     for name, own in fit["participants"].items():
         lines.append(f"{name:<12} {own['trials']:>6}  {show(own['noise']):<24} {show(own['visual_noise']):<24} "
-                     f"{show(own['lapse']):<22}")
+                     f"{show(own['lapse'], bound=0.0):<22}")
     population = fit["population"]
     ci = population["spread_ci95"]
+    spread = interval_text(population["spread"], *ci, bound=0.0) if ci else f"{population['spread']:.3g}"
     lines.append(f"population: touch noise {population['noise']:.3g}, visual noise {population['visual_noise']:.3g}, "
-                 f"lapse {population['lapse']:.3g}, spread {population['spread']:.3g}"
-                 + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else ""))
+                 f"lapse {population['lapse']:.3g}, spread {spread}"
+                 + (" (no spread beyond the estimates' own error found, not proof of none)"
+                    if population["spread"] <= 0 else ""))
     return "\n".join(lines)
 
 
 __all__ = ["Surface", "accuracy_surface", "dense_accuracy", "cell_counts", "log_likelihood", "fit_participant",
            "fit_pilot",
-           "population_of", "observer_with", "summary_text"]
+           "population_of", "observer_with", "interval_text", "summary_text"]

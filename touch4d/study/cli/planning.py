@@ -9,6 +9,8 @@ from pathlib import Path
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
+from . import _study          # a study file or a packaged study's name, as every study command takes it
+
 
 def register(sub, *, count, count0, probability) -> None:
     """Add `power` and `fit` to `touch4d study`'s subcommands (`count` etc.: cli's argument types)."""
@@ -19,7 +21,7 @@ def register(sub, *, count, count0, probability) -> None:
                                        "find each condition effect per task and the tilt threshold's interval "
                                        "width. Writes DIR/power.json and DIR/report.html; an interrupted run "
                                        "resumes from DIR/cache.")
-    power.add_argument("study", metavar="STUDY", help="study file")
+    power.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     power.add_argument("--fit", metavar="FIT.json", help="the population of a pilot (touch4d study fit --out)")
     power.add_argument("--participants", type=_sizes, default=[4, 8, 12, 16, 24], metavar="N,N,...",
                        help="sample sizes (default 4,8,12,16,24)")
@@ -49,7 +51,7 @@ def register(sub, *, count, count0, probability) -> None:
                                      "accuracy simulated on a grid of noises), with 95% profile intervals, and the "
                                      "population's spread. --out FIT.json feeds `study power --fit`.")
     fit.add_argument("dir", metavar="PILOT_DIR", help="folder of the pilot's session folders (trials.csv each)")
-    fit.add_argument("--study", metavar="STUDY", help="study file (default: the one the sessions' manifest.json names)")
+    fit.add_argument("--study", metavar="STUDY", help="study file or packaged name (default: the one the sessions' manifest.json names)")
     fit.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
     fit.add_argument("--points", type=count, default=7, metavar="N",
                      help="grid points per noise axis of the simulated accuracy (default 7)")
@@ -82,7 +84,7 @@ def register_glove_design(sub) -> None:
                                         "file (boards and channels assigned) and its DBC; compare with random "
                                         "layouts of K and the glove's own layout.")
     design.add_argument("--motors", required=True, type=motors, metavar="K", help="number of motors")
-    design.add_argument("--study", required=True, metavar="STUDY", help="study file")
+    design.add_argument("--study", required=True, metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     design.add_argument("--glove", metavar="FILE", help="the glove to redesign (default: config/glove.yaml)")
     design.add_argument("--task", action="append", metavar="ID", help="only this task (repeatable)")
     design.add_argument("--regions", nargs="+", metavar="REGION",
@@ -143,12 +145,6 @@ def cluster_of(args):
     from ..fanout import Cluster
 
     return Cluster(workers=args.workers, scheduler=args.scheduler)
-
-
-def _study(path):
-    from ..design import DEFAULT_STUDY, load_study
-
-    return load_study(resolve_path(path or DEFAULT_STUDY, COMMAND_LINE, key="STUDY", what="study file"))
 
 
 def _glove(path):
