@@ -79,7 +79,7 @@ def register(subparsers) -> None:
                                        "(`touch4d study invite`); each gets a stack of their own under their "
                                        "namespace, writing DIR/ID/ as `study run` does. Prints the experimenter's "
                                        "link. Behind a reverse proxy with a real certificate: --public-url.")
-    serve.add_argument("study", metavar="STUDY", help="study file")
+    serve.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     serve.add_argument("items", nargs="*", metavar="ROLE.PARAM:=VALUE", help="overrides for each participant's "
                        "stack (launch/study-serve.yaml), e.g. study.iti_s:=1")
     serve.add_argument("--out", required=True, metavar="DIR", help="output folder: links, one session folder each")
@@ -119,7 +119,7 @@ def register(subparsers) -> None:
                                           "maximum-likelihood from the confusion matrix) per task by an observer "
                                           "trained on the glove's motor patterns at random hand positions, "
                                           "tested on new scenes and positions.")
-    transfer.add_argument("study", metavar="STUDY", help="study file")
+    transfer.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
     transfer.add_argument("--glove", metavar="FILE", action="append",
                           help="glove file (default: config/glove.yaml); repeat to compare gloves side by side")
     transfer.add_argument("--every-sample", action="store_true",
@@ -156,9 +156,17 @@ def register(subparsers) -> None:
 
 
 def _study(path):
-    from ..design import DEFAULT_STUDY, load_study, study_file_path
+    """The study a command was given: a file, or a packaged study's name (`design.study_file_path`)."""
+    from ..design import load_study
 
-    return load_study(study_file_path(path or DEFAULT_STUDY))
+    return load_study(path or None)
+
+
+def _study_path(path):
+    """The file of the study a command was given (`design.study_file_path`, as `_study` reads it)."""
+    from ..design import study_file_path
+
+    return study_file_path(path)
 
 
 def run_check(args) -> int:
@@ -373,7 +381,7 @@ def _glove_name(path: str) -> str:
 def run_serve(args) -> int:
     from touch4d.web.studyserver import StudyServer
 
-    study_path = resolve_path(args.study, COMMAND_LINE, key="STUDY", what="study file")
+    study_path = _study_path(args.study)
     server = StudyServer(_study(args.study), study_path, Path(args.out), host=args.host, port=args.port,
                          max_participants=args.max_participants, public_url=args.public_url,
                          leave_after_s=args.leave_after, quick=args.quick, overrides=args.items,
