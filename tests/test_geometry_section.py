@@ -5,9 +5,8 @@ import json
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull, Delaunay
-from scipy.stats import special_ortho_group
 
-from touch4d.geometry.rotation import plane_rotation
+from touch4d.geometry.rotation import PLANES, is_rotation, plane_rotation, rotation_from_list
 from touch4d.geometry.section import SectionCaster, cross_section, kernel, w_extent
 from touch4d.geometry.shapes import get_shape, list_shapes
 
@@ -16,6 +15,14 @@ from test_geometry_cli import run
 
 def shape(name, size=1.0, orientation=None, position=None, **params):
     return get_shape(name, **params).parts[0].transformed(orientation, position, size)
+
+
+def turn(rng):
+    """A 4D rotation through all six planes by angles the seeded generator picks: the same matrix
+    wherever the test runs (a library's random rotation may differ with its version or its BLAS)."""
+    r = rotation_from_list(zip(PLANES, rng.uniform(0.0, 360.0, len(PLANES))))
+    assert is_rotation(r)
+    return r
 
 
 def same_points(a, b, tol=1e-7):
@@ -84,7 +91,7 @@ def test_a_tesseract_turned_in_xw_is_cut_in_a_longer_box(degrees):
 def test_turned_shapes_match_the_hull_of_the_crossings(name):
     rng = np.random.default_rng(sum(map(ord, name)))
     for trial in range(3):
-        r = special_ortho_group.rvs(4, random_state=rng)
+        r = turn(rng)
         body = shape(name, 1.3, r, rng.uniform(-0.5, 0.5, 4))
         lo, hi = w_extent(body.vertices)
         c = rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo))
@@ -100,7 +107,7 @@ def test_turned_shapes_match_the_hull_of_the_crossings(name):
 
 @pytest.mark.parametrize("name,volume4", [("tesseract", 1.0), ("16-cell", 2 / 3 / 16), ("24-cell", 0.5)])
 def test_the_sections_volumes_integrate_to_the_4d_volume(name, volume4):
-    body = shape(name, 1.0, special_ortho_group.rvs(4, random_state=5))
+    body = shape(name, 1.0, turn(np.random.default_rng(5)))
     # Between two successive vertex heights the section's volume is a cubic in c: Gauss-Legendre with
     # 3 nodes per piece integrates it exactly.
     nodes, weights = np.polynomial.legendre.leggauss(3)
@@ -127,7 +134,7 @@ def test_a_touching_hyperplane_gives_no_volume():
 
 def test_the_section_caster_agrees_with_the_hull():
     rng = np.random.default_rng(3)
-    body = shape("24-cell", 1.0, special_ortho_group.rvs(4, random_state=rng))
+    body = shape("24-cell", 1.0, turn(rng))
     c = 0.1
     vertices, _ = independent_section(body.vertices, c)
     points = rng.uniform(-0.8, 0.8, (4000, 3))
@@ -141,20 +148,30 @@ def test_the_section_caster_agrees_with_the_hull():
                                     ("tesseract", 0.5)])     # the unturned one: its vertices in the plane
 def test_the_batched_triangles_cover_each_section_surface(name, c):
     """Many bodies cut at once (compiled, or where vertices lie in the plane from `polygons`): per body
-    the surface and the volume of the hull of the crossings, every face wound outward."""
+    the surface and the volume of the hull of the crossings, every face wound outward; a body that
+    w = c misses gets no triangle."""
     rng = np.random.default_rng(11)
     base = get_shape(name).parts[0]
-    turn = [special_ortho_group.rvs(4, random_state=rng) for _ in range(4)] + [np.eye(4)]
-    bodies = [base.transformed(r, [0, 0, 0, 0.1 * k if k < 4 else 0.0]) for k, r in enumerate(turn)]
+    bodies = []
+    for fraction in (0.2, 0.4, 0.6, 0.8):    # turned, and moved along w so that c cuts it at this fraction
+        r = turn(rng)
+        lo, hi = w_extent(base.transformed(r).vertices)
+        bodies.append(base.transformed(r, [0, 0, 0, c - lo - fraction * (hi - lo)]))
+    bodies.append(base)                      # unturned at the origin: every catalog shape spans w -1/2 .. 1/2
+    missed = base.transformed(turn(rng))
+    bodies.append(missed.transformed(position=[0, 0, 0, c + 0.1 - w_extent(missed.vertices)[0]]))   # all above c
     k = kernel(base.topology)
     tris, owner, cell = k.triangles(np.stack([b.vertices for b in bodies]), np.stack([b.normals for b in bodies]), c)
-    for i, body in enumerate(bodies):
+    assert not (owner == len(bodies) - 1).any()
+    for i, body in enumerate(bodies[:-1]):
+        lo, hi = w_extent(body.vertices)
+        assert lo < c <= hi, (name, i)
         t = tris[owner == i]
         assert set(cell[owner == i]) <= set(range(len(body.normals)))
         area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=-1)
         vertices, volume = independent_section(body.vertices, c)
         hull = ConvexHull(vertices)
-        assert area.sum() == pytest.approx(hull.area, rel=1e-9), (name, i)
+        assert area.sum() == pytest.approx(hull.area, rel=1e-9) and hull.area > 0, (name, i)
         # divergence theorem over the outward-wound fans: the hull's volume
         assert np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6 == pytest.approx(volume, rel=1e-9)
         # wound counterclockwise seen from outside: each normal points away from the section's centre

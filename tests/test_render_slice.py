@@ -9,16 +9,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from PIL import Image
-from scipy.stats import special_ortho_group
 
 from touch4d.geometry.rotation import plane_rotation
 from touch4d.geometry.scene import Scene, SceneObject, parse_scene
+from touch4d.geometry.section import w_extent
+from touch4d.geometry.shapes import get_shape
 from touch4d.render import cli as render_cli
 from touch4d.render.camera import parse_camera
 from touch4d.render.context import create_headless_context
 from touch4d.render.frame import CELL_PALETTE, Style
 from touch4d.render.offscreen import OffscreenRenderer
 from touch4d.render.view import BACKGROUND, SceneView, Show
+
+from test_geometry_section import turn
 
 SIZE = (200, 160)
 FACE_ON = parse_camera("yaw=0,pitch=0,distance=4,target=0:0:0,ortho")
@@ -65,18 +68,21 @@ def one(shape="tesseract", size=1.0, orientation=np.eye(4), w=1.5, c=1.5, view="
 
 def random_scene(seed: int, view: str) -> Scene:
     """A few shapes of the catalog, turned, sized and placed at random in cells of a grid (so that they
-    do not interpenetrate: there clip units cannot follow), cut somewhere through them."""
+    do not interpenetrate: there clip units cannot follow), each moved along w so that the cut goes
+    through the middle half of its w extent (every object has a section to draw)."""
     rng = np.random.default_rng(seed)
     objects = []
+    c = float(rng.uniform(1.4, 1.6))
     corners = rng.permutation([[x, y, z] for x in (-0.55, 0.55) for y in (-0.55, 0.55) for z in (-0.55, 0.55)])
     for i in range(rng.integers(2, 5)):
+        name, size, orientation = str(rng.choice(SHAPES)), float(rng.uniform(0.4, 0.5)), turn(rng)
+        lo, hi = w_extent(np.vstack([p.transformed(orientation, size=size).vertices for p in get_shape(name).parts]))
         objects.append(SceneObject(            # within 0.5 of its centre (every shape of size 1 lies within 1)
-            name=f"o{i}", shape=str(rng.choice(SHAPES)), size=float(rng.uniform(0.4, 0.5)),
-            position=np.r_[corners[i] + rng.uniform(-0.04, 0.04, 3), rng.uniform(1.3, 1.7)],
-            orientation=special_ortho_group.rvs(4, random_state=rng),
+            name=f"o{i}", shape=name, size=size, orientation=orientation,
+            position=np.r_[corners[i] + rng.uniform(-0.04, 0.04, 3), c - lo - rng.uniform(0.25, 0.75) * (hi - lo)],
             color=np.r_[rng.uniform(0.2, 1, 3), 1.0]))
     projection = str(rng.choice(["orthographic", "perspective"]))
-    return Scene(objects=objects, view=view, slice_w=float(rng.uniform(1.4, 1.6)), projection=projection)
+    return Scene(objects=objects, view=view, slice_w=c, projection=projection)
 
 
 def test_a_tesseract_is_cut_in_a_cube_of_its_size(renderers):

@@ -48,7 +48,8 @@ def test_a_straight_hand_joint_set_gives_the_rigid_hands_stimulus(glove, seed):
     rng = np.random.default_rng(seed)
     caster = box_scene((0.0, 0.0, 0.0), 1.2, tilt_deg=-20).ray_caster()
     position = rng.uniform(-0.3, 0.3, 3)
-    q = Rotation.random(random_state=seed).as_quat() if seed else np.array([0.0, 0.0, 0.0, 1.0])
+    turn = Rotation.from_euler("zyx", rng.uniform(-180, 180, 3), degrees=True)   # angles the generator picks
+    q = turn.as_quat() if seed else np.array([0.0, 0.0, 0.0, 1.0])
     rigid = compute_stimulus(glove, caster, position, q)
     joints = glove.skeleton.joint_set(position, q, glove.units_per_metre)
     jointed = joint_stimulus(glove, caster, joints)
@@ -213,7 +214,8 @@ def test_each_bone_map_is_its_joints_rotation_stretched_along_the_bone(glove, ha
     the base joint; each point through its own bone's map."""
     sk = glove.skeleton
     rng = np.random.default_rng(5)
-    q = (Rotation.random(len(JOINTS), random_state=6).as_quat() * rng.uniform(0.9995, 1.0005, (len(JOINTS), 1)))
+    turns = Rotation.from_euler("zyx", rng.uniform(-180, 180, (len(JOINTS), 3)), degrees=True)   # angles: ours to pick
+    q = turns.as_quat() * rng.uniform(0.9995, 1.0005, (len(JOINTS), 1))
     q = q.astype(np.float32)
     positions = rng.normal(0.0, 0.2, (len(JOINTS), 3))
     m = sk.transforms(list(JOINTS), positions, q, handedness, scale)

@@ -5,7 +5,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.spatial import Delaunay
-from scipy.stats import special_ortho_group
 
 from touch4d.geometry.raycast import RayCaster
 from touch4d.geometry.scene import Scene, SceneObject
@@ -14,19 +13,19 @@ from touch4d.messages import HandPose
 from touch4d.tactile.engine import TactileEngine
 from touch4d.tactile.glove import load_glove
 
-from test_geometry_section import independent_section
+from test_geometry_section import independent_section, turn
 
 
 def scene(view="slice", c=1.5, touch="section", projection="orthographic", objects=None):
     objects = objects or [SceneObject(name="cube", shape="tesseract", size=1.0, position=np.array([0, 0, 0, 1.5]),
-                                      orientation=special_ortho_group.rvs(4, random_state=2))]
+                                      orientation=turn(np.random.default_rng(2)))]
     return Scene(objects=objects, view=view, slice_w=c, slice_touch=touch, projection=projection)
 
 
 def test_the_section_caster_touches_exactly_the_cross_sections():
     rng = np.random.default_rng(4)
     objects = [SceneObject(name=f"o{i}", shape=s, size=0.8, position=np.array([x, 0.1, 0, 1.5]),
-                           orientation=special_ortho_group.rvs(4, random_state=rng))
+                           orientation=turn(rng))
                for i, (s, x) in enumerate([("24-cell", -0.5), ("16-cell", 0.5)])]
     s = scene(objects=objects, c=1.45)
     caster = s.ray_caster()
