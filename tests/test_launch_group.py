@@ -1,5 +1,6 @@
 """Nodes that share a process (a launch file's `group`): one executor, one thread, restarted whole."""
 import os
+import re
 import signal
 from pathlib import Path
 from types import SimpleNamespace
@@ -149,3 +150,19 @@ def test_processes_group_nodes_in_file_order_and_leave_the_others_alone(tmp_path
 def test_a_group_process_with_bad_nodes_says_which_and_exits_2(nodes, expected, capsys):
     assert process_main(["--group", "pair", "--nodes", nodes]) == 2
     assert expected in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("nodes, expected", [
+    ([1], 'g[0]: expected an object with a "node"'),
+    ([{"node": "no_such_node", "name": "x"}], "node x: node 'no_such_node'"),
+    ([{"node": "example_talker", "name": "t", "private": "hand/pose"}], "g[0].private: expected a list of topics"),
+])
+def test_a_bad_group_list_is_a_touch4d_error_that_names_the_entry(nodes, expected):
+    """GroupError is one of touch4d's errors (reported to a user without a traceback, caught with the
+    others), and still a ValueError for code that catches that."""
+    from touch4d.bus.process import GroupError, group_members
+    from touch4d.errors import Touch4dError
+
+    with pytest.raises(GroupError, match=re.escape(expected)) as info:
+        group_members(nodes, "", "g")
+    assert isinstance(info.value, Touch4dError) and isinstance(info.value, ValueError)

@@ -117,8 +117,9 @@ def run_group(argv: list[str]) -> int:
     return _run(members, args.bus, shared=True, private=private)
 
 
-class GroupError(ValueError):
-    """A group's node list that cannot be run: the text names the entry and what was expected."""
+class GroupError(Touch4dError, ValueError):
+    """A group's node list that cannot be run: the text names the entry and what was expected (a ValueError
+    too, for code that catches that)."""
 
 
 def group_members(entries: list, namespace: str, where: str) -> tuple[list[tuple[str, type, dict]], set[str]]:
