@@ -20,6 +20,16 @@ from touch4d.tracking.calibration import load_calibration
 from touch4d.tracking.scene_control import DEFAULT_BUTTONS, ROTATE_TARGETS, ControlConfig, SceneControl
 
 
+def what_turns(control: SceneControl) -> str:
+    """What turns the scene, as the node starts: the controller (its `rotate`, none: nothing) and the spin."""
+    config = control.config
+    target = "the whole scene" if control.scene.selected < 0 else "the selected object"
+    said = ["the controller turns nothing" if config.rotate == "none" else f"the controller turns {target}"]
+    if config.spin_plane is not None and config.spin_deg_per_s != 0.0:
+        said.append(f"spinning {target} in {config.spin_plane} at {config.spin_deg_per_s:g} deg/s")
+    return "; ".join(said)
+
+
 class SceneNode(Node):
     """Holds the 4D scene and turns it with the controller."""
 
@@ -60,8 +70,7 @@ class SceneNode(Node):
             spin_rate = p["spin_rate"]
             self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
         self.publish()
-        self.log.info("scene %s: %d object(s), rotating %s", p["scene"], len(self.control.scene.objects),
-                      "the whole scene" if self.control.scene.selected < 0 else "the selected object")
+        self.log.info("scene %s: %d object(s); %s", p["scene"], len(self.control.scene.objects), what_turns(self.control))
 
     def reload_calibration(self) -> None:
         """Read the calibration again when its file changed (a headset re-centred the screen)."""

@@ -66,3 +66,23 @@ def test_bad_parameters_stop_the_node_with_the_key_named(params, key):
             wait_until(lambda: proc.proc.poll() is not None, timeout=60)
         assert proc.returncode == 2
         assert key in proc.text and "Traceback" not in proc.text
+
+
+@pytest.mark.parametrize("params, said", [
+    ({}, "the controller turns the selected object"),
+    ({"rotate": "none"}, "the controller turns nothing"),
+    ({"rotate": "none", "spin": {"plane": "xw", "deg_per_s": 6.0}},
+     "the controller turns nothing; spinning the selected object in xw at 6 deg/s"),
+    ({"rotate": "scene"}, "the controller turns the whole scene"),
+])
+def test_the_node_says_what_turns_the_scene(params, said, caplog):
+    """The start-up line names what the controller turns (nothing, with rotate: none) and the spin."""
+    import logging
+
+    from touch4d.nodes.scene import SceneNode
+
+    with running_broker() as bus, caplog.at_level(logging.INFO, logger="scene"):
+        node = SceneNode(params={"scene": "config/scenes/multi-object.yaml", **params}, bus=bus)
+        node.shutdown()
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("scene "))
+    assert line.endswith(f"3 object(s); {said}") and "rotating" not in line, line
