@@ -128,3 +128,62 @@ def test_an_interval_at_a_parameters_bound_says_it_is_open_there_not_certain():
     assert "spread 0 [0 (bound), 0 (bound)] at the bound" in text, text
     participant = next(line for line in text.splitlines() if line.startswith("P01"))
     assert "0 [0 (bound), " in participant and "at the bound" in participant, participant
+
+
+QUEST = "config/gloves/quest-controller.yaml"
+
+
+@pytest.fixture(scope="module")
+def quest_pilot(tmp_path_factory):
+    """A small pilot simulated with the controller as its glove (its manifests name it), and its fit
+    by `study fit` with no --glove (a coarse surface: the glove it used is the point, not the noise)."""
+    tmp = tmp_path_factory.mktemp("quest")
+    study, glove = load_study(STUDY), load_glove(QUEST)
+    pilot = tmp / "pilot"
+    simulate_study(study, ["P01", "P02"], pilot, glove=glove, quick=True,
+                   observer=ModelObserver(glove, study, train_scenes=3, train_positions=6, view_scenes=6))
+    out = tmp / "fit.json"
+    code = main(["study", "fit", str(pilot), "--points", "2", "--trials", "2", "--workers", "0", "--out", str(out)])
+    return pilot, out, code
+
+
+def test_fit_reads_the_pilots_glove_from_its_manifest_and_records_it(quest_pilot):
+    import hashlib
+
+    pilot, out, code = quest_pilot
+    assert code == 0
+    fit = json.loads(out.read_text())
+    assert fit["glove"].endswith("quest-controller.yaml"), fit["glove"]
+    assert fit["glove_sha256"] == hashlib.sha256(open(QUEST, "rb").read()).hexdigest()
+
+
+def test_fit_refuses_another_glove_than_the_pilots_unless_told(quest_pilot, capsys):
+    pilot, _, _ = quest_pilot
+    capsys.readouterr()
+    assert main(["study", "fit", str(pilot), "--glove", "config/glove.yaml", "--workers", "0"]) != 0
+    err = capsys.readouterr().err
+    assert "--glove" in err and "quest-controller.yaml" in err and "--glove-differs-ok" in err, err
+
+
+def test_power_refuses_a_fit_of_another_glove_unless_told(quest_pilot, tmp_path, capsys):
+    _, fit, _ = quest_pilot
+    capsys.readouterr()
+    assert main(["study", "power", STUDY, "--fit", str(fit), "--glove", "config/glove.yaml", "--quick",
+                 "--participants", "2", "--simulations", "1", "--samples", "5", "--bootstrap", "0",
+                 "--out", str(tmp_path / "power"), "--workers", "0"]) != 0
+    err = capsys.readouterr().err
+    assert str(fit) in err and "quest-controller.yaml" in err and "--glove-differs-ok" in err, err
+    from touch4d.study.cli.planning import check_fit_glove, read_fit
+
+    check_fit_glove(read_fit(fit), load_glove(QUEST), fit)          # the pilot's own glove: accepted
+    check_fit_glove(read_fit(fit), load_glove(), fit, differs_ok=True)
+    assert "fitted with" in capsys.readouterr().err
+
+
+def test_fit_with_another_glove_on_purpose_warns_and_records_that_glove(quest_pilot, tmp_path, capsys):
+    pilot, _, _ = quest_pilot
+    out = tmp_path / "other.json"
+    assert main(["study", "fit", str(pilot), "--glove", "config/glove.yaml", "--glove-differs-ok", "--points", "2",
+                 "--trials", "2", "--workers", "0", "--out", str(out)]) == 0
+    assert "not the glove the pilot ran with" in capsys.readouterr().err
+    assert json.loads(out.read_text())["glove"].endswith("config/glove.yaml")

@@ -29,7 +29,10 @@ def register(sub, *, count, count0, probability) -> None:
                        help="simulated studies per size (default 500)")
     power.add_argument("--seed", type=int, default=0, metavar="S")
     power.add_argument("--out", metavar="DIR", help="output folder (default power-<study name>)")
-    power.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    power.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml); with --fit it "
+                                                      "must be the glove the fit's pilot ran with")
+    power.add_argument("--glove-differs-ok", action="store_true",
+                       help="draw participants from a --fit made with another glove than --glove (refused otherwise)")
     power.add_argument("--quick", action="store_true", help="quick sessions (one trial per task x condition x "
                                                             "stimulus) and lighter-trained observers")
     power.add_argument("--bootstrap", type=count0, default=100, metavar="N",
@@ -52,7 +55,11 @@ def register(sub, *, count, count0, probability) -> None:
                                      "population's spread. --out FIT.json feeds `study power --fit`.")
     fit.add_argument("dir", metavar="PILOT_DIR", help="folder of the pilot's session folders (trials.csv each)")
     fit.add_argument("--study", metavar="STUDY", help="study file or packaged name (default: the one the sessions' manifest.json names)")
-    fit.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
+    fit.add_argument("--glove", metavar="FILE", help="glove file (default: the one the sessions' manifest.json "
+                                                    "names; another one is refused without --glove-differs-ok)")
+    fit.add_argument("--glove-differs-ok", action="store_true",
+                     help="fit with a --glove other than the one the pilot ran with (its noises then describe "
+                          "that glove's touch, not the pilot's)")
     fit.add_argument("--points", type=count, default=7, metavar="N",
                      help="grid points per noise axis of the simulated accuracy (default 7)")
     fit.add_argument("--trials", type=count, default=60, metavar="N",
@@ -172,8 +179,11 @@ def run_power(args) -> int:
     from ..power import Population, PowerSetup, power_curves, report_html, summary_text
 
     study = _study(args.study)
-    population = Population.from_fit(read_fit(args.fit), study, args.fit) if args.fit else Population()
+    fit = read_fit(args.fit) if args.fit else None
+    population = Population.from_fit(fit, study, args.fit) if fit else Population()
     glove = _glove(args.glove)
+    if fit:
+        check_fit_glove(fit, glove, args.fit, args.glove_differs_ok)
     out = Path(args.out or f"power-{study.name}")
     training = {"train_scenes": 4, "train_positions": 8, "view_scenes": 8} if args.quick else {}
     observer = ModelObserver(glove, study, noise=population.noise, visual_noise=population.visual_noise,
@@ -201,20 +211,28 @@ def run_power(args) -> int:
     return 0
 
 
-def pilot_study(where, given):
-    """The study of a pilot: `given`, or the study file its sessions' manifest.json names; a pilot of
-    another study than `given` is a ConfigError."""
-    from ..design import load_study
+def pilot_manifests(where) -> list[tuple[Path, dict]]:
+    """Each session's manifest.json of a pilot (those that read as a JSON object) with its path."""
     from ..table import find_tables
 
-    named = {}
+    out = []
     for table in find_tables(where):
         manifest = table.parent / "manifest.json"
         try:
             data = json.loads(manifest.read_text())
-            named[str(data["study"])] = data.get("study_file")
-        except (OSError, ValueError, KeyError, TypeError):
+        except (OSError, ValueError):
             continue
+        if isinstance(data, dict):
+            out.append((manifest, data))
+    return out
+
+
+def pilot_study(where, given):
+    """The study of a pilot: `given`, or the study file its sessions' manifest.json names; a pilot of
+    another study than `given` is a ConfigError."""
+    from ..design import load_study
+
+    named = {str(data["study"]): data.get("study_file") for _, data in pilot_manifests(where) if "study" in data}
     if given:
         study = _study(given)
         if named and study.name not in named:
@@ -225,6 +243,92 @@ def pilot_study(where, given):
         raise ConfigError(COMMAND_LINE, "--study", "the pilot's study file (its sessions' manifest.json name "
                           + ("several studies" if len(named) > 1 else "none") + ")")
     return load_study(next(iter(named.values())))
+
+
+EVERY_SAMPLE = " (a motor at every sample)"      # observer.every_sample_glove's mark on a glove's path
+
+
+def glove_record(glove) -> dict:
+    """What a result records of the glove it was computed with: its file, the file's sha256, and
+    whether it was given a motor at every sample (`every_sample_glove`)."""
+    from ..manifest import sha256_file
+
+    base = str(glove.path).removesuffix(EVERY_SAMPLE)
+    return {"glove": str(glove.path), "glove_sha256": sha256_file(base) if Path(base).is_file() else None,
+            "every_sample": str(glove.path).endswith(EVERY_SAMPLE)}
+
+
+def pilot_glove(where, given, differs_ok: bool = False):
+    """The glove a pilot ran with, as its sessions' manifest.json name it (`glove_file`,
+    `glove_sha256`); `given` (--glove) that is another glove is a ConfigError unless `differs_ok`
+    (then a warning). Sessions that name no glove: `given`, or the default, with a note."""
+    import sys
+
+    from ..observer import every_sample_glove
+
+    ran = {}
+    for manifest, data in pilot_manifests(where):
+        if isinstance(data.get("glove_file"), str) and data["glove_file"]:
+            ran.setdefault((data["glove_file"], data.get("glove_sha256")), manifest)
+    if len(ran) > 1:
+        raise ConfigError(where, "manifest.json: glove_file", "a pilot whose sessions ran with one glove",
+                          got="; ".join(f"{file} ({manifest.parent.name})" for (file, _), manifest in ran.items()))
+    if not ran:
+        glove = _glove(given)
+        print(f"note: the pilot's sessions name no glove (manifest.json glove_file): fitting with {glove.path}",
+              file=sys.stderr)
+        return glove
+    (file, sha), manifest = next(iter(ran.items()))
+    if given:
+        glove = _glove(given)
+        record = glove_record(glove)
+        ran_as = {"glove_sha256": sha or _sha256_or_none(file.removesuffix(EVERY_SAMPLE)),
+                  "every_sample": file.endswith(EVERY_SAMPLE)}
+        if record["glove_sha256"] == ran_as["glove_sha256"] and not ran_as["every_sample"]:
+            return glove
+        if not differs_ok:
+            raise ConfigError(COMMAND_LINE, "--glove", f"the glove the pilot ran with ({file}, {manifest})",
+                              got=given, hint="leave --glove out to fit with the pilot's glove, or add "
+                                              "--glove-differs-ok to fit it with another glove on purpose")
+        print(f"warning: fitting with {glove.path}, not the glove the pilot ran with ({file}): --glove-differs-ok",
+              file=sys.stderr)
+        return glove
+    glove = _glove_at(file.removesuffix(EVERY_SAMPLE), manifest)
+    if sha and glove_record(glove)["glove_sha256"] != sha:
+        print(f"warning: {glove.path} changed since the pilot ran with it ({manifest}: glove_sha256)", file=sys.stderr)
+    return every_sample_glove(glove) if file.endswith(EVERY_SAMPLE) else glove
+
+
+def _glove_at(path, manifest):
+    from touch4d.tactile import load_glove
+
+    return load_glove(resolve_path(path, manifest, key="glove_file", what="glove file"))
+
+
+def _sha256_or_none(path):
+    from ..manifest import sha256_file
+
+    return sha256_file(path) if Path(path).is_file() else None
+
+
+def check_fit_glove(fit: dict, glove, path, differs_ok: bool = False) -> None:
+    """`study power --fit`: the fit's participants felt the study's glove, or `differs_ok` says
+    otherwise is meant (a warning); a fit that records no glove is used with a warning."""
+    import sys
+
+    if not fit.get("glove_sha256") and not fit.get("glove"):
+        print(f"warning: {path} records no glove (written before fits did): its noises may be another glove's",
+              file=sys.stderr)
+        return
+    ours = glove_record(glove)
+    if fit.get("glove_sha256") == ours["glove_sha256"] and bool(fit.get("every_sample")) == ours["every_sample"]:
+        return
+    if not differs_ok:
+        raise ConfigError(path, "glove", f"a fit made with the study's glove ({glove.path})", got=fit.get("glove"),
+                          hint="--glove the fit's glove, or --glove-differs-ok to draw participants fitted "
+                               "with another glove on purpose")
+    print(f"warning: {path} was fitted with {fit.get('glove')}, the study runs {glove.path}: --glove-differs-ok",
+          file=sys.stderr)
 
 
 def run_fit(args) -> int:
@@ -238,7 +342,7 @@ def run_fit(args) -> int:
     if len(data) == 0:
         raise ConfigError(args.dir, "trials.csv", "a pilot with trials (not only practice trials)", got="none")
     study = pilot_study(args.dir, args.study)
-    glove = _glove(args.glove)
+    glove = pilot_glove(args.dir, args.glove, args.glove_differs_ok)
     observer = ModelObserver(glove, study, noise=HUMAN_NOISE, seed=args.seed).train()
     cache = (Path(args.out).parent if args.out else Path(args.dir)) / "cache"
     try:
@@ -248,7 +352,7 @@ def run_fit(args) -> int:
         print(f"interrupted: the finished simulations are kept under {cache}; the same command resumes")
         return 130
     fit = fit_pilot(surface, data, seed=args.seed)
-    fit.update({"study_file": study.path, "glove": glove.path, "pilot": str(args.dir), "surface": surface.to_json()})
+    fit.update({"study_file": study.path, **glove_record(glove), "pilot": str(args.dir), "surface": surface.to_json()})
     if args.out:
         Path(args.out).write_text(json.dumps(_clean(fit), indent=1) + "\n")
     if args.json:
