@@ -316,3 +316,61 @@ def test_the_page_port_is_read_from_the_ready_file_and_anything_else_is_no_port(
                  'ready {"tracker": {"page": 70000}}', 'ready {"tracker": {"page": "80"}}', "ready [1, 2]",
                  'ready {"tracker": 5}', "ready {not json", 'ready {"recorder": {"page": 40123}}', ""):
         assert _page_port(said) is None, said
+
+
+def test_a_page_reloaded_resumes_only_the_servers_pause_not_the_experimenters(tmp_path):
+    """The page gone pauses the trial and the page back resumes it; a pause from the experimenter's
+    page stays through the participant's reloads until the experimenter resumes it."""
+    from touch4d.bus import Node
+    from touch4d.bus.testing import collect, wait_until
+    from touch4d.messages import StudyCommand
+
+    server = _server(tmp_path, leave_after_s=60)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    server._start_bus(tmp_path)
+    probe = Node("probe", bus=server.node.bus)
+    heard = collect(probe, "P01/study/command", StudyCommand)
+    p, proc = _stack(server, "P01")
+    commands = lambda: [m.command for m in heard]  # noqa: E731
+
+    async def settle(n):
+        await asyncio.to_thread(wait_until, lambda: len(heard) >= n, 10)
+        await asyncio.sleep(0.3)           # and nothing more follows
+
+    try:
+        async def body(server):
+            url = f"http://127.0.0.1:{server.port}"
+            await asyncio.sleep(0.3)       # the probe's subscription settles
+            server._page_opened(p)
+            server._page_closed(p)         # the page gone: the server pauses
+            server._page_opened(p)         # and back: the server resumes
+            await settle(2)
+            assert commands() == ["pause", "resume"]
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+                async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
+                    assert response.status == 200
+                async with lab.post(f"{url}/experimenter/pause", data={"participant": "P01"},
+                                    headers={"Origin": url}) as response:
+                    assert response.status == 200
+                await settle(3)
+                server._page_closed(p)     # the participant reloads their page
+                server._page_opened(p)
+                await asyncio.sleep(0.5)
+                assert commands()[2:] == ["pause", "pause"]    # no resume: the experimenter's pause holds
+                view = [s for s in server.status() if s["participant"] == "P01"][0]
+                assert view["state"] == "paused" and view["paused_by"] == "experimenter"
+                async with lab.post(f"{url}/experimenter/resume", data={"participant": "P01"},
+                                    headers={"Origin": url}) as response:
+                    assert response.status == 200
+                await settle(5)
+                assert commands()[-1] == "resume"
+        spinning = threading.Thread(target=probe.spin, daemon=True)
+        spinning.start()
+        _serving(server, body)
+    finally:
+        _reap(proc)
+        probe.request_shutdown()
+        server.node.request_shutdown()
+        server._bus_thread.join(5)
+        server.broker.stop()

@@ -4,6 +4,8 @@ command for the refusal.
 
 - `.lock`: the run writing the folder (`touch4d study run`, an offline simulation) holds it for
   its whole run: a second run is refused at once.
+- `.serve`: the study server serving an output folder (`touch4d study serve`) holds it there: a second
+  server on the same folder is refused, naming the first.
 - `.writer`: the study node appending trials.csv holds it. It outlives a run killed outright
   (SIGKILL) whose stack ran on: `claim_session` checks it is free, so a new run is refused, naming
   the node still writing, rather than starting a second writer.
@@ -23,14 +25,20 @@ from .store import SessionError
 
 LOCK = ".lock"
 WRITER = ".writer"
+SERVE = ".serve"
+# What the holder of each lock does, for a refusal; and what to do about it.
+DOING = {LOCK: "writes this session folder", WRITER: "writes this session's trials.csv",
+         SERVE: "serves this folder (touch4d study serve)"}
+ADVICE = {SERVE: "one server per folder: stop it, or serve another --out"}
 
 
 class SessionLock:
     """`with SessionLock(folder):` holds the folder's lock file `name`, or raises a SessionError that
     names the folder and the process holding it. Not inherited by child processes (close-on-exec)."""
 
-    def __init__(self, directory, name: str = LOCK):
+    def __init__(self, directory, name: str = LOCK, mode: int = 0o777):
         self.directory = Path(directory)
+        self.mode = mode          # of the folder, when the lock makes it (less the umask)
         self.path = self.directory / name
         self._fd: int | None = None
         self._created = False     # this lock made the folder: it removes it on release if nothing else came
@@ -38,7 +46,7 @@ class SessionLock:
     def acquire(self) -> "SessionLock":
         while True:
             created = not self.directory.exists()
-            self.directory.mkdir(parents=True, exist_ok=True)
+            self.directory.mkdir(mode=self.mode, parents=True, exist_ok=True)
             try:
                 fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
             except FileNotFoundError:
@@ -48,9 +56,10 @@ class SessionLock:
             except BlockingIOError:
                 holder = _holder(fd)
                 os.close(fd)
-                doing = "writes this session folder" if self.path.name == LOCK else "writes this session's trials.csv"
-                raise SessionError(f"{self.directory}: another process {doing} ({holder}); one writer at a time: "
-                                   "wait for it to end or stop it, or use another --out") from None
+                advice = ADVICE.get(self.path.name, "one writer at a time: wait for it to end or stop it, "
+                                                                    "or use another --out")
+                raise SessionError(f"{self.directory}: another process {DOING[self.path.name]} ({holder}); "
+                                   f"{advice}") from None
             if _is_file(fd, self.path):
                 break
             os.close(fd)    # its holder removed it (and its empty folder) between our open and flock: anew
@@ -61,9 +70,14 @@ class SessionLock:
         self._fd = fd
         return self
 
+    @property
+    def created(self) -> bool:
+        """Whether this lock made its folder (a refused start removes what it made)."""
+        return self._created
+
     def release(self) -> None:
         if self._fd is not None:
-            if self._created and self.path.name == LOCK:
+            if self._created and self.path.name in (LOCK, SERVE):
                 _remove_if_empty(self.directory)     # still holding the lock: no other run is in there
             os.close(self._fd)          # closing the only descriptor drops the lock
             self._fd = None
@@ -97,7 +111,7 @@ def _is_file(fd: int, path: Path) -> bool:
 
 def _remove_if_empty(directory: Path) -> None:
     """Remove a session folder that holds nothing but its lock files (a refused run made it)."""
-    if {p.name for p in directory.iterdir()} - {LOCK, WRITER}:
+    if {p.name for p in directory.iterdir()} - {LOCK, WRITER, SERVE}:
         return
     writer = SessionLock(directory, WRITER)
     try:
@@ -105,8 +119,8 @@ def _remove_if_empty(directory: Path) -> None:
     except SessionError:
         return                                   # a study node writes there after all
     try:
-        (directory / WRITER).unlink(missing_ok=True)
-        (directory / LOCK).unlink(missing_ok=True)
+        for name in (WRITER, LOCK, SERVE):
+            (directory / name).unlink(missing_ok=True)
     finally:
         writer.release()
     try:

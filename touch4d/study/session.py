@@ -119,14 +119,15 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
 def run_session(study_path, participant: str, out, overrides: list[str] = (), *, launch: str = STUDY_LAUNCH,
                 session: str = "1", quick: bool = False, simulate: bool = False, seed: int | None = None,
                 order: int | None = None, simulation: dict | None = None, timeout_s: float | None = None,
-                locked: bool = False, echo=print, on_ready=None) -> int:
+                locked: bool = False, echo=print, on_ready=None, bus: str | None = None) -> int:
     """Run one participant's session through the full stack (`touch4d launch launch/study.yaml ...`)
     until the study node says it is done; returns the exit status (0: complete; the worst of the
     launch's and the session's). A signal stops it (Stopped, raised after the stack is down; the
     session resumes where it was when run again). `overrides` come last, so they win.
     `simulation`: the settings a simulation records in the manifest; `locked`: the caller holds the
     session folder (lock.claim_session; else it is claimed here). `on_ready(bus)` is called with the stack's
-    BusConfig once it runs (tests, tools)."""
+    BusConfig once it runs (tests, tools). `bus`: a bus config file for the launch (not with `simulate`,
+    whose bus is private)."""
     import sys
     import tempfile
 
@@ -146,7 +147,8 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             bus_file = Path(tmp) / "bus.yaml"
             bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\nconnect: 127.0.0.1\n")
             bus_args = ["--bus", str(bus_file)]
-        else:          # the usual bus, so `touch4d topic pub study/command '{command: pause}'` reaches it
+        else:          # the usual bus (or --bus FILE), so `touch4d topic pub study/command ...` reaches it
+            bus_args = ["--bus", str(bus)] if bus is not None else []
             echo(f"{participant}: pause with the Pause key (F9) or "
                  "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 from pathlib import Path
 
 from touch4d.errors import ConfigError, Touch4dError
@@ -22,15 +23,30 @@ from .table import ARRIVAL_COLUMNS, COLUMNS, TRIALS, _cell
 LEGACY_COLUMNS = tuple(c for c in COLUMNS if c not in ARRIVAL_COLUMNS)
 
 SEGMENT = "session-{:03d}.mcap"
+# A participant id is also a folder name, a bus namespace and part of a link: nothing that could climb
+# out of OUT (`..`, `/`) or need quoting.
+PARTICIPANT_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}\Z")
+PARTICIPANT_ID_RULE = "a participant id: 1-32 letters, digits, _ or -, beginning with a letter or digit"
 
 
 class SessionError(Touch4dError):
     """A session directory that cannot be used (names the file and why)."""
 
 
+def check_participant_id(participant) -> str:
+    """`participant` when it is fit to be a folder under OUT, else ValueError saying what is expected."""
+    if not isinstance(participant, str) or not PARTICIPANT_ID.match(participant):
+        raise ValueError(f"{PARTICIPANT_ID_RULE}, got {participant!r}")
+    return participant
+
+
 def session_dir(out, participant: str) -> Path:
-    """Where a participant's session lives under an output directory."""
-    return Path(out) / participant
+    """Where a participant's session lives under an output directory (never outside it: the id is
+    checked, SessionError naming it otherwise)."""
+    try:
+        return Path(out) / check_participant_id(participant)
+    except ValueError as exc:
+        raise SessionError(f"{out}: {exc}") from None
 
 
 # ---- trials.csv -------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
+from urllib.parse import urlsplit
 
 from aiohttp import web
 
@@ -194,6 +195,16 @@ class CookieGate:
             response.set_cookie(self.cookie, cookie, max_age=max_age, path="/", secure=self.secure,
                                 httponly=True, samesite="Strict")
         return response
+
+
+def cross_site(request: web.Request) -> bool:
+    """Whether a browser sent `request` from another site's page (cross-site WebSocket hijacking, a
+    forged form POST): its `Origin` is not this server's, or its `Sec-Fetch-Site` says another site. A
+    request with neither (a script, curl) is not a browser's and is judged by its token alone."""
+    origin = request.headers.get("Origin")
+    if origin is not None and urlsplit(origin).netloc != request.host:
+        return True
+    return request.headers.get("Sec-Fetch-Site", "same-origin") not in ("same-origin", "none")
 
 
 # ---- the link ---------------------------------------------------------------------------------------

@@ -22,6 +22,24 @@ OTHER_RATE = 20.0        # other messages per second and page, on average (a pag
 OTHER_BURST = 20         # and at most this many at once
 
 
+class TokenBucket:
+    """At most `burst` at once and `rate` per second on average: `spend(now)` says whether one more may go."""
+
+    def __init__(self, rate: float, burst: float):
+        self.rate, self.burst = rate, burst
+        self._tokens = float(burst)
+        self._filled_at: float | None = None
+
+    def spend(self, now: float) -> bool:
+        if self._filled_at is not None:
+            self._tokens = min(self.burst, self._tokens + max(0.0, now - self._filled_at) * self.rate)
+        self._filled_at = now
+        if self._tokens < 1:
+            return False
+        self._tokens -= 1
+        return True
+
+
 class Inbox:
     def __init__(self, input_hz: float = MAX_INPUT_HZ, rate: float = OTHER_RATE, burst: int = OTHER_BURST):
         self.interval = 1.0 / input_hz
@@ -29,8 +47,7 @@ class Inbox:
         # the server's thread only
         self._next_input = float("-inf")    # when the next input may be handed over
         self._held = None                   # (data, arrival): an input waiting for its time
-        self._tokens = float(burst)
-        self._filled_at = None
+        self._bucket = TokenBucket(rate, burst)
         # shared, under the lock
         self._lock = threading.Lock()
         self._queue: collections.deque = collections.deque()   # (data, arrival), in order
@@ -51,7 +68,7 @@ class Inbox:
             if arrival < self._next_input:
                 return False, self._next_input
             return self.release(arrival), None
-        if not (always or self._spend(arrival)):
+        if not (always or self._bucket.spend(arrival)):
             self.dropped += 1
             return False, None
         with self._lock:
@@ -69,15 +86,6 @@ class Inbox:
                 self.replaced += 1
             self._input = held
             return self._tell()
-
-    def _spend(self, now: float) -> bool:
-        if self._filled_at is not None:
-            self._tokens = min(self.burst, self._tokens + (now - self._filled_at) * self.rate)
-        self._filled_at = now
-        if self._tokens < 1:
-            return False
-        self._tokens -= 1
-        return True
 
     def _tell(self) -> bool:
         told, self._told = self._told, True

@@ -5,23 +5,23 @@ written whole), so links outlive a server that is restarted and can be made whil
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 from touch4d.atomic import write_atomic
+from touch4d.study.store import PARTICIPANT_ID_RULE, check_participant_id
 
 from .access import check_token, new_token
 
 EXPERIMENTER = "experimenter"
 FILE = "invites.json"
-PARTICIPANT_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}\Z")   # also a namespace and a folder name
 
 
 def check_participant(participant: str) -> str:
-    """A participant id fit for a link, a namespace and a folder, or ValueError saying what is expected."""
-    if not PARTICIPANT_ID.match(participant or "") or participant == EXPERIMENTER:
-        raise ValueError(f"a participant id: 1-32 letters, digits, _ or - (not '{EXPERIMENTER}'), got {participant!r}")
-    return participant
+    """A participant id fit for a link, a namespace and a folder (touch4d.study.store's rule) and not the
+    experimenter's, or ValueError saying what is expected."""
+    if participant == EXPERIMENTER:
+        raise ValueError(f"{PARTICIPANT_ID_RULE} (not '{EXPERIMENTER}'), got {participant!r}")
+    return check_participant_id(participant)
 
 
 class Invites:
@@ -29,6 +29,14 @@ class Invites:
 
     def __init__(self, out: Path):
         self.path = Path(out) / FILE
+
+    def signature(self) -> tuple | None:
+        """What changes whenever the file is written (it is replaced whole): read it again only then."""
+        try:
+            st = self.path.stat()
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns, st.st_size
 
     def load(self) -> dict[str, str]:
         """The tokens (a file that cannot be read as such: none, and a ValueError says why)."""

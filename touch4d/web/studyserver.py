@@ -23,18 +23,20 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
+import errno
 import html
 import json
 import logging
 import os
 import signal
+import socket
 import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
-from urllib.parse import quote, urlsplit
+from urllib.parse import quote
 
 import aiohttp
 from aiohttp import web
@@ -44,14 +46,18 @@ from touch4d.bus.container import ContainerPool
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
 from touch4d.bus.realtime import LOOP_PRIORITY, NOT_PERMITTED, raise_loop_priority
+from touch4d.configfile import COMMAND_LINE
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
+from touch4d.study.lock import SERVE, SessionLock
+from touch4d.study.plan import plan_session, quick_plan
 from touch4d.study.session import session_dir, session_overrides
-from touch4d.study.store import rows_written
+from touch4d.study.store import PARTICIPANT_ID, rows_written
 
-from .access import HOLDER, Access, CookieGate
+from .access import HOLDER, Access, CookieGate, cross_site
+from .inbox import TokenBucket
 from .invites import EXPERIMENTER, Invites, check_participant
 from .splice import Splice
 from .wiretrace import WireTrace
@@ -74,6 +80,10 @@ PARTICIPANTS_PER_CORE = 4
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 HANDSHAKE_HEADERS = ("Sec-WebSocket-Key", "Sec-WebSocket-Version", "Sec-WebSocket-Protocol")
 UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket upgrade within this, else 502
+NO_STORE = {"Cache-Control": "no-store"}   # the experimenter's pages: participants' states, never cached
+STATIC = Path(__file__).parent / "static"
+HOLDER_RATE = 20.0            # requests per second and link, on average (a page's load is ~15 files once)
+HOLDER_BURST = 60             # and at most this many at once
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
 
 
@@ -146,7 +156,9 @@ class Participant:
     pages: int = 0                     # its pages connected now
     last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
+    held: bool = False                 # paused by the experimenter: only the experimenter resumes it
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
+    starting: asyncio.Future | None = field(default=None, repr=False)   # a join waiting for its stack
 
 
 class StudyServer:
@@ -175,18 +187,22 @@ class StudyServer:
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
         self.secure = (public_url or "").startswith("https://") if secure is None else secure
-        self.out.mkdir(parents=True, exist_ok=True)
         self.invites = Invites(self.out)
         self.access = Access()
         self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study")
         self.participants: dict[str, Participant] = {}
-        self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0}
+        self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
+                       "over budget": 0}
         self._logged: set[str] = set()
+        self._plan_lengths: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
         self._tokens: dict[str, str] | None = None    # OUT/invites.json as last adopted
-        self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
+        self._invites_signature: tuple | None = None   # and its file's (Invites.signature) then
+        self._budgets: dict[str, TokenBucket] = {}   # each holder's requests (a flood of one slows no one else)
+        self.experimenter_token: str | None = None   # issued when it serves (run), not before
         self.node: Node | None = None     # the server's own on the bus (_start_bus)
+        self._socket: socket.socket | None = None   # bound by run() before OUT is written
         self._load_invites()
 
     # ---- links ---------------------------------------------------------------------------------
@@ -200,6 +216,10 @@ class StudyServer:
         """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
         revoked or replaced there ends its holder's cookies and stops its stack. A file that cannot be read as
         links keeps the links adopted before (logged once)."""
+        signature = self.invites.signature()
+        if self._tokens is not None and signature == self._invites_signature:
+            return     # unchanged since read (every request asks: one stat, not a parse)
+        self._invites_signature = signature
         try:
             tokens = self.invites.load()
         except ValueError as exc:
@@ -215,7 +235,7 @@ class StudyServer:
             self.access.revoke(holder)
             p = self.participants.get(holder)
             if p is not None and self._running(p):
-                log.info("%s: link revoked or replaced; its stack stops", holder)
+                self._say(f"{holder}: link revoked or replaced; its stack stops")
                 self._stop_stack(p, "left")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
@@ -400,6 +420,12 @@ class StudyServer:
 
     # ---- HTTP ----------------------------------------------------------------------------------
 
+    def _say(self, text: str) -> None:
+        """One line on the terminal (and the log) for what the experimenter follows: joins, leaves,
+        pauses, refusals for a full study, shutdown."""
+        print(f"{time.strftime('%H:%M:%S')} {text}", flush=True)
+        log.info("%s", text)
+
     def _log_once(self, cause: str, text: str) -> None:
         if cause not in self._logged:
             self._logged.add(cause)
@@ -417,6 +443,22 @@ class StudyServer:
             self.counts["forged"] += 1
             self._log_once("forged", f"refused a request with a forged, expired or revoked link ({request.path})")
             raise
+
+    @web.middleware
+    async def _budget(self, request: web.Request, handler):
+        """Each link's requests within HOLDER_RATE per second (HOLDER_BURST at once): more get 429."""
+        holder = request.get(HOLDER)
+        if holder is not None:
+            bucket = self._budgets.get(holder)
+            if bucket is None:
+                bucket = self._budgets[holder] = TokenBucket(HOLDER_RATE, HOLDER_BURST)
+            if not bucket.spend(time.monotonic()):
+                self.counts["over budget"] += 1
+                self._log_once(f"budget {holder}", f"{holder}: over {HOLDER_RATE:g} requests a second; "
+                               "answering 429 for the rest")
+                raise web.HTTPTooManyRequests(text="touch4d: too many requests; wait a second\n",
+                                              headers={"Retry-After": "1"})
+        return await handler(request)
 
     def _participant(self, request: web.Request) -> Participant:
         holder = request[HOLDER]
@@ -457,26 +499,41 @@ class StudyServer:
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
+        if self._running(p) and p.state in ("running", "paused"):
+            raise web.HTTPSeeOther("/")    # its stack runs and was seen ready: no probe of its node again
+        if p.starting is None:             # else a join already waits for its stack: wait with it
+            p.starting = asyncio.ensure_future(self._start(p))   # on, even if this request's browser goes
+            p.starting.add_done_callback(lambda _: setattr(p, "starting", None))
+        refusal = await asyncio.shield(p.starting)
+        if refusal is not None:
+            status, text = refusal
+            return web.Response(status=status, text=text, content_type="text/html" if status == 503 else "text/plain")
+        raise web.HTTPSeeOther("/")
+
+    async def _start(self, p: Participant) -> tuple[int, str] | None:
+        """Start a participant's stack and wait until its page is served (one at a time per participant):
+        None, or the status and page that say why not."""
         if not self._running(p):
             if self.running() >= self.max_participants:
                 self.counts["full"] += 1
-                return web.Response(status=503, content_type="text/html", text=(
-                    "<!doctype html><html lang=en><meta charset=utf-8><title>Full</title><body><h1>The study is "
-                    "full right now</h1><p>Every place is taken. Please open your link again in a few minutes."
-                    "</p></body></html>"))
+                self._say(f"{p.id}: refused, the study is full ({self.running()} of {self.max_participants} "
+                          "running; --max-participants to change)")
+                return 503, ("<!doctype html><html lang=en><meta charset=utf-8><title>Full</title><body><h1>The "
+                             "study is full right now</h1><p>Every place is taken. Please open your link again in a "
+                             "few minutes.</p></body></html>")
             self.counts["resumed" if self._rows(p.id) else "joined"] += 1
             if self._start_stack(p):
-                log.info("%s joined: starting its stack (namespace %s, %s)", p.id, p.id, self.pool.container_of(p.id))
+                self._say(f"{p.id} {'is back' if self._rows(p.id) else 'joined'}: starting its stack "
+                          f"({self.pool.container_of(p.id)}); {self.running()} of {self.max_participants} running")
         if not await self._wait_ready(p):
             self._stop_stack(p, "left")
             # the log's path is the experimenter's: this page faces the internet
             log.warning("%s: its stack did not start; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
-            return web.Response(status=500, text=f"touch4d: the session of {p.id} could not start; please tell "
-                                                 "the experimenter\n")
+            return 500, f"touch4d: the session of {p.id} could not start; please tell the experimenter\n"
         if p.state == "starting":
             p.state = "running"
             self._await_page(p)
-        raise web.HTTPSeeOther("/")
+        return None
 
     def _current_port(self, p: Participant) -> int:
         """Its page server's port now: its container, started again, says a new one."""
@@ -515,8 +572,7 @@ class StudyServer:
         enforces its limits (message size, flood, its heartbeat closing a page that vanished); either
         side closing ends both, and the participant's page with them."""
         p = self._participant(request)
-        origin = request.headers.get("Origin")
-        if origin is not None and urlsplit(origin).netloc != request.host:
+        if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
         if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
@@ -562,10 +618,13 @@ class StudyServer:
         if p.leave is not None:
             p.leave.cancel()
             p.leave = None
-        if p.state == "paused":
+        if p.state == "paused":   # the server's own pause (no page): the page back undoes it
             p.state = "running"
-            self.command(p.id, "resume", "the participant's page is back")
-            log.info("%s is back: trial resumed", p.id)
+            if p.held:
+                self._say(f"{p.id}: its page is back; its trial stays paused (by the experimenter)")
+            else:
+                self.command(p.id, "resume", "the participant's page is back")
+                self._say(f"{p.id}: its page is back; trial resumed")
 
     def _page_closed(self, p: Participant) -> None:
         p.pages -= 1
@@ -573,14 +632,14 @@ class StudyServer:
             return
         p.state = "paused"
         self.command(p.id, "pause", "the participant's page closed")
-        log.info("%s: no page; paused (stopping in %g s unless it comes back)", p.id, self.leave_after_s)
+        self._say(f"{p.id}: its page closed; paused (its stack stops in {self.leave_after_s:g} s unless it comes back)")
         p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
 
     def _left(self, p: Participant) -> None:
         p.leave = None
         if p.pages == 0 and self._running(p):
             self.counts["left"] += 1
-            log.info("%s left: its stack stops (its link resumes it)", p.id)
+            self._say(f"{p.id} left: its stack stops (its link resumes it)")
             self._stop_stack(p, "left")
 
     # ---- the experimenter's page ---------------------------------------------------------------
@@ -589,40 +648,95 @@ class StudyServer:
         if request[HOLDER] != EXPERIMENTER:
             raise web.HTTPForbidden(text="touch4d: the experimenter's link only\n")
 
+    def _planned(self, participant: str) -> int:
+        """How many trials the participant's session has (its plan: a pure function of study and id)."""
+        if participant not in self._plan_lengths:
+            plan = (quick_plan if self.quick else plan_session)(self.study, participant)
+            self._plan_lengths[participant] = len(plan)
+        return self._plan_lengths[participant]
+
+    def _shown_state(self, p: Participant, rows: int) -> tuple[str, str | None]:
+        """(state, paused by whom) as the experimenter sees it, from the stack when one runs, else from
+        the participant's data and link (so a restarted server shows who is done, who left, who was revoked)."""
+        if self._running(p):
+            if p.state == "paused":
+                return "paused", "experimenter" if p.held else "server (no page)"
+            return ("paused", "experimenter") if p.held and p.state == "running" else (p.state, None)
+        if p.id not in (self._tokens or {}):
+            return "revoked", None
+        if rows and rows >= self._planned(p.id):
+            return "done", None
+        return ("left" if rows or p.state == "left" else "invited"), None
+
     def status(self) -> list[dict]:
-        """Every participant: state, trial k of n, seconds since its page was last heard."""
+        """Every participant: state (and who paused it), trials done of planned, the trial now, seconds
+        since its page was last heard."""
         now = time.time()
         out = []
         for p in sorted(self.participants.values(), key=lambda p: p.id):
-            t = p.trial
-            out.append({"participant": p.id, "state": p.state, "pages": p.pages, "rows": self._rows(p.id),
+            t = p.trial if self._running(p) else None
+            rows = self._rows(p.id)
+            state, paused_by = self._shown_state(p, rows)
+            out.append({"participant": p.id, "state": state, "paused_by": paused_by, "pages": p.pages,
+                        "rows": rows, "planned": self._planned(p.id),
                         "trial": None if t is None or t.index < 0 else t.index + 1,
                         "of": None if t is None else t.total, "phase": None if t is None else t.phase,
                         "last_heard_s": None if not p.last_heard else round(now - p.last_heard, 1)})
         return out
 
-    async def _experimenter(self, request: web.Request) -> web.StreamResponse:
-        self._experimenter_only(request)
-        if request.query.get("format") == "json":
-            return web.json_response({"participants": self.status(), "counts": self.counts,
-                                      "running": self.running(), "max_participants": self.max_participants})
+    def _adopt_folders(self) -> None:
+        """Participants with a session folder in OUT but no link now (revoked before a restart) are
+        still shown, with their data's state."""
+        try:
+            folders = [d.name for d in self.out.iterdir() if d.is_dir() and not d.is_symlink()]
+        except OSError:
+            return
+        for name in folders:
+            if name not in self.participants and PARTICIPANT_ID.match(name) and name != EXPERIMENTER \
+                    and any((self.out / name / f).exists() for f in ("manifest.json", "trials.csv")):
+                self._add_participant(name)
+
+    def _table(self) -> str:
+        """The participants' table (the experimenter's page, and what its script fetches each second)."""
+        cell = lambda value, unit="": "-" if value is None else f"{html.escape(str(value))}{unit}"  # noqa: E731
         buttons = lambda who: "".join(  # noqa: E731
             f"<form method=post action=/experimenter/{action}><input type=hidden name=participant "
             f"value='{html.escape(who, quote=True)}'><button>{action}</button></form>" for action in ACTIONS)
         rows = "".join(
-            f"<tr><td>{html.escape(s['participant'])}</td><td>{s['state']}</td>"
-            f"<td>{'' if s['trial'] is None else s['trial']} of {'' if s['of'] is None else s['of']}</td>"
-            f"<td>{'' if s['last_heard_s'] is None else s['last_heard_s']} s</td><td>{buttons(s['participant'])}</td></tr>"
+            f"<tr data-state={s['state']}><td>{html.escape(s['participant'])}</td>"
+            f"<td>{s['state']}{'' if s['paused_by'] is None else ' by ' + html.escape(s['paused_by'])}</td>"
+            f"<td>{s['rows']} of {s['planned']}</td><td>{cell(s['trial'])} of {cell(s['of'])}</td>"
+            f"<td>{cell(s['phase'])}</td><td>{cell(s['last_heard_s'], ' s')}</td>"
+            f"<td>{'' if s['state'] == 'revoked' else buttons(s['participant'])}</td></tr>"
             for s in self.status())
-        return web.Response(content_type="text/html", text=(
-            f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(self.study.name)}: participants"
-            f"</title><body><h1>{html.escape(self.study.name)}: {self.running()} of {self.max_participants} "
-            f"running</h1><table><tr><th>participant</th><th>state</th><th>trial</th><th>last heard</th><th></th>"
-            f"</tr>{rows}</table><form method=post action=/experimenter/invite><input name=participant "
-            f"placeholder=P07><button>invite</button></form></body></html>"))
+        return (f"<p id=summary>{self.running()} of {self.max_participants} running; refused while full: "
+                f"{self.counts['full']}</p><table id=participants><tr><th>participant</th><th>state</th>"
+                f"<th>trials done</th><th>trial now</th><th>phase</th><th>last heard</th><th></th></tr>{rows}</table>")
+
+    async def _experimenter(self, request: web.Request) -> web.StreamResponse:
+        self._experimenter_only(request)
+        form = request.query.get("format")
+        if form == "json":
+            return web.json_response({"participants": self.status(), "counts": self.counts,
+                                      "running": self.running(), "max_participants": self.max_participants})
+        if form == "table":
+            return web.Response(content_type="text/html", text=self._table(), headers=NO_STORE)
+        name = html.escape(self.study.name)
+        return web.Response(content_type="text/html", headers=NO_STORE, text=(
+            f"<!doctype html><html lang=en><meta charset=utf-8><meta name=referrer content=no-referrer>"
+            f"<title>{name}: participants</title><body><h1>{name}: participants</h1><div id=live>{self._table()}</div>"
+            f"<form method=post action=/experimenter/invite><input name=participant placeholder=P07>"
+            f"<button>invite</button></form><script src=/experimenter.js></script></body></html>"))
+
+    async def _experimenter_script(self, request: web.Request) -> web.StreamResponse:
+        self._experimenter_only(request)
+        return web.FileResponse(STATIC / "experimenter.js", headers=NO_STORE)
 
     async def _experimenter_action(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
+        if cross_site(request):   # a form on another site posting with the experimenter's cookie
+            self._log_once("cross-site", "refused an experimenter action posted from another site")
+            raise web.HTTPForbidden(text="touch4d: actions from another site refused\n")
         form = await request.post()
         participant = str(form.get("participant", ""))
         action = request.match_info["action"]
@@ -639,11 +753,13 @@ class StudyServer:
         if p is None:
             raise web.HTTPNotFound(text="touch4d: no such participant\n")
         if action in ("pause", "resume"):
-            self.command(p.id, action, "the experimenter")
+            p.held = action == "pause"
+            if p.state != "paused":   # paused with no page: the page coming back resumes it (unless held)
+                self.command(p.id, action, "the experimenter")
         elif action == "revoke":
             self.invites.revoke(p.id)
-            self._load_invites()       # ends its cookies, stops its stack
-            log.info("%s: link revoked by the experimenter", p.id)
+            self._load_invites()       # ends its cookies, stops its stack (it shows as revoked)
+            self._say(f"{p.id}: link revoked by the experimenter")
         raise web.HTTPSeeOther("/experimenter")
 
     def link(self, participant: str, token: str) -> str:
@@ -652,25 +768,29 @@ class StudyServer:
     # ---- running -------------------------------------------------------------------------------
 
     async def _serve(self) -> None:
+        sock = self._socket or self._listen()     # bound before OUT is written
+        self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
+        self._load_invites()
+        self._adopt_folders()
         self._loop = asyncio.get_running_loop()
         self._stopping = asyncio.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._stopping.set)
-        app = web.Application(middlewares=[self._refusals, self.gate.middleware])
+        app = web.Application(middlewares=[self._refusals, self.gate.middleware, self._budget])
         app.router.add_get("/", self._index)
         app.router.add_post("/join", self._join)
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/static/{path:.*}", self._static)
         app.router.add_get("/experimenter", self._experimenter)
+        app.router.add_get("/experimenter.js", self._experimenter_script)
         app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
         self.client = aiohttp.ClientSession()
         if self.wire_trace is not None:
             self._trace = WireTrace(self.wire_trace)
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
-        site = web.TCPSite(runner, self.host, self.port)
+        site = web.SockSite(runner, sock)
         await site.start()
-        self.port = runner.addresses[0][1]
         freeze_startup_heap()   # its 90k objects: a full collection over them stalled every participant ~50 ms
         (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants"
@@ -683,6 +803,8 @@ class StudyServer:
         finally:
             watch.cancel()
             stacks.cancel()
+            self._say(f"stopping: {self.running()} running participants' stacks stop (each resumes at its next "
+                      "trial when its link is opened again)")
             for p in self.participants.values():
                 self._stop_stack(p, p.state)
             if self.pool is not None:
@@ -693,6 +815,7 @@ class StudyServer:
             await runner.cleanup()
             if self._trace is not None:
                 self._trace.close()
+            self._say("stopped")
 
     async def _watch_invites(self, period_s: float = 1.0) -> None:
         """A link revoked with `touch4d study invite --revoke` stops its stack within `period_s`,
@@ -713,9 +836,29 @@ class StudyServer:
         else:
             log.warning("%s: the server's loop and the participants' run at normal priority", NOT_PERMITTED)
 
+    def _claim_out(self) -> SessionLock:
+        """OUT held for this server alone (a second server on it is refused, naming this one); made
+        here if it is new (and removed again if the start is refused before anything is written)."""
+        return SessionLock(self.out, SERVE, mode=0o700).acquire()   # personal data: its owner's alone
+
+    def _listen(self) -> socket.socket:
+        """The listening socket, bound before anything is written (a busy port: ConfigError naming it)."""
+        try:
+            family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+            sock = socket.create_server((self.host, self.port), family=family)
+        except OSError as exc:
+            expected = f"a port free to listen on at {self.host}"
+            if exc.errno == errno.EADDRINUSE:
+                raise ConfigError(COMMAND_LINE, "--port", expected, got=self.port, detail="in use by another "
+                                  "program (another study server?): stop it, or serve on another --port") from None
+            raise ConfigError(COMMAND_LINE, "--port", expected, got=self.port, detail=exc.strerror) from None
+        self.port = sock.getsockname()[1]
+        return sock
+
     def run(self) -> int:
         stack = self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
-        with tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
+        with self._claim_out(), self._listen() as self._socket, \
+                tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
             self._raise_priority(stack)   # this thread alone: the bus's threads keep their own priorities

@@ -60,6 +60,9 @@ def register(subparsers) -> None:
                      help="--participant: counterbalancing row N (from 1; default: P01, P02, ... take the rows in turn)")
     run.add_argument("--overwrite", action="store_true",
                      help="replace this run's session folders in --out that ran another study or other settings")
+    run.add_argument("--bus", metavar="FILE",
+                     help="--participant: the bus config the stack launches with (default: $TOUCH4D_BUS, else "
+                          "config/bus.yaml); other ports when another stack holds those")
     sim = run.add_argument_group("model observers (--simulate)")
     sim.add_argument("--glove", metavar="FILE", help="glove file (default: config/glove.yaml)")
     sim.add_argument("--every-sample", action="store_true",
@@ -236,6 +239,14 @@ def _row(study, participant: str, order: int | None) -> int:
 def run_run(args) -> int:
     if args.offline and args.items:
         raise ConfigError(COMMAND_LINE, args.items[0], "no launch overrides with --offline (no stack runs)")
+    if args.participant is not None:   # a folder under --out: never outside it
+        from ..store import PARTICIPANT_ID_RULE, check_participant_id
+        try:
+            check_participant_id(args.participant)
+        except ValueError:
+            raise ConfigError(COMMAND_LINE, "--participant", PARTICIPANT_ID_RULE, got=args.participant) from None
+    if args.bus is not None and args.simulate:
+        raise ConfigError(COMMAND_LINE, "--bus", "--participant ID with --bus (simulations run on a private bus)")
     if args.order is not None and not args.participant:
         raise ConfigError(COMMAND_LINE, "--order", "--participant ID with --order (simulated participants P01, "
                           "P02, ... take the rows in turn)")
@@ -333,7 +344,7 @@ def run_full_stack(args) -> int:
                 return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
                                               seed=args.seed, quick=args.quick, simulation=simulation, locked=True)
             return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick,
-                                       order=args.order, locked=True)
+                                       order=args.order, locked=True, bus=args.bus)
     except session.Stopped as exc:
         print(f"touch4d study run: {exc}; the stack is stopped")
         return exc.code
