@@ -374,3 +374,152 @@ def test_a_page_reloaded_resumes_only_the_servers_pause_not_the_experimenters(tm
         server.node.request_shutdown()
         server._bus_thread.join(5)
         server.broker.stop()
+
+
+def _trials(out: Path, participant: str, rows: int) -> None:
+    """A session folder whose trials.csv has `rows` whole rows (what a study node wrote before a restart)."""
+    from touch4d.study.table import COLUMNS
+    folder = out / participant
+    folder.mkdir()
+    lines = [",".join(COLUMNS)] + [",".join([participant, "1", "1", str(k), str(k)] + [""] * (len(COLUMNS) - 5))
+                                   for k in range(rows)]
+    (folder / "trials.csv").write_text("\n".join(lines) + "\n")
+
+
+async def _experimenter(server, session: aiohttp.ClientSession, url: str) -> None:
+    async with session.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
+        assert response.status == 200
+
+
+def test_the_experimenter_page_shows_each_participants_state_from_its_data_after_a_restart(tmp_path):
+    """Restarted on an OUT with data: 7 trials done is 'left' (not 'invited'), every trial done is
+    'done', a revoked link's data is 'revoked' (not gone); empty cells read '-'; the page refreshes
+    itself from its script and keeps no token in the address."""
+    from touch4d.study.plan import quick_plan
+    study = load_study(STUDY)
+    for participant in ("P01", "P02", "P04"):
+        Invites(tmp_path).issue(participant)
+    _trials(tmp_path, "P02", 7)
+    _trials(tmp_path, "P03", 2)                       # its link revoked before the restart
+    _trials(tmp_path, "P04", len(quick_plan(study, "P04")))
+    server = _server(tmp_path, quick=True)
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+            await _experimenter(server, lab, url)
+            async with lab.get(f"{url}/experimenter?format=json") as response:
+                view = await response.json()
+            states = {p["participant"]: (p["state"], p["rows"]) for p in view["participants"]}
+            assert states == {"P01": ("invited", 0), "P02": ("left", 7), "P03": ("revoked", 2),
+                              "P04": ("done", len(quick_plan(study, "P04")))}
+            async with lab.get(f"{url}/experimenter") as response:
+                page = await response.text()
+                assert response.headers["Referrer-Policy"] == "no-referrer"
+            assert "<script src=/experimenter.js></script>" in page and "<script>" not in page
+            assert "<td>- of -</td>" in page and " of </td>" not in page and "None" not in page
+            async with lab.get(f"{url}/experimenter.js") as response:
+                script = await response.text()
+                assert response.status == 200 and response.headers["Cache-Control"] == "no-store"
+            assert 'history.replaceState(null, "", "/experimenter")' in script and "format=table" in script
+            async with lab.get(f"{url}/experimenter?format=table") as response:
+                table = await response.text()
+            assert table.count("<tr data-state=") == 4 and "<tr data-state=revoked><td>P03</td>" in table
+        async with aiohttp.ClientSession() as stranger:       # the table is the experimenter's alone
+            async with stranger.get(f"{url}/experimenter?format=table") as response:
+                assert response.status == 403
+    _serving(server, body)
+
+
+def test_experimenter_actions_posted_from_another_site_are_refused(tmp_path):
+    server = _server(tmp_path)
+    Invites(tmp_path).issue("P01")
+    server._load_invites()
+    p, proc = _stack(server, "P01")
+    sent = []
+    server.command = lambda participant, command, reason: sent.append((participant, command))
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+            await _experimenter(server, lab, url)
+            for headers in ({"Origin": "https://evil.example"}, {"Sec-Fetch-Site": "cross-site"},
+                            {"Origin": "null"}):
+                for action in ("pause", "revoke"):
+                    async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"},
+                                        headers=headers, allow_redirects=False) as response:
+                        assert response.status == 403, headers
+            assert sent == [] and "P01" in Invites(tmp_path).load()
+            async with lab.post(f"{url}/experimenter/pause", data={"participant": "P01"},
+                                headers={"Origin": url, "Sec-Fetch-Site": "same-origin"}) as response:
+                assert response.status == 200
+            assert sent == [("P01", "pause")]
+    try:
+        _serving(server, body)
+    finally:
+        _reap(proc)
+
+
+def test_a_new_experimenter_link_ends_the_old_one_and_its_browsers(tmp_path, capsys):
+    server = _server(tmp_path)
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        old = server.experimenter_token
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+            await _experimenter(server, lab, url)
+            assert cli_main(["study", "invite", str(tmp_path), "--experimenter", "--public-url", url, "--no-qr"]) == 0
+            link = capsys.readouterr().out.strip().splitlines()[-1]
+            assert link.startswith(f"{url}/experimenter?token=") and old not in link
+            await asyncio.sleep(1.5)                         # the server reads invites.json again each second
+            async with lab.get(f"{url}/experimenter?format=json") as response:
+                assert response.status == 403                # the old link's cookie
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as fresh:
+            async with fresh.get(f"{url}/experimenter?format=json&token={old}") as response:
+                assert response.status == 403
+            async with fresh.get(link.replace("/experimenter?", "/experimenter?format=json&")) as response:
+                assert response.status == 200
+    _serving(server, body)
+
+
+def test_one_links_flood_gets_429_and_spares_the_others_and_a_join_probes_a_running_stack_once(tmp_path):
+    server = _server(tmp_path)
+    tokens = {p: Invites(tmp_path).issue(p) for p in ("P01", "P02")}
+    server._load_invites()
+    p, proc = _stack(server, "P01")
+    probes = []
+
+    async def counted(participant):
+        probes.append(participant.id)
+        return True
+    server._wait_ready = counted
+    loads = []
+    load = server.invites.load
+    server.invites.load = lambda: loads.append(1) or load()
+
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as one, \
+                aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as other:
+            for session, who in ((one, "P01"), (other, "P02")):
+                async with session.get(f"{url}/?participant={who}&token={tokens[who]}") as response:
+                    assert response.status in (200, 502)     # P01's stack is a `sleep`: its page is not there
+            loads.clear()
+
+            async def join():
+                async with one.post(f"{url}/join", allow_redirects=False) as response:
+                    return response.status
+            statuses = await asyncio.gather(*(join() for _ in range(300)))
+            assert probes == [] and set(statuses) == {303, 429}, set(statuses)   # running: never probed again
+            assert 20 <= statuses.count(303) <= 120      # the burst and what a second refills, no more
+            async with other.get(f"{url}/") as response:
+                assert response.status == 200            # the other link is not slowed by the flood
+            assert loads == []                           # invites.json unchanged: not parsed again
+            Invites(tmp_path).issue("P03")
+            async with other.get(f"{url}/") as response:
+                assert response.status == 200
+            assert len(loads) == 1 and "P03" in server.participants
+    try:
+        _serving(server, body)
+    finally:
+        _reap(proc)

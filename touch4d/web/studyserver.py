@@ -22,13 +22,17 @@ trial, or revoke a link.
 from __future__ import annotations
 
 import asyncio
+import base64
 import ctypes
 import errno
+import hashlib
 import html
 import json
 import logging
 import os
+import secrets
 import signal
+import stat
 import socket
 import tempfile
 import threading
@@ -41,8 +45,9 @@ from urllib.parse import quote
 import aiohttp
 from aiohttp import web
 
+from touch4d.atomic import write_atomic
 from touch4d.bus import Broker, BusConfig, Node
-from touch4d.bus.container import ContainerPool
+from touch4d.bus.container import ContainerPool, open_log
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
 from touch4d.bus.realtime import LOOP_PRIORITY, NOT_PERMITTED, raise_loop_priority
@@ -58,11 +63,14 @@ from touch4d.study.store import PARTICIPANT_ID, rows_written
 
 from .access import HOLDER, Access, CookieGate, cross_site
 from .inbox import TokenBucket
+from .hardening import ESCAPED, SECURITY_HEADERS, Hardening, host_name
 from .invites import EXPERIMENTER, Invites, check_participant
+from .server import SECRET_HEADER, STATIC_DIR, static_names
 from .splice import Splice
 from .wiretrace import WireTrace
 
 log = logging.getLogger("study-serve")
+log.addFilter(ESCAPED)   # a request path in a line: its control and bidi characters escaped
 
 LAUNCH = "launch/study-serve.yaml"
 SERVED = "serve.json"             # OUT/serve.json: the address served, for `touch4d study invite`
@@ -80,11 +88,19 @@ PARTICIPANTS_PER_CORE = 4
 ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
 HANDSHAKE_HEADERS = ("Sec-WebSocket-Key", "Sec-WebSocket-Version", "Sec-WebSocket-Protocol")
 UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket upgrade within this, else 502
-NO_STORE = {"Cache-Control": "no-store"}   # the experimenter's pages: participants' states, never cached
+# The experimenter's pages: participants' states, never cached; their address (once with the token) sent nowhere.
+NO_STORE = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"}
 STATIC = Path(__file__).parent / "static"
 HOLDER_RATE = 20.0            # requests per second and link, on average (a page's load is ~15 files once)
 HOLDER_BURST = 60             # and at most this many at once
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
+WELCOME_SCRIPT = "history.replaceState(null, '', '/')"   # the link's token out of the address bar
+# The page server's headers on every answer, but forms post here (join, the experimenter's) and the
+# welcome page's one script runs (by its hash: no other inline script).
+STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
+    SECURITY_HEADERS["Content-Security-Policy"].replace("form-action 'none'", "form-action 'self'")
+    + f"; script-src 'self' 'sha256-{base64.b64encode(hashlib.sha256(WELCOME_SCRIPT.encode()).digest()).decode()}'")}
+STATIC_NAMES = static_names(STATIC_DIR)   # /static/ names forwarded to a participant's page: its files only
 
 
 def _cores() -> int:
@@ -98,14 +114,14 @@ def default_max_participants() -> int:
     return max(2, PARTICIPANTS_PER_CORE * _cores())
 
 
-def _upgrade_request(request: web.Request, port: int) -> bytes | None:
+def _upgrade_request(request: web.Request, port: int, secret: str | None = None) -> bytes | None:
     """The WebSocket upgrade sent to a participant's page server: its own Host and Origin (the study
     server checked the browser's), and of the browser's headers only the WebSocket handshake's (no
     cookie, no compression offered). None when the request is not a WebSocket upgrade."""
     if request.headers.get("Upgrade", "").lower() != "websocket":
         return None
     lines = ["GET /ws HTTP/1.1", f"Host: 127.0.0.1:{port}", f"Origin: http://127.0.0.1:{port}",
-             "Upgrade: websocket", "Connection: Upgrade"]
+             "Upgrade: websocket", "Connection: Upgrade", *([f"{SECRET_HEADER}: {secret}"] if secret else [])]
     for name in HANDSHAKE_HEADERS:
         value = request.headers.get(name)
         if value is not None:
@@ -158,6 +174,8 @@ class Participant:
     trial: StudyTrial | None = None    # its study node's latest state
     held: bool = False                 # paused by the experimenter: only the experimenter resumes it
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
+    # what its page server wants with every request (its page node, on loopback, is every local user's to reach)
+    secret: str = field(default_factory=lambda: secrets.token_urlsafe(16), repr=False)
     starting: asyncio.Future | None = field(default=None, repr=False)   # a join waiting for its stack
 
 
@@ -190,6 +208,9 @@ class StudyServer:
         self.invites = Invites(self.out)
         self.access = Access()
         self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study")
+        # the internet's bounds, as the page server's (touch4d.web.hardening); the public name served too
+        self.hardening = Hardening(host, [host_name(public_url)] if public_url else [], headers=STUDY_HEADERS,
+                                   log=log)
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
                        "over budget": 0}
@@ -237,10 +258,14 @@ class StudyServer:
             if p is not None and self._running(p):
                 self._say(f"{holder}: link revoked or replaced; its stack stops")
                 self._stop_stack(p, "left")
+            elif holder == EXPERIMENTER and holder in tokens:
+                self._say("the experimenter's link was replaced: the old one and its browsers are refused")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
                 self.access.issue(holder, token=token)
-            if holder != EXPERIMENTER and holder not in self.participants:
+            if holder == EXPERIMENTER:
+                self.experimenter_token = token
+            elif holder not in self.participants:
                 self._add_participant(holder)
 
     def _add_participant(self, holder: str) -> "Participant":
@@ -310,7 +335,7 @@ class StudyServer:
             self.pool.load(p.id, lambda: self._stack_command(p))
         except Touch4dError as exc:   # its launch cannot be made (the file changed since the start)
             session_dir(self.out, p.id).mkdir(parents=True, exist_ok=True)
-            with open(session_dir(self.out, p.id) / "serve.log", "a") as f:
+            with open_log(session_dir(self.out, p.id) / "serve.log") as f:
                 f.write(f"{p.id}: {exc}\n")
             return False
         p.state = "starting"
@@ -319,24 +344,33 @@ class StudyServer:
     def _stack_command(self, p: Participant) -> dict:
         """The participant's group as its container loads it: launch/study-serve.yaml under its namespace,
         its session's overrides (the recorder's next segment: made anew at each load)."""
-        group = self.stack_group(p.id)
+        group = self.stack_group(p.id, self._secret_file(p))
         directory = session_dir(self.out, p.id)
         directory.mkdir(parents=True, exist_ok=True)
         self._ready_file(p).unlink(missing_ok=True)
         return {"namespace": p.id, "nodes": group_entries(group), "ready_file": str(self._ready_file(p)),
                 "log": str(directory / "serve.log")}
 
+    def _secret_file(self, p: Participant) -> Path:
+        """Its page server's secret, in the server's private folder (the node reads it; a command line
+        or a log would show it)."""
+        path = self.tmp / f"{p.id}.secret"
+        write_atomic(path, p.secret, mode=0o600)
+        return path
+
     def _ready_file(self, p: Participant) -> Path:
         """Where its container writes "ready" (or "failed: ...") at each load."""
         return self.tmp / f"{p.id}.ready"
 
-    def stack_group(self, participant: str) -> list:
+    def stack_group(self, participant: str, secret_file: Path | None = None) -> list:
         """A participant's stack: the launch file's one group (its NodeSpecs) under their namespace,
         its page served on a port the page server picks (a port picked here and bound there later
         could be taken meanwhile: any connection's own end may get it). Raises ConfigError when the
         launch cannot be made or is not one group (checked at start too)."""
         overrides = [*session_overrides(self.study_path, participant, self.out, quick=self.quick),
-                     f"{PAGE_ROLE}.port:=0", *self.overrides]
+                     f"{PAGE_ROLE}.port:=0",
+                     *([f"{PAGE_ROLE}.secret_file:={json.dumps(str(secret_file))}"] if secret_file else []),
+                     *self.overrides]
         specs = processes(load_launch(self.launch, overrides, namespace=participant))
         (group, *more) = specs.values()
         if more or not group[0].group:
@@ -364,7 +398,7 @@ class StudyServer:
                     return False
                 p.port = port
                 try:   # and its page is served
-                    async with self.client.get(f"http://127.0.0.1:{p.port}/") as response:
+                    async with self.client.get(f"http://127.0.0.1:{p.port}/", headers={SECRET_HEADER: p.secret}) as response:
                         if response.status == 200:
                             return True
                 except aiohttp.ClientError:
@@ -492,7 +526,7 @@ class StudyServer:
                 + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
                 f"<form method=post action=/join><button id=join type=submit>{go}</button></form>"
                 # the link's token out of the address bar and the history (the cookie carries on)
-                "<script>history.replaceState(null, '', '/')</script></body></html>")
+                f"<script>{WELCOME_SCRIPT}</script></body></html>")
 
     def _rows(self, participant: str) -> int:
         return rows_written(session_dir(self.out, participant))
@@ -545,10 +579,10 @@ class StudyServer:
             p.port = port
         return p.port
 
-    async def _proxy_http(self, request: web.Request, p: Participant) -> web.StreamResponse:
-        url = f"http://127.0.0.1:{self._current_port(p)}{request.path}"
+    async def _proxy_http(self, request: web.Request, p: Participant, path: str = "/") -> web.StreamResponse:
+        url = f"http://127.0.0.1:{self._current_port(p)}{path}"
         try:
-            async with self.client.get(url) as upstream:
+            async with self.client.get(url, headers={SECRET_HEADER: p.secret}) as upstream:
                 body = await upstream.read()
                 response = web.Response(body=body, status=upstream.status)
                 if upstream.content_type:
@@ -561,10 +595,13 @@ class StudyServer:
             return web.Response(status=502, text=f"touch4d: the session of {p.id} is not answering; reload\n")
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
+        name = request.match_info["path"]
+        if name not in STATIC_NAMES:   # an over-long name, a folder, a `..`: never forwarded
+            raise web.HTTPNotFound(text="touch4d: no such file\n")
         p = self._participant(request)
         if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
-        return await self._proxy_http(request, p)
+        return await self._proxy_http(request, p, f"/static/{name}")
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         """The page's WebSocket, spliced byte for byte to its participant's page server once that
@@ -577,7 +614,7 @@ class StudyServer:
         if not self._running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         port = self._current_port(p)
-        upgrade = _upgrade_request(request, port)
+        upgrade = _upgrade_request(request, port, p.secret)
         if upgrade is None or request.transport is None:
             raise web.HTTPBadRequest(text="touch4d: /ws takes a WebSocket upgrade\n")
         trace = self._trace
@@ -595,7 +632,7 @@ class StudyServer:
         # A browser sends nothing before the 101 (RFC 6455 4.1): the connection has no bytes of its
         # own left with aiohttp when it is taken. Its transport is read again: the browser may have
         # gone while the page server answered.
-        if splice.join(request.transport):
+        if splice.join(request.transport, self.hardening.take):
             self._page_opened(p)
             self._splices.add(splice)
             try:
@@ -776,7 +813,7 @@ class StudyServer:
         self._stopping = asyncio.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._stopping.set)
-        app = web.Application(middlewares=[self._refusals, self.gate.middleware, self._budget])
+        app = self.hardening.application([self._refusals, self.gate.middleware, self._budget])
         app.router.add_get("/", self._index)
         app.router.add_post("/join", self._join)
         app.router.add_get("/ws", self._websocket)
@@ -787,7 +824,7 @@ class StudyServer:
         self.client = aiohttp.ClientSession()
         if self.wire_trace is not None:
             self._trace = WireTrace(self.wire_trace)
-        runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        runner = self.hardening.runner(app)
         await runner.setup()
         site = web.SockSite(runner, sock)
         await site.start()
@@ -856,6 +893,8 @@ class StudyServer:
         return sock
 
     def run(self) -> int:
+        os.umask(0o077)         # what it writes, and the containers it starts: OUT holds personal data
+        _refuse_shared(self.out)
         stack = self.stack_group("P00")   # a launch that cannot make a participant's stack fails now, not at a join
         with self._claim_out(), self._listen() as self._socket, \
                 tempfile.TemporaryDirectory(prefix="touch4d-serve-") as tmp:
@@ -870,6 +909,18 @@ class StudyServer:
                 self._bus_thread.join(5)
                 self.broker.stop()
         return 0
+
+
+def _refuse_shared(out: Path) -> None:
+    """An --out that others may write to is refused: it holds personal data, and a file or symlink
+    planted there would be read or written by the server."""
+    try:
+        mode = stat.S_IMODE(out.stat().st_mode)
+    except FileNotFoundError:
+        return   # made 0700
+    if mode & 0o022:
+        raise ConfigError(out, "--out", "a folder only its owner may write to (it holds participants' data: "
+                          f"chmod go-w {out}, or a new --out)", got=f"mode {mode:04o}")
 
 
 def served_url(out: Path) -> str | None:

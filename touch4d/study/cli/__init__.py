@@ -111,7 +111,9 @@ def register(subparsers) -> None:
                                         "served with --out DIR; a second invite replaces the first link (the browsers "
                                         "it opened are refused and its stack stops).")
     invite.add_argument("dir", metavar="DIR", help="the --out folder of `touch4d study serve`")
-    invite.add_argument("participant", metavar="ID", help="participant id, e.g. P07")
+    invite.add_argument("participant", metavar="ID", nargs="?", help="participant id, e.g. P07")
+    invite.add_argument("--experimenter", action="store_true",
+                        help="a new experimenter's link instead (the old one and the browsers it opened stop working)")
     invite.add_argument("--public-url", metavar="URL", help="the server's address (default: the one it last served)")
     invite.add_argument("--revoke", action="store_true", help="revoke the participant's link instead")
     invite.add_argument("--no-qr", action="store_true", help="the link only")
@@ -408,10 +410,18 @@ def run_invite(args) -> int:
     from touch4d.web.invites import Invites, check_participant
     from touch4d.web.studyserver import participant_link, served_url
 
-    try:
-        check_participant(args.participant)
-    except ValueError as exc:
-        raise ConfigError(COMMAND_LINE, "ID", str(exc).split(", got")[0], got=args.participant) from None
+    from touch4d.web.invites import EXPERIMENTER
+
+    if args.experimenter:
+        if args.participant is not None or args.revoke:
+            raise ConfigError(COMMAND_LINE, "--experimenter", "no participant ID and no --revoke with --experimenter "
+                              "(its link is replaced, never left without one)", got=args.participant or "--revoke")
+        args.participant = EXPERIMENTER
+    else:
+        try:
+            check_participant(args.participant)
+        except ValueError as exc:
+            raise ConfigError(COMMAND_LINE, "ID", str(exc).split(", got")[0], got=args.participant) from None
     invites = Invites(Path(args.dir))
     if args.revoke:
         print(f"{args.participant}: link revoked" if invites.revoke(args.participant)
