@@ -49,6 +49,8 @@ class WebXRNode(Node):
         "token": Param("auto", f"auto (random, only beyond loopback), env (from ${TOKEN_ENV}) or file (token_file)",
                        choices=("auto", "env", "file")),
         "token_file": Param("", "with token: file, the file holding the token (128 bits or more)"),
+        "secret_file": Param("", "a file holding a secret that every request but the page's files must carry in "
+                             "the X-Touch4d-Secret header (the study server's, in front of a participant's page)"),
         "names": Param("", "host names served besides loopback and this machine's addresses (comma-separated), "
                        "e.g. the reverse proxy's public name"),
         "tls": Param("auto", "https: auto (beyond loopback), on, off (loopback only)", choices=("auto", "on", "off")),
@@ -113,6 +115,7 @@ class WebXRNode(Node):
         connected, closed = self._then_schedule(self.bridge.connected), self._then_schedule(self.bridge.closed)
         deliver = self._then_schedule(lambda conn: self.server.deliver(conn))
         self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
+                                 secret=self._secret(),
                                  loop=self.executor.asyncio_loop(serves_tls=ssl_context is not None),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],
                                  on_connect=lambda conn: self.call_soon_threadsafe(connected, conn,
@@ -182,6 +185,21 @@ class WebXRNode(Node):
         if why is not None:
             raise self.param_error("token", f"in {where}: {why}", got=None)
         return token
+
+    def _secret(self) -> str | None:
+        """The proxy's secret from `secret_file` (None: none asked for); never logged."""
+        path = self.params["secret_file"]
+        if not path:
+            return None
+        try:
+            secret = Path(path).read_text().strip()
+        except OSError as exc:
+            raise self.param_error("secret_file", "a readable file holding the secret",
+                                   got=f"{path} ({exc.strerror or exc})") from None
+        why = access.check_token(secret)
+        if why is not None:
+            raise self.param_error("secret_file", f"a secret in {path}: {why}", got=None)
+        return secret
 
     def endpoints(self) -> dict[str, int]:
         server = getattr(self, "server", None)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import logging.handlers
 import os
 import signal
 import subprocess
@@ -73,6 +74,67 @@ MAX_LINE = 1 << 20        # bytes of one command: a group's node list is a few k
 # wait up to 5 ms at a time, each; at 0.5 ms, p99 pose -> pulse at 16 participants fell from 18-24 ms
 # to 12-13 ms (bench/bench_serve.py, back to back).
 SWITCH_INTERVAL_S = 0.0005
+# bytes of one log file (a container's NAME.log, a group's `log`): past it the file becomes NAME.log.1
+# (the one before goes) and a new one begins, so a log costs at most twice this of disk, whatever a
+# client makes a node write.
+LOG_CAP = 8 << 20
+
+
+def open_log(path, mode: str = "a", **kwargs):
+    """`path` opened to append to ("a" or "ab"), created 0600, never through a symlink (OSError ELOOP:
+    one planted there, say in a participant's folder, would have the server write where it points)."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    try:
+        return os.fdopen(fd, mode, **kwargs)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+class _GroupLog(logging.handlers.RotatingFileHandler):
+    """A group's log lines (its `log` file): capped at LOG_CAP, one older file kept, opened by open_log."""
+
+    def __init__(self, path):
+        super().__init__(path, maxBytes=LOG_CAP, backupCount=1, encoding="utf-8")
+
+    def _open(self):
+        return open_log(self.baseFilename, "a", encoding=self.encoding)
+
+
+class CappedLog:
+    """A container's output: what its pipe carries, copied into `path` by a thread of its own until
+    the file holds `cap` bytes; then it becomes PATH.1 (the one before goes) and a new one begins."""
+
+    def __init__(self, path, cap: int = LOG_CAP):
+        self.path, self.cap = Path(path), cap
+        self.file = open_log(self.path, "ab")
+        self.size = os.fstat(self.file.fileno()).st_size
+        self.thread: threading.Thread | None = None
+
+    def follow(self, pipe) -> None:
+        """Copy what `pipe` carries until its end (the container and whatever inherited it exited)."""
+        self.thread = threading.Thread(target=self._copy, args=(pipe,), name=f"log {self.path.name}", daemon=True)
+        self.thread.start()
+
+    def _copy(self, pipe) -> None:
+        try:
+            while chunk := os.read(pipe.fileno(), 1 << 16):
+                if self.size and self.size + len(chunk) > self.cap:
+                    self.file.close()
+                    os.replace(self.path, self.path.with_name(self.path.name + ".1"))
+                    self.file, self.size = open_log(self.path, "ab"), 0
+                self.file.write(chunk)
+                self.file.flush()
+                self.size += len(chunk)
+        except (OSError, ValueError) as exc:   # the file gone, or closed by close() after its wait
+            log.error("%s: no longer written: %s", self.path, exc)
+        finally:
+            pipe.close()
+
+    def close(self, timeout: float = 5.0) -> None:
+        if self.thread is not None:
+            self.thread.join(timeout)
+        self.file.close()
 
 
 @dataclass
@@ -170,7 +232,7 @@ class Container:
             return
         if command.get("log"):
             try:
-                group.handler = logging.FileHandler(command["log"])
+                group.handler = _GroupLog(command["log"])
             except OSError as exc:
                 log.warning("%s: log %s: %s (its lines go to the container's output only)", gid, command["log"], exc)
             else:
@@ -536,7 +598,7 @@ class ContainerPool:
         for key, mode, text in (("ready_file", "w", f"failed: {why}\n"), ("log", "a", f"{gid}: {why}\n")):
             if command.get(key):
                 try:
-                    with open(command[key], mode) as f:
+                    with (open(command[key], mode) if key == "ready_file" else open_log(command[key])) as f:
                         f.write(text)
                 except OSError as exc:
                     log.error("%s: cannot write %s: %s", gid, command[key], exc)
@@ -569,14 +631,15 @@ class ContainerPool:
         self._count += 1
         name = f"{self.prefix}-{self._count}"
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        log_file = open(self.log_dir / f"{name}.log", "ab")
+        log_file = CappedLog(self.log_dir / f"{name}.log")
         try:
             popen = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.bus", "--container", name, "--bus",
-                                      self.bus_file], stdin=subprocess.PIPE, stdout=log_file,
+                                      self.bus_file], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, **self.popen)
         except BaseException:
             log_file.close()
             raise
+        log_file.follow(popen.stdout)
         proc = _Process(name, popen, log_file, solo)
         self.processes.append(proc)
         return proc

@@ -13,18 +13,21 @@ replace one not yet sent (a slow Wi-Fi link gets the newest state, never a backl
 (setup, geometry) are sent in order, never dropped: a page with `max_queued` of them unsent, or
 whose socket takes `send_timeout_s` to take one frame, is closed (counted in `send_overflow`).
 
-Bounds for the internet: only the Host names it serves (loopback names, its LAN addresses, the
-configured `names`; else 421, page and WebSocket alike: DNS rebinding), WebSockets from its own
-origin only, `max_pages` pages at once, `max_per_address` TCP connections per client address
-(counted before any TLS handshake; loopback clients, e.g. a reverse proxy, are exempt unless
-`limit_loopback`), a request header whole within `header_timeout_s`, no Server banner, and the security headers on every answer, errors included.
-With an `Access` (touch4d.web.access) every path but the page's own files needs a token or cookie.
+Bounds for the internet (touch4d.web.hardening, shared with the study server): only the Host names it
+serves (loopback names, its LAN addresses, the configured `names`; else 421, page and WebSocket alike:
+DNS rebinding), `max_per_address` TCP connections per client address (counted before any TLS
+handshake; loopback clients, e.g. a reverse proxy, are exempt unless `limit_loopback`), a request
+header whole within `header_timeout_s`, no Server banner, the security headers on every answer,
+errors included. Its own: WebSockets from its own origin only, `max_pages` pages at once, under
+/static/ the page's files only (static_names). With an `Access` (touch4d.web.access) every path but
+the page's own files needs a token or cookie; with a `secret`, every such path needs it in the
+X-Touch4d-Secret header (a participant's page node behind the study server).
 """
 from __future__ import annotations
 
 import asyncio
 import collections
-import ipaddress
+import hmac
 import itertools
 import logging
 import threading
@@ -35,42 +38,30 @@ from typing import Callable, Iterable
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
-from aiohttp.http_exceptions import HttpProcessingError
 
 from touch4d.eventloop import new_event_loop
 
-from .access import COOKIE, HOLDER, Access, CookieGate, is_loopback, lan_addresses
+from .access import COOKIE, HOLDER, Access, CookieGate
+from .hardening import ESCAPED, HEADER_TIMEOUT_S, MAX_PER_ADDRESS, Hardening
 from .inbox import MAX_INPUT_HZ, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
 
 log = logging.getLogger(__name__)
+log.addFilter(ESCAPED)
 
 STATIC_DIR = Path(str(resources.files("touch4d.web") / "static"))
+SECRET_HEADER = "X-Touch4d-Secret"   # with a `secret`: what a proxy in front (the study server) sends
 WS_HEARTBEAT_S = 2.0         # a page that answers no ping within this is closed (it does not read)
 MAX_PAGES = 64               # pages connected at once: one more is refused (HTTP 503)
-MAX_PER_ADDRESS = 16         # TCP connections at once from one client address (a browser opens ~6)
-HEADER_TIMEOUT_S = 10.0      # a request's header must arrive whole within this (slow trickle: closed)
-KEEPALIVE_S = 15.0           # an idle HTTP connection is closed after this
 SEND_TIMEOUT_S = 5.0         # one frame not taken by the page's socket within this: the page is closed
 MAX_QUEUED = 32              # in-order frames waiting for one page; one more closes it
-LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
-SECURITY_HEADERS = {
-    # The page may talk to this server only: no other host, no inline script, no framing.
-    "Content-Security-Policy": ("default-src 'self'; connect-src 'self'; img-src 'self' data:; "
-                                "frame-ancestors 'none'; base-uri 'none'; form-action 'none'"),
-    "Referrer-Policy": "no-referrer",       # nothing of the page's address leaves in Referer headers
-    "Cache-Control": "no-store",
-    "X-Content-Type-Options": "nosniff",
-}
 
 
-def _host_name(name: str) -> str:
-    """A host name as a Host header's is compared: lower case, without scheme, port or brackets
-    (a user may write `touch4d.example:443` or `https://touch4d.example/`); a bare IPv6 address as it is."""
-    try:
-        return str(ipaddress.ip_address(name))
-    except ValueError:
-        return (urlsplit(name if "://" in name else f"//{name}").hostname or name).lower()
+def static_names(directory: Path) -> frozenset[str]:
+    """The page's files: the regular files of `directory` (no folder, no symlink). Only these are
+    served under /static/ (any other name, an over-long one included, is 404 before any file
+    system call) and only these does the study server forward."""
+    return frozenset(p.name for p in Path(directory).iterdir() if p.is_file() and not p.is_symlink())
 
 
 class _Client:
@@ -90,137 +81,6 @@ class _Client:
         self.release: asyncio.TimerHandle | None = None   # the held input's time
 
 
-class _Guard(asyncio.Protocol):
-    """One TCP connection in front of aiohttp's handler: counted per client address before anything
-    else (a TLS handshake included: connections that never finish one are capped too), TLS started
-    over it if the server has a certificate, closed if a request header does not arrive whole within
-    the header timeout; passes through after a WebSocket upgrade."""
-
-    def __init__(self, server: "PageServer", inner: asyncio.Protocol):
-        self.server, self.inner = server, inner
-        self.address: str | None = None
-        self.transport = None            # what the handler uses: the TCP connection, or TLS over it
-        self.early: list[bytes] = []     # data decrypted before the handler has its transport
-        self.early_eof = False
-        self.handshake: asyncio.Future | None = None
-        self.timer: asyncio.TimerHandle | None = None
-        self.tail = b""
-        self.upgraded = False
-
-    def connection_made(self, transport) -> None:
-        peer = transport.get_extra_info("peername")
-        address = peer[0] if peer else "?"
-        if not self.server._admit(address):
-            transport.abort()
-            return
-        self.address = address
-        if self.server.ssl_context is None:
-            self._attach(transport)
-        else:
-            self.handshake = asyncio.ensure_future(self._start_tls(transport))   # (held: a task is weakly kept)
-
-    async def _start_tls(self, raw) -> None:
-        try:
-            transport = await asyncio.get_running_loop().start_tls(
-                raw, self, self.server.ssl_context, server_side=True,
-                ssl_handshake_timeout=self.server.header_timeout_s)
-        except Exception:  # noqa: BLE001 - a failed or timed-out handshake: start_tls closed the connection
-            self.server.tls_failed += 1
-            self._forget()
-            return
-        if self.address is None:          # lost in between
-            transport.abort()
-            return
-        self._attach(transport)
-
-    def _attach(self, transport) -> None:
-        self.transport = transport
-        self.server._guards[transport] = self
-        self.inner.connection_made(transport)
-        self._arm()
-        for data in self.early:
-            self.data_received(data)
-        self.early = []
-        if self.early_eof:
-            self.inner.eof_received()
-
-    def _forget(self) -> None:
-        """Release the connection's place in its address's count (once)."""
-        if self.address is not None:
-            self.server._release(self.address)
-            self.address = None
-
-    def _arm(self) -> None:
-        self.tail = b""
-        self.timer = asyncio.get_running_loop().call_later(self.server.header_timeout_s, self._expired)
-
-    def _expired(self) -> None:
-        self.server.header_timeouts += 1
-        self.transport.abort()
-
-    def data_received(self, data: bytes) -> None:
-        if self.transport is None:       # TLS: the request right after the handshake, before _attach
-            self.early.append(data)
-            return
-        if not self.upgraded:
-            if self.timer is None:
-                self._arm()              # the next request on a kept-alive connection
-            seen = self.tail + data
-            if b"\r\n\r\n" in seen:      # the header is whole: its handler takes it from here
-                self.timer.cancel()
-                self.timer = None
-                after = seen.rsplit(b"\r\n\r\n", 1)[1]
-                if after:                # pipelined: the next header has begun
-                    self._arm()
-                    self.tail = after[-3:]
-            else:
-                self.tail = seen[-3:]
-        self.inner.data_received(data)
-
-    def upgrade(self) -> None:
-        self.upgraded = True
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
-
-    def eof_received(self):
-        if self.transport is None:
-            self.early_eof = self.address is not None
-            return None
-        return self.inner.eof_received()
-
-    def pause_writing(self) -> None:
-        if self.transport is not None:
-            self.inner.pause_writing()
-
-    def resume_writing(self) -> None:
-        if self.transport is not None:
-            self.inner.resume_writing()
-
-    def connection_lost(self, exc) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-        attached = self.transport is not None and self.address is not None
-        self._forget()
-        if attached:
-            self.server._guards.pop(self.transport, None)
-            self.inner.connection_lost(exc)
-
-
-class _BadRequests(logging.Filter):
-    """aiohttp logs each malformed request with a traceback: a client could fill the log. Counted instead."""
-
-    def __init__(self):
-        super().__init__()
-        self.count = 0
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.exc_info and isinstance(record.exc_info[1], HttpProcessingError):
-            self.count += 1
-            return False
-        return True
-
-
 class PageServer:
     """HTTP + WebSocket server for the WebXR page, running until `stop()`."""
 
@@ -233,35 +93,28 @@ class PageServer:
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None,
                  on_pending: Callable[[int], None] | None = None, static_dir: Path = STATIC_DIR,
-                 loop: asyncio.AbstractEventLoop | None = None):
+                 secret: str | None = None, loop: asyncio.AbstractEventLoop | None = None):
         self.host, self.port, self.access, self.ssl_context = host, port, access, ssl_context
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
         self.on_pending = on_pending
         self.static_dir = Path(static_dir)
-        self.max_pages, self.max_per_address, self.limit_loopback = max_pages, max_per_address, limit_loopback
-        self.header_timeout_s, self.send_timeout_s, self.max_queued = header_timeout_s, send_timeout_s, max_queued
+        self.max_pages, self.send_timeout_s, self.max_queued = max_pages, send_timeout_s, max_queued
         self.input_hz = input_hz
-        self.names = {_host_name(n) for n in (*LOOPBACK_NAMES, *names) if n}
-        if not is_loopback(host):
-            self.names |= {a.lower() for a in lan_addresses(host)} | ({host.lower()} if host not in ("", "0.0.0.0", "::") else set())
+        self.secret = secret
+        self.hardening = Hardening(host, names, ssl_context=ssl_context, max_per_address=max_per_address,
+                                   limit_loopback=limit_loopback, header_timeout_s=header_timeout_s, log=log)
+        self.names = self.hardening.names
         self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
         # counted refusals and closes
         self.refused_origin = 0     # WebSockets from another site
-        self.refused_host = 0       # Host names not served (421)
+        self.refused_secret = 0     # requests without the secret (with a `secret`)
         self.over_limit = 0         # connections refused because max_pages pages were connected
-        self.over_address = 0       # connections closed at once: max_per_address from that address
-        self.header_timeouts = 0    # connections closed: no whole request header in time
-        self.tls_failed = 0         # connections closed: no TLS handshake, or a failed one, in time
         self.send_overflow = 0      # pages closed: they did not take what was sent to them
         self.inputs_replaced = 0    # of closed pages: inputs superseded by a newer one (paced)
         self.flooded = 0            # of closed pages: other messages over their rate, dropped
-        self.bad_requests = _BadRequests()   # malformed HTTP requests (answered 400 by aiohttp)
-        self._http_log = logging.Logger("touch4d.web.server.http")
-        self._http_log.parent = log
-        self._http_log.addFilter(self.bad_requests)
         self.clients: dict[int, _Client] = {}
-        self._per_address: collections.Counter = collections.Counter()
-        self._guards: dict = {}
+        self._per_address = self.hardening.per_address   # connections per client address, open now
+        self._guards = self.hardening.guards
         self._inboxes: dict[int, Inbox] = {}     # until the last delivery after a page closed
         self._ids = itertools.count(1)
         self._given_loop = loop            # its owner runs it; None: a thread of the server's own
@@ -277,8 +130,14 @@ class PageServer:
 
     @property
     def refused(self) -> int:
-        """Requests refused: no valid token or cookie, another origin, or a Host not served."""
-        return (self.gate.refused if self.gate else 0) + self.refused_origin + self.refused_host
+        """Requests refused: no valid token, cookie or secret, another origin, or a Host not served."""
+        return (self.gate.refused if self.gate else 0) + self.refused_origin + self.refused_secret + self.refused_host
+
+    # the hardening's counts (touch4d.web.hardening), as the server's own
+    refused_host = property(lambda self: self.hardening.refused_host)
+    over_address = property(lambda self: self.hardening.over_address)
+    header_timeouts = property(lambda self: self.hardening.header_timeouts)
+    tls_failed = property(lambda self: self.hardening.tls_failed)
 
     # ---- lifecycle (any thread) ------------------------------------------------------------------
 
@@ -376,7 +235,7 @@ class PageServer:
                 "page_wrong_host": self.refused_host, "page_over_address": self.over_address,
                 "page_header_timeout": self.header_timeouts, "page_tls_failed": self.tls_failed,
                 "page_send_overflow": self.send_overflow,
-                "page_bad_request": self.bad_requests.count,
+                "page_bad_request": self.hardening.errors.count, "page_handler_error": self.hardening.errors.errors,
                 "page_inputs_replaced": self.inputs_replaced + sum(c.inbox.replaced for c in list(self.clients.values())),
                 "page_flooded": self.flooded + sum(c.inbox.dropped for c in list(self.clients.values()))}
 
@@ -400,19 +259,17 @@ class PageServer:
             loop.close()
 
     async def _serve(self) -> None:
-        middlewares = [self._check_host] + ([self.gate.middleware] if self.gate else [])
-        app = web.Application(middlewares=middlewares, client_max_size=MAX_PAGE_MESSAGE)
-        app.on_response_prepare.append(self._headers)
+        middlewares = ([self._check_secret] if self.secret else []) + ([self.gate.middleware] if self.gate else [])
+        app = self.hardening.application(middlewares, client_max_size=MAX_PAGE_MESSAGE)
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
-        app.router.add_static("/static/", self.static_dir, follow_symlinks=False)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, keepalive_timeout=KEEPALIVE_S,
-                                     logger=self._http_log)
+        self._static_names = static_names(self.static_dir)
+        app.router.add_get("/static/{name}", self._static)
+        self._runner = self.hardening.runner(app)
         await self._runner.setup()
-        handler = self._runner.server
-        # TLS, if any, is started by each connection's guard once it is counted (see _Guard)
+        # TLS, if any, is started by each connection's guard once it is counted (touch4d.web.hardening)
         self._listener = await asyncio.get_running_loop().create_server(
-            lambda: _Guard(self, handler()), self.host or None, self.port)
+            self._runner.server, self.host or None, self.port)
         self.port = self._listener.sockets[0].getsockname()[1]
         if self.gate is not None:
             # a browser keeps cookies per host, not per port: another server of this machine must not overwrite it
@@ -426,41 +283,24 @@ class PageServer:
         if self._runner is not None:
             await self._runner.cleanup()
 
-    def _admit(self, address: str) -> bool:
-        if (self.limit_loopback or not is_loopback(address)) and self._per_address[address] >= self.max_per_address:
-            self.over_address += 1
-            return False
-        self._per_address[address] += 1
-        return True
-
-    def _release(self, address: str) -> None:
-        self._per_address[address] -= 1
-        if self._per_address[address] <= 0:
-            del self._per_address[address]
-
-    async def _headers(self, request: web.Request, response: web.StreamResponse) -> None:
-        """Every answer, the router's 404 and 405 and the gate's 403 included."""
-        response.headers.update(SECURITY_HEADERS)
-        response.headers.pop("Server", None)   # no banner naming the software and its version
-
-    def _host_served(self, request: web.Request) -> bool:
-        host = request.headers.get("Host")
-        try:
-            name = urlsplit(f"//{host}").hostname if host else None
-        except ValueError:
-            name = None
-        return name is not None and name in self.names
-
     @web.middleware
-    async def _check_host(self, request: web.Request, handler):
-        # DNS rebinding: a page of another site, its name pointed at this address, must get nothing.
-        if not self._host_served(request):
-            self.refused_host += 1
-            raise web.HTTPMisdirectedRequest(text="touch4d: this server does not serve that host name\n")
+    async def _check_secret(self, request: web.Request, handler):
+        """Only the proxy in front knows the secret (the study server: a page node on loopback is
+        reachable by every user of the machine); the page's own files need none."""
+        given = request.headers.get(SECRET_HEADER, "")
+        if not request.path.startswith("/static/") and not hmac.compare_digest(given.encode(), self.secret.encode()):
+            self.refused_secret += 1
+            raise web.HTTPForbidden(text="touch4d: this page is served through the study server only\n")
         return await handler(request)
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         return web.FileResponse(self.static_dir / "index.html")
+
+    async def _static(self, request: web.Request) -> web.StreamResponse:
+        name = request.match_info["name"]
+        if name not in self._static_names:
+            raise web.HTTPNotFound()
+        return web.FileResponse(self.static_dir / name)
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         # A page from another site must not drive the hand through this browser (cross-site
@@ -480,9 +320,7 @@ class PageServer:
         ws = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, compress=False, heartbeat=WS_HEARTBEAT_S,
                                    autoping=False)
         await ws.prepare(request)
-        guard = self._guards.get(request.transport)
-        if guard is not None:
-            guard.upgrade()
+        self.hardening.upgraded(request.transport)
         conn = next(self._ids)
         peer = request.transport.get_extra_info("peername") if request.transport else None
         inbox = self._inboxes[conn] = Inbox(input_hz=self.input_hz)

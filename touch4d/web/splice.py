@@ -152,16 +152,22 @@ class Splice:
         self.close()
         return status, headers, body
 
-    def join(self, transport: asyncio.Transport | None) -> bool:
-        """Take `transport` (the client's, from whoever served it until now), write it the upstream's
-        101 head and what followed it, then pass bytes both ways. False, the upstream closed: the
-        client had gone (its transport None or closing: it may have left while the upstream answered)."""
+    def join(self, transport: asyncio.Transport | None,
+             take: Callable[[asyncio.Transport, asyncio.BaseProtocol], None] | None = None) -> bool:
+        """Take `transport` (the client's, from whoever served it until now: `take(transport, protocol)`
+        hands it over, by default its set_protocol; a server's guard keeps counting it), write it the
+        upstream's 101 head and what followed it, then pass bytes both ways. False, the upstream
+        closed: the client had gone (its transport None or closing: it may have left while the
+        upstream answered)."""
         if transport is None or transport.is_closing():
             self.close()
             return False
         server = self.server
         self.client.transport = transport
-        transport.set_protocol(self.client)
+        if take is None:
+            transport.set_protocol(self.client)
+        else:
+            take(transport, self.client)
         for end in (self.client, server):
             end.transport.set_write_buffer_limits(self.high_water, self.low_water)
         received, server.received, server.joined = server.received, bytearray(), True
