@@ -1,7 +1,8 @@
 """Physics node: the scene node with 4D rigid-body physics (`scene:=physics`).
 
-Publishes `scene/state` as the scene node does (the bodies where physics has them, at `publish_rate`
-while anything moves, every 1/`rate` s for late joiners) and `physics/contacts` (contact points that
+Publishes `scene/state` as the scene node does (the bodies where physics has them, at each tick while
+anything moves, at most `max_rate` times a second, and whenever 1/`rate` s passes without one, for late
+joiners: touch4d.bus.ratelimit) and `physics/contacts` (contact points that
 struck harder than `contact_speed`, and the hand starting a push). Subscribes `hand/pose` (the hand pushes
 what it feels, touch4d.physics.push), `controller/state` (the trigger plus controller motion
 turns the selected object, paper §4.4; buttons run commands) and `scene/command` (the scene node's
@@ -16,6 +17,7 @@ import time
 import numpy as np
 
 from touch4d.bus import Node, Param
+from touch4d.bus.ratelimit import RateLimitedPublisher
 from touch4d.errors import Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, HandPose, PhysicsContacts, PhysicsInput, SceneCommand, SceneState
@@ -36,6 +38,7 @@ class PhysicsNode(Node):
         "rate": Param(2.0, "scene/state repeats for late joiners", unit="Hz", above=0, max=1000),
         "publish_rate": Param(60.0, "scene/state while anything moves (the renderer's rate)", unit="Hz", above=0,
                               max=1000),
+        "max_rate": Param(120.0, "scene/state at most this often (the scene node's)", unit="Hz", above=0, max=1000),
         "gains": Param({}, "controller motion -> rotation: {translation, rotation}"),
         "trigger_threshold": Param(0.5, "trigger value that grabs the object", above=0, max=1),
         "buttons": Param(dict(DEFAULT_BUTTONS), "controller button -> command (next, reset, projection, pause, step)"),
@@ -73,7 +76,6 @@ class PhysicsNode(Node):
         self.clock_start: float | None = None     # the clock starts at the first tick, not during set-up
         self.clock_steps = 0
         self.create_timer(1.0 / p["publish_rate"], self.tick)
-        self.create_timer(1.0 / p["rate"], self.publish)
         # what a replay needs to rebuild this node (touch4d physics replay), repeated for late recorders
         self.start_args = {"scene": str(p["scene"]), "calibration": str(p["calibration"]), "glove": str(p["glove"]),
                            "push_rate": float(p["push_rate"]), "gains": dict(p["gains"]),
@@ -81,7 +83,8 @@ class PhysicsNode(Node):
                            "rotate": str(p["rotate"])}
         self.create_timer(1.0 / p["rate"], self.publish_start)
         self.publish_start()
-        self.publish()
+        # every publish, the steady one for late joiners too, keeps max_rate's spacing
+        self.scene_state = RateLimitedPublisher.for_node(self, self.publish, rate=p["rate"], max_rate=p["max_rate"])
         w = self.session.world
         self.log.info("scene %s: %d bodies (%d static), %g Hz steps, gravity %s%s", p["scene"], len(w.names),
                       int(w.static.sum()), 1.0 / self.dt, w.gravity.tolist(), ", paused" if p["paused"] else "")
@@ -136,8 +139,7 @@ class PhysicsNode(Node):
         self.count("steps", self.session.state.steps - before)
         self.publish_contacts(contacts)
         self.flush_journal()
-        if self.session.control.scene.revision != self.published_revision:
-            self.publish()
+        self.scene_state.changed(self.session.control.scene.revision != self.published_revision)
 
     def publish_contacts(self, contacts) -> None:
         """Contact points that struck harder than contact_speed and carried an impulse, and pushes the hand

@@ -3,15 +3,16 @@
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
 skipping a backlog loses no rotation) and `scene/command` (`load` with a scene file's text replaces
 the whole scene: how a study shows each trial's stimulus). Publishes `scene/state` on every change,
-at most `max_rate` times a second, and every 1/`rate` s for late joiners. The calibration file is
-read again when it changes (a headset re-centring the screen turns the controller's axes with it).
+at most `max_rate` times a second, and again whenever 1/`rate` s passes without one, for late joiners
+(touch4d.bus.ratelimit). The calibration file is read again when it changes (a headset re-centring
+the screen turns the controller's axes with it).
 """
 from __future__ import annotations
 
 import os
-import time
 
 from touch4d.bus import Node, Param
+from touch4d.bus.ratelimit import RateLimitedPublisher
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.messages import ControllerState, SceneCommand, SceneState
@@ -49,7 +50,6 @@ class SceneNode(Node):
 
     def setup(self) -> None:
         p = self.params
-        self.min_period = 1.0 / p["max_rate"]
         config = ControlConfig.from_params(gains=p["gains"], trigger_threshold=p["trigger_threshold"],
                                            buttons=p["buttons"], rotate=p["rotate"], spin=p["spin"],
                                            source=self.param_where("spin")[0])
@@ -58,19 +58,17 @@ class SceneNode(Node):
         self.control.fix(load_physics(p["scene"]).static)
         self.calibration_mtime = os.stat(p["calibration"]).st_mtime_ns
         self.create_timer(1.0, self.reload_calibration)
-        self.dirty = False
-        self.last_publish = 0.0
-        self.pub = self.create_publisher("scene/state", SceneState)
+        pub = self.create_publisher("scene/state", SceneState)
+        # every publish, the steady one for late joiners too, keeps max_rate's spacing
+        self.scene_state = RateLimitedPublisher.for_node(self, lambda: pub.publish(self.control.message()),
+                                                         rate=p["rate"], max_rate=p["max_rate"])
         self.create_subscription("controller/state", ControllerState, self.on_controller, latest_only=True)
         self.create_subscription("scene/command", SceneCommand, self.on_command, optional=True)
-        # the steady re-publish for late joiners goes through `changed`, so it too keeps max_rate's spacing
-        self.create_timer(1.0 / p["rate"], lambda: self.changed(True))
-        self.flush_due = None   # the deferred publish of a change that came under min_period after the last
         if config.spin_plane is not None:
             spin_rate = p["spin_rate"]
-            self.create_timer(1.0 / spin_rate, lambda: self.changed(self.control.advance(1.0 / spin_rate)))
-        self.publish()
-        self.log.info("scene %s: %d object(s); %s", p["scene"], len(self.control.scene.objects), what_turns(self.control))
+            self.create_timer(1.0 / spin_rate, lambda: self.scene_state.changed(self.control.advance(1.0 / spin_rate)))
+        self.log.info("scene %s: %d object(s); %s", p["scene"], len(self.control.scene.objects),
+                      what_turns(self.control))
 
     def reload_calibration(self) -> None:
         """Read the calibration again when its file changed (a headset re-centred the screen)."""
@@ -86,7 +84,8 @@ class SceneNode(Node):
                                                       f"the last one: {exc}")
 
     def on_controller(self, msg: ControllerState) -> None:
-        self.changed(self.control.on_controller(msg.position, msg.orientation, msg.trigger, msg.buttons, msg.valid))
+        self.scene_state.changed(self.control.on_controller(msg.position, msg.orientation, msg.trigger,
+                                                            msg.buttons, msg.valid))
 
     def on_command(self, msg: SceneCommand) -> None:
         try:
@@ -94,29 +93,7 @@ class SceneNode(Node):
         except Touch4dError as exc:   # SceneCommandError, or (ConfigError) a bad scene to load: the scene stays
             self.log.warning("scene/command %s ignored: %s", msg.command, exc)
             return
-        self.changed(changed)
-
-    def changed(self, changed: bool) -> None:
-        """Publish a change now, or on the next flush if the last message went out under min_period ago."""
-        if not changed:
-            return
-        since = time.monotonic() - self.last_publish
-        if since >= self.min_period:
-            self.publish()
-        else:
-            self.dirty = True
-            if self.flush_due is None:   # a deadline, not a max_rate timer polling `dirty` (one wake per change)
-                self.flush_due = self.call_later(self.min_period - since, self.flush)
-
-    def flush(self) -> None:
-        self.flush_due = None
-        if self.dirty:
-            self.publish()
-
-    def publish(self) -> None:
-        self.pub.publish(self.control.message())
-        self.dirty = False
-        self.last_publish = time.monotonic()
+        self.scene_state.changed(changed)
 
 
 if __name__ == "__main__":   # python -m touch4d.nodes.NAME: run it, as `touch4d node run NAME` does

@@ -181,3 +181,27 @@ def test_released_the_controller_throws_the_body_at_its_last_turning_rate():
     from touch4d.physics.world import angular_velocity
     np.testing.assert_allclose(angular_velocity(s.world, s.state)[0], rate, atol=1e-9)
     np.testing.assert_allclose(s.state.r[0], bv.exp(rate * 0.5) @ released, atol=1e-9)
+
+
+def test_the_nodes_states_keep_max_rate_spacing_the_steady_ones_too():
+    """A falling body changes at every 50 Hz tick; with max_rate 10 its states, the steady 7 Hz ones for late
+    joiners among them, are at least 0.1 s apart by their stamps (when each went out, not when a loaded
+    machine delivered it), yet they keep coming while it falls."""
+    with running_broker() as bus:
+        params = {"scene": DROP, "publish_rate": 50.0, "rate": 7.0, "max_rate": 10.0}
+        with node_process("physics", bus, params=params) as proc:
+            probe = Node("probe", bus=bus)
+            try:
+                states = collect(probe, "scene/state", SceneState)
+                try:
+                    wait_until(lambda: len({s.revision for s in states}) >= 2, timeout=30, spin=probe)
+                except TimeoutError:
+                    raise AssertionError(f"physics node output:\n{proc.text}") from None
+                first = len(states)            # from the first move on
+                probe.spin(1.5)
+            finally:
+                probe.shutdown()
+    stamps = np.array([s.stamp for s in states])
+    assert np.diff(stamps).min() >= 0.1 - 1e-3, np.diff(stamps)
+    moved = {s.revision for s in states[first:]}
+    assert len(moved) >= 5, np.diff(stamps)          # about 1.5 s at 10 Hz while it falls and tumbles
