@@ -81,6 +81,8 @@ def test_a_session_runs_breaks_answers_and_timeouts_on_the_clock_it_is_given(stu
     machine.start()
     events = machine.drain()
     assert machine.phase == Phase.BREAK and machine.message.startswith("Ready? First: seeing only")
+    # said to a glove's wearer and a controller's holder alike: no glove named
+    assert "nothing vibrates" in machine.message and "glove" not in machine.message
     scene = yaml.safe_load([e for e in events if isinstance(e, LoadScene)][0].text)
     assert [o["name"] for o in scene["objects"]] == ["object-1"]       # no name gives the answer away
     assert scene["objects"][0]["shape"] == "tesseract"

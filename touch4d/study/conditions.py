@@ -27,7 +27,8 @@ class Condition:
 
 CONDITIONS: tuple[str, ...] = STUDY_MODALITIES     # ("visual", "touch", "visual+touch"): the usual order
 ALL_CONDITIONS: tuple[str, ...] = STUDY_CONDITIONS  # those, then the same in the slice and both views
-_WORDS = {"visual": "seeing only (the glove is off)", "touch": "touch only (nothing is shown)",
+# Said to every participant, whatever their output: a glove's motors or a held controller's one.
+_WORDS = {"visual": "seeing only (nothing vibrates)", "touch": "touch only (nothing is shown)",
           "visual+touch": "seeing and touching"}
 
 
