@@ -207,7 +207,62 @@ def parse_study(data, file=None) -> Study:
     study = schema.convert(data, Study, file)
     study.__dict__["_path"] = str(file) if file is not None else "<input>"
     _check(study, file)
-    return study
+    return _fill_texts(study)
+
+
+# What a participant reads (consent, instructions) may name figures the plan decides; written as these
+# placeholders they are filled from the plan when the file is read, so the text cannot disagree with it.
+PLACEHOLDERS = ("{minutes}", "{answers}")
+
+
+def session_minutes(study: Study) -> int:
+    """A session's minutes at most: every trial of a participant's plan (practice included) at its time
+    limit, breaks aside: `study check`'s estimate and a consent text's `{minutes}`."""
+    from .plan import plan_session
+
+    return round(sum(t.time_limit_s for t in plan_session(study, "P01")) / 60)
+
+
+def answers_text(study: Study) -> str:
+    """Each task's options as a participant reads them, `{answers}`: face, edge or vertex; left or right."""
+    return "; ".join(", ".join(t.options[:-1]) + " or " + t.options[-1] for t in study.tasks)
+
+
+def _fill_texts(study: Study) -> Study:
+    """The study with PLACEHOLDERS in its consent and instructions replaced by the plan's figures."""
+    if not any(p in study.consent or p in study.instructions for p in PLACEHOLDERS):
+        return study
+    values = {"{minutes}": str(session_minutes(study)), "{answers}": answers_text(study)}
+
+    def fill(text: str) -> str:
+        for key, value in values.items():
+            text = text.replace(key, value)
+        return text
+
+    return replace_study(study, consent=fill(study.consent), instructions=fill(study.instructions))
+
+
+def study_text_warnings(study: Study) -> list[str]:
+    """What a participant would read wrong: a consent or instructions that name a number of minutes
+    other than `session_minutes`, or fewer answer buttons (`the A and B buttons`) than a task has
+    options. `study check` prints them; the fix is the placeholders (PLACEHOLDERS)."""
+    import re
+
+    out = []
+    minutes = session_minutes(study)
+    for key in ("consent", "instructions"):
+        for said in re.finditer(r"\b(\d+)\s*(?:minutes|min)\b", getattr(study, key)):
+            if int(said.group(1)) != minutes:
+                out.append(f"{study.path}: {key} says '{said.group(0)}', a session's trials take at most {minutes} "
+                           "minutes (each at its time limit): write {minutes} to have the figure filled in")
+    widest = max(study.tasks, key=lambda t: len(t.options))
+    for said in re.finditer(r"((?:\w+(?:, | and | or ))+\w+) buttons", study.instructions):
+        named = re.split(r", | and | or ", said.group(1))
+        if len(named) < len(widest.options):
+            out.append(f"{study.path}: instructions name {len(named)} answer buttons ('{said.group(0)}'), task "
+                       f"{widest.id} has {len(widest.options)} options ({', '.join(widest.options)}): name as many, "
+                       "or write {answers} for each task's options")
+    return out
 
 
 def scene_path(study: Study, key: str, path: str) -> Path:

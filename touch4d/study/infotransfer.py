@@ -82,8 +82,13 @@ def _bits(stimulus, answer, shape) -> np.ndarray:
     return np.maximum(mi, 0.0).reshape(stimulus.shape[:-1])
 
 
-def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = HUMAN_NOISE, scenes: int = 16,
-                       positions: int = 12, seed: int = 0, exploration: Exploration | None = None) -> dict:
+SCENES = 20           # jittered scenes per stimulus, half held out: `study transfer`'s default
+POSITIONS = 16        # hand positions per scene
+LEAST_SHARE = 0.1     # a task whose predicted bits are under this share of its maximum: the glove cannot tell it
+
+
+def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float = HUMAN_NOISE, scenes: int = SCENES,
+                       positions: int = POSITIONS, seed: int = 0, exploration: Exploration | None = None) -> dict:
     """What one touch tells about a task's stimuli with this glove: an LDA trained on noisy patterns
     (`noise` the fingertip's; per motor, `psychophysics.motor_noise`) of half the jittered scenes at
     random hand positions, tested on the other half; returns bits, their maximum log2(stimuli),
@@ -99,6 +104,28 @@ def predicted_transfer(glove: Glove, study: Study, task_id: str, *, noise: float
             "accuracy": float(np.trace(confusion) / confusion.sum()), "stimuli": names,
             "confusion": confusion.tolist(), "motors": len(glove.motor_names), "noise": noise,
             "test_patterns": int(test.sum())}
+
+
+def glove_task_warnings(glove: Glove, study: Study, *, noise: float = HUMAN_NOISE, least: float = LEAST_SHARE,
+                        scenes: int = SCENES, positions: int = POSITIONS, seed: int = 0) -> list[str]:
+    """One line per task whose predicted bits with `glove` (`predicted_transfer`, what `study transfer
+    --glove` prints) are under `least` of its maximum: its conditions with touch would measure the
+    glove, not the participant. `study check --glove` prints them; a study server can call it before
+    serving a study with a glove. Nothing to say for a study without a condition that runs the motors."""
+    from .gate import allowed
+
+    touched = [c for c in study.conditions if allowed(c).motors]
+    if not touched:
+        return []
+    out = []
+    for task in study.tasks:
+        r = predicted_transfer(glove, study, task.id, noise=noise, scenes=scenes, positions=positions, seed=seed)
+        if r["bits"] < least * r["max_bits"]:
+            out.append(f"task {task.id}: one touch with {glove.path} ({r['motors']} motor{'s' if r['motors'] != 1 else ''}) tells {r['bits']:.2f} "
+                       f"of {r['max_bits']:.2f} bits (accuracy {r['accuracy']:.2f} from touch alone, chance "
+                       f"{1 / len(r['stimuli']):.2f}): its {', '.join(touched)} trials would measure the glove, "
+                       "not the participant")
+    return out
 
 
 def held_out_confusion(x: np.ndarray, k: np.ndarray, test: np.ndarray, stimuli: int) -> np.ndarray:
