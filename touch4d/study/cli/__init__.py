@@ -27,6 +27,8 @@ def register(subparsers) -> None:
     check = sub.add_parser("check", help="check a study file and summarise it",
                            description="Read a study file (and every scene it names); print what a session holds.")
     check.add_argument("file", metavar="FILE", help="study file (YAML), e.g. config/studies/paper.yaml, or its name (paper)")
+    check.add_argument("--glove", metavar="FILE", help="also warn of each task this glove cannot tell by touch "
+                       "(its predicted bits, as study transfer --glove, under a tenth of the task's)")
     check.set_defaults(func=run_check)
 
     plan = sub.add_parser("plan", help="one participant's trials, in order",
@@ -175,6 +177,7 @@ def _study_path(path):
 
 
 def run_check(args) -> int:
+    from ..design import session_minutes, study_text_warnings
     from ..plan import order_table, plan_session, quick_plan
 
     study = _study(args.file)
@@ -191,9 +194,19 @@ def run_check(args) -> int:
         count = sum(t.task == task.id for t in main)
         print(f"  task {task.id} ({task.kind}): {len(names)} stimuli ({', '.join(names)}), options "
               f"{'/'.join(task.options)}, {study.repetitions_of(task)} repetitions: {count} trials")
-    estimate = sum(t.time_limit_s for t in trials)
     print(f"  a session: {len(trials)} trials ({len(trials) - len(main)} practice) in {len(study.conditions)} blocks, "
-          f"at most {estimate / 60:.0f} min of trials at the time limit; --quick: {len(quick_plan(study, 'P01'))} trials")
+          f"at most {session_minutes(study)} min of trials at the time limit; --quick: "
+          f"{len(quick_plan(study, 'P01'))} trials")
+    warnings = study_text_warnings(study)
+    if args.glove:
+        from touch4d.tactile import load_glove
+
+        from ..infotransfer import glove_task_warnings
+
+        glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file"))
+        warnings += glove_task_warnings(glove, study)
+    for warning in warnings:
+        print(f"warning: {warning}")
     return 0
 
 
