@@ -133,6 +133,11 @@ class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
     # give by joining, and how to take part. Plain text; blank lines separate paragraphs.
     consent: str = ""
     instructions: str = ""
+    # A joining browser that cannot vibrate (no immersive session, no gamepad rumble; the welcome page
+    # checks before consent): `refuse` it with a page that says why, or `allow` it (its touch trials
+    # are then felt by no one: for studies where touch is not what is measured). Either way the
+    # experimenter's page shows what each participant's browser could do.
+    without_vibration: Literal["refuse", "allow"] = "refuse"
 
     @property
     def path(self) -> str:
