@@ -139,3 +139,22 @@ def test_the_designs_examples_feel_each_sample_with_the_noise_of_its_skin():
     assert np.std(added[:, regions["palm"]]) == pytest.approx(noise_for_weber(THENAR_WEBER), rel=0.05)
     fingers = regions["thumb"] + regions["index"] + regions["middle"] + regions["ring"] + regions["little"]
     assert np.std(added[:, fingers + regions["back"]]) == pytest.approx(HUMAN_NOISE, rel=0.05)
+
+
+@pytest.mark.timeout(200)
+def test_glove_design_prints_the_bits_study_transfer_gives_its_written_file(tmp_path, capsys):
+    """The design's table scores layouts on its own test examples; what it prints for the written file
+    is what `study transfer --glove` of that file prints, and the text says why the table differs."""
+    out = tmp_path / "designed.yaml"
+    design = ["glove", "design", "--motors", "2", "--study", STUDY, "--random", "0", "--rounds", "0", "--scenes",
+              "3", "--positions", "3", "--seed", "3", "--workers", "0", "-o", str(out)]
+    assert main([*design, "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["transfer_command"].endswith(f"--glove {out} --seed 3")
+    assert main(["study", "transfer", STUDY, "--glove", str(out), "--seed", "3", "--json"]) == 0
+    transfer = json.loads(capsys.readouterr().out)
+    assert result["transfer"] == {r["task"]: r["bits"] for r in transfer["results"]}
+    assert main(design) == 0
+    text = capsys.readouterr().out
+    line = next(line for line in text.splitlines() if line.startswith("touch4d study transfer"))
+    assert f"lookalikes {transfer['results'][0]['bits']:.3f}" in line and "sampling error" in line, text

@@ -4,6 +4,7 @@ one frame, offline."""
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -55,6 +56,21 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def slice_warning(scene, where: str, given: bool) -> str | None:
+    """Why a slice cut `where` (a flag or a scene key) shows nothing: it was `given` to a view without
+    a slice (it is then ignored), or it cuts outside every object's range of w (an empty slice)."""
+    from touch4d.geometry.section import w_extent
+
+    if scene.view == "projection":
+        return (f"{where} {scene.slice_w:g} is ignored: the view is the projection (--view slice or both cuts "
+                "the scene)") if given else None
+    ranges = [(obj.name, *w_extent(np.vstack([p.vertices for p in obj.world_parts()]))) for obj in scene.objects]
+    if not ranges or any(low <= scene.slice_w <= high for _, low, high in ranges):
+        return None
+    spans = ", ".join(f"{name} {low:g}..{high:g}" for name, low, high in ranges)
+    return f"{where} {scene.slice_w:g} cuts no object: the slice is empty (the objects span w {spans})"
+
+
 def _render(args) -> int:
     from touch4d.geometry.scene import load_scene
     from touch4d.messages import HandPose
@@ -79,6 +95,10 @@ def _render(args) -> int:
         if not np.isfinite(args.slice_w):
             raise ConfigError("(command line)", "--slice-w", "a finite number", got=args.slice_w)
         scene = replace(scene, slice_w=args.slice_w)
+    warning = slice_warning(scene, "--slice-w" if args.slice_w is not None else f"{args.scene}: slice_w",
+                            given=args.slice_w is not None)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
     show = Show(frame=not args.no_frame, tactile=bool(args.hand) and not args.no_tactile, status=not args.no_status)
     view = SceneView(glove, Style(centres=not args.no_centres, clip=not args.no_clip), show)

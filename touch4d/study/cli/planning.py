@@ -119,6 +119,7 @@ def register_glove_design(sub) -> None:
 def run_glove_design(args) -> int:
     from . import _clean
     from ..glovedesign import candidates_in, design_gloves, summary_text, write_glove
+    from ..infotransfer import POSITIONS, SCENES
     from ..psychophysics import HUMAN_NOISE
 
     study = _study(args.study)
@@ -132,12 +133,32 @@ def run_glove_design(args) -> int:
     places = result["sizes"][args.motors]["designed"]["places"]
     path, dbc = write_glove(args.output, glove.path, glove, places)
     result.update({"output": str(path), "dbc": str(dbc)})
+    noise = result["noise"]
+    again = (f"touch4d study transfer {study.path} --glove {path}" + "".join(f" --task {t}" for t in args.task or [])
+             + (f" --noise {noise:g}" if args.noise is not None else "") + (f" --seed {args.seed}" if args.seed else ""))
+    result["transfer"] = written_transfer(path, study, result["tasks"], noise=noise, seed=args.seed)
+    result["transfer_command"] = again
     if args.json:
         print(json.dumps(_clean(result)))
     else:
         print(summary_text(result))
-        print(f"glove: {path} (DBC {dbc}); next: touch4d study transfer {study.path} --glove {path}")
+        print(f"{again}: " + " ".join(f"{t} {b:.3f}" for t, b in result["transfer"].items())
+              + f" (its own {SCENES} scenes x {POSITIONS} positions a stimulus; the table's per-task bits are the "
+              f"same measure on the design's test set, {args.scenes} x {args.positions}: other random examples, "
+              "so they differ by their sampling error)")
+        print(f"glove: {path} (DBC {dbc})")
     return 0
+
+
+def written_transfer(path, study, tasks, *, noise: float, seed: int) -> dict:
+    """Per task, the bits `study transfer --glove PATH` predicts for a designed glove's file (its
+    defaults: `infotransfer.SCENES` x `POSITIONS` examples), as it would print them."""
+    from touch4d.tactile import load_glove
+
+    from ..infotransfer import predicted_transfer
+
+    glove = load_glove(path)
+    return {task: predicted_transfer(glove, study, task, noise=noise, seed=seed)["bits"] for task in tasks}
 
 
 def add_cluster_options(parser) -> None:
