@@ -98,10 +98,12 @@ def register(subparsers) -> None:
     serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
                        help="a participant without a page this long has left: their stack stops (default 30)")
     serve.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
-    serve.add_argument("--per-process", type=_count, default=None, metavar="K",
-                       help="participants' stacks sharing one process (a container, touch4d.bus.container): "
-                            "fewer processes cost less CPU per participant, and a crash ends the current trial "
-                            "of the K sharing it (1: a process each). Default: the study server's PER_PROCESS")
+    per_process = serve.add_argument(
+        "--per-process", type=_count, default=None, metavar="K",
+        help="participants' stacks sharing one process (a container, touch4d.bus.container): fewer processes "
+             "cost less CPU per participant, and a crash ends the current trial of the K sharing it (1: a process "
+             "each). Default: %(server_default)s (the study server's PER_PROCESS)")
+    per_process.server_default = _Later("touch4d.web.studyserver", "PER_PROCESS")
     serve.add_argument("--stack", metavar="LAUNCH", default="launch/study-serve.yaml",
                        help="each participant's launch file (default launch/study-serve.yaml)")
     serve.add_argument("--wire-trace", metavar="CSV", help="write when each page input arrives and each frame leaves "
@@ -160,6 +162,17 @@ def register(subparsers) -> None:
     from . import planning     # power and fit: before recruiting
 
     planning.register(sub, count=_count, count0=_count0, probability=_probability)
+
+
+class _Later:
+    """A module's constant named in a help text, read only when the help is printed (its module is
+    slow to import; argparse formats `%(name)s` from the action's attributes)."""
+
+    def __init__(self, module: str, name: str):
+        self.module, self.name = module, name
+
+    def __str__(self) -> str:
+        return str(getattr(importlib.import_module(self.module), self.name))
 
 
 def _study(path):
