@@ -105,8 +105,8 @@ class CappedLog:
     """A container's output: what its pipe carries, copied into `path` by a thread of its own until
     the file holds `cap` bytes; then it becomes PATH.1 (the one before goes) and a new one begins."""
 
-    def __init__(self, path, cap: int = LOG_CAP):
-        self.path, self.cap = Path(path), cap
+    def __init__(self, path, cap: int | None = None):
+        self.path, self.cap = Path(path), LOG_CAP if cap is None else cap
         self.file = open_log(self.path, "ab")
         self.size = os.fstat(self.file.fileno()).st_size
         self.thread: threading.Thread | None = None
@@ -119,6 +119,7 @@ class CappedLog:
     def _copy(self, pipe) -> None:
         try:
             while chunk := os.read(pipe.fileno(), 1 << 16):
+                chunk = chunk[-self.cap:]   # one read over the cap: its end kept
                 if self.size and self.size + len(chunk) > self.cap:
                     self.file.close()
                     os.replace(self.path, self.path.with_name(self.path.name + ".1"))
