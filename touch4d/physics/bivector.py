@@ -141,12 +141,6 @@ def compound(r) -> np.ndarray:
     return out.reshape(r.shape[:-2] + (6, 6))
 
 
-def star(w) -> np.ndarray:
-    """The Hodge dual: xy <-> zw, xz <-> -yw, xw <-> yz."""
-    w = np.asarray(w, dtype=np.float64)
-    return np.stack([w[..., 5], -w[..., 4], w[..., 3], w[..., 2], -w[..., 1], w[..., 0]], axis=-1)
-
-
 def exp(w) -> np.ndarray:
     """The rotation exp(hat(w)) (`exp_into`; stacks too)."""
     w = np.asarray(w, dtype=np.float64)

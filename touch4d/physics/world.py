@@ -263,11 +263,6 @@ def angular_momentum(world: World, state: State) -> np.ndarray:
     return state.L[dyn].sum(axis=0) + orbital.sum(axis=0)
 
 
-def linear_momentum(world: World, state: State) -> np.ndarray:
-    dyn = ~world.static
-    return (world.mass[dyn, None] * state.v[dyn]).sum(axis=0)
-
-
 def with_pose(world: World, state: State, index: int, position=None, orientation=None, velocity=None,
               angular_velocity_world=None) -> State:
     """The state with one body placed (object position / orientation) or set moving; others untouched."""

@@ -21,10 +21,6 @@ class Finger:
     tip: np.ndarray    # (3,)
     radius: float
 
-    def point_at(self, fraction: float) -> np.ndarray:
-        """The point on the finger's axis `fraction` of the way from base (0) to tip (1)."""
-        return self.base + fraction * (self.tip - self.base)
-
     def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         """Which of `points` (N, 3) lie inside the capsule (boundary included)."""
         points, axis = np.asarray(points, dtype=float), self.tip - self.base
