@@ -8,7 +8,8 @@ sends what `setup` published. Whatever happens, `shutdown` closes everything aga
 `setup` raises).
 
 One thread runs everything (callbacks, timers, `on_shutdown`): the node's executor
-(touch4d.bus.executor), its own or one shared by the nodes of one process (touch4d.bus.group), so
+(touch4d.bus.executor), its own or one shared by the nodes of one process (a launch file's `group`,
+touch4d.bus.process; a container, touch4d.bus.container), so
 node code needs no locks. Each node has one publishing socket and one
 SUB socket, made and synchronised by touch4d.bus.transport; a subscription made after `start`
 returns only once the broker applies it (the transport's `sync`). A message for a node of the same
