@@ -3,8 +3,9 @@
 A node owns one (`node.executor`), or shares one with the other nodes of its process (a launch
 file's `group`, run by touch4d.bus.process, or a container's groups, touch4d.bus.container); it
 registers its sockets as readers and its timers, and `spin_once` waits for whichever comes first.
-Everything runs on the thread that spins, so node code needs no locks. A callback that raises is handed to `on_error(where, exc)` (inside the `except`, so
-a traceback can be logged) and the loop goes on.
+Everything runs on the thread that spins, so node code needs no locks. A callback that raises is
+handed to `on_error(where, exc)` (inside the `except`, so a traceback can be logged) and the loop
+goes on.
 
 A process that serves pages (touch4d.web.server) asks for `asyncio_loop()`: from then on the
 executor spins on that asyncio loop (its sockets watched by the loop, its timers the loop's), and the
