@@ -6,7 +6,7 @@ a two-interval amplitude discrimination of a reference drive A and a comparison 
 an observer who answers the interval felt stronger is right with probability Phi(d / (noise sqrt 2)):
 75% correct at d = noise sqrt(2) Phi^-1(0.75), a Weber fraction of that over A. `HUMAN_NOISE` is
 the noise whose Weber fraction at `REFERENCE_DRIVE` is the fingertip's published one;
-`amplitude_discrimination` measures it by simulation (a psychometric fit, `analysis.fit_psychometric`),
+`amplitude_discrimination` measures it by simulation (a psychometric fit, `psychometric.fit_psychometric`),
 the check that the observer lands inside the published range.
 
 Where a vibration is felt: at its motor's place on the skin plus Gaussian noise of sd
@@ -78,7 +78,7 @@ def amplitude_discrimination(noise: float, *, reference: float = REFERENCE_DRIVE
     fit of P(comparison felt stronger) gives the 75% step, the Weber fraction and its level in dB."""
     import numpy as np
 
-    from .analysis import fit_psychometric
+    from .psychometric import fit_psychometric
 
     steps = np.asarray(steps if steps is not None else [-0.8, -0.5, -0.3, -0.15, 0.15, 0.3, 0.5, 0.8])
     rng = np.random.default_rng(seed)
