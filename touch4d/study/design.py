@@ -221,11 +221,12 @@ PLACEHOLDERS = ("{minutes}", "{answers}")
 
 
 def session_minutes(study: Study) -> int:
-    """A session's minutes at most: every trial of a participant's plan (practice included) at its time
-    limit, breaks aside: `study check`'s estimate and a consent text's `{minutes}`."""
-    from .plan import plan_session
-
-    return round(sum(t.time_limit_s for t in plan_session(study, "P01")) / 60)
+    """A session's minutes at most, breaks aside: every trial at its time limit (each stimulus
+    `repetitions` times per condition, and `practice` trials a block at the longest limit, since
+    they are drawn from any task): `study check`'s estimate and a consent text's `{minutes}`."""
+    main = sum(len(t.stimulus_names()) * study.repetitions_of(t) * study.time_limit_of(t) for t in study.tasks)
+    practice = study.practice * max(study.time_limit_of(t) for t in study.tasks)
+    return round(len(study.conditions) * (main + practice) / 60)
 
 
 def answers_text(study: Study) -> str:

@@ -9,8 +9,6 @@ from pathlib import Path
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-from . import _study          # a study file or a packaged study's name, as every study command takes it
-
 
 def register(sub, *, count, count0, probability) -> None:
     """Add `power` and `fit` to `touch4d study`'s subcommands (`count` etc.: cli's argument types)."""
@@ -173,6 +171,14 @@ def cluster_of(args):
     from ..fanout import Cluster
 
     return Cluster(workers=args.workers, scheduler=args.scheduler)
+
+
+def _study(path):
+    """The study a command was given: a file, or a packaged study's name (`design.load_study`, which
+    resolves it by `study_file_path` as every study command does)."""
+    from ..design import load_study
+
+    return load_study(path or None)
 
 
 def _glove(path):
