@@ -46,6 +46,7 @@ from pathlib import Path
 
 import zmq
 
+from touch4d.atomic import write_atomic
 from touch4d.bus import names
 from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
@@ -321,9 +322,7 @@ class Container:
         if not ready_file:
             return
         try:
-            tmp = Path(f"{ready_file}.tmp")
-            tmp.write_text(text + "\n")
-            os.replace(tmp, ready_file)   # whole or absent: the supervisor never reads half a line
+            write_atomic(ready_file, text + "\n")   # whole or absent: the supervisor never reads half a line
         except OSError as exc:
             log.error("ready file %s: %s", ready_file, exc)
 

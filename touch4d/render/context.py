@@ -1,6 +1,7 @@
 """GL contexts and offscreen targets: headless EGL for tests, CLI and display-less nodes."""
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -8,6 +9,7 @@ import moderngl
 import numpy as np
 from PIL import Image
 
+from touch4d.atomic import write_atomic
 from touch4d.errors import Touch4dError
 
 
@@ -77,13 +79,13 @@ def frame_files(output: str) -> str:
 
 def save_png(image: np.ndarray, path: str | Path) -> Path:
     """Write a (H, W, 4) uint8 image as PNG, creating the folder; the file appears whole (written
-    beside it, then renamed), so a reader never sees half a frame."""
+    beside it, then renamed: touch4d.atomic), so a reader never sees half a frame."""
     path = Path(path)
-    partial = path.with_name(f".{path.name}.partial")
+    png = io.BytesIO()
+    Image.fromarray(image, "RGBA").save(png, format="PNG")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(image, "RGBA").save(partial, format="PNG")
-        os.replace(partial, path)
+        write_atomic(path, png.getvalue(), durable=False)   # frames are made again at will: no fsync each
     except OSError as exc:
         raise RenderError(f"cannot write {path}: {exc.strerror or exc}") from exc
     return path

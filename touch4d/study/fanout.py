@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from touch4d.atomic import write_atomic
 from touch4d.errors import ConfigError, Unavailable
 
 
@@ -106,9 +107,7 @@ def fan_out(function: Callable, jobs: dict[str, tuple], *, shared=None, cluster:
             text = json.dumps(result)
             results[key] = json.loads(text)          # as a resumed run reads it: the same types either way
             if cache is not None:
-                tmp = cache / f".{key}.json.tmp"
-                tmp.write_text(text)
-                os.replace(tmp, cache / f"{key}.json")     # atomic: a file is whole or absent
+                write_atomic(cache / f"{key}.json", text)     # a file is whole or absent
             advance()
 
         if cluster.workers == 0 and not cluster.scheduler:

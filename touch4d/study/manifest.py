@@ -10,11 +10,12 @@ import shutil
 import time
 from pathlib import Path
 
+from touch4d.atomic import write_atomic
 from touch4d.errors import ConfigError
 
 from .plan import participant_hash
 from .lock import LOCK, WRITER
-from .store import SessionError, fsync_dir
+from .store import SessionError
 
 MANIFEST = "manifest.json"
 REPORT = "report.html"           # touch4d study analyze's default report, in the output folder
@@ -49,16 +50,8 @@ def read_manifest(directory) -> dict:
 
 
 def write_manifest(directory, manifest: dict) -> None:
-    """Replace manifest.json atomically (written beside it, fsync'd, renamed)."""
-    path = Path(directory) / MANIFEST
-    tmp = path.with_suffix(".json.tmp")
-    with open(tmp, "w") as f:
-        json.dump(manifest, f, indent=2, sort_keys=False)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    fsync_dir(path.parent)
+    """Replace manifest.json atomically (touch4d.atomic: written beside it, fsync'd, renamed)."""
+    write_atomic(Path(directory) / MANIFEST, json.dumps(manifest, indent=2, sort_keys=False) + "\n")
 
 
 def start_manifest(directory, *, study, study_path, participant: str, session: str, condition_order: list[str],

@@ -15,6 +15,7 @@ import os
 import re
 from pathlib import Path
 
+from touch4d.atomic import fsync_dir
 from touch4d.errors import ConfigError, Touch4dError
 
 from .table import ARRIVAL_COLUMNS, COLUMNS, TRIALS, _cell
@@ -142,17 +143,6 @@ def _csv_line(values) -> str:
     csv.writer(buf, lineterminator="\n").writerow(values)
     return buf.getvalue()
 
-
-
-def fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def next_segment(directory) -> Path:
