@@ -21,8 +21,10 @@ import aiohttp
 import pytest
 
 from touch4d.bus import Executor
-from touch4d.bus import container as container_module
-from touch4d.bus.container import CappedLog, Container, ContainerPool
+from touch4d.bus import logfiles
+from touch4d.bus.container import Container
+from touch4d.bus.logfiles import CappedLog, GroupLog
+from touch4d.bus.pool import ContainerPool
 from touch4d.bus.testing import running_broker
 from touch4d.web.invites import Invites
 from touch4d.web.server import SECRET_HEADER, PageServer
@@ -181,7 +183,7 @@ def test_the_page_server_answers_an_overlong_static_name_404_without_a_traceback
 
 
 def test_a_containers_output_and_a_groups_log_are_capped(tmp_path, monkeypatch):
-    monkeypatch.setattr(container_module, "LOG_CAP", 4096)
+    monkeypatch.setattr(logfiles, "LOG_CAP", 4096)
     out = CappedLog(tmp_path / "c.log")
     writer = subprocess.Popen([sys.executable, "-c", "for i in range(3000): print('x' * 40, i, flush=True)"],
                               stdout=subprocess.PIPE)
@@ -191,7 +193,7 @@ def test_a_containers_output_and_a_groups_log_are_capped(tmp_path, monkeypatch):
     sizes = [(tmp_path / name).stat().st_size for name in ("c.log", "c.log.1")]
     assert max(sizes) <= 4096 and (tmp_path / "c.log").read_text().endswith(f"{'x' * 40} 2999\n")  # ~130 kB written
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.log", "c.log.1"]
-    handler = container_module._GroupLog(tmp_path / "g.log")
+    handler = GroupLog(tmp_path / "g.log")
     lines = logging.getLogger("test-group-log")
     lines.addHandler(handler)
     try:
@@ -321,3 +323,18 @@ def test_a_stacks_secret_goes_by_a_private_file_and_its_page_node_wants_it(tmp_p
             box.unload_all()
             executor.close()
     assert answers == [403, 200]
+
+
+def test_a_handlers_failure_is_logged_with_its_traceback_once_then_in_one_escaped_line(caplog):
+    from touch4d.web.hardening import Hardening
+    hardening = Hardening("127.0.0.1", log=logging.getLogger("test-hardening"))
+    with caplog.at_level(logging.DEBUG):
+        for name in ("a" * 300, "b\x1b[2J"):
+            try:
+                raise OSError(36, "File name too long", name)
+            except OSError:
+                hardening.http_log.exception("Error handling request from %s", "127.0.0.1")
+    first, second = [r for r in caplog.records if r.name == "test-hardening.http"]
+    assert first.exc_info is not None and second.exc_info is None
+    assert second.getMessage() == ("Error handling request from 127.0.0.1: OSError: [Errno 36] File name too long: "
+                                   "'b\\x1b[2J'") and hardening.counts()["handler_error"] == 2

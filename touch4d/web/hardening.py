@@ -96,6 +96,13 @@ class ServerErrors(EscapedLines):
         return super().filter(record)
 
 
+# aiohttp's own loggers, for what it logs there rather than through a server's (a WebSocket's offered
+# protocols, say): filtered and escaped alike.
+AIOHTTP_LOG = ServerErrors()
+for _name in ("aiohttp.server", "aiohttp.access", "aiohttp.web", "aiohttp.websocket"):
+    logging.getLogger(_name).addFilter(AIOHTTP_LOG)
+
+
 def raise_file_limit() -> int:
     """This process's open-file limit raised to its hard limit (systemd's soft 1,024 is a few hundred
     idle sockets); returns the limit now."""
