@@ -17,47 +17,59 @@ the page's rate): 15-20% of the CPU per page input, a third of the study server'
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from touch4d.bus.node import Node
+from typing import Any, Callable
 
 MAX_AWAITED = 1024   # broker copies awaited per topic; more are lost on the way (broker gone, queue full)
 
 
+class Inbox:
+    """A subscribing node's side of intra-process delivery, so this module needs no Node: `copies`
+    (what it awaits from the broker), `call_soon` (its executor's), `deliver(topic, payload,
+    msg_type)` (a typed message handed over) and `deliver_raw(topic, payload, subscription)` (a
+    private topic's payload to a raw subscription), both called on the executor's next turn."""
+
+    __slots__ = ("copies", "call_soon", "deliver", "deliver_raw")
+
+    def __init__(self, call_soon: Callable[..., Any], deliver: Callable[[bytes, bytes, type | None], Any],
+                 deliver_raw: Callable[[bytes, bytes, Any], Any]):
+        self.copies = LocalCopies()
+        self.call_soon, self.deliver, self.deliver_raw = call_soon, deliver, deliver_raw
+
+
 class LocalRoutes:
-    """Per executor: topic -> the nodes on it that subscribe (typed) to it; the raw subscriptions
-    (prefix, node, subscription) of its nodes; the topics kept in the process (`private`)."""
+    """Per executor: topic -> the inboxes of its nodes that subscribe (typed) to it; the raw
+    subscriptions (prefix, inbox, subscription) of its nodes; the topics kept in the process
+    (`private`)."""
 
     def __init__(self):
-        self.by_topic: dict[bytes, list["Node"]] = {}
-        self.raw: list[tuple[bytes, "Node", object]] = []
+        self.by_topic: dict[bytes, list[Inbox]] = {}
+        self.raw: list[tuple[bytes, Inbox, object]] = []
         self.private: frozenset[bytes] = frozenset()
 
-    def add(self, topic: bytes, node: "Node") -> None:
-        nodes = self.by_topic.setdefault(topic, [])
-        if node not in nodes:
-            nodes.append(node)
+    def add(self, topic: bytes, inbox: Inbox) -> None:
+        inboxes = self.by_topic.setdefault(topic, [])
+        if inbox not in inboxes:
+            inboxes.append(inbox)
 
-    def add_raw(self, prefix: bytes, node: "Node", sub) -> None:
-        self.raw.append((prefix, node, sub))
+    def add_raw(self, prefix: bytes, inbox: Inbox, sub) -> None:
+        self.raw.append((prefix, inbox, sub))
 
-    def remove(self, node: "Node") -> None:
-        """A node shutting down: nothing is handed to it any more."""
-        for topic in [t for t, nodes in self.by_topic.items() if node in nodes]:
-            self.by_topic[topic].remove(node)
+    def remove(self, inbox: Inbox) -> None:
+        """A node shutting down: nothing is handed to its inbox any more."""
+        for topic in [t for t, inboxes in self.by_topic.items() if inbox in inboxes]:
+            self.by_topic[topic].remove(inbox)
             if not self.by_topic[topic]:
                 del self.by_topic[topic]
-        self.raw = [entry for entry in self.raw if entry[1] is not node]
+        self.raw = [entry for entry in self.raw if entry[1] is not inbox]
 
     def hand_over(self, topic: bytes, payload: bytes, msg_type: type | None, publisher: str) -> None:
         """`payload`, a checked `msg_type` message just published on `topic` (None: a raw publisher's,
         checked on decoding): each subscribing node here decodes its own copy on the executor's next
         turn and skips the broker's when it comes (a private topic: none comes)."""
         broker = topic not in self.private
-        for node in self.by_topic[topic]:
-            node._local_copies.expect(topic, payload, publisher, broker)
-            node.executor.call_soon(node._deliver_local, topic, payload, msg_type)
+        for inbox in self.by_topic[topic]:
+            inbox.copies.expect(topic, payload, publisher, broker)
+            inbox.call_soon(inbox.deliver, topic, payload, msg_type)
 
     def keep(self, topic: bytes, payload: bytes, msg_type: type | None, publisher: str) -> None:
         """A private topic's message: to this process's subscribers, typed and raw, and no further."""
@@ -68,9 +80,9 @@ class LocalRoutes:
 
     def hand_over_raw(self, topic: bytes, payload: bytes) -> None:
         """A private topic's payload to the raw subscribers here whose prefix it has (a recorder)."""
-        for prefix, node, sub in self.raw:
+        for prefix, inbox, sub in self.raw:
             if topic.startswith(prefix):
-                node.executor.call_soon(node._deliver_raw_local, topic, payload, sub)
+                inbox.call_soon(inbox.deliver_raw, topic, payload, sub)
 
 
 class LocalCopies:

@@ -29,7 +29,7 @@ import zmq
 from touch4d.bus import names, transport
 from touch4d.bus.config import BusConfig, resolve_bus_config
 from touch4d.bus.executor import Executor, Timer
-from touch4d.bus.local import LocalCopies
+from touch4d.bus.local import Inbox
 from touch4d.bus.params import Param, check_params
 from touch4d.bus.transport import INTERNAL_PREFIX
 from touch4d.configfile import resolve_path
@@ -211,7 +211,9 @@ class Node:
         self._timers: list[Timer] = []   # on a shared executor: cancelled when this node shuts down
         self.executor = Executor(on_error=self._callback_failed) if executor is None else executor
         self._local_routes = self.executor.local
-        self._local_copies = LocalCopies()
+        # What this process's other nodes hand this one (touch4d.bus.local): delivered on its executor.
+        self._inbox = Inbox(self.executor.call_soon, self._deliver_local, self._deliver_raw_local)
+        self._local_copies = self._inbox.copies
         self.executor.add_reader(self._sub, self._on_messages)
         self.executor.add_reader(self._pub, self._on_broker)
         # What publishing writes to: a holder until start() has connected, then the socket. (An
@@ -333,7 +335,7 @@ class Node:
             self._state(key)
             if key not in self._local_routes.private:   # a private topic never comes from the broker
                 self._subscribe(key)
-            self._local_routes.add(key, self)
+            self._local_routes.add(key, self._inbox)
         return sub
 
     def create_raw_subscription(self, prefix: str, callback: Callable[[str, bytes], Any]) -> Subscription:
@@ -346,7 +348,7 @@ class Node:
             keys += sorted(names.GLOBAL_TOPICS | names.BROADCAST_TOPICS)
         for key in (k.encode() for k in keys):
             self._raw_subs.append((key, sub))
-            self._local_routes.add_raw(key, self, sub)   # the process's private topics
+            self._local_routes.add_raw(key, self._inbox, sub)   # the process's private topics
             self._subscribe(key)
         return sub
 
@@ -363,7 +365,7 @@ class Node:
         for key in sorted(self._local_routes.private):
             if self.namespace and names.relative(key.decode(), self.namespace) is None:
                 continue
-            self._local_routes.add_raw(key, self, Subscription(key.decode(), None, callback, raw=True))
+            self._local_routes.add_raw(key, self._inbox, Subscription(key.decode(), None, callback, raw=True))
 
     def create_timer(self, period: float, callback: Callable[[], Any]) -> Timer:
         """Call `callback()` every `period` seconds (fixed rate) on the node's thread."""
@@ -459,7 +461,7 @@ class Node:
                 except Exception:  # noqa: BLE001 - shutdown must finish and close the sockets
                     self.log.exception("%s failed during shutdown", getattr(step, "__qualname__", step))
         self._closed = True
-        self._local_routes.remove(self)
+        self._local_routes.remove(self._inbox)
         if self._owns_executor:
             self.executor.close()
         else:   # the other nodes of the process spin on: take this node's sockets and timers out
