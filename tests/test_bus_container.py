@@ -1,4 +1,4 @@
-"""A container (touch4d.bus.container): several groups, each under its namespace, on one executor in
+"""A container (touch4d.bus.container) and its pool (touch4d.bus.pool): several groups, each under its namespace, on one executor in
 one process, loaded and unloaded while it runs; a dead container started again with its groups by
 its pool; a node that asks to stop restarts its own group only."""
 from __future__ import annotations
@@ -14,7 +14,9 @@ import pytest
 
 from touch4d.bus import Executor, Node
 from touch4d.bus import container as container_module
-from touch4d.bus.container import Container, ContainerPool
+from touch4d.bus import pool as pool_module
+from touch4d.bus.container import Container
+from touch4d.bus.pool import ContainerPool
 from touch4d.bus.realtime import realtime_permitted
 from touch4d.bus.testing import collect, running_broker, wait_until
 from touch4d.log.reader import LogReader
@@ -304,7 +306,7 @@ def test_a_group_that_keeps_killing_its_container_ends_up_alone_then_stopped_and
             # the third, X alone in its process: not started again, and it says why
             assert next_death() == {"X": "given up"}
             assert not pool.running("X") and pool.container_of("X") is None
-            assert _said(tmp_path / "X.ready") == f"failed: its process died 3 times in {container_module.CRASH_WINDOW_S:g} s; not started again"
+            assert _said(tmp_path / "X.ready") == f"failed: its process died 3 times in {pool_module.CRASH_WINDOW_S:g} s; not started again"
             assert "not started again" in (tmp_path / "X.log").read_text()
             # the others run on, each in its own process; nothing else dies
             wait_until(lambda: _said(tmp_path / "A.ready") == _said(tmp_path / "B.ready") == "ready", timeout=60)
@@ -333,7 +335,7 @@ def test_a_death_counts_even_when_its_group_is_taken_out_before_the_pool_looks(t
         crasher = lambda: {"namespace": "X", "nodes": [{"node": "crasher_node:Crasher", "name": "crasher"}],  # noqa: E731
                            "ready_file": str(tmp_path / "X.ready")}
         try:
-            for _ in range(container_module.ISOLATE_AFTER):
+            for _ in range(pool_module.ISOLATE_AFTER):
                 pool.load("X", crasher)
                 assert not pool.processes[-1].solo
                 wait_until(lambda: not pool.running("X"), timeout=60)
@@ -346,7 +348,7 @@ def test_a_death_counts_even_when_its_group_is_taken_out_before_the_pool_looks(t
 
 
 def test_a_container_that_reads_no_commands_never_holds_its_supervisor_and_is_started_again(tmp_path, monkeypatch):
-    monkeypatch.setattr(container_module, "UNREAD_LIMIT_S", 1.0)
+    monkeypatch.setattr(pool_module, "UNREAD_LIMIT_S", 1.0)
     with running_broker() as bus:
         pool = ContainerPool(100, _bus_file(tmp_path, bus), tmp_path / "logs")
 

@@ -114,7 +114,7 @@ def _launch_names() -> list[str]:
 def _launch(args) -> int:
     from touch4d.bus.launcher import Launcher
     from touch4d.bus.preflight import load_checked
-    from touch4d.bus.process import PARENT_PID_ENV, die_with_parent
+    from touch4d.bus.startup import PARENT_PID_ENV, die_with_parent
 
     die_with_parent(PARENT_PID_ENV)   # started by `touch4d study run`: its stack ends with it, even killed outright
     files = [i for i in args.items if ":=" not in i]

@@ -31,7 +31,8 @@ from touch4d.bus import names, transport
 from touch4d.bus.broker import Broker, BrokerWatch
 from touch4d.bus.config import ENV_VAR, BusConfig
 from touch4d.bus.launchfile import NodeSpec, group_entries, processes
-from touch4d.bus.process import LAUNCHER_PID_ENV, READY_FD_ENV
+from touch4d.bus.startup import LAUNCHER_PID_ENV, READY_FD_ENV
+from touch4d.bus.supervisor import RestartPolicy
 from touch4d.bus.topology import shared_inputs, shared_text
 from touch4d.errors import ConfigError
 from touch4d.messages import Heartbeat, MessageError, decode
@@ -39,7 +40,7 @@ from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout
 
 STOP_GRACE = 1.5
 BEAT_TIMEOUT = 3.5   # s without a heartbeat after which a node no longer counts as publishing
-_MAX_RESPAWN_DELAY = 5.0
+MAX_RESPAWN_DELAY = 5.0   # s: a node that keeps failing to start waits twice as long each time, up to this
 _COLORS = ("36", "33", "35", "32", "34", "31", "96", "93", "95", "92")
 
 
@@ -54,7 +55,6 @@ class _Child:
     buffer: bytes = b""
     last_lines: list[str] = field(default_factory=list)
     restart_at: float | None = None
-    delay: float = 0.0
     failed: bool = False
     ready: bool = False       # the node said it is built
     ready_fd: int | None = None
@@ -96,8 +96,8 @@ class Launcher:
         self.files = (launch_file, bus_file)   # said once at start: which files this launch runs
         self.out = out or sys.stdout.buffer
         self.children = {name: _Child(name, specs) for name, specs in processes(nodes).items()}
-        for child in self.children.values():
-            child.delay = child.respawn_delay
+        # A child that `respawn`s: started again after its delay, backing off while it fails to start.
+        self._restarts = RestartPolicy(backoff=2.0, max_delay=MAX_RESPAWN_DELAY)
         self.namespace = next((spec.namespace for spec in nodes.values()), "")   # one per launch
         width = max([len(r) for r in self.children] + [6])
         color = self.out is sys.stdout.buffer and sys.stdout.isatty()
@@ -233,9 +233,9 @@ class Launcher:
         else:
             self.say(f"{title} {what}")
         if child.respawn:
-            child.delay = min(child.delay * 2, _MAX_RESPAWN_DELAY) if failed_start else child.respawn_delay
-            child.restart_at = time.monotonic() + child.delay
-            self.say(f"respawning '{child.name}' in {child.delay:.1f} s")
+            delay = self._restarts.died(child.name, started=not failed_start, delay=child.respawn_delay).delay
+            child.restart_at = time.monotonic() + delay
+            self.say(f"respawning '{child.name}' in {delay:.1f} s")
         elif code != 0:
             child.failed = True
             if failed_start and self._start_failure is None:

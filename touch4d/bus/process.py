@@ -12,26 +12,18 @@ parameter or config exits 2.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
-import logging
 import os
 import signal
 import sys
 
 import zmq
 
-from touch4d.bus import names
 from touch4d.bus.config import resolve_bus_config
 from touch4d.bus.executor import Executor
 from touch4d.bus.heap import freeze_startup_heap
-from touch4d.bus.realtime import NOT_PERMITTED, PRIORITY, raise_thread_priority
+from touch4d.bus.startup import GroupError, configure, group_members, tell_ready
 from touch4d.errors import Touch4dError, Unavailable
-
-LAUNCHER_PID_ENV = "TOUCH4D_LAUNCHER_PID"
-PARENT_PID_ENV = "TOUCH4D_PARENT_PID"   # a program that starts `touch4d launch` and wants the launch to end with it
-READY_FD_ENV = "TOUCH4D_READY_FD"
-_PR_SET_PDEATHSIG = 1
 
 
 def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> argparse.Namespace:
@@ -48,40 +40,13 @@ def parse_node_args(argv: list[str] | None, default_name: str | None = None) -> 
     return parser.parse_args(argv)
 
 
-def die_with_parent(env: str = LAUNCHER_PID_ENV) -> None:
-    """If $`env` names this process's parent, ask the kernel to SIGTERM this process when that parent
-    dies, even by SIGKILL (Linux prctl PR_SET_PDEATHSIG); exit at once if the parent is already gone.
-    The variable is removed: this process's own children are not told to watch a grandparent."""
-    parent = os.environ.pop(env, None)
-    if not parent or not sys.platform.startswith("linux"):
-        return
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-    except (OSError, AttributeError):
-        return
-    if os.getppid() != int(parent):
-        sys.exit(0)  # the parent died before the request took hold
-
-
-def _tell_ready() -> None:
-    """Tell the launcher (if it asked, through $TOUCH4D_READY_FD) that the node is built."""
-    fd = os.environ.pop(READY_FD_ENV, None)
-    if fd is None:
-        return
-    try:
-        os.write(int(fd), b"1")
-        os.close(int(fd))
-    except (OSError, ValueError):
-        pass
-
-
 def run_node(node_class, argv: list[str] | None = None) -> int:
     """Build `node_class` from the command line, spin it until SIGINT/SIGTERM, shut it down; returns
     the exit code (0 after a clean stop, 2 when the node's parameters or config are wrong, 1 when
     something it needs is unavailable)."""
     args = parse_node_args(sys.argv[1:] if argv is None else argv, getattr(node_class, "__name__", None))
     name = args.name or node_class.__name__
-    _configure(args, name)
+    configure(args, name)
     params = _params_object(args.params, f"node {args.name}: --params")
     if params is None:
         return 2
@@ -104,7 +69,7 @@ def run_group(argv: list[str]) -> int:
     parser.add_argument("--log-level", default=os.environ.get("TOUCH4D_LOG_LEVEL", "INFO"))
     parser.add_argument("--realtime", action="store_true", help="as for one node")
     args = parser.parse_args(argv)
-    _configure(args, args.group)
+    configure(args, args.group)
 
     entries = _params_object(args.nodes, f"group {args.group}: --nodes", list)
     if entries is None:
@@ -115,49 +80,6 @@ def run_group(argv: list[str]) -> int:
         print(exc, file=sys.stderr)
         return 2
     return _run(members, args.bus, shared=True, private=private)
-
-
-class GroupError(Touch4dError, ValueError):
-    """A group's node list that cannot be run: the text names the entry and what was expected (a ValueError
-    too, for code that catches that)."""
-
-
-def group_members(entries: list, namespace: str, where: str) -> tuple[list[tuple[str, type, dict]], set[str]]:
-    """A group's nodes (`--nodes`, the launcher's JSON list: node, name, params, params_source,
-    private) as (role, class, constructor arguments) under `namespace`, and the bus topics the group
-    keeps in its process. Raises GroupError naming the entry."""
-    from touch4d.bus.registry import NodeNotFound, find
-
-    members, private = [], set()
-    for i, entry in enumerate(entries):
-        if not isinstance(entry, dict) or not isinstance(entry.get("node"), str):
-            raise GroupError(f"{where}[{i}]: expected an object with a \"node\", got {entry!r}")
-        ref, role = entry["node"], entry.get("name")
-        try:
-            node_class = find(ref).load()
-        except NodeNotFound as exc:
-            raise GroupError(f"node {role}: node {ref!r}: {exc}") from None
-        members.append((role, node_class, {"params": entry.get("params", {}), "kind": ref, "role": role,
-                                           "params_source": entry.get("params_source"),
-                                           "namespace": namespace}))
-        topics = entry.get("private", [])
-        if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
-            raise GroupError(f"{where}[{i}].private: expected a list of topics, got {topics!r}")
-        private.update(names.resolve(t, namespace) for t in topics)
-    return members, private
-
-
-def _configure(args: argparse.Namespace, name: str) -> None:
-    """What every node process does first: logging, dying with the launcher, real-time priority."""
-    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
-                        format="%(levelname)s %(name)s: %(message)s")
-    die_with_parent()
-    if args.realtime:
-        # Before any thread exists: the ZeroMQ I/O threads and the node's own threads inherit it.
-        if raise_thread_priority():
-            logging.getLogger(name).info("real-time priority (SCHED_FIFO %d)", PRIORITY)
-        else:
-            logging.getLogger(name).warning("%s: running at normal priority", NOT_PERMITTED)
 
 
 def _params_object(text: str, where: str, kind: type = dict):
@@ -204,7 +126,7 @@ def _run(members: list[tuple[str, type, dict]], bus_file: str | None, shared: bo
             print(f"node {name}: {exc}", file=sys.stderr)
             return 2
         freeze_startup_heap()   # a full collection over it would stall the loop for tens of ms
-        _tell_ready()
+        tell_ready()
         if holder["stop"]:
             (executor or built[0]).request_shutdown()
         (executor or built[0]).spin()

@@ -39,7 +39,7 @@ from typing import Callable, Iterator
 from touch4d.bus.broker import Broker
 from touch4d.bus.config import ENV_VAR, BusConfig, CurveKeys
 from touch4d.bus.node import Node
-from touch4d.bus.process import READY_FD_ENV
+from touch4d.bus.startup import READY_FD_ENV
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -5,7 +5,7 @@ N simulated participants in turn. The session folder's files: touch4d.study.stor
 However a run ends (done, SIGINT, SIGTERM, SIGHUP, an exception), the stack it launched is stopped
 (the launcher stops its nodes; the motor node sends zero duty) and whatever is left of its process
 group is killed: no node writes on after `touch4d study run` is gone. Killed outright (SIGKILL), the
-run stops nothing itself: the kernel then SIGTERMs the launcher (touch4d.bus.process.die_with_parent),
+run stops nothing itself: the kernel then SIGTERMs the launcher (touch4d.bus.startup.die_with_parent),
 which stops its nodes as on Ctrl+C. While it runs, the run holds the session folder's lock
 (touch4d.study.lock): one writer per folder.
 """
@@ -133,7 +133,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
 
     from touch4d.bus.config import ENV_VAR, BusConfig
     from touch4d.bus.node import Node
-    from touch4d.bus.process import PARENT_PID_ENV
+    from touch4d.bus.startup import PARENT_PID_ENV
     from touch4d.messages import StudyTrial
 
     directory = session_dir(out, participant)

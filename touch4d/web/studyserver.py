@@ -47,9 +47,10 @@ from aiohttp import web
 
 from touch4d.atomic import write_atomic
 from touch4d.bus import Broker, BusConfig, Node
-from touch4d.bus.container import ContainerPool, open_log
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.bus.launchfile import group_entries, load_launch, processes
+from touch4d.bus.logfiles import open_log
+from touch4d.bus.pool import ContainerPool
 from touch4d.bus.realtime import LOOP_PRIORITY, NOT_PERMITTED, raise_loop_priority
 from touch4d.configfile import COMMAND_LINE
 from touch4d.errors import ConfigError, Touch4dError
