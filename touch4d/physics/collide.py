@@ -296,65 +296,84 @@ def _support_mid(verts, start, count, n, sign, tol, out):
 
 
 @njit(**cache)
-def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
-    """Contact points of two convex parts: returns their number (0: apart by more than margin);
-    fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b. The tolerances
-    scale with the larger part's size."""
-    v_start, v_count, c_start, c_count = parts.v_start, parts.v_count, parts.c_start, parts.c_count
-    e_start, e_count, d_start, d_count = parts.e_start, parts.e_count, parts.d_start, parts.d_count
-    f_start, f_count, edges = parts.f_start, parts.f_count, parts.edges
-    verts, normals, offsets, dirs, spans = placed.verts, placed.normals, placed.offsets, placed.dirs, placed.spans
-    scale = max(parts.size[pa], parts.size[pb])
-    tol = RELATIVE * scale
+def _cell_axis(pa, pb, parts: Parts, placed: Placed, margin, tol, n):
+    """The cell of either part that B's (or A's) vertices lie least beyond: its separation, written as the
+    normal n (from a to b), and the part whose cells were not chosen (-1: apart by more than margin). A's
+    cell is preferred unless B's is clearly better: equal axes (face on face) must not flip-flop."""
+    normals, offsets, verts = placed.normals, placed.offsets, placed.verts
+    c_start, c_count, v_start, v_count = parts.c_start, parts.c_count, parts.v_start, parts.v_count
     sep_a, cell_a = _separation(normals, offsets, c_start[pa], c_count[pa], verts, v_start[pb], v_count[pb])
     if sep_a > margin:
-        return 0
+        return sep_a, -1
     sep_b, cell_b = _separation(normals, offsets, c_start[pb], c_count[pb], verts, v_start[pa], v_count[pa])
     if sep_b > margin:
-        return 0
-    # prefer a's axis unless b's is clearly better: equal axes (face on face) must not flip-flop
+        return sep_b, -1
     if sep_b > sep_a + tol:
         for k in range(4):
-            out_normal[k] = -normals[cell_b, k]
-        best, other, o_start, o_count = sep_b, pa, c_start[pa], c_count[pa]
-    else:
-        for k in range(4):
-            out_normal[k] = normals[cell_a, k]
-        best, other, o_start, o_count = sep_a, pb, c_start[pb], c_count[pb]
-    n = out_normal
-    edge_contact = False
-    # edge x 2-face axes, unless a cell of the other part lies flat against the reference cell (cell on
-    # cell: no such axis separates more)
-    flat = False
+            n[k] = -normals[cell_b, k]
+        return sep_b, pa
+    for k in range(4):
+        n[k] = normals[cell_a, k]
+    return sep_a, pb
+
+
+@njit(**cache)
+def _lies_flat(other, pb, parts: Parts, normals, n):
+    """Whether a cell of `other` (the part whose cells were not chosen) lies flat against the chosen cell."""
     sign = 1.0 if other == pb else -1.0
-    for c in range(o_start, o_start + o_count):
+    for c in range(parts.c_start[other], parts.c_start[other] + parts.c_count[other]):
         along = sign * (normals[c, 0] * n[0] + normals[c, 1] * n[1] + normals[c, 2] * n[2] + normals[c, 3] * n[3])
         if along < -1.0 + ANGLE:
-            flat = True
-            break
-    if not flat and (d_count[pa] > 0 and f_count[pb] > 0 or d_count[pb] > 0 and f_count[pa] > 0):
-        axis = np.empty(4)
-        edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pa],
-                                    d_count[pa], spans, f_start[pb], f_count[pb], best + EDGE_PREFERENCE * scale, axis)
-        edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pb],
-                                    d_count[pb], spans, f_start[pa], f_count[pa], edge_best, axis)
-        if edge_best > best + EDGE_PREFERENCE * scale:
-            if edge_best > margin:
-                return 0                       # separated along an edge-face axis
-            for k in range(4):
-                n[k] = axis[k]
-            edge_contact = True
-            best = edge_best
-    minus = -n
-    cand = np.empty((MAX_CANDIDATES, 4))
-    depth = np.empty(MAX_CANDIDATES)
+            return True
+    return False
+
+
+@njit(**cache)
+def _edge_axis(pa, pb, other, parts: Parts, placed: Placed, best, scale, margin, n):
+    """The edge x 2-face axes of both parts, unless a cell of the other part lies flat against the reference
+    cell (cell on cell: no such axis separates more). Returns the separation and what it is along: 0 the
+    cell's axis (kept), 1 an edge-face axis that separates clearly more (written into n), -1 such an axis
+    that separates them by more than margin."""
+    d_start, d_count, f_start, f_count = parts.d_start, parts.d_count, parts.f_start, parts.f_count
+    if _lies_flat(other, pb, parts, placed.normals, n):
+        return best, 0
+    if not (d_count[pa] > 0 and f_count[pb] > 0 or d_count[pb] > 0 and f_count[pa] > 0):
+        return best, 0
+    verts, dirs, spans, v_start, v_count = placed.verts, placed.dirs, placed.spans, parts.v_start, parts.v_count
+    axis = np.empty(4)
+    edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pa],
+                                d_count[pa], spans, f_start[pb], f_count[pb], best + EDGE_PREFERENCE * scale, axis)
+    edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pb],
+                                d_count[pb], spans, f_start[pa], f_count[pa], edge_best, axis)
+    if not edge_best > best + EDGE_PREFERENCE * scale:
+        return best, 0
+    if edge_best > margin:
+        return edge_best, -1                   # separated along an edge-face axis
+    for k in range(4):
+        n[k] = axis[k]
+    return edge_best, 1
+
+
+@njit(**cache)
+def _candidates(pa, pb, parts: Parts, placed: Placed, margin, tol, n, minus, cand):
+    """The edges of b clipped to a (grown toward +n), then those of a clipped to b (toward -n), their end
+    points into cand: returns how many, and where a's begin."""
+    verts, edges, normals, offsets = placed.verts, parts.edges, placed.normals, placed.offsets
+    e_start, e_count, c_start, c_count = parts.e_start, parts.e_count, parts.c_start, parts.c_count
     count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
                         margin, n, tol, cand, 0)
     split = count
     count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
                         margin, minus, tol, cand, count)
-    keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
-    same = POINT * scale
+    return count, split
+
+
+@njit(**cache)
+def _keep_distinct(pa, pb, parts: Parts, placed: Placed, margin, same, n, minus, cand, count, split, depth, keep):
+    """Which candidates are contact points (keep) and how deep (depth): inside the other part, or out of it by
+    under 0.9 margin, and not the same place across the normal (within `same`) as one kept before (which then
+    takes the deeper depth of the two). Returns how many are kept."""
+    normals, offsets, c_start, c_count = placed.normals, placed.offsets, parts.c_start, parts.c_count
     kept = 0
     for i in range(count):
         if i < split:    # a point of b inside a: b must move along +n to leave a
@@ -381,17 +400,26 @@ def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
         depth[i] = d
         keep[i] = True
         kept += 1
-    if kept == 0:
-        if not edge_contact:
-            return 0
-        # an edge against a 2-face meet where no edge of either is inside the other (the overlap's corners are
-        # where 2-faces cross): one point between the two parts' supporting features, at the axis' depth
-        _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, tol, out_pts[0])
-        _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, tol, cand[0])
-        for k in range(4):
-            out_pts[0, k] = 0.5 * (out_pts[0, k] + cand[0, k])
-        out_depth[0] = -best
-        return 1
+    return kept
+
+
+@njit(**cache)
+def _edge_point(pa, pb, parts: Parts, placed: Placed, n, tol, best, out_pts, out_depth, scratch):
+    """An edge against a 2-face meet where no edge of either is inside the other (the overlap's corners are
+    where 2-faces cross): one point between the two parts' supporting features, at the axis' depth."""
+    verts, v_start, v_count = placed.verts, parts.v_start, parts.v_count
+    _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, tol, out_pts[0])
+    _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, tol, scratch)
+    for k in range(4):
+        out_pts[0, k] = 0.5 * (out_pts[0, k] + scratch[k])
+    out_depth[0] = -best
+    return 1
+
+
+@njit(**cache)
+def _reduce(cand, depth, keep, count, kept, n, out_pts, out_depth):
+    """The kept points into out_pts and out_depth, at most MAX_POINTS: when there are more, the deepest, then
+    each time the point farthest (across the normal) from those chosen. Returns how many."""
     idx = np.empty(kept, dtype=np.int64)
     m = 0
     for i in range(count):
@@ -403,7 +431,6 @@ def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
             out_pts[m] = cand[idx[m]]
             out_depth[m] = depth[idx[m]]
         return kept
-    # too many: the deepest, then each time the point farthest (across the normal) from those chosen
     chosen = np.zeros(kept, dtype=np.bool_)
     far = np.full(kept, np.inf)
     first = 0
@@ -430,3 +457,32 @@ def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
             return slot + 1
         pick = nxt
     return MAX_POINTS
+
+
+@njit(**cache)
+def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
+    """Contact points of two convex parts: returns their number (0: apart by more than margin);
+    fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b. The tolerances
+    scale with the larger part's size. In stages, as Box2D's polygon collider: the axis of least
+    penetration (`_cell_axis`, `_edge_axis`), the edges clipped (`_candidates`), the points kept
+    (`_keep_distinct`, or `_edge_point` for an edge on a 2-face), at most MAX_POINTS of them (`_reduce`)."""
+    scale = max(parts.size[pa], parts.size[pb])
+    tol = RELATIVE * scale
+    n = out_normal
+    best, other = _cell_axis(pa, pb, parts, placed, margin, tol, n)
+    if other < 0:
+        return 0
+    best, along = _edge_axis(pa, pb, other, parts, placed, best, scale, margin, n)
+    if along < 0:
+        return 0
+    minus = -n
+    cand = np.empty((MAX_CANDIDATES, 4))
+    depth = np.empty(MAX_CANDIDATES)
+    count, split = _candidates(pa, pb, parts, placed, margin, tol, n, minus, cand)
+    keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
+    kept = _keep_distinct(pa, pb, parts, placed, margin, POINT * scale, n, minus, cand, count, split, depth, keep)
+    if kept == 0:
+        if along == 0:
+            return 0
+        return _edge_point(pa, pb, parts, placed, n, tol, best, out_pts, out_depth, cand[0])
+    return _reduce(cand, depth, keep, count, kept, n, out_pts, out_depth)

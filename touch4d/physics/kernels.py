@@ -214,105 +214,101 @@ def velocities(bodies: Bodies, motion: Motion, impulses, gravity, dt) -> Velocit
 
 
 @njit(**cache)
-def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities, x, options: Options) -> Rows:
-    """The solver's rows of this step's contacts (a stage): each point's approach speed (written into
-    contacts.speed), its target (speculative: close the gap, no more; restitution once any point of the
-    pair strikes), its friction coefficient, its Jacobians; then the warm start: a point found again in
-    `previous` (same pair, within options.warm_distance in b's frame) starts from its impulses, applied."""
-    m = len(contacts.a)
-    dt, margin, bounce_speed, stick_speed = options.dt, options.margin, options.bounce_speed, options.stick_speed
-    body_a, body_b, point, normal, depth, speed, key_of, local = (contacts.a, contacts.b, contacts.point, contacts.normal,
-                                                                 contacts.depth, contacts.speed, contacts.key,
-                                                                 contacts.local)
-    p_key, p_local, p_speed, p_impulse, p_tangent = (previous.key, previous.local, previous.speed, previous.impulse,
-                                                     previous.tangent)
-    v, w, isotropic, inv_inertia, dL = vel.v, vel.w, vel.isotropic, vel.inv_inertia, vel.dL
-    ra = np.empty((m, 4))
-    rb = np.empty((m, 4))
-    target = np.empty(m)
-    mu = np.empty(m)
-    # scratch vectors: the loops copy rows into these rather than take row views (each view costs two atomic
-    # reference counts, more than the arithmetic)
-    va = np.empty(4)
-    vb = np.empty(4)
-    tmp4 = np.empty(4)
-    r4 = np.empty(4)
-    d4 = np.empty(4)
-    w6 = np.empty(6)
-    tmp6 = np.empty(6)
-    lam = np.zeros((m, 4))
-    tangent = np.zeros((m, 4))
-    cursor = 0
-    start = 0
-    while start < m:                                  # one pair of parts at a time (contacts come by key)
-        key = key_of[start]
-        end = start
-        while end < m and key_of[end] == key:
-            end += 1
-        a, b = body_a[start], body_b[start]
-        mus = math.sqrt(bodies.friction_static[a] * bodies.friction_static[b])
-        muk = math.sqrt(bodies.friction_kinetic[a] * bodies.friction_kinetic[b])
-        e = max(bodies.restitution[a], bodies.restitution[b])
-        while cursor < len(p_key) and p_key[cursor] < key:
-            cursor += 1
+def _pair_end(key_of, start):
+    """The end of the run of contacts from `start` that share its pair of parts (contacts come by key)."""
+    end = start
+    while end < len(key_of) and key_of[end] == key_of[start]:
+        end += 1
+    return end
+
+
+@njit(**cache)
+def _approach(c, a, b, contacts: Contacts, x, vel: Velocities, options: Options, mus, muk, ra, rb, target, mu,
+              va, vb, r4, w6, tmp4):
+    """Contact c's lever arms, approach speed (into contacts.speed), speculative target (close the gap, no
+    more) and friction coefficient (static while the point sticks, kinetic while it slides). va, vb, r4, w6,
+    tmp4: scratch, which the loops copy rows into rather than take row views (each view costs two atomic
+    reference counts, more than the arithmetic)."""
+    point, normal = contacts.point, contacts.normal
+    for kk in range(4):
+        ra[c, kk] = point[c, kk] - x[a, kk]
+        rb[c, kk] = point[c, kk] - x[b, kk]
+        r4[kk] = ra[c, kk]
+    _point_velocity(a, r4, vel.v, vel.w, va, w6, tmp4)
+    for kk in range(4):
+        r4[kk] = rb[c, kk]
+    _point_velocity(b, r4, vel.v, vel.w, vb, w6, tmp4)
+    vn = 0.0
+    for kk in range(4):
+        vn += (vb[kk] - va[kk]) * normal[c, kk]
+    contacts.speed[c] = vn
+    gap = max(-contacts.depth[c], 0.0)
+    target[c] = -gap / options.dt
+    slide = 0.0
+    for kk in range(4):
+        slide += (vb[kk] - va[kk] - vn * normal[c, kk]) ** 2
+    mu[c] = mus if math.sqrt(slide) < options.stick_speed else muk
+
+
+@njit(**cache)
+def _warm_match(c, cursor, contacts: Contacts, previous: Contacts, options: Options, lam, tangent):
+    """Contact c's impulses from the step before: the nearest point of the same pair in `previous` (from
+    `cursor`, its first of the pair) within options.warm_distance in b's frame, unless it struck (an impact's
+    impulse is not a load); its tangential impulse turned into this step's tangent space."""
+    key, local, normal = contacts.key[c], contacts.local, contacts.normal
+    p_key, p_local = previous.key, previous.local
+    best = options.warm_distance * options.warm_distance
+    found = -1
+    prev = cursor
+    while prev < len(p_key) and p_key[prev] == key:
+        dd = 0.0
+        for kk in range(4):
+            dd += (p_local[prev, kk] - local[c, kk]) ** 2
+        if dd < best:
+            best, found = dd, prev
+        prev += 1
+    if found >= 0 and previous.speed[found] >= -options.bounce_speed:
+        lam[c, 0] = previous.impulse[found]
+        along = 0.0
+        for kk in range(4):
+            along += previous.tangent[found, kk] * normal[c, kk]
+        for kk in range(4):
+            tangent[c, kk] = previous.tangent[found, kk] - along * normal[c, kk]
+
+
+@njit(**cache)
+def _restitution(start, end, e, contacts: Contacts, options: Options, target):
+    """When any point of the pair (contacts start..end) closes its gap within this step, every point of the
+    pair that approaches faster than bounce_speed (and is no further than the margin) bounces with
+    restitution e, so a face striking a face bounces as one whatever rounding does to each point's gap."""
+    speed, depth = contacts.speed, contacts.depth
+    impact = False
+    for c in range(start, end):
+        if speed[c] < target[c]:
+            impact = True
+    if impact:
         for c in range(start, end):
-            for kk in range(4):
-                ra[c, kk] = point[c, kk] - x[a, kk]
-                rb[c, kk] = point[c, kk] - x[b, kk]
-                r4[kk] = ra[c, kk]
-            _point_velocity(a, r4, v, w, va, w6, tmp4)
-            for kk in range(4):
-                r4[kk] = rb[c, kk]
-            _point_velocity(b, r4, v, w, vb, w6, tmp4)
-            vn = 0.0
-            for kk in range(4):
-                vn += (vb[kk] - va[kk]) * normal[c, kk]
-            speed[c] = vn
-            gap = max(-depth[c], 0.0)
-            target[c] = -gap / dt                     # speculative: may close the gap, no more
-            slide = 0.0
-            for kk in range(4):
-                slide += (vb[kk] - va[kk] - vn * normal[c, kk]) ** 2
-            mu[c] = mus if math.sqrt(slide) < stick_speed else muk
-            # warm start from the same point of the step before
-            best = options.warm_distance * options.warm_distance
-            found = -1
-            prev = cursor
-            while prev < len(p_key) and p_key[prev] == key:
-                dd = 0.0
-                for kk in range(4):
-                    dd += (p_local[prev, kk] - local[c, kk]) ** 2
-                if dd < best:
-                    best, found = dd, prev
-                prev += 1
-            if found >= 0 and p_speed[found] >= -bounce_speed:   # an impact's impulse is not a load
-                lam[c, 0] = p_impulse[found]
-                along = 0.0
-                for kk in range(4):
-                    along += p_tangent[found, kk] * normal[c, kk]
-                for kk in range(4):
-                    tangent[c, kk] = p_tangent[found, kk] - along * normal[c, kk]
-        # restitution: when any point of the pair closes its gap within this step, every point of the pair
-        # that approaches faster than bounce_speed (and is no further than the margin) bounces, so a face
-        # striking a face bounces as one whatever rounding does to each point's gap
-        if e > 0.0:
-            impact = False
-            for c in range(start, end):
-                if speed[c] < target[c]:
-                    impact = True
-            if impact:
-                for c in range(start, end):
-                    vn = speed[c]
-                    if vn < -bounce_speed and vn * dt - depth[c] < margin:
-                        target[c] = -e * vn
-        start = end
-    # Jacobians of every row (normal, three tangents) with the inverse inertia applied, computed once:
-    # each solver visit is then a few dot products and no allocation
+            vn = speed[c]
+            if vn < -options.bounce_speed and vn * options.dt - depth[c] < options.margin:
+                target[c] = -e * vn
+
+
+@njit(**cache)
+def _jacobians(contacts: Contacts, bodies: Bodies, vel: Velocities, ra, rb):
+    """Every row's Jacobian (normal, three tangents: basis, and the lever arms' moments ang), the inverse
+    inertia applied to it (inv_ang) and its effective mass, computed once: each solver visit is then a few
+    dot products and no allocation."""
+    m = len(contacts.a)
+    body_a, body_b, normal = contacts.a, contacts.b, contacts.normal
+    inv_mass, iso_inv, isotropic, inv_inertia = bodies.inv_mass, bodies.iso_inv, vel.isotropic, vel.inv_inertia
     basis = np.empty((m, 4, 4))
     ang = np.zeros((m, 4, 2, 6))
     inv_ang = np.zeros((m, 4, 2, 6))
     mass = np.empty((m, 4))
-    inv_mass, iso_inv = bodies.inv_mass, bodies.iso_inv
+    tmp4 = np.empty(4)
+    r4 = np.empty(4)
+    d4 = np.empty(4)
+    tmp6 = np.empty(6)
     for c in range(m):
         a, b = body_a[c], body_b[c]
         _tangent_basis(normal, c, basis, tmp4)
@@ -338,14 +334,63 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
                     inv_ang[c, d, side, i] = acc
                     inv_k += ang[c, d, side, i] * acc
             mass[c, d] = 1.0 / inv_k
+    return basis, ang, inv_ang, mass
+
+
+@njit(**cache)
+def _warm_start(contacts: Contacts, inv_mass, basis, ang, inv_ang, tangent, lam, vel: Velocities):
+    """The tangential impulses carried over (tangent) on this step's tangent rows, then every carried
+    impulse applied to the bodies, as the solver would."""
+    for c in range(len(contacts.a)):
+        a, b = contacts.a[c], contacts.b[c]
         for d in range(1, 4):
             acc = 0.0
             for kk in range(4):
                 acc += tangent[c, kk] * basis[c, d, kk]
             lam[c, d] = acc
-        for d in range(4):                          # warm start
+        for d in range(4):
             if lam[c, d] != 0.0:
-                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
+                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, vel.v, vel.w, vel.dL)
+
+
+@njit(**cache)
+def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities, x, options: Options) -> Rows:
+    """The solver's rows of this step's contacts (a stage), in the stages Box2D's contact solver has: per pair
+    of parts, each point's approach and target (`_approach`), its impulses of the step before (`_warm_match`:
+    a point found again in `previous`, same pair, within options.warm_distance in b's frame) and restitution
+    once any point of the pair strikes (`_restitution`); then every row's Jacobian (`_jacobians`) and the warm
+    start applied (`_warm_start`)."""
+    m = len(contacts.a)
+    ra = np.empty((m, 4))
+    rb = np.empty((m, 4))
+    target = np.empty(m)
+    mu = np.empty(m)
+    lam = np.zeros((m, 4))
+    tangent = np.zeros((m, 4))
+    va = np.empty(4)
+    vb = np.empty(4)
+    r4 = np.empty(4)
+    tmp4 = np.empty(4)
+    w6 = np.empty(6)
+    p_key = previous.key
+    cursor = 0
+    start = 0
+    while start < m:                                  # one pair of parts at a time
+        end = _pair_end(contacts.key, start)
+        a, b = contacts.a[start], contacts.b[start]
+        mus = math.sqrt(bodies.friction_static[a] * bodies.friction_static[b])
+        muk = math.sqrt(bodies.friction_kinetic[a] * bodies.friction_kinetic[b])
+        e = max(bodies.restitution[a], bodies.restitution[b])
+        while cursor < len(p_key) and p_key[cursor] < contacts.key[start]:
+            cursor += 1
+        for c in range(start, end):
+            _approach(c, a, b, contacts, x, vel, options, mus, muk, ra, rb, target, mu, va, vb, r4, w6, tmp4)
+            _warm_match(c, cursor, contacts, previous, options, lam, tangent)
+        if e > 0.0:
+            _restitution(start, end, e, contacts, options, target)
+        start = end
+    basis, ang, inv_ang, mass = _jacobians(contacts, bodies, vel, ra, rb)
+    _warm_start(contacts, bodies.inv_mass, basis, ang, inv_ang, tangent, lam, vel)
     return Rows(ra, rb, basis, ang, inv_ang, mass, lam, target, mu)
 
 
