@@ -145,3 +145,73 @@ def test_the_stages_make_the_step():
     # the bodies swap momentum symmetrically: total momentum kept (gravity aside), no spin
     np.testing.assert_allclose(MASS * (m.v.sum(axis=0) - 2 * world.gravity * world.dt), 0, atol=1e-15)
     assert m.v[0, 0] < 0 < m.v[1, 0]
+
+
+def contacts_at(local, key=7, speed=0.0, impulse=0.0, tangent=(0.0, 0.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0, 0.0)):
+    """Contacts of one pair of parts (key), one per row of `local` (in b's frame), all alike but there."""
+    c = no_contacts(len(local))
+    c.local[:] = local
+    c.key[:] = key
+    c.speed[:] = speed
+    c.impulse[:] = impulse
+    c.tangent[:] = tangent
+    c.normal[:] = normal
+    return c
+
+
+def test_warm_match_carries_the_nearest_previous_point_within_reach_and_never_an_impacts_impulse():
+    world, _ = two_boxes(0.0)
+    o = world.options._replace(warm_distance=0.01, bounce_speed=0.5)
+    now = contacts_at([[0.0, 0.0, 0.0, 0.0]])
+    near, nearer, far = [0.008, 0, 0, 0], [0, 0.004, 0, 0], [0.02, 0, 0, 0]
+    before = contacts_at([far, near, nearer], impulse=0.0, tangent=(0.3, 0.1, -0.2, 0.0))
+    before.impulse[:] = [1.0, 2.0, 3.0]
+    lam, tangent = np.zeros((1, 4)), np.zeros((1, 4))
+    kernels._warm_match(0, 0, now, before, o, lam, tangent)
+    assert lam[0, 0] == 3.0                                     # the nearest of those within reach
+    np.testing.assert_array_equal(tangent[0], [0.0, 0.1, -0.2, 0.0])     # along the normal removed
+    struck = contacts_at([nearer], impulse=3.0, speed=-0.6)     # it approached faster than bounce_speed
+    lam[:] = 0.0
+    kernels._warm_match(0, 0, now, struck, o, lam, tangent * 0)
+    assert lam[0, 0] == 0.0
+    other_pair = contacts_at([nearer], key=8, impulse=3.0)
+    kernels._warm_match(0, 0, now, other_pair, o, lam, tangent * 0)
+    assert lam[0, 0] == 0.0
+
+
+def test_restitution_bounces_every_fast_point_of_a_pair_once_one_strikes():
+    world, _ = two_boxes(0.0)
+    o = world.options._replace(bounce_speed=0.5, margin=0.01)
+    c = contacts_at(np.zeros((3, 4)))
+    c.speed[:] = [-2.0, -1.0, -0.2]              # the last approaches slower than bounce_speed
+    c.depth[:] = [0.0, -0.005, -0.001]
+    target = np.array([-0.1, -10.0, -10.0])      # only the first closes its gap within the step
+    kernels._restitution(0, 3, 0.5, c, o, target)
+    np.testing.assert_array_equal(target, [1.0, 0.5, -10.0])
+    target = np.array([-10.0, -10.0, -10.0])     # none strikes: the speculative targets stay
+    kernels._restitution(0, 3, 0.5, c, o, target)
+    np.testing.assert_array_equal(target, [-10.0, -10.0, -10.0])
+
+
+def test_reduce_keeps_the_deepest_then_the_farthest_across_the_normal():
+    from touch4d.physics.collide import MAX_POINTS, _reduce
+
+    n = np.array([0.0, 1.0, 0.0, 0.0])
+    count = MAX_POINTS + 8
+    cand = np.zeros((count, 4))
+    cand[:, 0] = np.arange(count) * 0.1                  # along x, across the normal
+    cand[:, 1] = 5.0 * np.arange(count)                  # along the normal: no distance across it
+    depth = np.full(count, 0.01)
+    depth[6] = 0.05
+    keep = np.ones(count, dtype=np.bool_)
+    keep[3] = False
+    out_pts, out_depth = np.empty((MAX_POINTS, 4)), np.empty(MAX_POINTS)
+    got = _reduce(cand, depth, keep, count, count - 1, n, out_pts, out_depth)
+    assert got == MAX_POINTS and out_depth[0] == 0.05 and out_pts[0, 0] == pytest.approx(0.6)
+    assert out_pts[1, 0] == pytest.approx((count - 1) * 0.1)     # the farthest from the deepest, across n
+    assert out_pts[2, 0] == 0.0                                  # then the farthest from both
+    assert 0.3 not in np.round(out_pts[:, 0], 9)                 # a point not kept is never chosen
+    few = np.zeros(count, dtype=np.bool_)
+    few[[2, 5]] = True
+    assert _reduce(cand, depth, few, count, 2, n, out_pts, out_depth) == 2
+    np.testing.assert_allclose(out_pts[:2, 0], [0.2, 0.5])
