@@ -84,7 +84,7 @@ def test_messages_and_frames_pass_unchanged_a_second_page_gets_503_and_a_close_p
     async def body(server, stack, url, session):
         p = server.participants["P01"]
         ws = await session.ws_connect(f"{url}/ws", origin=url)
-        assert await _until(lambda: stack.opened and p.pages == 1 and p.state == "running", 10)
+        assert await _until(lambda: stack.opened and p.pages == 1 and p.life.shown() == "running", 10)
         before = p.last_heard
         text = json.dumps({"type": "input", "time": 1234.5, "tracking": True, "head": None, "sources": []})
         await ws.send_str(text)
@@ -102,12 +102,12 @@ def test_messages_and_frames_pass_unchanged_a_second_page_gets_503_and_a_close_p
         await ws.send_str("x" * (MAX_PAGE_MESSAGE + 1))
         msg = await ws.receive(10)
         assert msg.type == aiohttp.WSMsgType.CLOSE and msg.data == aiohttp.WSCloseCode.MESSAGE_TOO_BIG
-        assert await _until(lambda: p.pages == 0 and p.state == "paused", 10)
+        assert await _until(lambda: p.pages == 0 and p.life.shown() == "paused", 10)
         # the page again: resumed, and its own close pauses it
         ws = await session.ws_connect(f"{url}/ws", origin=url)
-        assert await _until(lambda: p.pages == 1 and p.state == "running", 10)
+        assert await _until(lambda: p.pages == 1 and p.life.shown() == "running", 10)
         await ws.close()
-        assert await _until(lambda: p.pages == 0 and p.state == "paused" and len(stack.closed) == 2, 10)
+        assert await _until(lambda: p.pages == 0 and p.life.shown() == "paused" and len(stack.closed) == 2, 10)
         # another origin, or not an upgrade: refused here, before the page server
         with pytest.raises(aiohttp.WSServerHandshakeError) as other:
             await session.ws_connect(f"{url}/ws", origin="http://elsewhere.example")
@@ -157,7 +157,7 @@ def test_a_headset_that_vanished_is_noticed_by_the_page_servers_heartbeat_and_no
         assert await _until(lambda: p.pages == 1, 10)
         # it reads nothing more and answers no ping (a headset gone without a word): the page server's
         # heartbeat closes it, and the splice with it
-        assert await _until(lambda: p.pages == 0 and p.state == "paused", 4 * WS_HEARTBEAT_S + 5)
+        assert await _until(lambda: p.pages == 0 and p.life.shown() == "paused", 4 * WS_HEARTBEAT_S + 5)
         rest = await asyncio.wait_for(reader.read(), 10)     # what it was sent after the 101, up to EOF
         writer.close()
         # the page server's pings and nothing else: no HTTP response of aiohttp's after the splice

@@ -14,6 +14,7 @@ import pytest
 
 from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
+from touch4d.study.participation import Life, State
 from touch4d.web.invites import Invites
 from touch4d.web.studyserver import Participant, StudyServer, _page_port
 
@@ -63,7 +64,7 @@ def _stack(server: StudyServer, participant: str) -> tuple[Participant, subproce
         server.pool = SleepStacks()
     p = server.participants[participant]
     proc = server.pool.start(participant)
-    p.state = "running"
+    p.life = Life(State.RUNNING)
     return p, proc
 
 
@@ -106,7 +107,7 @@ def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(
         async def body(server):
             assert cli_main(["study", "invite", str(tmp_path), "P01", "--revoke"]) == 0
             assert await _until(lambda: proc.poll() is not None, 10), "the revoked participant's stack still runs"
-            assert p.state == "left" and server.running() == 0
+            assert p.life.shown() == "revoked" and server.running() == 0
         _serving(server, body)
     finally:
         _reap(proc)
@@ -125,9 +126,9 @@ def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
             server._await_page(stays)
             server._page_opened(stays)          # P02's page came
             assert await _until(lambda: procs[0].poll() is not None, 10), "a join without a page holds its place"
-            assert gone.state == "left" and server.counts["left"] == 1
+            assert gone.life.shown() == "left" and server.counts["left"] == 1
             await asyncio.sleep(0.5)
-            assert procs[1].poll() is None and stays.state == "running"
+            assert procs[1].poll() is None and stays.life.shown() == "running"
         _serving(server, body)
     finally:
         _reap(procs[0])
@@ -166,6 +167,7 @@ def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
     server._start_bus(tmp_path)
     probe = Node("probe", bus=server.node.bus)        # the participants' broker
     heard = collect(probe, "P01/study/command", StudyCommand)
+    p, proc = _stack(server, "P01")                   # its trial runs: the commands reach its study node
     try:
         async def body(server):
             url = f"http://127.0.0.1:{server.port}"
@@ -183,6 +185,7 @@ def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
         _serving(server, body)
         assert [m.command for m in heard] == ["pause", "resume"]
     finally:
+        _reap(proc)
         probe.request_shutdown()
         server.node.request_shutdown()
         server._bus_thread.join(5)
@@ -357,14 +360,14 @@ def test_a_page_reloaded_resumes_only_the_servers_pause_not_the_experimenters(tm
                 server._page_closed(p)     # the participant reloads their page
                 server._page_opened(p)
                 await asyncio.sleep(0.5)
-                assert commands()[2:] == ["pause", "pause"]    # no resume: the experimenter's pause holds
+                assert commands()[2:] == ["pause"]    # no resume: the experimenter's pause holds
                 view = [s for s in server.status() if s["participant"] == "P01"][0]
                 assert view["state"] == "paused" and view["paused_by"] == "experimenter"
                 async with lab.post(f"{url}/experimenter/resume", data={"participant": "P01"},
                                     headers={"Origin": url}) as response:
                     assert response.status == 200
-                await settle(5)
-                assert commands()[-1] == "resume"
+                await settle(4)
+                assert commands() == ["pause", "resume", "pause", "resume"]
         spinning = threading.Thread(target=probe.spin, daemon=True)
         spinning.start()
         _serving(server, body)

@@ -58,6 +58,7 @@ from touch4d.eventloop import new_event_loop
 from touch4d.messages import StudyCommand, StudyTrial, decode
 from touch4d.study.design import Study
 from touch4d.study.lock import SERVE, SessionLock
+from touch4d.study.participation import PAUSE, Life, State
 from touch4d.study.plan import plan_session, quick_plan
 from touch4d.study.session import session_dir, session_overrides
 from touch4d.study.store import PARTICIPANT_ID, rows_written
@@ -168,12 +169,11 @@ class Participant:
     """One participant's stack and what the experimenter page shows of it."""
 
     id: str
-    state: str = "invited"            # invited, starting, running, paused (no page), left (stack stopped)
+    life: Life = field(default_factory=Life)   # invited, starting, running (paused by whom), left, done, revoked
     port: int = 0                      # its page server's, on loopback (as its container's ready file said)
     pages: int = 0                     # its pages connected now
     last_heard: float = 0.0            # wall clock of the last bytes its page sent
     trial: StudyTrial | None = None    # its study node's latest state
-    held: bool = False                 # paused by the experimenter: only the experimenter resumes it
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
     # what its page server wants with every request (its page node, on loopback, is every local user's to reach)
     secret: str = field(default_factory=lambda: secrets.token_urlsafe(16), repr=False)
@@ -256,9 +256,12 @@ class StudyServer:
         for holder in ended:
             self.access.revoke(holder)
             p = self.participants.get(holder)
-            if p is not None and self._running(p):
-                self._say(f"{holder}: link revoked or replaced; its stack stops")
-                self._stop_stack(p, "left")
+            if p is not None:
+                if self._running(p):
+                    self._say(f"{holder}: link {'replaced' if holder in tokens else 'revoked'}; its stack stops")
+                    self._stop_stack(p)
+                if holder not in tokens:
+                    p.life.revoke()
             elif holder == EXPERIMENTER and holder in tokens:
                 self._say("the experimenter's link was replaced: the old one and its browsers are refused")
         for holder, token in tokens.items():
@@ -268,9 +271,13 @@ class StudyServer:
                 self.experimenter_token = token
             elif holder not in self.participants:
                 self._add_participant(holder)
+            else:
+                self.participants[holder].life.invited(self._rows(holder), self._planned(holder))
 
     def _add_participant(self, holder: str) -> "Participant":
-        p = self.participants[holder] = Participant(holder)
+        """A participant the server learns of (a link, or a folder of data): its life as its data say."""
+        life = Life.from_data(self._rows(holder), self._planned(holder), invited=holder in (self._tokens or {}))
+        p = self.participants[holder] = Participant(holder, life=life)
         if self.node is not None:   # else _start_bus follows it
             self.node.call_soon_threadsafe(self._follow, holder)
         return p
@@ -306,10 +313,23 @@ class StudyServer:
         ns, _, name = topic.partition("/")
         if name != "study/trial" or ns not in self.participants:
             return
+        p = self.participants[ns]
         try:
-            self.participants[ns].trial = decode(payload, StudyTrial)
+            p.trial = decode(payload, StudyTrial)
         except Exception:  # noqa: BLE001 - a malformed message is not the experimenter page's to show
             return
+        if p.trial.phase == "done" and p.life.state is State.RUNNING and self._loop is not None:
+            self._loop.call_soon_threadsafe(self._finished, p)
+
+    def _finished(self, p: Participant) -> None:
+        if p.life.state is State.RUNNING:
+            p.life.finished()
+            self._say(f"{p.id} is done: every trial has its row")
+
+    def _tell(self, p: Participant, command: str | None, reason: str) -> None:
+        """Send its study node the command a life event returned (None: nothing to send)."""
+        if command is not None:
+            self.command(p.id, command, reason)
 
     def command(self, participant: str, command: str, reason: str) -> None:
         """Send `study/command` to a participant's study node (from any thread)."""
@@ -339,7 +359,6 @@ class StudyServer:
             with open_log(session_dir(self.out, p.id) / "serve.log") as f:
                 f.write(f"{p.id}: {exc}\n")
             return False
-        p.state = "starting"
         return True
 
     def _stack_command(self, p: Participant) -> dict:
@@ -407,11 +426,11 @@ class StudyServer:
             await asyncio.sleep(0.1)
         return False
 
-    def _stop_stack(self, p: Participant, state: str) -> None:
+    def _stop_stack(self, p: Participant) -> None:
         if p.leave is not None:
             p.leave.cancel()
             p.leave = None
-        p.state = state
+        p.life.stopped()
         if self.pool is not None:
             self.pool.unload(p.id)   # its nodes shut down (the study keeps its rows)
 
@@ -449,8 +468,11 @@ class StudyServer:
         given back (the link starts it again)."""
         if not await self._wait_ready(p):
             log.warning("%s: its stack did not start again; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
-            self._stop_stack(p, "left")
-        elif p.pages == 0:
+            self._stop_stack(p)
+            return
+        if p.life.held:   # a new study node starts unpaused: the experimenter's pause again
+            self.command(p.id, PAUSE, "the experimenter (its stack started again)")
+        if p.pages == 0:
             self._await_page(p)   # its page gone with the container: back within the grace, or it has left
 
     # ---- HTTP ----------------------------------------------------------------------------------
@@ -511,7 +533,7 @@ class StudyServer:
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
-        if self._running(p) and p.state in ("running", "paused"):
+        if self._running(p) and p.life.state in (State.RUNNING, State.DONE):
             return await self._proxy_http(request, p)
         return web.Response(text=self._welcome(p), content_type="text/html")
 
@@ -534,7 +556,7 @@ class StudyServer:
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
-        if self._running(p) and p.state in ("running", "paused"):
+        if self._running(p) and p.life.state in (State.RUNNING, State.DONE):
             raise web.HTTPSeeOther("/")    # its stack runs and was seen ready: no probe of its node again
         if p.starting is None:             # else a join already waits for its stack: wait with it
             p.starting = asyncio.ensure_future(self._start(p))   # on, even if this request's browser goes
@@ -542,13 +564,18 @@ class StudyServer:
         refusal = await asyncio.shield(p.starting)
         if refusal is not None:
             status, text = refusal
-            return web.Response(status=status, text=text, content_type="text/html" if status == 503 else "text/plain")
+            return web.Response(status=status, text=text, content_type="text/html" if status != 500 else "text/plain")
         raise web.HTTPSeeOther("/")
 
     async def _start(self, p: Participant) -> tuple[int, str] | None:
         """Start a participant's stack and wait until its page is served (one at a time per participant):
         None, or the status and page that say why not."""
         if not self._running(p):
+            if p.life.has_stack:    # its stack went without the server seeing it go: it has left
+                p.life.stopped()
+            if p.life.state is State.DONE:
+                return 200, ("<!doctype html><html lang=en><meta charset=utf-8><title>Done</title><body><h1>Every "
+                             "trial is done</h1><p>Thank you for taking part.</p></body></html>")
             if self.running() >= self.max_participants:
                 self.counts["full"] += 1
                 self._say(f"{p.id}: refused, the study is full ({self.running()} of {self.max_participants} "
@@ -557,16 +584,17 @@ class StudyServer:
                              "study is full right now</h1><p>Every place is taken. Please open your link again in a "
                              "few minutes.</p></body></html>")
             self.counts["resumed" if self._rows(p.id) else "joined"] += 1
+            p.life.join()      # revoked links never get here (the gate refused them)
             if self._start_stack(p):
                 self._say(f"{p.id} {'is back' if self._rows(p.id) else 'joined'}: starting its stack "
                           f"({self.pool.container_of(p.id)}); {self.running()} of {self.max_participants} running")
         if not await self._wait_ready(p):
-            self._stop_stack(p, "left")
+            self._stop_stack(p)
             # the log's path is the experimenter's: this page faces the internet
             log.warning("%s: its stack did not start; see %s", p.id, session_dir(self.out, p.id) / "serve.log")
             return 500, f"touch4d: the session of {p.id} could not start; please tell the experimenter\n"
-        if p.state == "starting":
-            p.state = "running"
+        if p.life.state is State.STARTING:
+            self._tell(p, p.life.ready(), "the experimenter")   # held before: paused again at once
             self._await_page(p)
         return None
 
@@ -656,20 +684,16 @@ class StudyServer:
         if p.leave is not None:
             p.leave.cancel()
             p.leave = None
-        if p.state == "paused":   # the server's own pause (no page): the page back undoes it
-            p.state = "running"
-            if p.held:
-                self._say(f"{p.id}: its page is back; its trial stays paused (by the experimenter)")
-            else:
-                self.command(p.id, "resume", "the participant's page is back")
-                self._say(f"{p.id}: its page is back; trial resumed")
+        if p.life.page_gone:   # the server's own pause (no page): the page back undoes it, not the experimenter's
+            self._tell(p, p.life.page_opened(), "the participant's page is back")
+            self._say(f"{p.id}: its page is back; " + ("its trial stays paused (by the experimenter)" if p.life.held
+                                                         else "trial resumed"))
 
     def _page_closed(self, p: Participant) -> None:
         p.pages -= 1
         if p.pages > 0 or not self._placed(p):   # placed: its container may be dead and loading it again
             return
-        p.state = "paused"
-        self.command(p.id, "pause", "the participant's page closed")
+        self._tell(p, p.life.page_closed(), "the participant's page closed")
         self._say(f"{p.id}: its page closed; paused (its stack stops in {self.leave_after_s:g} s unless it comes back)")
         p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
 
@@ -678,7 +702,7 @@ class StudyServer:
         if p.pages == 0 and self._running(p):
             self.counts["left"] += 1
             self._say(f"{p.id} left: its stack stops (its link resumes it)")
-            self._stop_stack(p, "left")
+            self._stop_stack(p)
 
     # ---- the experimenter's page ---------------------------------------------------------------
 
@@ -693,19 +717,6 @@ class StudyServer:
             self._plan_lengths[participant] = len(plan)
         return self._plan_lengths[participant]
 
-    def _shown_state(self, p: Participant, rows: int) -> tuple[str, str | None]:
-        """(state, paused by whom) as the experimenter sees it, from the stack when one runs, else from
-        the participant's data and link (so a restarted server shows who is done, who left, who was revoked)."""
-        if self._running(p):
-            if p.state == "paused":
-                return "paused", "experimenter" if p.held else "server (no page)"
-            return ("paused", "experimenter") if p.held and p.state == "running" else (p.state, None)
-        if p.id not in (self._tokens or {}):
-            return "revoked", None
-        if rows and rows >= self._planned(p.id):
-            return "done", None
-        return ("left" if rows or p.state == "left" else "invited"), None
-
     def status(self) -> list[dict]:
         """Every participant: state (and who paused it), trials done of planned, the trial now, seconds
         since its page was last heard."""
@@ -714,8 +725,7 @@ class StudyServer:
         for p in sorted(self.participants.values(), key=lambda p: p.id):
             t = p.trial if self._running(p) else None
             rows = self._rows(p.id)
-            state, paused_by = self._shown_state(p, rows)
-            out.append({"participant": p.id, "state": state, "paused_by": paused_by, "pages": p.pages,
+            out.append({"participant": p.id, "state": p.life.shown(), "paused_by": p.life.paused_by, "pages": p.pages,
                         "rows": rows, "planned": self._planned(p.id),
                         "trial": None if t is None or t.index < 0 else t.index + 1,
                         "of": None if t is None else t.total, "phase": None if t is None else t.phase,
@@ -791,9 +801,7 @@ class StudyServer:
         if p is None:
             raise web.HTTPNotFound(text="touch4d: no such participant\n")
         if action in ("pause", "resume"):
-            p.held = action == "pause"
-            if p.state != "paused":   # paused with no page: the page coming back resumes it (unless held)
-                self.command(p.id, action, "the experimenter")
+            self._tell(p, p.life.experimenter(action), "the experimenter")
         elif action == "revoke":
             self.invites.revoke(p.id)
             self._load_invites()       # ends its cookies, stops its stack (it shows as revoked)
@@ -844,7 +852,7 @@ class StudyServer:
             self._say(f"stopping: {self.running()} running participants' stacks stop (each resumes at its next "
                       "trial when its link is opened again)")
             for p in self.participants.values():
-                self._stop_stack(p, p.state)
+                self._stop_stack(p)
             if self.pool is not None:
                 await asyncio.get_running_loop().run_in_executor(None, self.pool.close)
             for splice in list(self._splices):
