@@ -1,5 +1,6 @@
 """Layers only point down: every import under touch4d/, messages/ and nodes/ is checked against the
-table of docs/code-map.md (parsed here, so the document is the rule)."""
+table of docs/code-map.md (parsed here, so the document is the rule), and the modules of a package
+import each other one way only (no circle, a function's or a type checker's import included)."""
 import ast
 import re
 from pathlib import Path
@@ -69,6 +70,83 @@ def imports(path: Path):
                     yield f"{target}.{alias.name}", node.lineno
 
 
+def module_files() -> dict[str, Path]:
+    """Every module of touch4d/, messages/ and nodes/: its dotted name -> its file."""
+    return {module_name(path): path for folder in FOLDERS for path in sorted((ROOT / folder).rglob("*.py"))}
+
+
+def import_graph(modules: dict[str, Path]) -> dict[str, dict[str, int]]:
+    """module -> the modules of ours it imports (-> the line of the first such import). `from P import
+    m` is an import of the module P.m where there is one, else of P (a name its __init__ gives)."""
+    graph = {}
+    for module, path in modules.items():
+        edges = graph[module] = {}
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _absolute(module, path, node)
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+            else:
+                continue
+            for target in targets:
+                if target in modules and target != module:
+                    edges.setdefault(target, node.lineno)
+    return graph
+
+
+def _absolute(module: str, path: Path, node: ast.ImportFrom) -> str:
+    if not node.level:
+        return node.module
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+    return f"{base}.{node.module}" if node.module else base
+
+
+def import_circles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
+    """The modules that import each other in a circle: each strongly connected part of `graph` of more
+    than one module (Tarjan's algorithm), sorted."""
+    index, low, stack, on_stack, parts = {}, {}, [], set(), []
+
+    def visit(module):
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        on_stack.add(module)
+        for target in graph[module]:
+            if target not in index:
+                visit(target)
+                low[module] = min(low[module], low[target])
+            elif target in on_stack:
+                low[module] = min(low[module], index[target])
+        if low[module] == index[module]:
+            part = []
+            while not part or part[-1] != module:
+                part.append(stack.pop())
+                on_stack.discard(part[-1])
+            if len(part) > 1:
+                parts.append(sorted(part))
+
+    for module in sorted(graph):
+        if module not in index:
+            visit(module)
+    return sorted(parts)
+
+
+def circle_text(part: list[str], graph: dict[str, dict[str, int]], modules: dict[str, Path]) -> str:
+    """One circle of `part`, each import with its file and line: a -> b (a.py:12) -> ... -> a."""
+    members, path, seen = set(part), [part[0]], {part[0]}
+    while True:   # follow imports within the part until one comes back to a module already on the path
+        here = path[-1]
+        target = next(t for t in sorted(graph[here]) if t in members and (t == part[0] or t not in seen))
+        path.append(target)
+        if target in seen:
+            break
+        seen.add(target)
+    path = path[path.index(path[-1]):]
+    return " -> ".join(f"{a} ({modules[a].relative_to(ROOT)}:{graph[a][b]})" for a, b in zip(path, path[1:])) \
+        + f" -> {path[-1]}"
+
+
 def upward_imports() -> list[str]:
     table = layer_table()
     wrong = []
@@ -93,6 +171,36 @@ def test_the_table_names_every_package_and_only_known_ones():
 
 def test_no_library_package_imports_upward():
     assert upward_imports() == []
+
+
+def test_no_modules_import_each_other_in_a_circle():
+    """Imports inside a package point one way too: a piece two modules share goes down into the lower
+    one (or a module of its own), never a lazy import back up."""
+    modules = module_files()
+    graph = import_graph(modules)
+    assert [circle_text(part, graph, modules) for part in import_circles(graph)] == []
+
+
+def test_the_circle_check_sees_a_lazy_and_a_type_checking_import(monkeypatch):
+    """The checker itself: a circle closed by an import inside a function, or under TYPE_CHECKING,
+    is one; imports one way only are none."""
+    graph = {"p.a": {"p.b": 3}, "p.b": {"p.c": 5}, "p.c": {"p.a": 9}, "p.d": {"p.a": 1}}
+    assert import_circles(graph) == [["p.a", "p.b", "p.c"]]
+    assert import_circles({"p.a": {"p.b": 3}, "p.b": {"p.c": 5}, "p.c": {}}) == []
+
+    files = {f"touch4d.bus._probe_{x}": ROOT / f"touch4d/bus/_probe_{x}.py" for x in "ab"}
+    files["touch4d.bus"] = ROOT / "touch4d/bus/__init__.py"
+    sources = {files["touch4d.bus._probe_a"]: "from touch4d.bus import _probe_b\n",
+               files["touch4d.bus._probe_b"]: "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                              "    from ._probe_a import X\ndef f():\n    from . import Node\n",
+               files["touch4d.bus"]: ""}
+    monkeypatch.setattr(Path, "read_text", lambda self, *a, **k: sources[self])
+    graph = import_graph(files)
+    assert graph["touch4d.bus._probe_a"] == {"touch4d.bus._probe_b": 1}
+    assert graph["touch4d.bus._probe_b"] == {"touch4d.bus._probe_a": 3, "touch4d.bus": 5}
+    assert circle_text(import_circles(graph)[0], graph, files) == (
+        "touch4d.bus._probe_a (touch4d/bus/_probe_a.py:1) -> touch4d.bus._probe_b (touch4d/bus/_probe_b.py:3) "
+        "-> touch4d.bus._probe_a")
 
 
 def test_the_check_sees_an_upward_import(tmp_path, monkeypatch):

@@ -2,10 +2,8 @@
 participants offline, or through the full stack), analyse its trials."""
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
-import math
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -13,6 +11,8 @@ from pathlib import Path
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError, Unavailable
 
+from .common import clean as _clean, count as _count, count0 as _count0, nonnegative as _nonnegative
+from .common import probability as _probability
 
 
 def register(subparsers) -> None:
@@ -499,55 +499,3 @@ def run_analyze(args) -> int:
         if report is not None:
             print(f"report: {report}")
     return 0
-
-
-def _clean(value):
-    """JSON-ready: NaN and infinities as null (JSON has no such numbers)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
-        return _clean(value.item())
-    return value
-
-
-def _count(text: str) -> int:
-    value = _integer(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
-    return value
-
-
-def _count0(text: str) -> int:
-    value = _integer(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
-    return value
-
-
-def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-
-
-def _nonnegative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
-
-
-def _probability(text: str) -> float:
-    value = _nonnegative(text)
-    if value > 1:
-        raise argparse.ArgumentTypeError(f"expected a number in 0..1, got {text}")
-    return value
-

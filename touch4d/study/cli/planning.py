@@ -9,6 +9,8 @@ from pathlib import Path
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
+from .common import clean, count0, nonnegative
+
 
 def register(sub, *, count, count0, probability) -> None:
     """Add `power` and `fit` to `touch4d study`'s subcommands (`count` etc.: cli's argument types)."""
@@ -73,8 +75,6 @@ def register_glove_design(sub) -> None:
     """`touch4d glove design`: K motor places chosen for a study (touch4d.study.glovedesign)."""
     import argparse
 
-    from . import _count0, _nonnegative
-
     def motors(text):
         value = _workers(text)
         if value < 1:
@@ -95,14 +95,14 @@ def register_glove_design(sub) -> None:
     design.add_argument("--regions", nargs="+", metavar="REGION",
                         help="place motors only here: palm, back, thumb, index, middle, ring, little (default: "
                              "anywhere on the hand)")
-    design.add_argument("--noise", type=_nonnegative, default=None, metavar="X",
+    design.add_argument("--noise", type=nonnegative, default=None, metavar="X",
                         help="sensory noise of a finger's motors (default: the fingertip's; the palm's: x0.64, "
                              "touch4d.study.psychophysics)")
-    design.add_argument("--random", type=_count0, default=10, metavar="N",
+    design.add_argument("--random", type=count0, default=10, metavar="N",
                         help="random layouts to compare (default 10)")
-    design.add_argument("--rounds", type=_count0, default=2, metavar="N",
+    design.add_argument("--rounds", type=count0, default=2, metavar="N",
                         help="swap passes after the greedy steps (default 2)")
-    design.add_argument("--tries", type=_count0, default=10, metavar="N",
+    design.add_argument("--tries", type=count0, default=10, metavar="N",
                         help="other places tried for each chosen one in a swap pass (default 10)")
     design.add_argument("--scenes", type=motors, default=16, metavar="N",
                         help="jittered scenes per stimulus in each set of examples (default 16)")
@@ -115,7 +115,6 @@ def register_glove_design(sub) -> None:
 
 
 def run_glove_design(args) -> int:
-    from . import _clean
     from ..glovedesign import candidates_in, design_gloves, summary_text, write_glove
     from ..infotransfer import POSITIONS, SCENES
     from ..psychophysics import HUMAN_NOISE
@@ -137,7 +136,7 @@ def run_glove_design(args) -> int:
     result["transfer"] = written_transfer(path, study, result["tasks"], noise=noise, seed=args.seed)
     result["transfer_command"] = again
     if args.json:
-        print(json.dumps(_clean(result)))
+        print(json.dumps(clean(result)))
     else:
         print(summary_text(result))
         print(f"{again}: " + " ".join(f"{t} {b:.3f}" for t, b in result["transfer"].items())
@@ -201,7 +200,6 @@ def read_fit(path) -> dict:
 
 
 def run_power(args) -> int:
-    from . import _clean
     from ..observer import ModelObserver
     from ..power import Population, PowerSetup, power_curves, report_html, summary_text
 
@@ -228,10 +226,10 @@ def run_power(args) -> int:
     result["seconds"] = time.perf_counter() - started
     result["ran_on"] = cluster.describe()
     out.mkdir(parents=True, exist_ok=True)
-    (out / "power.json").write_text(json.dumps(_clean(result), indent=1) + "\n")
+    (out / "power.json").write_text(json.dumps(clean(result), indent=1) + "\n")
     (out / "report.html").write_text(report_html(result))
     if args.json:
-        print(json.dumps(_clean(result)))
+        print(json.dumps(clean(result)))
     else:
         print(summary_text(result))
         print(f"{result['seconds']:.1f} s on {result['ran_on']}; report: {out / 'report.html'}")
@@ -360,7 +358,6 @@ def check_fit_glove(fit: dict, glove, path, differs_ok: bool = False) -> None:
 
 def run_fit(args) -> int:
     from ..analysis import load
-    from . import _clean
     from ..observer import ModelObserver
     from ..pilotfit import accuracy_surface, fit_pilot, summary_text
     from ..psychophysics import HUMAN_NOISE
@@ -381,9 +378,9 @@ def run_fit(args) -> int:
     fit = fit_pilot(surface, data, seed=args.seed)
     fit.update({"study_file": study.path, **glove_record(glove), "pilot": str(args.dir), "surface": surface.to_json()})
     if args.out:
-        Path(args.out).write_text(json.dumps(_clean(fit), indent=1) + "\n")
+        Path(args.out).write_text(json.dumps(clean(fit), indent=1) + "\n")
     if args.json:
-        print(json.dumps(_clean(fit)))
+        print(json.dumps(clean(fit)))
     else:
         print(summary_text(fit))
         if args.out:
