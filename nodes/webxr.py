@@ -148,10 +148,14 @@ class WebXRNode(Node):
         self.add_stats(lambda: {**self.bridge.counts, **self.server.counts(),
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1),
                                 **self.bridge.haptic_outputs()})
+        role = "tracker and view" if p["tracker"] else "view"
+        if self.server.secret:   # behind a proxy (a study server): no one opens it here
+            self.log.info("WebXR page (%s) served on 127.0.0.1:%d to the proxy holding its secret; its users "
+                          "come through that proxy's links", role, bound)
+            return
         scheme = "https" if ssl_context else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
-        role = "tracker and view" if p["tracker"] else "view"
         for url in urls:
             self.log.info("WebXR page (%s, %s source): %s", role, p["hand_source"] if p["tracker"] else "scripted",
                           url)

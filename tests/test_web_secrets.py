@@ -3,6 +3,7 @@ can redirect it, a key left readable by others never reused; the node's token fr
 environment (128 bits at least, never a parameter's value on the command line), and plain http
 refused beyond loopback."""
 import os
+import time
 import stat
 
 import pytest
@@ -98,3 +99,19 @@ def test_a_token_from_a_file_opens_the_page(tmp_path):
                     return refused, r.status
         assert asyncio.run(go()) == (403, 200)
         assert token not in " ".join(open(f"/proc/{proc.proc.pid}/cmdline").read().split("\0"))
+
+
+def test_a_page_node_behind_a_proxy_advertises_no_address_of_its_own(tmp_path):
+    """With the proxy's secret (a study server's participant), its log names no link and no `adb
+    reverse` to its loopback port: participants come through the proxy's links only."""
+    secret = tmp_path / "secret"
+    secret.write_text("S" * 22 + "\n")
+    with running_broker() as bus:
+        with node_process("webxr", bus, params={"port": free_port(), "save_calibration": False,
+                                                "secret_file": str(secret)}) as proc:
+            line = proc.wait_for_line("WebXR page", timeout=30)
+            time.sleep(0.5)
+            said = proc.text
+        assert "proxy" in line and "http://" not in said and "adb reverse" not in said
+        with node_process("webxr", bus, params={"port": free_port(), "save_calibration": False}) as proc:
+            proc.wait_for_line("adb reverse", timeout=30)    # on its own, on loopback: the USB way in
