@@ -52,9 +52,9 @@ class Served:
 
 
 @contextmanager
-def serve(tmp_path, *args):
+def serve(tmp_path, *args, study=STUDY):
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", STUDY, "--out", str(out),
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "touch4d.cli", "study", "serve", study, "--out", str(out),
                              "--port", "0", "--quick", *args], cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:

@@ -113,3 +113,19 @@ def test_study_runs_bus_flag_reaches_the_stack(tmp_path, capfd):
     assert code != 0
     err = capfd.readouterr().err
     assert str(bus) in err and "broker.pub_port" in err and str(port) in err
+
+
+def test_serving_a_study_says_which_tasks_its_glove_cannot_tell(tmp_path):
+    """The served stack touches with a held controller (one motor): the tilt task's 8 tilts are all
+    but the same to it (about 0.03 of 3 bits), so the terminal says so, naming the task; the others not."""
+    out = tmp_path / "out"
+    server = _serve(out, "--port", "0")
+    try:
+        lines = []
+        wait_until(lambda: lines.append(server.stdout.readline()) or "warning: task" in lines[-1]
+                   or server.poll() is not None, timeout=90)
+        warned = [line for line in lines if "warning: task" in line]
+        assert len(warned) == 1 and "task tilt:" in warned[0] and "quest-controller.yaml (1 motor)" in warned[0]
+        assert re.search(r"tells 0\.0\d of 3\.00 bits", warned[0])
+    finally:
+        _stop(server)

@@ -22,10 +22,8 @@ trial, or revoke a link.
 from __future__ import annotations
 
 import asyncio
-import base64
 import ctypes
 import errno
-import hashlib
 import html
 import json
 import logging
@@ -92,16 +90,20 @@ HANDSHAKE_HEADERS = ("Sec-WebSocket-Key", "Sec-WebSocket-Version", "Sec-WebSocke
 UPSTREAM_TIMEOUT_S = 10.0     # a participant's page server answers a WebSocket upgrade within this, else 502
 # The experimenter's pages: participants' states, never cached; their address (once with the token) sent nowhere.
 NO_STORE = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"}
-STATIC = Path(__file__).parent / "static"
 HOLDER_RATE = 20.0            # requests per second and link, on average (a page's load is ~15 files once)
 HOLDER_BURST = 60             # and at most this many at once
 PROXIED_HEADERS = ("Content-Security-Policy", "Referrer-Policy", "Cache-Control", "X-Content-Type-Options")
-WELCOME_SCRIPT = "history.replaceState(null, '', '/')"   # the link's token out of the address bar
-# The page server's headers on every answer, but forms post here (join, the experimenter's) and the
-# welcome page's one script runs (by its hash: no other inline script).
+# The page server's headers on every answer, but forms post here (join, the experimenter's); scripts
+# are this server's files only (the welcome page's, the experimenter page's: no inline script).
 STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
     SECURITY_HEADERS["Content-Security-Policy"].replace("form-action 'none'", "form-action 'self'")
-    + f"; script-src 'self' 'sha256-{base64.b64encode(hashlib.sha256(WELCOME_SCRIPT.encode()).digest()).decode()}'")}
+    + "; script-src 'self'")}
+MAX_DEVICE_BODY = 1024        # the welcome page's device report: two booleans
+# What a participant whose browser cannot vibrate reads before consent (and why).
+NO_VIBRATION = ("This browser cannot vibrate: no VR headset (WebXR) and no gamepad with rumble were found. "
+                "This study's touch is felt as vibration. With a gamepad, press one of its buttons, then reload.")
+NO_VIBRATION_REFUSED = NO_VIBRATION + " Please join from a VR headset's browser (a Quest) or with a gamepad."
+NO_VIBRATION_ALLOWED = NO_VIBRATION + " You may take part: in the trials with touch you will feel nothing."
 STATIC_NAMES = static_names(STATIC_DIR)   # /static/ names forwarded to a participant's page: its files only
 
 
@@ -178,6 +180,7 @@ class Participant:
     # what its page server wants with every request (its page node, on loopback, is every local user's to reach)
     secret: str = field(default_factory=lambda: secrets.token_urlsafe(16), repr=False)
     starting: asyncio.Future | None = field(default=None, repr=False)   # a join waiting for its stack
+    vibration: str | None = None       # what its welcome page found: headset, gamepad, none (None: not told)
 
 
 class StudyServer:
@@ -214,7 +217,7 @@ class StudyServer:
                                    log=log)
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
-                       "over budget": 0}
+                       "over budget": 0, "no vibration": 0}
         self._logged: set[str] = set()
         self._plan_lengths: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -547,15 +550,48 @@ class StudyServer:
                 f"<h1>{html.escape(study.description or study.name)}</h1>"
                 + (f"<p>Welcome back: {rows} trials are done, the next one follows.</p>" if rows else "")
                 + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
+                "<p id=vibration role=alert hidden></p>"
                 f"<form method=post action=/join><button id=join type=submit>{go}</button></form>"
-                # the link's token out of the address bar and the history (the cookie carries on)
-                f"<script>{WELCOME_SCRIPT}</script></body></html>")
+                # the link's token out of the address bar; whether this browser can vibrate, before consent
+                "<script src=/welcome.js></script></body></html>")
+
+    async def _welcome_script(self, request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(STATIC_DIR / "welcome.js")
+
+    async def _device(self, request: web.Request) -> web.StreamResponse:
+        """The welcome page's report of what this browser can vibrate (before consent): kept for the
+        experimenter's page; the answer says what to tell the participant and whether Join is open."""
+        p = self._participant(request)
+        if cross_site(request):
+            raise web.HTTPForbidden(text="touch4d: from another site refused\n")
+        if (request.content_length or 0) > MAX_DEVICE_BODY:
+            raise web.HTTPRequestEntityTooLarge(MAX_DEVICE_BODY, request.content_length)
+        try:
+            said = json.loads(await request.content.read(MAX_DEVICE_BODY + 1))
+            immersive, rumble = said["immersive"], said["rumble"]
+            if not (isinstance(immersive, bool) and isinstance(rumble, bool)):
+                raise TypeError
+        except (ValueError, KeyError, TypeError):
+            raise web.HTTPBadRequest(text='touch4d: /device takes {"immersive": bool, "rumble": bool}\n') from None
+        vibration = "headset" if immersive else "gamepad" if rumble else "none"
+        if vibration != p.vibration:
+            p.vibration = vibration
+            if vibration == "none":
+                self._say(f"{p.id}: its browser cannot vibrate ({'refused' if self.study.without_vibration == 'refuse' else 'allowed'} by the study's without_vibration)")
+        refused = vibration == "none" and self.study.without_vibration == "refuse"
+        text = "" if vibration != "none" else NO_VIBRATION_REFUSED if refused else NO_VIBRATION_ALLOWED
+        return web.json_response({"vibration": vibration, "refused": refused, "text": text})
 
     def _rows(self, participant: str) -> int:
         return rows_written(session_dir(self.out, participant))
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
+        if p.vibration == "none" and self.study.without_vibration == "refuse":
+            self.counts["no vibration"] += 1
+            return web.Response(status=403, content_type="text/html", text=(
+                "<!doctype html><html lang=en><meta charset=utf-8><title>Cannot vibrate</title><body><h1>This "
+                f"browser cannot take part</h1><p>{html.escape(NO_VIBRATION_REFUSED)}</p></body></html>"))
         if self._running(p) and p.life.state in (State.RUNNING, State.DONE):
             raise web.HTTPSeeOther("/")    # its stack runs and was seen ready: no probe of its node again
         if p.starting is None:             # else a join already waits for its stack: wait with it
@@ -725,7 +761,8 @@ class StudyServer:
         for p in sorted(self.participants.values(), key=lambda p: p.id):
             t = p.trial if self._running(p) else None
             rows = self._rows(p.id)
-            out.append({"participant": p.id, "state": p.life.shown(), "paused_by": p.life.paused_by, "pages": p.pages,
+            out.append({"participant": p.id, "state": p.life.shown(), "paused_by": p.life.paused_by,
+                        "vibration": p.vibration, "pages": p.pages,
                         "rows": rows, "planned": self._planned(p.id),
                         "trial": None if t is None or t.index < 0 else t.index + 1,
                         "of": None if t is None else t.total, "phase": None if t is None else t.phase,
@@ -754,12 +791,13 @@ class StudyServer:
             f"<tr data-state={s['state']}><td>{html.escape(s['participant'])}</td>"
             f"<td>{s['state']}{'' if s['paused_by'] is None else ' by ' + html.escape(s['paused_by'])}</td>"
             f"<td>{s['rows']} of {s['planned']}</td><td>{cell(s['trial'])} of {cell(s['of'])}</td>"
-            f"<td>{cell(s['phase'])}</td><td>{cell(s['last_heard_s'], ' s')}</td>"
+            f"<td>{cell(s['phase'])}</td><td>{cell(s['vibration'])}</td><td>{cell(s['last_heard_s'], ' s')}</td>"
             f"<td>{'' if s['state'] == 'revoked' else buttons(s['participant'])}</td></tr>"
             for s in self.status())
         return (f"<p id=summary>{self.running()} of {self.max_participants} running; refused while full: "
-                f"{self.counts['full']}</p><table id=participants><tr><th>participant</th><th>state</th>"
-                f"<th>trials done</th><th>trial now</th><th>phase</th><th>last heard</th><th></th></tr>{rows}</table>")
+                f"{self.counts['full']}; refused, cannot vibrate: {self.counts['no vibration']}</p><table "
+                "id=participants><tr><th>participant</th><th>state</th><th>trials done</th><th>trial now</th>"
+                f"<th>phase</th><th>vibration</th><th>last heard</th><th></th></tr>{rows}</table>")
 
     async def _experimenter(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
@@ -778,7 +816,7 @@ class StudyServer:
 
     async def _experimenter_script(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
-        return web.FileResponse(STATIC / "experimenter.js", headers=NO_STORE)
+        return web.FileResponse(STATIC_DIR / "experimenter.js", headers=NO_STORE)
 
     async def _experimenter_action(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
@@ -829,6 +867,8 @@ class StudyServer:
         app.router.add_get("/static/{path:.*}", self._static)
         app.router.add_get("/experimenter", self._experimenter)
         app.router.add_get("/experimenter.js", self._experimenter_script)
+        app.router.add_get("/welcome.js", self._welcome_script)
+        app.router.add_post("/device", self._device)
         app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
         self.client = aiohttp.ClientSession()
         if self.wire_trace is not None:
@@ -882,6 +922,27 @@ class StudyServer:
         else:
             log.warning("%s: the server's loop and the participants' run at normal priority", NOT_PERMITTED)
 
+    def _check_glove(self, stack: list) -> None:
+        """Say on the terminal which tasks the participants' glove (their tactile node's) cannot tell
+        (infotransfer.glove_task_warnings, as `study check --glove`): a few seconds of simulation, in
+        a thread at the lowest priority while the server starts serving."""
+        path = next((s.params["glove"] for s in stack if s.role == "tactile" and s.params.get("glove")), None)
+        if path is None:
+            return
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)   # this thread (Linux)
+        except (OSError, AttributeError):
+            pass
+        try:
+            from touch4d.study.infotransfer import glove_task_warnings
+            from touch4d.tactile import load_glove
+            warnings = glove_task_warnings(load_glove(path), self.study)
+        except Exception as exc:  # noqa: BLE001 - a check that cannot run must not stop the serving
+            log.warning("could not check the glove %s against the study's tasks: %s", path, exc)
+            return
+        for line in warnings:
+            self._say(f"warning: {line}")
+
     def _claim_out(self) -> SessionLock:
         """OUT held for this server alone (a second server on it is refused, naming this one); made
         here if it is new (and removed again if the start is refused before anything is written)."""
@@ -910,6 +971,7 @@ class StudyServer:
             self.tmp = Path(tmp)
             self._start_bus(self.tmp)
             self._raise_priority(stack)   # this thread alone: the bus's threads keep their own priorities
+            threading.Thread(target=self._check_glove, args=(stack,), name="glove-check", daemon=True).start()
             try:
                 with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
                     runner.run(self._serve())
