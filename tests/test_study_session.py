@@ -145,14 +145,17 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
                                                           "study.iti_s:=1.5"])
     args.items.extend(extra)
     assert args.items == ["renderer:=renderer", "study.iti_s:=1.5"]
-    overrides = session_overrides("config/studies/paper.yaml", "P 7", tmp_path, quick=True, simulate=True, seed=3,
+    # an id YAML would read as a boolean reaches the nodes as the text it is
+    overrides = session_overrides("config/studies/paper.yaml", "true", tmp_path, quick=True, simulate=True, seed=3,
                                   user=args.items)
     nodes = load_launch(STUDY_LAUNCH, [*overrides, *args.items])
     assert "monitor" not in nodes        # a simulation runs without what nobody watches, unless asked
     assert nodes["tracker"].module == "study_observer" and nodes["renderer"].module == "renderer"
-    assert nodes["study"].params["participant"] == "P 7" and nodes["study"].params["iti_s"] == 1.5
+    assert nodes["study"].params["participant"] == "true" and nodes["study"].params["iti_s"] == 1.5
     assert nodes["tracker"].params["seed"] == 3 and nodes["tracker"].params["quick"] is True
-    assert nodes["recorder"].params["file"] == str(tmp_path / "P 7" / "session-001.mcap")
+    assert nodes["recorder"].params["file"] == str(tmp_path / "true" / "session-001.mcap")
+    with pytest.raises(SessionError, match="'P 7'"):     # not a folder name under OUT
+        session_overrides("config/studies/paper.yaml", "P 7", tmp_path)
     assert nodes["motors"].params["study_gate"] == "closed" and nodes["renderer"].params["study_gate"] == "closed"
     assert all(spec.respawn for spec in nodes.values())
     person = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "007", tmp_path))
