@@ -11,7 +11,7 @@ from touch4d.render.glsl import shader_names, shader_source
 # Every program the backends link: (vertex, fragment).
 PROGRAMS = [("scene_face.vert", "scene.frag"), ("scene_centre.vert", "scene.frag"), ("scene_edge.vert", "scene.frag"),
             ("fullscreen.vert", "bounds.frag"), ("fullscreen.vert", "view.frag"), ("fullscreen.vert", "grid.frag"),
-            ("fullscreen.vert", "oit.frag"),
+            ("fullscreen.vert", "oit.frag"), ("fullscreen.vert", "tactile.frag"),
             ("flat.vert", "flat.frag"), ("flat.vert", "flat_oit.frag"), ("flat.vert", "id.frag"), ("line.vert", "flat.frag"),
             ("line.vert", "id.frag"),
             ("point.vert", "point.frag"), ("overlay.vert", "overlay.frag")]

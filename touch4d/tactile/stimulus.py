@@ -108,6 +108,14 @@ def stimulus_at(glove: Glove, caster, positions: np.ndarray, alpha: float | None
     return _from_distances(glove, positions, inside, l, hit, alpha, beta)
 
 
+def stimulus_of_distances(glove: Glove, positions: np.ndarray, inside: np.ndarray, l: np.ndarray, hit: np.ndarray,
+                          alpha: float | None = None, beta: float | None = None) -> Stimulus:
+    """Eq. 1-3 for distances already found (l NaN and hit -1 where a sample touches nothing), however
+    they were found: the GPU's tactile pass (touch4d.render.tactile) gives them from the renderer's ray."""
+    return _from_distances(glove, positions, np.asarray(inside, bool), np.asarray(l, float), np.asarray(hit),
+                           glove.alpha if alpha is None else alpha, glove.beta if beta is None else beta)
+
+
 def no_stimulus(glove: Glove, positions: np.ndarray | None = None, alpha: float | None = None,
                 beta: float | None = None) -> Stimulus:
     """All zeros: the hand is absent (tracking lost) or there is nothing to touch."""

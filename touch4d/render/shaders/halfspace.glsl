@@ -30,8 +30,10 @@ const float SLACK = 1e-5;
 const float PARALLEL = 1e-4;
 const int GRID_SLOTS = 15;
 
-// Whether body b hides the point at view depth v on the ray through u (tolerance `tol` in v).
-bool hides(int b, vec3 u, float v, float tol) {
+// The ray through screen point u in body b: where it enters and leaves it in view depth v, from
+// the screen (v = 0) on; (1, 0) (enter > leave) when it misses the body. The one ray test that the
+// picture (`hides`) and the touch (tactile.frag: paper eq. 4-6 per hand sample) both ask.
+vec2 ray_span(int b, vec3 u) {
     vec4 span = fetch(t_bodies, 3 * b);
     vec4 o = vec4(u, 0.0) - fetch(t_centres, b);
     float enter = 0.0;                          // the ray starts on the screen
@@ -42,15 +44,21 @@ bool hides(int b, vec3 u, float v, float tol) {
         vec4 h = fetch(t_view, start + k);
         float r = 1.0 - dot(h, o);              // h.(o + v e_w) <= 1  <=>  v h_w <= r
         if (h.w * h.w <= PARALLEL * PARALLEL * dot(h, h)) {
-            if (r < -SLACK) return false;                    // runs along it, outside
+            if (r < -SLACK) return vec2(1.0, 0.0);           // runs along it, outside
         } else if (h.w < 0.0) {
             enter = max(enter, r / h.w);                     // the ray enters through this cell
         } else {
             leave = min(leave, (r + SLACK) / h.w);           // ... leaves through it
         }
-        if (enter > leave) return false;
+        if (enter > leave) return vec2(1.0, 0.0);
     }
-    return enter + tol < min(leave, v);
+    return vec2(enter, leave);
+}
+
+// Whether body b hides the point at view depth v on the ray through u (tolerance `tol` in v).
+bool hides(int b, vec3 u, float v, float tol) {
+    vec2 span = ray_span(b, u);
+    return span.x + tol < min(span.y, v);
 }
 
 // Whether body b can hide the point (u, v): u lies within its screen bounds and the body begins

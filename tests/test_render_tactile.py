@@ -1,0 +1,64 @@
+"""The tactile model on the GPU (touch4d.render.tactile: the renderer's own ray test of
+halfspace.glsl, per glove sample) against the CPU tactile engine, on random scenes and hand poses:
+every motor within 0.01 of full drive, for the 30-motor glove and the held controller."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gpu_tactile_cases import random_pose, random_scene
+from touch4d.configfile import CONFIG_DIR
+from touch4d.geometry.scene import parse_scene
+from touch4d.render.context import RenderError
+from touch4d.render.tactile import GpuTactile
+from touch4d.tactile import compute_stimulus, load_glove
+
+GLOVES = {"glove": CONFIG_DIR / "glove.yaml", "controller": CONFIG_DIR / "gloves" / "quest-controller.yaml"}
+
+
+@pytest.fixture(scope="module")
+def gpu():
+    g = GpuTactile()
+    yield g
+    g.release()
+
+
+@pytest.mark.parametrize("glove_name", sorted(GLOVES))
+def test_gpu_touch_agrees_with_the_cpu_model_on_random_scenes_and_poses(gpu, glove_name):
+    glove = load_glove(GLOVES[glove_name])
+    rng = np.random.default_rng(20261206)
+    touching, worst = 0, 0.0
+    for _ in range(12):
+        scene = random_scene(rng)
+        gpu.set_scene(scene.to_message())
+        caster = scene.ray_caster()
+        for _ in range(15):
+            position, orientation = random_pose(rng)
+            cpu = compute_stimulus(glove, caster, position, orientation)
+            got = gpu.stimulus(glove, position, orientation)
+            both = cpu.touched & got.touched
+            # the same samples touched (a ray grazing a body's boundary may go either way in float32)
+            assert np.count_nonzero(cpu.touched != got.touched) <= 1
+            np.testing.assert_allclose(got.l[both], cpu.l[both], atol=1e-3)
+            assert np.array_equal(got.hit[both], cpu.hit[both])
+            worst = max(worst, float(np.abs(got.V - cpu.V).max()))
+            touching += bool(cpu.V.max() > 0.05)
+    assert worst <= 0.01, f"a motor differs by {worst:.4f} of full drive"
+    assert touching >= 40, f"only {touching} of 180 poses touch anything: the cases prove little"
+
+
+def test_a_hand_outside_the_screen_or_before_any_object_feels_nothing(gpu):
+    glove = load_glove(GLOVES["glove"])
+    gpu.set_scene(parse_scene({"objects": [{"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5]}]})
+                  .to_message())
+    assert gpu.stimulus(glove, [3.0, 0, 0], [0, 0, 0, 1]).V.max() == 0
+    st = gpu.stimulus(glove, [0.0, 0.0, 0.0], [0, 0, 0, 1])
+    # the tesseract's front cell is flat along w at 1.0: every sample in it touches at l = 1
+    inside = np.abs(st.positions).max(axis=1) < 0.5
+    assert inside.any() and np.allclose(st.l[inside], 1.0, atol=1e-5)
+
+
+def test_a_slice_view_touching_its_section_is_refused_by_name(gpu):
+    scene = parse_scene({"objects": [{"shape": "tesseract", "position": [0, 0, 0, 1.5]}], "view": "slice"})
+    with pytest.raises(RenderError, match="cross-section"):
+        gpu.set_scene(scene.to_message())
