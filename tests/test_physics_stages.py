@@ -167,15 +167,15 @@ def test_warm_match_carries_the_nearest_previous_point_within_reach_and_never_an
     before = contacts_at([far, near, nearer], impulse=0.0, tangent=(0.3, 0.1, -0.2, 0.0))
     before.impulse[:] = [1.0, 2.0, 3.0]
     lam, tangent = np.zeros((1, 4)), np.zeros((1, 4))
-    kernels._warm_match(0, 0, now, before, o, lam, tangent)
+    kernels._warm_match(0, 1, 0, now, before, o, lam, tangent)
     assert lam[0, 0] == 3.0                                     # the nearest of those within reach
     np.testing.assert_array_equal(tangent[0], [0.0, 0.1, -0.2, 0.0])     # along the normal removed
     struck = contacts_at([nearer], impulse=3.0, speed=-0.6)     # it approached faster than bounce_speed
     lam[:] = 0.0
-    kernels._warm_match(0, 0, now, struck, o, lam, tangent * 0)
+    kernels._warm_match(0, 1, 0, now, struck, o, lam, tangent * 0)
     assert lam[0, 0] == 0.0
     other_pair = contacts_at([nearer], key=8, impulse=3.0)
-    kernels._warm_match(0, 0, now, other_pair, o, lam, tangent * 0)
+    kernels._warm_match(0, 1, 0, now, other_pair, o, lam, tangent * 0)
     assert lam[0, 0] == 0.0
 
 

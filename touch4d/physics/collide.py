@@ -296,12 +296,10 @@ def _support_mid(verts, start, count, n, sign, tol, out):
 
 
 @njit(**cache)
-def _cell_axis(pa, pb, parts: Parts, placed: Placed, margin, tol, n):
-    """The cell of either part that B's (or A's) vertices lie least beyond: its separation, written as the
+def _cell_axis(pa, pb, verts, v_start, v_count, normals, offsets, c_start, c_count, margin, tol, n):
+    """The cell of either part that the other's vertices lie least beyond: its separation, written as the
     normal n (from a to b), and the part whose cells were not chosen (-1: apart by more than margin). A's
     cell is preferred unless B's is clearly better: equal axes (face on face) must not flip-flop."""
-    normals, offsets, verts = placed.normals, placed.offsets, placed.verts
-    c_start, c_count, v_start, v_count = parts.c_start, parts.c_count, parts.v_start, parts.v_count
     sep_a, cell_a = _separation(normals, offsets, c_start[pa], c_count[pa], verts, v_start[pb], v_count[pb])
     if sep_a > margin:
         return sep_a, -1
@@ -318,10 +316,10 @@ def _cell_axis(pa, pb, parts: Parts, placed: Placed, margin, tol, n):
 
 
 @njit(**cache)
-def _lies_flat(other, pb, parts: Parts, normals, n):
+def _lies_flat(other, pb, normals, c_start, c_count, n):
     """Whether a cell of `other` (the part whose cells were not chosen) lies flat against the chosen cell."""
     sign = 1.0 if other == pb else -1.0
-    for c in range(parts.c_start[other], parts.c_start[other] + parts.c_count[other]):
+    for c in range(c_start[other], c_start[other] + c_count[other]):
         along = sign * (normals[c, 0] * n[0] + normals[c, 1] * n[1] + normals[c, 2] * n[2] + normals[c, 3] * n[3])
         if along < -1.0 + ANGLE:
             return True
@@ -329,17 +327,13 @@ def _lies_flat(other, pb, parts: Parts, normals, n):
 
 
 @njit(**cache)
-def _edge_axis(pa, pb, other, parts: Parts, placed: Placed, best, scale, margin, n):
-    """The edge x 2-face axes of both parts, unless a cell of the other part lies flat against the reference
-    cell (cell on cell: no such axis separates more). Returns the separation and what it is along: 0 the
-    cell's axis (kept), 1 an edge-face axis that separates clearly more (written into n), -1 such an axis
-    that separates them by more than margin."""
-    d_start, d_count, f_start, f_count = parts.d_start, parts.d_count, parts.f_start, parts.f_count
-    if _lies_flat(other, pb, parts, placed.normals, n):
-        return best, 0
+def _edge_axis(pa, pb, verts, v_start, v_count, dirs, d_start, d_count, spans, f_start, f_count, best, scale,
+               margin, n):
+    """The edge x 2-face axes of both parts (the caller has found no cell of one flat against the other's):
+    returns the separation and what it is along: 0 the cell's axis (kept), 1 an edge-face axis that
+    separates clearly more (written into n), -1 such an axis that separates them by more than margin."""
     if not (d_count[pa] > 0 and f_count[pb] > 0 or d_count[pb] > 0 and f_count[pa] > 0):
         return best, 0
-    verts, dirs, spans, v_start, v_count = placed.verts, placed.dirs, placed.spans, parts.v_start, parts.v_count
     axis = np.empty(4)
     edge_best = _edge_face_axes(verts, v_start[pa], v_count[pa], v_start[pb], v_count[pb], dirs, d_start[pa],
                                 d_count[pa], spans, f_start[pb], f_count[pb], best + EDGE_PREFERENCE * scale, axis)
@@ -355,25 +349,12 @@ def _edge_axis(pa, pb, other, parts: Parts, placed: Placed, best, scale, margin,
 
 
 @njit(**cache)
-def _candidates(pa, pb, parts: Parts, placed: Placed, margin, tol, n, minus, cand):
-    """The edges of b clipped to a (grown toward +n), then those of a clipped to b (toward -n), their end
-    points into cand: returns how many, and where a's begin."""
-    verts, edges, normals, offsets = placed.verts, parts.edges, placed.normals, placed.offsets
-    e_start, e_count, c_start, c_count = parts.e_start, parts.e_count, parts.c_start, parts.c_count
-    count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
-                        margin, n, tol, cand, 0)
-    split = count
-    count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
-                        margin, minus, tol, cand, count)
-    return count, split
-
-
-@njit(**cache)
-def _keep_distinct(pa, pb, parts: Parts, placed: Placed, margin, same, n, minus, cand, count, split, depth, keep):
-    """Which candidates are contact points (keep) and how deep (depth): inside the other part, or out of it by
-    under 0.9 margin, and not the same place across the normal (within `same`) as one kept before (which then
-    takes the deeper depth of the two). Returns how many are kept."""
-    normals, offsets, c_start, c_count = placed.normals, placed.offsets, parts.c_start, parts.c_count
+def _keep_distinct(pa, pb, normals, offsets, c_start, c_count, margin, same, n, minus, cand, count, split, depth,
+                   keep):
+    """Which candidates (b's clipped edges' end points, then from `split` a's) are contact points (keep) and
+    how deep (depth): inside the other part, or out of it by under 0.9 margin, and not the same place across
+    the normal (within `same`) as one kept before (which then takes the deeper depth of the two). Returns how
+    many are kept."""
     kept = 0
     for i in range(count):
         if i < split:    # a point of b inside a: b must move along +n to leave a
@@ -404,10 +385,9 @@ def _keep_distinct(pa, pb, parts: Parts, placed: Placed, margin, same, n, minus,
 
 
 @njit(**cache)
-def _edge_point(pa, pb, parts: Parts, placed: Placed, n, tol, best, out_pts, out_depth, scratch):
+def _edge_point(pa, pb, verts, v_start, v_count, n, tol, best, out_pts, out_depth, scratch):
     """An edge against a 2-face meet where no edge of either is inside the other (the overlap's corners are
     where 2-faces cross): one point between the two parts' supporting features, at the axis' depth."""
-    verts, v_start, v_count = placed.verts, parts.v_start, parts.v_count
     _support_mid(verts, v_start[pa], v_count[pa], n, 1.0, tol, out_pts[0])
     _support_mid(verts, v_start[pb], v_count[pb], n, -1.0, tol, scratch)
     for k in range(4):
@@ -464,25 +444,39 @@ def narrow_phase(pa, pb, parts, placed, margin, out_pts, out_depth, out_normal):
     """Contact points of two convex parts: returns their number (0: apart by more than margin);
     fills out_pts (K, 4), out_depth (K,) (> 0 penetrating) and out_normal (4,) from a to b. The tolerances
     scale with the larger part's size. In stages, as Box2D's polygon collider: the axis of least
-    penetration (`_cell_axis`, `_edge_axis`), the edges clipped (`_candidates`), the points kept
-    (`_keep_distinct`, or `_edge_point` for an edge on a 2-face), at most MAX_POINTS of them (`_reduce`)."""
+    penetration (`_cell_axis`; `_edge_axis` unless a cell `_lies_flat` on the chosen one), the edges of
+    each part clipped to the other (`_clip_edges`), the points kept (`_keep_distinct`, or `_edge_point` for
+    an edge on a 2-face), at most MAX_POINTS of them (`_reduce`). The stages are given arrays, not the
+    parts' tuples: taking an array from a tuple costs two atomic reference counts, per pair."""
+    v_start, v_count, c_start, c_count = parts.v_start, parts.v_count, parts.c_start, parts.c_count
+    e_start, e_count, d_start, d_count = parts.e_start, parts.e_count, parts.d_start, parts.d_count
+    f_start, f_count, edges = parts.f_start, parts.f_count, parts.edges
+    verts, normals, offsets, dirs, spans = placed.verts, placed.normals, placed.offsets, placed.dirs, placed.spans
     scale = max(parts.size[pa], parts.size[pb])
     tol = RELATIVE * scale
     n = out_normal
-    best, other = _cell_axis(pa, pb, parts, placed, margin, tol, n)
+    best, other = _cell_axis(pa, pb, verts, v_start, v_count, normals, offsets, c_start, c_count, margin, tol, n)
     if other < 0:
         return 0
-    best, along = _edge_axis(pa, pb, other, parts, placed, best, scale, margin, n)
-    if along < 0:
-        return 0
+    along = 0
+    if not _lies_flat(other, pb, normals, c_start, c_count, n):
+        best, along = _edge_axis(pa, pb, verts, v_start, v_count, dirs, d_start, d_count, spans, f_start, f_count,
+                                 best, scale, margin, n)
+        if along < 0:
+            return 0
     minus = -n
     cand = np.empty((MAX_CANDIDATES, 4))
     depth = np.empty(MAX_CANDIDATES)
-    count, split = _candidates(pa, pb, parts, placed, margin, tol, n, minus, cand)
+    count = _clip_edges(verts, edges, e_start[pb], e_count[pb], normals, offsets, c_start[pa], c_count[pa],
+                        margin, n, tol, cand, 0)
+    split = count
+    count = _clip_edges(verts, edges, e_start[pa], e_count[pa], normals, offsets, c_start[pb], c_count[pb],
+                        margin, minus, tol, cand, count)
     keep = np.zeros(MAX_CANDIDATES, dtype=np.bool_)
-    kept = _keep_distinct(pa, pb, parts, placed, margin, POINT * scale, n, minus, cand, count, split, depth, keep)
+    kept = _keep_distinct(pa, pb, normals, offsets, c_start, c_count, margin, POINT * scale, n, minus, cand, count,
+                          split, depth, keep)
     if kept == 0:
         if along == 0:
             return 0
-        return _edge_point(pa, pb, parts, placed, n, tol, best, out_pts, out_depth, cand[0])
+        return _edge_point(pa, pb, verts, v_start, v_count, n, tol, best, out_pts, out_depth, cand[0])
     return _reduce(cand, depth, keep, count, kept, n, out_pts, out_depth)

@@ -223,57 +223,67 @@ def _pair_end(key_of, start):
 
 
 @njit(**cache)
-def _approach(c, a, b, contacts: Contacts, x, vel: Velocities, options: Options, mus, muk, ra, rb, target, mu,
-              va, vb, r4, w6, tmp4):
-    """Contact c's lever arms, approach speed (into contacts.speed), speculative target (close the gap, no
-    more) and friction coefficient (static while the point sticks, kinetic while it slides). va, vb, r4, w6,
-    tmp4: scratch, which the loops copy rows into rather than take row views (each view costs two atomic
-    reference counts, more than the arithmetic)."""
-    point, normal = contacts.point, contacts.normal
-    for kk in range(4):
-        ra[c, kk] = point[c, kk] - x[a, kk]
-        rb[c, kk] = point[c, kk] - x[b, kk]
-        r4[kk] = ra[c, kk]
-    _point_velocity(a, r4, vel.v, vel.w, va, w6, tmp4)
-    for kk in range(4):
-        r4[kk] = rb[c, kk]
-    _point_velocity(b, r4, vel.v, vel.w, vb, w6, tmp4)
-    vn = 0.0
-    for kk in range(4):
-        vn += (vb[kk] - va[kk]) * normal[c, kk]
-    contacts.speed[c] = vn
-    gap = max(-contacts.depth[c], 0.0)
-    target[c] = -gap / options.dt
-    slide = 0.0
-    for kk in range(4):
-        slide += (vb[kk] - va[kk] - vn * normal[c, kk]) ** 2
-    mu[c] = mus if math.sqrt(slide) < options.stick_speed else muk
+def _approach(start, end, a, b, contacts: Contacts, x, vel: Velocities, options: Options, mus, muk, ra, rb, target,
+              mu):
+    """The lever arms, approach speed (into contacts.speed), speculative target (close the gap, no more) and
+    friction coefficient (static while the point sticks, kinetic while it slides) of the contacts start..end,
+    one pair of parts (a, b). The loop copies rows into scratch vectors rather than take row views (each view
+    costs two atomic reference counts, more than the arithmetic)."""
+    point, normal, depth, speed, v, w = contacts.point, contacts.normal, contacts.depth, contacts.speed, vel.v, vel.w
+    dt, stick_speed = options.dt, options.stick_speed
+    va = np.empty(4)
+    vb = np.empty(4)
+    r4 = np.empty(4)
+    tmp4 = np.empty(4)
+    w6 = np.empty(6)
+    for c in range(start, end):
+        for kk in range(4):
+            ra[c, kk] = point[c, kk] - x[a, kk]
+            rb[c, kk] = point[c, kk] - x[b, kk]
+            r4[kk] = ra[c, kk]
+        _point_velocity(a, r4, v, w, va, w6, tmp4)
+        for kk in range(4):
+            r4[kk] = rb[c, kk]
+        _point_velocity(b, r4, v, w, vb, w6, tmp4)
+        vn = 0.0
+        for kk in range(4):
+            vn += (vb[kk] - va[kk]) * normal[c, kk]
+        speed[c] = vn
+        gap = max(-depth[c], 0.0)
+        target[c] = -gap / dt
+        slide = 0.0
+        for kk in range(4):
+            slide += (vb[kk] - va[kk] - vn * normal[c, kk]) ** 2
+        mu[c] = mus if math.sqrt(slide) < stick_speed else muk
 
 
 @njit(**cache)
-def _warm_match(c, cursor, contacts: Contacts, previous: Contacts, options: Options, lam, tangent):
-    """Contact c's impulses from the step before: the nearest point of the same pair in `previous` (from
-    `cursor`, its first of the pair) within options.warm_distance in b's frame, unless it struck (an impact's
-    impulse is not a load); its tangential impulse turned into this step's tangent space."""
-    key, local, normal = contacts.key[c], contacts.local, contacts.normal
-    p_key, p_local = previous.key, previous.local
-    best = options.warm_distance * options.warm_distance
-    found = -1
-    prev = cursor
-    while prev < len(p_key) and p_key[prev] == key:
-        dd = 0.0
-        for kk in range(4):
-            dd += (p_local[prev, kk] - local[c, kk]) ** 2
-        if dd < best:
-            best, found = dd, prev
-        prev += 1
-    if found >= 0 and previous.speed[found] >= -options.bounce_speed:
-        lam[c, 0] = previous.impulse[found]
-        along = 0.0
-        for kk in range(4):
-            along += previous.tangent[found, kk] * normal[c, kk]
-        for kk in range(4):
-            tangent[c, kk] = previous.tangent[found, kk] - along * normal[c, kk]
+def _warm_match(start, end, cursor, contacts: Contacts, previous: Contacts, options: Options, lam, tangent):
+    """The impulses of the step before for the contacts start..end (one pair of parts): for each, the nearest
+    point of the same pair in `previous` (from `cursor`, its first of the pair) within options.warm_distance in
+    b's frame, unless it struck (an impact's impulse is not a load); its tangential impulse turned into this
+    step's tangent space."""
+    key, local, normal = contacts.key, contacts.local, contacts.normal
+    p_key, p_local, p_speed, p_impulse, p_tangent = (previous.key, previous.local, previous.speed, previous.impulse,
+                                                     previous.tangent)
+    for c in range(start, end):
+        best = options.warm_distance * options.warm_distance
+        found = -1
+        prev = cursor
+        while prev < len(p_key) and p_key[prev] == key[c]:
+            dd = 0.0
+            for kk in range(4):
+                dd += (p_local[prev, kk] - local[c, kk]) ** 2
+            if dd < best:
+                best, found = dd, prev
+            prev += 1
+        if found >= 0 and p_speed[found] >= -options.bounce_speed:
+            lam[c, 0] = p_impulse[found]
+            along = 0.0
+            for kk in range(4):
+                along += p_tangent[found, kk] * normal[c, kk]
+            for kk in range(4):
+                tangent[c, kk] = p_tangent[found, kk] - along * normal[c, kk]
 
 
 @njit(**cache)
@@ -341,8 +351,9 @@ def _jacobians(contacts: Contacts, bodies: Bodies, vel: Velocities, ra, rb):
 def _warm_start(contacts: Contacts, inv_mass, basis, ang, inv_ang, tangent, lam, vel: Velocities):
     """The tangential impulses carried over (tangent) on this step's tangent rows, then every carried
     impulse applied to the bodies, as the solver would."""
-    for c in range(len(contacts.a)):
-        a, b = contacts.a[c], contacts.b[c]
+    body_a, body_b, v, w, dL = contacts.a, contacts.b, vel.v, vel.w, vel.dL   # taken once: each costs two atomic counts
+    for c in range(len(body_a)):
+        a, b = body_a[c], body_b[c]
         for d in range(1, 4):
             acc = 0.0
             for kk in range(4):
@@ -350,7 +361,7 @@ def _warm_start(contacts: Contacts, inv_mass, basis, ang, inv_ang, tangent, lam,
             lam[c, d] = acc
         for d in range(4):
             if lam[c, d] != 0.0:
-                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, vel.v, vel.w, vel.dL)
+                _apply_row(c, d, lam[c, d], a, b, basis, ang, inv_ang, inv_mass, v, w, dL)
 
 
 @njit(**cache)
@@ -367,25 +378,21 @@ def rows(contacts: Contacts, previous: Contacts, bodies: Bodies, vel: Velocities
     mu = np.empty(m)
     lam = np.zeros((m, 4))
     tangent = np.zeros((m, 4))
-    va = np.empty(4)
-    vb = np.empty(4)
-    r4 = np.empty(4)
-    tmp4 = np.empty(4)
-    w6 = np.empty(6)
-    p_key = previous.key
+    # the arrays the loop reads, taken from their tuples once (each taking costs two atomic reference counts)
+    key_of, body_a, body_b, p_key = contacts.key, contacts.a, contacts.b, previous.key
+    f_static, f_kinetic, restitution = bodies.friction_static, bodies.friction_kinetic, bodies.restitution
     cursor = 0
     start = 0
     while start < m:                                  # one pair of parts at a time
-        end = _pair_end(contacts.key, start)
-        a, b = contacts.a[start], contacts.b[start]
-        mus = math.sqrt(bodies.friction_static[a] * bodies.friction_static[b])
-        muk = math.sqrt(bodies.friction_kinetic[a] * bodies.friction_kinetic[b])
-        e = max(bodies.restitution[a], bodies.restitution[b])
-        while cursor < len(p_key) and p_key[cursor] < contacts.key[start]:
+        end = _pair_end(key_of, start)
+        a, b = body_a[start], body_b[start]
+        mus = math.sqrt(f_static[a] * f_static[b])
+        muk = math.sqrt(f_kinetic[a] * f_kinetic[b])
+        e = max(restitution[a], restitution[b])
+        while cursor < len(p_key) and p_key[cursor] < key_of[start]:
             cursor += 1
-        for c in range(start, end):
-            _approach(c, a, b, contacts, x, vel, options, mus, muk, ra, rb, target, mu, va, vb, r4, w6, tmp4)
-            _warm_match(c, cursor, contacts, previous, options, lam, tangent)
+        _approach(start, end, a, b, contacts, x, vel, options, mus, muk, ra, rb, target, mu)
+        _warm_match(start, end, cursor, contacts, previous, options, lam, tangent)
         if e > 0.0:
             _restitution(start, end, e, contacts, options, target)
         start = end
