@@ -36,8 +36,8 @@ from .codec import CodecError, _ext_hook, encode_plain, unpack
 from .header import DOCS as HEADER_DOCS
 from .header import Finite, Header
 
-__all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "doc", "encode", "decode",
-           "decoder"]
+__all__ = ["Message", "MessageError", "TYPES", "Float", "Map", "Array", "Records", "array_schema", "doc", "encode",
+           "decode", "decoder"]
 
 
 class MessageError(Touch4dError, ValueError):
@@ -106,6 +106,9 @@ class ArraySpec:
     def zero(self) -> np.ndarray:
         return np.zeros([n or 0 for n in self.shape], dtype=self.dtype)
 
+    def schema(self) -> dict:
+        return array_schema(len(self.shape), self.dtype, self.shape)
+
 
 def Array(*shape: int | None, dtype: str = "f8", finite: bool = True):  # noqa: N802 - read as a type
     """A numpy array field: `Array(3)` a 3-vector, `Array(None, 3)` N x 3, `finite=False` lets NaN in."""
@@ -139,6 +142,11 @@ class RecordsSpec:
     def coerce(self, value) -> list:
         return [{k: self.coerces[k](v) if k in self.coerces else v for k, v in dict(item).items()}
                 for item in value]
+
+    def schema(self) -> dict:
+        props = {name: _schema(t) for name, t in self.fields.items()}
+        required = [name for name in self.fields if name not in self.optional]
+        return {"type": "array", "items": {"type": "object", "properties": props, "required": required}}
 
 
 def Records(*, optional: tuple[str, ...] = (), **fields):  # noqa: N802 - read as a type
@@ -270,6 +278,40 @@ def _zero(tp) -> Callable[[], Any] | Any:
     return {int: 0, bool: False, str: ""}[tp]
 
 
+def array_schema(ndim: int, dtype, shape=None) -> dict:
+    """The JSON schema of an array as logs write it: nested arrays `ndim` deep (`shape`'s lengths where given);
+    floats may be null in JSON, where the value is NaN or infinite."""
+    kind = {"b": "boolean", "i": "integer", "u": "integer"}.get(np.dtype(dtype).kind, "number")
+    item: dict = {"type": ["number", "null"]} if kind == "number" else {"type": kind}
+    for depth in reversed(range(ndim)):
+        item = {"type": "array", "items": item}
+        if shape is not None and shape[depth] is not None:
+            item["minItems"] = item["maxItems"] = shape[depth]
+    return item
+
+
+def _schema(tp) -> dict:
+    """The JSON schema of a field's value as a log's JSON export writes it (touch4d.log.schema): `Float` a
+    number, `float` a number or null (NaN and infinities), arrays nested lists."""
+    spec = _spec(tp)
+    if spec is not None:
+        return spec.schema()
+    if tp is Finite:
+        return {"type": "number"}
+    if tp is float:
+        return {"type": ["number", "null"]}
+    if tp in (bool, int, str):
+        return {"type": {bool: "boolean", int: "integer", str: "string"}[tp]}
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        return {"type": "string", "enum": list(args)}
+    if origin is list:
+        return {"type": "array", "items": _schema(args[0])}
+    if origin is dict:
+        return {"type": "object"}
+    return {}
+
+
 def _usual(fields) -> tuple[Callable[[Any], bool], tuple]:
     """(usual(msg), rest): `usual` answers in one expression, compiled once per class as dataclasses
     writes an __init__, whether every field it covers holds the usual value of its type (a float,
@@ -333,6 +375,7 @@ class Field(NamedTuple):
     default: Any                              # a value, or a function making one (arrays, lists, maps)
     check: Callable[[Any], None]              # raises ValueError saying what was expected
     coerce: Callable[[Any], Any] | None
+    schema: dict                              # its JSON schema (touch4d.log.schema writes it into logs)
 
 
 TYPES: dict[str, type["Message"]] = {}
@@ -380,7 +423,7 @@ class MessageMeta(msgspec.StructMeta):
                 value = coerce(declared.default) if coerce else declared.default
                 default = (lambda v=value: v.copy()) if isinstance(value, (np.ndarray, list, dict)) else value
             fields.append(Field(info.name, info.type, declared.text, declared.optional, default,
-                                _checker(info.type), coerce))
+                                _checker(info.type), coerce, _schema(info.type)))
         order = [*inherited, *types]
         fields.sort(key=lambda f: order.index(f.name) if f.name in order else -1)   # -1: the header
         cls.FIELDS = tuple(fields)   # as declared (docs, schemas); the wire has the arrays last

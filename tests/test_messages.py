@@ -185,3 +185,19 @@ def test_a_key_that_is_not_utf8_is_a_message_error():
     for expected in (HandPose, MotorCommand):
         with pytest.raises(MessageError):
             decode(payload, expected)
+
+
+def test_each_field_carries_the_json_schema_logs_write_for_it():
+    """A field's JSON schema is made where its type is read (messages.base), and the log's schema of the type
+    is those schemas with the fields' docs: arrays nested by their shape, floats that may be NaN nullable."""
+    from touch4d.log.schema import message_schema
+
+    for name, cls in TYPES.items():
+        props = message_schema(name)["properties"]
+        for f in cls.FIELDS:
+            assert props[f.name] == {**f.schema, "description": f.doc}, (name, f.name)
+    fields = {f.name: f for f in HandPose.FIELDS}
+    assert fields["position"].schema == {"type": "array", "items": {"type": ["number", "null"]},
+                                         "minItems": 3, "maxItems": 3}
+    assert fields["valid"].schema == {"type": "boolean"}
+    assert fields["stamp"].schema == {"type": "number"}                 # Float: finite, never null

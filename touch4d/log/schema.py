@@ -2,71 +2,30 @@
 
 One schema per message type goes into every log, so `mcap info` and Foxglove can show the fields;
 exports fill in the optional header fields a payload leaves out, so every row has the same columns.
-Known types (`touch4d.messages.TYPES`) get a schema from their field types and docs; anything else
-gets one inferred from a sample message.
+Known types (`touch4d.messages.TYPES`) get a schema from their fields (each field's JSON schema is made
+where its type is read, touch4d.messages.base, with its doc); anything else gets one inferred from a
+sample message.
 """
 from __future__ import annotations
 
 import base64
 import math
-import typing
 from typing import Any
 
 import numpy as np
 
 from touch4d.messages import TYPES
-from touch4d.messages import base as fields
+from touch4d.messages.base import array_schema
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 MSGPACK_NOTE = "msgpack map; numpy arrays are msgpack ext type 1 holding [dtype.str, shape, raw bytes]"
 _HEADER = {"type": {"type": "string", "description": "message type name"}}
 
 
-def _number_kind(dtype: np.dtype) -> str:
-    return {"b": "boolean", "i": "integer", "u": "integer"}.get(dtype.kind, "number")
-
-
-def _array_schema(ndim: int, dtype: np.dtype, shape=None) -> dict:
-    """Nested arrays `ndim` deep; floats may be null in JSON where the value is NaN or infinite."""
-    item: dict = {"type": _number_kind(dtype)}
-    if item["type"] == "number":
-        item = {"type": ["number", "null"]}
-    for depth in reversed(range(ndim)):
-        item = {"type": "array", "items": item}
-        if shape is not None and shape[depth] is not None:
-            item["minItems"] = item["maxItems"] = shape[depth]
-    return item
-
-
-def type_schema(tp) -> dict:
-    """The JSON schema of a message field's type (see `touch4d.messages.base`)."""
-    spec = fields._spec(tp)
-    if isinstance(spec, fields.ArraySpec):
-        return _array_schema(len(spec.shape), spec.dtype, spec.shape)
-    if isinstance(spec, fields.RecordsSpec):
-        props = {name: type_schema(t) for name, t in spec.fields.items()}
-        required = [name for name in spec.fields if name not in spec.optional]
-        return {"type": "array", "items": {"type": "object", "properties": props, "required": required}}
-    if tp is fields.Float:
-        return {"type": "number"}
-    if tp is float:
-        return {"type": ["number", "null"]}
-    if tp in (bool, int, str):
-        return {"type": {bool: "boolean", int: "integer", str: "string"}[tp]}
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin is typing.Literal:
-        return {"type": "string", "enum": list(args)}
-    if origin is list:
-        return {"type": "array", "items": type_schema(args[0])}
-    if origin is dict:
-        return {"type": "object"}
-    return {}
-
-
 def value_schema(value: Any) -> dict:
     """A JSON schema inferred from one decoded value (for types this build does not know)."""
     if isinstance(value, np.ndarray):
-        return _array_schema(value.ndim, value.dtype)
+        return array_schema(value.ndim, value.dtype)
     if isinstance(value, bool):
         return {"type": "boolean"}
     if isinstance(value, int):
@@ -93,7 +52,7 @@ def message_schema(type_name: str, sample: dict | None = None) -> dict:
             schema["description"] = cls.__doc__.strip().splitlines()[0]
         props = dict(_HEADER)
         for f in cls.FIELDS:
-            props[f.name] = {**type_schema(f.type), "description": f.doc}
+            props[f.name] = {**f.schema, "description": f.doc}
         schema["properties"] = props
         optional = {f.name for f in cls.FIELDS if f.optional}
         schema["required"] = [name for name in props if name not in optional]
