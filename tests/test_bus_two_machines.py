@@ -1,4 +1,4 @@
-"""The README's PC + Pi set-up end to end, on loopback: `touch4d bus keygen`, the key folders, the
+"""docs/bus.md's PC + Pi set-up ("Two machines") end to end, on loopback: `touch4d bus keygen`, the key folders, the
 two bus config files, and two `touch4d launch` processes (the PC with the broker, the Pi without),
 with the bus files named by relative and by absolute paths."""
 import shutil
@@ -34,7 +34,7 @@ def touch4d(cwd: Path, *args: str) -> str:
 
 
 def on_loopback(path: Path, pub: int, sub: int) -> None:
-    """The LAN address of the README's files -> loopback, on free ports."""
+    """The LAN address of docs/bus.md's files -> loopback, on free ports."""
     text = path.read_text().replace("192.168.50.1", "127.0.0.1")
     assert "pub_port" not in text and text.count("broker:\n") == 1    # the default ports, which the tests avoid
     path.write_text(text.replace("broker:\n", f"broker:\n  pub_port: {pub}\n  sub_port: {sub}\n"))
@@ -43,7 +43,7 @@ def on_loopback(path: Path, pub: int, sub: int) -> None:
 @pytest.mark.parametrize("pc_paths", ["relative", "absolute"])
 def test_the_pc_and_pi_recipe_runs_on_two_launches(tmp_path, pc_paths):
     pc, pi = checkout(tmp_path / "pc"), checkout(tmp_path / "pi")
-    # Keys, as the README says: three key pairs made on the PC; the Pi gets the broker's public key
+    # Keys, as docs/bus.md says: three key pairs made on the PC; the Pi gets the broker's public key
     # and its own pair; the PC's clients/ folder holds the public keys allowed to connect.
     for name in ("broker", "pc", "pi"):
         touch4d(pc, "bus", "keygen", name)
