@@ -9,7 +9,7 @@ stamp as `source_stamp`. The RayCaster is rebuilt only when what can be touched 
 a scene that fails to build, or a pose that cannot be used, is logged once (per cause) and the
 node keeps the last good scene. Parameters: `glove` (file, default config/glove.yaml), `alpha`
 and `beta` (override the glove's), `projection` ("scene": follow the scene; "orthographic" or
-"perspective").
+"perspective"), `motors` (false: tactile/field alone, another node publishes tactile/motors).
 """
 from __future__ import annotations
 
@@ -37,6 +37,8 @@ class TactileNode(Node):
         "joints": Param(True, "follow the fingers: hand/joints drives while fresh (else the rigid hand/pose)"),
         "joints_timeout_s": Param(JOINTS_TIMEOUT_S, "joint sets older than this against the poses are stale: the rigid "
                                   "hand takes over", unit="s", above=0, max=1.0),
+        "motors": Param(True, "publish tactile/motors (false: another node does, e.g. the WebXR page that computes "
+                            "its own touch, webxr touch: page; tactile/field still goes out)"),
         "transients": Param(True, "a short burst on the motors touching objects that physics says collided"),
     }
 
@@ -51,7 +53,7 @@ class TactileNode(Node):
         # in every heartbeat: the counters, and which hand drives (1: the joints, 0: the pose)
         self.add_stats(lambda: {**self.counts, "hand_joints": int(self.hand.using == "joints")})
         self.field_pub = self.create_publisher("tactile/field", TactileField)
-        self.motor_pub = self.create_publisher("tactile/motors", MotorCommand)
+        self.motor_pub = self.create_publisher("tactile/motors", MotorCommand) if p["motors"] else None
         self.create_subscription("scene/state", SceneState, self.on_scene, latest_only=True)
         if p["joints"]:
             # optional: a tracker without hand tracking publishes poses only
@@ -113,7 +115,8 @@ class TactileNode(Node):
             motors.intensity = self.transients.apply(motors.intensity, hits, time.monotonic())
         if field is not None:
             self.field_pub.publish(field)
-        self.motor_pub.publish(motors)
+        if self.motor_pub is not None:
+            self.motor_pub.publish(motors)
 
     def on_contacts(self, msg: PhysicsContacts) -> None:
         self.transients.add(msg.a, msg.b, msg.speeds, time.monotonic())

@@ -6,6 +6,10 @@ what the scene is made of, then per change only transforms and tactile values). 
 true` it publishes what the page tracks: `hand/pose` (screen coordinates, from the controller's
 grip or from hand tracking: `hand_source`), `controller/state` and the tracked hands' joints
 (`hand/joints`: the glove hand, which the tactile node follows; `hand/joints/other`: the other).
+With `touch: page` the page computes the glove hand's touch itself (the renderer's ray per glove
+sample, eq. 1-3, static/touch.js) and plays it in the frame it tracked the hand; what it played
+comes back with its inputs and goes out here on `tactile/motors` (the tactile node then publishes
+`tactile/field` alone: its `motors: false`).
 The page draws the articulated hand while `hand/joints` drives. A running study (`study/trial`)
 shows its question in the page, hides objects where its condition says so, and the page's answers
 (controller buttons, or the page's own) go out on `study/response`.
@@ -71,6 +75,10 @@ class WebXRNode(Node):
         "max_pages": Param(64, "pages connected at once; one more is refused (HTTP 503)", min=1, max=10000),
         "study_gate": Param("open", "before any study/trial: open (no study), closed (a study runs)",
                             choices=GATE_START),
+        "touch": Param("node", "where the glove hand's touch is computed: node (the tactile node's tactile/motors, "
+                       "played by the page a network round trip later) or page (the page's own tactile pass, played "
+                       "in the frame it tracks, published here on tactile/motors; needs tracker: true)",
+                       choices=("node", "page")),
         "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
                          above=0, max=0.09),
     }
@@ -93,7 +101,11 @@ class WebXRNode(Node):
                 Path(p["cert_dir"]) if p["cert_dir"] else tls.DEFAULT_CERT_DIR, access.lan_addresses(host))
             ssl_context = tls.server_ssl_context(cert, key)
 
-        config = BridgeConfig(tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
+        if p["touch"] == "page" and not (p["tracker"] and p["hand_source"] == "controller"):
+            raise self.param_error("touch", "node, or page with tracker: true and hand_source: controller (the page "
+                                            "computes the touch of the controller it tracks in the glove hand)",
+                                   got="page")
+        config = BridgeConfig(touch=p["touch"], tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
                               recenter_button=p["recenter_button"], stale_s=p["stale_s"],
                               study_gate=p["study_gate"], frame_period_s=1.0 / p["rate"])
@@ -103,6 +115,8 @@ class WebXRNode(Node):
                                "controller/state": self.create_publisher("controller/state", ControllerState),
                                "hand/joints": self.create_publisher("hand/joints", HandJoints),
                                "hand/joints/other": self.create_publisher("hand/joints/other", HandJoints)}
+        if p["touch"] == "page":   # what the page played, for the log and the monitor
+            self.publishers["tactile/motors"] = self.create_publisher("tactile/motors", MotorCommand)
         self.bridge = WebBridge(config, load_glove(p["glove"]), load_calibration(p["calibration"], "hand_in_grip"),
                                 load_placement(p["calibration"]), publish=self._publish,
                                 broadcast=lambda data, latest: self.server.broadcast(data, latest),

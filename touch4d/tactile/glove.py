@@ -53,6 +53,16 @@ class Glove:
         from .skeleton import Skeleton
         return Skeleton.of(self)
 
+    @cached_property
+    def weight_matrix(self) -> np.ndarray:
+        """(M, N) every motor's weights over the samples, dense: `motor_weights`, or 1 on its own
+        sample (what a page given the glove mixes with: motor_strength = weight_matrix @ h)."""
+        if self.motor_weights is not None:
+            return self.motor_weights
+        weights = np.zeros((len(self.motor_names), len(self.samples)))
+        weights[np.arange(len(self.motor_names)), self.motor_sample] = 1.0
+        return weights
+
     @property
     def units_per_metre(self) -> float:
         """Screen units per metre: the screen is 2 units and `screen_edge_m` metres wide."""

@@ -65,7 +65,8 @@ log = logging.getLogger(__name__)
 
 # The GPU renderer's shaders the page compiles (as GLSL ES 3.00), by the names of touch4d.render.glsl.
 PAGE_SHADERS = ("scene_face.vert", "scene_centre.vert", "scene_edge.vert", "scene.frag", "fullscreen.vert",
-                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.vert", "flat.frag")
+                "bounds.frag", "view.frag", "grid.frag", "oit.frag", "line.vert", "flat.vert", "flat.frag",
+                "tactile.frag")
 PAGE_COUNTERS = ("page_messages", "page_malformed", "page_oversized", "page_non_finite", "page_ignored",
                  "page_unresponsive", "page_not_driver", "page_connections", "recentred", "recenter_limited",
                  "study_answers")
@@ -99,6 +100,7 @@ class BridgeConfig:
     motors_stale_s: float = 0.06        # tactile/motors older than this: the page's controller plays 0
     recenter_min_s: float = 1.0         # re-centring at most this often
     save_min_s: float = 5.0             # the calibration file written at most this often
+    touch: str = "node"                 # where the touch is computed: "node" (tactile/motors) or "page"
 
 
 class ClockMap:
@@ -210,12 +212,15 @@ class WebBridge:
                        "target": [float(v) for v in camera.target], "fov": camera.fov},
             "style": dataclasses.asdict(self.view.style),
             "shaders": {name: shader_source(name, "es300") for name in PAGE_SHADERS},
+            # the tactile model for the page's own touch (static/touch.js): eq. 1-3's constants
+            "touch": self.config.touch, "alpha": float(g.alpha), "beta": float(g.beta), "gamma": float(g.gamma),
             **self._calibration_fields(),
         }
         arrays = {
             "samples": (g.samples * units).astype(np.float32),
             "skeleton": (hand_skeleton(g.hand) * units).astype(np.float32),
             "motor_sample": np.asarray(g.motor_sample, np.uint32),
+            "motor_weights": g.weight_matrix.astype(np.float32),
             "outline_pairs": OUTLINE_PAIRS.astype(np.uint32).ravel(),
             "cube_points": cube.layout(g.samples).astype(np.float32),
             "amplitude_stops": AMPLITUDE_STOPS.astype(np.float32),
@@ -228,7 +233,10 @@ class WebBridge:
         c = self.calibration
         return {"screen_center": [float(v) for v in c.center_m],
                 "screen_rotation": [float(v) for v in c.screen_rotation.as_quat()],
-                "screen_edge": float(c.edge_m)}
+                "screen_edge": float(c.edge_m),
+                # the glove hand on the controller's grip (calibration.hand_from_controller, for touch.js)
+                "hand_offset": [float(v) for v in c.hand_offset_m],
+                "hand_rotation": [float(v) for v in c.hand_rotation.as_quat()]}
 
     def on_scene(self, msg: SceneState) -> None:
         """Adopt a scene; its geometry (the GPU renderer's arrays) goes to the pages only when what the
@@ -308,8 +316,8 @@ class WebBridge:
     def study_fields(self) -> dict:
         trial = self.gate.trial
         if trial is None:
-            return {"draw_objects": self.gate.objects, "study": None}
-        return {"draw_objects": self.gate.objects,
+            return {"draw_objects": self.gate.objects, "touch_on": self.gate.motors, "study": None}
+        return {"draw_objects": self.gate.objects, "touch_on": self.gate.motors,
                 "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
                           "options": list(trial.options), "message": trial.message, "practice": trial.practice,
                           "buttons": list(ANSWER_BUTTONS[:len(trial.options)]),
@@ -351,6 +359,7 @@ class WebBridge:
             # the same texels the GPU backend writes into its t_objects texture
             arrays["t_objects"] = data_rows(layer.transforms)[0]
             fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
+                          touch_section=bool(self.view.scene.touches_section),
                           selected=int(self._scene.selected), revision=int(self._scene.revision))
             # the view; in the slice and both views the cross-section's triangles, cut here (static/slice.js)
             view = self.view
@@ -561,6 +570,8 @@ class WebBridge:
             self._joints_lost(stamp)
         self._joints_live = glove_tracked
         self.publish("hand/pose", pose)
+        if self.config.touch == "page":
+            self._played(page, msg, stamp, pose.valid)
         self.publish("controller/state", controller)
         self._was_live = pose.valid
         if not pose.valid:
@@ -569,6 +580,32 @@ class WebBridge:
         if self.config.recenter_button in held - page.buttons - answered and msg["head"] is not None:
             self.recenter(msg["head"], arrival)
         page.buttons = held
+
+    def _played(self, page: _Page, msg: dict, stamp: float, valid: bool) -> None:
+        """touch: page: what the page played for its previous pose goes out on tactile/motors, stamped
+        with that pose's time on this machine's clock; 0 while the hand is invalid or the study holds
+        the motors off (the page plays 0 then too)."""
+        played, n = msg["played"], len(self.glove.motor_names)
+        if played is None:
+            if not valid:
+                self._motors_off(stamp)
+            return
+        if len(played["intensity"]) != n:
+            self.counts["page_malformed"] += 1
+            self._page_warning(page, "played", f"played: expected {n} intensities (one per motor of "
+                                               f"{self.glove.path}), got {len(played['intensity'])}")
+            return
+        if not (valid and self.gate.motors):
+            self._motors_off(stamp)
+            return
+        source = stamp + (played["time"] - msg["time"]) / 1000.0
+        self.publish("tactile/motors", MotorCommand(names=list(self.glove.motor_names),
+                                                    intensity=played["intensity"], source_stamp=source))
+
+    def _motors_off(self, stamp: float) -> None:
+        self.publish("tactile/motors", MotorCommand(names=list(self.glove.motor_names),
+                                                    intensity=np.zeros(len(self.glove.motor_names)),
+                                                    source_stamp=stamp))
 
     # ---- safety ----------------------------------------------------------------------------------
 
@@ -589,6 +626,8 @@ class WebBridge:
                 self._joints_live = False
                 self._joints_lost(0.0)
             self.publish("hand/pose", HandPose(position=np.zeros(3), valid=False))
+            if self.config.touch == "page":
+                self._motors_off(now)
             if not tracking:
                 self.publish("controller/state", ControllerState(position=np.zeros(3), valid=False))
 

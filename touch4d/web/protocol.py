@@ -22,7 +22,8 @@ dtype is one of ARRAY_DTYPES ("f4", "u4", "i4", "u2", "u1"). Kinds:
 
 Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinity (rejected here):
 
-    {"type": "input", "time": ms, "tracking": bool, "head": pose|null, "sources": [source, ...]}
+    {"type": "input", "time": ms, "tracking": bool, "head": pose|null, "sources": [source, ...],
+     "played": {"time": ms, "intensity": [V >= 0 per motor]}}      ("played": touch on the page only)
     {"type": "recenter", "head": pose}
     {"type": "session", "mode": "immersive"|"inline", "active": bool}
     {"type": "stats", "fps": number}
@@ -36,7 +37,9 @@ buttons (a tap in a desktop or headset browser; controller buttons arrive with "
 poses, a pose is [x, y, z, qx, qy, qz, qw] (metres, local-floor space), and a source is
 {"handedness": "right"|"left"|"none", "grip": pose|null, "trigger": 0..1, "buttons": [name, ...]
 (the xr-standard buttons, and "thumbstick-up" / "thumbstick-down" while the stick is pushed),
-"joints": [[x, y, z, qx, qy, qz, qw, radius] x 25]|null}.
+"joints": [[x, y, z, qx, qy, qz, qw, radius] x 25]|null}. With the node's `touch: page` the page
+computes the touch itself (static/touch.js) and each input carries what it played since the last
+one: the motors' intensities of eq. 3 and the `time` of the pose they were computed from.
 """
 from __future__ import annotations
 
@@ -63,6 +66,8 @@ QUAT_TOLERANCE = 1e-2             # |q| - 1 allowed in a page's quaternion (floa
 WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
 PAGE_TYPES = ("input", "recenter", "session", "stats", "response", "haptics")
 HAPTIC_OUTPUTS = ("pulse", "dual-rumble", "none")   # what a page can vibrate (touch4d/web/static/haptics.js)
+MAX_INTENSITY = 1e3               # a motor's V = gamma h (h <= 1): gamma as a glove file may set it
+MAX_MOTORS = 256                  # intensities in a page's "played" (a glove file's motors)
 MAX_OPTION = 64                   # characters of a response option
 HANDEDNESS = ("right", "left", "none")
 BUTTON_NAMES = frozenset(b for b in XR_STANDARD_BUTTONS if b) | frozenset(THUMBSTICK_BUTTONS)
@@ -232,11 +237,20 @@ class SourceMessage(msgspec.Struct, forbid_unknown_fields=True):
                 raise schema.Invalid("a radius >= 0", joint[7], f"joints[{k}][7]")
 
 
+class PlayedMessage(msgspec.Struct, forbid_unknown_fields=True):
+    """What the page's own touch played: per motor V (eq. 3), from the pose the page read at `time` (ms)."""
+
+    time: Annotated[float, msgspec.Meta(ge=0)]
+    intensity: Annotated[list[Annotated[float, msgspec.Meta(ge=0, le=MAX_INTENSITY)]],
+                         msgspec.Meta(max_length=MAX_MOTORS)]
+
+
 class InputMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="input"):
     time: Annotated[float, msgspec.Meta(ge=0)]
     tracking: bool
     sources: Annotated[list[SourceMessage], msgspec.Meta(max_length=MAX_SOURCES)]
     head: Pose | None = None
+    played: PlayedMessage | None = None
 
     def __post_init__(self):
         if self.head is not None:
@@ -334,7 +348,9 @@ def parse_page_message(data: str | bytes) -> dict:
         return {"type": "input", "time": msg.time, "tracking": msg.tracking, "head": _array(msg.head),
                 "sources": [XRSource(s.handedness, _array(s.grip), s.trigger, tuple(dict.fromkeys(s.buttons)),
                                      None if s.joints is None else np.array(s.joints, dtype=float))
-                            for s in msg.sources]}
+                            for s in msg.sources],
+                "played": None if msg.played is None else
+                {"time": msg.played.time, "intensity": np.array(msg.played.intensity, dtype=float)}}
     if isinstance(msg, RecenterMessage):
         return {"type": "recenter", "head": _array(msg.head)}
     if isinstance(msg, SessionMessage):

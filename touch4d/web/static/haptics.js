@@ -66,13 +66,14 @@ export class Haptics {
   }
 
   // One XR frame while this page drives the hand; `tracked`: the headset and the controller have poses.
-  xrFrame(session, hand, tracked, now) {
+  // `own`: the intensity the page computed itself (touch: page, touch.js), else the node's is played.
+  xrFrame(session, hand, tracked, now, own = null) {
     const actuator = controllerActuator(session, hand);
     this.tell(actuator ? 'pulse' : 'none');
     const ms = this.duration(now);
     if (!actuator) return;
     if (this.actuator && this.actuator !== actuator) this.stop();
-    const value = tracked ? this.target(now) : 0;
+    const value = !tracked ? 0 : own === null ? this.target(now) : Math.min(Math.max(own, 0), 1);
     if (value > 0 || this.playing > 0) {
       this.actuator = actuator;
       this.play(value, ms);

@@ -5,12 +5,14 @@
 import { Link, forgetToken } from './net.js';
 import { InputReader } from './input.js';
 import { Hud } from './hud.js';
-import { SceneRenderer } from './scene.js';
+import { SceneRenderer, UNITS } from './scene.js';
 import { SliceRenderer } from './slice.js';
 import { Orbit } from './orbit.js';
 import { StudyButtons, StudyPanel } from './study.js';
 import { Haptics } from './haptics.js';
 import { fromPose, multiply, perspective } from './mat.js';
+import { program } from './gl.js';
+import { PageTouch, level } from './touch.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
 const canvas = document.getElementById('view');
@@ -22,12 +24,18 @@ const gl = canvas.getContext('webgl2', { xrCompatible: true, antialias: true });
 const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
-  study: null, drawObjects: true, answers: 0, panel: [], view: 'projection', haptics: null,
+  study: null, drawObjects: true, answers: 0, panel: [], view: 'projection', haptics: null, touch: null,
 });
 
 // made when the node's setup frame (with the shaders) arrives
 let hud = null, scene = null, orbit = null, panel = null, slice = null;
 let screenModel = null;   // screen units -> the room, from the setup frame
+let calibration = null;   // the screen's placement and the hand on the grip (setup, calibration frames)
+// The node's `touch: page`: the page computes the glove hand's touch itself (touch.js)
+let touch = null;
+let touchLevel = 0;       // what the controller plays now from the page's own touch
+let played = null;        // what it played since the last input went out: {time, intensity}
+const GATE_STALE_MS = 250;   // the study's gate comes with the node's frames: none for this long, touch 0
 
 if (!gl) {
   statusLine.textContent = 'This browser has no WebGL2: touch4d cannot draw here.';
@@ -40,6 +48,7 @@ if (!gl) {
 function place(header) {
   // screen units -> room metres: the screen cube [-1, 1]^3 is edge metres wide
   screenModel = fromPose(header.screen_center, header.screen_rotation, header.screen_edge / 2);
+  calibration = header;
 }
 
 // The page's own answer buttons; the controller's go with the input messages.
@@ -65,6 +74,10 @@ const link = new Link((message) => {
         hud = new Hud(gl, header.shaders);
         panel = new StudyPanel(gl);
         slice = new SliceRenderer(gl, header.shaders);
+        if (header.tracker && header.touch === 'page') {
+          touch = new PageTouch(gl, program(gl, header.shaders['fullscreen.vert'], header.shaders['tactile.frag'],
+                                            'fullscreen.vert + tactile.frag'), message, UNITS);
+        }
       } catch (error) {
         state.error = String(error);
         statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
@@ -173,9 +186,46 @@ requestAnimationFrame(inlineLoop);
 
 // ---- the headset ----------------------------------------------------------------------------------
 
+// Whether the page's own touch may be felt: the study's condition allows it, the scene touches its
+// projection (a slice view touching its cross-section is the node's alone), the node is heard.
+function touchAllowed(now) {
+  const f = state.frame;
+  return Boolean(f) && f.touch_on !== false && !f.touch_section && now - haptics.at <= GATE_STALE_MS;
+}
+
+// The page's own touch, each XR frame before the input goes out: the last pass's result if it has
+// landed (played now), then this frame's pass for the grip just read.
+function pageTouch(input, now) {
+  const result = touch.poll();
+  const allowed = touchAllowed(now);
+  if (result) {
+    const intensity = allowed ? Array.from(result.V) : new Array(result.V.length).fill(0);
+    touchLevel = level(intensity);
+    played = { time: result.time, intensity };
+    state.touch = { time: result.time, grip: result.grip, hand: result.hand, l: Array.from(result.l),
+                    V: Array.from(result.V), played: intensity, level: touchLevel, passes: touch.passes,
+                    skipped: touch.skipped };
+  }
+  if (!allowed || !scene || !scene.geometry || !scene.geometry.bodies) touchLevel = 0;
+  if (played) {
+    input.played = played;
+    played = null;
+  }
+  const hand = input.sources.find((s) => s.handedness === state.setup.hand);
+  if (hand && hand.grip && calibration) {
+    touch.submit(scene, hand.grip, calibration, input.time, now);
+  } else {
+    touch.drop();
+    touchLevel = 0;
+  }
+  return touchLevel;
+}
+
 // The hand is absent from now on (hidden page, lost session): the node publishes it invalid.
 function handGone() {
   haptics.stop();
+  if (touch) touch.drop();
+  touchLevel = 0;
   if (state.setup && state.setup.tracker) {
     link.send({ type: 'input', time: performance.timeOrigin + performance.now(), tracking: false, head: null, sources: [] });
   }
@@ -207,13 +257,15 @@ async function enterVR() {
     // Input first: the pose leaves before this frame's drawing.
     if (state.setup && state.setup.tracker && session.visibilityState === 'visible' && !state.leaving) {
       state.input = reader.read(frame, space, session, viewer || null, time);
+      const now = performance.now();
+      const own = touch ? pageTouch(state.input, now) : null;
       link.send(state.input);
       state.sent++;
       // the controller plays while this page drives the hand and both it and the head are tracked
       const hand = state.input.sources.find((s) => s.handedness === state.setup.hand);
       if (state.otherDriver) haptics.stop();
       else haptics.xrFrame(session, state.setup.hand, Boolean(viewer && hand && (hand.grip || hand.joints)),
-                           performance.now());
+                           now, own);
     }
     if (!viewer) return;
     const base = session.renderState.baseLayer;

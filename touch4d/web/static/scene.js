@@ -6,7 +6,7 @@
 
 import { attributes, program } from './gl.js';
 
-const UNITS = {
+export const UNITS = {
   t_objects: 0, t_bodies: 1, t_halfspaces: 2, t_colors: 3, t_lo: 4, t_hi: 5,
   t_cells0: 6, t_cells1: 7, t_cells2: 8, t_cells3: 9, t_vertices: 10, t_accum: 11, t_weight: 12,
   t_centres: 13, t_view: 14, t_halfspace_body: 15,

@@ -1,0 +1,125 @@
+"""The page's own touch (the node's `touch: page`, launch/quest.yaml) in a real browser (Debian's
+chromium, a Quest 3 emulated by iwer): on random scenes and controller poses the intensities the
+page computes (the renderer's ray test per glove sample, eq. 1-3 and the motors' mix, in
+touch4d/web/static/touch.js) equal, within 0.01 of full drive, the tactile node's for the same pose
+(its tactile/field, mixed by the glove's motors) and the Python model's; for the held controller
+(config/gloves/quest-controller.yaml, what it pulses) and per motor for the 30-motor glove
+(config/glove.yaml, what would go to its motors). What the page played comes back on tactile/motors."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from gpu_tactile_cases import random_pose, random_scene
+from test_web_haptics_browser import RECORD_PULSES, pulses
+from touch4d.bus import Node
+from touch4d.bus.testing import collect, free_port, launch_process, wait_until
+from touch4d.configfile import CONFIG_DIR
+from touch4d.messages import MotorCommand, SceneState, TactileField
+from touch4d.tactile import compute_stimulus, load_glove
+from touch4d.tactile.pose import place
+from touch4d.tracking.calibration import load_calibration
+from touch4d.web.testing import chromium, enter_vr, headset_page
+
+pytestmark = pytest.mark.timeout(400)
+
+GLOVES = {"controller": "config/gloves/quest-controller.yaml", "glove": "config/glove.yaml"}
+TOLERANCE = 0.01              # of full drive
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with chromium() as b:
+        yield b
+
+
+def stack(glove: str):
+    """launch/quest.yaml with the test as the scene (no scene node), the tactile node on `glove` too."""
+    port = free_port()
+    args = ["launch/quest.yaml", "monitor:=none", "scene:=none", f"tracker.port:={port}",
+            "tracker.save_calibration:=false", f"tracker.glove:={glove}", f"tactile.glove:={glove}"]
+    return port, launch_process(args)
+
+
+def show_scene(page, watcher, publisher, msg: SceneState) -> None:
+    """Publish the scene until the page has adopted it (its frame carries the revision)."""
+    def adopted():
+        publisher.publish(msg)
+        return page.evaluate(f"Boolean(touch4d.frame && touch4d.frame.revision === {msg.revision} && "
+                             f"touch4d.geometry)")
+    wait_until(adopted, timeout=20, interval=0.1, spin=watcher)
+
+
+def hold(page, watcher, cal, position, orientation) -> dict:
+    """Put the controller where the glove hand is at `position`, `orientation` (screen) and wait for
+    the page's touch of a pose read after that: {grip, V, played, ...}."""
+    room, quat = cal.controller_from_hand(position, orientation)
+    t0 = page.evaluate("performance.timeOrigin + performance.now()")
+    page.evaluate("([p, q]) => { xr.controllers.right.position.set(...p); xr.controllers.right.quaternion.set(...q); }",
+                  [room.tolist(), quat.tolist()])
+    try:
+        return wait_until(lambda: page.evaluate(f"touch4d.touch && touch4d.touch.time > {t0} + 20 ? touch4d.touch : null"),
+                          timeout=20, spin=watcher)
+    except TimeoutError:
+        state = page.evaluate("JSON.stringify({time: touch4d.touch && touch4d.touch.time, passes: touch4d.touch && "
+                              "touch4d.touch.passes, xr: touch4d.xrFrames, error: touch4d.error, session: "
+                              "Boolean(touch4d.session), sources: touch4d.input && touch4d.input.sources})")
+        raise AssertionError(f"no touch from the page for a pose set at {t0}: {state}") from None
+
+
+@pytest.mark.parametrize("glove_name", sorted(GLOVES))
+def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(browser, glove_name):
+    glove = load_glove(GLOVES[glove_name])
+    cal = load_calibration(None, "hand_in_grip")
+    port, launching = stack(GLOVES[glove_name])
+    with launching as run:
+        bus = run.wait_ready(60)
+        run.wait_for_line("WebXR page", timeout=60)
+        watcher = Node("touch-test", bus=bus, heartbeat=False)
+        fields = collect(watcher, "tactile/field", TactileField)
+        motors = collect(watcher, "tactile/motors", MotorCommand)
+        scenes = watcher.create_publisher("scene/state", SceneState)
+        page = headset_page(browser, f"http://127.0.0.1:{port}/", 320, 180)
+        try:
+            enter_vr(page)
+            page.evaluate("xr.position.set(0, 1.5, 0.8); xr.quaternion.set(0, 1, 0, 0)")   # cheap frames
+            page.evaluate(RECORD_PULSES)
+            rng = np.random.default_rng(31)
+            worst_node, worst_model, touching = 0.0, 0.0, 0
+            for k in range(4):
+                scene = random_scene(rng, ("orthographic", "perspective")[k % 2])
+                msg = scene.to_message()
+                msg.revision = 100 + k
+                show_scene(page, watcher, scenes, msg)
+                caster = scene.ray_caster()
+                for _ in range(7):
+                    position, orientation = random_pose(rng, 0.6)
+                    got = hold(page, watcher, cal, position, orientation)
+                    grip = np.asarray(got["grip"])
+                    hand_at, hand_q = cal.hand_from_controller(grip[:3], grip[3:])
+                    expected = place(glove.samples, glove.units_per_metre, hand_at, hand_q)
+                    # the tactile node's field for the same pose (the page's grip, sent to the node)
+                    field = wait_until(lambda: next((f for f in reversed(fields) if f.positions.shape == expected.shape
+                                                     and np.abs(f.positions - expected).max() < 1e-5), None),
+                                       timeout=20, spin=watcher)
+                    node_v = glove.gamma * glove.weight_matrix @ field.h
+                    model_v = compute_stimulus(glove, caster, hand_at, hand_q).V
+                    page_v = np.asarray(got["V"])
+                    worst_node = max(worst_node, float(np.abs(page_v - node_v).max()))
+                    worst_model = max(worst_model, float(np.abs(page_v - model_v).max()))
+                    touching += bool(model_v.max() > 0.05)
+                    # what it played goes out on tactile/motors, the page's values
+                    wait_until(lambda: any(len(m.intensity) == len(page_v) and np.abs(m.intensity - page_v).max()
+                                           < 1e-9 for m in motors[-50:]), timeout=10, spin=watcher)
+            print(f"{glove_name}: page vs node {worst_node:.2e}, vs model {worst_model:.2e}, {touching}/28 poses touch")
+            assert worst_node <= TOLERANCE, f"the page differs from the tactile node by {worst_node:.4f}"
+            assert worst_model <= TOLERANCE, f"the page differs from the Python model by {worst_model:.4f}"
+            assert touching >= 8, f"only {touching} of 28 poses touch anything: the cases prove little"
+            if glove_name == "controller":   # the controller plays its one motor, the strongest
+                played = [v for h, v, _, _ in pulses(page) if h == "right"]
+                assert played and max(played) > 0.05 and all(0 <= v <= 1 for v in played)
+        finally:
+            page.context.close()
+            watcher.shutdown()
