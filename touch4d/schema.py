@@ -17,6 +17,7 @@ the garbage collector; constrain the union as a whole or check in `__post_init__
 from __future__ import annotations
 
 import difflib
+import functools
 import math
 import re
 import sys
@@ -291,26 +292,28 @@ def _expected(type_, value) -> str:
     numeric = bare in (int, float)
     if not _is_kind(value, bare):
         return kind
-    for meta in _metas(type_):
-        for name, op, holds in _BOUNDS:
-            bound = getattr(meta, name)
-            if bound is None or not numeric:
-                continue
-            if abs(bound) == FINITE_MAX:     # the bound of Finite: what it means, not its digits
-                if not math.isfinite(value):
-                    return "a finite number" if bare is float else kind
-                continue
-            if not holds(value, bound):
-                return f"{kind} {op} {_number(bound)}"
-        if numeric and meta.multiple_of is not None and value % meta.multiple_of:
-            return f"{kind} that's a multiple of {_number(meta.multiple_of)}"
-        n = len(value) if isinstance(value, (str, list, dict)) else None
-        if n is not None and meta.min_length is not None and n < meta.min_length:
-            return f"{kind} of length >= {meta.min_length}"
-        if n is not None and meta.max_length is not None and n > meta.max_length:
-            return f"{kind} of length <= {meta.max_length}"
-        if isinstance(value, str) and meta.pattern is not None and not re.search(meta.pattern, value):
-            return f"{kind} matching regex '{meta.pattern}'"
+    rule = _constraints(type_)
+    for name, op, holds in _BOUNDS:
+        bound = getattr(rule, name, None)
+        if bound is None or not numeric:
+            continue
+        if abs(bound) == FINITE_MAX:         # the bound of Finite: what it means, not its digits
+            if not math.isfinite(value):
+                return "a finite number" if bare is float else kind
+            continue
+        if not holds(value, bound):
+            return f"{kind} {op} {_number(bound)}"
+    multiple_of, pattern = getattr(rule, "multiple_of", None), getattr(rule, "pattern", None)
+    min_length, max_length = getattr(rule, "min_length", None), getattr(rule, "max_length", None)
+    if numeric and multiple_of is not None and value % multiple_of:
+        return f"{kind} that's a multiple of {_number(multiple_of)}"
+    n = len(value) if isinstance(value, (str, list, dict)) else None
+    if n is not None and min_length is not None and n < min_length:
+        return f"{kind} of length >= {min_length}"
+    if n is not None and max_length is not None and n > max_length:
+        return f"{kind} of length <= {max_length}"
+    if isinstance(value, str) and pattern is not None and not re.search(pattern, value):
+        return f"{kind} matching regex '{pattern}'"
     if isinstance(value, int) and not isinstance(value, bool) and numeric:
         return "a finite number"             # an integer too large for the machine's numbers
     return kind
@@ -330,13 +333,30 @@ def _is_kind(value, bare) -> bool:
     return isinstance(origin, type) and isinstance(value, origin)
 
 
-def _metas(type_) -> list:
-    """The msgspec.Meta constraints of an annotation (through Optional and nested Annotated)."""
-    type_ = _strip_optional(type_)
-    if typing.get_origin(type_) is not typing.Annotated:
-        return []
-    args = typing.get_args(type_)
-    return [m for m in args[1:] if isinstance(m, msgspec.Meta)] + _metas(args[0])
+@functools.lru_cache(maxsize=512)
+def _inspected(type_):
+    """msgspec's own reading of an annotation (msgspec.inspect.type_info): the constraints and description
+    of nested Annotated merged into one node, as msgspec applies them."""
+    return msgspec.inspect.type_info(type_)
+
+
+def _info(type_):
+    """`_inspected(type_)`, also for an annotation that cannot be a cache key; None for one msgspec cannot
+    read (no file's value is declared so)."""
+    try:
+        return _inspected(type_)
+    except TypeError:                        # unhashable (a Meta holding a list): read afresh
+        try:
+            return msgspec.inspect.type_info(type_)
+        except TypeError:
+            return None
+
+
+def _constraints(type_):
+    """The node of msgspec.inspect that holds what a value of `type_` (through Optional) must meet: its
+    bounds (gt, ge, lt, le, multiple_of), lengths (min_length, max_length) and pattern, those it has."""
+    node = _info(_strip_optional(type_))
+    return node.type if isinstance(node, msgspec.inspect.Metadata) else node
 
 
 def _number(x) -> str:
@@ -355,14 +375,11 @@ def _strip_optional(type_):
 
 
 def _description(type_) -> str | None:
-    """The `msgspec.Meta(description=...)` of an annotation: what a valid value is, in a user's words."""
-    if _strip_optional(type_) is not type_:
-        return _description(_strip_optional(type_))
-    if typing.get_origin(type_) is typing.Annotated:
-        for meta in typing.get_args(type_)[1:]:
-            if isinstance(meta, msgspec.Meta) and meta.description:
-                return meta.description
-        return _description(typing.get_args(type_)[0])
+    """The `msgspec.Meta(description=...)` of an annotation (through Optional): what a valid value is, in a
+    user's words."""
+    node = _info(_strip_optional(type_))
+    if isinstance(node, msgspec.inspect.Metadata):
+        return (node.extra_json_schema or {}).get("description") or None
     return None
 
 
@@ -380,7 +397,8 @@ def _fixed_tuple(type_) -> str | None:
 
 
 def _choices(type_) -> tuple:
-    """The values of a Literal annotation (through Annotated and Optional), else ()."""
+    """The values of a Literal annotation (through Annotated and Optional), else (); in the order declared
+    (msgspec.inspect sorts them), the order a user reads in the file's documentation."""
     origin = typing.get_origin(type_)
     if origin is typing.Literal:
         return typing.get_args(type_)
@@ -394,26 +412,27 @@ def _choices(type_) -> tuple:
 
 def _struct(type_):
     """The Struct class inside an annotation (through Optional, Annotated), else None."""
-    origin = typing.get_origin(type_)
-    if origin is typing.Annotated:
-        return _struct(typing.get_args(type_)[0])
-    if origin is typing.Union or origin is types.UnionType:
-        for arg in typing.get_args(type_):
-            found = _struct(arg)
-            if found is not None:
+    return _find(_info(type_), lambda node: node.cls if isinstance(node, msgspec.inspect.StructType) else None)
+
+
+def _find(node, pick):
+    """The first thing `pick` finds in a msgspec.inspect node, looking through Metadata (Annotated) and
+    into every member of a union, else what `pick` says of nothing (its falsy answer)."""
+    if isinstance(node, msgspec.inspect.Metadata):
+        return _find(node.type, pick)
+    if isinstance(node, msgspec.inspect.UnionType):
+        for member in node.types:
+            found = _find(member, pick)
+            if found:
                 return found
-        return None
-    if isinstance(type_, type) and issubclass(type_, msgspec.Struct):
-        return type_
-    return None
+    return pick(node)
 
 
 def _tagged(type_) -> list:
     """The members of a union of tagged Structs (`tag_field=`), else []."""
-    type_ = _bare(type_)
-    origin = typing.get_origin(type_)
-    if origin is typing.Union or origin is types.UnionType:
-        members = [a for a in typing.get_args(type_) if isinstance(a, type) and issubclass(a, msgspec.Struct)]
+    node = _info(_bare(type_))
+    if isinstance(node, msgspec.inspect.UnionType):
+        members = [t.cls for t in node.types if isinstance(t, msgspec.inspect.StructType)]
         if members and all(m.__struct_config__.tag_field for m in members):
             return members
     return []
