@@ -25,6 +25,7 @@ const state = (window.touch4d = {
   connected: false, setup: null, frame: null, geometry: null, frames: 0, fps: 0, xrFrames: 0,
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
   study: null, drawObjects: true, answers: 0, panel: [], view: 'projection', haptics: null, touch: null,
+  touchCost: { frames: 0, ms: 0 },   // the page's own touch: frames it ran in, and its time on this thread
 });
 
 // made when the node's setup frame (with the shaders) arrives
@@ -196,6 +197,13 @@ function touchAllowed(now) {
 // The page's own touch, each XR frame before the input goes out: the last pass's result if it has
 // landed (played now), then this frame's pass for the grip just read.
 function pageTouch(input, now) {
+  const value = pageTouchLevel(input, now);
+  state.touchCost.frames++;
+  state.touchCost.ms += performance.now() - now;
+  return value;
+}
+
+function pageTouchLevel(input, now) {
   const result = touch.poll();
   const allowed = touchAllowed(now);
   if (result) {
