@@ -307,19 +307,18 @@ class GloveEmulator:
 
 # Board emulators by name: the motor node's `board_emulator` parameter and `touch4d glove emulate`.
 EMULATORS = {
-    "python": ("touch4d.boards.emulator", "GloveEmulator"),
-    "firmware": ("touch4d.boards.firmware", "FirmwareGloveEmulator"),  # the C core, built for the host
+    "python": "touch4d.boards.emulator:GloveEmulator",
+    "firmware": "touch4d.boards.firmware:FirmwareGloveEmulator",  # the C core, built for the host (when picked)
 }
 
 
 def make_glove_emulator(kind: str, cfg: GloveCan, **kwargs) -> GloveEmulator:
     """The glove emulator named `kind` (a key of EMULATORS); kwargs go to its constructor."""
-    import importlib
+    from touch4d.targets import load_target
 
     if kind not in EMULATORS:
         raise ValueError(f"board emulator {kind!r}: expected one of {sorted(EMULATORS)}")
-    module, name = EMULATORS[kind]
-    return getattr(importlib.import_module(module), name)(cfg, **kwargs)
+    return load_target(EMULATORS[kind])(cfg, **kwargs)
 
 
 __all__ = ["BoardEmulator", "GloveEmulator", "HARDWARE_FAULTS", "FAULT_NAMES", "COUNTER_WINDOW", "MALFORMED",

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from touch4d.bus.params import suggest
 from touch4d.errors import Touch4dError
+from touch4d.targets import MissingAttribute, load_target
 
 ENTRY_POINT_GROUP = "touch4d.nodes"
 BUILT_IN = "touch4d"
@@ -50,16 +51,13 @@ class NodeKind:
 
         module_name, _, attr = self.target.partition(":")
         try:
-            module = importlib.import_module(module_name)
+            obj = load_target(self.target)
         except ModuleNotFoundError as exc:
             if exc.name and (module_name == exc.name or module_name.startswith(exc.name + ".")):
                 raise NodeNotFound(f"an importable module ({self.origin})", got=f"no module {module_name}") from None
             raise
-        obj = module
-        for part in attr.split(".") if attr else ():
-            obj = getattr(obj, part, None)
-            if obj is None:
-                raise NodeNotFound(f"a node class ({self.origin})", got=f"{module_name} has no {attr}")
+        except MissingAttribute:
+            raise NodeNotFound(f"a node class ({self.origin})", got=f"{module_name} has no {attr}") from None
         if inspect.ismodule(obj):
             obj = node_class_of(obj)
         if not (inspect.isclass(obj) and issubclass(obj, Node)):

@@ -11,18 +11,18 @@ registry by name (as python-can does for bus interfaces).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from importlib import import_module
 
 import moderngl
 import numpy as np
 
 from touch4d.render.context import RenderError
+from touch4d.targets import load_target
 from touch4d.render.draw import Painter
 from touch4d.render.frame import Frame
 
 BACKENDS = {
-    "gpu": ("touch4d.render.backends.gpu", "GpuBackend"),
-    "clip": ("touch4d.render.backends.clip", "ClipBackend"),
+    "gpu": "touch4d.render.backends.gpu:GpuBackend",       # imported when picked (touch4d.targets)
+    "clip": "touch4d.render.backends.clip:ClipBackend",
 }
 DEFAULT_BACKEND = "auto"
 SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "swiftshader")
@@ -108,8 +108,7 @@ def create_backend(name: str, ctx: moderngl.Context, line_width: float = 2.0) ->
         name = "clip" if software_renderer(ctx) else "gpu"
     if name not in BACKENDS:
         raise ValueError(f"backend: expected one of {', '.join(backend_names())}, got {name!r}")
-    module, cls = BACKENDS[name]
-    return getattr(import_module(module), cls)(ctx, line_width)
+    return load_target(BACKENDS[name])(ctx, line_width)
 
 
 def open_backend(name: str, ctx: moderngl.Context, line_width: float = 2.0, log=None) -> Backend:
