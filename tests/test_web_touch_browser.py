@@ -123,3 +123,56 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
         finally:
             page.context.close()
             watcher.shutdown()
+
+
+def test_the_pages_touch_fails_safe(browser):
+    """No scene yet: nothing played; a scene: full drive on the hypercube's front cell, played and
+    published; a visual trial: 0 played and published; the page hidden: the node publishes 0 on
+    tactile/motors within 100 ms."""
+    from test_web_haptics_browser import CENTER, trial
+    from touch4d.geometry.scene import load_scene
+    from touch4d.messages import StudyTrial
+
+    port, launching = stack(GLOVES["controller"])
+    with launching as run:
+        bus = run.wait_ready(60)
+        run.wait_for_line("WebXR page", timeout=60)
+        watcher = Node("touch-safe-test", bus=bus, heartbeat=False)
+        motors = collect(watcher, "tactile/motors", MotorCommand)
+        scenes = watcher.create_publisher("scene/state", SceneState)
+        trials = watcher.create_publisher("study/trial", StudyTrial)
+        page = headset_page(browser, f"http://127.0.0.1:{port}/", 320, 180)
+        try:
+            enter_vr(page)
+            page.evaluate("xr.position.set(0, 1.5, 0.8); xr.quaternion.set(0, 1, 0, 0)")
+            page.evaluate(RECORD_PULSES)
+            page.evaluate("xr.controllers.right.position.set({}, {}, {})".format(*CENTER))
+            watcher.spin(1.5)
+            assert page.evaluate("touch4d.touch") is None          # no scene, no pass
+            assert all(v == 0 for _, v, _, _ in pulses(page))
+            assert all(m.intensity.max() == 0 for m in motors)
+            msg = load_scene("config/scenes/hypercube.yaml").to_message()
+            msg.revision = 7
+            show_scene(page, watcher, scenes, msg)
+            wait_until(lambda: [v for _, v, _, _ in pulses(page) if v > 0.99], timeout=20, spin=watcher)
+            wait_until(lambda: [m for m in motors if m.intensity.max() > 0.99], timeout=20, spin=watcher)
+            assert page.evaluate("touch4d.touch.played")[0] > 0.99    # the page's own touch played it
+            t = page.evaluate("performance.timeOrigin + performance.now()") / 1000
+            trials.publish(trial("visual"))
+            wait_until(lambda: [v for _, v, _, pt in pulses(page) if pt >= t and v == 0], timeout=10, spin=watcher)
+            watcher.spin(0.5)
+            t1 = page.evaluate("performance.timeOrigin + performance.now()") / 1000
+            watcher.spin(0.5)
+            assert all(v == 0 for _, v, _, pt in pulses(page) if pt >= t1)
+            assert all(m.intensity.max() == 0 for m in motors if m.stamp >= t1)
+            trials.publish(trial("touch"))
+            wait_until(lambda: [m for m in motors if m.stamp > t1 and m.intensity.max() > 0.99], timeout=20,
+                       spin=watcher)
+            t0 = page.evaluate("() => { const t = performance.timeOrigin + performance.now(); "
+                               "xr.updateVisibilityState('hidden'); return t / 1000; }")
+            zero = wait_until(lambda: next((m for m in motors if m.stamp >= t0 and m.intensity.max() == 0), None),
+                              timeout=5, spin=watcher)
+            assert zero.stamp - t0 < 0.1, f"0 published {1000 * (zero.stamp - t0):.0f} ms after the page hid"
+        finally:
+            page.context.close()
+            watcher.shutdown()
