@@ -118,3 +118,73 @@ def test_the_setup_frame_carries_the_model_and_the_hand_on_the_grip():
     np.testing.assert_allclose(arrays["motor_weights"], glove.motor_weights, rtol=1e-6)
     one_hot = setup_of(load_glove(GLOVES["glove"]))[1]["motor_weights"]
     assert np.array_equal(one_hot.sum(axis=1), np.ones(len(one_hot))) and set(np.unique(one_hot)) == {0.0, 1.0}
+
+
+# ---- the node's side of touch: page (touch4d.web.bridge), without a browser ------------------------
+
+def page_rig(glove_name="controller", **config):
+    """A bridge with touch: page and a page (conn 1) that drives the hand; its published messages."""
+    published = []
+    clock = [1000.0]
+    glove = load_glove(GLOVES[glove_name])
+    bridge = WebBridge(BridgeConfig(tracker=True, touch="page", **config), glove, CALIBRATION, None,
+                       publish=lambda topic, msg: published.append((topic, msg)), broadcast=lambda *a: None,
+                       send=lambda *a: None, now=lambda: clock[0])
+    bridge.connected(1)
+    return bridge, published, clock, glove
+
+
+def send_input(bridge, clock, page_ms, played=None, grip=(0.1, 1.1, -0.5, 0, 0, 0, 1), tracking=True):
+    msg = {"type": "input", "time": page_ms, "tracking": tracking, "head": None,
+           "sources": [{"handedness": "right", "grip": list(grip) if grip else None, "trigger": 0.0, "buttons": [],
+                        "joints": None}]}
+    if played is not None:
+        msg["played"] = played
+    bridge.page_message(1, json.dumps(msg), clock[0])
+
+
+def motors_of(published):
+    return [m for topic, m in published if topic == "tactile/motors"]
+
+
+def test_what_the_page_played_goes_out_on_tactile_motors_stamped_with_its_pose():
+    bridge, published, clock, glove = page_rig()
+    send_input(bridge, clock, 5000.0)                       # the first pose: nothing played yet
+    assert motors_of(published) == []
+    clock[0] += 0.014
+    send_input(bridge, clock, 5014.0, {"time": 5000.0, "intensity": [0.625]})
+    (motors,) = motors_of(published)
+    assert motors.names == glove.motor_names and motors.intensity.tolist() == [0.625]
+    # the played pose's time on this machine's clock: 14 ms before this input's stamp
+    assert abs(motors.source_stamp - (1000.014 - 0.014)) < 1e-6
+
+
+def test_the_page_touch_is_published_0_when_the_study_holds_it_off_the_hand_leaves_or_no_page_tracks():
+    from touch4d.messages import StudyTrial
+    bridge, published, clock, glove = page_rig()
+    send_input(bridge, clock, 5000.0)
+    bridge.on_trial(StudyTrial(study="s", participant="P01", phase="stimulus", index=0, total=1, condition="visual",
+                               task="front", kind="front-element", stimulus="face", prompt="?", options=["a", "b"],
+                               onset=clock[0], time_limit_s=60.0))
+    send_input(bridge, clock, 5014.0, {"time": 5000.0, "intensity": [0.9]})
+    assert motors_of(published)[-1].intensity.tolist() == [0.0]
+    header = frame_fields(bridge)
+    assert header["touch_on"] is False and header["draw_objects"] is True     # the page's gate: no touch
+    published.clear()
+    send_input(bridge, clock, 5028.0, tracking=False)      # the page hid: no hand
+    assert motors_of(published)[-1].intensity.tolist() == [0.0]
+    published.clear()
+    clock[0] += 1.0                                         # silent: no page tracks
+    bridge.tick()
+    assert motors_of(published) and motors_of(published)[-1].intensity.tolist() == [0.0]
+
+
+def test_a_played_touch_of_the_wrong_size_is_counted_and_not_published():
+    bridge, published, clock, glove = page_rig("glove")
+    send_input(bridge, clock, 5000.0, {"time": 4990.0, "intensity": [0.5]})
+    assert motors_of(published) == [] and bridge.counts["page_malformed"] == 1
+
+
+def frame_fields(bridge):
+    """The fields of the frame the bridge makes now (something changed since the last)."""
+    return unpack_frame(bridge.frame())[0]
