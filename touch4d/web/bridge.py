@@ -24,8 +24,12 @@ driving page closes, hides, loses tracking or falls silent for `stale_s`, the ha
 invalid at once and then every `invalid_period_s`, so the tactile node commands zero and the motor node turns every motor off
 (within 100 ms); the controller too, except while its page is only silent.
 
+With `touch: page` the page computes the glove hand's touch itself (static/touch.js) and each input
+carries what it played for its previous pose: published on `tactile/motors` with that pose's time,
+and 0 there while the hand is invalid, no page tracks or the study holds the motors off.
+
 A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
-(touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
+and touch felt (touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
 "response" publishes `study/response`, stamped with the page's clock mapped to this machine's. While
 a trial runs, the re-centre button answers instead of re-centring. The response also carries its
 arrival on this machine's clock (`received`), so a page whose clock claims too much is seen.

@@ -9,7 +9,8 @@ replaces the one playing), so the vibration is continuous while frames come and 
 within two frames when they stop. Fail safe: the node sends 0 while the study's condition holds
 the motors off, the hand is invalid (the page hidden or closed, tracking lost) or `tactile/motors`
 is stale; the page plays 0 on its own when it hides, its session ends, it loses tracking or the
-node's frames stop (STALE_MS in haptics.js).
+node's frames stop (STALE_MS in haptics.js). With the webxr node's `touch: page` the page plays the
+intensity it computes itself (static/touch.js, `level`: this mapping, held to it by tests/test_web_touch.py).
 """
 from __future__ import annotations
 
