@@ -127,8 +127,8 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
 
 def test_the_pages_touch_fails_safe(browser):
     """No scene yet: nothing played; a scene: full drive on the hypercube's front cell, played and
-    published; a visual trial: 0 played and published; the page hidden: the node publishes 0 on
-    tactile/motors within 100 ms."""
+    published; a visual trial: 0 played and published; the controller's tracking lost: 0 played within
+    100 ms and published; the page hidden: the node publishes 0 on tactile/motors within 100 ms."""
     from test_web_haptics_browser import CENTER, trial
     from touch4d.geometry.scene import load_scene
     from touch4d.messages import StudyTrial
@@ -167,6 +167,19 @@ def test_the_pages_touch_fails_safe(browser):
             assert all(m.intensity.max() == 0 for m in motors if m.stamp >= t1)
             trials.publish(trial("touch"))
             wait_until(lambda: [m for m in motors if m.stamp > t1 and m.intensity.max() > 0.99], timeout=20,
+                       spin=watcher)
+            # the controller's tracking lost: 0 played within 100 ms, and 0 published
+            t2 = page.evaluate("() => { const t = performance.timeOrigin + performance.now(); "
+                               "xr.controllers.right.connected = false; return t / 1000; }")
+            zero = wait_until(lambda: next((pt for _, v, _, pt in pulses(page) if pt >= t2 and v == 0), None),
+                              timeout=5, spin=watcher)
+            assert zero - t2 < 0.1, f"0 played {1000 * (zero - t2):.0f} ms after tracking was lost"
+            wait_until(lambda: [m for m in motors if m.stamp >= t2 and m.intensity.max() == 0], timeout=5,
+                       spin=watcher)
+            page.evaluate("xr.controllers.right.connected = true")
+            page.evaluate(RECORD_PULSES)      # the controller's actuator anew
+            t3 = page.evaluate("performance.timeOrigin + performance.now()") / 1000
+            wait_until(lambda: [m for m in motors if m.stamp > t3 and m.intensity.max() > 0.99], timeout=20,
                        spin=watcher)
             t0 = page.evaluate("() => { const t = performance.timeOrigin + performance.now(); "
                                "xr.updateVisibilityState('hidden'); return t / 1000; }")

@@ -71,7 +71,10 @@ export class Haptics {
     const actuator = controllerActuator(session, hand);
     this.tell(actuator ? 'pulse' : 'none');
     const ms = this.duration(now);
-    if (!actuator) return;
+    if (!actuator) {
+      if (this.actuator) this.stop();     // the controller went away (lost, disconnected): 0 on it now
+      return;
+    }
     if (this.actuator && this.actuator !== actuator) this.stop();
     const value = !tracked ? 0 : own === null ? this.target(now) : Math.min(Math.max(own, 0), 1);
     if (value > 0 || this.playing > 0) {
