@@ -32,3 +32,47 @@ def can_group():
         except (OSError, can.CanError) as exc:
             pytest.skip(f"no multicast CAN between processes here (python-can udp_multicast: {exc})")
         yield group
+
+
+# ---- markers: `./dev test -m "not slow"` runs the fast part (in-process tests) in about a minute ----------
+
+# What a module's source says it does, by the names it uses.
+BROWSER_WORDS = ("chromium(",)
+PROCESS_WORDS = ("subprocess", "node_process(", "LaunchRun", "launch_run(", "Popen", "LocalCluster", "run_session(",
+                 "run_simulation(", "multiprocessing")
+# Tests that take seconds on the 2-core machine (numba compilations, simulations, floods, launches the
+# words above miss): measured with --durations, over 3 s a test or 5 s a file there.
+SLOW_TESTS = ("test_study_power.py", "test_study_fanout.py", "test_study_fit.py", "test_study_glove_design.py",
+              "test_study_views.py", "test_study_observer.py", "test_scene_files.py::test_any_wrong_value",
+              "test_motors_node.py::test_send_faults", "test_log_record.py::test_10k", "test_physics_shapes.py",
+              "test_boards_freeze.py", "test_boards_duty.py::test_the_thermal_limit", "test_log_replay.py",
+              "test_stuck_consumers.py", "test_web_flood.py", "test_physics_node.py", "test_scene_node_bus.py",
+              "test_foxglove_node.py", "test_packaging.py", "test_wheel.py", "test_study_analysis.py",
+              "test_study_check.py", "test_physics.py", "test_launch_run.py", "test_motors_node.py",
+              "test_bus_container.py", "test_render_backends.py", "test_physics_stages.py", "test_web_limits.py",
+              "test_geometry_section.py", "test_launch_namespace.py", "test_messages_checks.py",
+              "test_launch_group.py", "test_geometry_polytope.py", "test_fuzz.py")
+_sources: dict[str, str] = {}
+
+
+def _source(item) -> str:
+    path = str(item.fspath)
+    if path not in _sources:
+        _sources[path] = Path(path).read_text(errors="replace")
+    return _sources[path]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark each test `browser` (drives Chromium), `process` (starts processes) and `slow` (either, or
+    measured slow in process), so a contributor can run the fast part alone."""
+    for item in items:
+        text = _source(item)
+        browser = any(word in text for word in BROWSER_WORDS)
+        process = any(word in text for word in PROCESS_WORDS)
+        if browser:
+            item.add_marker(pytest.mark.browser)
+        if process:
+            item.add_marker(pytest.mark.process)
+        name = f"{Path(str(item.fspath)).name}::{item.name}"
+        if browser or process or any(name.startswith(s) for s in SLOW_TESTS):
+            item.add_marker(pytest.mark.slow)
