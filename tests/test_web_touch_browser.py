@@ -128,7 +128,8 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
 def test_the_pages_touch_fails_safe(browser):
     """No scene yet: nothing played; a scene: full drive on the hypercube's front cell, played and
     published; a visual trial: 0 played and published; the controller's tracking lost: 0 played within
-    100 ms and published; the page hidden: the node publishes 0 on tactile/motors within 100 ms."""
+    100 ms and published; the page hidden: the node publishes 0 on tactile/motors within 100 ms; the
+    session ended: 0 played within 100 ms."""
     from test_web_haptics_browser import CENTER, trial
     from touch4d.geometry.scene import load_scene
     from touch4d.messages import StudyTrial
@@ -186,6 +187,15 @@ def test_the_pages_touch_fails_safe(browser):
             zero = wait_until(lambda: next((m for m in motors if m.stamp >= t0 and m.intensity.max() == 0), None),
                               timeout=5, spin=watcher)
             assert zero.stamp - t0 < 0.1, f"0 published {1000 * (zero.stamp - t0):.0f} ms after the page hid"
+            # visible again, then the session ends: 0 played within 100 ms
+            page.evaluate("xr.updateVisibilityState('visible')")
+            t4 = page.evaluate("performance.timeOrigin + performance.now()") / 1000
+            wait_until(lambda: [v for _, v, _, pt in pulses(page) if pt > t4 and v > 0.99], timeout=20, spin=watcher)
+            t5 = page.evaluate("() => { const t = performance.timeOrigin + performance.now(); "
+                               "touch4d.session.end(); return t / 1000; }")
+            zero = wait_until(lambda: next((pt for _, v, _, pt in pulses(page) if pt >= t5 and v == 0), None),
+                              timeout=5, spin=watcher)
+            assert zero - t5 < 0.1, f"0 played {1000 * (zero - t5):.0f} ms after the session ended"
         finally:
             page.context.close()
             watcher.shutdown()
