@@ -188,3 +188,11 @@ def test_a_played_touch_of_the_wrong_size_is_counted_and_not_published():
 def frame_fields(bridge):
     """The fields of the frame the bridge makes now (something changed since the last)."""
     return unpack_frame(bridge.frame())[0]
+
+
+def test_touch_page_needs_the_tracker_and_its_controller(tmp_path):
+    from test_web_secrets import start_error
+
+    for params in ({"touch": "page"}, {"touch": "page", "tracker": True, "hand_source": "hand"}):
+        out = start_error(params)
+        assert "touch" in out and "hand_source: controller" in out, out
