@@ -5,7 +5,7 @@ import pytest
 
 from touch4d.cli import main
 from touch4d.configfile import resolve_path
-from touch4d.defaults.cli import copy_defaults, default_files
+from touch4d.commands.defaults import copy_defaults, default_files
 from touch4d.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]

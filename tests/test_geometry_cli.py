@@ -4,7 +4,7 @@ import argparse
 import pytest
 
 from touch4d.errors import ConfigError
-from touch4d.geometry import cli
+from touch4d.commands import geometry as cli
 
 
 def run(argv):

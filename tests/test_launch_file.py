@@ -234,7 +234,7 @@ def test_a_node_checks_its_parameters_itself_too():
 
 
 def test_a_bare_launch_name_is_a_file_of_launch(tmp_path, monkeypatch):
-    from touch4d.bus.cli import launch_file_path
+    from touch4d.commands.bus import launch_file_path
 
     monkeypatch.chdir(tmp_path)
     assert launch_file_path("pi").name == "pi.yaml" and launch_file_path("pi").parent.name == "launch"

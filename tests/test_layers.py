@@ -33,7 +33,7 @@ def package_of(module: str) -> str | None:
     parts = module.split(".")
     if parts[0] != "touch4d":
         return None
-    if "cli" in parts[1:3]:   # touch4d.cli, touch4d.bus.cli and what they hold
+    if len(parts) > 1 and parts[1] in ("cli", "commands"):   # touch4d.cli and touch4d.commands.*
         return COMMANDS
     if len(parts) == 1 or parts[1] == "defaults":
         return FOUNDATION
@@ -208,11 +208,11 @@ def test_the_check_sees_an_upward_import(tmp_path, monkeypatch):
     bad = ROOT / "touch4d/bus/_layer_probe.py"
     monkeypatch.setattr(Path, "rglob", lambda self, pattern: [bad] if self == ROOT / "touch4d" else [])
     monkeypatch.setattr(Path, "read_text", lambda self, *a, **k: (
-        "from touch4d.cli import main\nfrom touch4d import nodes\nfrom ..tracking import paths\n"
+        "from touch4d.commands.study import main\nfrom touch4d import nodes\nfrom ..tracking import paths\n"
         if self == bad else Path.open(self).read()))
     wrong = upward_imports()
     assert [w.split(": ", 1)[1] for w in wrong] == [
-        "touch4d.bus imports touch4d.cli (commands)", "touch4d.bus imports touch4d.nodes (touch4d.nodes)",
+        "touch4d.bus imports touch4d.commands.study (commands)", "touch4d.bus imports touch4d.nodes (touch4d.nodes)",
 
         "touch4d.bus imports touch4d.tracking (touch4d.tracking)"]
 
@@ -224,3 +224,10 @@ def test_no_node_has_an_init_of_its_own():
            for cls in ast.walk(ast.parse(path.read_text())) if isinstance(cls, ast.ClassDef)
            for item in cls.body if isinstance(item, ast.FunctionDef) and item.name == "__init__"]
     assert own == []
+
+
+def test_the_commands_live_on_top():
+    """Every sub-command is in touch4d/commands/ (the top layer): no library package holds a cli module."""
+    inside = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "touch4d").glob("*/*")
+                    if p.name in ("cli.py", "cli") and p.parent.name != "commands")
+    assert inside == []

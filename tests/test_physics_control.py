@@ -85,7 +85,7 @@ def command(name, argument=""):
 
 
 def test_the_outcome_of_a_command_is_read_from_the_journal_after_it():
-    from touch4d.physics.cli import command_outcome
+    from touch4d.commands.physics import command_outcome
 
     before = journal((90, "run", {"steps": 10}))
     paused = before + journal((100, "command", command("pause")))

@@ -14,7 +14,7 @@ from touch4d.geometry.rotation import plane_rotation
 from touch4d.geometry.scene import Scene, SceneObject, parse_scene
 from touch4d.geometry.section import w_extent
 from touch4d.geometry.shapes import get_shape
-from touch4d.render import cli as render_cli
+from touch4d.commands import render as render_cli
 from touch4d.render.camera import parse_camera
 from touch4d.render.context import create_headless_context
 from touch4d.render.frame import CELL_PALETTE, Style

@@ -173,7 +173,7 @@ def test_power_refuses_a_fit_of_another_glove_unless_told(quest_pilot, tmp_path,
                  "--out", str(tmp_path / "power"), "--workers", "0"]) != 0
     err = capsys.readouterr().err
     assert str(fit) in err and "quest-controller.yaml" in err and "--glove-differs-ok" in err, err
-    from touch4d.study.cli.planning import check_fit_glove, read_fit
+    from touch4d.commands.study.planning import check_fit_glove, read_fit
 
     check_fit_glove(read_fit(fit), load_glove(QUEST), fit)          # the pilot's own glove: accepted
     check_fit_glove(read_fit(fit), load_glove(), fit, differs_ok=True)

@@ -155,7 +155,7 @@ def test_transfer_reports_bits_per_task_for_the_glove_and_the_every_sample_glove
 
 
 def test_the_transfer_table_rounds_the_bits_and_their_maximum_alike():
-    from touch4d.study.cli import transfer_table
+    from touch4d.commands.study import transfer_table
 
     perfect = {"task": "lookalikes", "motors": 30, "bits": math.log2(3), "max_bits": math.log2(3), "accuracy": 1.0}
     row = transfer_table([perfect]).splitlines()[1].split()

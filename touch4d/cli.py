@@ -12,15 +12,15 @@ from touch4d.stdio import EXIT_PIPE_CLOSED, silence_stdout  # the reader of our 
 # The commands each registers are listed so that a command imports only its own part (the
 # launcher need not load the renderer and scipy before it starts the nodes).
 PARTS = {
-    "touch4d.bus.cli": ("launch", "topic", "node", "bus"),
-    "touch4d.geometry.cli": ("shape", "scene"),
-    "touch4d.tactile.cli": ("tactile", "hand"),
-    "touch4d.render.cli": ("render",),
-    "touch4d.log.cli": ("record", "replay", "log"),
-    "touch4d.boards.cli": ("glove",),
-    "touch4d.defaults.cli": ("config",),
-    "touch4d.study.cli": ("study",),
-    "touch4d.physics.cli": ("physics",),
+    "touch4d.commands.bus": ("launch", "topic", "node", "bus"),
+    "touch4d.commands.geometry": ("shape", "scene"),
+    "touch4d.commands.tactile": ("tactile", "hand"),
+    "touch4d.commands.render": ("render",),
+    "touch4d.commands.log": ("record", "replay", "log"),
+    "touch4d.commands.boards": ("glove",),
+    "touch4d.commands.defaults": ("config",),
+    "touch4d.commands.study": ("study",),
+    "touch4d.commands.physics": ("physics",),
 }
 
 

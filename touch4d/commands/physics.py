@@ -11,7 +11,7 @@ import numpy as np
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-from .bivector import to_planes
+from touch4d.physics.bivector import to_planes
 
 
 def register(subparsers) -> None:
@@ -79,8 +79,8 @@ def _seconds(text: str) -> float:
 def run_simulate(args) -> int:
     from touch4d.geometry.scene import load_scene
 
-    from .config import load_physics
-    from .world import build_world, run
+    from touch4d.physics.config import load_physics
+    from touch4d.physics.world import build_world, run
 
     path = resolve_path(args.scene, COMMAND_LINE, key="SCENE", what="scene file")
     scene = load_scene(path)
@@ -108,7 +108,7 @@ def run_simulate(args) -> int:
 
 def simulation_report(world, state) -> dict:
     """The final state by object name, and the scene's energy and angular momentum (degrees for rates)."""
-    from .world import angular_momentum, angular_velocity, energy, object_positions
+    from touch4d.physics.world import angular_momentum, angular_velocity, energy, object_positions
 
     positions = object_positions(world, state)
     rates = np.degrees(angular_velocity(world, state))
@@ -142,13 +142,13 @@ def draw_frames(scene, world, shots, args) -> None:
     from PIL import Image, ImageDraw
 
     from touch4d.render.camera import OrbitCamera, parse_camera
-    from touch4d.render.cli import parse_size
+    from touch4d.commands.render import parse_size
     from touch4d.render.frame import Style
     from touch4d.render.offscreen import OffscreenRenderer
     from touch4d.render.view import SceneView, Show
     from touch4d.tactile.glove import load_glove
 
-    from .world import object_positions
+    from touch4d.physics.world import object_positions
 
     size = parse_size(args.frame_size)
     camera = parse_camera(args.camera, OrbitCamera())
@@ -183,8 +183,8 @@ def run_replay(args) -> int:
     from touch4d.tracking.calibration import load_calibration
     from touch4d.tracking.scene_control import ControlConfig
 
-    from .config import load_physics
-    from .session import DEFAULT_BUTTONS, entry_from_map, replay, split_buttons
+    from touch4d.physics.config import load_physics
+    from touch4d.physics.session import DEFAULT_BUTTONS, entry_from_map, replay, split_buttons
 
     log = resolve_path(args.log, COMMAND_LINE, key="LOG", what="log file")
     journal, states, start = [], [], None

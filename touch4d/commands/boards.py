@@ -36,7 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--print-period", type=float, default=1.0, help="seconds between status lines")
     p.set_defaults(func=cmd_emulate)
 
-    from touch4d.study.cli.planning import register_glove_design   # a layout chosen by what it tells
+    from touch4d.commands.study.planning import register_glove_design   # a layout chosen by what it tells
 
     register_glove_design(sub)
 

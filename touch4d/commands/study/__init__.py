@@ -16,7 +16,7 @@ from .common import probability as _probability
 
 
 def register(subparsers) -> None:
-    from ..psychophysics import HUMAN_NOISE   # the observers' one default touch noise
+    from touch4d.study.psychophysics import HUMAN_NOISE   # the observers' one default touch noise
 
     study = subparsers.add_parser("study", help="studies with many participants: check, plan, run, analyze",
                                   description="Measure what touch adds to vision: study files, participants' "
@@ -177,21 +177,21 @@ class _Later:
 
 def _study(path):
     """The study a command was given: a file, or a packaged study's name (`design.study_file_path`)."""
-    from ..design import load_study
+    from touch4d.study.design import load_study
 
     return load_study(path or None)
 
 
 def _study_path(path):
     """The file of the study a command was given (`design.study_file_path`, as `_study` reads it)."""
-    from ..design import study_file_path
+    from touch4d.study.design import study_file_path
 
     return study_file_path(path)
 
 
 def run_check(args) -> int:
-    from ..design import session_minutes, study_text_warnings
-    from ..plan import order_table, plan_session, quick_plan
+    from touch4d.study.design import session_minutes, study_text_warnings
+    from touch4d.study.plan import order_table, plan_session, quick_plan
 
     study = _study(args.file)
     trials = plan_session(study, "P01")
@@ -214,7 +214,7 @@ def run_check(args) -> int:
     if args.glove:
         from touch4d.tactile import load_glove
 
-        from ..infotransfer import glove_task_warnings
+        from touch4d.study.infotransfer import glove_task_warnings
 
         glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file"))
         warnings += glove_task_warnings(glove, study)
@@ -226,7 +226,7 @@ def run_check(args) -> int:
 def run_plan(args) -> int:
     import msgspec
 
-    from ..plan import condition_order, order_note, order_table, plan_session, quick_plan
+    from touch4d.study.plan import condition_order, order_note, order_table, plan_session, quick_plan
 
     study = _study(args.study)
     row = _row(study, args.participant, args.order)
@@ -256,7 +256,7 @@ def run_plan(args) -> int:
 
 def _row(study, participant: str, order: int | None) -> int:
     """The counterbalancing row (from 0) of a participant, `--order` checked against the study's rows."""
-    from ..plan import order_table, participant_index
+    from touch4d.study.plan import order_table, participant_index
 
     rows = len(order_table(study))
     if order is not None and order > rows:
@@ -268,7 +268,7 @@ def run_run(args) -> int:
     if args.offline and args.items:
         raise ConfigError(COMMAND_LINE, args.items[0], "no launch overrides with --offline (no stack runs)")
     if args.participant is not None:   # a folder under --out: never outside it
-        from ..store import PARTICIPANT_ID_RULE, check_participant_id
+        from touch4d.study.store import PARTICIPANT_ID_RULE, check_participant_id
         try:
             check_participant_id(args.participant)
         except ValueError:
@@ -289,11 +289,11 @@ def run_offline(args) -> int:
     """Simulated participants on the library alone (touch4d.study.simulate)."""
     from touch4d.tactile import load_glove
 
-    from ..lock import claim_session
-    from ..manifest import MANIFEST, prepare_out, sha256_file
-    from ..observer import every_sample_glove
-    from ..plan import participant_ids
-    from ..store import session_dir
+    from touch4d.study.lock import claim_session
+    from touch4d.study.manifest import MANIFEST, prepare_out, sha256_file
+    from touch4d.study.observer import every_sample_glove
+    from touch4d.study.plan import participant_ids
+    from touch4d.study.store import session_dir
 
     study = _study(args.study)
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
@@ -314,8 +314,8 @@ def run_offline(args) -> int:
 
 
 def _simulate_offline(args, study, glove, participants, settings) -> int:
-    from ..observer import ModelObserver
-    from ..simulate import simulate_study
+    from touch4d.study.observer import ModelObserver
+    from touch4d.study.simulate import simulate_study
 
     started = time.perf_counter()
     # --quick checks every cell quickly: a lighter-trained observer (its accuracy is not the point)
@@ -338,11 +338,11 @@ def run_full_stack(args) -> int:
             raise
         raise Unavailable("running a study through the full stack needs touch4d.study.session; "
                           "--simulate --offline runs simulated participants without it") from None
-    from ..design import study_file_path
-    from ..lock import claim_session
-    from ..manifest import prepare_out, read_manifest
-    from ..plan import condition_order, order_note, participant_ids
-    from ..store import session_dir
+    from touch4d.study.design import study_file_path
+    from touch4d.study.lock import claim_session
+    from touch4d.study.manifest import prepare_out, read_manifest
+    from touch4d.study.plan import condition_order, order_note, participant_ids
+    from touch4d.study.store import session_dir
 
     study_path = study_file_path(args.study)
     study = _study(study_path)
@@ -380,7 +380,7 @@ def run_full_stack(args) -> int:
 
 def _settings(study, quick: bool, simulation: dict | None) -> dict:
     """What this run's sessions must share with those already in --out (manifest.run_settings)."""
-    from ..manifest import sha256_file
+    from touch4d.study.manifest import sha256_file
 
     return {"study": study.name, "study_sha256": sha256_file(study.path), "quick": bool(quick),
             "simulation": simulation}
@@ -389,9 +389,9 @@ def _settings(study, quick: bool, simulation: dict | None) -> dict:
 def run_transfer(args) -> int:
     from touch4d.tactile import load_glove
 
-    from ..infotransfer import predicted_transfer
-    from ..observer import every_sample_glove
-    from ..psychophysics import THENAR_RATIO
+    from touch4d.study.infotransfer import predicted_transfer
+    from touch4d.study.observer import every_sample_glove
+    from touch4d.study.psychophysics import THENAR_RATIO
 
     study = _study(args.study)
     files = [resolve_path(g, COMMAND_LINE, key="--glove", what="glove file") for g in args.glove] if args.glove \
@@ -474,9 +474,9 @@ def transfer_table(results: list[dict], named: bool = False) -> str:
 
 
 def run_analyze(args) -> int:
-    from ..analysis import analyze, load, report_html, summary_text
-    from ..manifest import check_one_study
-    from ..table import find_tables
+    from touch4d.study.analysis import analyze, load, report_html, summary_text
+    from touch4d.study.manifest import check_one_study
+    from touch4d.study.table import find_tables
 
     check_one_study(find_tables(args.dir))    # one study, run alike: never two mixed in one analysis
     data = load(args.dir)
@@ -488,7 +488,7 @@ def run_analyze(args) -> int:
         report.write_text(report_html(result, data, title=f"touch4d study: {args.dir}"))
         result["report"] = str(report)
     if args.plot:
-        from ..analysis import figure_summary
+        from touch4d.study.analysis import figure_summary
 
         figure_summary(result).savefig(args.plot, dpi=110)
         result["plot"] = str(args.plot)

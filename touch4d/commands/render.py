@@ -12,8 +12,8 @@ import numpy as np
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-from .camera import OrbitCamera, parse_camera
-from .frame import Style
+from touch4d.render.camera import OrbitCamera, parse_camera
+from touch4d.render.frame import Style
 
 
 def register(subparsers) -> None:
@@ -77,9 +77,9 @@ def _render(args) -> int:
     from touch4d.tactile.engine import TactileEngine
     from touch4d.tactile.glove import load_glove
 
-    from .context import save_png
-    from .offscreen import OffscreenRenderer
-    from .view import SceneView, Show
+    from touch4d.render.context import save_png
+    from touch4d.render.offscreen import OffscreenRenderer
+    from touch4d.render.view import SceneView, Show
 
     size = parse_size(args.size)
     camera = parse_camera(args.camera, OrbitCamera())

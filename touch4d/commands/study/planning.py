@@ -115,9 +115,9 @@ def register_glove_design(sub) -> None:
 
 
 def run_glove_design(args) -> int:
-    from ..glovedesign import candidates_in, design_gloves, summary_text, write_glove
-    from ..infotransfer import POSITIONS, SCENES
-    from ..psychophysics import HUMAN_NOISE
+    from touch4d.study.glovedesign import candidates_in, design_gloves, summary_text, write_glove
+    from touch4d.study.infotransfer import POSITIONS, SCENES
+    from touch4d.study.psychophysics import HUMAN_NOISE
 
     study = _study(args.study)
     glove = _glove(args.glove)
@@ -152,7 +152,7 @@ def written_transfer(path, study, tasks, *, noise: float, seed: int) -> dict:
     defaults: `infotransfer.SCENES` x `POSITIONS` examples), as it would print them."""
     from touch4d.tactile import load_glove
 
-    from ..infotransfer import predicted_transfer
+    from touch4d.study.infotransfer import predicted_transfer
 
     glove = load_glove(path)
     return {task: predicted_transfer(glove, study, task, noise=noise, seed=seed)["bits"] for task in tasks}
@@ -167,7 +167,7 @@ def add_cluster_options(parser) -> None:
 
 
 def cluster_of(args):
-    from ..fanout import Cluster
+    from touch4d.study.fanout import Cluster
 
     return Cluster(workers=args.workers, scheduler=args.scheduler)
 
@@ -175,7 +175,7 @@ def cluster_of(args):
 def _study(path):
     """The study a command was given: a file, or a packaged study's name (`design.load_study`, which
     resolves it by `study_file_path` as every study command does)."""
-    from ..design import load_study
+    from touch4d.study.design import load_study
 
     return load_study(path or None)
 
@@ -200,8 +200,8 @@ def read_fit(path) -> dict:
 
 
 def run_power(args) -> int:
-    from ..observer import ModelObserver
-    from ..power import Population, PowerSetup, power_curves, report_html, summary_text
+    from touch4d.study.observer import ModelObserver
+    from touch4d.study.power import Population, PowerSetup, power_curves, report_html, summary_text
 
     study = _study(args.study)
     fit = read_fit(args.fit) if args.fit else None
@@ -238,7 +238,7 @@ def run_power(args) -> int:
 
 def pilot_manifests(where) -> list[tuple[Path, dict]]:
     """Each session's manifest.json of a pilot (those that read as a JSON object) with its path."""
-    from ..table import find_tables
+    from touch4d.study.table import find_tables
 
     out = []
     for table in find_tables(where):
@@ -255,7 +255,7 @@ def pilot_manifests(where) -> list[tuple[Path, dict]]:
 def pilot_study(where, given):
     """The study of a pilot: `given`, or the study file its sessions' manifest.json names; a pilot of
     another study than `given` is a ConfigError."""
-    from ..design import load_study
+    from touch4d.study.design import load_study
 
     named = {str(data["study"]): data.get("study_file") for _, data in pilot_manifests(where) if "study" in data}
     if given:
@@ -276,7 +276,7 @@ EVERY_SAMPLE = " (a motor at every sample)"      # observer.every_sample_glove's
 def glove_record(glove) -> dict:
     """What a result records of the glove it was computed with: its file, the file's sha256, and
     whether it was given a motor at every sample (`every_sample_glove`)."""
-    from ..manifest import sha256_file
+    from touch4d.study.manifest import sha256_file
 
     base = str(glove.path).removesuffix(EVERY_SAMPLE)
     return {"glove": str(glove.path), "glove_sha256": sha256_file(base) if Path(base).is_file() else None,
@@ -289,7 +289,7 @@ def pilot_glove(where, given, differs_ok: bool = False):
     (then a warning). Sessions that name no glove: `given`, or the default, with a note."""
     import sys
 
-    from ..observer import every_sample_glove
+    from touch4d.study.observer import every_sample_glove
 
     ran = {}
     for manifest, data in pilot_manifests(where):
@@ -331,7 +331,7 @@ def _glove_at(path, manifest):
 
 
 def _sha256_or_none(path):
-    from ..manifest import sha256_file
+    from touch4d.study.manifest import sha256_file
 
     return sha256_file(path) if Path(path).is_file() else None
 
@@ -357,10 +357,10 @@ def check_fit_glove(fit: dict, glove, path, differs_ok: bool = False) -> None:
 
 
 def run_fit(args) -> int:
-    from ..analysis import load
-    from ..observer import ModelObserver
-    from ..pilotfit import accuracy_surface, fit_pilot, summary_text
-    from ..psychophysics import HUMAN_NOISE
+    from touch4d.study.analysis import load
+    from touch4d.study.observer import ModelObserver
+    from touch4d.study.pilotfit import accuracy_surface, fit_pilot, summary_text
+    from touch4d.study.psychophysics import HUMAN_NOISE
 
     data = load(args.dir)
     if len(data) == 0:

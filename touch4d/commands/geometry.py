@@ -11,11 +11,11 @@ from touch4d import schema
 from touch4d.configfile import COMMAND_LINE, resolve_path
 from touch4d.errors import ConfigError
 
-from .polytope import GeometryError
-from .projection import project
-from .scene import load_scene
-from .section import cross_section, w_extent
-from .shapes import get_shape, list_shapes, shape_params
+from touch4d.geometry.polytope import GeometryError
+from touch4d.geometry.projection import project
+from touch4d.geometry.scene import load_scene
+from touch4d.geometry.section import cross_section, w_extent
+from touch4d.geometry.shapes import get_shape, list_shapes, shape_params
 
 
 def register(subparsers) -> None:

@@ -17,9 +17,9 @@ from touch4d.errors import ConfigError
 from touch4d.geometry.scene import load_scene
 from touch4d.hands import FINGER_NAMES, HandShape
 
-from .glove import load_glove
-from .skeleton import JointsError
-from .stimulus import Stimulus, compute_joint_stimulus, compute_stimulus
+from touch4d.tactile.glove import load_glove
+from touch4d.tactile.skeleton import JointsError
+from touch4d.tactile.stimulus import Stimulus, compute_joint_stimulus, compute_stimulus
 
 
 class JointsFile(msgspec.Struct, forbid_unknown_fields=True):
@@ -79,7 +79,7 @@ def register(subparsers) -> None:
 
 
 def run_joints(args) -> int:
-    from .pose import check_pose
+    from touch4d.tactile.pose import check_pose
     glove = load_glove(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file") if args.glove else None)
     if args.flat and (args.curl or args.spread):
         raise ConfigError(COMMAND_LINE, "--flat", "straight fingers, without --curl or --spread")

@@ -114,7 +114,7 @@ def _warn_damage(path: str, problems: list[str], chunks: int, messages: int, pre
 def cmd_record(args) -> int:
     from touch4d.bus.config import resolve_bus_config
 
-    from .recorder import Recorder
+    from touch4d.log.recorder import Recorder
 
     if args.duration is not None and not 0 < args.duration < float("inf"):
         raise Touch4dError(f"record: --duration must be a finite number of seconds > 0, got {args.duration}")
@@ -140,8 +140,8 @@ def cmd_record(args) -> int:
 def cmd_replay(args) -> int:
     from touch4d.bus.config import resolve_bus_config
 
-    from .reader import LogReader
-    from .replay import BusSender, Plan, Replayer, ReplayOptions, parse_remap
+    from touch4d.log.reader import LogReader
+    from touch4d.log.replay import BusSender, Plan, Replayer, ReplayOptions, parse_remap
 
     try:
         remap = parse_remap(args.remap)
@@ -194,7 +194,7 @@ def _progress(plan, options):
 
 
 def cmd_info(args) -> int:
-    from .summary import format_summary, summarize
+    from touch4d.log.summary import format_summary, summarize
 
     summary = summarize(args.file, recover=args.recover)
     print(json.dumps(summary.to_dict(), indent=2) if args.json else format_summary(summary), flush=True)
@@ -203,8 +203,8 @@ def cmd_info(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from .export import export_csv, export_foxglove, export_json
-    from .reader import LogReader
+    from touch4d.log.export import export_csv, export_foxglove, export_json
+    from touch4d.log.reader import LogReader
 
     reader = LogReader(args.file, recover=args.recover)
     if args.format == "foxglove":
@@ -234,7 +234,7 @@ def cmd_export(args) -> int:
 
 
 def cmd_recover(args) -> int:
-    from .recover import recover_log
+    from touch4d.log.recover import recover_log
 
     result = recover_log(args.file, args.output)
     _warn_damage(args.file, result.problems, result.skipped_chunks, result.skipped_messages)
