@@ -16,14 +16,35 @@ from .common import probability as _probability
 
 
 def register(subparsers) -> None:
-    from touch4d.study.psychophysics import HUMAN_NOISE   # the observers' one default touch noise
-
+    """`touch4d study` and its sub-commands (those before recruiting: .planning)."""
     study = subparsers.add_parser("study", help="studies with many participants: check, plan, run, analyze",
                                   description="Measure what touch adds to vision: study files, participants' "
                                               "plans, simulated participants and the analysis.")
     sub = study.add_subparsers(dest="study_command", metavar="SUBCOMMAND")
     study.set_defaults(func=lambda args: (study.print_help(), 2)[1])
+    for add in (_add_check, _add_plan, _add_run, _add_serve, _add_invite, _add_transfer, _add_analyze):
+        add(sub)
 
+    from . import planning     # power and fit: before recruiting
+
+    planning.register(sub, count=_count, count0=_count0, probability=_probability)
+
+
+class _Later:
+    """A module's constant named in a help text, read only when the help is printed (its module is
+    slow to import; argparse formats `%(name)s` from the action's attributes)."""
+
+    def __init__(self, module: str, name: str):
+        self.module, self.name = module, name
+
+    def __str__(self) -> str:
+        return str(getattr(importlib.import_module(self.module), self.name))
+
+
+
+
+def _add_check(sub) -> None:
+    """The parser of `study check`."""
     check = sub.add_parser("check", help="check a study file and summarise it",
                            description="Read a study file (and every scene it names); print what a session holds.")
     check.add_argument("file", metavar="FILE", help="study file (YAML), e.g. config/studies/paper.yaml, or its name (paper)")
@@ -31,6 +52,9 @@ def register(subparsers) -> None:
                        "(its predicted bits, as study transfer --glove, under a tenth of the task's)")
     check.set_defaults(func=run_check)
 
+
+def _add_plan(sub) -> None:
+    """The parser of `study plan`."""
     plan = sub.add_parser("plan", help="one participant's trials, in order",
                           description="The condition order and every trial of a participant's session, from the "
                                       "study and the participant id alone (P01, P02 ... take the counterbalancing "
@@ -41,6 +65,11 @@ def register(subparsers) -> None:
     plan.add_argument("--order", type=_count, metavar="N", help="counterbalancing row N (from 1) instead of the id's")
     plan.add_argument("--json", action="store_true", help="print JSON (a stable interface for scripts)")
     plan.set_defaults(func=run_plan)
+
+
+def _add_run(sub) -> None:
+    """The parser of `study run`."""
+    from touch4d.study.psychophysics import HUMAN_NOISE   # the observers' one default touch noise
 
     run = sub.add_parser("run", help="run a study: simulated participants, or a participant through the stack",
                          description="--simulate --participants N: N model observers (P01 ...) answer every "
@@ -79,6 +108,9 @@ def register(subparsers) -> None:
                      help="between-participant spread of the noise, sd of its log (default 0.25)")
     run.set_defaults(func=run_run)
 
+
+def _add_serve(sub) -> None:
+    """The parser of `study serve`."""
     serve = sub.add_parser("serve", help="a study server: participants join by a link, many at once",
                            description="Participants join from their own headset's browser by a link "
                                        "(`touch4d study invite`); each gets a stack of their own under their "
@@ -110,6 +142,9 @@ def register(subparsers) -> None:
                        "(with its haptic level): pose -> pulse inside the server (bench/bench_serve.py)")
     serve.set_defaults(func=run_serve)
 
+
+def _add_invite(sub) -> None:
+    """The parser of `study invite`."""
     invite = sub.add_parser("invite", help="a participant's link to a served study (a new token each time)",
                             description="Prints the link (and a QR code) for participant ID of the study "
                                         "served with --out DIR; a second invite replaces the first link (the browsers "
@@ -122,6 +157,11 @@ def register(subparsers) -> None:
     invite.add_argument("--revoke", action="store_true", help="revoke the participant's link instead")
     invite.add_argument("--no-qr", action="store_true", help="the link only")
     invite.set_defaults(func=run_invite)
+
+
+def _add_transfer(sub) -> None:
+    """The parser of `study transfer`."""
+    from touch4d.study.psychophysics import HUMAN_NOISE   # the observers' one default touch noise
 
     transfer = sub.add_parser("transfer", help="bits one touch tells about each task's stimuli, with a glove",
                               description="Before recruiting anyone: the information transferred (bits, "
@@ -145,6 +185,9 @@ def register(subparsers) -> None:
     transfer.add_argument("--json", action="store_true", help="print JSON")
     transfer.set_defaults(func=run_transfer)
 
+
+def _add_analyze(sub) -> None:
+    """The parser of `study analyze`."""
     analyze = sub.add_parser("analyze", help="analyse a study's trials (accuracy, times, psychometric fit, tests)",
                              description="DIR holds session folders, each with trials.csv (or is one, or is a "
                                          "trials.csv). Prints a summary (or JSON) and writes an HTML report.")
@@ -158,21 +201,6 @@ def register(subparsers) -> None:
                          help="bootstrap resamples for the psychometric intervals (default 200; 0: none)")
     analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
     analyze.set_defaults(func=run_analyze)
-
-    from . import planning     # power and fit: before recruiting
-
-    planning.register(sub, count=_count, count0=_count0, probability=_probability)
-
-
-class _Later:
-    """A module's constant named in a help text, read only when the help is printed (its module is
-    slow to import; argparse formats `%(name)s` from the action's attributes)."""
-
-    def __init__(self, module: str, name: str):
-        self.module, self.name = module, name
-
-    def __str__(self) -> str:
-        return str(getattr(importlib.import_module(self.module), self.name))
 
 
 def _study(path):
