@@ -14,7 +14,10 @@ page played. Per mode:
                     time the touch takes on the page's thread per frame (issuing the pass, reading
                     back the previous one, eq. 1-3): its ratio to the node mode's frame is the cost.
 
-    .venv/bin/python bench/bench_touch.py [--moves 30] [--size 320x180]
+Each at the loopback's latency and at an emulated network latency (Chromium's emulation of the
+page's connection, `--rtt`): the page's own touch does not wait for the network, the node's does.
+
+    .venv/bin/python bench/bench_touch.py [--moves 30] [--size 320x180] [--rtt 0 80]
 """
 from __future__ import annotations
 
@@ -43,7 +46,7 @@ RECORD_PULSES = """() => {
 NOW = "performance.timeOrigin + performance.now()"
 
 
-def run_mode(browser, mode: str, moves: int, size) -> dict:
+def run_mode(browser, mode: str, moves: int, size, rtt_ms: float = 0.0) -> dict:
     port = free_port()
     args = ["launch/quest.yaml", "monitor:=none", f"tracker.port:={port}", "tracker.save_calibration:=false",
             f"tracker.touch:={mode}", f"tactile.motors:={'true' if mode == 'node' else 'false'}"]
@@ -51,6 +54,11 @@ def run_mode(browser, mode: str, moves: int, size) -> dict:
         run.wait_ready(60)
         run.wait_for_line("WebXR page", timeout=60)
         page = headset_page(browser, f"http://127.0.0.1:{port}/", *size)
+        if rtt_ms:   # Chromium's own network emulation: the page's WebSocket messages delayed
+            cdp = page.context.new_cdp_session(page)
+            cdp.send("Network.enable")
+            cdp.send("Network.emulateNetworkConditions", {"offline": False, "latency": rtt_ms,
+                                                          "downloadThroughput": -1, "uploadThroughput": -1})
         try:
             enter_vr(page)
             page.evaluate("xr.position.set(0, 1.5, 0.8); xr.quaternion.set(0, 1, 0, 0)")   # the screen out of view
@@ -89,22 +97,29 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--moves", type=int, default=30)
     parser.add_argument("--size", default="320x180")
+    parser.add_argument("--rtt", type=float, nargs="+", default=[0.0, 80.0],
+                        help="network latencies to emulate (ms, Chromium's emulation of the page's connection)")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     with chromium() as browser:
-        results = {mode: run_mode(browser, mode, args.moves, size) for mode in ("node", "page")}
-    print(f"device: {results['page']['gpu']} (software WebGL2: SwiftShader on the CPU, not a headset's GPU), "
+        runs = {rtt: {mode: run_mode(browser, mode, args.moves, size, rtt) for mode in ("node", "page")}
+                for rtt in args.rtt}
+    first = next(iter(runs.values()))
+    print(f"device: {first['page']['gpu']} (software WebGL2: SwiftShader on the CPU, not a headset's GPU), "
           f"{os.cpu_count()} cores; page {size[0]}x{size[1]}, the screen out of view")
-    for mode, r in results.items():
-        lat = r["latency"]
-        print(f"  touch: {mode:4s}  set -> pulse p50 {np.percentile(lat, 50):6.1f} ms  p95 {np.percentile(lat, 95):6.1f} ms "
-              f"({len(lat)} of {r['sets']} moves)   frame {r['frame_ms']:5.1f} ms"
-              + (f"   touch on the page's thread {r['touch_ms']:.2f} ms/frame" if mode == "page" else ""))
-    node, page = results["node"], results["page"]
-    print(f"  ratio page / node: set -> pulse p50 {np.percentile(page['latency'], 50) / np.percentile(node['latency'], 50):.2f}x"
-          f"   frame {page['frame_ms'] / node['frame_ms']:.2f}x   touch's own time / node frame "
-          f"{page['touch_ms'] / node['frame_ms']:.3f}")
+    for rtt, results in runs.items():
+        print(f"emulated network latency {rtt:.0f} ms:")
+        for mode, r in results.items():
+            lat = r["latency"]
+            print(f"  touch: {mode:4s}  set -> pulse p50 {np.percentile(lat, 50):6.1f} ms  p95 "
+                  f"{np.percentile(lat, 95):6.1f} ms ({len(lat)} of {r['sets']} moves)   frame {r['frame_ms']:5.1f} ms"
+                  + (f"   touch on the page's thread {r['touch_ms']:.2f} ms/frame" if mode == "page" else ""))
+        node, page = results["node"], results["page"]
+        print(f"  ratio page / node: set -> pulse p50 "
+              f"{np.percentile(page['latency'], 50) / np.percentile(node['latency'], 50):.2f}x   frame "
+              f"{page['frame_ms'] / node['frame_ms']:.2f}x   touch's own time / node frame "
+              f"{page['touch_ms'] / node['frame_ms']:.3f}")
     print(f"load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
