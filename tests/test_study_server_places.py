@@ -16,7 +16,7 @@ from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
 from touch4d.study.participation import Life, State
 from touch4d.web.invites import Invites
-from touch4d.web.studyserver import Participant, StudyServer, _page_port
+from touch4d.web.studyserver import Participant, ServeOptions, StudyServer, _page_port
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -24,7 +24,7 @@ STUDY = "config/studies/paper.yaml"
 
 
 def _server(out, **kw) -> StudyServer:
-    return StudyServer(load_study(STUDY), STUDY, out, port=0, **kw)
+    return StudyServer(load_study(STUDY), STUDY, out, ServeOptions(port=0, **kw))
 
 
 class SleepStacks:

@@ -41,6 +41,7 @@ from typing import Callable
 from urllib.parse import quote
 
 import aiohttp
+import msgspec
 from aiohttp import web
 
 from touch4d.atomic import write_atomic
@@ -183,37 +184,52 @@ class Participant:
     vibration: str | None = None       # what its welcome page found: headset, gamepad, none (None: not told)
 
 
+class ServeOptions(msgspec.Struct, kw_only=True, frozen=True):
+    """How a study is served (`touch4d study serve`'s flags), declared once."""
+
+    host: str = "127.0.0.1"
+    port: int = 8095                         # 0: any free one
+    max_participants: int | None = None      # None: default_max_participants()
+    public_url: str | None = None            # a reverse proxy's address (https: Secure cookies)
+    leave_after_s: float = 30.0              # a participant without a page this long has left
+    quick: bool = False                      # one repetition per task x condition cell, no practice
+    secure: bool | None = None               # Secure cookies (None: from public_url's scheme)
+    overrides: tuple[str, ...] = ()          # each stack's launch overrides
+    page_grace_s: float = PAGE_GRACE_S       # after a join, its page connects within this
+    wire_trace: Path | None = None           # a CSV of when each page input arrives and each frame leaves
+    launch: str = LAUNCH                     # each participant's stack
+    per_process: int = PER_PROCESS           # participants' stacks per container process
+
+
 class StudyServer:
     """The server; `run()` serves until SIGINT/SIGTERM (or `stop()`)."""
 
-    def __init__(self, study: Study, study_path: Path, out: Path, *, host: str = "127.0.0.1", port: int = 8095,
-                 max_participants: int | None = None, public_url: str | None = None, leave_after_s: float = 30.0,
-                 quick: bool = False, secure: bool | None = None, overrides: list[str] = (),
-                 page_grace_s: float = PAGE_GRACE_S, wire_trace: Path | None = None, launch: str = LAUNCH,
-                 per_process: int = PER_PROCESS):
+    def __init__(self, study: Study, study_path: Path, out: Path, options: ServeOptions | None = None):
+        o = ServeOptions() if options is None else options
+        self.options = o
         self.study, self.study_path, self.out = study, Path(study_path), Path(out)
-        self.host, self.port = host, port
-        self.max_participants = default_max_participants() if max_participants is None else max_participants
+        self.host, self.port = o.host, o.port
+        self.max_participants = default_max_participants() if o.max_participants is None else o.max_participants
         self._cap_note = (f" ({PARTICIPANTS_PER_CORE} per core here; --max-participants N to change)"
-                          if max_participants is None else "")
-        self.public_url = public_url
-        self.leave_after_s, self.quick, self.overrides = leave_after_s, quick, list(overrides)
-        self.page_grace_s = page_grace_s
-        self.wire_trace = wire_trace
-        self.launch = launch   # each participant's stack
-        self.per_process = per_process   # participants' stacks per process (touch4d.bus.container)
+                          if o.max_participants is None else "")
+        self.public_url = o.public_url
+        self.leave_after_s, self.quick, self.overrides = o.leave_after_s, o.quick, list(o.overrides)
+        self.page_grace_s = o.page_grace_s
+        self.wire_trace = o.wire_trace
+        self.launch = o.launch   # each participant's stack
+        self.per_process = o.per_process   # participants' stacks per process (touch4d.bus.container)
         self.pool: ContainerPool | None = None   # made at the first join
         self.tmp: Path | None = None             # the ready files' folder, while it serves
         self._trace: WireTrace | None = None
         self._splices: set[Splice] = set()     # the pages' WebSockets, spliced to their page servers
         # Cookies marked Secure when participants come over https (a reverse proxy's certificate):
         # this server speaks plain http, on loopback or behind that proxy.
-        self.secure = (public_url or "").startswith("https://") if secure is None else secure
+        self.secure = (o.public_url or "").startswith("https://") if o.secure is None else o.secure
         self.invites = Invites(self.out)
         self.access = Access()
         self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study")
         # the internet's bounds, as the page server's (touch4d.web.hardening); the public name served too
-        self.hardening = Hardening(host, [host_name(public_url)] if public_url else [], headers=STUDY_HEADERS,
+        self.hardening = Hardening(o.host, [host_name(o.public_url)] if o.public_url else [], headers=STUDY_HEADERS,
                                    log=log)
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,

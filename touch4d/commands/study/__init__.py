@@ -446,15 +446,15 @@ def _glove_name(path: str) -> str:
 
 
 def run_serve(args) -> int:
-    from touch4d.web.studyserver import StudyServer
+    from touch4d.web.studyserver import ServeOptions, StudyServer
 
     study_path = _study_path(args.study)
-    server = StudyServer(_study(args.study), study_path, Path(args.out), host=args.host, port=args.port,
-                         max_participants=args.max_participants, public_url=args.public_url,
-                         leave_after_s=args.leave_after, quick=args.quick, overrides=args.items,
-                         wire_trace=Path(args.wire_trace) if args.wire_trace else None,
-                         launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")),
-                         **({"per_process": args.per_process} if args.per_process else {}))
+    options = ServeOptions(host=args.host, port=args.port, max_participants=args.max_participants,
+                           public_url=args.public_url, leave_after_s=args.leave_after, quick=args.quick,
+                           overrides=tuple(args.items), wire_trace=Path(args.wire_trace) if args.wire_trace else None,
+                           launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")),
+                           **({"per_process": args.per_process} if args.per_process else {}))
+    server = StudyServer(_study(args.study), study_path, Path(args.out), options)
     return server.run()
 
 
