@@ -100,9 +100,22 @@ def test_no_two_messages_are_closer_than_max_rate_allows_and_no_gap_is_longer_th
 
 
 def test_a_change_long_after_the_last_message_goes_out_at_once():
-    sent, _ = run([1.3, 1.31, 3.0], 3.01, rate=1.0, max_rate=10.0)
-    np.testing.assert_allclose(sent[:, 0], [0.0, 1.0, 1.3, 1.4, 2.4, 3.0])
+    sent, _ = run([1.3, 1.31, 2.5], 2.51, rate=1.0, max_rate=10.0)
+    np.testing.assert_allclose(sent[:, 0], [0.0, 1.0, 1.3, 1.4, 2.0, 2.5])
     assert sent[:, 1].tolist() == [0, 0, 1, 2, 2, 3]
+
+
+def test_the_steady_beat_goes_on_while_the_state_changes():
+    """Changes every 0.3 s never leave 0.5 s without a message, yet the state goes out again on its own
+    beat: a repeat of the last change (the same counter twice in a row), at each half second."""
+    changes = np.arange(0.15, 4.0, 0.3)
+    sent, _ = run(changes, 4.0, rate=2.0, max_rate=20.0)
+    times, counters = sent[:, 0], sent[:, 1]
+    for beat in np.arange(0.5, 4.0, 0.5):
+        k = np.flatnonzero(np.abs(times - beat) < 1e-9)
+        assert len(k) == 1, (beat, times)
+        assert counters[k[0]] == counters[k[0] - 1]          # a repeat: nothing changed since the one before
+    assert np.diff(times).min() >= 0.05 - 1e-9
 
 
 def test_a_send_that_raises_leaves_the_steady_schedule_running():

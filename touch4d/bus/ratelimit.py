@@ -2,8 +2,9 @@
 
 A change goes out at once, unless the previous message went out under 1/max_rate ago: then it goes out
 when that spacing has passed (the latest state then, so the last change is never lost and a burst of
-changes costs one message). Whenever 1/rate passes without a message the state goes out again, for
-late joiners. No two messages are ever closer than 1/max_rate, the steady one included. Pure timing
+changes costs one message). Every 1/rate, on a steady beat whether or not the state changes, it goes
+out again for late joiners (a repeat: a listener that sees two messages of one revision knows nothing
+changed between). No two messages are ever closer than 1/max_rate, the steady one included. Pure timing
 logic: a clock and a one-shot scheduler are handed in (a node's `call_later`), so it is tested
 without a bus.
 """
@@ -16,7 +17,7 @@ from typing import Any, Callable
 
 class RateLimitedPublisher:
     """Calls `send()` (which publishes the current state) on change at most `max_rate` times a second,
-    and every 1/`rate` s that passes without one; `call_later(delay, callback)` returns something with
+    and on a steady beat every 1/`rate` s; `call_later(delay, callback)` returns something with
     `cancel()` (touch4d.bus.Node.call_later), `clock()` counts seconds (the scheduler's clock)."""
 
     def __init__(self, send: Callable[[], Any], *, rate: float, max_rate: float,
@@ -31,6 +32,7 @@ class RateLimitedPublisher:
         self.clock = clock
         self.last = -math.inf      # when the last message went out (read after sending: its stamp is earlier)
         self.dirty = False         # a change waits for min_period to pass
+        self.next_steady = math.inf   # the steady beat's next time (set by the first message)
         self._wake = None          # the one pending call_later, and when it is due
         self._wake_at = math.inf
 
@@ -58,11 +60,14 @@ class RateLimitedPublisher:
         finally:                   # a send that raised leaves the steady schedule running
             self.last = self.clock()
             self.dirty = False
+            if self.next_steady == math.inf:
+                self.next_steady = self.last + self.period
             self._arm()
 
     def due(self) -> float:
-        """When the next message is due: a waiting change's, or the steady one."""
-        return self.last + (self.min_period if self.dirty else self.period)
+        """When the next message is due: a waiting change's, or the steady one (kept min_period after the last)."""
+        spaced = self.last + self.min_period
+        return spaced if self.dirty else max(self.next_steady, spaced)
 
     def _arm(self) -> None:
         """Keep one wake-up at or before `due()`: an earlier one finds nothing due and re-arms itself (so
@@ -77,7 +82,10 @@ class RateLimitedPublisher:
 
     def _on_wake(self) -> None:
         self._wake, self._wake_at = None, math.inf
-        if self.clock() >= self.due() - 1e-9:   # a waiting change, or the steady re-publish
+        now = self.clock()
+        if now >= self.due() - 1e-9:            # a waiting change, or the steady re-publish
+            if now >= self.next_steady - 1e-9:  # the beat goes on from its own times, not from this one's
+                self.next_steady += self.period * (math.floor((now - self.next_steady) / self.period + 1e-9) + 1)
             self.publish()
         else:
             self._arm()
