@@ -1,7 +1,7 @@
 """Physics node: the scene node with 4D rigid-body physics (`scene:=physics`).
 
 Publishes `scene/state` as the scene node does (the bodies where physics has them, at each tick while
-anything moves, at most `max_rate` times a second, and whenever 1/`rate` s passes without one, for late
+anything moves, at most `max_rate` times a second, and again every 1/`rate` s on a steady beat, for late
 joiners: touch4d.bus.ratelimit) and `physics/contacts` (contact points that
 struck harder than `contact_speed`, and the hand starting a push). Subscribes `hand/pose` (the hand pushes
 what it feels, touch4d.physics.push), `controller/state` (the trigger plus controller motion

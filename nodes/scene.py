@@ -3,7 +3,7 @@
 Subscribes `controller/state` (latest only: motion is measured between the samples it handles, so
 skipping a backlog loses no rotation) and `scene/command` (`load` with a scene file's text replaces
 the whole scene: how a study shows each trial's stimulus). Publishes `scene/state` on every change,
-at most `max_rate` times a second, and again whenever 1/`rate` s passes without one, for late joiners
+at most `max_rate` times a second, and again every 1/`rate` s on a steady beat, for late joiners
 (touch4d.bus.ratelimit). The calibration file is read again when it changes (a headset re-centring
 the screen turns the controller's axes with it).
 """
