@@ -35,13 +35,12 @@ import time
 from importlib import resources
 from pathlib import Path
 from typing import Callable, Iterable
-from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from touch4d.eventloop import new_event_loop
 
-from .access import COOKIE, HOLDER, Access, CookieGate
+from .access import COOKIE, HOLDER, Access, CookieGate, cross_site
 from .hardening import ESCAPED, HEADER_TIMEOUT_S, MAX_PER_ADDRESS, Hardening
 from .inbox import MAX_INPUT_HZ, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
@@ -304,9 +303,9 @@ class PageServer:
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         # A page from another site must not drive the hand through this browser (cross-site
-        # WebSocket hijacking): a browser always sends Origin, and it must be this server.
-        origin = request.headers.get("Origin")
-        if origin is not None and urlsplit(origin).netloc != request.host:
+        # WebSocket hijacking): a browser always sends Origin, and it must be this server (access.cross_site,
+        # the study server's rule too).
+        if cross_site(request):
             self.refused_origin += 1
             return web.Response(status=403, text="touch4d: WebSocket from another origin refused\n")
         if len(self.clients) >= self.max_pages:
