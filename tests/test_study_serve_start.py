@@ -40,13 +40,19 @@ def _stop(proc: subprocess.Popen) -> None:
             continue
 
 
-def test_a_second_server_on_a_served_folder_is_refused_naming_the_first(tmp_path):
+def test_a_served_folder_is_its_owners_a_second_server_is_refused_and_the_glove_is_checked(tmp_path):
+    """One server (started once for three checks, each a server start of a few seconds): its new OUT
+    is 0700; a second `study serve` on it exits 2 naming the first (pid, command), and `serve.json` still
+    names the first's address; and its terminal says which tasks the served glove cannot tell: the
+    stack touches with a held controller (one motor), to which the tilt task's 8 tilts are all but the
+    same (about 0.03 of 3 bits), so only tilt is named."""
     out = tmp_path / "out"
     first = _serve(out, "--port", "0")
     try:
         lines = []
         wait_until(lambda: lines.append(first.stdout.readline()) or "experimenter page:" in lines[-1]
                    or first.poll() is not None, timeout=60)
+        assert oct(out.stat().st_mode & 0o777) == "0o700"
         served = json.loads((out / "serve.json").read_text())
         second = subprocess.run([sys.executable, "-m", "touch4d.cli", "study", "serve", "paper", "--out", str(out),
                                  "--port", "0"], cwd=REPO, capture_output=True, text=True, timeout=60)
@@ -57,6 +63,11 @@ def test_a_second_server_on_a_served_folder_is_refused_naming_the_first(tmp_path
         # the first server's address stands: `study invite` still prints links to a port that listens
         assert json.loads((out / "serve.json").read_text()) == served
         assert first.poll() is None
+        wait_until(lambda: any("warning: task" in line for line in lines) or lines.append(first.stdout.readline())
+                   or first.poll() is not None, timeout=90)
+        warned = [line for line in lines if "warning: task" in line]
+        assert len(warned) == 1 and "task tilt:" in warned[0] and "quest-controller.yaml (1 motor)" in warned[0]
+        assert re.search(r"tells 0\.0\d of 3\.00 bits", warned[0])
     finally:
         _stop(first)
 
@@ -75,16 +86,6 @@ def test_a_busy_port_is_one_line_exit_2_and_leaves_no_folder(tmp_path):
     assert len(said) == 1 and "--port" in said[0] and str(port) in said[0] and "in use" in said[0], proc.stderr
     assert "Unclosed" not in proc.stderr and "Traceback" not in proc.stderr
     assert not out.exists()       # no invites.json, no lock file, no folder
-
-
-def test_a_served_folder_is_its_owners_alone(tmp_path):
-    out = tmp_path / "fresh"
-    server = _serve(out, "--port", "0")
-    try:
-        wait_until(lambda: (out / "serve.json").exists() or server.poll() is not None, timeout=60)
-        assert oct(out.stat().st_mode & 0o777) == "0o700"
-    finally:
-        _stop(server)
 
 
 def test_study_run_keeps_a_participant_inside_out(tmp_path, capsys):
@@ -113,19 +114,3 @@ def test_study_runs_bus_flag_reaches_the_stack(tmp_path, capfd):
     assert code != 0
     err = capfd.readouterr().err
     assert str(bus) in err and "broker.pub_port" in err and str(port) in err
-
-
-def test_serving_a_study_says_which_tasks_its_glove_cannot_tell(tmp_path):
-    """The served stack touches with a held controller (one motor): the tilt task's 8 tilts are all
-    but the same to it (about 0.03 of 3 bits), so the terminal says so, naming the task; the others not."""
-    out = tmp_path / "out"
-    server = _serve(out, "--port", "0")
-    try:
-        lines = []
-        wait_until(lambda: lines.append(server.stdout.readline()) or "warning: task" in lines[-1]
-                   or server.poll() is not None, timeout=90)
-        warned = [line for line in lines if "warning: task" in line]
-        assert len(warned) == 1 and "task tilt:" in warned[0] and "quest-controller.yaml (1 motor)" in warned[0]
-        assert re.search(r"tells 0\.0\d of 3\.00 bits", warned[0])
-    finally:
-        _stop(server)
