@@ -24,6 +24,8 @@ While every motor is off and the boards have been sent so, the refresh slows to 
 A running study gates the motors (`study/trial`, touch4d.study.gate): in a visual trial, between
 trials and after the end every duty is 0; the last gate holds if the study node dies, and
 `study_gate: closed` keeps a motor node (re)started mid-study off until the study's next message.
+The stale command, the watchdog, the stop hold and the gate are one rule set, the driver's `guard`
+(touch4d.hapticoutput.OutputGuard, the one every haptic output obeys).
 
 Trace (for latency benchmarks): a command is traced once every board's last accepted frame carries
 its duties, with the wall-clock time the python-can `send` of the last such frame returned (the
@@ -35,7 +37,6 @@ stat `trace_superseded`; one whose duties were already on the bus needs no frame
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
 import numpy as np
@@ -113,6 +114,7 @@ class MotorsNode(Node):
         self.add_cleanup(self.broker_watch.close)
         self._broker_down = False
         self.gate = StudyGate(p["study_gate"])
+        self.driver.gate(self.gate.motors, time.monotonic())   # the driver's guard holds every duty at 0 while closed
         self.create_subscription("study/trial", StudyTrial, self.on_trial, optional=True)
         self.refresh_timer = self.create_timer(self.driver.refresh_period(time.monotonic()), self.on_refresh)
         self.create_timer(1.0 / p["status_hz"], self.publish_status)
@@ -131,9 +133,7 @@ class MotorsNode(Node):
         age = time.time() - msg.source_stamp   # wall clocks: NTP-synchronised across machines (see above)
         errors = self.driver.errors
         stale, future = errors["stale_command"], errors["command_from_future"]
-        # A study's condition may hold the motors off (a visual trial, between trials): every duty 0.
-        intensity = msg.intensity if self.gate.motors else np.zeros(len(msg.intensity))
-        self.driver.command(msg.names, intensity, now, age=age)
+        self.driver.command(msg.names, msg.intensity, now, age=age)   # the gate is the driver's guard's
         if errors["stale_command"] != stale:
             self._can_warn("stale_command", f"a tactile/motors command {age:.3f} s old (limit "
                                             f"{self.cfg.command_max_age_s} s): every motor off")
@@ -169,14 +169,13 @@ class MotorsNode(Node):
         latest command (if still fresh) goes out now, not at the next one."""
         if not self.gate.update(msg):
             return
+        now = time.monotonic()
+        self.driver.gate(self.gate.motors, now)
         if self.gate.motors:
             last = self._last_command
-            if last is not None and time.time() - last.source_stamp < (self.cfg.command_max_age_s or math.inf):
+            if last is not None and not self.driver.is_stale(time.time() - last.source_stamp):
                 self.on_command(last)
             return
-        now = time.monotonic()
-        names = self.cfg.motor_names
-        self.driver.command(names, np.zeros(len(names)), now, age=0.0)
         self._send_frames(self.driver.outgoing(now), now)
         self._pace(now)
 

@@ -9,10 +9,11 @@ the frames `outgoing` returns. Rules:
   retried. A refresh needs REFRESH_AGE periods without a change, in which 2 x REFRESH_AGE change
   frames could have gone, so in the long run a board gets at most 1 / CHANGE_GAP frames per
   period (`FRAMES_PER_PERIOD`, counted by busload.py); a single period can hold 3;
-- no `tactile/motors` within `watchdog_s` -> every duty 0. A command older than
+- the output's fail-safe rules are touch4d.hapticoutput's `OutputGuard` (`guard`), as for every
+  haptic output: no `tactile/motors` within `watchdog_s` -> every duty 0; a command older than
   `command_max_age_s` when it arrives (its age from its own stamp, so PC and Pi clocks must be
   NTP-synchronised; 0 turns the check off) is stale: it turns every motor off, never on, and does
-  not feed the watchdog;
+  not feed the watchdog; the study's gate closed (`gate`) -> every duty 0;
 - a stop -> NMT STOP at once, every duty 0, commands ignored for `stop_hold_s`, then NMT START
   (a momentary stop); `stop_hold_s` infinite latches the stop until the node restarts;
 - a board heard in a non-operational NMT state is sent START (STOP during a stop hold), at most
@@ -40,6 +41,7 @@ from touch4d.boards.duty import (
     ThermalState, duty_to_levels, intensity_to_duty, levels_to_duty, thermal_deadline, thermal_limit,
 )
 from touch4d.boards.protocol import Frame, GloveProtocol
+from touch4d.hapticoutput import HapticOutput, OutputGuard
 
 RESTART_PERIOD_S = 0.1
 CHANGE_GAP = 0.5     # periods between two change frames of one board
@@ -121,8 +123,8 @@ class DutyFrames:
         return msg
 
 
-class MotorDriver:
-    """Decides the duty frames and NMT commands for every board of one glove."""
+class MotorDriver(HapticOutput):
+    """Decides the duty frames and NMT commands for every board of one glove: the "can" HapticOutput."""
 
     def __init__(self, cfg: GloveCan, protocol: GloveProtocol | None = None, now: float = 0.0):
         self.cfg = cfg
@@ -131,14 +133,12 @@ class MotorDriver:
         self._index = {n: k for k, n in enumerate(self.names)}
         self._names_cache: tuple[tuple, np.ndarray, np.ndarray] | None = None
         m = len(self.names)
-        self.intensity = np.zeros(m)
-        self.duty = np.zeros(m)            # after watchdog, stop and thermal limit: what is to be sent
+        self.duty = np.zeros(m)            # after the guard and the thermal limit: what is to be sent
         self.thermal = ThermalState.initial(m)
-        self.last_command_at: float | None = None
-        self.stop_until = -np.inf
         self._restart_pending = True  # the first refresh tick broadcasts NMT START
         self.watchdog_off = True
         self.errors: Counter = Counter()
+        self.guard = OutputGuard(m, cfg.watchdog_s, cfg.command_max_age_s, cfg.stop_hold_s, counts=self.errors)
         self.period = 1.0 / cfg.refresh_hz
         board_of = np.asarray(cfg.motor_board)
         channel_of = np.asarray(cfg.motor_channel)
@@ -154,10 +154,34 @@ class MotorDriver:
 
     # -- inputs -------------------------------------------------------------------------------
 
+    @property
+    def intensity(self) -> np.ndarray:
+        return self.guard.intensity
+
+    @property
+    def last_command_at(self) -> float | None:
+        return self.guard.last_command_at
+
+    @property
+    def stop_until(self) -> float:
+        return self.guard.stop_until
+
     def is_stale(self, age: float | None) -> bool:
         """Whether a command `age` seconds old (from its own stamp; None: unknown) is too old to use."""
-        limit = self.cfg.command_max_age_s
-        return bool(limit) and age is not None and not age <= limit   # NaN age: stale
+        return self.guard.is_stale(age)
+
+    def play(self, intensity, now: float, age: float | None = None) -> None:
+        """A command in glove file order (HapticOutput)."""
+        self.command(self.names, intensity, now, age)
+
+    def off(self, now: float) -> None:
+        """Every motor off now (HapticOutput): `silence`."""
+        self.silence(now)
+
+    def gate(self, open_: bool, now: float) -> None:
+        """The study's gate: closed, every duty 0 from the next `outgoing`; open, the held command if fresh."""
+        if self.guard.set_gate(open_, now):
+            self._valid_until = -np.inf
 
     def command(self, names, intensity, now: float, age: float | None = None) -> None:
         """A `tactile/motors` command: intensity per named motor (unnamed motors go to 0).
@@ -175,37 +199,23 @@ class MotorDriver:
             dst = np.array([k for _, k in known], dtype=np.int64)
             self._names_cache = (key, src, dst)
         _, src, dst = self._names_cache
-        if now < self.stop_until:
-            self.errors["ignored_during_stop"] += 1
-            return
-        self._valid_until = -np.inf
-        if self.is_stale(age):
-            self.errors["stale_command"] += 1
-            self.intensity = np.zeros(len(self.names))
-            return
-        if self.cfg.command_max_age_s and age is not None and age < -self.cfg.command_max_age_s:
-            self.errors["command_from_future"] += 1   # the sender's clock is ahead: the age check is blind
         values = np.zeros(len(self.names))
         values[dst] = np.asarray(intensity, dtype=np.float64)[src]
-        self.intensity = values
-        self.last_command_at = now
+        if self.guard.command(values, now, age):   # False: a stop's hold ignored it
+            self._valid_until = -np.inf
 
     def silence(self, now: float) -> None:
         """The commands' source is gone (the broker died): every motor off now, as the watchdog
         would after `watchdog_s`; the next command turns them on again."""
-        self.intensity = np.zeros(len(self.names))
-        self.last_command_at = None
+        self.guard.silence()
         self._valid_until = -np.inf
 
     def stop(self, now: float) -> can.Message:
         """Safety stop: every duty 0 and commands ignored for stop_hold_s (inf: until restart);
         returns the NMT STOP to send first."""
-        self.stop_until = now + self.cfg.stop_hold_s
+        self.guard.stop(now)
         self._valid_until = -np.inf
         self._restart_pending = True
-        self.intensity = np.zeros(len(self.names))
-        self.last_command_at = None
-        self.errors["stops"] += 1
         for b in self.boards.values():
             b.last_nmt_at = now
         return self.protocol.nmt("STOP", 0)
@@ -239,20 +249,18 @@ class MotorDriver:
     # -- outputs ------------------------------------------------------------------------------
 
     def update(self, now: float) -> np.ndarray:
-        """The duty of every motor: watchdog, stop, intensity -> duty, thermal limit; computed again
-        only after an input or once time alone can change it."""
+        """The duty of every motor: the guard (stop, gate, stale, watchdog), intensity -> duty, thermal
+        limit; computed again only after an input or once time alone can change it."""
         if now < self._valid_until:
             return self.duty
-        stopped = now < self.stop_until
-        silent = self.last_command_at is None or now - self.last_command_at > self.cfg.watchdog_s
-        if silent and not self.watchdog_off and not stopped:
+        silent = self.guard.silent(now)
+        if silent and not self.watchdog_off and now >= self.stop_until:
             self.errors["watchdog_off"] += 1
         self.watchdog_off = silent
-        wanted = np.zeros(len(self.names)) if (silent or stopped) else intensity_to_duty(self.intensity, self.cfg.duty)
+        held = self.guard.reason(now)
+        wanted = np.zeros(len(self.names)) if held else intensity_to_duty(self.intensity, self.cfg.duty)
         duty, self.thermal = thermal_limit(wanted, self.thermal, now, self.cfg.thermal)
-        self._valid_until = min(self.stop_until if stopped else np.inf,
-                                np.inf if silent else self.last_command_at + self.cfg.watchdog_s,
-                                thermal_deadline(wanted, self.thermal, now, self.cfg.thermal))
+        self._valid_until = min(self.guard.expires(now), thermal_deadline(wanted, self.thermal, now, self.cfg.thermal))
         if not self._levels or not np.array_equal(duty, self.duty):
             motor_levels = duty_to_levels(duty)
             self._levels = {b: self.board_levels(b, motor_levels) for b in self.boards}

@@ -26,7 +26,8 @@ invalid at once and then every `invalid_period_s`, so the tactile node commands 
 
 With `touch: page` the page computes the glove hand's touch itself (static/touch.js) and each input
 carries what it played for its previous pose: published on `tactile/motors` with that pose's time,
-and 0 there while the hand is invalid, no page tracks or the study holds the motors off.
+and 0 there while the hand is invalid, no page tracks, the study holds the motors off or a
+`safety/stop` holds (`on_stop`: the output's guard, touch4d.web.haptics.PageOutput).
 
 A study (`study/trial`): the frame carries its prompt and options and whether objects are drawn
 and touch felt (touch4d.study.gate); a newly pressed answer button (ANSWER_BUTTONS, either controller) or a page's
@@ -48,7 +49,7 @@ from typing import Callable
 import numpy as np
 
 from touch4d.errors import Touch4dError
-from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
+from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState, Stop,
                               StudyResponse, StudyTrial, TactileField)
 from touch4d.render.camera import OrbitCamera
 from touch4d.render.frame import CELL_PALETTE, Style
@@ -62,7 +63,7 @@ from touch4d.tactile.skeleton import OUTLINE_PAIRS, JointsError, ViewHand
 from touch4d.tracking import webxr
 from touch4d.tracking.calibration import Calibration, Placement
 
-from .haptics import HAPTIC_COUNTERS, haptic_level
+from .haptics import HAPTIC_COUNTERS, PageOutput
 from .protocol import PageError, json_members, pack_frame, parse_page_message, printable
 
 log = logging.getLogger(__name__)
@@ -102,6 +103,7 @@ class BridgeConfig:
     invalid_period_s: float = 0.1       # invalid poses repeat this often while no page tracks
     study_gate: str = "open"            # before any study/trial (touch4d.study.gate.StudyGate)
     motors_stale_s: float = 0.06        # tactile/motors older than this: the page's controller plays 0
+    stop_hold_s: float = 1.0            # after a safety/stop the page's output is 0 this long (the glove's default)
     recenter_min_s: float = 1.0         # re-centring at most this often
     save_min_s: float = 5.0             # the calibration file written at most this often
     touch: str = "node"                 # where the touch is computed: "node" (tactile/motors) or "page"
@@ -188,9 +190,7 @@ class WebBridge:
         self._touched = np.zeros(n, np.uint8)
         self._intensity = np.zeros(m, np.float32)
         self._duty = np.zeros(m, np.float32)
-        self._motors_at = -np.inf           # when tactile/motors last arrived (node clock)
         self._haptic = 0.0                  # the page's controller intensity in the last frame
-        self._level = 0.0                   # haptic_level of the last tactile/motors, computed once per message
         self._boards: list = []
         self._dirty = False
         self._frame_at = -np.inf            # when the last frame was made (node clock)
@@ -198,6 +198,9 @@ class WebBridge:
         self._steady: tuple[bytes, dict] | None = None   # the frame's rarely changing part (_steady_part)
         self._frame_count = 0
         self.gate = StudyGate(config.study_gate)
+        # the page's output: the level it plays, behind the fail-safe rules every haptic output obeys
+        self.output = PageOutput(m, config.motors_stale_s, config.stop_hold_s, gate_open=self.gate.motors)
+        self._stop_shown = False            # the frames show a stop's hold (touch_on false) until it ends
 
     # ---- bus -> pages ----------------------------------------------------------------------------
 
@@ -294,10 +297,10 @@ class WebBridge:
     def on_motors(self, msg: MotorCommand) -> None:
         if len(msg.intensity) == len(self._intensity):
             self._intensity = msg.intensity.astype(np.float32)
-            self._level = haptic_level(self._intensity, True)
-            self._motors_at = self.now()
+            now = self.now()
+            self.output.play(self._intensity, now)
             self._dirty = True
-            if (self.haptic(self._motors_at) > 0.0) != (self._haptic > 0.0):
+            if (self.haptic(now) > 0.0) != (self._haptic > 0.0):
                 # a touch starts or ends: its frame now, not up to a tick later (at most as often as
                 # tactile/motors, the hand's rate; a level that only changes waits for the tick)
                 self.broadcast(self.frame(), True)
@@ -313,15 +316,27 @@ class WebBridge:
         """A study's state: the pages show its prompt and hide objects where its condition says so."""
         previous = self.gate.trial
         self.gate.update(msg)
+        self.output.guard.set_gate(self.gate.motors, self.now())
         self._steady = None
         if previous is None or _shown(previous) != _shown(msg):
             self._dirty = True
 
+    def on_stop(self, msg: Stop) -> None:
+        """A `safety/stop`: the page's controller and its own touch (`touch_on`) 0 at once, for
+        `stop_hold_s` (its guard); the frame that says so goes out now."""
+        self.output.guard.stop(self.now())
+        self._stop_shown = True
+        self._steady = None
+        self._dirty = True
+        self.broadcast(self.frame(), True)
+
     def study_fields(self) -> dict:
+        """The study's part of a frame; `touch_on`: the page's own touch allowed (no gate or stop holds it)."""
         trial = self.gate.trial
+        touch_on = self.output.guard.holds_off(self.now()) is None
         if trial is None:
-            return {"draw_objects": self.gate.objects, "touch_on": self.gate.motors, "study": None}
-        return {"draw_objects": self.gate.objects, "touch_on": self.gate.motors,
+            return {"draw_objects": self.gate.objects, "touch_on": touch_on, "study": None}
+        return {"draw_objects": self.gate.objects, "touch_on": touch_on,
                 "study": {"phase": trial.phase, "index": trial.index, "total": trial.total, "prompt": trial.prompt,
                           "options": list(trial.options), "message": trial.message, "practice": trial.practice,
                           "buttons": list(ANSWER_BUTTONS[:len(trial.options)]),
@@ -375,9 +390,8 @@ class WebBridge:
 
     def haptic(self, now: float) -> float:
         """What the page's controller plays now (touch4d.web.haptics): 0 while the study's condition
-        holds the motors off, the hand is invalid or tactile/motors is stale."""
-        fresh = now - self._motors_at <= self.config.motors_stale_s
-        return self._level if self.gate.motors and self._hand_valid and fresh else 0.0
+        holds the motors off, a stop holds, the hand is invalid or tactile/motors is stale."""
+        return self.output.level(now, self._hand_valid)
 
     def tick(self) -> None:
         """Whatever is due now: the frame of a change (its period allowing), the frame that stops the
@@ -385,6 +399,10 @@ class WebBridge:
         store. Called at `next_due`; calling it more often changes nothing."""
         now = self.now()
         if self.haptic(now) != self._haptic:
+            self._dirty = True
+        if self._stop_shown and now >= self.output.guard.stop_until:   # a stop's hold ended: touch_on again
+            self._stop_shown = False
+            self._steady = None
             self._dirty = True
         if now >= self._frame_at + self.config.frame_period_s:
             frame = self.frame()
@@ -399,8 +417,12 @@ class WebBridge:
         (hand invalid), the next invalid pose, a placement's time to be stored. A runner waits for it
         instead of ticking at a rate (a participant's process then wakes for its pages' inputs)."""
         due = self._frame_at + self.config.frame_period_s if self._dirty else math.inf
-        if self._haptic != 0.0:
-            due = min(due, self._motors_at + self.config.motors_stale_s)
+        if self._haptic != 0.0:   # when the guard next turns the level played to 0 (now: it already did)
+            now = self.now()
+            guard = self.output.guard
+            due = min(due, guard.expires(now) if guard.reason(now) is None else -math.inf)
+        if self._stop_shown:   # a stop's hold ends: the frame that allows the page's own touch again
+            due = min(due, self.output.guard.stop_until)
         if self.config.tracker:
             driver = self.driving(self.now())
             if driver is not None:
@@ -587,8 +609,8 @@ class WebBridge:
 
     def _played(self, page: _Page, msg: dict, stamp: float, valid: bool) -> None:
         """touch: page: what the page played for its previous pose goes out on tactile/motors, stamped
-        with that pose's time on this machine's clock; 0 while the hand is invalid or the study holds
-        the motors off (the page plays 0 then too)."""
+        with that pose's time on this machine's clock; 0 while the hand is invalid or the output's guard
+        holds the motors off (the study's gate, a stop; the page plays 0 then too)."""
         played, n = msg["played"], len(self.glove.motor_names)
         if played is None:
             if not valid:
@@ -599,7 +621,7 @@ class WebBridge:
             self._page_warning(page, "played", f"played: expected {n} intensities (one per motor of "
                                                f"{self.glove.path}), got {len(played['intensity'])}")
             return
-        if not (valid and self.gate.motors):
+        if not valid or self.output.guard.holds_off(self.now()):
             self._motors_off(stamp)
             return
         source = stamp + (played["time"] - msg["time"]) / 1000.0
