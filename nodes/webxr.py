@@ -30,7 +30,7 @@ from pathlib import Path
 from touch4d.bus import Node, Param
 from touch4d.errors import ConfigError
 from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
-                              StudyResponse, StudyTrial, TactileField)
+                              Stop, StudyResponse, StudyTrial, TactileField)
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement, save_screen_placement
 from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
@@ -149,7 +149,8 @@ class WebXRNode(Node):
                 ("tactile/field", TactileField, self.bridge.on_field, False),
                 ("tactile/motors", MotorCommand, self.bridge.on_motors, False),
                 ("motors/status", MotorStatus, self.bridge.on_status, False),
-                ("study/trial", StudyTrial, self.bridge.on_trial, True)):
+                ("study/trial", StudyTrial, self.bridge.on_trial, True),
+                ("safety/stop", Stop, self.bridge.on_stop, True)):   # the page's output stops as the glove's
             self.create_subscription(topic, msg_type, self._then_schedule(callback), latest_only=True,
                                      optional=optional)
         self._schedule()

@@ -235,3 +235,38 @@ def test_the_pages_own_touch_is_published_as_0_while_a_stop_holds():
     assert played(5014.0, 0.9) == [0.0]                       # what the page played, held off by the stop
     page.t += 1.0                                              # the hold over: what it plays goes out again
     assert played(6014.0, 0.9) == [0.9]
+
+
+def test_a_stop_on_the_bus_holds_the_page_nodes_output_off():
+    """The webxr node hears `safety/stop` (the glove's motors node does too): its page's output is held
+    at 0 by its guard, as the CAN glove's is."""
+    import threading
+
+    from touch4d.bus import Executor, Node
+    from touch4d.bus.container import Container
+    from touch4d.bus.testing import running_broker, wait_until
+    from touch4d.messages import Stop
+
+    with running_broker() as bus:
+        executor = Executor()
+        box = Container(executor, bus.for_clients())
+        probe = Node("stopper", bus=bus.for_clients())
+        stop = probe.create_publisher("safety/stop", Stop)
+        try:
+            box.load({"load": "A", "namespace": "", "nodes": [{"node": "webxr", "name": "tracker", "params": {
+                "port": 0, "save_calibration": False, "tracker": True}}], "ready_file": ""})
+            node = box.groups["A"].nodes[0]
+            spinning = threading.Thread(target=executor.spin, args=(10.0,))
+            spinning.start()
+            try:
+                guard = node.bridge.output.guard
+                assert guard.holds_off(node.bridge.now()) != "stop"
+                wait_until(lambda: (stop.publish(Stop(reason="test", origin="test")), probe.spin_once(0.05),
+                                    guard.holds_off(node.bridge.now()) == "stop")[-1], timeout=10)
+            finally:
+                executor.request_shutdown()
+                spinning.join()
+        finally:
+            probe.shutdown()
+            box.unload_all()
+            executor.close()
