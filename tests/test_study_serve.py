@@ -158,6 +158,14 @@ def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tm
         assert lab.get(f"{served.url}/experimenter/pause", data=b"participant=P01")[0] == 200
         wait_until(lambda: [p for p in experimenter_view(served)["participants"]
                             if p["participant"] == "P01" and p["phase"] == "paused"], timeout=60)
+    # the terminal said each in a line: the join, the refusal while full, and the shutdown
+    served.thread.join(10)          # its last lines read
+    said = served.text.splitlines()
+    assert any(re.match(r"\d\d:\d\d:\d\d P01 joined: starting its stack .*; 1 of 1 running", line) for line in said)
+    assert any(re.match(r"\d\d:\d\d:\d\d P02: refused, the study is full \(1 of 1 running", line) for line in said)
+    assert any(line.endswith("stopping: 1 running participants' stacks stop (each resumes at its next trial when "
+                             "its link is opened again)") for line in said), served.text
+    assert said[-1].endswith(" stopped")
 
 
 def _processes_with(text: str) -> list[int]:
