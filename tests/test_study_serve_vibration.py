@@ -27,7 +27,8 @@ def welcome(browser, link, headset: bool):
     errors = []
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     page.goto(link)
-    page.wait_for_function("document.body.dataset.vibration !== undefined", timeout=30000)
+    # polled from here: the page's CSP forbids the string evaluation wait_for_function's polling uses
+    wait_until(lambda: page.evaluate("document.body.dataset.vibration !== undefined"), timeout=30)
     return page, errors
 
 
