@@ -22,7 +22,7 @@ def register(subparsers) -> None:
                                               "plans, simulated participants and the analysis.")
     sub = study.add_subparsers(dest="study_command", metavar="SUBCOMMAND")
     study.set_defaults(func=lambda args: (study.print_help(), 2)[1])
-    for add in (_add_check, _add_plan, _add_run, _add_serve, _add_invite, _add_transfer, _add_analyze):
+    for add in (_add_check, _add_plan, _add_run, _add_serve, _add_invite, _add_transfer, _add_analyze, _add_export):
         add(sub)
 
     from . import planning     # power and fit: before recruiting
@@ -201,6 +201,19 @@ def _add_analyze(sub) -> None:
                          help="bootstrap resamples for the psychometric intervals (default 200; 0: none)")
     analyze.add_argument("--seed", type=int, default=0, metavar="S", help="the bootstrap's seed")
     analyze.set_defaults(func=run_analyze)
+
+
+def _add_export(sub) -> None:
+    """The parser of `study export`."""
+    export = sub.add_parser("export", help="a study's sessions as a dataset others can read (Psych-DS)",
+                            description="DIR holds session folders (trials.csv, manifest.json, MCAP logs). Writes a "
+                                        "Psych-DS dataset: dataset_description.json, data/*_data.csv (one per "
+                                        "participant and session), each session's manifest and logs in "
+                                        "data/primary_data/.")
+    export.add_argument("dir", metavar="DIR", help="folder of sessions, a session folder or a trials.csv")
+    export.add_argument("--psych-ds", required=True, metavar="OUT", help="the dataset's folder: new or empty")
+    export.add_argument("--force", action="store_true", help="replace OUT if it holds an earlier export")
+    export.set_defaults(func=run_export)
 
 
 def _study(path):
@@ -526,4 +539,13 @@ def run_analyze(args) -> int:
         print(summary_text(result))
         if report is not None:
             print(f"report: {report}")
+    return 0
+
+
+def run_export(args) -> int:
+    from touch4d.study.psychds import export_psychds
+
+    done = export_psychds(args.dir, args.psych_ds, force=args.force)
+    print(f"{done['out']}: Psych-DS dataset of {len(done['participants'])} participants "
+          f"({len(done['data_files'])} data files, {len(done['records'])} manifests and logs in data/primary_data/)")
     return 0
