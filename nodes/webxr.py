@@ -79,6 +79,12 @@ class WebXRNode(Node):
                        "played by the page a network round trip later) or page (the page's own tactile pass, played "
                        "in the frame it tracks, published here on tactile/motors; needs tracker: true)",
                        choices=("node", "page")),
+        "framebuffer_scale": Param(1.0, "the headset's pixels drawn: the XR layer's framebufferScaleFactor (1: the "
+                                   "browser's default resolution)", above=0, max=1),
+        "foveation": Param(0.5, "fixed foveation of the XR layer where the browser has it (the Quest's): 0 none, "
+                           "1 the most", min=0, max=1),
+        "pacing": Param(True, "while the headset's frames run late, the page lowers framebuffer_scale and raises "
+                        "foveation, step by step (and back when on time; docs/webxr.md)"),
         "stale_s": Param(0.06, "a tracker page silent this long: the hand is invalid (motors off)", unit="s",
                          above=0, max=0.09),
     }
@@ -108,7 +114,8 @@ class WebXRNode(Node):
         config = BridgeConfig(touch=p["touch"], tracker=p["tracker"], hand=p["hand"], hand_source=p["hand_source"],
                               controller_hand=p["hand"] if p["controller_hand"] == "same" else p["controller_hand"],
                               recenter_button=p["recenter_button"], stale_s=p["stale_s"],
-                              study_gate=p["study_gate"], frame_period_s=1.0 / p["rate"])
+                              study_gate=p["study_gate"], frame_period_s=1.0 / p["rate"],
+                              framebuffer_scale=p["framebuffer_scale"], foveation=p["foveation"], pacing=p["pacing"])
         self.publishers = {"study/response": self.create_publisher("study/response", StudyResponse)}
         if p["tracker"]:
             self.publishers |= {"hand/pose": self.create_publisher("hand/pose", HandPose),
@@ -162,6 +169,7 @@ class WebXRNode(Node):
         self.add_cleanup(self.server.stop)
         self.add_stats(lambda: {**self.bridge.counts, **self.server.counts(),
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1),
+                                "page_scale": round(self.bridge.page_scale(), 3),
                                 **self.bridge.haptic_outputs()})
         role = "tracker and view" if p["tracker"] else "view"
         if self.server.secret:   # behind a proxy (a study server): no one opens it here

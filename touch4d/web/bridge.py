@@ -107,6 +107,9 @@ class BridgeConfig:
     recenter_min_s: float = 1.0         # re-centring at most this often
     save_min_s: float = 5.0             # the calibration file written at most this often
     touch: str = "node"                 # where the touch is computed: "node" (tactile/motors) or "page"
+    framebuffer_scale: float = 1.0      # the page's XR layer (framebufferScaleFactor), before pacing lowers it
+    foveation: float = 0.5              # its fixed foveation 0..1 (where the browser has it), before pacing raises it
+    pacing: bool = True                 # the page lowers the two while its frames run late (static/pacing.js)
 
 
 class ClockMap:
@@ -142,6 +145,7 @@ class _Page:
     buttons: frozenset = frozenset()
     answer_held: frozenset = frozenset()   # answer buttons held at its last input (any controller)
     fps: float = 0.0
+    scale: float = 0.0               # its XR layer's scale (0: not in a headset, or not told)
     haptics: str = ""                # what it can vibrate ("pulse", "dual-rumble", "none"; "" untold)
     warned: set = dataclasses.field(default_factory=set)   # its warnings logged (its own budget)
 
@@ -221,7 +225,8 @@ class WebBridge:
             "shaders": {name: shader_source(name, "es300") for name in PAGE_SHADERS},
             # the tactile model for the page's own touch (static/touch.js): eq. 1-3's constants
             "touch": self.config.touch, "alpha": float(g.alpha), "beta": float(g.beta), "gamma": float(g.gamma),
-            **self._calibration_fields(),
+            "framebuffer_scale": self.config.framebuffer_scale, "foveation": self.config.foveation,
+            "pacing": self.config.pacing, **self._calibration_fields(),
         }
         arrays = {
             "samples": (g.samples * units).astype(np.float32),
@@ -470,7 +475,7 @@ class WebBridge:
                 page.tracking = False
                 self.check_tracking(arrival)
         elif kind == "stats":
-            page.fps = msg["fps"]
+            page.fps, page.scale = msg["fps"], msg.get("scale", 0.0)
         elif kind == "haptics":
             if msg["output"] == "none" and page.haptics != "none":
                 log.warning("page %d (%s) has no vibration actuator: its participant feels no touch", conn, page.peer)
@@ -716,5 +721,11 @@ class WebBridge:
 
     def page_fps(self) -> float:
         """The frame rate the tracker page (else any page) reports."""
-        pages = [self.pages[self.owner]] if self.owner in self.pages else list(self.pages.values())
-        return max((p.fps for p in pages), default=0.0)
+        return max((p.fps for p in self._reporting()), default=0.0)
+
+    def page_scale(self) -> float:
+        """The XR layer's scale the tracker page (else any page in a headset) draws at now; 0: none."""
+        return max((p.scale for p in self._reporting()), default=0.0)
+
+    def _reporting(self) -> list[_Page]:
+        return [self.pages[self.owner]] if self.owner in self.pages else list(self.pages.values())

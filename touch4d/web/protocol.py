@@ -26,7 +26,7 @@ Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinit
      "played": {"time": ms, "intensity": [V >= 0 per motor]}}      ("played": touch on the page only)
     {"type": "recenter", "head": pose}
     {"type": "session", "mode": "immersive"|"inline", "active": bool}
-    {"type": "stats", "fps": number}
+    {"type": "stats", "fps": number, "scale": 0..1, "foveation": 0..1}   (scale, foveation: in a headset)
     {"type": "response", "index": int, "option": str, "time": ms}
     {"type": "haptics", "output": "pulse"|"dual-rumble"|"none"}
 
@@ -271,6 +271,8 @@ class SessionMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type
 
 class StatsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="stats"):
     fps: Annotated[float, msgspec.Meta(ge=0, le=1000)]
+    scale: Annotated[float, msgspec.Meta(gt=0, le=1)] | None = None       # its XR layer's, now (static/pacing.js)
+    foveation: Annotated[float, msgspec.Meta(ge=0, le=1)] | None = None
 
 
 class ResponseMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="response"):
@@ -359,7 +361,8 @@ def parse_page_message(data: str | bytes) -> dict:
         return {"type": "response", "index": msg.index, "option": msg.option, "time": msg.time}
     if isinstance(msg, HapticsMessage):
         return {"type": "haptics", "output": msg.output}
-    return {"type": "stats", "fps": msg.fps}
+    paced = {k: v for k, v in (("scale", msg.scale), ("foveation", msg.foveation)) if v is not None}
+    return {"type": "stats", "fps": msg.fps, **paced}
 
 
 def _array(pose) -> np.ndarray | None:

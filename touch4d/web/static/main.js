@@ -13,6 +13,7 @@ import { Haptics } from './haptics.js';
 import { fromPose, multiply, perspective } from './mat.js';
 import { program } from './gl.js';
 import { PageTouch, level } from './touch.js';
+import { Pacing } from './pacing.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
 const canvas = document.getElementById('view');
@@ -26,7 +27,11 @@ const state = (window.touch4d = {
   session: null, sent: 0, input: null, leaving: false, error: null, gpu: null, motorsOn: 0,
   study: null, drawObjects: true, answers: 0, panel: [], view: 'projection', haptics: null, touch: null,
   touchCost: { frames: 0, ms: 0 },   // the page's own touch: frames it ran in, and its time on this thread
+  pacing: null,                      // in a headset: the layer's scale and foveation, lowered while frames run late
 });
+
+// A page built on this one (static/lesson.js) hears every frame first and may send; nothing else.
+export const hooks = { frames: [], send: (message) => link.send(message) };
 
 // made when the node's setup frame (with the shaders) arrives
 let hud = null, scene = null, orbit = null, panel = null, slice = null;
@@ -63,6 +68,7 @@ forgetToken();
 const haptics = (state.haptics = new Haptics((output) => { link.send({ type: 'haptics', output }); showStatus(); }));
 
 const link = new Link((message) => {
+  for (const hook of hooks.frames) hook(message);
   const { header } = message;
   if (header.kind === 'setup') {
     state.setup = header;
@@ -154,7 +160,8 @@ function countFrame(now) {
     state.fps = (1000 * counted) / (now - since);
     counted = 0;
     since = now;
-    link.send({ type: 'stats', fps: Math.min(state.fps, 1000) });
+    const paced = state.session && state.pacing ? { scale: state.pacing.scale, foveation: state.pacing.foveation } : {};
+    link.send({ type: 'stats', fps: Math.min(state.fps, 1000), ...paced });
     showStatus();
   }
 }
@@ -239,13 +246,24 @@ function handGone() {
   }
 }
 
+// The session's layer at `scale` (framebufferScaleFactor) and `foveation` (where the browser has
+// fixed foveation: the Quest's; elsewhere the property is absent or null).
+function makeLayer(session, { scale, foveation }) {
+  const layer = new XRWebGLLayer(session, gl, { framebufferScaleFactor: scale });
+  if ('fixedFoveation' in layer && layer.fixedFoveation !== null) layer.fixedFoveation = foveation;
+  return layer;
+}
+
 async function enterVR() {
   const session = await navigator.xr.requestSession('immersive-vr', {
     requiredFeatures: ['local-floor'], optionalFeatures: ['hand-tracking'],
   });
   await gl.makeXRCompatible();
-  const layer = new XRWebGLLayer(session, gl);
-  session.updateRenderState({ baseLayer: layer, depthNear: 0.05, depthFar: 50 });
+  // the node's framebuffer_scale and foveation, then lowered while frames run late (pacing.js)
+  const setup = state.setup || {};
+  const pacing = new Pacing(setup.framebuffer_scale ?? 1, setup.foveation ?? 0, setup.pacing !== false);
+  session.updateRenderState({ baseLayer: makeLayer(session, pacing), depthNear: 0.05, depthFar: 50 });
+  state.pacing = pacing.state;
   const space = await session.requestReferenceSpace('local-floor');
   const reader = new InputReader(session);
   state.session = session;
@@ -261,6 +279,9 @@ async function enterVR() {
 
   const onFrame = (time, frame) => {
     session.requestAnimationFrame(onFrame);
+    const step = pacing.frame(time, session.frameRate);
+    if (step) session.updateRenderState({ baseLayer: makeLayer(session, step) });   // from the next frame on
+    state.pacing = pacing.state;
     const viewer = frame.getViewerPose(space);
     // Input first: the pose leaves before this frame's drawing.
     if (state.setup && state.setup.tracker && session.visibilityState === 'visible' && !state.leaving) {
