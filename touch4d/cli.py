@@ -21,6 +21,7 @@ PARTS = {
     "touch4d.commands.defaults": ("config",),
     "touch4d.commands.study": ("study",),
     "touch4d.commands.physics": ("physics",),
+    "touch4d.commands.lesson": ("lesson",),
 }
 
 
