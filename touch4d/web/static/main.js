@@ -33,9 +33,6 @@ const state = (window.touch4d = {
 // A page built on this one (static/lesson.js) hears every frame first and may send; nothing else.
 export const hooks = { frames: [], send: (message) => link.send(message) };
 
-// A page built on this one (static/lesson.js) hears every frame first and may send; nothing else.
-export const hooks = { frames: [], send: (message) => link.send(message) };
-
 // made when the node's setup frame (with the shaders) arrives
 let hud = null, scene = null, orbit = null, panel = null, slice = null;
 let screenModel = null;   // screen units -> the room, from the setup frame
