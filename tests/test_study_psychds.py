@@ -18,6 +18,7 @@ from touch4d.cli import main
 from touch4d.log.writer import LogWriter
 from touch4d.study import psychds
 from touch4d.study.design import study_file_path
+from touch4d.study.lock import WRITER, SessionLock
 from touch4d.study.table import write_rows
 
 pytestmark = pytest.mark.timeout(300)
@@ -224,6 +225,23 @@ def test_a_failed_export_leaves_no_dataset_and_keeps_the_earlier_one(study, tmp_
     assert main(["study", "export", str(study), "--psych-ds", str(tmp_path / "new")]) == 2
     assert not (tmp_path / "new").exists()
     assert [p.name for p in tmp_path.iterdir()] == ["ds"]          # no staging folder left
+
+
+def test_a_session_a_study_node_still_writes_is_refused_naming_it(study, tmp_path, capsys):
+    with SessionLock(study / "P02", WRITER):
+        assert main(["study", "export", str(study), "--psych-ds", str(tmp_path / "ds")]) == 2
+    assert f"{study / 'P02'}: another process" in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists()
+    assert main(["study", "export", str(study), "--psych-ds", str(tmp_path / "ds")]) == 0   # claims released
+
+
+def test_a_session_folder_or_its_table_exports_alone(study, tmp_path):
+    for where in (study / "P02", study / "P02" / "trials.csv"):
+        out = tmp_path / where.name
+        assert main(["study", "export", str(where), "--psych-ds", str(out)]) == 0
+        assert psychds_check.check(out) == ([], [])
+        assert sorted(p.relative_to(out).as_posix() for p in (out / "data").rglob("*") if p.is_file()) == [
+            "data/primary_data/P02/manifest.json", f"data/{P02}"]
 
 
 def test_every_trials_column_is_described():

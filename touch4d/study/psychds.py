@@ -21,6 +21,7 @@ dataset is written into a folder beside OUT and renamed into place, so OUT is wh
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import os
@@ -28,15 +29,17 @@ import re
 import secrets
 import shutil
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from touch4d.atomic import fsync_dir, write_atomic
 from touch4d.errors import ConfigError, Touch4dError
 
+from .lock import claim_session
 from .manifest import MANIFEST, check_one_study, read_manifest
 from .store import LEGACY_COLUMNS, _complete
-from .table import COLUMNS, TRIALS, find_tables
+from .table import COLUMNS, find_tables
 
 SCHEMA_VERSION = "Psych-DS 1.5.0"
 DESCRIPTION = "dataset_description.json"
@@ -344,13 +347,30 @@ def _copy(source: Path, target: Path) -> None:
         raise ExportError(f"{source}: cannot copy it into the dataset ({exc.strerror or exc})") from None
 
 
+def hold_sessions(where, stack: ExitStack) -> None:
+    """Claim every session folder at or below `where` for the export (a run's lock, touch4d.study.lock; no study node
+    writing: a SessionError naming a folder still being written), so no row or log is added while it
+    is read and copied. A folder this process may not write (a read-only archive) is read unclaimed."""
+    for table in find_tables(where):
+        try:
+            stack.enter_context(claim_session(table.parent))
+        except PermissionError:
+            continue
+        except OSError as exc:
+            if exc.errno != errno.EROFS:
+                raise ExportError(f"{table.parent}: cannot claim the session folder for the export "
+                                  f"({exc.strerror or exc})") from None
+
+
 def export_psychds(where, out, *, force: bool = False) -> dict:
-    """Export the study at `where` as a Psych-DS dataset in `out`; returns what was written
-    (data files, records, participants)."""
+    """Export the study at `where` as a Psych-DS dataset in `out`, its session folders claimed meanwhile;
+    returns what was written (data files, records, participants)."""
     where = Path(where)
-    sessions = read_study(where)
-    files = plan_export(sessions)
-    write_dataset(files, out, force=force, sources=[s.table.parent for s in sessions])
+    with ExitStack() as stack:
+        hold_sessions(where, stack)
+        sessions = read_study(where)
+        files = plan_export(sessions)
+        write_dataset(files, out, force=force, sources=[s.table.parent for s in sessions])
     data = sorted(k for k in files if k.startswith(f"{DATA}/") and k.endswith("_data.csv"))
     return {"out": str(out), "data_files": data, "records": sorted(k for k in files if k.startswith(PRIMARY)),
             "participants": sorted({r[0] for s in sessions for r in split_sessions(s)})}
