@@ -13,6 +13,7 @@ const panel = document.getElementById('lesson');
 const lesson = (window.touch4d.lesson = {
   role: null, name: '', locked: false, driver: 'teacher', own: { view: null, slice: null }, roster: [],
   results: [], lessonFrames: 0,
+  arrived: {},   // scene revision -> when its first frame arrived (page clock, ms since the epoch)
   // a student's own slice and view (null: the class's); refused while locked
   setOwn(view, slice) { hooks.send({ type: 'own', view, slice }); },
   moveSlice(step) {
@@ -86,7 +87,9 @@ function show() {
 }
 
 hooks.frames.push(({ header }) => {
-  if (header.kind === 'lesson') {
+  if (header.kind === 'frame' && header.revision !== undefined && !(header.revision in lesson.arrived)) {
+    lesson.arrived[header.revision] = performance.timeOrigin + performance.now();
+  } else if (header.kind === 'lesson') {
     const first = lesson.role === null || lesson.role !== header.role;
     Object.assign(lesson, { role: header.role, name: header.name, locked: header.locked, driver: header.driver,
                             own: header.own, roster: header.roster || [] });
