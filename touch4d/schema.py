@@ -195,9 +195,11 @@ def _mismatch(value, type_, file, key: str) -> ConfigError | None:
         if tagged:
             tag_field = tagged[0].__struct_config__.tag_field
             tags = [m.__struct_config__.tag for m in tagged]
-            if value.get(tag_field) not in tags:
-                return _leaf(value.get(tag_field), Literal[tuple(tags)], file, join(key, tag_field),
-                             found=tag_field in value)
+            if tag_field not in value:
+                return ConfigError(file, join(key, tag_field), f"{_expected(Literal[tuple(tags)], None)} "
+                                   "(the key is required)")
+            if value[tag_field] not in tags:
+                return _leaf(value[tag_field], Literal[tuple(tags)], file, join(key, tag_field))
             struct = next(m for m in tagged if m.__struct_config__.tag == value[tag_field])
         return _struct_mismatch(value, struct, own, file, key, tagged)
     origin, args = typing.get_origin(bare), typing.get_args(bare)
@@ -226,12 +228,12 @@ def _struct_mismatch(value: dict, struct, own, file, key: str, tagged) -> Config
     """The first unknown key, missing key or field that does not convert of a mapping for `struct`;
     else the Struct's own check (`own`, raised by its __post_init__) at `key`."""
     allowed = (tagged[0].__struct_config__.tag_field, *struct_fields(struct)) if tagged else struct_fields(struct)
-    if struct.__struct_config__.forbid_unknown_fields:
+    cls = typing.get_origin(struct) or struct           # a generic Struct's class (`Study[X]`: Study)
+    if cls.__struct_config__.forbid_unknown_fields:
         for name in value:
             if name not in allowed:
-                return ConfigError(file, join(key, name), f"one of the keys {', '.join(allowed)}" if allowed
-                                   else "no such key", hint=did_you_mean(name, allowed))
-    hints = typing.get_type_hints(struct, include_extras=True)
+                return _unknown_key(value, name, allowed, struct, tagged, file, key)
+    hints = _hints(struct)
     info = msgspec.inspect.type_info(struct).fields
     for f in info:
         if f.required and f.encode_name not in value:
@@ -259,11 +261,39 @@ def _struct_mismatch(value: dict, struct, own, file, key: str, tagged) -> Config
                        detail=str(own) if own is not None else None)
 
 
-def _leaf(value, type_, file, key: str, found: bool = True) -> ConfigError:
+def _unknown_key(value: dict, name, allowed, struct, tagged, file, key: str) -> ConfigError:
+    """The ConfigError of a key `struct` does not declare; in a tagged union (`kind: tilt`) it says which
+    tag the mapping has, and which others take the key if some do (`scene` is a key of kind tilt)."""
+    if not tagged:
+        return ConfigError(file, join(key, name), f"one of the keys {', '.join(allowed)}" if allowed
+                           else "no such key", hint=did_you_mean(name, allowed))
+    tag_field, tag = struct.__struct_config__.tag_field, struct.__struct_config__.tag
+    others = [m.__struct_config__.tag for m in tagged if m is not struct and name in struct_fields(m)]
+    if others:
+        return ConfigError(file, join(key, name), f"no {name} for {tag_field} {tag} ({name} is a key of "
+                           f"{tag_field} {' and '.join(map(str, others))})", got=value[name])
+    return ConfigError(file, join(key, name), f"one of the keys of {tag_field} {tag}: {', '.join(allowed)}",
+                       hint=did_you_mean(name, allowed))
+
+
+def _hints(struct) -> dict:
+    """The field annotations of a Struct class; of a generic one given its parameters (`Study[X]`), with
+    each type variable replaced by its argument."""
+    cls = typing.get_origin(struct) or struct
+    hints = typing.get_type_hints(cls, include_extras=True)
+    given = dict(zip(getattr(cls, "__parameters__", ()), typing.get_args(struct)))
+    if not given:
+        return hints
+    return {name: given.get(hint, hint) if isinstance(hint, typing.TypeVar)
+            else hint[tuple(given[p] for p in hint.__parameters__)] if getattr(hint, "__parameters__", ()) else hint
+            for name, hint in hints.items()}
+
+
+def _leaf(value, type_, file, key: str) -> ConfigError:
     """The ConfigError for `value` that is not a `type_` at `key`, in the words of a YAML file."""
     choices = _choices(type_)
     hint = did_you_mean(value, choices) if choices else None
-    return ConfigError(file, key or "(top level)", _expected(type_, value), got=value if found else None, hint=hint)
+    return ConfigError(file, key or "(top level)", _expected(type_, value), got=value, hint=hint)
 
 
 _KINDS = {float: "a number", int: "an integer", str: "a string", bool: "true or false", list: "a list",

@@ -24,7 +24,7 @@ from scipy.stats import norm
 from touch4d.errors import Touch4dError, Unavailable
 
 from .conditions import ALL_CONDITIONS
-from .design import KINDS
+from .design import kind_class, task_kinds
 from .infotransfer import transfer_beyond_chance
 from .psychometric import fit_psychometric, fit_psychometric_many, psychometric_curve
 from .table import read_trials
@@ -61,8 +61,9 @@ def conditions_in(data) -> list[str]:
 
 
 def tasks_in(data) -> list[str]:
-    """The tasks present, in the order of their kinds (front element, look-alikes, tilt), then by id."""
-    kinds = {k: i for i, k in enumerate(KINDS)}
+    """The tasks present, in the order their kinds are defined (front element, look-alikes, tilt:
+    `task_kinds`), then by id."""
+    kinds = {k: i for i, k in enumerate(task_kinds())}
     first = data.drop_duplicates("task")
     return [str(t) for t in sorted(first["task"], key=lambda t: (
         kinds.get(first.loc[first["task"] == t, "kind"].iloc[0], len(kinds)), str(t)))]
@@ -105,7 +106,7 @@ def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) ->
             for participant, own in cell.groupby("participant"):
                 result["by_participant"].append({"task": task, "condition": condition, "participant": str(participant),
                                                  "n": int(len(own)), "accuracy": float(own["correct"].mean())})
-        if (rows["kind"] == "tilt").any():
+        if fits_psychometric(rows):
             result["psychometric"][task] = {
                 condition: psychometric(rows[rows["condition"] == condition], bootstrap=bootstrap, seed=seed)
                 for condition in conditions if (rows["condition"] == condition).any()}
@@ -113,6 +114,12 @@ def analyze(data, *, bootstrap: int = 200, seed: int = 0, tests: bool = True) ->
             result["tests"][task] = condition_tests(rows, conditions)
     result["warnings"] = condition_test_warnings(result["tests"]) + clock_warnings(data)
     return result
+
+
+def fits_psychometric(rows) -> bool:
+    """Whether a task's trials are of a kind whose levels are one signed quantity (a tilt), fitted by a
+    psychometric function per condition (the kind's `psychometric`)."""
+    return any(getattr(kind_class(str(kind)), "psychometric", False) for kind in rows["kind"].unique())
 
 
 def answer_times(frame):

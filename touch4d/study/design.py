@@ -30,6 +30,11 @@ naming the file, the key path, what was expected and what was there, as for a sc
         angles_deg: [2, 4, 8, 16]     # each with both signs: +a answers `positive`, -a the other
         positive: right
 
+A task's `kind:` names its class (a msgspec tagged union over every subclass of `Task`:
+FrontElementTask, LookAlikesTask, TiltTask), which holds what is the kind's own: its keys, their
+checks, its stimuli and their scenes, the turns a stimulus adds, whether its levels get a psychometric
+fit. A new kind is one more subclass.
+
 Scene paths are found like every path (`touch4d.configfile.resolve_path`, relative to the study
 file first, then the packaged `config/`).
 """
@@ -37,7 +42,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Generic, Literal, NamedTuple, TypeVar, Union
 
 import msgspec
 
@@ -48,7 +53,6 @@ from touch4d.geometry.rotation import PLANES, plane_axes
 
 from .conditions import ALL_CONDITIONS, CONDITIONS
 
-KINDS = ("front-element", "look-alikes", "tilt")
 STUDIES = "config/studies"                  # where a study named by its bare name lives
 DEFAULT_STUDY = f"{STUDIES}/paper.yaml"
 ALL_ORDERS_UP_TO = 6          # counterbalance: all orders while n! <= this, else a balanced Latin square
@@ -74,37 +78,132 @@ class StimulusSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
         return self.name or self.answer
 
 
-class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
-    """A task: what is asked (prompt, options), how the stimuli vary (jitter), and its stimuli: listed
-    (front-element, look-alikes) or generated from angles (tilt)."""
+class Stimulus(NamedTuple):
+    """A stimulus as planned: its name in tables, its level (a tilt's signed degrees; NaN for a kind
+    without levels) and its correct answer."""
+
+    name: str
+    level: float
+    answer: str
+
+
+class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True, tag_field="kind"):
+    """A task: what is asked (prompt, options) and how its stimuli vary (jitter); its `kind` is its class.
+
+    A kind is one subclass naming its tag (`class TiltTask(Task, tag="tilt")`), the one place of what
+    is its own: its keys (fields) and their checks (`__post_init__`), its stimuli (`stimulus_set`), the
+    scene files behind them (`scene_files`, `scene_of`), the turns a stimulus adds (`turns`) and whether
+    the analysis fits a psychometric function over its levels (`psychometric`). Study files read every
+    kind defined (`task_kinds`); a class that is only a base of kinds says so (`kind_base`)."""
 
     id: Name
-    kind: Literal["front-element", "look-alikes", "tilt"]
     prompt: str
     options: Annotated[list[Name], msgspec.Meta(min_length=2)]
-    stimuli: list[StimulusSpec] = []
     jitter_deg: Degrees = 0.0           # each jitter plane turned by a uniform angle in [-jitter, +jitter]
     jitter_planes: list[str] = msgspec.field(default_factory=lambda: list(PLANES))
     repetitions: Positive | None = None  # per stimulus per condition (default: the study's)
     time_limit_s: Seconds | None = None  # default: the study's
-    # tilt only: the untilted scene, the plane of the tilt, the angles (each shown with both signs)
-    # and the option that a positive angle answers (the other option answers a negative one)
-    scene: str | None = None
-    plane: str = "xw"
-    angles_deg: list[Tilt] = []
-    positive: str | None = None
+
+    kind_base: ClassVar[bool] = True    # not a kind itself (read from the class's own body only)
+    psychometric: ClassVar[bool] = False  # its levels one signed quantity: a psychometric fit per condition
+
+    def __post_init__(self):
+        if len(set(self.options)) != len(self.options):
+            raise schema.Invalid("each option once", list(self.options), "options")
+        for j, plane in enumerate(self.jitter_planes):
+            _check_plane(plane, f"jitter_planes[{j}]")
+
+    @property
+    def kind(self) -> str:
+        """The kind's name, as study files and trial tables write it (the class's tag)."""
+        return type(self).__struct_config__.tag
+
+    def stimulus_set(self) -> list[Stimulus]:
+        """The task's stimuli: name, level and correct answer of each, in the task's order."""
+        raise NotImplementedError
+
+    def scene_files(self) -> list[tuple[str, str]]:
+        """(key below the task, path) of every scene file the task names, for checking them."""
+        raise NotImplementedError
+
+    def scene_of(self, stimulus: str) -> tuple[str, str] | None:
+        """(key below the task, path) of the scene file behind the stimulus named `stimulus`; None if
+        the task shows none of that name."""
+        raise NotImplementedError
+
+    def turns(self, level: float) -> list[list]:
+        """The turns ([plane, degrees]) a stimulus of `level` adds to every object before the jitter."""
+        return []
 
     def stimulus_names(self) -> list[str]:
-        """The task's stimuli by name, in file order (tilt: -largest .. -smallest, +smallest .. +largest)."""
-        if self.kind == "tilt":
-            return [tilt_name(-a) for a in sorted(self.angles_deg, reverse=True)] + \
-                   [tilt_name(a) for a in sorted(self.angles_deg)]
-        return [s.label for s in self.stimuli]
+        """The task's stimuli by name, in the task's order."""
+        return [s.name for s in self.stimulus_set()]
+
+
+class ListedTask(Task, kw_only=True):
+    """The base of kinds whose stimuli a file lists, each an answer and the scene that shows it."""
+
+    stimuli: Annotated[list[StimulusSpec], msgspec.Meta(
+        min_length=2, description="at least two stimuli (answer and scene each)")]
+
+    kind_base: ClassVar[bool] = True
+
+    def __post_init__(self):
+        super().__post_init__()
+        labels = [s.label for s in self.stimuli]
+        for j, stim in enumerate(self.stimuli):
+            if stim.answer not in self.options:
+                raise schema.Invalid(f"one of the options ({', '.join(self.options)})", stim.answer,
+                                     f"stimuli[{j}].answer", choices=self.options)
+            if labels.index(stim.label) != j:
+                raise schema.Invalid("a stimulus name not used by an earlier stimulus (give `name:` to tell two "
+                                     "of the same answer apart)", stim.label, f"stimuli[{j}].name")
+
+    def stimulus_set(self) -> list[Stimulus]:
+        return [Stimulus(s.label, math.nan, s.answer) for s in self.stimuli]
+
+    def scene_files(self) -> list[tuple[str, str]]:
+        return [(f"stimuli[{j}].scene", s.scene) for j, s in enumerate(self.stimuli)]
+
+    def scene_of(self, stimulus: str) -> tuple[str, str] | None:
+        return next(((f"stimuli[{j}].scene", s.scene) for j, s in enumerate(self.stimuli) if s.label == stimulus),
+                    None)
+
+
+class FrontElementTask(ListedTask, tag="front-element"):
+    """Which element of an object is nearest the viewer (paper Fig. 19): a face, an edge or a vertex."""
+
+
+class LookAlikesTask(ListedTask, tag="look-alikes"):
+    """Objects that look alike from the front, told apart (paper Fig. 20-21): convex, flat or concave."""
+
+
+class TiltTask(Task, tag="tilt", kw_only=True):
+    """Which way the front cell is tilted (paper Fig. 18): one scene turned in `plane` by each of
+    `angles_deg`, each with both signs; a positive angle answers `positive`, a negative one the other
+    option. Its levels are one signed quantity, so the analysis fits a psychometric function."""
+
+    options: Annotated[list[Name], msgspec.Meta(
+        min_length=2, max_length=2, description="two options for a tilt task (a two-alternative choice)")]
+    scene: Annotated[str, msgspec.Meta(description="the untilted scene of a tilt task (a scene file)")]
+    plane: str = "xw"
+    angles_deg: Annotated[list[Tilt], msgspec.Meta(
+        min_length=1, description="a non-empty list of tilt angles in degrees (each shown with both signs)")]
+    positive: str | None = None         # the option a positive angle answers (default: the first)
+
+    psychometric: ClassVar[bool] = True
+
+    def __post_init__(self):
+        super().__post_init__()
+        if len(set(self.angles_deg)) != len(self.angles_deg):
+            raise schema.Invalid("each angle once", list(self.angles_deg), "angles_deg")
+        _check_plane(self.plane, "plane")
+        if self.positive is not None and self.positive not in self.options:
+            raise schema.Invalid(f"one of the options ({', '.join(self.options)})", self.positive, "positive",
+                                 choices=self.options)
 
     def levels(self) -> list[float]:
-        """The signed tilt levels (degrees) of a tilt task, in stimulus order; [] otherwise."""
-        if self.kind != "tilt":
-            return []
+        """The signed tilt levels (degrees), in stimulus order: -largest .. -smallest, +smallest .. +largest."""
         return [-a for a in sorted(self.angles_deg, reverse=True)] + sorted(self.angles_deg)
 
     def answer_of(self, level: float) -> str:
@@ -113,12 +212,61 @@ class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
         negative = next(o for o in self.options if o != positive)
         return positive if level > 0 else negative
 
+    def stimulus_set(self) -> list[Stimulus]:
+        return [Stimulus(tilt_name(level), float(level), self.answer_of(level)) for level in self.levels()]
 
-class Study(msgspec.Struct, forbid_unknown_fields=True, frozen=True, dict=True):
-    """A study file. `path` (set by `load_study`) is the file it came from, for errors and paths."""
+    def scene_files(self) -> list[tuple[str, str]]:
+        return [("scene", self.scene)]
+
+    def scene_of(self, stimulus: str) -> tuple[str, str] | None:
+        return ("scene", self.scene)    # any stimulus: its level is the turn
+
+    def turns(self, level: float) -> list[list]:
+        return [] if math.isnan(level) else [[self.plane, float(level)]]
+
+
+def tilt_name(level: float) -> str:
+    """The stimulus name of a signed tilt level: tilt+8, tilt-2.5."""
+    return f"tilt{level:+g}"
+
+
+def _check_plane(plane: str, key: str) -> None:
+    """Refuse (schema.Invalid at `key`) what is not a rotation plane."""
+    try:
+        plane_axes(plane)
+    except ValueError:
+        raise schema.Invalid("a rotation plane (two of x, y, z, w)", plane, key, choices=PLANES) from None
+
+
+def task_kinds() -> dict[str, type[Task]]:
+    """Every task kind defined, by name: the subclasses of Task below it (those not `kind_base`), in the
+    order their classes were defined (a base's kinds in its place)."""
+    out: dict[str, type[Task]] = {}
+
+    def walk(cls):
+        for sub in cls.__subclasses__():
+            if not vars(sub).get("kind_base"):
+                out[sub.__struct_config__.tag] = sub
+            walk(sub)
+
+    walk(Task)
+    return out
+
+
+def kind_class(name: str) -> type[Task] | None:
+    """The class of the kind named `name` (as a trial table writes it), or None for one not defined."""
+    return task_kinds().get(name)
+
+
+TaskT = TypeVar("TaskT", bound=Task)
+
+
+class Study(msgspec.Struct, Generic[TaskT], forbid_unknown_fields=True, frozen=True, dict=True):
+    """A study file. `path` (set by `load_study`) is the file it came from, for errors and paths. Read
+    as `Study[kinds]` (`parse_study`), its tasks each of the kind their `kind:` names."""
 
     name: Name
-    tasks: Annotated[list[Task], msgspec.Meta(min_length=1)]
+    tasks: Annotated[list[TaskT], msgspec.Meta(min_length=1)]
     description: str = ""
     conditions: Annotated[list[Literal[ALL_CONDITIONS]], msgspec.Meta(min_length=1)] = \
         msgspec.field(default_factory=lambda: list(CONDITIONS))
@@ -170,11 +318,6 @@ def replace_study(study: Study, **fields) -> Study:
     return out
 
 
-def tilt_name(level: float) -> str:
-    """The stimulus name of a signed tilt level: tilt+8, tilt-2.5."""
-    return f"tilt{level:+g}"
-
-
 def study_file_path(name, named_in=COMMAND_LINE, *, key: str = "STUDY") -> Path:
     """The study file a user named: a path, or a bare name such as `paper` for
     `config/studies/paper.yaml` (a path wins when it exists; the name is then found like any path,
@@ -209,7 +352,8 @@ def load_study(path=None, named_in=COMMAND_LINE, *, key: str = "STUDY") -> Study
 
 def parse_study(data, file=None) -> Study:
     """A Study from the parsed YAML `data`; every problem a ConfigError naming `file` and the key."""
-    study = schema.convert(data, Study, file)
+    kinds = tuple(task_kinds().values())
+    study = schema.convert(data, Study[Union[kinds]], file)
     study.__dict__["_path"] = str(file) if file is not None else "<input>"
     _check(study, file)
     return _fill_texts(study)
@@ -278,62 +422,15 @@ def scene_path(study: Study, key: str, path: str) -> Path:
 
 
 def _check(study: Study, file) -> None:
-    """What no type expresses: unique ids and conditions, answers among options, a tilt's generator."""
+    """What no type expresses across tasks (each kind checks its own keys: `Task.__post_init__`): unique
+    ids and conditions, and every scene file a task names readable as a scene."""
     from touch4d.geometry.scene import load_scene
 
     if len(set(study.conditions)) != len(study.conditions):
         schema.fail(file, "conditions", "each condition once", got=list(study.conditions))
     ids = [t.id for t in study.tasks]
     for i, task in enumerate(study.tasks):
-        key = f"tasks[{i}]"
         if ids.index(task.id) != i:
-            schema.fail(file, f"{key}.id", "a task id not used by an earlier task", got=task.id)
-        if len(set(task.options)) != len(task.options):
-            schema.fail(file, f"{key}.options", "each option once", got=list(task.options))
-        for j, plane in enumerate(task.jitter_planes):
-            try:
-                plane_axes(plane)
-            except ValueError:
-                schema.fail(file, f"{key}.jitter_planes[{j}]", "a rotation plane (two of x, y, z, w)", got=plane,
-                            choices=PLANES)
-        if task.kind == "tilt":
-            for name in ("stimuli",):
-                if getattr(task, name):
-                    schema.fail(file, f"{key}.{name}", "no listed stimuli for a tilt task (it makes them from "
-                                "scene, plane and angles_deg)", got="a list")
-            if task.scene is None:
-                schema.fail(file, f"{key}.scene", "the untilted scene of a tilt task (a scene file)")
-            if not task.angles_deg:
-                schema.fail(file, f"{key}.angles_deg", "a non-empty list of tilt angles in degrees (each shown "
-                            "with both signs)")
-            if len(set(task.angles_deg)) != len(task.angles_deg):
-                schema.fail(file, f"{key}.angles_deg", "each angle once", got=list(task.angles_deg))
-            if len(task.options) != 2:
-                schema.fail(file, f"{key}.options", "two options for a tilt task (a two-alternative choice)",
-                            got=list(task.options))
-            try:
-                plane_axes(task.plane)
-            except ValueError:
-                schema.fail(file, f"{key}.plane", "a rotation plane (two of x, y, z, w)", got=task.plane,
-                            choices=PLANES)
-            if task.positive is not None and task.positive not in task.options:
-                schema.fail(file, f"{key}.positive", f"one of the options ({', '.join(task.options)})",
-                            got=task.positive, choices=task.options)
-            load_scene(scene_path(study, f"{key}.scene", task.scene))
-            continue
-        for name in ("scene", "angles_deg", "positive"):
-            if getattr(task, name):
-                schema.fail(file, f"{key}.{name}", f"no {name} for a {task.kind} task (tilt tasks only)",
-                            got=getattr(task, name))
-        if len(task.stimuli) < 2:
-            schema.fail(file, f"{key}.stimuli", "at least two stimuli (answer and scene each)",
-                        got=len(task.stimuli))
-        labels = [s.label for s in task.stimuli]
-        for j, stim in enumerate(task.stimuli):
-            if stim.answer not in task.options:
-                schema.fail(file, f"{key}.stimuli[{j}].answer", f"one of the options ({', '.join(task.options)})",
-                            got=stim.answer, choices=task.options)
-            if labels.index(stim.label) != j:
-                schema.fail(file, f"{key}.stimuli[{j}].name", "a stimulus name not used by an earlier stimulus "
-                            "(give `name:` to tell two of the same answer apart)", got=stim.label)
-            load_scene(scene_path(study, f"{key}.stimuli[{j}].scene", stim.scene))
+            schema.fail(file, f"tasks[{i}].id", "a task id not used by an earlier task", got=task.id)
+        for key, path in task.scene_files():
+            load_scene(scene_path(study, f"tasks[{i}].{key}", path))

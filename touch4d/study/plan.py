@@ -20,7 +20,7 @@ import numpy as np
 
 from touch4d import schema
 
-from .design import Study, Task, replace_study, tilt_name
+from .design import Stimulus, Study, Task, replace_study
 
 _NUMBERED = re.compile(r"^[Pp](\d+)$")
 _MAX_SHUFFLES = 10_000
@@ -133,7 +133,7 @@ def plan_session(study: Study, participant: str, order: int | None = None) -> li
     for block, (condition, seed) in enumerate(zip(conditions, block_seeds)):
         rng = np.random.default_rng(seed)
         items = [(task, stim, level, answer) for task in study.tasks
-                 for stim, level, answer in _stimuli(task) for _ in range(study.repetitions_of(task))]
+                 for stim, level, answer in task.stimulus_set() for _ in range(study.repetitions_of(task))]
         sequence = _practice(items, study.practice, study.max_run, rng)
         start = len(sequence)
         last = sequence[-1][3] if sequence else None
@@ -180,13 +180,6 @@ def _practice(items: list, count: int, max_run: int, rng: np.random.Generator) -
     return out
 
 
-def _stimuli(task: Task) -> list[tuple[str, float, str]]:
-    """(name, level, answer) of each stimulus of a task."""
-    if task.kind == "tilt":
-        return [(tilt_name(level), float(level), task.answer_of(level)) for level in task.levels()]
-    return [(s.label, math.nan, s.answer) for s in task.stimuli]
-
-
 def _trial(study: Study, index: int, block: int, position: int, practice: bool, condition: str, item,
            rng: np.random.Generator, break_before: bool) -> Trial:
     task, stimulus, level, answer = item
@@ -206,9 +199,10 @@ def draw_jitter(task: Task, rng: np.random.Generator) -> list[tuple[str, float]]
     return [(plane, round(float(rng.uniform(-task.jitter_deg, task.jitter_deg)), 3)) for plane in task.jitter_planes]
 
 
-def stimuli_of(task: Task) -> list[tuple[str, float, str]]:
-    """(name, level, answer) of each stimulus of a task, in the task's order."""
-    return _stimuli(task)
+def stimuli_of(task: Task) -> list[Stimulus]:
+    """(name, level, answer) of each stimulus of a task, in the task's order: what its kind makes
+    (`Task.stimulus_set`)."""
+    return task.stimulus_set()
 
 
 def constrained_shuffle(items: list, max_run: int, rng: np.random.Generator, *, key, last=None, run: int = 0,

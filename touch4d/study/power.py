@@ -120,7 +120,7 @@ def study_outcome(data, *, bootstrap: int = 100, seed: int = 0, alpha: float = A
     """What one (simulated) study finds, per task: each condition effect's GEE p and whether the mixed
     model's 95% interval excludes 0 (None if `mixed` is False), and per tilt condition the threshold's
     95% interval width."""
-    from .analysis import conditions_in, condition_tests, psychometric, tasks_in
+    from .analysis import conditions_in, condition_tests, fits_psychometric, psychometric, tasks_in
 
     conditions = conditions_in(data)
     outcome = {}
@@ -133,7 +133,7 @@ def study_outcome(data, *, bootstrap: int = 100, seed: int = 0, alpha: float = A
             credible = mixed_fit.get("effects", {}).get(name, {}).get("credible")
             found["effects"][name] = {"gee_p": effect["p"], "gee_found": bool(effect["p"] < alpha),
                                       "mixed_found": bool(credible) if credible is not None else None}
-        if (rows["kind"] == "tilt").any():
+        if fits_psychometric(rows):
             widths = {}
             for condition in conditions:
                 fit = psychometric(rows[rows["condition"] == condition], bootstrap=bootstrap, seed=seed,

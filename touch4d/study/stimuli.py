@@ -21,26 +21,22 @@ from .plan import Trial
 
 
 def stimulus_scene_path(study: Study, task_id: str, stimulus: str) -> Path:
-    """The scene file behind a task's stimulus (a tilt task's untilted scene)."""
+    """The scene file behind a task's stimulus, as its kind says (`Task.scene_of`: a tilt task's
+    untilted scene)."""
     index = [t.id for t in study.tasks].index(task_id)
     task = study.tasks[index]
-    if task.kind == "tilt":
-        return scene_path(study, f"tasks[{index}].scene", task.scene)
-    for j, stim in enumerate(task.stimuli):
-        if stim.label == stimulus:
-            return scene_path(study, f"tasks[{index}].stimuli[{j}].scene", stim.scene)
-    schema.fail(study.path, f"tasks[{index}].stimuli", f"a stimulus named {stimulus!r}", got=stimulus,
-                choices=task.stimulus_names())
+    found = task.scene_of(stimulus)
+    if found is None:
+        schema.fail(study.path, f"tasks[{index}].stimuli", f"a stimulus named {stimulus!r}", got=stimulus,
+                    choices=task.stimulus_names())
+    key, path = found
+    return scene_path(study, f"tasks[{index}].{key}", path)
 
 
 def stimulus_rotation(study: Study, task_id: str, level: float, transform) -> list[list]:
-    """The turns a stimulus adds to every object, in order: the tilt (tilt tasks), then the jitter."""
-    steps = []
-    task = study.task(task_id)
-    if task.kind == "tilt" and not math.isnan(level):
-        steps.append([task.plane, float(level)])
-    steps.extend([str(plane), float(deg)] for plane, deg in transform)
-    return steps
+    """The turns a stimulus adds to every object, in order: its kind's (`Task.turns`: a tilt task's
+    tilt), then the jitter."""
+    return study.task(task_id).turns(level) + [[str(plane), float(deg)] for plane, deg in transform]
 
 
 def stimulus_mapping(study: Study, task_id: str, stimulus: str, level: float = math.nan, transform=()) -> dict:
