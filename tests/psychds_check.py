@@ -125,14 +125,12 @@ def _csv(path: Path, relative: str, errors: list) -> list[str] | None:
     except UnicodeDecodeError:
         errors.append(("CSV_FORMATTING_ERROR", relative, "not UTF-8"))
         return None
-    lines = text.split("\n")
-    if lines and lines[-1] == "":
-        lines = lines[:-1]
+    lines = io.StringIO(text, newline=None).read().split("\n")     # \r\n and \r end lines too
     if not lines or not lines[0].strip():
         errors.append(("CSV_HEADER_MISSING", relative, "no header"))
         return None
     try:
-        rows = list(csv.reader(io.StringIO(text), strict=True))
+        rows = list(csv.reader(io.StringIO(text, newline=None), strict=True))
     except csv.Error as exc:
         errors.append(("CSV_FORMATTING_ERROR", relative, str(exc)))
         return None

@@ -348,9 +348,10 @@ def _copy(source: Path, target: Path) -> None:
 
 
 def hold_sessions(where, stack: ExitStack) -> None:
-    """Claim every session folder at or below `where` for the export (a run's lock, touch4d.study.lock; no study node
-    writing: a SessionError naming a folder still being written), so no row or log is added while it
-    is read and copied. A folder this process may not write (a read-only archive) is read unclaimed."""
+    """Claim every session folder at or below `where` for the export (a run's lock, touch4d.study.lock;
+    no study node writing: a SessionError naming a folder still being written), so no row or log is
+    added while it is read and copied. A folder this process may not write (a read-only archive) is
+    read unclaimed."""
     for table in find_tables(where):
         try:
             stack.enter_context(claim_session(table.parent))
