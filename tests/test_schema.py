@@ -1,5 +1,5 @@
 """The schema layer: declared file types, one error naming file, key path, expected and got."""
-from typing import Annotated, Literal
+from typing import Annotated, Generic, Literal, TypeVar
 
 import msgspec
 import pytest
@@ -146,3 +146,34 @@ def test_what_is_wrong_is_read_from_the_declared_types_not_from_msgspecs_words(m
     e = info.value
     key, expected, got, hint = wanted
     assert (e.file, e.key, e.expected, e.got, e.hint) == ("f.yaml", key, expected, got, hint)
+
+
+class Sweep(msgspec.Struct, forbid_unknown_fields=True, tag_field="kind", tag="sweep"):
+    speed: schema.Positive = 1.0
+
+
+class Hold(msgspec.Struct, forbid_unknown_fields=True, tag_field="kind", tag="hold"):
+    seconds: schema.Positive = 1.0
+
+
+Step = TypeVar("Step")
+
+
+class Program(msgspec.Struct, Generic[Step], forbid_unknown_fields=True):
+    """A file whose parts' type is a parameter (as a study's tasks are the kinds defined)."""
+
+    steps: list[Step]
+
+
+@pytest.mark.parametrize("step, wanted", [
+    ({"kind": "hold", "seconds": -1}, ("steps[0].seconds", "a finite number > 0", -1)),
+    ({"kind": "hold", "speed": 2}, ("steps[0].speed", "no speed for kind hold (speed is a key of kind sweep)", 2)),
+    ({"kind": "hold", "sped": 2}, ("steps[0].sped", "one of the keys of kind hold: kind, seconds", None)),
+    ({"seconds": 1}, ("steps[0].kind", "one of sweep, hold (the key is required)", None)),
+    ({"kind": "swep"}, ("steps[0].kind", "one of sweep, hold", "swep")),
+])
+def test_a_generic_files_parts_and_a_tagged_unions_keys_are_named(step, wanted):
+    with pytest.raises(ConfigError) as info:
+        schema.convert({"steps": [step]}, Program[Sweep | Hold], "f.yaml")
+    assert (info.value.file, info.value.key, info.value.expected, info.value.got) == ("f.yaml", *wanted)
+    assert schema.convert({"steps": [{"kind": "sweep", "speed": 2}]}, Program[Sweep | Hold]).steps == [Sweep(2.0)]
