@@ -171,12 +171,19 @@ class WebXRNode(Node):
                                 "pages": len(self.bridge.pages), "page_fps": round(self.bridge.page_fps(), 1),
                                 "page_scale": round(self.bridge.page_scale(), 3),
                                 **self.bridge.haptic_outputs()})
+        self._announce(bound, loopback, ssl_context is not None, fingerprint)
+
+    def _announce(self, bound: int, loopback: bool, secure: bool, fingerprint: str | None) -> None:
+        """Say where the page is served (its links, the certificate's fingerprint, a QR code beyond loopback),
+        or that a proxy serves it."""
+        p = self.params
+        host = p["host"]
         role = "tracker and view" if p["tracker"] else "view"
         if self.server.secret:   # behind a proxy (a study server): no one opens it here
             self.log.info("WebXR page (%s) served on 127.0.0.1:%d to the proxy holding its secret; its users "
                           "come through that proxy's links", role, bound)
             return
-        scheme = "https" if ssl_context else "http"
+        scheme = "https" if secure else "http"
         urls = [access.page_url(scheme, a, bound, self.token)
                 for a in (["127.0.0.1"] if loopback else access.lan_addresses(host))]
         for url in urls:
