@@ -34,7 +34,7 @@ from touch4d.log.writer import LogWriter, WallClock
 from touch4d.tactile.glove import Glove
 from touch4d.tracking.calibration import Calibration, Placement
 
-from .access import HOLDER, Access, is_loopback, lan_addresses
+from .access import HOLDER, Access, cross_site, is_loopback, lan_addresses
 from .hardening import ESCAPED, host_name
 from .inbox import TokenBucket
 from .invites import Invites
@@ -108,6 +108,8 @@ class LessonServer(PageServer):
         self._spend(holder)
         if holder == CLASS:
             raise web.HTTPForbidden(text="touch4d: open the class link in a browser first\n")
+        if cross_site(request):        # refused as the page server refuses it, before the class's size says anything
+            return await super()._websocket(request)
         if self.link_of(holder) == CLASS and self.students() >= self.max_students:
             self.full += 1
             return web.Response(status=503, text=f"touch4d: the class is full ({self.max_students} students)\n")
@@ -307,16 +309,15 @@ async def send_command(out: Path, verb: str, argument: str, timeout_s: float = 1
     url = where["local"].replace("http", "ws", 1) + f"/ws?token={quote(token)}"
     async with aiohttp.ClientSession() as session:
         try:
-            async with session.ws_connect(url, ssl=False, timeout=timeout_s, autoping=True) as ws:
+            async with asyncio.timeout(timeout_s), session.ws_connect(url, ssl=False) as ws:
                 await ws.send_str(json.dumps({"type": "command", "verb": verb, "argument": argument}))
-                async with asyncio.timeout(timeout_s):
-                    async for msg in ws:
-                        if msg.type == aiohttp.WSMsgType.BINARY:
-                            header = frame_header(msg.data)
-                            if header.get("kind") == "result":
-                                return bool(header["ok"]), str(header["text"])
-                        elif msg.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
-                            break
+                async for msg in ws:
+                    if msg.type == aiohttp.WSMsgType.BINARY:
+                        header = frame_header(msg.data)
+                        if header.get("kind") == "result":
+                            return bool(header["ok"]), str(header["text"])
+                    elif msg.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                        break
         except (aiohttp.ClientError, OSError, TimeoutError) as exc:
             raise ConfigError(Path(out) / SERVED, "local", f"a lesson that answers at {urlsplit(where['local']).netloc}",
                               got=str(exc) or type(exc).__name__) from None
