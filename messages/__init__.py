@@ -4,15 +4,16 @@ wire with numpy arrays kept intact; the header every message carries in messages
 See docs/contracts.md for the table of topics and fields.
 """
 from .base import Message, MessageError, TYPES, decode, decoder, encode
-from .hand import ControllerState, HandJoints, HandPose
+from .hand import ControllerState, HandJoints, HandPose, HandPoses
 from .physics import PhysicsContacts, PhysicsInput
 from .scene import PHYSICS_COMMANDS, PROJECTIONS, SCENE_COMMANDS, SLICE_TOUCH, VIEWS, SceneCommand, SceneState
 from .study import STUDY_COMMANDS, STUDY_PHASES, StudyCommand, StudyResponse, StudyTrial
 from .system import Heartbeat, InputEvents, MotorStatus, MotorTrace, Stop
-from .tactile import MotorCommand, TactileField
+from .tactile import MotorCommand, MotorCommands, TactileField
 
 TOPIC_TYPES: dict[str, type[Message]] = {
     "hand/pose": HandPose,
+    "hand/poses": HandPoses,
     "hand/joints": HandJoints,
     "hand/joints/other": HandJoints,
     "controller/state": ControllerState,
@@ -20,6 +21,7 @@ TOPIC_TYPES: dict[str, type[Message]] = {
     "scene/command": SceneCommand,
     "tactile/field": TactileField,
     "tactile/motors": MotorCommand,
+    "tactile/played": MotorCommands,
     "motors/status": MotorStatus,
     "motors/trace": MotorTrace,
     "safety/stop": Stop,
@@ -34,7 +36,7 @@ TOPIC_TYPES: dict[str, type[Message]] = {
 
 __all__ = [
     "Message", "MessageError", "TYPES", "TOPIC_TYPES", "encode", "decode", "decoder",
-    "HandPose", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand",
+    "HandPose", "HandPoses", "HandJoints", "ControllerState", "SceneState", "SceneCommand", "TactileField", "MotorCommand", "MotorCommands",
     "MotorStatus", "MotorTrace", "Stop", "Heartbeat", "InputEvents", "PHYSICS_COMMANDS", "PROJECTIONS", "SCENE_COMMANDS",
     "VIEWS", "SLICE_TOUCH",
     "StudyTrial", "StudyResponse", "StudyCommand", "STUDY_PHASES", "STUDY_COMMANDS",

@@ -37,6 +37,24 @@ class HandPose(Message):
             check_unit_quaternion(self.orientation)
 
 
+class HandPoses(Message):
+    """The glove hand's poses as a served page tracked them, one batch of its frames (topic hand/poses):
+    a served study's log, where one message per frame at 72 Hz would cost the server a write each."""
+
+    stamps: Array(None) = doc("each pose's time, the page's clock mapped to the server's, seconds")
+    positions: Array(None, 3) = doc("hand origins in screen units (rows of an invalid pose: 0)")
+    orientations: Array(None, 4) = doc("unit quaternions (x, y, z, w), hand frame -> screen frame (invalid: 0, 0, 0, 1)")
+    valid: Array(None, dtype="bool") = doc("false where tracking was lost: the hand absent in that frame")
+
+    def check(self):
+        n = len(self.stamps)
+        for name in ("positions", "orientations", "valid"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name}: expected {n} rows, one per stamp, got {len(getattr(self, name))}")
+        if self.valid.any():
+            check_unit_quaternion(self.orientations[self.valid], "orientations")
+
+
 class ControllerState(Message):
     """The motion controller held in the glove hand, in room coordinates (topic controller/state)."""
 

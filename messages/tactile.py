@@ -35,3 +35,20 @@ class MotorCommand(Message):
         # a glove's few motors: min() of the values as floats is quicker than numpy's reduction
         if len(values) and (min(values.tolist()) if len(values) <= 64 else values.min()) < 0:
             raise ValueError("intensity: expected values >= 0")
+
+
+class MotorCommands(Message):
+    """What a served page played over one batch of its frames (topic tactile/played): one row of
+    intensities per pose it computed the touch of (its own tactile pass, eq. 3)."""
+
+    names: list[str] = doc("motor names, as in the glove config")
+    source_stamps: Array(None) = doc("the time of the pose each row was computed from, the server's clock, seconds")
+    intensity: Array(None, None) = doc("V per motor (columns) and pose (rows), >= 0, as played")
+
+    def check(self):
+        rows, cols = self.intensity.shape
+        if rows != len(self.source_stamps) or (rows and cols != len(self.names)):
+            raise ValueError(f"intensity: expected {len(self.source_stamps)} x {len(self.names)} values (a row per "
+                             f"stamp, a column per name), got {rows} x {cols}")
+        if rows and self.intensity.min() < 0:
+            raise ValueError("intensity: expected values >= 0")

@@ -137,9 +137,8 @@ def test_processes_group_nodes_in_file_order_and_leave_the_others_alone(tmp_path
     assert {name: [s.role for s in specs] for name, specs in procs.items()} == {"g": ["a", "c"], "b": ["b"]}
     # without `group`, every project launch file keeps one process per node
     for launch in sorted(EXAMPLE.parent.glob("*.yaml")):
-        if launch.name != "study-serve.yaml":
-            nodes = load_launch(launch)
-            assert list(processes(nodes)) == list(nodes), launch.name
+        nodes = load_launch(launch)
+        assert list(processes(nodes)) == list(nodes), launch.name
 
 
 @pytest.mark.parametrize("nodes, expected", [

@@ -103,7 +103,7 @@ def test_a_running_trial_is_paused_exactly_while_a_pause_holds_it(events):
         if command is not None:
             assert node is not None, f"{command} sent to no stack after {events}"
             node = command == PAUSE
-        if not life.has_stack and life.state is not State.DONE:
+        if not life.active and life.state is not State.DONE:
             node = None
         if life.state is State.RUNNING:
             assert node == (life.held or life.page_gone), events

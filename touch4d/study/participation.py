@@ -1,6 +1,6 @@
 """A served participant's life as a state machine: the study server drives it with what happens (a
-join, the stack ready, the page gone and back, the experimenter's buttons, the link revoked) and
-sends the study node the command each event returns; the experimenter's page shows `shown()`.
+join, the session ready, the page gone and back, the experimenter's buttons, the link revoked) and
+sends its trials the command each event returns; the experimenter's page shows `shown()`.
 
     invited --join--> starting --ready--> running --finished--> done
        ^                 |                  |  ^
@@ -22,10 +22,10 @@ PAUSE, RESUME = "pause", "resume"      # study/command's verbs (touch4d.messages
 
 
 class State(str, enum.Enum):
-    INVITED = "invited"      # a link, no stack yet
-    STARTING = "starting"    # joined: its stack is being started
-    RUNNING = "running"      # its stack runs (paused or not: see Life.paused_by)
-    LEFT = "left"            # its stack stopped before the last trial (its link resumes it)
+    INVITED = "invited"      # a link, no session yet
+    STARTING = "starting"    # joined: its session is being started
+    RUNNING = "running"      # its session runs (paused or not: see Life.paused_by)
+    LEFT = "left"            # its session stopped before the last trial (its link resumes it)
     DONE = "done"            # every trial has its row
     REVOKED = "revoked"      # its link ended: no join until a new one
 
@@ -37,7 +37,7 @@ class Refused(Exception):
 @dataclass
 class Life:
     state: State = State.INVITED
-    page_gone: bool = False      # the server's pause: a running stack whose page closed
+    page_gone: bool = False      # the server's pause: a running session whose page closed
     held: bool = False           # the experimenter's pause
 
     @classmethod
@@ -62,29 +62,29 @@ class Life:
         return "server (no page)" if self.page_gone else None
 
     def shown(self) -> str:
-        """Its state in a word: `paused` for a running stack that either pause holds."""
+        """Its state in a word: `paused` for a running session that either pause holds."""
         return "paused" if self.paused_by is not None and self.state is State.RUNNING else self.state.value
 
     @property
-    def has_stack(self) -> bool:
+    def active(self) -> bool:
         return self.state in (State.STARTING, State.RUNNING)
 
-    # ---- events: each returns the command for its study node, or None -----------------------------
+    # ---- events: each returns the command for its trials, or None -----------------------------
 
     def join(self) -> bool:
-        """Its link's Join: True when its stack must be started (False: it runs or starts already)."""
+        """Its link's Join: True when its session must be started (False: it runs or starts already)."""
         if self.state is State.REVOKED:
             raise Refused("its link was revoked")
         if self.state is State.DONE:
             raise Refused("every trial is done")
-        if self.has_stack:
+        if self.active:
             return False
         self.state, self.page_gone = State.STARTING, False
         return True
 
     def ready(self) -> str | None:
-        """Its stack serves its page: running (a new study node starts unpaused: the experimenter's
-        pause, if any, is sent again)."""
+        """Its session serves its page: running (a session starts unpaused: the experimenter's pause,
+        if any, is sent again)."""
         if self.state is not State.STARTING:
             return None
         self.state = State.RUNNING
@@ -115,12 +115,12 @@ class Life:
         return action
 
     def finished(self) -> None:
-        """Its study node said every trial is done."""
+        """Its session says every trial is done."""
         if self.state is not State.REVOKED:
             self.state, self.page_gone = State.DONE, False
 
     def stopped(self) -> None:
-        """Its stack stopped (it left, its stack failed, the server stops): `left`, unless done or revoked."""
+        """Its session stopped (it left, it failed, the server stops): `left`, unless done or revoked."""
         if self.state in (State.STARTING, State.RUNNING):
             self.state = State.LEFT
         self.page_gone = False

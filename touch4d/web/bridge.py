@@ -107,6 +107,8 @@ class BridgeConfig:
     recenter_min_s: float = 1.0         # re-centring at most this often
     save_min_s: float = 5.0             # the calibration file written at most this often
     touch: str = "node"                 # where the touch is computed: "node" (tactile/motors) or "page"
+    batch_s: float = 0.0                # > 0: a served page, which sends its frames in batches this often
+    gate_stale_s: float = 0.25          # touch: page: no frame for this long, the page's own touch plays 0
     framebuffer_scale: float = 1.0      # the page's XR layer (framebufferScaleFactor), before pacing lowers it
     foveation: float = 0.5              # its fixed foveation 0..1 (where the browser has it), before pacing raises it
     pacing: bool = True                 # the page lowers the two while its frames run late (static/pacing.js)
@@ -225,6 +227,8 @@ class WebBridge:
             "shaders": {name: shader_source(name, "es300") for name in PAGE_SHADERS},
             # the tactile model for the page's own touch (static/touch.js): eq. 1-3's constants
             "touch": self.config.touch, "alpha": float(g.alpha), "beta": float(g.beta), "gamma": float(g.gamma),
+            "batch_s": self.config.batch_s, "gate_stale_s": self.config.gate_stale_s,
+            "answer_buttons": list(ANSWER_BUTTONS), "recenter_button": self.config.recenter_button,
             "framebuffer_scale": self.config.framebuffer_scale, "foveation": self.config.foveation,
             "pacing": self.config.pacing, **self._calibration_fields(),
         }
@@ -370,6 +374,10 @@ class WebBridge:
         members, steady_arrays = self._steady
         arrays.update(steady_arrays)
         self._last_frame = pack_frame("frame", fields, arrays, members)
+        return self._last_frame
+
+    def last_frame(self) -> bytes | None:
+        """The last frame made (a served page's heartbeat sends it again: nothing changed)."""
         return self._last_frame
 
     def _steady_part(self) -> tuple[bytes, dict]:

@@ -29,6 +29,9 @@ Page -> node: UTF-8 JSON text, at most MAX_PAGE_MESSAGE bytes, no NaN or infinit
     {"type": "stats", "fps": number, "scale": 0..1, "foveation": 0..1}   (scale, foveation: in a headset)
     {"type": "response", "index": int, "option": str, "time": ms}
     {"type": "haptics", "output": "pulse"|"dual-rumble"|"none"}
+    {"type": "buttons", "held": [name, ...]}
+    {"type": "batch", "poses": {"time": [ms], "valid": [bool], "hand": [x, y, z, qx, qy, qz, qw per pose]},
+     "touches": {"time": [ms], "intensity": [V per motor, per touch]}}
 
 where "haptics" says, when it changes, what the page can vibrate: the glove hand's controller
 (WebXR `pulse`), a desktop gamepad (`dual-rumble`) or nothing; a "response" answers a study's trial `index` with one of its options from the page's own
@@ -40,6 +43,13 @@ poses, a pose is [x, y, z, qx, qy, qz, qw] (metres, local-floor space), and a so
 "joints": [[x, y, z, qx, qy, qz, qw, radius] x 25]|null}. With the node's `touch: page` the page
 computes the touch itself (static/touch.js) and each input carries what it played since the last
 one: the motors' intensities of eq. 3 and the `time` of the pose they were computed from.
+
+A served page (the setup frame's `batch_s` > 0: touch4d.web.served) sends no "input": its touch is its
+own, so the server needs its frames only for the record, a "batch" every `batch_s`: each frame's
+time, whether the glove hand was tracked and its pose on the screen (screen units, as static/touch.js
+placed it), and what it played for each pose it computed (the pose's time, one V per motor). Its
+answers ("response"), re-centring ("recenter") and the glove hand's controller buttons when they
+change ("buttons": what they do to the scene, the slice's c) go at once, not batched.
 """
 from __future__ import annotations
 
@@ -64,7 +74,9 @@ MAX_POSITION_M = 100.0            # |x|, |y|, |z| of a pose: metres a room (or a
 MAX_JOINT_RADIUS_M = 0.1          # a finger joint's radius, metres
 QUAT_TOLERANCE = 1e-2             # |q| - 1 allowed in a page's quaternion (float32 poses)
 WS_MESSAGE_TOO_BIG = 1009        # the WebSocket close code (RFC 6455)
-PAGE_TYPES = ("input", "recenter", "session", "stats", "response", "haptics")
+PAGE_TYPES = ("input", "recenter", "session", "stats", "response", "haptics", "batch", "buttons")
+MAX_BATCH = 64                    # frames in a page's batch, at most (0.25 s at 144 Hz, with room)
+MAX_SCREEN_UNITS = 100.0          # |x|, |y|, |z| of a hand on the screen ([-1, 1]^3 is the screen)
 HAPTIC_OUTPUTS = ("pulse", "dual-rumble", "none")   # what a page can vibrate (touch4d/web/static/haptics.js)
 MAX_INTENSITY = 1e3               # a motor's V = gamma h (h <= 1): gamma as a glove file may set it
 MAX_MOTORS = 256                  # intensities in a page's "played" (a glove file's motors)
@@ -285,7 +297,45 @@ class HapticsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type
     output: Literal[HAPTIC_OUTPUTS]
 
 
-PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage, HapticsMessage]
+Millis = Annotated[float, msgspec.Meta(ge=0)]
+Intensity = Annotated[float, msgspec.Meta(ge=0, le=MAX_INTENSITY)]
+
+
+class PosesBatch(msgspec.Struct, forbid_unknown_fields=True):
+    """A served page's frames: when, whether the glove hand was tracked, where it was on the screen."""
+
+    time: Annotated[list[Millis], msgspec.Meta(max_length=MAX_BATCH)]
+    valid: Annotated[list[bool], msgspec.Meta(max_length=MAX_BATCH)]
+    hand: Annotated[list[Annotated[float, msgspec.Meta(ge=-MAX_SCREEN_UNITS, le=MAX_SCREEN_UNITS)]],
+                    msgspec.Meta(max_length=7 * MAX_BATCH)]
+
+    def __post_init__(self):
+        if len(self.valid) != len(self.time) or len(self.hand) != 7 * len(self.time):
+            raise schema.Invalid(f"{len(self.time)} valid flags and {7 * len(self.time)} numbers (7 per time)",
+                                 f"{len(self.valid)} and {len(self.hand)}", "hand")
+        for k, valid in enumerate(self.valid):
+            if valid:
+                _check_quaternion(self.hand[7 * k:7 * k + 7], f"hand[{k}]")
+
+
+class TouchesBatch(msgspec.Struct, forbid_unknown_fields=True):
+    """What a served page played: per pose it computed, that pose's time and one V per motor."""
+
+    time: Annotated[list[Millis], msgspec.Meta(max_length=MAX_BATCH)]
+    intensity: Annotated[list[Intensity], msgspec.Meta(max_length=MAX_MOTORS * MAX_BATCH)]
+
+
+class ButtonsMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="buttons"):
+    held: Annotated[list[Literal[tuple(sorted(BUTTON_NAMES))]], msgspec.Meta(max_length=len(BUTTON_NAMES))]
+
+
+class BatchMessage(msgspec.Struct, forbid_unknown_fields=True, tag_field="type", tag="batch"):
+    poses: PosesBatch
+    touches: TouchesBatch
+
+
+PageMessage = Union[InputMessage, RecenterMessage, SessionMessage, StatsMessage, ResponseMessage, HapticsMessage,
+                    BatchMessage, ButtonsMessage]
 _DECODER = msgspec.json.Decoder(PageMessage)
 
 
@@ -361,6 +411,19 @@ def parse_page_message(data: str | bytes) -> dict:
         return {"type": "response", "index": msg.index, "option": msg.option, "time": msg.time}
     if isinstance(msg, HapticsMessage):
         return {"type": "haptics", "output": msg.output}
+    if isinstance(msg, ButtonsMessage):
+        return {"type": "buttons", "held": tuple(dict.fromkeys(msg.held))}
+    if isinstance(msg, BatchMessage):
+        p, t = msg.poses, msg.touches
+        n = len(t.time)
+        if (len(t.intensity) % n if n else len(t.intensity)) != 0:
+            raise PageError("malformed", f"touches.intensity: expected a multiple of {n} values (one row per time), "
+                                         f"got {len(t.intensity)}", "touches.intensity", f"a multiple of {n}")
+        hand = np.array(p.hand, dtype=float).reshape(-1, 7)
+        return {"type": "batch", "time": np.array(p.time, dtype=float), "valid": np.array(p.valid, dtype=bool),
+                "position": hand[:, :3], "orientation": hand[:, 3:],
+                "touch_time": np.array(t.time, dtype=float),
+                "intensity": np.array(t.intensity, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))}
     paced = {k: v for k, v in (("scale", msg.scale), ("foveation", msg.foveation)) if v is not None}
     return {"type": "stats", "fps": msg.fps, **paced}
 

@@ -92,7 +92,8 @@ class PageServer:
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None,
                  on_pending: Callable[[int], None] | None = None, static_dir: Path = STATIC_DIR,
-                 secret: str | None = None, loop: asyncio.AbstractEventLoop | None = None):
+                 secret: str | None = None, loop: asyncio.AbstractEventLoop | None = None,
+                 hardening: Hardening | None = None):
         self.host, self.port, self.access, self.ssl_context = host, port, access, ssl_context
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
         self.on_pending = on_pending
@@ -100,8 +101,9 @@ class PageServer:
         self.max_pages, self.send_timeout_s, self.max_queued = max_pages, send_timeout_s, max_queued
         self.input_hz = input_hz
         self.secret = secret
-        self.hardening = Hardening(host, names, ssl_context=ssl_context, max_per_address=max_per_address,
-                                   limit_loopback=limit_loopback, header_timeout_s=header_timeout_s, log=log)
+        self.hardening = hardening or Hardening(host, names, ssl_context=ssl_context, max_per_address=max_per_address,
+                                                limit_loopback=limit_loopback, header_timeout_s=header_timeout_s,
+                                                log=log)
         self.names = self.hardening.names
         self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
         # counted refusals and closes
@@ -184,9 +186,20 @@ class PageServer:
         loop.call_soon_threadsafe(loop.stop)
         self._thread.join(timeout)
 
-    def send(self, conn: int, data: bytes) -> None:
-        """Queue a frame for one page (in order, never dropped)."""
-        self._on_loop(self._enqueue, conn, data, False, True)
+    def mount(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Serve pages' WebSockets through another server's route (`websocket`, on `loop`: the study
+        server's /ws), with this one's bounds, queues and callbacks; no listener of its own."""
+        self._loop = loop
+
+    def send(self, conn: int, data: bytes, latest: bool = False) -> None:
+        """Queue a frame for one page: in order, never dropped; `latest`: replacing one not yet sent."""
+        self._on_loop(self._enqueue, conn, data, latest, True)
+
+    def close(self, conn: int) -> None:
+        """Close one page's WebSocket (its session ended); it may reconnect."""
+        client = self.clients.get(conn)
+        if client is not None:
+            self._on_loop(lambda: asyncio.ensure_future(client.ws.close(code=1001, message=b"session ended")))
 
     def peer(self, conn: int) -> str:
         """The address (host:port) of a connected page, for the log; '' once it has gone."""
@@ -300,6 +313,10 @@ class PageServer:
         if name not in self._static_names:
             raise web.HTTPNotFound()
         return web.FileResponse(self.static_dir / name)
+
+    async def websocket(self, request: web.Request) -> web.StreamResponse:
+        """A page's WebSocket, until it closes (the route of /ws, this server's or a mounting one's)."""
+        return await self._websocket(request)
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         # A page from another site must not drive the hand through this browser (cross-site

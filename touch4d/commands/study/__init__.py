@@ -113,33 +113,28 @@ def _add_serve(sub) -> None:
     """The parser of `study serve`."""
     serve = sub.add_parser("serve", help="a study server: participants join by a link, many at once",
                            description="Participants join from their own headset's browser by a link "
-                                       "(`touch4d study invite`); each gets a stack of their own under their "
-                                       "namespace, writing DIR/ID/ as `study run` does. Prints the experimenter's "
-                                       "link. Behind a reverse proxy with a real certificate: --public-url.")
+                                       "(`touch4d study invite`); each is a session in this server's process "
+                                       "(their page computes its touch itself), writing DIR/ID/ as `study run` "
+                                       "does. Prints the experimenter's link. Behind a reverse proxy with a real "
+                                       "certificate: --public-url.")
     serve.add_argument("study", metavar="STUDY", help="study file, or its name in config/studies/ (paper)")
-    serve.add_argument("items", nargs="*", metavar="ROLE.PARAM:=VALUE", help="overrides for each participant's "
-                       "stack (launch/study-serve.yaml), e.g. study.iti_s:=1")
     serve.add_argument("--out", required=True, metavar="DIR", help="output folder: links, one session folder each")
     serve.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8095, help="TCP port (default 8095; 0: any free one)")
-    serve.add_argument("--max-participants", type=_count, default=None, metavar="N",
-                       help="participants running at once; one more gets a page that says so (HTTP 503). "
-                            "Default: 4 per CPU core (bench/bench_serve.py: 16 on two cores kept their touch within 15 ms, the study "
-                            "node aside)")
+    max_participants = serve.add_argument(
+        "--max-participants", type=_count, default=None, metavar="N",
+        help="participants running at once; one more gets a page that says so (HTTP 503). Default: "
+             "%(server_default)s per CPU core (bench/bench_serve.py)")
+    max_participants.server_default = _Later("touch4d.web.studyserver", "PARTICIPANTS_PER_CORE")
     serve.add_argument("--public-url", metavar="URL", help="the address participants use (a reverse proxy's https URL)")
     serve.add_argument("--leave-after", type=_nonnegative, default=30.0, metavar="S",
-                       help="a participant without a page this long has left: their stack stops (default 30)")
+                       help="a participant without a page this long has left: their session stops (default 30)")
     serve.add_argument("--quick", action="store_true", help="one repetition per task x condition cell, no practice")
-    per_process = serve.add_argument(
-        "--per-process", type=_count, default=None, metavar="K",
-        help="participants' stacks sharing one process (a container, touch4d.bus.container): fewer processes "
-             "cost less CPU per participant, and a crash ends the current trial of the K sharing it (1: a process "
-             "each). Default: %(server_default)s (the study server's PER_PROCESS)")
-    per_process.server_default = _Later("touch4d.web.studyserver", "PER_PROCESS")
-    serve.add_argument("--stack", metavar="LAUNCH", default="launch/study-serve.yaml",
-                       help="each participant's launch file (default launch/study-serve.yaml)")
-    serve.add_argument("--wire-trace", metavar="CSV", help="write when each page input arrives and each frame leaves "
-                       "(with its haptic level): pose -> pulse inside the server (bench/bench_serve.py)")
+    serve.add_argument("--glove", default="config/gloves/quest-controller.yaml", metavar="FILE",
+                       help="the participants' glove file (default: the Quest controller as the glove)")
+    serve.add_argument("--calibration", default="config/calibration.yaml", metavar="FILE",
+                       help="where the screen stands in the room until a participant re-centres it")
+    serve.add_argument("--iti", type=_nonnegative, default=0.6, metavar="S", help="blank time between trials (default 0.6)")
     serve.set_defaults(func=run_serve)
 
 
@@ -461,14 +456,16 @@ def _glove_name(path: str) -> str:
 
 
 def run_serve(args) -> int:
+    from touch4d.web.served import ServedOptions
     from touch4d.web.studyserver import ServeOptions, StudyServer
 
     study_path = _study_path(args.study)
+    session = ServedOptions(quick=args.quick, iti_s=args.iti,
+                            glove=str(resolve_path(args.glove, COMMAND_LINE, key="--glove", what="glove file")),
+                            calibration=str(resolve_path(args.calibration, COMMAND_LINE, key="--calibration",
+                                                         what="calibration file")))
     options = ServeOptions(host=args.host, port=args.port, max_participants=args.max_participants,
-                           public_url=args.public_url, leave_after_s=args.leave_after, quick=args.quick,
-                           overrides=tuple(args.items), wire_trace=Path(args.wire_trace) if args.wire_trace else None,
-                           launch=str(resolve_path(args.stack, COMMAND_LINE, key="--stack", what="launch file")),
-                           **({"per_process": args.per_process} if args.per_process else {}))
+                           public_url=args.public_url, leave_after_s=args.leave_after, session=session)
     server = StudyServer(_study(args.study), study_path, Path(args.out), options)
     return server.run()
 

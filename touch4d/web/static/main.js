@@ -12,7 +12,8 @@ import { StudyButtons, StudyPanel } from './study.js';
 import { Haptics } from './haptics.js';
 import { fromPose, multiply, perspective } from './mat.js';
 import { program } from './gl.js';
-import { PageTouch, level } from './touch.js';
+import { PageTouch, handFromGrip, level } from './touch.js';
+import { Batch, buttonActions } from './batch.js';
 import { Pacing } from './pacing.js';
 
 const BACKGROUND = [0.04, 0.04, 0.06, 1];
@@ -41,7 +42,11 @@ let calibration = null;   // the screen's placement and the hand on the grip (se
 let touch = null;
 let touchLevel = 0;       // what the controller plays now from the page's own touch
 let played = null;        // what it played since the last input went out: {time, intensity}
-const GATE_STALE_MS = 250;   // the study's gate comes with the node's frames: none for this long, touch 0
+// A served page (touch4d.web.served): its frames go out in batches, its buttons' answers at once (batch.js)
+let batch = null;
+let buttonsHeld = new Set();
+// The study's gate comes with the node's frames: none for this long (the setup's gate_stale_s), touch 0.
+const gateStaleMs = () => (state.setup && state.setup.gate_stale_s ? 1000 * state.setup.gate_stale_s : 250);
 
 if (!gl) {
   statusLine.textContent = 'This browser has no WebGL2: touch4d cannot draw here.';
@@ -85,6 +90,7 @@ const link = new Link((message) => {
           touch = new PageTouch(gl, program(gl, header.shaders['fullscreen.vert'], header.shaders['tactile.frag'],
                                             'fullscreen.vert + tactile.frag'), message, UNITS);
         }
+        if (header.batch_s > 0) batch = new Batch(1000 * header.batch_s, header.motor_names.length);
       } catch (error) {
         state.error = String(error);
         statusLine.textContent = `touch4d cannot draw here: ${error.message}`;
@@ -110,7 +116,7 @@ const link = new Link((message) => {
       slice.update(message);
       state.view = slice.view;
     }
-    if (hud) hud.update(message);
+    if (hud && !touch) hud.update(message);   // the page's own touch draws its own hand (pageTouchLevel)
     // a running study: its question, and whether its condition lets objects be drawn
     state.study = header.study || null;
     state.drawObjects = header.draw_objects !== false;
@@ -198,7 +204,7 @@ requestAnimationFrame(inlineLoop);
 // projection (a slice view touching its cross-section is the node's alone), the node is heard.
 function touchAllowed(now) {
   const f = state.frame;
-  return Boolean(f) && f.touch_on !== false && !f.touch_section && now - haptics.at <= GATE_STALE_MS;
+  return Boolean(f) && f.touch_on !== false && !f.touch_section && now - haptics.at <= gateStaleMs();
 }
 
 // The page's own touch, each XR frame before the input goes out: the last pass's result if it has
@@ -220,6 +226,12 @@ function pageTouchLevel(input, now) {
     state.touch = { time: result.time, grip: result.grip, hand: result.hand, l: Array.from(result.l),
                     V: Array.from(result.V), played: intensity, level: touchLevel, passes: touch.passes,
                     skipped: touch.skipped };
+    // the hand and its samples drawn where this frame's pass put them, not where a frame from the node says
+    if (hud) {
+      hud.update({ header: { hand_valid: true },
+                   arrays: { hand: [...result.hand.position, ...result.hand.orientation], h: result.h,
+                             touched: Array.from(result.l, (v) => (v >= 0 ? 1 : 0)) } });
+    }
   }
   if (!allowed || !scene || !scene.geometry || !scene.geometry.bodies) touchLevel = 0;
   if (played) {
@@ -232,6 +244,7 @@ function pageTouchLevel(input, now) {
   } else {
     touch.drop();
     touchLevel = 0;
+    if (hud) hud.update(null);
   }
   return touchLevel;
 }
@@ -241,9 +254,31 @@ function handGone() {
   haptics.stop();
   if (touch) touch.drop();
   touchLevel = 0;
-  if (state.setup && state.setup.tracker) {
-    link.send({ type: 'input', time: performance.timeOrigin + performance.now(), tracking: false, head: null, sources: [] });
+  const time = performance.timeOrigin + performance.now();
+  if (batch) {   // a served page: its last frames, the hand gone, go now
+    batch.pose(time, null, performance.now());
+    link.send(batch.take());
+  } else if (state.setup && state.setup.tracker) {
+    link.send({ type: 'input', time, tracking: false, head: null, sources: [] });
   }
+}
+
+// A served page's frame: its pose and what it played into the batch (sent every batch_s); an
+// answer or a re-centre from the controller's buttons at once.
+function served(input, now) {
+  const glove = input.sources.find((s) => s.handedness === state.setup.hand);
+  const hand = input.tracking && glove && glove.grip && calibration ? handFromGrip(glove.grip, calibration) : null;
+  batch.pose(input.time, hand, now);
+  if (input.played) batch.touch(input.played.time, input.played.intensity, now);
+  const acts = buttonActions(input.sources, buttonsHeld, state.study, state.setup);
+  buttonsHeld = acts.held;
+  if (acts.answer) {
+    link.send({ type: 'response', index: acts.answer.index, option: acts.answer.option, time: input.time });
+    state.answers++;
+  }
+  if (acts.recenter && input.head) link.send({ type: 'recenter', head: input.head });
+  if (acts.buttons) link.send({ type: 'buttons', held: acts.buttons });
+  if (batch.due(now)) link.send(batch.take());
 }
 
 // The session's layer at `scale` (framebufferScaleFactor) and `foveation` (where the browser has
@@ -288,7 +323,8 @@ async function enterVR() {
       state.input = reader.read(frame, space, session, viewer || null, time);
       const now = performance.now();
       const own = touch ? pageTouch(state.input, now) : null;
-      link.send(state.input);
+      if (batch) served(state.input, now);
+      else link.send(state.input);
       state.sent++;
       // the controller plays while this page drives the hand and both it and the head are tracked
       const hand = state.input.sources.find((s) => s.handedness === state.setup.hand);
