@@ -27,10 +27,12 @@ def test_a_cut_outside_every_object_names_the_flag_and_their_range(tmp_path, cap
     assert "warning" not in capsys.readouterr().err
 
 
-def test_serve_help_says_the_per_process_default(capsys):
-    from touch4d.web.studyserver import PER_PROCESS
+def test_serve_help_says_the_participants_per_core_default(capsys):
+    """`study serve --help` gives --max-participants' default as the server's own constant, not a copy."""
+    from touch4d.web.studyserver import PARTICIPANTS_PER_CORE
 
     with pytest.raises(SystemExit):
         main(["study", "serve", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
-    assert f"Default: {PER_PROCESS} (the study server's PER_PROCESS)" in help_text, help_text
+    assert f"Default: {PARTICIPANTS_PER_CORE} per CPU core" in help_text, help_text
+    assert "--per-process" not in help_text and "ROLE.PARAM" not in help_text

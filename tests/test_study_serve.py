@@ -1,8 +1,12 @@
 """The study server over HTTP on loopback (`touch4d study serve`, a real process): links, consent,
-403 for a forged, revoked or mismatched link, 503 when full, a participant's stack started on join
-under their namespace and stopped when they leave, the experimenter's page."""
+403 for a forged, revoked or mismatched link, 503 when full, a participant's session started on join
+in the server's own process and driven over its page's WebSocket (a page without a browser: aiohttp)
+to the last trial, a leave and a resume, a server killed and started again resuming everyone at the
+first trial without a row, the experimenter's page."""
 from __future__ import annotations
 
+import asyncio
+import csv
 import http.cookiejar
 import json
 import os
@@ -11,16 +15,21 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import urllib.error
 import urllib.request
-from contextlib import contextmanager
+from contextlib import asynccontextmanager, contextmanager
 from pathlib import Path
 
+import aiohttp
 import pytest
 
-from touch4d.bus.realtime import realtime_permitted
 from touch4d.bus.testing import wait_until
 from touch4d.cli import main as cli_main
+from touch4d.study.design import load_study
+from touch4d.study.plan import quick_plan
+from touch4d.web.protocol import unpack_frame
+from touch4d.web.studyserver import PARTICIPANTS_PER_CORE
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -77,6 +86,11 @@ def invite(served, participant, *extra, capsys=None) -> str:
     return capsys.readouterr().out.strip().splitlines()[-1] if capsys else ""
 
 
+def default_participants() -> int:
+    """--max-participants' default: PARTICIPANTS_PER_CORE per core this process may use."""
+    return PARTICIPANTS_PER_CORE * len(os.sched_getaffinity(0))
+
+
 class Browser:
     """A cookie-keeping HTTP client: (status, text) for each request."""
 
@@ -97,10 +111,71 @@ def experimenter_view(served):
     return json.loads(text)
 
 
+# ---- a participant's page without a browser: its link, Join, its WebSocket -----------------------------
+
+
+@asynccontextmanager
+async def page(url: str, link: str, welcome: str = "id=join"):
+    """A participant's page: the link opened (its welcome holds `welcome`), Join pressed, the WebXR
+    page's WebSocket open as a browser opens it (the cookie, this server's Origin)."""
+    async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as session:
+        async with session.get(link) as response:
+            assert response.status == 200 and welcome in await response.text()
+        async with session.post(f"{url}/join", allow_redirects=False) as response:
+            assert response.status == 303, (response.status, await response.text())
+        async with session.ws_connect(f"{url}/ws", origin=url) as ws:
+            yield ws
+
+
+async def study(ws, predicate, timeout: float = 30) -> dict:
+    """Read the page's frames until the study's part of one satisfies `predicate`; that part."""
+    async with asyncio.timeout(timeout):
+        while True:
+            msg = await ws.receive()
+            if msg.type != aiohttp.WSMsgType.BINARY:
+                raise AssertionError(f"the page's WebSocket ended: {msg.type!r} {msg.data!r}")
+            header, _ = unpack_frame(msg.data)
+            if header["kind"] == "frame" and header.get("study") and predicate(header["study"]):
+                return header["study"]
+
+
+async def respond(ws, index: int, option: str) -> None:
+    """The page's answer button (its clock is this machine's: the server maps it all the same)."""
+    await ws.send_str(json.dumps({"type": "response", "index": index, "option": option, "time": time.time() * 1000}))
+
+
+async def answer(ws, first: int, count: int) -> list[str]:
+    """Answer trials first..first+count-1 in order, each with its first option (going on from a break
+    before one); the options given."""
+    given = []
+    for index in range(first, first + count):
+        shown = await study(ws, lambda s: s["index"] == index and s["phase"] in ("break", "stimulus"))
+        if shown["phase"] == "break":
+            await respond(ws, index, "go on")       # any answer ends a break
+            shown = await study(ws, lambda s: s["index"] == index and s["phase"] == "stimulus")
+        given.append(shown["options"][0])
+        await respond(ws, index, given[-1])
+    return given
+
+
+def rows(out: Path, participant: str) -> list[dict]:
+    """A participant's trials.csv, read here (not with the server's reader)."""
+    with open(out / participant / "trials.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def children(pid: int) -> list[str]:
+    """The child processes of a process (every thread's)."""
+    return [c for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+
+
+# ---- tests ------------------------------------------------------------------------------------------------
+
+
 def test_links_consent_and_refusals(tmp_path, capsys):
     with serve(tmp_path) as served:
-        # no --max-participants: four per core this process may use
-        assert f"for up to {4 * len(os.sched_getaffinity(0))} participants" in served.text
+        # no --max-participants: PARTICIPANTS_PER_CORE per core this process may use
+        assert f"for up to {default_participants()} participants" in served.text
         link = invite(served, "P01", capsys=capsys)
         assert link.startswith(f"{served.url}/?participant=P01&token=")
         page = Browser()
@@ -124,138 +199,130 @@ def test_links_consent_and_refusals(tmp_path, capsys):
     assert oct((served.out / "invites.json").stat().st_mode & 0o777) == "0o600"
 
 
-def test_join_starts_the_participants_stack_and_a_second_is_refused_when_full(tmp_path, capsys):
+def test_join_starts_the_participants_session_in_the_server_and_a_second_is_refused_when_full(tmp_path, capsys):
+    study = load_study(STUDY)
     with serve(tmp_path, "--max-participants", "1", "--leave-after", "600") as served:   # no page opens here
         p1, p2 = Browser(), Browser()
         assert p1.get(invite(served, "P01", capsys=capsys))[0] == 200
         assert p2.get(invite(served, "P02", capsys=capsys))[0] == 200
         status, text = p1.get(f"{served.url}/join", data=b"")
-        assert status == 200 and '<canvas id="view">' in text          # the WebXR page, through the server
+        assert status == 200 and '<canvas id="view">' in text          # the WebXR page
         assert p1.get(f"{served.url}/static/main.js")[0] == 200
+        assert p2.get(f"{served.url}/static/main.js")[0] == 404         # not joined: no page yet
         status, text = p2.get(f"{served.url}/join", data=b"")
         assert status == 503 and "full" in text
         view = experimenter_view(served)
         states = {p["participant"]: p["state"] for p in view["participants"]}
         assert states == {"P01": "running", "P02": "invited"} and view["counts"]["full"] == 1
-        log = (served.out / "P01" / "serve.log").read_text()
-        assert "every topic under P01/" in log and "loaded in container participants-1" in log
-        # launch/study-serve.yaml's haptic loop is `realtime`: the server's loop thread, which the
-        # page's messages pass through, and the container's run SCHED_FIFO (each thread alone:
-        # tests/test_bus_container.py) where permitted, else at normal priority; the log says which
-        permitted = realtime_permitted()
-        (container,) = _containers(served.proc.pid)
-        for pid in (served.proc.pid, container):
-            assert os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK == (os.SCHED_FIFO if permitted else os.SCHED_OTHER)
-        assert ("the container's loop runs at real-time priority" if permitted else
-                "real-time priority not permitted") in log
-        wait_until(lambda: (served.out / "P01" / "manifest.json").exists(), timeout=60)
-        # the study node runs P01's session (its namespace's study/trial reaches the experimenter's page)
-        wait_until(lambda: [p for p in experimenter_view(served)["participants"]
-                            if p["participant"] == "P01" and p["of"]], timeout=60)
-        # the experimenter pauses P01's session (its study node says so on P01/study/trial)
+        # its session, in the server's own process (no process started for it), opened its folder
+        # and its first trial: the session's opening break
+        assert children(served.proc.pid) == []
+        manifest = json.loads((served.out / "P01" / "manifest.json").read_text())
+        assert manifest["participant"] == "P01" and [s["pid"] for s in manifest["starts"]] == [served.proc.pid]
+        (p01,) = [p for p in view["participants"] if p["participant"] == "P01"]
+        assert p01["of"] == len(quick_plan(study, "P01")) and p01["trial"] == 1 and p01["phase"] == "break"
+        # the experimenter pauses P01's session
         lab = Browser()
         assert lab.get(served.experimenter)[0] == 200
         assert lab.get(f"{served.url}/experimenter/pause", data=b"participant=P01")[0] == 200
-        wait_until(lambda: [p for p in experimenter_view(served)["participants"]
-                            if p["participant"] == "P01" and p["phase"] == "paused"], timeout=60)
+        (p01,) = [p for p in experimenter_view(served)["participants"] if p["participant"] == "P01"]
+        assert p01["phase"] == "paused" and p01["state"] == "paused" and p01["paused_by"] == "experimenter"
     # the terminal said each in a line: the join, the refusal while full, and the shutdown
     served.thread.join(10)          # its last lines read
     said = served.text.splitlines()
-    assert any(re.match(r"\d\d:\d\d:\d\d P01 joined: starting its stack .*; 1 of 1 running", line) for line in said)
+    assert any(re.match(r"\d\d:\d\d:\d\d P01 joined; 1 of 1 running", line) for line in said), served.text
     assert any(re.match(r"\d\d:\d\d:\d\d P02: refused, the study is full \(1 of 1 running", line) for line in said)
-    assert any(line.endswith("stopping: 1 running participants' stacks stop (each resumes at its next trial when "
+    assert any(line.endswith("stopping: 1 running participants' sessions stop (each resumes at its next trial when "
                              "its link is opened again)") for line in said), served.text
     assert said[-1].endswith(" stopped")
 
 
-def _processes_with(text: str) -> list[int]:
-    """The processes whose command line holds `text` (this test's folder: its server's stacks)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if text in (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
-                    found.append(int(entry.name))
-            except OSError:
-                pass
-    return found
+def test_a_full_study_over_the_pages_websocket_with_a_leave_and_a_resume(tmp_path, capsys):
+    """A participant answers two trials, closes their page (paused, then left), comes back by their
+    link (welcomed back, the next trial without a row again), and answers every trial: done, each
+    trial one row with the answer given, a log per start; the link then says so."""
+    planned = quick_plan(load_study(STUDY), "P01")
+    with serve(tmp_path, "--leave-after", "2", "--iti", "0") as served:
+        link = invite(served, "P01", capsys=capsys)
+
+        def state():
+            (p01,) = [p for p in experimenter_view(served)["participants"] if p["participant"] == "P01"]
+            return p01
+
+        async def run():
+            async with page(served.url, link) as ws:
+                given = await answer(ws, 0, 2)
+                shown = await study(ws, lambda s: s["index"] == 2)        # the next trial is shown
+            paused = await asyncio.to_thread(wait_until, lambda: (lambda p: p["state"] != "running" and p)(state()), 10)
+            assert (paused["state"], paused["paused_by"]) == ("paused", "server (no page)")
+            await asyncio.to_thread(wait_until, lambda: state()["state"] == "left", 10)
+            assert len(rows(served.out, "P01")) == 2
+            async with page(served.url, link, welcome="Welcome back: 2 trials are done") as ws:
+                first = await study(ws, lambda s: s["phase"] in ("break", "stimulus"))
+                given += await answer(ws, 2, len(planned) - 2)
+                await study(ws, lambda s: s["phase"] == "done")
+            return shown, first, given
+
+        shown, first, given = asyncio.run(run())
+        assert shown["phase"] in ("idle", "stimulus") and first["index"] == 2    # resumed where it left
+        assert state()["state"] == "done"
+        wait_until(lambda: served.text.count("P01 left: its session stops") == 2, timeout=10)   # its page gone
+        written = rows(served.out, "P01")
+        assert [int(r["index"]) for r in written] == [t.index for t in planned]
+        assert [r["response"] for r in written] == given == [t.options[0] for t in planned]
+        assert len(sorted((served.out / "P01").rglob("*.mcap"))) == 2       # one log per start
+        resumed = [s["resumed_at"] for s in json.loads((served.out / "P01" / "manifest.json").read_text())["starts"]]
+        assert resumed == [0, 2]
+        done = Browser()
+        assert done.get(link)[0] == 200
+        status, text = done.get(f"{served.url}/join", data=b"")
+        assert status == 200 and "Every trial is done" in text
+    assert "P01 is done: every trial has its row" in served.text
+    assert "P01 is back; 1 of" in served.text
 
 
-def _starts(out: Path, participant: str = "P01") -> int:
-    """How often a participant's study node started its session (manifest.json; 0 before it is written)."""
-    try:
-        return len(json.loads((out / participant / "manifest.json").read_text())["starts"])
-    except FileNotFoundError:
-        return 0
-
-
-def _containers(server_pid: int) -> list[int]:
-    """The server's containers (touch4d.bus.container): the processes of participants' stacks."""
-    found = []
-    for pid in _processes_with("--container"):
-        try:
-            if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]) == server_pid:
-                found.append(pid)
-        except (OSError, ValueError, IndexError):
-            pass
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def test_a_crashed_container_comes_back_whole_a_killed_server_takes_its_stacks_and_everyone_resumes(tmp_path, capsys):
-    with serve(tmp_path, "--leave-after", "600") as served:          # no page opens here
-        links, pages = {}, {}
-        for participant in ("P01", "P02"):
+def test_a_killed_server_loses_no_row_and_started_again_resumes_everyone_at_the_first_trial_without_one(tmp_path,
+                                                                                                       capsys):
+    links, answered = {}, {"P01": 3, "P02": 1}
+    with serve(tmp_path, "--leave-after", "600", "--iti", "0") as served:
+        for participant in answered:
             links[participant] = invite(served, participant, capsys=capsys)
-            page = pages[participant] = Browser()
-            page.get(links[participant])
-            assert page.get(f"{served.url}/join", data=b"")[0] == 200
-        for participant in ("P01", "P02"):
-            wait_until(lambda: _starts(served.out, participant) >= 1, timeout=90)   # its session began
-            status, text = pages[participant].get(f"{served.url}/")
-            assert status == 200 and '<canvas id="view">' in text                  # its page, from its stack
-        first = _containers(served.proc.pid)
-        assert 1 <= len(first) <= 2                                    # spread over the cores first, then shared
-        for pid in first:
-            os.kill(pid, signal.SIGKILL)                               # a crash takes every stack of it
-        # the server starts each container again with its stacks: each study node resumes its session
-        for participant in ("P01", "P02"):
-            wait_until(lambda: _starts(served.out, participant) >= 2, timeout=90)
-        back = _containers(served.proc.pid)
-        assert len(back) == len(first) and not set(back) & set(first)
-        wait_until(lambda: len(re.findall(r"participants-\d was killed by SIGKILL with \d group\(s\)", served.text))
-                   == len(first), timeout=10)
-        assert all(f"{participant}: its stack's process died; started again" in served.text for participant in ("P01", "P02"))
-        wait_until(lambda: (served.out / "P01" / "serve.log").read_text().count("P01: 5 node(s) loaded in container")
-                   == 2, timeout=30)
-        # each page is served again, from the port its stack's new process bound (its ready file says which)
-        for participant in ("P01", "P02"):
-            assert wait_until(lambda: pages[participant].get(f"{served.url}/")[0] == 200, timeout=30)
-            assert '<canvas id="view">' in pages[participant].get(f"{served.url}/")[1]
-        served.proc.send_signal(signal.SIGKILL)                         # the server alone, killed
-        served.proc.wait()
-        wait_until(lambda: not _alive(back[0]), timeout=30)            # its containers go with it
-    with serve(tmp_path, "--leave-after", "600") as again:
-        page = Browser()
-        link = links["P01"]
-        status, text = page.get(link.replace(served.url, again.url))   # the same link, the same token
-        assert status == 200 and "id=join" in text
-        assert page.get(f"{again.url}/join", data=b"")[0] == 200
-        # the study node started again on the same session (it resumes at the first trial without a row)
-        wait_until(lambda: _starts(again.out) >= 3, timeout=90)
+
+        async def answering():
+            async with page(served.url, links["P01"]) as one, page(served.url, links["P02"]) as two:
+                await answer(one, 0, answered["P01"])
+                await answer(two, 0, answered["P02"])
+                await study(one, lambda s: s["index"] == answered["P01"])
+                await study(two, lambda s: s["index"] == answered["P02"])
+                served.proc.send_signal(signal.SIGKILL)                 # mid-session, pages open
+                served.proc.wait()
+        asyncio.run(answering())
+    for participant, count in answered.items():                         # every row written survived
+        assert [int(r["index"]) for r in rows(served.out, participant)] == list(range(count))
+    with serve(tmp_path, "--leave-after", "600", "--iti", "0") as again:
+        states = {p["participant"]: (p["state"], p["rows"]) for p in experimenter_view(again)["participants"]}
+        assert states == {"P01": ("left", 3), "P02": ("left", 1)}
+
+        async def resuming():
+            firsts = {}
+            for participant, count in answered.items():                   # the same links, the same tokens
+                link = links[participant].replace(served.url, again.url)
+                async with page(again.url, link, welcome=f"Welcome back: {count} trials are done") as ws:
+                    firsts[participant] = await study(ws, lambda s: s["phase"] == "stimulus")
+                    await answer(ws, count, 1)
+                    await study(ws, lambda s: s["index"] == count + 1)
+            return firsts
+        firsts = asyncio.run(resuming())
+        assert {p: s["index"] for p, s in firsts.items()} == answered
+    for participant, count in answered.items():
+        assert [int(r["index"]) for r in rows(again.out, participant)] == list(range(count + 1))
 
 
 def test_the_experimenter_page_makes_and_revokes_links_and_only_for_the_experimenter(tmp_path, capsys):
     with serve(tmp_path) as served:
         lab = Browser()
         status, text = lab.get(served.experimenter)
-        assert status == 200 and f"0 of {4 * len(os.sched_getaffinity(0))} running" in text
+        assert status == 200 and f"0 of {default_participants()} running" in text
         status, text = lab.get(f"{served.url}/experimenter/invite", data=b"participant=P09")
         link = re.search(r"(http://\S+participant=P09&amp;token=[\w-]+)", text).group(1).replace("&amp;", "&")
         participant = Browser()
