@@ -80,3 +80,84 @@ def enter_vr(page, frames: int = 3, timeout_s: float = 30.0) -> None:
     wait_connected(page, timeout_s)
     page.click("#enter-vr", timeout=timeout_s * 1000)
     page.wait_for_function(f"touch4d.session !== null && touch4d.xrFrames >= {frames}", timeout=timeout_s * 1000)
+
+
+class DelayRelay:
+    """A TCP relay on loopback that holds every chunk `delay_s` in each direction, in order: a
+    network's latency for a page and its server on one machine (this kernel has no netem).
+
+        with DelayRelay(server_port, 0.15) as relay:     # 150 ms each way: a 300 ms round trip
+            page.goto(f"http://127.0.0.1:{relay.port}/")
+    """
+
+    def __init__(self, target_port: int, delay_s: float, target_host: str = "127.0.0.1"):
+        import asyncio
+        import threading
+
+        self.target, self.delay_s = (target_host, target_port), delay_s
+        self.port = 0
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="delay-relay", daemon=True)
+        self._server = None
+        self._tasks: set = set()
+
+    def __enter__(self) -> "DelayRelay":
+        import asyncio
+
+        self._thread.start()
+        self._server = asyncio.run_coroutine_threadsafe(
+            asyncio.start_server(self._connection, "127.0.0.1", 0), self._loop).result(10)
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import asyncio
+
+        async def stop():
+            self._server.close()
+            for task in list(self._tasks):
+                task.cancel()
+        asyncio.run_coroutine_threadsafe(stop(), self._loop).result(10)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+
+    async def _connection(self, reader, writer) -> None:
+        import asyncio
+
+        try:
+            up_reader, up_writer = await asyncio.open_connection(*self.target)
+        except OSError:
+            writer.close()
+            return
+        for source, sink in ((reader, up_writer), (up_reader, writer)):
+            task = asyncio.ensure_future(self._pipe(source, sink))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    async def _pipe(self, reader, writer) -> None:
+        """Each chunk read leaves `delay_s` after it came, in order (a queue and one sender)."""
+        import asyncio
+
+        loop = asyncio.get_running_loop()
+        queue: asyncio.Queue = asyncio.Queue()
+
+        async def send():
+            while True:
+                due, data = await queue.get()
+                await asyncio.sleep(max(0.0, due - loop.time()))
+                if data is None:
+                    writer.close()
+                    return
+                writer.write(data)
+                await writer.drain()
+        sender = asyncio.ensure_future(send())
+        try:
+            while True:
+                data = await reader.read(65536)
+                queue.put_nowait((loop.time() + self.delay_s, data or None))
+                if not data:
+                    break
+            await sender
+        except (ConnectionError, asyncio.CancelledError):
+            sender.cancel()
+            writer.close()
