@@ -298,7 +298,7 @@ async function enterVR() {
   const setup = state.setup || {};
   const pacing = new Pacing(setup.framebuffer_scale ?? 1, setup.foveation ?? 0, setup.pacing !== false);
   session.updateRenderState({ baseLayer: makeLayer(session, pacing), depthNear: 0.05, depthFar: 50 });
-  state.pacing = pacing.state;
+  state.pacing = pacing.state;   // updated in place each frame
   const space = await session.requestReferenceSpace('local-floor');
   const reader = new InputReader(session);
   state.session = session;
@@ -316,7 +316,6 @@ async function enterVR() {
     session.requestAnimationFrame(onFrame);
     const step = pacing.frame(time, session.frameRate);
     if (step) session.updateRenderState({ baseLayer: makeLayer(session, step) });   // from the next frame on
-    state.pacing = pacing.state;
     const viewer = frame.getViewerPose(space);
     // Input first: the pose leaves before this frame's drawing.
     if (state.setup && state.setup.tracker && session.visibilityState === 'visible' && !state.leaving) {

@@ -36,10 +36,11 @@ export function ladder(scale, foveation, options = DEFAULTS) {
   }
 }
 
+// The median of a Float64Array, sorted in place (no allocation in the frame loop).
 export function median(values) {
-  const sorted = Float64Array.from(values).sort();
-  const mid = sorted.length >> 1;
-  return sorted.length % 2 ? sorted[mid] : (sorted[mid - 1] + sorted[mid]) / 2;
+  values.sort();
+  const mid = values.length >> 1;
+  return values.length % 2 ? values[mid] : (values[mid - 1] + values[mid]) / 2;
 }
 
 export class Pacing {
@@ -58,15 +59,18 @@ export class Pacing {
     this.since = null;           // the first frame time at the current level (or after a gap)
     this.onTimeSince = null;     // the first on-time decision of the current run
     this.trying = null;          // the time of a step up not yet found to hold
+    this.scratch = new Float64Array(256);   // the intervals, reused (grown for a faster display)
+    this.state = {};             // what tests and the page show (window.touch4d.pacing), updated in place
+    this.show();
   }
 
   get scale() { return this.levels[this.level].scale; }
   get foveation() { return this.levels[this.level].foveation; }
 
-  // What tests and the page show: window.touch4d.pacing.
-  get state() {
-    return { scale: this.scale, foveation: this.foveation, fps: this.fps, nominal: this.nominal,
-             level: this.level, lowered: this.lowered, raised: this.raised, adaptive: this.adaptive };
+  show() {
+    const s = this.state;
+    s.scale = this.scale; s.foveation = this.foveation; s.fps = this.fps; s.nominal = this.nominal;
+    s.level = this.level; s.lowered = this.lowered; s.raised = this.raised; s.adaptive = this.adaptive;
   }
 
   // One XR frame at `time` (ms); `nominalHz` the display's rate where it says it. Returns the new
@@ -74,13 +78,21 @@ export class Pacing {
   frame(time, nominalHz) {
     this.nominal = Number.isFinite(nominalHz) && nominalHz > 0 ? nominalHz : NOMINAL_HZ;
     if (!Number.isFinite(time)) return null;
+    const step = this.decide(time);
+    this.show();
+    return step;
+  }
+
+  decide(time) {
     const last = this.times.length ? this.times[this.times.length - 1] : null;
     if (last === null || time <= last || time - last > this.o.gapMs) this.restart(time);
     this.times.push(time);
     while (time - this.times[0] > this.o.windowMs) this.times.shift();
     if (time - this.since < this.o.windowMs || this.times.length < 3) return null;
-    const intervals = this.times.slice(1).map((t, i) => t - this.times[i]);
-    const interval = median(intervals);
+    const n = this.times.length - 1;
+    if (this.scratch.length < n) this.scratch = new Float64Array(2 * n);
+    for (let i = 0; i < n; i++) this.scratch[i] = this.times[i + 1] - this.times[i];
+    const interval = median(this.scratch.subarray(0, n));
     this.fps = 1000 / interval;
     const period = 1000 / this.nominal;
     if (interval > this.o.late * period) return this.lower(time);
