@@ -85,7 +85,8 @@ def main() -> None:
           f"touch on the page's thread {page['touch_ms']:.2f} ms/frame "
           f"({100 * page['touch_ms'] / page['frame_ms']:.1f}% of its frame; in "
           f"{sum(r['touch_frames'] for r in runs['page'])} of {sum(r['frames'] for r in runs['page'])} frames)")
-    print(f"  ratio page / node: fps {page['fps'] / node['fps']:.2f}x   frame {page['frame_ms'] / node['frame_ms']:.2f}x"
+    print(f"  ratio page / node: fps {page['fps'] / node['fps']:.2f}x   "
+          f"frame {page['frame_ms'] / node['frame_ms']:.2f}x"
           f"   touch's own time / baseline frame {page['touch_ms'] / node['frame_ms']:.3f}")
     print(f"load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 

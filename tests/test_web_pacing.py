@@ -159,7 +159,8 @@ def test_the_nodes_settings_reach_the_setup_frame_and_the_pages_scale_its_heartb
 
 @pytest.mark.parametrize("key,value,expected", [
     ("framebuffer_scale", 0.0, "> 0 and <= 1"), ("framebuffer_scale", 1.5, "> 0 and <= 1"),
-    ("foveation", -0.1, ">= 0 and <= 1"), ("foveation", 2.0, ">= 0 and <= 1"), ("pacing", "sometimes", "true or false")])
+    ("foveation", -0.1, ">= 0 and <= 1"), ("foveation", 2.0, ">= 0 and <= 1"),
+    ("pacing", "sometimes", "true or false")])
 def test_a_wrong_setting_is_refused_by_name(key, value, expected):
     def error(name, expected, got):
         return ConfigError("launch.yaml", f"nodes.tracker.params.{name}", expected, got=got)
