@@ -115,16 +115,22 @@ def experimenter_view(served):
 
 
 @asynccontextmanager
-async def page(url: str, link: str, welcome: str = "id=join"):
-    """A participant's page: the link opened (its welcome holds `welcome`), Join pressed, the WebXR
-    page's WebSocket open as a browser opens it (the cookie, this server's Origin)."""
+async def joined(url: str, link: str, welcome: str = "id=join"):
+    """A participant's browser: the link opened (its welcome holds `welcome`), Join pressed."""
     async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as session:
         async with session.get(link) as response:
             assert response.status == 200 and welcome in await response.text()
         async with session.post(f"{url}/join", allow_redirects=False) as response:
             assert response.status == 303, (response.status, await response.text())
-        async with session.ws_connect(f"{url}/ws", origin=url) as ws:
-            yield ws
+        yield session
+
+
+@asynccontextmanager
+async def page(url: str, link: str, welcome: str = "id=join"):
+    """A participant's page: joined, the WebXR page's WebSocket open as a browser opens it (the
+    cookie, this server's Origin)."""
+    async with joined(url, link, welcome) as session, session.ws_connect(f"{url}/ws", origin=url) as ws:
+        yield ws
 
 
 async def study(ws, predicate, timeout: float = 30) -> dict:

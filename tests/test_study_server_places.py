@@ -1,12 +1,12 @@
-"""The study server's places, in process (a real `sleep` process stands as a participant's stack, in
-place of the server's containers, so no stack needs starting): a link revoked with `touch4d study invite --revoke` stops its stack with no
-request made, a join whose page never connects gives its place back, and an unreadable invites.json
-keeps the links read before instead of failing every request."""
+"""The study server's places, in process (the real server on loopback, each participant a session of
+its own, pages without a browser: aiohttp): a link revoked with `touch4d study invite --revoke` or
+replaced stops its session with no request made, a join whose page never connects gives its place
+back, a page reloaded resumes only the server's pause, a session that cannot start says so without
+the server's paths, an unreadable invites.json keeps the links read before instead of failing every
+request, one link's flood is refused alone, and the experimenter's page."""
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import threading
 from pathlib import Path
 
 import aiohttp
@@ -14,58 +14,23 @@ import pytest
 
 from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
-from touch4d.study.participation import Life, State
+from touch4d.study.lock import WRITER, SessionLock
 from touch4d.web.invites import Invites
-from touch4d.web.studyserver import Participant, ServeOptions, StudyServer, _page_port
+from touch4d.web.served import ServedOptions
+from touch4d.web.studyserver import SERVED, ServeOptions, StudyServer
+
+from test_study_serve import joined, page, study
 
 pytestmark = pytest.mark.timeout(60)
 
 STUDY = "config/studies/paper.yaml"
+SESSION_OPTIONS = ("quick", "iti_s")     # _server's keywords for each participant's session (ServedOptions)
 
 
 def _server(out, **kw) -> StudyServer:
-    return StudyServer(load_study(STUDY), STUDY, out, ServeOptions(port=0, **kw))
-
-
-class SleepStacks:
-    """Stands for the server's ContainerPool (touch4d.bus.container): each participant's stack a real
-    `sleep` process, which unloading ends."""
-
-    def __init__(self):
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def start(self, participant: str) -> subprocess.Popen:
-        proc = self.procs[participant] = subprocess.Popen(["sleep", "60"], start_new_session=True)
-        return proc
-
-    def unload(self, participant: str) -> None:
-        proc = self.procs.pop(participant, None)
-        if proc is not None:
-            proc.terminate()
-
-    def running(self, participant: str) -> bool:
-        proc = self.procs.get(participant)
-        return proc is not None and proc.poll() is None
-
-    def container_of(self, participant: str) -> str | None:
-        return "sleep" if participant in self.procs else None
-
-    def check(self) -> list[str]:
-        return []
-
-    def close(self) -> None:
-        for participant in list(self.procs):
-            self.unload(participant)
-
-
-def _stack(server: StudyServer, participant: str) -> tuple[Participant, subprocess.Popen]:
-    """A running participant whose stack is a real process (its own process group, as a stack's)."""
-    if server.pool is None:
-        server.pool = SleepStacks()
-    p = server.participants[participant]
-    proc = server.pool.start(participant)
-    p.life = Life(State.RUNNING)
-    return p, proc
+    """The study server on any free port of loopback, as `study serve` makes it."""
+    session = ServedOptions(**{k: kw.pop(k) for k in SESSION_OPTIONS if k in kw})
+    return StudyServer(load_study(STUDY), STUDY, out, ServeOptions(port=0, session=session, **kw))
 
 
 async def _until(predicate, timeout: float) -> bool:
@@ -79,60 +44,76 @@ async def _until(predicate, timeout: float) -> bool:
 
 
 def _serving(server: StudyServer, body) -> None:
-    """Run `body(server)` (a coroutine function) while the server serves; stop it after."""
+    """Run `body(server)` (a coroutine function) while the server serves; stop it after (its
+    participants' sessions stop as they do on SIGINT)."""
     async def main():
         serve = asyncio.ensure_future(server._serve())
         try:
-            assert await _until(lambda: server._stopping is not None and hasattr(server, "client"), 10)
-            await asyncio.sleep(0.2)
+            assert await _until(lambda: serve.done() or (server.out / SERVED).exists(), 30)
+            if serve.done():
+                serve.result()          # its failure, as it was raised
             await body(server)
         finally:
-            server._stopping.set()
+            if server._stopping is not None:
+                server._stopping.set()
             await serve
     asyncio.run(main())
 
 
-def _reap(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.kill()
-    proc.wait()
+def _url(server: StudyServer) -> str:
+    return f"http://127.0.0.1:{server.port}"
 
 
-def test_a_link_revoked_from_the_command_line_stops_its_stack_without_a_request(tmp_path):
-    server = _server(tmp_path)
-    Invites(tmp_path).issue("P01")
+def _link(server: StudyServer, participant: str) -> str:
+    """A participant's link, invited now (as `touch4d study invite` does) and adopted."""
+    link = server.link(participant, Invites(server.out).issue(participant))
     server._load_invites()
-    p, proc = _stack(server, "P01")
+    return link
+
+
+async def _closed(ws, timeout: float = 10) -> bool:
+    """Whether the server closes this page's WebSocket within `timeout` (its frames read meanwhile)."""
     try:
-        async def body(server):
+        async with asyncio.timeout(timeout):
+            while (await ws.receive()).type == aiohttp.WSMsgType.BINARY:
+                pass
+    except TimeoutError:
+        return False
+    return True
+
+
+def _state(server: StudyServer, participant: str) -> dict:
+    return next(s for s in server.status() if s["participant"] == participant)
+
+
+def test_a_link_revoked_from_the_command_line_stops_its_session_without_a_request(tmp_path):
+    server = _server(tmp_path)
+
+    async def body(server):
+        async with page(_url(server), _link(server, "P01")) as ws:
+            await study(ws, lambda s: s["phase"] == "break")
+            assert server.running() == 1
             assert cli_main(["study", "invite", str(tmp_path), "P01", "--revoke"]) == 0
-            assert await _until(lambda: proc.poll() is not None, 10), "the revoked participant's stack still runs"
-            assert p.life.shown() == "revoked" and server.running() == 0
-        _serving(server, body)
-    finally:
-        _reap(proc)
+            assert await _closed(ws), "the revoked participant's page is still served"
+            assert await _until(lambda: server.running() == 0, 5), "the revoked participant's session still runs"
+            assert _state(server, "P01")["state"] == "revoked"
+    _serving(server, body)
+    assert server.participants["P01"].session is None
 
 
 def test_a_join_whose_page_never_connects_gives_its_place_back(tmp_path):
     server = _server(tmp_path, leave_after_s=0.1, page_grace_s=0.3)
-    Invites(tmp_path).issue("P01")
-    Invites(tmp_path).issue("P02")
-    server._load_invites()
-    (gone, gone_proc), (stays, stays_proc) = _stack(server, "P01"), _stack(server, "P02")
-    procs = [gone_proc, stays_proc]
-    try:
-        async def body(server):
-            server._await_page(gone)
-            server._await_page(stays)
-            server._page_opened(stays)          # P02's page came
-            assert await _until(lambda: procs[0].poll() is not None, 10), "a join without a page holds its place"
-            assert gone.life.shown() == "left" and server.counts["left"] == 1
+
+    async def body(server):
+        url = _url(server)
+        async with joined(url, _link(server, "P01")), page(url, _link(server, "P02")) as stays:
+            assert server.running() == 2
+            assert await _until(lambda: server.running() == 1, 10), "a join without a page holds its place"
+            assert _state(server, "P01")["state"] == "left" and server.counts["left"] == 1
             await asyncio.sleep(0.5)
-            assert procs[1].poll() is None and stays.life.shown() == "running"
-        _serving(server, body)
-    finally:
-        _reap(procs[0])
-        _reap(procs[1])
+            assert _state(server, "P02")["state"] == "running" and server.running() == 1
+            await study(stays, lambda s: s["phase"] == "break")     # its page still served
+    _serving(server, body)
 
 
 def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
@@ -155,94 +136,131 @@ def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
     _serving(server, body)
 
 
-def test_the_experimenter_resumes_a_trial_they_paused(tmp_path):
+def test_the_experimenter_pauses_and_resumes_a_trial_and_the_page_shows_it(tmp_path):
     """A pause from the experimenter's page needs its way back: the participant's page has no resume."""
-    from touch4d.bus import Node
-    from touch4d.bus.testing import collect, wait_until
-    from touch4d.messages import StudyCommand
-
     server = _server(tmp_path)
-    Invites(tmp_path).issue("P01")
-    server._load_invites()
-    server._start_bus(tmp_path)
-    probe = Node("probe", bus=server.node.bus)        # the participants' broker
-    heard = collect(probe, "P01/study/command", StudyCommand)
-    p, proc = _stack(server, "P01")                   # its trial runs: the commands reach its study node
-    try:
-        async def body(server):
-            url = f"http://127.0.0.1:{server.port}"
-            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+
+    async def body(server):
+        url = _url(server)
+        async with page(url, _link(server, "P01")) as ws, \
+                aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+            await study(ws, lambda s: s["phase"] == "break")
+            async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
+                assert response.status == 200 and "action=/experimenter/resume" in await response.text()
+            for action, phase in (("pause", "paused"), ("resume", "break")):   # a break paused shows again
+                async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"}) as response:
+                    assert response.status == 200
+                await study(ws, lambda s: s["phase"] == phase)
+            assert _state(server, "P01")["state"] == "running"
+    _serving(server, body)
+
+
+def test_a_page_reloaded_resumes_only_the_servers_pause_not_the_experimenters(tmp_path):
+    """The page gone pauses the trial and the page back resumes it; a pause from the experimenter's
+    page stays through the participant's reloads until the experimenter resumes it."""
+    server = _server(tmp_path, leave_after_s=60)
+
+    async def phases(ws, seconds: float) -> set[str]:
+        """The study phases the page's frames show for `seconds` (the server repeats its last frame)."""
+        seen = set()
+        try:
+            async with asyncio.timeout(seconds):
+                while True:
+                    seen.add((await study(ws, lambda s: True, timeout=seconds))["phase"])
+        except TimeoutError:
+            return seen
+
+    async def body(server):
+        url = _url(server)
+        async with joined(url, _link(server, "P01")) as browser, \
+                aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+            async with browser.ws_connect(f"{url}/ws", origin=url) as ws:
+                await study(ws, lambda s: s["phase"] == "break")
+            assert await _until(lambda: _state(server, "P01")["paused_by"] == "server (no page)", 5)
+            async with browser.ws_connect(f"{url}/ws", origin=url) as ws:     # back: the server resumes
+                await study(ws, lambda s: s["phase"] == "break")
+                assert _state(server, "P01")["state"] == "running"
                 async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
-                    page = await response.text()
-                    assert response.status == 200 and "action=/experimenter/resume" in page
-                for action in ("pause", "resume"):
-                    await asyncio.sleep(0.3)      # the probe's subscription settles
-                    async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"}) as response:
-                        assert response.status == 200
-                    await asyncio.to_thread(wait_until, lambda: any(m.command == action for m in heard), 10)
-        spinning = threading.Thread(target=probe.spin, daemon=True)
-        spinning.start()
-        _serving(server, body)
-        assert [m.command for m in heard] == ["pause", "resume"]
-    finally:
-        _reap(proc)
-        probe.request_shutdown()
-        server.node.request_shutdown()
-        server._bus_thread.join(5)
-        server.broker.stop()
+                    assert response.status == 200
+                async with lab.post(f"{url}/experimenter/pause", data={"participant": "P01"},
+                                    headers={"Origin": url}) as response:
+                    assert response.status == 200
+                await study(ws, lambda s: s["phase"] == "paused")
+            async with browser.ws_connect(f"{url}/ws", origin=url) as ws:     # the participant reloads
+                assert await phases(ws, 1.0) == {"paused"}       # no resume: the experimenter's pause holds
+                view = _state(server, "P01")
+                assert view["state"] == "paused" and view["paused_by"] == "experimenter"
+                async with lab.post(f"{url}/experimenter/resume", data={"participant": "P01"},
+                                    headers={"Origin": url}) as response:
+                    assert response.status == 200
+                await study(ws, lambda s: s["phase"] == "break")
+            assert server.participants["P01"].session.machine.counts["pauses"] == 2   # the server's, the experimenter's
+    _serving(server, body)
 
 
 def test_a_new_link_ends_what_the_old_one_opened(tmp_path):
-    """Re-inviting a participant (a leaked or lost link) cuts off the old link's browsers and stack."""
+    """Re-inviting a participant (a leaked or lost link) cuts off the old link's browsers and session."""
     server = _server(tmp_path)
-    old = Invites(tmp_path).issue("P01")
-    server._load_invites()
-    p, proc = _stack(server, "P01")
-    try:
-        async def body(server):
-            url = f"http://127.0.0.1:{server.port}"
-            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as leaked:
-                async with leaked.get(f"{url}/?participant=P01&token={old}") as response:
-                    assert response.status in (200, 502)          # in (its stack is no page server here)
-                assert cli_main(["study", "invite", str(tmp_path), "P01", "--no-qr",
-                                 "--public-url", url]) == 0
-                async with leaked.get(f"{url}/") as response:
-                    assert response.status == 403, "the old link's cookie still opens the page"
-                assert await _until(lambda: proc.poll() is not None, 10), "the old link's stack still runs"
-            new = Invites(tmp_path).load()["P01"]
-            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
-                async with page.get(f"{url}/?participant=P01&token={new}") as response:
-                    assert response.status == 200 and "id=join" in await response.text()
-            async with aiohttp.ClientSession() as stranger:
-                async with stranger.get(f"{url}/?participant=P01&token={old}") as response:
-                    assert response.status == 403
-        _serving(server, body)
-    finally:
-        _reap(proc)
-
-
-@pytest.mark.timeout(240)
-def test_a_stack_that_cannot_start_tells_the_participant_without_the_servers_paths(tmp_path, caplog):
-    """The page faces the internet: where the server keeps its files is the experimenter's to read."""
-    server = _server(tmp_path, overrides=["study.no_such_parameter:=1"])     # the launch refuses it
-    token = Invites(tmp_path).issue("P01")
-    server._load_invites()
-    server.tmp = tmp_path
-    server.bus_file = tmp_path / "bus.yaml"
-    server.bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 1, sub_port: 2}\nconnect: 127.0.0.1\n")
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
-        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
-            async with page.get(f"{url}/?participant=P01&token={token}") as response:
-                assert response.status == 200
-            async with page.post(f"{url}/join", timeout=aiohttp.ClientTimeout(total=200)) as response:
-                text = await response.text()
-                assert response.status == 500 and "could not start" in text
-                assert str(tmp_path) not in text and "serve.log" not in text
+        url = _url(server)
+        old = _link(server, "P01")
+        async with joined(url, old) as leaked, leaked.ws_connect(f"{url}/ws", origin=url) as ws:
+            await study(ws, lambda s: s["phase"] == "break")
+            assert cli_main(["study", "invite", str(tmp_path), "P01", "--no-qr", "--public-url", url]) == 0
+            assert await _closed(ws), "the old link's page is still served"
+            async with leaked.get(f"{url}/") as response:
+                assert response.status == 403, "the old link's cookie still opens the page"
+            assert await _until(lambda: server.running() == 0, 5), "the old link's session still runs"
+        new = Invites(tmp_path).load()["P01"]
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as fresh:
+            async with fresh.get(f"{url}/?participant=P01&token={new}") as response:
+                assert response.status == 200 and "id=join" in await response.text()
+        async with aiohttp.ClientSession() as stranger:
+            async with stranger.get(old) as response:
+                assert response.status == 403
     _serving(server, body)
-    assert str(tmp_path / "P01" / "serve.log") in caplog.text         # the experimenter's log says where
-    assert server.running() == 0
+
+
+def test_a_session_that_cannot_start_tells_the_participant_without_the_servers_paths(tmp_path, caplog):
+    """The page faces the internet: where the server keeps its files is the experimenter's to read. P01's
+    folder is a file; P02's is held by another writer (a `study run` on the same folder)."""
+    server = _server(tmp_path)
+    (tmp_path / "P01").write_text("not a folder\n")
+    other = SessionLock(tmp_path / "P02", WRITER).acquire()
+
+    async def body(server):
+        url = _url(server)
+        for participant in ("P01", "P02"):
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as browser:
+                async with browser.get(_link(server, participant)) as response:
+                    assert response.status == 200
+                async with browser.post(f"{url}/join") as response:
+                    text = await response.text()
+                    assert response.status == 500 and f"the session of {participant} could not start" in text
+                    assert str(tmp_path) not in text and "lock" not in text
+        assert server.running() == 0
+    try:
+        _serving(server, body)
+    finally:
+        other.release()
+    assert "P01: its session cannot start" in caplog.text and str(tmp_path / "P01") in caplog.text
+    assert "P02: its session cannot start" in caplog.text and "another process" in caplog.text
+
+
+def test_a_glove_or_calibration_that_cannot_be_read_fails_the_server_at_start(tmp_path, capsys):
+    """Every participant's session shares them: a missing or broken file stops `study serve` before it
+    serves anyone, naming the flag or the file and the key; OUT is not made."""
+    broken = tmp_path / "glove.yaml"
+    broken.write_text("no_such_key: 1\n")
+    missing = str(tmp_path / "none.yaml")
+    for flag, value, said in (("--glove", missing, "--glove"), ("--glove", str(broken), f"{broken}: key 'no_such_key'"),
+                              ("--calibration", missing, "--calibration")):
+        out = tmp_path / flag.strip("-")
+        assert cli_main(["study", "serve", STUDY, "--out", str(out), "--port", "0", flag, value]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err, err
+        assert not out.exists()
 
 
 def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
@@ -261,122 +279,6 @@ def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
     server._load_invites()
     assert "3 trials are done" in server._welcome(server.participants["P01"])
     assert len(TrialsFile(tmp_path / "P01" / "trials.csv").done) == 3     # the study node agrees
-
-
-def test_the_server_hears_each_participants_study_trial_and_nothing_else(tmp_path):
-    """The experimenter page needs each stack's study/trial only: the poses, fields and motor commands
-    every stack sends at 72 Hz must not reach the server's process. A link made while the server runs
-    is followed too."""
-    from touch4d.bus import Node
-    from touch4d.bus.testing import wait_until
-
-    server = _server(tmp_path)
-    Invites(tmp_path).issue("P01")
-    server._load_invites()
-    heard: list[str] = []
-    server._on_bus = lambda topic, payload: heard.append(topic)
-    server._start_bus(tmp_path)
-    Invites(tmp_path).issue("P02")
-    server._load_invites()                               # a link made meanwhile (the invites file watched)
-    probe = Node("probe", bus=server.node.bus)
-    topics = ["P01/study/trial", "P02/study/trial", "P01/hand/pose", "P02/tactile/motors", "P03/study/trial"]
-    pubs = {t: probe.create_raw_publisher(f"/{t}") for t in topics}
-    try:
-        def both_heard() -> bool:
-            for pub in pubs.values():
-                pub.publish(b"\x80")
-            return {"P01/study/trial", "P02/study/trial"} <= set(heard)
-        wait_until(both_heard, timeout=20, interval=0.05)
-        before = len(heard)
-        for pub in pubs.values():                          # once more: what arrives after the trials
-            pub.publish(b"\x80")
-        wait_until(lambda: len(heard) >= before + 2, timeout=10)
-        assert set(heard) == {"P01/study/trial", "P02/study/trial"}
-    finally:
-        probe.shutdown()
-        server.node.request_shutdown()
-        server._bus_thread.join(5)
-        server.broker.stop()
-
-
-def test_a_stack_that_is_not_one_group_or_cannot_be_made_fails_the_server_at_start(tmp_path, capsys):
-    """A participant's stack is one group in a container: a launch file that splits it, or an
-    override it refuses, stops `study serve` before it serves anyone, naming the file and the key."""
-    split = tmp_path / "split.yaml"
-    split.write_text(f"include: [{Path('launch/study-serve.yaml').resolve()}]\nnodes:\n  scene: {{group: other}}\n")
-    assert cli_main(["study", "serve", STUDY, "--out", str(tmp_path / "a"), "--port", "0", "--stack", str(split)]) == 2
-    err = capsys.readouterr().err
-    assert f"{split}: key 'nodes': expected every node in one `group`" in err and "got 'participant, other'" in err
-    assert cli_main(["study", "serve", STUDY, "--out", str(tmp_path / "b"), "--port", "0", "study.nope:=1"]) == 2
-    assert "key 'study.nope:=1': expected a parameter of node study" in capsys.readouterr().err
-    assert not (tmp_path / "b" / "serve.json").exists()     # it never served
-
-
-def test_the_page_port_is_read_from_the_ready_file_and_anything_else_is_no_port():
-    assert _page_port('ready {"tracker": {"page": 40123}}\n') == 40123
-    assert _page_port('ready {"scene": {}, "tracker": {"page": 8090}}') == 8090
-    for said in ("ready", "ready\n", "failed: node tracker: port", 'ready {"tracker": {"page": 0}}',
-                 'ready {"tracker": {"page": 70000}}', 'ready {"tracker": {"page": "80"}}', "ready [1, 2]",
-                 'ready {"tracker": 5}', "ready {not json", 'ready {"recorder": {"page": 40123}}', ""):
-        assert _page_port(said) is None, said
-
-
-def test_a_page_reloaded_resumes_only_the_servers_pause_not_the_experimenters(tmp_path):
-    """The page gone pauses the trial and the page back resumes it; a pause from the experimenter's
-    page stays through the participant's reloads until the experimenter resumes it."""
-    from touch4d.bus import Node
-    from touch4d.bus.testing import collect, wait_until
-    from touch4d.messages import StudyCommand
-
-    server = _server(tmp_path, leave_after_s=60)
-    Invites(tmp_path).issue("P01")
-    server._load_invites()
-    server._start_bus(tmp_path)
-    probe = Node("probe", bus=server.node.bus)
-    heard = collect(probe, "P01/study/command", StudyCommand)
-    p, proc = _stack(server, "P01")
-    commands = lambda: [m.command for m in heard]  # noqa: E731
-
-    async def settle(n):
-        await asyncio.to_thread(wait_until, lambda: len(heard) >= n, 10)
-        await asyncio.sleep(0.3)           # and nothing more follows
-
-    try:
-        async def body(server):
-            url = f"http://127.0.0.1:{server.port}"
-            await asyncio.sleep(0.3)       # the probe's subscription settles
-            server._page_opened(p)
-            server._page_closed(p)         # the page gone: the server pauses
-            server._page_opened(p)         # and back: the server resumes
-            await settle(2)
-            assert commands() == ["pause", "resume"]
-            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
-                async with lab.get(f"{url}/experimenter?token={server.experimenter_token}") as response:
-                    assert response.status == 200
-                async with lab.post(f"{url}/experimenter/pause", data={"participant": "P01"},
-                                    headers={"Origin": url}) as response:
-                    assert response.status == 200
-                await settle(3)
-                server._page_closed(p)     # the participant reloads their page
-                server._page_opened(p)
-                await asyncio.sleep(0.5)
-                assert commands()[2:] == ["pause"]    # no resume: the experimenter's pause holds
-                view = [s for s in server.status() if s["participant"] == "P01"][0]
-                assert view["state"] == "paused" and view["paused_by"] == "experimenter"
-                async with lab.post(f"{url}/experimenter/resume", data={"participant": "P01"},
-                                    headers={"Origin": url}) as response:
-                    assert response.status == 200
-                await settle(4)
-                assert commands() == ["pause", "resume", "pause", "resume"]
-        spinning = threading.Thread(target=probe.spin, daemon=True)
-        spinning.start()
-        _serving(server, body)
-    finally:
-        _reap(proc)
-        probe.request_shutdown()
-        server.node.request_shutdown()
-        server._bus_thread.join(5)
-        server.broker.stop()
 
 
 def _trials(out: Path, participant: str, rows: int) -> None:
@@ -436,15 +338,11 @@ def test_the_experimenter_page_shows_each_participants_state_from_its_data_after
 
 def test_experimenter_actions_posted_from_another_site_are_refused(tmp_path):
     server = _server(tmp_path)
-    Invites(tmp_path).issue("P01")
-    server._load_invites()
-    p, proc = _stack(server, "P01")
-    sent = []
-    server.command = lambda participant, command, reason: sent.append((participant, command))
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
-        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
+        url = _url(server)
+        async with joined(url, _link(server, "P01")), \
+                aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
             await _experimenter(server, lab, url)
             for headers in ({"Origin": "https://evil.example"}, {"Sec-Fetch-Site": "cross-site"},
                             {"Origin": "null"}):
@@ -452,15 +350,12 @@ def test_experimenter_actions_posted_from_another_site_are_refused(tmp_path):
                     async with lab.post(f"{url}/experimenter/{action}", data={"participant": "P01"},
                                         headers=headers, allow_redirects=False) as response:
                         assert response.status == 403, headers
-            assert sent == [] and "P01" in Invites(tmp_path).load()
+            assert _state(server, "P01")["phase"] == "break" and "P01" in Invites(tmp_path).load()
             async with lab.post(f"{url}/experimenter/pause", data={"participant": "P01"},
                                 headers={"Origin": url, "Sec-Fetch-Site": "same-origin"}) as response:
                 assert response.status == 200
-            assert sent == [("P01", "pause")]
-    try:
-        _serving(server, body)
-    finally:
-        _reap(proc)
+            assert _state(server, "P01")["phase"] == "paused"
+    _serving(server, body)
 
 
 def test_a_new_experimenter_link_ends_the_old_one_and_its_browsers(tmp_path, capsys):
@@ -485,36 +380,28 @@ def test_a_new_experimenter_link_ends_the_old_one_and_its_browsers(tmp_path, cap
     _serving(server, body)
 
 
-def test_one_links_flood_gets_429_and_spares_the_others_and_a_join_probes_a_running_stack_once(tmp_path):
+def test_one_links_flood_gets_429_and_spares_the_others_and_a_running_session_starts_once(tmp_path):
     server = _server(tmp_path)
-    tokens = {p: Invites(tmp_path).issue(p) for p in ("P01", "P02")}
-    server._load_invites()
-    p, proc = _stack(server, "P01")
-    probes = []
-
-    async def counted(participant):
-        probes.append(participant.id)
-        return True
-    server._wait_ready = counted
     loads = []
     load = server.invites.load
     server.invites.load = lambda: loads.append(1) or load()
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
-        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as one, \
+        url = _url(server)
+        links = {p: _link(server, p) for p in ("P01", "P02")}
+        async with joined(url, links["P01"]) as one, \
                 aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as other:
-            for session, who in ((one, "P01"), (other, "P02")):
-                async with session.get(f"{url}/?participant={who}&token={tokens[who]}") as response:
-                    assert response.status in (200, 502)     # P01's stack is a `sleep`: its page is not there
+            async with other.get(links["P02"]) as response:
+                assert response.status == 200
             loads.clear()
 
             async def join():
                 async with one.post(f"{url}/join", allow_redirects=False) as response:
                     return response.status
             statuses = await asyncio.gather(*(join() for _ in range(300)))
-            assert probes == [] and set(statuses) == {303, 429}, set(statuses)   # running: never probed again
+            assert set(statuses) == {303, 429}, set(statuses)
             assert 20 <= statuses.count(303) <= 120      # the burst and what a second refills, no more
+            assert server.running() == 1 and server.counts["joined"] == 1     # running: never started again
             async with other.get(f"{url}/") as response:
                 assert response.status == 200            # the other link is not slowed by the flood
             assert loads == []                           # invites.json unchanged: not parsed again
@@ -522,7 +409,6 @@ def test_one_links_flood_gets_429_and_spares_the_others_and_a_join_probes_a_runn
             async with other.get(f"{url}/") as response:
                 assert response.status == 200
             assert len(loads) == 1 and "P03" in server.participants
-    try:
-        _serving(server, body)
-    finally:
-        _reap(proc)
+    _serving(server, body)
+    manifest = (tmp_path / "P01" / "manifest.json").read_text()
+    assert manifest.count('"resumed_at"') == 1                       # one start of its session

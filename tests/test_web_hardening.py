@@ -1,21 +1,19 @@
 """The bounds both web servers share (touch4d.web.hardening), probed on the study server on loopback as
 an attacker would (raw sockets, bounded in count and time): slow connections from one address capped
 and closed, Host names it does not serve, the security headers and no banner on every answer,
-request paths escaped in the log and no aiohttp traceback; the file limit raised. Then what is
-forwarded to a participant's page node (its files only), the logs (capped, never written through a
-symlink), OUT (refused when others may write to it, its files the owner's), and the page node's
-secret (nothing but the study server gets its page or WebSocket)."""
+request paths escaped in the log and no aiohttp traceback; the file limit raised. Then what a
+participant's page is served (its files only, one page at a time, from this site only), the logs
+(capped, never written through a symlink), OUT (refused when others may write to it, its files the
+owner's), and a page server's secret (nothing but its holder gets its page or WebSocket)."""
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import os
 import resource
 import stat
 import subprocess
 import sys
-import threading
 
 import aiohttp
 import pytest
@@ -25,13 +23,11 @@ from touch4d.bus import logfiles
 from touch4d.bus.container import Container
 from touch4d.bus.logfiles import CappedLog, GroupLog
 from touch4d.bus.pool import ContainerPool
-from touch4d.bus.testing import running_broker
 from touch4d.web.invites import Invites
-from touch4d.web.server import SECRET_HEADER, PageServer
+from touch4d.web.server import SECRET_HEADER
 
-from test_study_serve import REPO, STUDY, serve as serve_cli
-from test_study_serve_splice import served
-from test_study_server_places import _server, _serving
+from test_study_serve import REPO, STUDY, joined, serve as serve_cli, study
+from test_study_server_places import _link, _server, _serving, _url
 from test_web_limits import headers_of, raw, serve, status_of  # noqa: F401 - serve: the page server fixture
 
 pytestmark = pytest.mark.timeout(120)
@@ -152,25 +148,58 @@ def test_the_file_limit_is_raised_to_its_hard_limit_when_a_server_starts(tmp_pat
         resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
-# ---- what reaches a participant's page node ---------------------------------------------------------------
+# ---- what reaches a participant's page ------------------------------------------------------------------
 
 
-def test_only_the_pages_files_are_forwarded_and_an_overlong_name_is_404_not_500(tmp_path, caplog):
-    async def body(server, stack, url, session):
+def test_only_the_pages_files_are_served_and_an_overlong_name_is_404_not_500(tmp_path, caplog):
+    server = _server(tmp_path)
+
+    async def body(server):
         port = server.port
-        cookie = "; ".join(f"{c.key}={c.value}" for c in session.cookie_jar)
-        got = {}
-        for path in ("/static/main.js", "/static/" + "a" * 4000, "/static/%2e%2e%2fws", "/static/..%2fws",
-                     "/static/nothing.js", "/static/"):
-            got[path[:40]] = status_of(await raw(port, request(path, f"127.0.0.1:{port}", f"Cookie: {cookie}\r\n")))
-        return got
+        async with joined(_url(server), _link(server, "P01")) as session:
+            cookie = "; ".join(f"{c.key}={c.value}" for c in session.cookie_jar)
+            got = {}
+            for path in ("/static/main.js", "/static/" + "a" * 4000, "/static/%2e%2e%2fws", "/static/..%2fws",
+                         "/static/nothing.js", "/static/", "/static/%2e%2e%2f%2e%2e%2finvites.json"):
+                got[path[:40]] = status_of(await raw(port, request(path, f"127.0.0.1:{port}", f"Cookie: {cookie}\r\n")))
+            return got
 
     with caplog.at_level(logging.DEBUG):
         result = {}
-        served(tmp_path, lambda *a: _keep(result, body(*a)), expect=0)
+        _serving(server, lambda s: _keep(result, body(s)))
     assert result["value"] == {"/static/main.js": 200, "/static/" + "a" * 32: 404, "/static/%2e%2e%2fws": 404,
-                               "/static/..%2fws": 404, "/static/nothing.js": 404, "/static/": 404}
+                               "/static/..%2fws": 404, "/static/nothing.js": 404, "/static/": 404,
+                               "/static/%2e%2e%2f%2e%2e%2finvites.json": 404}
     assert not [r for r in caplog.records if r.exc_info]
+
+
+def test_a_participants_second_page_is_refused_503_and_a_page_from_another_site_403(tmp_path, caplog):
+    """One page per participant (its session's frames go to one page); a reload, the first closed,
+    is served again. A WebSocket opened by another site's page with the participant's cookie: 403."""
+    server = _server(tmp_path)
+
+    async def body(server):
+        url = _url(server)
+        async with joined(url, _link(server, "P01")) as browser:
+            async with browser.ws_connect(f"{url}/ws", origin=url) as first:
+                await study(first, lambda s: s["phase"] == "break")
+                refused = []
+                for origin in (url, url, "https://evil.example"):
+                    try:
+                        async with browser.ws_connect(f"{url}/ws", origin=origin):
+                            refused.append(101)
+                    except aiohttp.WSServerHandshakeError as exc:
+                        refused.append(exc.status)
+                await study(first, lambda s: s["phase"] == "break")     # the first page is still served
+            async with browser.ws_connect(f"{url}/ws", origin=url) as reloaded:
+                await study(reloaded, lambda s: s["phase"] == "break")
+        return refused
+
+    result = {}
+    with caplog.at_level(logging.DEBUG):
+        _serving(server, lambda s: _keep(result, body(s)))
+    assert result["value"] == [503, 503, 403] and server.counts["second page"] == 2
+    assert caplog.text.count("P01: a second page refused while one is open") == 1
 
 
 def test_the_page_server_answers_an_overlong_static_name_404_without_a_traceback(serve, caplog):  # noqa: F811
@@ -253,76 +282,6 @@ def test_the_page_server_with_a_secret_answers_nothing_but_its_files_without_it(
                        ("/ws", "none"): 403, ("/ws", "wrong"): 403, ("/ws", "secret"): 101,
                        ("/static/main.js", "none"): 200, ("/static/main.js", "wrong"): 200,
                        ("/static/main.js", "secret"): 200}
-
-
-def test_the_study_server_sends_each_stack_its_secret_which_no_one_else_has(tmp_path):
-    async def body(server, stack, url, session):
-        p = server.participants["P01"]
-        opened = []
-        page = PageServer("127.0.0.1", 0, secret=p.secret, on_connect=opened.append)   # as P01's node would
-        p.port = page.start()
-        try:
-            async with session.get(f"{url}/") as response:          # proxied with the secret
-                index = response.status, await response.text()
-            ws = await session.ws_connect(f"{url}/ws", origin=url)  # spliced with the secret
-            assert await asyncio.to_thread(lambda: _until_true(lambda: opened, 10))
-            await ws.close()
-            local = f"127.0.0.1:{p.port}"                           # another user of this machine
-            direct = [status_of(await raw(p.port, request(path, local, UPGRADE if path == "/ws" else "")))
-                      for path in ("/", "/ws")]
-            return index, direct, len(opened)
-        finally:
-            await asyncio.to_thread(page.stop)
-
-    result = {}
-    served(tmp_path, lambda *a: _keep(result, body(*a)), expect=0)
-    (status, text), direct, opened = result["value"]
-    assert status == 200 and '<canvas id="view">' in text and opened == 1 and direct == [403, 403]
-
-
-def _until_true(predicate, timeout: float) -> bool:
-    from touch4d.bus.testing import wait_until
-    try:
-        wait_until(predicate, timeout=timeout)
-        return True
-    except TimeoutError:
-        return False
-
-
-def test_a_stacks_secret_goes_by_a_private_file_and_its_page_node_wants_it(tmp_path):
-    server = _server(tmp_path / "out")
-    Invites(tmp_path / "out").issue("P01")
-    server._load_invites()
-    server.tmp = tmp_path / "private"
-    server.tmp.mkdir(mode=0o700)
-    p = server.participants["P01"]
-    command = server._stack_command(p)
-    secret_file = server.tmp / "P01.secret"
-    assert p.secret not in json.dumps(command) and str(secret_file) in json.dumps(command)
-    assert secret_file.read_text() == p.secret and stat.S_IMODE(secret_file.stat().st_mode) == 0o600
-    tracker = next(n for n in command["nodes"] if n["name"] == "tracker")
-    with running_broker() as bus:
-        executor = Executor()
-        box = Container(executor, bus.for_clients())
-        try:
-            params = {"port": 0, "save_calibration": False, "cert_dir": str(tmp_path / "tls"),
-                      "secret_file": tracker["params"]["secret_file"]}
-            box.load({"load": "A", "namespace": "A", "nodes": [{"node": "webxr", "name": "tracker", "params": params}],
-                      "ready_file": str(tmp_path / "A.ready")})
-            port = box.groups["A"].nodes[0].server.port
-            spinning = threading.Thread(target=executor.spin, args=(3.0,))
-            spinning.start()
-            try:
-                local = f"127.0.0.1:{port}"
-                answers = [status_of(asyncio.run(raw(port, request("/", local, extra))))
-                           for extra in ("", f"{SECRET_HEADER}: {p.secret}\r\n")]
-            finally:
-                executor.request_shutdown()
-                spinning.join()
-        finally:
-            box.unload_all()
-            executor.close()
-    assert answers == [403, 200]
 
 
 def test_a_handlers_failure_is_logged_with_its_traceback_once_then_in_one_escaped_line(caplog):
