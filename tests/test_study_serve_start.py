@@ -43,9 +43,9 @@ def _stop(proc: subprocess.Popen) -> None:
 def test_a_served_folder_is_its_owners_a_second_server_is_refused_and_the_glove_is_checked(tmp_path):
     """One server (started once for three checks, each a server start of a few seconds): its new OUT
     is 0700; a second `study serve` on it exits 2 naming the first (pid, command), and `serve.json` still
-    names the first's address; and its terminal says which tasks the served glove cannot tell: the
-    stack touches with a held controller (one motor), to which the tilt task's 8 tilts are all but the
-    same (about 0.03 of 3 bits), so only tilt is named."""
+    names the first's address; and its terminal says which tasks the served glove cannot tell: each
+    session touches with --glove's default, a held controller (one motor), to which the tilt task's 8
+    tilts are all but the same (about 0.03 of 3 bits), so only tilt is named."""
     out = tmp_path / "out"
     first = _serve(out, "--port", "0")
     try:
