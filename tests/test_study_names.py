@@ -15,7 +15,7 @@ def commands(tmp_path, study):
         "power": ["study", "power", study, "--fit", str(tmp_path / "fit.json"), "--out", str(tmp_path / "power")],
         "glove design": ["glove", "design", "--motors", "1", "--study", study, "--task", "nothing",
                          "-o", str(tmp_path / "g.yaml")],
-        "serve": ["study", "serve", study, "--out", str(tmp_path / "served"), "--stack", "launch/no-such.yaml"],
+        "serve": ["study", "serve", study, "--out", str(tmp_path / "served"), "--glove", "config/gloves/no-such.yaml"],
         "fit": ["study", "fit", str(tmp_path / "pilot"), "--study", study, "--workers", "0"],
     }
 
@@ -44,7 +44,7 @@ def test_a_misspelt_study_name_lists_the_packaged_names(pilot, command, capsys):
     ("power", "expected a fit of study 'paper'"),                    # read the study, then the fit
     ("glove design", "expected a task with id 'nothing'"),           # read the study, then its tasks
     ("transfer", "expected a task with id 'nothing'"),
-    ("serve", "--stack"),                                            # read the study, then the launch file
+    ("serve", "key '--glove': expected an existing glove file"),     # read the study, then the glove file
     ("fit", "expected the study of the pilot's sessions (elsewhere), got 'paper'"),
 ])
 def test_every_command_reads_a_packaged_study_by_its_name(pilot, command, reached, capsys):
