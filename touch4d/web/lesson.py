@@ -183,6 +183,12 @@ class Lesson:
         member.frame, member.made_from = pack_frame("frame", fields, arrays), self.shared
         return member.frame
 
+    def warm(self) -> None:
+        """Cut the scene once: the cut is compiled on its first use (seconds), which must not delay
+        the first slice view the teacher shows."""
+        view = SceneView(style=self.bridge.view.style, view="slice", slice_w=self.control.scene.slice_w)
+        view.set_scene(self.scene)
+
     # ---- commands ----------------------------------------------------------------------------------
 
     def command(self, verb: str, argument: str = "", by: str = TEACHER) -> str:

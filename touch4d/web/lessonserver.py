@@ -234,6 +234,7 @@ class LessonRun:
         self.server.on_message = self.lesson.message
         self.server.on_close = self.lesson.closed
         self._follow_invites()
+        self.lesson.warm()
         try:
             try:
                 port = self.server.start()
