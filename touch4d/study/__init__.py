@@ -2,7 +2,8 @@
 outcome with model observers before anyone is recruited.
 
 - `design`: study files (config/studies/*.yaml): tasks, stimuli, conditions, repetitions, practice,
-  breaks, time limits, the run constraint; `load_study(path)`.
+  breaks, time limits, the run constraint; `load_study(path)`. Each task kind is one `Task` subclass
+  (`FrontElementTask`, `LookAlikesTask`, `TiltTask`; `task_kinds()`), the place of its keys and stimuli.
 - `plan`: a participant's session from (study, participant id) alone: `plan_session`,
   `quick_plan` (`--quick`: one repetition per task x condition cell, i.e. every stimulus once per
   condition, no practice), `condition_order`, `participant_index`, `participant_ids(n)`; `Trial`.
