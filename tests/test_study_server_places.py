@@ -121,7 +121,7 @@ def test_an_unreadable_invites_file_keeps_the_links_read_before(tmp_path):
     token = Invites(tmp_path).issue("P01")
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
+        url = _url(server)
         async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
             async with page.get(f"{url}/?participant=P01&token={token}") as response:
                 assert response.status == 200 and "id=join" in await response.text()
@@ -310,7 +310,7 @@ def test_the_experimenter_page_shows_each_participants_state_from_its_data_after
     server = _server(tmp_path, quick=True)
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
+        url = _url(server)
         async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
             await _experimenter(server, lab, url)
             async with lab.get(f"{url}/experimenter?format=json") as response:
@@ -362,7 +362,7 @@ def test_a_new_experimenter_link_ends_the_old_one_and_its_browsers(tmp_path, cap
     server = _server(tmp_path)
 
     async def body(server):
-        url = f"http://127.0.0.1:{server.port}"
+        url = _url(server)
         old = server.experimenter_token
         async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as lab:
             await _experimenter(server, lab, url)
