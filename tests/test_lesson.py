@@ -8,13 +8,15 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
+from touch4d.commands.lesson import Recording
 from touch4d.geometry.scene import load_scene
 from touch4d.log.reader import LogReader
+from touch4d.log.replay import Plan, ReplayOptions, Replayer
+from touch4d.messages import SceneState, decode
 from touch4d.render.view import SceneView
 from touch4d.tactile.glove import load_glove
 from touch4d.tracking.calibration import load_calibration, load_placement
 from touch4d.web.lesson import Lesson, LessonError
-from touch4d.web.lessonserver import Recording
 from touch4d.web.protocol import unpack_frame
 
 SCENE = "config/scenes/hypercube.yaml"
@@ -216,3 +218,23 @@ def test_the_lesson_is_recorded_for_replay(tmp_path):
     assert states[-1]["slice_w"] == 0.25
     command = next(m.decode() for m in messages if m.topic == "lesson/command")
     assert (command["command"], command["argument"]) == ("slice", "0.25")
+
+
+def test_touch4d_replay_plays_the_recorded_lesson(tmp_path):
+    """What `touch4d replay` sends (its Replayer): the lesson's scenes in order, as the bus carries them."""
+    recording = Recording(tmp_path / "lesson.mcap")
+    lesson, _, calibration = lesson_with_pages(recording)
+    lesson.command("rotate", "xw 30")
+    lesson.command("view", "both")
+    lesson.message(S1, input_message(calibration, [0.1, 0, 0]), 1.0)
+    recording.close()
+    reader = LogReader(tmp_path / "lesson.mcap")
+    options = ReplayOptions(realtime=False, rate=100.0)
+    sent = []
+    Replayer(reader, Plan(reader, options), options, lambda topic, data: sent.append((topic, data))).run()
+    scenes = [decode(data) for topic, data in sent if topic == "scene/state"]
+    assert all(isinstance(s, SceneState) for s in scenes)
+    assert [s.view for s in scenes] == ["projection", "projection", "both"]
+    assert np.allclose(scenes[-1].objects[0]["orientation"], lesson.control.scene.objects[0].orientation)
+    hands = [decode(data) for topic, data in sent if topic == f"lesson/student{S1}/hand/pose"]
+    assert len(hands) == 1 and hands[0].valid and np.allclose(hands[0].position, [0.1, 0, 0], atol=1e-6)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import time
 from pathlib import Path
 
 from touch4d.configfile import COMMAND_LINE, read_yaml, resolve_path
@@ -42,6 +43,27 @@ def register(subparsers) -> None:
     lesson.set_defaults(func=lambda args: (lesson.print_help(), 2)[1])
 
 
+class Recording:
+    """The lesson's MCAP log (touch4d.log.writer): messages as the bus would carry them, flushed every
+    second, so that `touch4d replay` plays them."""
+
+    def __init__(self, path: Path):
+        from touch4d.log.writer import LogWriter, WallClock
+
+        self.writer = LogWriter(path)
+        self.clock = WallClock()
+        self._flushed = time.monotonic()
+
+    def __call__(self, topic: str, msg) -> None:
+        self.writer.write(topic, msg.encode(), self.clock())
+        if time.monotonic() - self._flushed >= 1.0:
+            self._flushed = time.monotonic()
+            self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
 def lesson_inputs(given: str, glove: str | None):
     """(scene, glove path) from a scene file or a launch file (its `scene` node's `scene`, its webxr
     node's `glove`)."""
@@ -75,9 +97,9 @@ def _serve(args) -> int:
         raise ConfigError(COMMAND_LINE, "--public-url", "an http:// or https:// address", got=args.public_url)
     scene, glove = lesson_inputs(args.scene, args.glove)
     options = LessonOptions(host=args.host, port=args.port, public_url=args.public_url,
-                            max_students=args.max_students, record=not args.no_record)
+                            max_students=args.max_students)
     run = LessonRun(scene, load_glove(glove), load_calibration(None, "hand_in_grip"), load_placement(None),
-                    args.out, options)
+                    args.out, options, None if args.no_record else Recording)
     return run.run()
 
 

@@ -8,7 +8,7 @@ browser: a holder of its own (touch4d.web.access: its cookie, revocable alone), 
 Each link's page loads and WebSockets are paced by a TokenBucket of its own (a flood through one link
 slows no other: HTTP 429). A link replaced in the file (`touch4d lesson revoke`) ends its pages within
 a second, a class link's students with it. DIR/lesson.json says where the lesson is served;
-DIR/lesson.mcap records it (touch4d.log.writer: `touch4d log replay` plays it).
+DIR/lesson.mcap records it (the command's recording: `touch4d replay` plays it).
 """
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ import signal
 import stat
 import time
 from dataclasses import dataclass
+from typing import Callable
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
@@ -30,7 +31,6 @@ from touch4d.configfile import COMMAND_LINE
 from touch4d.errors import ConfigError
 from touch4d.eventloop import new_event_loop
 from touch4d.geometry.scene import Scene
-from touch4d.log.writer import LogWriter, WallClock
 from touch4d.tactile.glove import Glove
 from touch4d.tracking.calibration import Calibration, Placement
 
@@ -60,7 +60,6 @@ class LessonOptions:
     port: int = 0
     public_url: str | None = None
     max_students: int = MAX_STUDENTS
-    record: bool = True
 
 
 class LessonServer(PageServer):
@@ -125,24 +124,6 @@ class LessonServer(PageServer):
             self.access.revoke(holder)
 
 
-class Recording:
-    """The lesson's MCAP log: messages as the bus would carry them, flushed every second."""
-
-    def __init__(self, path: Path):
-        self.writer = LogWriter(path)
-        self.clock = WallClock()
-        self._flushed = time.monotonic()
-
-    def __call__(self, topic: str, msg) -> None:
-        self.writer.write(topic, msg.encode(), self.clock())
-        if time.monotonic() - self._flushed >= 1.0:
-            self._flushed = time.monotonic()
-            self.writer.flush()
-
-    def close(self) -> None:
-        self.writer.close()
-
-
 def prepare_dir(out: Path) -> Path:
     """DIR made (mode 0700) or checked: it holds the links, writable by its owner alone."""
     out = Path(out)
@@ -163,8 +144,11 @@ class LessonRun:
     """One served lesson: `run()` serves until SIGINT/SIGTERM (or `stop()`)."""
 
     def __init__(self, scene: Scene, glove: Glove, calibration: Calibration, placement: Placement, out: Path,
-                 options: LessonOptions = LessonOptions()):
+                 options: LessonOptions = LessonOptions(), recording: Callable[[Path], object] | None = None):
+        """`recording(path)`: the lesson's log, a `record(topic, msg)` callable with a `close()`
+        (touch4d.log's, which this layer does not import), or None."""
         self.options = options
+        self.make_recording = recording
         self.out = prepare_dir(out)
         self.invites = Invites(self.out)
         for holder in (TEACHER, CLASS, TERMINAL):
@@ -226,7 +210,7 @@ class LessonRun:
         self.server = LessonServer(self.options.host, self.options.port, self.access, self.options.max_students,
                                    ssl_context=self.ssl_context, names=[host_name(public)] if public else [],
                                    secure_cookie=secure, loop=loop)
-        self.recording = Recording(self.out / RECORDING) if self.options.record else None
+        self.recording = self.make_recording(self.out / RECORDING) if self.make_recording else None
         self.lesson = Lesson(self.scene, self.glove, self.calibration, self.placement, self.server.send,
                              self.server.send_latest, self.recording)
         self.server.on_connect = lambda conn: self.lesson.connected(conn, self.server.holder(conn),
