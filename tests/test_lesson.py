@@ -130,6 +130,7 @@ def test_a_students_own_slice_is_theirs_alone_until_the_teacher_locks_it():
     ("view", "sideways", "view: expected projection, slice, both"),
     ("drive", "nobody", "drive: expected 'teacher' or a connected student's name"),
     ("lock", "now", "lock: takes no argument"),
+    ("spotlight", "nobody", "spotlight: expected 'off' or a connected student's name"),
     ("load", "objects: [", "scene/command load"),
 ])
 def test_a_bad_command_says_what_was_expected_and_changes_nothing(verb, argument, expected):
@@ -238,3 +239,20 @@ def test_touch4d_replay_plays_the_recorded_lesson(tmp_path):
     assert np.allclose(scenes[-1].objects[0]["orientation"], lesson.control.scene.objects[0].orientation)
     hands = [decode(data) for topic, data in sent if topic == f"lesson/student{S1}/hand/pose"]
     assert len(hands) == 1 and hands[0].valid and np.allclose(hands[0].position, [0.1, 0, 0], atol=1e-6)
+
+
+def test_every_page_shows_the_spotlit_students_hand():
+    lesson, pages, calibration = lesson_with_pages()
+    lesson.message(S1, input_message(calibration, [0.2, -0.1, 0.3]), 1.0)
+    assert pages.last(S2, "frame")[0]["hand_valid"] is False          # nobody's hand yet
+    lesson.command("spotlight", "student 1")
+    lesson.message(S1, input_message(calibration, [0.2, -0.1, 0.3], time_ms=1100.0), 1.1)
+    for conn in (TEACHER, S2):
+        frame, arrays = pages.last(conn, "frame")
+        assert frame["hand_valid"] is True and np.allclose(arrays["hand"][:3], [0.2, -0.1, 0.3], atol=1e-5)
+    assert pages.last(S2, "lesson")[0]["spotlight"] == "student 1"
+    lesson.message(S2, input_message(calibration, [-0.5, 0, 0], time_ms=1200.0), 1.2)   # not the spotlit one
+    assert np.allclose(pages.last(TEACHER, "frame")[1]["hand"][:3], [0.2, -0.1, 0.3], atol=1e-5)
+    lesson.closed(S1)                                                    # the spotlit student leaves
+    assert pages.last(S2, "frame")[0]["hand_valid"] is False
+    assert pages.last(S2, "lesson")[0]["spotlight"] is None

@@ -1,7 +1,7 @@
 """A lesson in a real browser (Debian's chromium, each headset a Quest 3 emulated by iwer): a teacher and
 two students on `touch4d lesson serve`. A student's controller pulses when it touches the lesson's
 object with nothing leaving its page (its touch is its own: static/touch.js); the teacher sees who
-touches what with what; a `lesson command` changes what both students' pages show within 100 ms; a
+touches what with what and may show everyone a student's hand; a `lesson command` changes what both students' pages show within 100 ms; a
 student's own slice is theirs until the teacher locks it; a late joiner shows the current state."""
 from __future__ import annotations
 
@@ -82,6 +82,11 @@ def test_a_teacher_and_two_students(browser, tmp_path):
             seen = wait_until(touching, timeout=20)
             assert seen["haptics"] == "pulse" and seen["near"] == "hypercube"
             assert len(teacher.evaluate("touch4d.lesson.roster")) == 3
+            # the teacher puts the student's hand in the spotlight (its row's button): the other student sees it
+            # (dispatched: the panel is larger than this small test window)
+            teacher.locator("#lesson tr:has-text('%s') button:has-text('spotlight')" % seen["name"]).dispatch_event("click")
+            wait_until(lambda: two.evaluate("touch4d.frame.hand_valid && touch4d.lesson.spotlight"), timeout=10)
+            command(lesson, "spotlight", "off")
 
             one.evaluate("touch4d.session.end()")   # (its stereo drawing in software would slow the others)
 

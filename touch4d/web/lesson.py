@@ -16,8 +16,9 @@ Pages send the WebXR page's messages (touch4d.web.protocol) and the lesson's own
     {"type": "command", "verb": str, "argument": str}        the teacher's (and the terminal's) command
 
 and get, besides the node's frames, "lesson" frames (their role, name, the lock, the driver, their own
-view; the teacher's also the class: who is connected, with what haptics, who touches what) and
-"result" frames answering a command.
+view, whose hand is in the spotlight; the teacher's also the class: who is connected, with what
+haptics, who touches what) and "result" frames answering a command. The teacher may put a student's
+hand in the spotlight: every page draws it (the frame's hand).
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ import numpy as np
 from touch4d.errors import Touch4dError
 from touch4d.geometry.rotation import PLANES, plane_axes, plane_rotation
 from touch4d.geometry.scene import Scene
-from touch4d.messages import MotorCommand, SceneCommand, SceneState
+from touch4d.messages import HandPose, MotorCommand, SceneCommand, SceneState
 from touch4d.messages.scene import VIEWS
 from touch4d.render.view import SceneView
 from touch4d.tactile.glove import Glove
@@ -45,7 +46,7 @@ from .protocol import PageError, message_type, pack_frame, parse_page_message, p
 
 TEACHER, CLASS, TERMINAL = "teacher", "class", "terminal"   # the lesson's links (holders of touch4d.web.access)
 SCENE_VERBS = ("next", "select", "reset", "projection", "view", "slice", "load")   # SceneControl.command's
-LESSON_VERBS = ("rotate", "lock", "unlock", "drive")
+LESSON_VERBS = ("rotate", "lock", "unlock", "drive", "spotlight")
 VERBS = SCENE_VERBS + LESSON_VERBS
 LESSON_TYPES = ("hello", "own", "command")
 MAX_NAME = 32                   # characters of a display name
@@ -120,6 +121,7 @@ class Lesson:
         self.names: dict[str, str] = {}      # holder -> display name (kept across its reconnections)
         self.locked = False
         self.driver = TEACHER                # "teacher" or a student's name: whose controller turns the object
+        self.spotlight: str | None = None    # a student whose hand every page shows (None: nobody's)
         self.counts = {"commands": 0, "refused": 0, "malformed": 0, "frames": 0}
         self.shared: bytes | None = None     # the class's last frame
         self.scene: SceneState | None = None  # and its scene
@@ -244,8 +246,10 @@ class Lesson:
             if self.shared is not None:
                 self._distribute(self.shared)
             return True
-        # drive NAME|teacher
         names = [m.name for m in self.members.values() if m.role == "student"]
+        if verb == "spotlight":
+            return self._spotlight(argument, names)
+        # drive NAME|teacher
         if argument != TEACHER and argument not in names:
             raise LessonError(f"drive: expected 'teacher' or a connected student's name "
                               f"({', '.join(names) or 'none connected'}), got {argument!r}")
@@ -254,6 +258,26 @@ class Lesson:
         self.driver = argument
         self._everyone_told()
         return True
+
+    def _spotlight(self, argument: str, names: list[str]) -> bool:
+        """spotlight NAME|off: every page shows that student's hand (the frame's hand), or nobody's."""
+        if argument != "off" and argument not in names:
+            raise LessonError(f"spotlight: expected 'off' or a connected student's name "
+                              f"({', '.join(names) or 'none connected'}), got {argument!r}")
+        chosen = None if argument == "off" else argument
+        if chosen == self.spotlight:
+            return False
+        self.spotlight = chosen
+        self._show_hand(HandPose(position=np.zeros(3), valid=False))
+        self._everyone_told()
+        return True
+
+    def _show_hand(self, pose: HandPose) -> None:
+        """The hand every page draws (the spotlit student's), in the next frame, sent now."""
+        self.bridge.on_hand_pose(pose)
+        frame = self.bridge.frame()
+        if frame is not None:
+            self._distribute(frame)
 
     def _everyone_told(self) -> None:
         self._class_changed = True
@@ -282,9 +306,14 @@ class Lesson:
 
     def closed(self, conn: int) -> None:
         self.terminals.discard(conn)
-        if self.members.pop(conn, None) is not None:
+        member = self.members.pop(conn, None)
+        if member is not None:
             self.bridge.closed(conn)
             self._class_changed = True
+            if member.name == self.spotlight and member.name not in {m.name for m in self.members.values()}:
+                self.spotlight = None
+                self._show_hand(HandPose(position=np.zeros(3), valid=False))
+                self._everyone_told()
 
     def message(self, conn: int, data, arrival: float) -> None:
         """One message from a page or the terminal: the lesson's own, or the WebXR page's; a bad one
@@ -381,6 +410,8 @@ class Lesson:
                 self.record(f"{topic}/tactile/motors", MotorCommand(names=list(self.glove.motor_names),
                                                                     intensity=played["intensity"],
                                                                     source_stamp=arrival))
+        if member.role == "student" and member.name == self.spotlight:
+            self._show_hand(pose)
         if member.name == self.driver or (self.driver == TEACHER and member.role == "teacher"):
             side = by_side.get(self.bridge.config.controller_hand)
             c = webxr.controller_state(side, self.calibration, arrival)
@@ -406,6 +437,7 @@ class Lesson:
     def _tell(self, member: Member, force: bool = False) -> None:
         """The member's lesson frame, when it changed (`force`: again, a refusal's answer)."""
         fields = {"role": member.role, "name": member.name, "locked": self.locked, "driver": self.driver,
+                  "spotlight": self.spotlight,
                   "own": {"view": member.own_view, "slice": member.own_slice}}
         if member.role == "teacher":
             fields["roster"] = self.roster()

@@ -1,7 +1,8 @@
 // The lesson's page (touch4d.web.lesson): the WebXR page (main.js, which touches and pulses on its own)
 // and, over it, the lesson's panel: a student's name, their own slice and view (unless the teacher
 // locks them); the teacher's commands and the class (who is connected, with what haptics, who touches
-// what). It hears the node's frames through main.js's hook and sends through its link.
+// what; a student's hand in the spotlight, a student driving). It hears the node's frames through
+// main.js's hook and sends through its link.
 
 import { hooks } from './main.js';
 
@@ -11,7 +12,7 @@ const panel = document.getElementById('lesson');
 
 // What tests read (window.touch4d.lesson); the functions are what the panel's buttons do.
 const lesson = (window.touch4d.lesson = {
-  role: null, name: '', locked: false, driver: 'teacher', own: { view: null, slice: null }, roster: [],
+  role: null, name: '', locked: false, driver: 'teacher', spotlight: null, own: { view: null, slice: null }, roster: [],
   results: [], lessonFrames: 0,
   arrived: {},   // scene revision -> when its first frame arrived (page clock, ms since the epoch)
   // a student's own slice and view (null: the class's); refused while locked
@@ -66,12 +67,18 @@ function teacherControls() {
 
 function showRoster() {
   const head = el('tr');
-  for (const title of ['who', 'haptics', 'touches', 'own view']) head.append(el('th', title));
+  for (const title of ['who', 'haptics', 'touches', 'own view', '']) head.append(el('th', title));
   const rows = lesson.roster.map((m) => {
     const row = el('tr', undefined, { className: m.touching ? 'touching' : '' });
     const own = m.view || m.slice !== null ? `${m.view || ''} ${m.slice ?? ''}`.trim() : '';
     row.append(el('td', `${m.name}${m.role === 'teacher' ? ' (teacher)' : ''}`), el('td', m.haptics),
                el('td', m.touching ? `${m.near} (${m.level})` : m.tracking ? '—' : 'no hand'), el('td', own));
+    if (m.role === 'student') {
+      const lit = lesson.spotlight === m.name;
+      row.append(el('td', undefined), el('td', undefined));
+      row.lastChild.append(button(lit ? 'spotlight off' : 'spotlight', () => lesson.command('spotlight', lit ? 'off' : m.name)),
+                           button('drive', () => lesson.command('drive', m.name)));
+    }
     return row;
   });
   classList.replaceChildren(head, ...rows);
@@ -80,7 +87,8 @@ function showRoster() {
 function show() {
   const who = lesson.role === 'teacher' ? 'teacher' : `student · ${lesson.name}`;
   const lock = lesson.locked ? ' · the teacher shows everyone the same view' : '';
-  info.textContent = `lesson · ${who} · ${lesson.driver} turns the object${lock}`;
+  const lit = lesson.spotlight ? ` · ${lesson.spotlight}'s hand in the spotlight` : '';
+  info.textContent = `lesson · ${who} · ${lesson.driver} turns the object${lock}${lit}`;
   if (lesson.role === 'student') {
     for (const b of controls.querySelectorAll('button')) if (b.textContent !== 'set name') b.disabled = lesson.locked;
   }
@@ -92,7 +100,7 @@ hooks.frames.push(({ header }) => {
   } else if (header.kind === 'lesson') {
     const first = lesson.role === null || lesson.role !== header.role;
     Object.assign(lesson, { role: header.role, name: header.name, locked: header.locked, driver: header.driver,
-                            own: header.own, roster: header.roster || [] });
+                            spotlight: header.spotlight, own: header.own, roster: header.roster || [] });
     lesson.lessonFrames++;
     if (first) {
       if (header.role === 'teacher') teacherControls();
