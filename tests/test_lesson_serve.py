@@ -4,7 +4,6 @@ with the page server (Host, headers, origin, the class's size, each link's budge
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import re
 import signal

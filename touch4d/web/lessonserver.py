@@ -39,7 +39,7 @@ from .hardening import ESCAPED, host_name
 from .inbox import TokenBucket
 from .invites import Invites
 from .lesson import CLASS, HEARTBEAT_S, TEACHER, TERMINAL, Lesson
-from .server import STATIC_DIR, PageServer
+from .server import PageServer
 
 log = logging.getLogger(__name__)
 log.addFilter(ESCAPED)
