@@ -28,6 +28,7 @@ from touch4d.bus.testing import wait_until
 from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
 from touch4d.study.plan import quick_plan
+from touch4d.web.inbox import OTHER_RATE
 from touch4d.web.protocol import unpack_frame
 from touch4d.web.studyserver import PARTICIPANTS_PER_CORE
 
@@ -146,8 +147,10 @@ async def study(ws, predicate, timeout: float = 30) -> dict:
 
 
 async def respond(ws, index: int, option: str) -> None:
-    """The page's answer button (its clock is this machine's: the server maps it all the same)."""
+    """The page's answer button (its clock is this machine's: the server maps it all the same), within
+    the page server's bound on a page's messages (more are dropped: touch4d.web.inbox)."""
     await ws.send_str(json.dumps({"type": "response", "index": index, "option": option, "time": time.time() * 1000}))
+    await asyncio.sleep(1.5 / OTHER_RATE)
 
 
 async def answer(ws, first: int, count: int) -> list[str]:
@@ -171,8 +174,9 @@ def rows(out: Path, participant: str) -> list[dict]:
 
 
 def children(pid: int) -> list[str]:
-    """The child processes of a process (every thread's)."""
-    return [c for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+    """The command lines of a process's children (every thread's)."""
+    pids = [c for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+    return [Path(f"/proc/{c}/cmdline").read_bytes().replace(b"\0", b" ").decode() for c in pids]
 
 
 # ---- tests ------------------------------------------------------------------------------------------------
@@ -220,9 +224,9 @@ def test_join_starts_the_participants_session_in_the_server_and_a_second_is_refu
         view = experimenter_view(served)
         states = {p["participant"]: p["state"] for p in view["participants"]}
         assert states == {"P01": "running", "P02": "invited"} and view["counts"]["full"] == 1
-        # its session, in the server's own process (no process started for it), opened its folder
-        # and its first trial: the session's opening break
-        assert children(served.proc.pid) == []
+        # its session, in the server's own process (no process started for it: the server's only child
+        # is its check of the glove, while it runs), opened its folder and its first trial: the opening break
+        assert all(" study check " in command for command in children(served.proc.pid))
         manifest = json.loads((served.out / "P01" / "manifest.json").read_text())
         assert manifest["participant"] == "P01" and [s["pid"] for s in manifest["starts"]] == [served.proc.pid]
         (p01,) = [p for p in view["participants"] if p["participant"] == "P01"]
