@@ -42,11 +42,11 @@ class Pages:
         return next((f, a) for k, f, a in reversed(self.sent[conn]) if k == kind)
 
 
-def lesson_with_pages(record=None):
+def lesson_with_pages(record=None, revoked=None):
     pages = Pages()
     calibration = load_calibration(None, "hand_in_grip")
     lesson = Lesson(load_scene(SCENE), load_glove(GLOVE), calibration, load_placement(None), pages.send, pages.send,
-                    record)
+                    record, revoke=None if revoked is None else revoked.append)
     lesson.connected(TEACHER, "teacher")
     lesson.connected(S1, "s1")
     lesson.connected(S2, "s2")
@@ -131,6 +131,7 @@ def test_a_students_own_slice_is_theirs_alone_until_the_teacher_locks_it():
     ("drive", "nobody", "drive: expected 'teacher' or a connected student's name"),
     ("lock", "now", "lock: takes no argument"),
     ("spotlight", "nobody", "spotlight: expected 'off' or a connected student's name"),
+    ("remove", "teacher", "remove: expected a connected student's name"),
     ("load", "objects: [", "scene/command load"),
 ])
 def test_a_bad_command_says_what_was_expected_and_changes_nothing(verb, argument, expected):
@@ -256,3 +257,11 @@ def test_every_page_shows_the_spotlit_students_hand():
     lesson.closed(S1)                                                    # the spotlit student leaves
     assert pages.last(S2, "frame")[0]["hand_valid"] is False
     assert pages.last(S2, "lesson")[0]["spotlight"] is None
+
+
+def test_remove_ends_that_students_access_alone():
+    revoked = []
+    lesson, pages, _ = lesson_with_pages(revoked=revoked)
+    lesson.message(S2, json.dumps({"type": "hello", "name": "Bo"}), 0.0)
+    assert lesson.command("remove", "Bo") == "remove Bo"
+    assert revoked == ["s2"]

@@ -4,6 +4,7 @@ with the page server (Host, headers, origin, the class's size, each link's budge
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import re
 import signal
@@ -200,15 +201,27 @@ def test_the_bounds_it_shares_with_the_page_server(tmp_path):
         run(scenario())
 
 
-def test_a_replaced_class_link_closes_its_students_and_refuses_the_old_link(tmp_path):
+def test_a_removed_student_and_a_replaced_class_link_are_refused(tmp_path):
     with served_lesson(tmp_path) as lesson:
         async def scenario():
             async with browser() as one, browser() as teacher:
                 _, _, s1 = await open_page(one, lesson.klass)
                 _, _, t_ws = await open_page(teacher, lesson.teacher)
                 await frames_until(s1, lambda f: f["kind"] == "frame")
-                # both pages read on (and answer the server's pings) while the link is replaced
+                # both pages read on (and answer the server's pings) from now on
                 readers = [asyncio.ensure_future(drain(ws)) for ws in (s1, t_ws)]
+                # one student removed by name: their page closes, their link and cookie refused; the others stay
+                async with browser() as bo:
+                    _, _, s2 = await open_page(bo, lesson.klass)
+                    await s2.send_str(json.dumps({"type": "hello", "name": "Bo"}))
+                    await frames_until(s2, lambda f: f["kind"] == "lesson" and f["name"] == "Bo")
+                    removing = asyncio.ensure_future(drain(s2))
+                    ok, text = await send_command(lesson.out, "remove", "Bo")
+                    assert ok, text
+                    await asyncio.wait_for(removing, 5)
+                    assert s2.close_code == 1008
+                    assert (await bo.get(f"{lesson.base}/")).status == 403
+                assert not s1.closed
                 # (not blocking the loop: the pages keep answering the server's pings meanwhile)
                 revoke = await asyncio.create_subprocess_exec(
                     sys.executable, "-m", "touch4d.cli", "lesson", "revoke", str(lesson.out), "class", cwd=REPO,

@@ -13,6 +13,7 @@ from touch4d.configfile import COMMAND_LINE, read_yaml, resolve_path
 from touch4d.errors import ConfigError
 
 DEFAULT_GLOVE = "config/gloves/quest-controller.yaml"   # the held controller: what a headset's owner has
+MAX_LOAD = 15000     # bytes of a scene file `load` sends: one page message (touch4d.web.protocol's limit) with room
 
 
 def register(subparsers) -> None:
@@ -33,7 +34,8 @@ def register(subparsers) -> None:
     command = sub.add_parser("command", help="the teacher's command to a served lesson")
     command.add_argument("out", type=Path, metavar="DIR", help="the lesson's folder (serve's --out)")
     command.add_argument("verb", help="load FILE | next | select X | view MODE | slice C|up|down | projection P | "
-                                      "rotate PLANE DEG | reset | lock | unlock | drive NAME|teacher")
+                                      "rotate PLANE DEG | reset | lock | unlock | drive NAME|teacher | spotlight NAME|off | "
+                                      "remove NAME")
     command.add_argument("argument", nargs="*", help="the verb's argument (load: a scene file)")
     command.set_defaults(func=_command)
     revoke = sub.add_parser("revoke", help="replace a link: its pages close, the new link is printed")
@@ -114,6 +116,9 @@ def _command(args) -> int:
         if len(args.argument) != 1:
             raise ConfigError(COMMAND_LINE, "load FILE", "one scene file", got=argument)
         argument = resolve_path(args.argument[0], COMMAND_LINE, key="load FILE", what="scene file").read_text()
+        if len(argument.encode()) > MAX_LOAD:
+            raise ConfigError(COMMAND_LINE, "load FILE", f"a scene file of at most {MAX_LOAD} bytes (what one page "
+                              "message carries)", got=f"{len(argument.encode())} bytes")
     ok, text = asyncio.run(send_command(args.out, args.verb, argument))
     print(f"lesson: {text}" if ok else f"touch4d lesson command: {text}")
     return 0 if ok else 2

@@ -46,7 +46,7 @@ from .protocol import PageError, message_type, pack_frame, parse_page_message, p
 
 TEACHER, CLASS, TERMINAL = "teacher", "class", "terminal"   # the lesson's links (holders of touch4d.web.access)
 SCENE_VERBS = ("next", "select", "reset", "projection", "view", "slice", "load")   # SceneControl.command's
-LESSON_VERBS = ("rotate", "lock", "unlock", "drive", "spotlight")
+LESSON_VERBS = ("rotate", "lock", "unlock", "drive", "spotlight", "remove")
 VERBS = SCENE_VERBS + LESSON_VERBS
 LESSON_TYPES = ("hello", "own", "command")
 MAX_NAME = 32                   # characters of a display name
@@ -104,14 +104,17 @@ def clean_name(text: str) -> str:
 
 class Lesson:
     """The lesson's logic. `send(conn, frame)`: in order, never dropped; `send_latest(conn, frame)`:
-    replaces one not yet sent; `record(topic, msg)`: the lesson's log (or None)."""
+    replaces one not yet sent; `record(topic, msg)`: the lesson's log (or None); `revoke(holder)`:
+    a student's access ended, their pages closed (`remove NAME`)."""
 
     def __init__(self, scene: Scene, glove: Glove, calibration: Calibration, placement: Placement,
                  send: Callable[[int, bytes], None], send_latest: Callable[[int, bytes], None],
-                 record: Callable[[str, object], None] | None = None, now: Callable[[], float] = time.time):
+                 record: Callable[[str, object], None] | None = None, now: Callable[[], float] = time.time,
+                 revoke: Callable[[str], None] | None = None):
         self.glove, self.calibration = glove, calibration
         self.send, self.send_latest = send, send_latest
         self.record = record or (lambda topic, msg: None)
+        self.revoke = revoke or (lambda holder: None)   # ends a holder's access and closes its pages
         self.now = now
         self.control = SceneControl(scene, calibration)
         self.bridge = WebBridge(BridgeConfig(tracker=True, touch="page"), glove, calibration, placement,
@@ -173,7 +176,10 @@ class Lesson:
             return member.frame
         if member.view is None:
             member.view = SceneView(style=self.bridge.view.style, view=member.own_view, slice_w=member.own_slice)
-        member.view.set_scene(self.scene)
+        try:
+            member.view.set_scene(self.scene)
+        except Touch4dError:          # a scene that cannot be cut (the bridge said why): the class's frame
+            return self.shared
         view = member.view
         fields, arrays = unpack_frame(self.shared)
         fields.pop("kind", None)
@@ -249,6 +255,14 @@ class Lesson:
         names = [m.name for m in self.members.values() if m.role == "student"]
         if verb == "spotlight":
             return self._spotlight(argument, names)
+        if verb == "remove":
+            holders = {m.holder for m in self.members.values() if m.role == "student" and m.name == argument}
+            if not holders:
+                raise LessonError(f"remove: expected a connected student's name ({', '.join(names) or 'none connected'}),"
+                                  f" got {argument!r}")
+            for holder in holders:
+                self.revoke(holder)
+            return True
         # drive NAME|teacher
         if argument != TEACHER and argument not in names:
             raise LessonError(f"drive: expected 'teacher' or a connected student's name "

@@ -212,7 +212,7 @@ class LessonRun:
                                    secure_cookie=secure, loop=loop)
         self.recording = self.make_recording(self.out / RECORDING) if self.make_recording else None
         self.lesson = Lesson(self.scene, self.glove, self.calibration, self.placement, self.server.send,
-                             self.server.send_latest, self.recording)
+                             self.server.send_latest, self.recording, revoke=self.access.revoke)
         self.server.on_connect = lambda conn: self.lesson.connected(conn, self.server.holder(conn),
                                                                     self.server.peer(conn))
         self.server.on_message = self.lesson.message
