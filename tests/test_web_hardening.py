@@ -8,6 +8,7 @@ owner's), and a page server's secret (nothing but its holder gets its page or We
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import os
 import resource
@@ -26,7 +27,7 @@ from touch4d.bus.pool import ContainerPool
 from touch4d.web.invites import Invites
 from touch4d.web.server import SECRET_HEADER
 
-from test_study_serve import REPO, STUDY, joined, serve as serve_cli, study
+from test_study_serve import REPO, STUDY, joined, respond, serve as serve_cli, study
 from test_study_server_places import _link, _server, _serving, _url
 from test_web_limits import headers_of, raw, serve, status_of  # noqa: F401 - serve: the page server fixture
 
@@ -200,6 +201,37 @@ def test_a_participants_second_page_is_refused_503_and_a_page_from_another_site_
         _serving(server, lambda s: _keep(result, body(s)))
     assert result["value"] == [503, 503, 403] and server.counts["second page"] == 2
     assert caplog.text.count("P01: a second page refused while one is open") == 1
+
+
+def test_a_pages_answer_behind_a_network_stalls_batches_is_taken_and_a_flood_is_still_bounded(tmp_path):
+    """A served page sends a batch of its frames every batch_s whatever the network does: after a
+    stall of seconds they arrive at once, and the answer sent behind them counts (dropped, the trial
+    would time out unanswered). A page's flood is dropped past the bound all the same."""
+    server = _server(tmp_path)
+    stall_s, flood = 5.0, 2000                                 # a stall the heartbeat lets pass
+    batch = json.dumps({"type": "batch", "poses": {"time": [1.0], "valid": [False], "hand": [0, 0, 0, 0, 0, 0, 1]},
+                        "touches": {"time": [], "intensity": []}})
+
+    async def body(server):
+        url = _url(server)
+        async with joined(url, _link(server, "P01")) as browser, browser.ws_connect(f"{url}/ws", origin=url) as ws:
+            await study(ws, lambda s: s["phase"] == "break")
+            batches = round(stall_s / server.options.session.batch_s) + round(stall_s)   # and a stats a second
+            for _ in range(batches):
+                await ws.send_str(batch)
+            await respond(ws, 0, "go on")                          # any answer ends the opening break
+            await study(ws, lambda s: s["phase"] != "break", timeout=10)
+            counts = server.participants["P01"].session.counts
+            taken = counts["batches"]
+            for _ in range(flood):                                 # a page that floods
+                await ws.send_str(batch)
+            await asyncio.sleep(0.5)
+            return batches, taken, counts["batches"] - taken
+
+    result = {}
+    _serving(server, lambda s: _keep(result, body(s)))
+    batches, taken, flooded = result["value"]
+    assert taken == batches and flooded < flood / 4, (batches, taken, flooded)
 
 
 def test_the_page_server_answers_an_overlong_static_name_404_without_a_traceback(serve, caplog):  # noqa: F811
