@@ -238,3 +238,13 @@ def test_a_removed_student_and_a_replaced_class_link_are_refused(tmp_path):
                 await t_ws.close()
                 await readers[1]
         run(scenario())
+
+
+def test_a_launch_file_gives_its_scene_and_its_webxr_nodes_glove():
+    from touch4d.commands.lesson import lesson_inputs
+    from touch4d.geometry.scene import load_scene
+
+    scene, glove = lesson_inputs("launch/quest.yaml", None)
+    assert glove == "config/gloves/quest-controller.yaml"          # tracker.params.glove of launch/quest.yaml
+    assert [o.name for o in scene.objects] == [o.name for o in load_scene(SCENE).objects]
+    assert lesson_inputs("launch/quest.yaml", "config/glove.yaml")[1] == "config/glove.yaml"

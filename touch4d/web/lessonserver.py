@@ -199,10 +199,12 @@ class LessonRun:
         if is_loopback(self.options.host) or self.options.public_url:
             return None
         from .tls import ensure_certificate, server_ssl_context
-        cert, key, _ = ensure_certificate(self.out / "tls", lan_addresses(self.options.host))
+        cert, key, self.fingerprint = ensure_certificate(self.out / "tls", lan_addresses(self.options.host))
         return server_ssl_context(cert, key)
 
     def run(self) -> int:
+        os.umask(0o077)            # what it writes (the recording of the class's hands) is its owner's alone
+        self.fingerprint = None
         self.ssl_context = self._ssl()
         loop = self._loop = new_event_loop(serves_tls=self.ssl_context is not None)
         public = self.options.public_url
@@ -245,6 +247,9 @@ class LessonRun:
         teacher, klass = lesson_links(base, self.tokens)
         print(f"lesson: serving {base}/ for up to {self.options.max_students} students; recording in "
               f"{self.out / RECORDING if self.recording else 'nothing'}", flush=True)
+        if self.fingerprint:
+            print(f"its certificate (self-signed; compare in the browser before accepting): SHA-256 "
+                  f"{self.fingerprint}", flush=True)
         print(f"teacher link: {teacher}", flush=True)
         print(f"class link: {klass}", flush=True)
         ticks = 0
