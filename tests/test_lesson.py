@@ -265,3 +265,18 @@ def test_remove_ends_that_students_access_alone():
     lesson.message(S2, json.dumps({"type": "hello", "name": "Bo"}), 0.0)
     assert lesson.command("remove", "Bo") == "remove Bo"
     assert revoked == ["s2"]
+
+
+def test_a_recording_that_fails_stops_and_the_lesson_goes_on(tmp_path, capsys):
+    recording = Recording(tmp_path / "lesson.mcap")
+    lesson, pages, _ = lesson_with_pages(recording)
+
+    def full(*args):
+        raise OSError(28, "No space left on device")
+
+    recording.writer.write = full
+    lesson.command("slice", "1.2")                       # recorded: fails; carried out all the same
+    assert pages.last(S1, "frame")[0]["slice_w"] == 1.2
+    assert recording.failed and "recording stopped" in capsys.readouterr().err
+    lesson.command("slice", "1.4")
+    assert pages.last(S1, "frame")[0]["slice_w"] == 1.4

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import sys
 import time
 from pathlib import Path
 
 from touch4d.configfile import COMMAND_LINE, read_yaml, resolve_path
-from touch4d.errors import ConfigError
+from touch4d.errors import ConfigError, Touch4dError
 
 DEFAULT_GLOVE = "config/gloves/quest-controller.yaml"   # the held controller: what a headset's owner has
 MAX_LOAD = 15000     # bytes of a scene file `load` sends: one page message (touch4d.web.protocol's limit) with room
@@ -54,16 +55,26 @@ class Recording:
 
         self.writer = LogWriter(path)
         self.clock = WallClock()
+        self.failed = False
         self._flushed = time.monotonic()
 
     def __call__(self, topic: str, msg) -> None:
-        self.writer.write(topic, msg.encode(), self.clock())
-        if time.monotonic() - self._flushed >= 1.0:
-            self._flushed = time.monotonic()
-            self.writer.flush()
+        if self.failed:
+            return
+        try:
+            self.writer.write(topic, msg.encode(), self.clock())
+            if time.monotonic() - self._flushed >= 1.0:
+                self._flushed = time.monotonic()
+                self.writer.flush()
+        except (OSError, Touch4dError) as exc:   # a full disk: the lesson goes on, unrecorded, and says so
+            self.failed = True
+            print(f"lesson: recording stopped ({exc}); the lesson goes on", file=sys.stderr, flush=True)
 
     def close(self) -> None:
-        self.writer.close()
+        try:
+            self.writer.close()
+        except (OSError, Touch4dError) as exc:
+            print(f"lesson: the recording could not be finished ({exc})", file=sys.stderr, flush=True)
 
 
 def lesson_inputs(given: str, glove: str | None):
