@@ -75,7 +75,7 @@ def test_a_quick_session_runs_every_trial_gated_by_its_condition_and_measured_fr
     kinds = [h["kind"] for h, _ in page.frames]
     assert kinds[-3:] == ["setup", "geometry", "frame"]          # a page that connects gets the state at once
     setup = next(h for h, _ in page.frames if h["kind"] == "setup")
-    assert setup["touch"] == "page" and setup["tracker"] is True and setup["batch_s"] == pytest.approx(0.1)
+    assert setup["touch"] == "page" and setup["tracker"] is True and setup["batch_s"] == pytest.approx(0.25)
     expected, starts = {}, []
     for trial in plan:
         page.until("break") if session.trial.phase == "break" else None
@@ -167,7 +167,7 @@ def test_the_experimenters_pause_and_the_pages_stats_and_haptics_reach_the_manif
 
 
 def test_a_connected_page_gets_the_last_frame_again_every_heartbeat_and_none_without_a_page(tmp_path):
-    page = Page(tmp_path, heartbeat_s=0.25)
+    page = Page(tmp_path, heartbeat_s=0.25, gate_stale_s=1.0)
     session = page.session
     assert session.trial.phase == "break"          # nothing changes in a break: only the heartbeat sends
     session.connected(1)

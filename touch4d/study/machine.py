@@ -33,7 +33,7 @@ import yaml
 from touch4d.geometry.scene import parse_scene, scene_digest
 from touch4d.messages import SceneState, StudyResponse, StudyTrial
 from touch4d.messages.study import STUDY_PHASES
-from touch4d.schema import parse_yaml
+from touch4d.schema import SAFE_DUMPER, parse_yaml
 
 from .conditions import BY_NAME
 from .design import Study
@@ -100,7 +100,7 @@ def trial_scene_text(study: Study, trial: Trial) -> str:
     mapping["description"] = f"{study.name}: a trial"
     for k, obj in enumerate(mapping["objects"]):
         obj["name"] = f"object-{k + 1}"
-    return yaml.safe_dump(mapping, sort_keys=False)
+    return yaml.dump(mapping, Dumper=SAFE_DUMPER, sort_keys=False)
 
 
 class TrialMachine:
@@ -307,6 +307,21 @@ class TrialMachine:
         felt = stimulus and allowed(self.current.condition).motors
         intensity = np.asarray(intensity, dtype=float)
         self.measures.add_motors(stamp, intensity if felt else np.zeros(len(intensity)))
+
+    def motor_rows(self, stamps, intensity) -> None:
+        """Many motor commands at once, as `motors` takes them one by one (a served page's batch)."""
+        stimulus = self.phase == Phase.STIMULUS
+        if not stimulus:
+            self.measures.reset()
+        intensity = np.asarray(intensity, dtype=float)
+        felt = stimulus and allowed(self.current.condition).motors
+        self.measures.add_motor_rows(stamps, intensity if felt else np.zeros_like(intensity))
+
+    def poses(self, stamps, positions, valid) -> None:
+        """Many hand poses at once, as `pose` takes them one by one."""
+        if self.phase != Phase.STIMULUS:
+            self.measures.reset()
+        self.measures.add_poses(stamps, positions, valid)
 
     def pose(self, stamp: float, position, valid: bool) -> None:
         """A hand pose (`hand/pose`), for the hand's path."""

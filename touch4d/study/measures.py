@@ -40,6 +40,23 @@ class TrialMeasures:
         mean = float(np.add.reduce(intensity) / intensity.size) if intensity.size else 0.0
         self._motors.append((stamp, bool((intensity > self.threshold).any()), mean))
 
+    def add_motor_rows(self, stamps: np.ndarray, intensity: np.ndarray) -> None:
+        """Many motor commands at once (rows of `intensity`, one per stamp): a served page's batch."""
+        if not len(stamps):
+            return
+        intensity = np.asarray(intensity, dtype=float)
+        if not math.isfinite(intensity.sum()):     # NaN as 0 (as add_motors)
+            intensity = np.nan_to_num(intensity)
+        on = (intensity > self.threshold).any(axis=1) if intensity.shape[1] else np.zeros(len(stamps), bool)
+        mean = intensity.mean(axis=1) if intensity.shape[1] else np.zeros(len(stamps))
+        self._motors.extend(zip(np.asarray(stamps, dtype=float).tolist(), on.tolist(), mean.tolist()))
+
+    def add_poses(self, stamps: np.ndarray, positions: np.ndarray, valid: np.ndarray) -> None:
+        """Many hand poses at once (rows of `positions`, one per stamp; an invalid one holds no place)."""
+        positions = np.array(positions, dtype=float)
+        self._poses.extend((t, p if v else None) for t, p, v in zip(np.asarray(stamps, dtype=float).tolist(),
+                                                                    positions, np.asarray(valid).tolist()))
+
     def add_pose(self, stamp: float, position, valid: bool) -> None:
         self._poses.append((stamp, np.asarray(position, dtype=float).copy() if valid else None))
 

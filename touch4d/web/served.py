@@ -61,10 +61,10 @@ class ServedOptions(msgspec.Struct, kw_only=True, frozen=True):
     session: str = "1"             # the session label in every row
     iti_s: float = 0.6             # blank time between trials
     break_s: float = 0.0           # a break ends by itself after this long (0: when the participant goes on)
-    batch_s: float = 0.1           # the page sends its frames this often
-    heartbeat_s: float = 0.25      # the last frame again this often while a page is connected
-    gate_stale_s: float = 1.0      # a page without a frame this long plays 0 (the server or its link gone)
-    flush_s: float = 1.0           # the log handed to the OS this often
+    batch_s: float = 0.25          # the page sends its frames this often (the server's cost is per batch)
+    heartbeat_s: float = 1.0       # the last frame again this often while a page is connected
+    gate_stale_s: float = 3.0      # a page without a frame this long plays 0 (the server or its link gone)
+    flush_s: float = 2.0           # the log handed to the OS this often (a crash loses at most this of it, no row)
 
 
 class Shared:
@@ -121,7 +121,7 @@ class ServedSession:
         self.trial: StudyTrial | None = None       # the latest state, for the experimenter's page
         self.finished = False                      # every trial has its row
         self.page = {"fps": [], "haptics": None, "mode": None, "clock_offset_s": None}   # what the page said
-        self.counts = {"batches": 0, "poses": 0, "touches": 0, "malformed": 0, "responses": 0}
+        self.counts = {"batches": 0, "poses": 0, "touches": 0, "malformed": 0, "responses": 0, "frames": 0}
         self._sent_at = -math.inf                  # the last frame to the pages (the heartbeat's clock)
         self._flushed_at = clock()
         self._closed = False
@@ -164,6 +164,8 @@ class ServedSession:
 
     def _sent_all(self, frame: bytes, latest: bool) -> None:
         self._sent_at = self.clock()
+        if self.pages:
+            self.counts["frames"] += 1
         self._broadcast(frame, latest)
 
     def _published(self, topic: str, msg) -> None:
@@ -245,12 +247,10 @@ class ServedSession:
         self.counts["batches"] += 1
         self.counts["poses"] += len(stamps)
         self.counts["touches"] += len(touch_times)
-        machine = self.machine
-        for k in range(len(stamps)):
-            machine.pose(float(stamps[k]), position[k], bool(valid[k]))
         touched = touch_times + offset
-        for k in range(len(touched)):
-            machine.motors(float(touched[k]), intensity[k])
+        self.machine.poses(stamps, position, valid)
+        if len(touched):
+            self.machine.motor_rows(touched, intensity)
         if len(stamps):
             self._write("hand/poses", HandPoses(stamps=stamps, positions=position, orientations=orientation,
                                                 valid=valid))

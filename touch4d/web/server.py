@@ -42,7 +42,7 @@ from touch4d.eventloop import new_event_loop
 
 from .access import COOKIE, HOLDER, Access, CookieGate, cross_site
 from .hardening import ESCAPED, HEADER_TIMEOUT_S, MAX_PER_ADDRESS, Hardening
-from .inbox import MAX_INPUT_HZ, Inbox
+from .inbox import MAX_INPUT_HZ, OTHER_BURST, Inbox
 from .protocol import MAX_PAGE_MESSAGE, message_type
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ class PageServer:
                  max_pages: int = MAX_PAGES, names: Iterable[str] = (), secure_cookie: bool = True,
                  max_per_address: int = MAX_PER_ADDRESS, limit_loopback: bool = False,
                  header_timeout_s: float = HEADER_TIMEOUT_S, send_timeout_s: float = SEND_TIMEOUT_S,
-                 max_queued: int = MAX_QUEUED, input_hz: float = MAX_INPUT_HZ,
+                 max_queued: int = MAX_QUEUED, input_hz: float = MAX_INPUT_HZ, other_burst: int = OTHER_BURST,
                  on_connect: Callable[[int], None] = lambda conn: None,
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None,
@@ -99,7 +99,7 @@ class PageServer:
         self.on_pending = on_pending
         self.static_dir = Path(static_dir)
         self.max_pages, self.send_timeout_s, self.max_queued = max_pages, send_timeout_s, max_queued
-        self.input_hz = input_hz
+        self.input_hz, self.other_burst = input_hz, other_burst   # a page's messages (touch4d.web.inbox)
         self.secret = secret
         self.hardening = hardening or Hardening(host, names, ssl_context=ssl_context, max_per_address=max_per_address,
                                                 limit_loopback=limit_loopback, header_timeout_s=header_timeout_s,
@@ -339,7 +339,7 @@ class PageServer:
         self.hardening.upgraded(request.transport)
         conn = next(self._ids)
         peer = request.transport.get_extra_info("peername") if request.transport else None
-        inbox = self._inboxes[conn] = Inbox(input_hz=self.input_hz)
+        inbox = self._inboxes[conn] = Inbox(input_hz=self.input_hz, burst=self.other_burst)
         client = self.clients[conn] = _Client(ws, request.transport, request.get(HOLDER), inbox,
                                               f"{peer[0]}:{peer[1]}" if peer else (request.remote or "?"))
         sender = asyncio.ensure_future(self._sender(client))

@@ -27,8 +27,10 @@ import json
 import logging
 import os
 import socket
-import stat
 import signal
+import stat
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -74,6 +76,11 @@ HOLDER_BURST = 60             # and at most this many at once
 STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
     SECURITY_HEADERS["Content-Security-Policy"].replace("form-action 'none'", "form-action 'self'")
     + "; script-src 'self'")}
+# A served page sends a batch every batch_s and its stats each second whatever the network does: a
+# stall (until the heartbeat closes the page: WS_HEARTBEAT_S and its pong's wait) delivers them at
+# once, and the answer sent behind them must not be dropped by the page server's bound on a page's
+# messages (touch4d.web.inbox: 20 at once). This long of them may come at once; a flood is still cut.
+PAGE_STALL_S = 10.0
 MAX_DEVICE_BODY = 1024        # the welcome page's device report: two booleans
 # What a participant whose browser cannot vibrate reads before consent (and why).
 NO_VIBRATION = ("This browser cannot vibrate: no VR headset (WebXR) and no gamepad with rumble were found. "
@@ -152,7 +159,8 @@ class StudyServer:
                                    log=log)
         # the pages' WebSockets: the page server's bounds, queues and heartbeat, through this server's /ws
         self.pages = PageServer(o.host, 0, max_pages=10**6, hardening=self.hardening, on_connect=self._page_opened,
-                                on_message=self._page_message, on_close=self._page_closed)
+                                on_message=self._page_message, on_close=self._page_closed,
+                                other_burst=round(PAGE_STALL_S * (1 / o.session.batch_s + 1)))
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
                        "over budget": 0, "no vibration": 0, "second page": 0}
@@ -579,6 +587,7 @@ class StudyServer:
                         "trial": None if t is None or t.index < 0 else t.index + 1,
                         "of": None if t is None else t.total, "phase": None if t is None else t.phase,
                         "fps": page["fps"][-1] if page.get("fps") else None,
+                        "counts": dict(p.session.counts) if self._running(p) else None,
                         "last_heard_s": None if not p.last_heard else round(now - p.last_heard, 1)})
         return out
 
@@ -714,22 +723,25 @@ class StudyServer:
             await asyncio.sleep(period_s)
             self._load_invites()
 
-    def _check_glove(self) -> None:
-        """Say on the terminal which tasks the participants' glove cannot tell
-        (infotransfer.glove_task_warnings, as `study check --glove`): a few seconds of simulation, in
-        a thread at the lowest priority while the server starts serving."""
+    def _check_glove(self) -> subprocess.Popen | None:
+        """Say on the terminal which tasks the participants' glove cannot tell (`study check --glove`,
+        infotransfer.glove_task_warnings): seconds of simulation, in a process of its own at the lowest
+        priority (in a thread of this one it would take the interpreter from the participants' loop)."""
         try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)   # this thread (Linux)
-        except (OSError, AttributeError):
-            pass
-        try:
-            from touch4d.study.infotransfer import glove_task_warnings
-            warnings = glove_task_warnings(self.shared.glove, self.study)
-        except Exception as exc:  # noqa: BLE001 - a check that cannot run must not stop the serving
+            check = subprocess.Popen([sys.executable, "-m", "touch4d.cli", "study", "check", str(self.study_path),
+                                      "--glove", self.options.session.glove], stdout=subprocess.PIPE,
+                                     stderr=subprocess.DEVNULL, text=True, preexec_fn=lambda: os.nice(19))
+        except OSError as exc:
             log.warning("could not check the glove %s against the study's tasks: %s", self.options.session.glove, exc)
-            return
-        for line in warnings:
-            self._say(f"warning: {line}")
+            return None
+
+        def relay() -> None:
+            for line in check.stdout:
+                if line.startswith("warning:"):
+                    self._say(line.rstrip("\n"))
+            check.wait()
+        threading.Thread(target=relay, name="glove-check", daemon=True).start()
+        return check
 
     def _claim_out(self) -> SessionLock:
         """OUT held for this server alone (a second server on it is refused, naming this one); made
@@ -755,9 +767,14 @@ class StudyServer:
         _refuse_shared(self.out)
         raise_file_limit()      # each participant holds a socket, its trials.csv, its log and its lock
         with self._claim_out(), self._listen() as self._socket:
-            threading.Thread(target=self._check_glove, name="glove-check", daemon=True).start()
-            with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
-                runner.run(self._serve())
+            check = self._check_glove()
+            try:
+                with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
+                    runner.run(self._serve())
+            finally:
+                if check is not None and check.poll() is None:
+                    check.kill()
+                    check.wait()
         return 0
 
 
