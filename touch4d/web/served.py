@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
 import msgspec
@@ -31,6 +32,7 @@ from touch4d.messages.hand import IDENTITY
 from touch4d.boards.config import load_glove_can
 from touch4d.bus.launchfile import load_launch
 from touch4d.boards.dbc import dbc_text
+from touch4d.errors import Touch4dError
 from touch4d.geometry.scene import load_scene
 from touch4d.log.writer import LogWriter
 from touch4d.messages import HandPoses, MotorCommands, Stop, StudyResponse, StudyTrial, encode
@@ -68,10 +70,13 @@ class ServedOptions(msgspec.Struct, kw_only=True, frozen=True):
 
 
 class Shared:
-    """What is loaded once for every participant: the glove, the calibration, the first scene."""
+    """What is loaded once for every participant: the glove, the calibration, the first scene; and
+    the one thread that writes and fsyncs every participant's rows (an fsync takes milliseconds of a
+    disk: on the server's loop, hundreds a minute would hold every participant's frames)."""
 
     def __init__(self, options: ServedOptions):
         self.options = options
+        self.rows = ThreadPoolExecutor(1, thread_name_prefix="trials.csv")
         self.glove = load_glove(options.glove)
         self.calibration = load_calibration(options.calibration, "hand_in_grip")
         self.placement = load_placement(options.calibration)
@@ -109,6 +114,8 @@ class ServedSession:
         except BaseException:
             self._lock.release()
             raise
+        self._writer = shared.rows
+        self._rows: list[Future] = []               # rows handed to the rows' thread, not yet known written
         self.glove = shared.glove
         self.names = list(shared.glove.motor_names)
         self.control = SceneControl(shared.scene, shared.calibration, shared.control)
@@ -149,7 +156,9 @@ class ServedSession:
                     self.bridge.on_trial(self.trial)
                     self._write("study/trial", self.trial)
                 elif isinstance(event, TrialDone):
-                    self.trials.write(event.row)
+                    # fsync'd in the rows' thread within milliseconds, in order, well before the next
+                    # trial's onset (iti_s); a server killed meanwhile runs that trial again: none lost
+                    self._rows.append(self._writer.submit(self.trials.write, event.row))
                 elif isinstance(event, Finished):
                     self.finished = True
                     stop = Stop(reason="study session complete", origin="study")
@@ -274,8 +283,15 @@ class ServedSession:
             due = min(due, self._sent_at + self.options.heartbeat_s)
         return due
 
+    def _check_rows(self) -> None:
+        """Rows written so far forgotten; one that could not be written raises its error here (the
+        server then stops this participant's session, saying why)."""
+        while self._rows and self._rows[0].done():
+            self._rows.pop(0).result()
+
     def tick(self) -> None:
         now = self.clock()
+        self._check_rows()
         self.machine.tick()
         self._act()
         self.bridge.tick()
@@ -300,12 +316,20 @@ class ServedSession:
         self.machine.stop()
         self._act()
         self._closed = True
+        unwritten = []
+        for row in self._rows:        # every row written before the file closes
+            try:
+                row.result()
+            except (OSError, Touch4dError) as exc:
+                unwritten.append(exc)
         try:
             self.log.close({"participant": self.participant, "study": self.study.name})
             self.trials.close()
             self._keep_page()
         finally:
             self._lock.release()
+        if unwritten:
+            raise unwritten[0]
 
     def _keep_page(self) -> None:
         """The page's frame rates, haptics and clock offset, in manifest.json's `page` (one entry per start)."""
