@@ -326,7 +326,8 @@ def test_the_experimenter_page_shows_each_participants_state_from_its_data_after
             async with lab.get(f"{url}/experimenter.js") as response:
                 script = await response.text()
                 assert response.status == 200 and response.headers["Cache-Control"] == "no-store"
-            assert 'history.replaceState(null, "", "/experimenter")' in script and "format=table" in script
+            assert 'history.replaceState(null, "", "/experimenter")' in script
+            assert 'new EventSource("/experimenter/events")' in script      # live by server-sent events
             async with lab.get(f"{url}/experimenter?format=table") as response:
                 table = await response.text()
             assert table.count("<tr data-state=") == 4 and "<tr data-state=revoked><td>P03</td>" in table

@@ -261,6 +261,26 @@ def kind_class(name: str) -> type[Task] | None:
 TaskT = TypeVar("TaskT", bound=Task)
 
 
+class DeviceCheck(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    """The welcome page's device check before consent (`touch4d study serve`): `trials` vibrations at
+    random times and `catch` trials without one, each answered felt or not felt; a device passes with
+    at least `min_hits` felt vibrations, at most `max_false_alarms` catch trials said felt, and its
+    frame rate at least `min_fps`."""
+
+    trials: Positive = 8
+    catch: Count = 4
+    min_hits: Count = 6
+    max_false_alarms: Count = 1
+    min_fps: Annotated[float, msgspec.Meta(ge=0, description="frames per second, >= 0")] = 45.0
+
+    def __post_init__(self):
+        if self.min_hits > self.trials:
+            raise schema.Invalid(f"at most trials ({self.trials})", self.min_hits, "min_hits")
+        if self.max_false_alarms > self.catch:
+            raise schema.Invalid(f"at most catch ({self.catch})", self.max_false_alarms, "max_false_alarms")
+
+
+
 class Study(msgspec.Struct, Generic[TaskT], forbid_unknown_fields=True, frozen=True, dict=True):
     """A study file. `path` (set by `load_study`) is the file it came from, for errors and paths. Read
     as `Study[kinds]` (`parse_study`), its tasks each of the kind their `kind:` names."""
@@ -286,6 +306,8 @@ class Study(msgspec.Struct, Generic[TaskT], forbid_unknown_fields=True, frozen=T
     # are then felt by no one: for studies where touch is not what is measured). Either way the
     # experimenter's page shows what each participant's browser could do.
     without_vibration: Literal["refuse", "allow"] = "refuse"
+    # The welcome page's vibration test and frame rate before consent (DeviceCheck); None: none.
+    device_check: DeviceCheck | None = None
 
     @property
     def path(self) -> str:

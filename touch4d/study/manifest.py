@@ -54,6 +54,14 @@ def write_manifest(directory, manifest: dict) -> None:
     write_atomic(Path(directory) / MANIFEST, json.dumps(manifest, indent=2, sort_keys=False) + "\n")
 
 
+def update_manifest(directory, fields: dict) -> None:
+    """Keys added to (or replaced in) a session's manifest: what a served participant's device and
+    recruitment platform said (`device`, `platform`), for `study analyze --by device.browser`."""
+    manifest = read_manifest(directory)
+    manifest.update(fields)
+    write_manifest(directory, manifest)
+
+
 def start_manifest(directory, *, study, study_path, participant: str, session: str, condition_order: list[str],
                    trials: int, glove_path, calibration_path, dbc_text: str, resumed_at: int,
                    quick: bool = False, simulation: dict | None = None) -> dict:

@@ -58,14 +58,21 @@ def _complete(data: bytes) -> bytes:
     return data if data.endswith(b"\n") else data[:data.rfind(b"\n") + 1]
 
 
-def rows_written(directory) -> int:
-    """How many trials of a session folder have their row, read only (a server showing progress while
-    the study node writes): its trials.csv's whole rows, 0 without one."""
+def read_rows(directory) -> tuple[list[str], list[dict]]:
+    """A session folder's trials.csv, read only: its header and its whole rows (none without one)."""
     try:
         data = _complete((Path(directory) / TRIALS).read_bytes())
     except OSError:
-        return 0
-    return sum(1 for _ in csv.DictReader(io.StringIO(data.decode(errors="replace"))))
+        return [], []
+    reader = csv.DictReader(io.StringIO(data.decode(errors="replace")))
+    rows = list(reader)
+    return list(reader.fieldnames or []), rows
+
+
+def rows_written(directory) -> int:
+    """How many trials of a session folder have their row, read only (a server showing progress while
+    the study node writes): its trials.csv's whole rows, 0 without one."""
+    return len(read_rows(directory)[1])
 
 
 class TrialsFile:

@@ -21,11 +21,15 @@ link.
 from __future__ import annotations
 
 import asyncio
+import csv
 import errno
+import hmac
 import html
+import io
 import json
 import logging
 import os
+import re
 import socket
 import signal
 import stat
@@ -35,7 +39,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import quote
+from urllib.parse import quote, urlencode, urlsplit
 
 import msgspec
 from aiohttp import web
@@ -47,10 +51,14 @@ from touch4d.eventloop import new_event_loop
 from touch4d.study.design import Study
 from touch4d.study.lock import SERVE, SessionLock
 from touch4d.study.participation import Life, State
-from touch4d.study.plan import plan_session, quick_plan
-from touch4d.study.store import PARTICIPANT_ID, rows_written, session_dir
+from touch4d.study.manifest import update_manifest
+from touch4d.study.plan import order_table, participant_index, plan_session, quick_plan
+from touch4d.study.recruitment import (PLATFORM_PARAMS, Place, Recruits, holds_row, identity, next_participant,
+                                       platform_params, rows_filled)
+from touch4d.study.store import PARTICIPANT_ID, read_rows, rows_written, session_dir
 
 from .access import HOLDER, Access, CookieGate, cross_site
+from .devicecheck import MAX_BODY as MAX_DEVICE_BODY, answered, failures, parse_report
 from .hardening import ESCAPED, SECURITY_HEADERS, Hardening, host_name, raise_file_limit
 from .inbox import TokenBucket
 from .invites import EXPERIMENTER, Invites, check_participant
@@ -81,7 +89,11 @@ STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
 # once, and the answer sent behind them must not be dropped by the page server's bound on a page's
 # messages (touch4d.web.inbox: 20 at once). This long of them may come at once; a flood is still cut.
 PAGE_STALL_S = 10.0
-MAX_DEVICE_BODY = 1024        # the welcome page's device report: two booleans
+OPEN_RATE, OPEN_BURST = 2.0, 20   # participants the open link makes per second (on average, at once)
+EVENTS_PERIOD_S = 1.0         # the experimenter page's events (server-sent), this often
+DEVICE_FAILED = ("Thank you for your interest. This device did not pass the check this study needs (its "
+                 "vibration, or its frame rate), so it cannot take part; you have not been counted as a "
+                 "participant.")
 # What a participant whose browser cannot vibrate reads before consent (and why).
 NO_VIBRATION = ("This browser cannot vibrate: no VR headset (WebXR) and no gamepad with rumble were found. "
                 "This study's touch is felt as vibration. With a gamepad, press one of its buttons, then reload.")
@@ -114,6 +126,11 @@ class Participant:
     tick: asyncio.TimerHandle | None = field(default=None, repr=False)   # its session's next deadline
     tick_due: float = float("inf")
     vibration: str | None = None       # what its welcome page found: headset, gamepad, none (None: not told)
+    device: dict | None = None         # what its device check measured (devicecheck.parse_report), for the manifest
+    passed: bool | None = None         # whether that device passed the study's device_check (None: not judged)
+    opened: bool = False               # made by the open link (freed again if its device fails or it quits first)
+    since: float | None = None         # its last move (link made, join, a trial's row): recruitment.Place
+    rows_seen: int = 0                 # its session's rows when last looked
 
     @property
     def pages(self) -> int:
@@ -131,6 +148,12 @@ class ServeOptions(msgspec.Struct, kw_only=True, frozen=True):
     secure: bool | None = None               # Secure cookies (None: from public_url's scheme)
     page_grace_s: float = PAGE_GRACE_S       # after a join, its page connects within this
     session: ServedOptions = msgspec.field(default_factory=ServedOptions)   # each participant's (glove, timings)
+    open_link: bool = False                  # one link for many: each visitor becomes a participant of their own
+    max_total: int | None = None             # the open link admits no one once this many are done or under way
+    id_params: tuple[str, ...] = ()          # a platform's query parameters kept beside PLATFORM_PARAMS
+    complete_url: str | None = None          # where a participant who finished every trial goes
+    completion_code: str | None = None       # appended to complete_url as ?cc=CODE (Prolific's)
+    return_url: str | None = None            # where one who quits, or whose device fails the check, goes
 
 
 class StudyServer:
@@ -153,7 +176,7 @@ class StudyServer:
         self.secure = (o.public_url or "").startswith("https://") if o.secure is None else o.secure
         self.invites = Invites(self.out)
         self.access = Access()
-        self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study")
+        self.gate = CookieGate(self.access, secure=self.secure, cookie="touch4d-study", open_prefixes=("/open",))
         # the internet's bounds, as the page server's (touch4d.web.hardening); the public name served too
         self.hardening = Hardening(o.host, [host_name(o.public_url)] if o.public_url else [], headers=STUDY_HEADERS,
                                    log=log)
@@ -163,7 +186,8 @@ class StudyServer:
                                 other_burst=round(PAGE_STALL_S * (1 / o.session.batch_s + 1)))
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
-                       "over budget": 0, "no vibration": 0, "second page": 0}
+                       "over budget": 0, "no vibration": 0, "second page": 0, "device failed": 0, "open link": 0,
+                       "quit": 0, "total reached": 0}
         self._logged: set[str] = set()
         self._plan_lengths: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -174,6 +198,14 @@ class StudyServer:
         self._by_conn: dict[int, Participant] = {}   # each open page's participant
         self.experimenter_token: str | None = None   # issued when it serves (run), not before
         self._socket: socket.socket | None = None   # bound by run() before OUT is written
+        try:
+            self.recruits = Recruits(self.out)        # the open link's key, platform ids -> participants
+        except ValueError as exc:
+            raise ConfigError(self.out / "recruits.json", "(file)", "the open link's file as the server wrote it",
+                              detail=str(exc)) from None
+        self.open_key: str | None = None             # issued when it serves with --open-link
+        self._open_budget = TokenBucket(OPEN_RATE, OPEN_BURST)
+        self._param_names = tuple(dict.fromkeys((*PLATFORM_PARAMS, *o.id_params)))
         self._load_invites()
 
     # ---- links ---------------------------------------------------------------------------------
@@ -280,6 +312,8 @@ class StudyServer:
         session = p.session
         if session is None:
             return
+        if len(session.trials.rows) != p.rows_seen:     # a trial's row: it is under way (recruitment)
+            p.rows_seen, p.since = len(session.trials.rows), time.time()
         if session.finished and p.life.state is State.RUNNING:
             p.life.finished()
             self._say(f"{p.id} is done: every trial has its row")
@@ -445,6 +479,8 @@ class StudyServer:
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         p = self._participant(request)
+        if p.life.state is State.DONE and self.options.complete_url:
+            raise web.HTTPSeeOther(self.completion_url())   # back to the recruitment platform, with its code
         if self._running(p) and p.life.state in (State.RUNNING, State.DONE):
             return web.FileResponse(STATIC_DIR / "index.html")   # the WebXR page, its session's
         return web.Response(text=self._welcome(p), content_type="text/html")
@@ -460,7 +496,16 @@ class StudyServer:
                 + (f"<p>Welcome back: {rows} trials are done, the next one follows.</p>" if rows else "")
                 + f"<h2>Consent</h2>{paragraphs(study.consent)}<h2>Instructions</h2>{paragraphs(study.instructions)}"
                 "<p id=vibration role=alert hidden></p>"
+                # the device check's vibration test (static/welcome.js), when the study file has device_check
+                "<section id=check hidden><h2>Device check</h2><p id=check-text>Before you join, a short check: "
+                "your device vibrates at random moments (on a headset: hold the right controller); after each, "
+                "say whether you felt a vibration (on a headset: trigger for felt, grip for not felt).</p>"
+                "<button id=check-start type=button>Start the check</button><p id=check-step aria-live=polite></p>"
+                "<p id=check-answer hidden><button id=felt type=button>I felt it</button> "
+                "<button id=not-felt type=button>I felt nothing</button></p></section>"
                 f"<form method=post action=/join><button id=join type=submit>{go}</button></form>"
+                "<form method=post action=/quit><button id=quit type=submit>Quit: I do not want to take part"
+                "</button></form>"
                 # the link's token out of the address bar; whether this browser can vibrate, before consent
                 "<script src=/welcome.js></script></body></html>")
 
@@ -468,28 +513,82 @@ class StudyServer:
         return web.FileResponse(STATIC_DIR / "welcome.js")
 
     async def _device(self, request: web.Request) -> web.StreamResponse:
-        """The welcome page's report of what this browser can vibrate (before consent): kept for the
-        experimenter's page; the answer says what to tell the participant and whether Join is open."""
+        """The welcome page's device check (before consent; touch4d.web.devicecheck): what this browser
+        can vibrate, its frame rate and, when the study file has `device_check`, its answers to the
+        vibration test, judged here; the answer says what to tell the participant, whether Join is open,
+        and whether the test is still to run (`check`: its trials)."""
         p = self._participant(request)
         if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: from another site refused\n")
         if (request.content_length or 0) > MAX_DEVICE_BODY:
             raise web.HTTPRequestEntityTooLarge(MAX_DEVICE_BODY, request.content_length)
         try:
-            said = json.loads(await request.content.read(MAX_DEVICE_BODY + 1))
-            immersive, rumble = said["immersive"], said["rumble"]
-            if not (isinstance(immersive, bool) and isinstance(rumble, bool)):
-                raise TypeError
-        except (ValueError, KeyError, TypeError):
-            raise web.HTTPBadRequest(text='touch4d: /device takes {"immersive": bool, "rumble": bool}\n') from None
-        vibration = "headset" if immersive else "gamepad" if rumble else "none"
+            report = parse_report(await request.content.read(MAX_DEVICE_BODY + 1),
+                                  request.headers.get("User-Agent", ""))
+        except ValueError as exc:
+            raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
+        p.device = report
+        vibration = "headset" if report["immersive"] else "gamepad" if report["rumble"] else "none"
         if vibration != p.vibration:
             p.vibration = vibration
             if vibration == "none":
-                self._say(f"{p.id}: its browser cannot vibrate ({'refused' if self.study.without_vibration == 'refuse' else 'allowed'} by the study's without_vibration)")
-        refused = vibration == "none" and self.study.without_vibration == "refuse"
-        text = "" if vibration != "none" else NO_VIBRATION_REFUSED if refused else NO_VIBRATION_ALLOWED
-        return web.json_response({"vibration": vibration, "refused": refused, "text": text})
+                judged = "refused" if self.study.without_vibration == "refuse" else "allowed"
+                self._say(f"{p.id}: its browser cannot vibrate ({judged} by the study's without_vibration)")
+        check = self.study.device_check
+        if check is None:
+            refused = vibration == "none" and self.study.without_vibration == "refuse"
+            text = "" if vibration != "none" else NO_VIBRATION_REFUSED if refused else NO_VIBRATION_ALLOWED
+            return web.json_response({"vibration": vibration, "refused": refused, "text": text})
+        why = failures(report, check)
+        if why:
+            return web.json_response({"vibration": vibration, "refused": True, "passed": False, "text": DEVICE_FAILED,
+                                      "leave": self.options.return_url, **self._device_failed(p, why)})
+        if not answered(report):
+            return web.json_response({"vibration": vibration, "refused": True, "passed": None, "text": "",
+                                      "check": {"trials": check.trials, "catch": check.catch}})
+        p.passed = report["passed"] = True
+        return web.json_response({"vibration": vibration, "refused": False, "passed": True, "text": ""})
+
+    def _device_failed(self, p: Participant, why: list[str]) -> dict:
+        """A device that fails the study's check: counted (once per participant), never a participant
+        (an open-link visitor's id and link are freed, its platform id forgotten: it may try another device)."""
+        if p.passed is not False:
+            self.counts["device failed"] += 1
+            self._say(f"{p.id}: its device failed the check ({'; '.join(why)})")
+        p.passed = p.device["passed"] = False
+        if self._free(p):
+            return {"freed": True}
+        return {}
+
+    def _free(self, p: Participant) -> bool:
+        """An open-link participant with no folder (never joined) given up: its link and id free again."""
+        if not p.opened or self._running(p) or session_dir(self.out, p.id).exists():
+            return False
+        self.invites.revoke(p.id)
+        self.recruits.forget(p.id)
+        self._load_invites()          # its cookies end
+        self.participants.pop(p.id, None)
+        self._budgets.pop(p.id, None)
+        return True
+
+    def _record(self, p: Participant) -> None:
+        """What its device check measured and its recruitment platform's parameters, in its manifest."""
+        fields = {}
+        if p.device is not None:
+            fields["device"] = p.device
+        params = self.recruits.params_of(p.id)
+        if params:
+            fields["platform"] = params
+        if fields and p.session is not None:
+            try:
+                update_manifest(p.session.directory, fields)
+            except (Touch4dError, OSError) as exc:
+                log.warning("%s: its manifest did not take its device and platform: %s", p.id, exc)
+
+    async def _clock(self, request: web.Request) -> web.StreamResponse:
+        """The server's clock (ms), for the welcome page's round trip and clock offset."""
+        self._participant(request)
+        return web.json_response({"time_ms": time.time() * 1000}, headers={"Cache-Control": "no-store"})
 
     def _rows(self, participant: str) -> int:
         return rows_written(session_dir(self.out, participant))
@@ -502,6 +601,12 @@ class StudyServer:
             return web.Response(status=403, content_type="text/html", text=(
                 "<!doctype html><html lang=en><meta charset=utf-8><title>Cannot vibrate</title><body><h1>This "
                 f"browser cannot take part</h1><p>{html.escape(NO_VIBRATION_REFUSED)}</p></body></html>"))
+        if self.study.device_check is not None and not p.passed and p.life.state is not State.DONE:
+            return web.Response(status=403, content_type="text/html", text=(
+                "<!doctype html><html lang=en><meta charset=utf-8><title>Device check</title><body><h1>The device "
+                "check comes first</h1><p>Please open your link again and finish the device check.</p></body></html>"))
+        if p.life.state is State.DONE and self.options.complete_url:
+            raise web.HTTPSeeOther(self.completion_url())
         refusal = self._start(p)
         if refusal is not None:
             status, text = refusal
@@ -528,11 +633,125 @@ class StudyServer:
         refusal = self._start_session(p)
         if refusal is not None:
             return refusal
+        p.since = time.time()
+        self._record(p)
         self._say(f"{p.id} {'is back' if back else 'joined'}; {self.running()} of {self.max_participants} running")
         self._tell(p, p.life.ready(), "the experimenter")   # held before: paused again at once
         self._after(p)
         self._await_page(p)
         return None
+
+    # ---- the open link, a platform's ids, leaving for the platform ------------------------------------
+
+    def _places(self) -> list[Place]:
+        return [Place(p.id, p.life.shown(), p.since) for p in self.participants.values()]
+
+    def rows_filled(self) -> list[int]:
+        """Each counterbalancing row's participants, done or under way (touch4d.study.recruitment)."""
+        return rows_filled(len(order_table(self.study)), self._places(), lambda who: participant_index(self.study, who),
+                           time.time(), self.leave_after_s)
+
+    def _taken(self) -> set[str]:
+        """Ids with a link or a folder (the open link never makes them again)."""
+        try:
+            folders = {d.name for d in self.out.iterdir()}
+        except OSError:
+            folders = set()
+        return set(self.participants) | set(self._tokens or {}) | folders
+
+    def _open_page(self, status: int, title: str, text: str) -> web.Response:
+        return web.Response(status=status, content_type="text/html", text=(
+            f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(title)}</title><body>"
+            f"<h1>{html.escape(title)}</h1><p>{html.escape(text)}</p></body></html>"))
+
+    async def _open(self, request: web.Request) -> web.StreamResponse:
+        """The open link (`--open-link`): a visitor becomes a participant of their own (the next id whose
+        counterbalancing row is least filled) and goes to its link; a platform's id seen before goes
+        to its participant's link again; the visitor's own cookie back to its page."""
+        key = request.query.get("key", "")
+        if self.open_key is None or not hmac.compare_digest(key.encode(), self.open_key.encode()):
+            self.counts["forged"] += 1
+            self._log_once("open", "refused a visit by an open link that is closed or not this server's")
+            raise web.HTTPForbidden(text="touch4d: this study's open link is closed\n")
+        holder = request.get(HOLDER)
+        if holder in self.participants:          # this browser was here before: its own page
+            raise web.HTTPSeeOther("/")
+        if not self._open_budget.spend(time.monotonic()):
+            self.counts["over budget"] += 1
+            raise web.HTTPTooManyRequests(text="touch4d: too many visitors at once; wait a second\n",
+                                          headers={"Retry-After": "1"})
+        try:
+            params = platform_params(request.query, self._param_names)
+        except ValueError as exc:
+            raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
+        who = identity(params, self.options.id_params)
+        known = self.recruits.participant_of(who)
+        if known is not None:
+            token = (self._tokens or {}).get(known)
+            if token is None:
+                return self._open_page(403, "Your place has ended", "Your place in this study was ended by the "
+                                       "experimenter. Please contact them.")
+            raise web.HTTPSeeOther(f"/?participant={quote(known)}&token={token}")
+        refusal = self._open_refusal()
+        if refusal is not None:
+            return refusal
+        participant, row = next_participant(self.rows_filled(), self._taken())
+        token = self.invites.issue(participant)
+        if params:
+            self.recruits.remember(who or f"{participant} (no platform id)", participant, params)
+        self._load_invites()
+        p = self.participants[participant]
+        p.opened, p.since = True, time.time()
+        self.counts["open link"] += 1
+        self._say(f"{participant}: made by the open link (counterbalancing row {row + 1})")
+        raise web.HTTPSeeOther(f"/?participant={quote(participant)}&token={token}")
+
+    def _open_refusal(self) -> web.Response | None:
+        """Why the open link admits no one now (running at once, or the total reached), or None."""
+        if self.running() >= self.max_participants:
+            self.counts["full"] += 1
+            return self._open_page(503, "The study is full right now", "Every place is taken. Please open the "
+                                   "link again in a few minutes.")
+        total = self.options.max_total
+        now = time.time()
+        if total is not None and sum(holds_row(place, now, self.leave_after_s) for place in self._places()) >= total:
+            self.counts["total reached"] += 1
+            self._log_once("total", f"the open link turned a visitor away: {total} participants done or under way "
+                           "(--max-total)")
+            return self._open_page(503, "The study has all its participants", "Thank you for your interest: "
+                                   "this study needs no more participants.")
+        return None
+
+    def completion_url(self) -> str:
+        """--complete-url with --completion-code appended as `cc` (Prolific's way)."""
+        url, code = self.options.complete_url, self.options.completion_code
+        if not code:
+            return url
+        return f"{url}{'&' if urlsplit(url).query else '?'}{urlencode({'cc': code})}"
+
+    async def _done(self, request: web.Request) -> web.StreamResponse:
+        """Where the page goes when every trial is done: the platform's completion URL, or thanks."""
+        p = self._participant(request)
+        if p.life.state is not State.DONE:
+            raise web.HTTPSeeOther("/")
+        if self.options.complete_url:
+            raise web.HTTPSeeOther(self.completion_url())
+        return self._open_page(200, "Every trial is done", "Thank you for taking part.")
+
+    async def _quit(self, request: web.Request) -> web.StreamResponse:
+        """The participant leaves the study (the welcome page's Quit): its session stops (its rows stay);
+        an open-link place never joined is freed. Then the platform's return URL, or a page that says so."""
+        p = self._participant(request)
+        if cross_site(request):
+            raise web.HTTPForbidden(text="touch4d: from another site refused\n")
+        self.counts["quit"] += 1
+        self._say(f"{p.id} quit")
+        if self._running(p):
+            self._stop_session(p)
+        self._free(p)
+        if self.options.return_url:
+            raise web.HTTPSeeOther(self.options.return_url)
+        return self._open_page(200, "You have left the study", "Thank you. You may close this page.")
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
         name = request.match_info["path"]
@@ -617,17 +836,38 @@ class StudyServer:
             f"<td>{cell(s['last_heard_s'], ' s')}</td>"
             f"<td>{'' if s['state'] == 'revoked' else buttons(s['participant'])}</td></tr>"
             for s in self.status())
+        summary = self.summary()
+        states = ", ".join(f"{n} {html.escape(state)}" for state, n in summary["states"].items()) or "none yet"
+        orders = " ".join(f"{'/'.join(html.escape(c) for c in order)}: {n};"
+                          for order, n in zip(order_table(self.study), summary["rows_filled"]))
         return (f"<p id=summary>{self.running()} of {self.max_participants} running; refused while full: "
-                f"{self.counts['full']}; refused, cannot vibrate: {self.counts['no vibration']}</p><table "
+                f"{self.counts['full']}; refused, cannot vibrate: {self.counts['no vibration']}</p>"
+                f"<p id=recruitment>participants: {states}; trials done: {summary['trials_done']}; device check "
+                f"failed: {self.counts['device failed']}; quit: {self.counts['quit']}; counterbalancing rows "
+                f"filled (done or under way): {orders} <a href=/experimenter/trials.csv download>all trials "
+                "(CSV)</a></p><table "
                 "id=participants><tr><th>participant</th><th>state</th><th>trials done</th><th>trial now</th>"
                 f"<th>phase</th><th>vibration</th><th>frame rate</th><th>last heard</th><th></th></tr>{rows}</table>")
+
+    def summary(self) -> dict:
+        """The study at a glance: participants by state, trials done, each counterbalancing row's
+        participants (done or under way), the open link's state."""
+        states: dict[str, int] = {}
+        for p in sorted(self.participants.values(), key=lambda p: p.id):
+            states[p.life.shown()] = states.get(p.life.shown(), 0) + 1
+        return {"states": states, "trials_done": sum(self._rows(who) for who in self.participants),
+                "rows_filled": self.rows_filled(), "open_link": self.open_key is not None}
+
+    def _view(self) -> dict:
+        """The experimenter's page as data (?format=json, and each server-sent event)."""
+        return {"participants": self.status(), "counts": self.counts, "running": self.running(),
+                "max_participants": self.max_participants, "summary": self.summary()}
 
     async def _experimenter(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
         form = request.query.get("format")
         if form == "json":
-            return web.json_response({"participants": self.status(), "counts": self.counts,
-                                      "running": self.running(), "max_participants": self.max_participants})
+            return web.json_response(self._view(), headers=NO_STORE)
         if form == "table":
             return web.Response(content_type="text/html", text=self._table(), headers=NO_STORE)
         name = html.escape(self.study.name)
@@ -635,7 +875,56 @@ class StudyServer:
             f"<!doctype html><html lang=en><meta charset=utf-8><meta name=referrer content=no-referrer>"
             f"<title>{name}: participants</title><body><h1>{name}: participants</h1><div id=live>{self._table()}</div>"
             f"<form method=post action=/experimenter/invite><input name=participant placeholder=P07>"
-            f"<button>invite</button></form><script src=/experimenter.js></script></body></html>"))
+            f"<button>invite</button></form>"
+            + ("<form method=post action=/experimenter/close-open><button>close the open link</button></form>"
+               if self.open_key is not None else "")
+            + "<script src=/experimenter.js></script></body></html>"))
+
+    def _still_experimenter(self, request: web.Request) -> bool:
+        """Whether the request's cookie (or token) is still the experimenter's (a replaced link ends it)."""
+        cookie = request.cookies.get(self.gate.cookie)
+        if cookie is not None and self.access.session_holder(cookie) == EXPERIMENTER:
+            return True
+        return self.access.check(request.query.get("token")) == EXPERIMENTER
+
+    async def _events(self, request: web.Request) -> web.StreamResponse:
+        """The experimenter's page live (server-sent events, text/event-stream): the table and the data
+        each EVENTS_PERIOD_S, until the page goes, its link is replaced, or the server stops."""
+        self._experimenter_only(request)
+        response = web.StreamResponse(headers={**NO_STORE, "Content-Type": "text/event-stream",
+                                               "X-Accel-Buffering": "no"})   # nginx: no buffering of the stream
+        await response.prepare(request)
+        try:
+            while self._still_experimenter(request):
+                event = json.dumps({**self._view(), "table": self._table()})
+                await response.write(f"data: {event}\n\n".encode())
+                try:
+                    await asyncio.wait_for(self._stopping.wait(), EVENTS_PERIOD_S)
+                    break
+                except asyncio.TimeoutError:
+                    pass
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        return response
+
+    async def _trials_csv(self, request: web.Request) -> web.StreamResponse:
+        """Every participant's trials.csv, one after another under one header (the columns of all)."""
+        self._experimenter_only(request)
+        return web.Response(body=await asyncio.to_thread(self._all_trials), content_type="text/csv", charset="utf-8",
+                            headers={**NO_STORE, "Content-Disposition": 'attachment; filename="trials.csv"'})
+
+    def _all_trials(self) -> bytes:
+        columns: dict[str, None] = {}
+        rows: list[dict] = []
+        for who in sorted(self.participants):
+            header, theirs = read_rows(session_dir(self.out, who))
+            columns.update(dict.fromkeys(header))
+            rows += theirs
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=list(columns), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        return text.getvalue().encode()
 
     async def _experimenter_script(self, request: web.Request) -> web.StreamResponse:
         self._experimenter_only(request)
@@ -649,6 +938,12 @@ class StudyServer:
         form = await request.post()
         participant = str(form.get("participant", ""))
         action = request.match_info["action"]
+        if action == "close-open":
+            if self.open_key is not None:
+                self.recruits.close()
+                self.open_key = None
+                self._say("the open link was closed by the experimenter")
+            raise web.HTTPSeeOther("/experimenter")
         if action == "invite":
             try:
                 token = self.invites.issue(check_participant(participant))   # never the experimenter's
@@ -677,6 +972,8 @@ class StudyServer:
     async def _serve(self) -> None:
         sock = self._socket or self._listen()     # bound before OUT is written
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
+        if self.options.open_link:
+            self.open_key = self.recruits.open()
         self._load_invites()
         self._adopt_folders()
         self._loop = asyncio.get_running_loop()
@@ -693,7 +990,14 @@ class StudyServer:
         app.router.add_get("/experimenter.js", self._experimenter_script)
         app.router.add_get("/welcome.js", self._welcome_script)
         app.router.add_post("/device", self._device)
-        app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite")), self._experimenter_action)
+        app.router.add_get("/clock", self._clock)
+        app.router.add_get("/open", self._open)
+        app.router.add_get("/done", self._done)
+        app.router.add_post("/quit", self._quit)
+        app.router.add_get("/experimenter/events", self._events)
+        app.router.add_get("/experimenter/trials.csv", self._trials_csv)
+        app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite", "close-open")),
+                            self._experimenter_action)
         runner = self.hardening.runner(app)
         await runner.setup()
         site = web.SockSite(runner, sock)
@@ -702,6 +1006,8 @@ class StudyServer:
         (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants"
               f"{self._cap_note}; data in {self.out}", flush=True)
+        if self.open_key is not None:
+            print(f"open link: {self.base_url()}/open?key={self.open_key}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
         watch = asyncio.ensure_future(self._watch_invites())
         try:
@@ -796,6 +1102,40 @@ def served_url(out: Path) -> str | None:
         return json.loads((Path(out) / SERVED).read_text())["url"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
+
+
+PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}\Z")
+MAX_CODE_CHARS = 64
+
+
+def _check_url(flag: str, url: str | None) -> str | None:
+    """An http(s) address given on the command line, else ConfigError naming the flag."""
+    if url is None:
+        return None
+    parts = urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.netloc or not url.isprintable() or " " in url:
+        raise ConfigError(COMMAND_LINE, flag, "an http:// or https:// address", got=url)
+    return url
+
+
+def recruit_options(args) -> dict:
+    """ServeOptions' recruiting fields from `study serve`'s flags, checked (errors name the flag)."""
+    for name in args.id_param:
+        if not PARAM_NAME.match(name):
+            raise ConfigError(COMMAND_LINE, "--id-param", "a query parameter's name: letters, digits, _ (at most 64)",
+                              got=name)
+    code = args.completion_code
+    if code is not None and not (0 < len(code) <= MAX_CODE_CHARS and code.isprintable()):
+        raise ConfigError(COMMAND_LINE, "--completion-code", f"1-{MAX_CODE_CHARS} printable characters", got=code)
+    if code is not None and args.complete_url is None:
+        raise ConfigError(COMMAND_LINE, "--completion-code", "--complete-url too (the code is appended to it)",
+                          got=code)
+    if args.max_total is not None and not args.open_link:
+        raise ConfigError(COMMAND_LINE, "--max-total", "--open-link too (it caps what the open link admits)",
+                          got=args.max_total)
+    return {"open_link": args.open_link, "max_total": args.max_total, "id_params": tuple(args.id_param),
+            "complete_url": _check_url("--complete-url", args.complete_url), "completion_code": code,
+            "return_url": _check_url("--return-url", args.return_url)}
 
 
 def participant_link(base_url: str, participant: str, token: str) -> str:

@@ -135,6 +135,20 @@ def _add_serve(sub) -> None:
     serve.add_argument("--calibration", default="config/calibration.yaml", metavar="FILE",
                        help="where the screen stands in the room until a participant re-centres it")
     serve.add_argument("--iti", type=_nonnegative, default=0.6, metavar="S", help="blank time between trials (default 0.6)")
+    recruit = serve.add_argument_group("recruiting online (docs/serving.md, \"A remote study from serve to export\")")
+    recruit.add_argument("--open-link", action="store_true",
+                         help="print one link for many: each visitor becomes a participant of their own (P01, P02, "
+                              "...: the least-filled counterbalancing row next)")
+    recruit.add_argument("--max-total", type=_count, default=None, metavar="N",
+                         help="the open link admits no one once N participants are done or under way")
+    recruit.add_argument("--id-param", action="append", default=[], metavar="NAME",
+                         help="a platform's query parameter kept in the manifest's `platform` beside PROLIFIC_PID, "
+                              "STUDY_ID and SESSION_ID (repeatable; the first given names the person when "
+                              "PROLIFIC_PID is absent)")
+    recruit.add_argument("--complete-url", metavar="URL", help="where a participant who did every trial goes")
+    recruit.add_argument("--completion-code", metavar="CODE", help="appended to --complete-url as ?cc=CODE (Prolific)")
+    recruit.add_argument("--return-url", metavar="URL",
+                         help="where a participant who quits, or whose device fails the check, goes")
     serve.set_defaults(func=run_serve)
 
 
@@ -457,7 +471,7 @@ def _glove_name(path: str) -> str:
 
 def run_serve(args) -> int:
     from touch4d.web.served import ServedOptions
-    from touch4d.web.studyserver import ServeOptions, StudyServer
+    from touch4d.web.studyserver import ServeOptions, StudyServer, recruit_options
 
     study_path = _study_path(args.study)
     session = ServedOptions(quick=args.quick, iti_s=args.iti,
@@ -465,7 +479,8 @@ def run_serve(args) -> int:
                             calibration=str(resolve_path(args.calibration, COMMAND_LINE, key="--calibration",
                                                          what="calibration file")))
     options = ServeOptions(host=args.host, port=args.port, max_participants=args.max_participants,
-                           public_url=args.public_url, leave_after_s=args.leave_after, session=session)
+                           public_url=args.public_url, leave_after_s=args.leave_after, session=session,
+                           **recruit_options(args))
     server = StudyServer(_study(args.study), study_path, Path(args.out), options)
     return server.run()
 

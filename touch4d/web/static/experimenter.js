@@ -1,15 +1,16 @@
 // The experimenter's page, live: the link's token out of the address bar and the history (the cookie
-// carries on), then the participants' table fetched again every second.
+// carries on), then the participants' table as the server sends it (server-sent events, each second);
+// EventSource reconnects by itself when the server comes back.
 "use strict";
 history.replaceState(null, "", "/experimenter");
 const live = document.getElementById("live");
-async function refresh() {
-  try {
-    const response = await fetch("/experimenter?format=table", { cache: "no-store", credentials: "same-origin" });
-    if (response.ok) live.innerHTML = await response.text();
-    else live.dataset.error = String(response.status);
-  } catch (err) {
-    live.dataset.error = String(err);   // the server gone: keep the last table, try again
-  }
-}
-setInterval(refresh, 1000);
+const events = new EventSource("/experimenter/events");
+events.onmessage = (event) => {
+  const view = JSON.parse(event.data);
+  live.innerHTML = view.table;             // made (and escaped) by the server
+  live.dataset.running = String(view.running);
+  delete live.dataset.error;
+};
+events.onerror = () => {
+  live.dataset.error = "disconnected";   // the server gone: keep the last table, EventSource tries again
+};

@@ -91,6 +91,7 @@ const link = new Link((message) => {
                                             'fullscreen.vert + tactile.frag'), message, UNITS);
         }
         if (header.batch_s > 0) batch = new Batch(1000 * header.batch_s, header.motor_names.length);
+        if (header.batch_s > 0) buttons.finish = '/done';   // a served study's page
       } catch (error) {
         state.error = String(error);
         statusLine.textContent = `touch4d cannot draw here: ${error.message}`;

@@ -97,6 +97,7 @@ export class StudyButtons {
     this.element = element;
     this.answer = answer;       // (index, option) => void
     this.key = '';
+    this.finish = null;         // where a served study's page goes when every trial is done
   }
 
   update(study) {
@@ -106,6 +107,13 @@ export class StudyButtons {
     this.element.replaceChildren();
     this.element.hidden = !study || !studyLines(study).length;
     if (this.element.hidden) return;
+    if (study.phase === 'done' && this.finish) {   // a served study: on to its end (a platform's completion page)
+      const finish = document.createElement('a');
+      finish.id = 'finish';
+      finish.href = this.finish;
+      finish.textContent = 'Finish';
+      this.element.append(finish);
+    }
     const lines = studyLines(study);
     const text = document.createElement('div');
     text.className = 'study-text';
