@@ -200,7 +200,8 @@ def _add_analyze(sub) -> None:
     analyze = sub.add_parser("analyze", help="analyse a study's trials (accuracy, times, psychometric fit, tests)",
                              description="DIR holds session folders, each with trials.csv (or is one, or is a "
                                          "trials.csv). Prints a summary (or JSON) and writes an HTML report.")
-    analyze.add_argument("dir", metavar="DIR", help="folder of sessions, a session folder or a trials.csv")
+    analyze.add_argument("dirs", nargs="+", metavar="DIR", help="folder of sessions, a session folder or a trials.csv; "
+                         "several: analysed together (the --out folders of several servers of one study)")
     analyze.add_argument("--json", action="store_true", help="print the results as JSON")
     analyze.add_argument("--report", metavar="FILE", help="HTML report (default: DIR/report.html)")
     analyze.add_argument("--no-report", action="store_true", help="write no HTML report")
@@ -533,8 +534,10 @@ def run_analyze(args) -> int:
     from touch4d.study.manifest import check_one_study
     from touch4d.study.table import find_tables
 
-    check_one_study(find_tables(args.dir))    # one study, run alike: never two mixed in one analysis
-    data = load(args.dir)
+    tables = [t for where in args.dirs for t in find_tables(where)]
+    check_one_study(tables)    # one study, run alike: never two mixed in one analysis
+    _one_folder_each(tables)
+    data = load(args.dirs[0]) if len(args.dirs) == 1 else _load_all(args.dirs)
     result = analyze(data, bootstrap=args.bootstrap, seed=args.seed)
     if args.by:
         from touch4d.study.splits import analyze_by
@@ -542,9 +545,9 @@ def run_analyze(args) -> int:
         result["by"] = analyze_by(data, args.by, bootstrap=args.bootstrap, seed=args.seed)
     report = None
     if not args.no_report:
-        where = Path(args.dir)
+        where = Path(args.dirs[0])
         report = Path(args.report) if args.report else (where if where.is_dir() else where.parent) / "report.html"
-        report.write_text(report_html(result, data, title=f"touch4d study: {args.dir}"))
+        report.write_text(report_html(result, data, title=f"touch4d study: {', '.join(args.dirs)}"))
         result["report"] = str(report)
     if args.plot:
         from touch4d.study.analysis import figure_summary
@@ -561,6 +564,32 @@ def run_analyze(args) -> int:
         if report is not None:
             print(f"report: {report}")
     return 0
+
+
+def _load_all(dirs):
+    """The trials of several folders as one table (touch4d.study.analysis.load of each)."""
+    import pandas as pd
+
+    from touch4d.study.analysis import load
+
+    return pd.concat([load(where) for where in dirs], ignore_index=True)
+
+
+def _one_folder_each(tables) -> None:
+    """Folders analysed together hold each participant once: two servers that made the same id would
+    mix two people (a ConfigError naming both tables)."""
+    import csv
+
+    seen: dict[str, Path] = {}
+    for table in tables:
+        with open(table, newline="") as f:
+            ids = {row.get("participant", "") for row in csv.DictReader(f)}
+        for participant in ids:
+            if participant in seen and seen[participant].parent != Path(table).parent:
+                raise ConfigError(COMMAND_LINE, "DIR", "each participant in one session folder", got=participant,
+                                  detail=f"{participant} in {seen[participant].parent} and {Path(table).parent}: "
+                                         "give each server its own participant ids")
+            seen.setdefault(participant, Path(table))
 
 
 def run_export(args) -> int:
