@@ -280,3 +280,13 @@ def test_a_recording_that_fails_stops_and_the_lesson_goes_on(tmp_path, capsys):
     assert recording.failed and "recording stopped" in capsys.readouterr().err
     lesson.command("slice", "1.4")
     assert pages.last(S1, "frame")[0]["slice_w"] == 1.4
+
+
+def test_a_student_page_that_reconnects_keeps_its_number_and_the_next_student_gets_the_next():
+    lesson, pages, _ = lesson_with_pages()
+    lesson.closed(S1)
+    lesson.connected(5, "s1")                             # s1's page back on a new connection
+    lesson.connected(S3, "s3")
+    lesson.heartbeat()
+    names = {m["name"] for m in pages.last(TEACHER, "lesson")[0]["roster"]}
+    assert names == {"teacher", "student 1", "student 2", "student 3"}

@@ -307,7 +307,7 @@ class Lesson:
             self.terminals.add(conn)
             return
         role = "teacher" if holder == TEACHER else "student"
-        if role == "student":
+        if role == "student" and holder not in self.names:   # a page back (a reconnect) keeps its number
             self._students += 1
         name = self.names.get(holder) or ("teacher" if role == "teacher" else f"student {self._students}")
         self.names[holder] = name

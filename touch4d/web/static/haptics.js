@@ -48,8 +48,9 @@ export class Haptics {
   }
 
   // Say what this page can vibrate, when it changes.
-  tell(output) {
-    if (output === this.output) return;
+  // `again`: told even if unchanged (a reconnected page's new server has not heard it)
+  tell(output, again = false) {
+    if (output === this.output && !again) return;
     this.output = output;
     this.report(output);
   }

@@ -127,7 +127,11 @@ const link = new Link((message) => {
     }
     buttons.update(state.study);
   }
-}, (connected) => { state.connected = connected; });
+}, (connected) => {
+  state.connected = connected;
+  // a new connection's server knows nothing of this page yet: what it can vibrate is told again
+  if (connected && haptics.output) haptics.tell(haptics.output, true);
+});
 
 // ---- drawing --------------------------------------------------------------------------------------
 
