@@ -95,8 +95,19 @@ async function actuator(immersive) {
   }
   const session = await navigator.xr.requestSession("immersive-vr");
   const gl = document.createElement("canvas").getContext("webgl2", { xrCompatible: true });
-  session.updateRenderState({ baseLayer: new XRWebGLLayer(session, gl) });
+  const layer = new XRWebGLLayer(session, gl);
+  session.updateRenderState({ baseLayer: layer });
   const fps = await frameRate((f) => session.requestAnimationFrame((t) => f(t)), 1000);
+  let open = true;
+  session.addEventListener("end", () => { open = false; });
+  const draw = () => {              // frames go on (a grey room) while the participant answers
+    if (!open) return;
+    gl.bindFramebuffer(gl.FRAMEBUFFER, layer.framebuffer);
+    gl.clearColor(0.2, 0.2, 0.2, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    session.requestAnimationFrame(draw);
+  };
+  session.requestAnimationFrame(draw);
   const sources = Array.from(session.inputSources);
   const source = sources.find((s) => s.handedness === "right" && s.gamepad && s.gamepad.hapticActuators
     && s.gamepad.hapticActuators.length) || sources.find((s) => s.gamepad && s.gamepad.hapticActuators
