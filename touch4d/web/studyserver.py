@@ -16,7 +16,15 @@ that says so, HTTP 503. A forged, expired or revoked token: 403 (access.CookieGa
 link revoked or replaced in OUT/invites.json ends its cookies and its session. A participant id in
 the link that is not its token's: 403. The experimenter's link opens /experimenter: every
 participant's state, trial, frame rate, last message heard; pause or resume their trial, or revoke a
-link.
+link; it is live by server-sent events (/experimenter/events) and offers every trial as one CSV.
+
+Recruiting online (`--open-link`): one link for many, `URL/open?key=...` (its key in OUT/recruits.json);
+each visitor gets a participant of their own, the next free Pnn of the least-filled counterbalancing
+row (touch4d.study.recruitment), and is sent to its link. A platform's parameters (PROLIFIC_PID, ...)
+go in the participant's manifest (`platform`), and the same platform id comes back to the same
+participant. Done: `--complete-url` (with `--completion-code`); quit or a failed device check:
+`--return-url`. The welcome page's device check (touch4d.web.devicecheck, the study's `device_check`)
+comes before consent; a device that fails it is not a participant (an open-link place is freed).
 """
 from __future__ import annotations
 

@@ -51,7 +51,8 @@ async function capabilities() {
   }
   const rumble = Boolean(gamepad());
   const fps = await frameRate((f) => requestAnimationFrame(f), 500);
-  return { immersive, rumble, fps, haptics: immersive ? "xr-pulse" : rumble ? "gamepad-rumble" : "none", ...await clock() };
+  const haptics = immersive ? "xr-pulse" : rumble ? "gamepad-rumble" : "none";
+  return { immersive, rumble, fps, haptics, ...await clock() };
 }
 
 function gamepad() {
@@ -71,7 +72,7 @@ async function tell(report) {
   note.hidden = !said.text;
   $("join").disabled = said.refused;
   document.body.dataset.vibration = said.vibration;   // what was found: headset, gamepad or none
-  if (said.passed !== undefined && said.passed !== null) document.body.dataset.check = said.passed ? "passed" : "failed";
+  if (said.passed === true || said.passed === false) document.body.dataset.check = said.passed ? "passed" : "failed";
   if (said.passed === false) {
     $("check").hidden = true;
     $("join").hidden = true;
