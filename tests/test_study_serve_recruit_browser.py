@@ -138,3 +138,23 @@ def test_the_device_check_passed_by_answering_its_vibrations_and_failed_without_
         assert device["passed"] and device["fps"] > 0 and device["round_trip_ms"] >= 0
         assert device["clock_offset_ms"] is not None
 
+
+
+def test_a_participant_who_answers_every_trial_follows_finish_to_the_completion_url(tmp_path):
+    one = tmp_path / "one.yaml"          # one condition: the quick plan's 14 trials, answered on the page
+    one.write_text((REPO / STUDY).read_text().replace("conditions: [visual, touch, visual+touch]",
+                                                      "conditions: [visual]"))
+    complete = "https://app.prolific.com/submissions/complete"
+    with serve(tmp_path, "--open-link", "--iti", "0", "--complete-url", complete, "--completion-code", "C0DE42",
+               study=str(one)) as served, chromium() as browser:
+        page = visitor(browser, f"{open_link(served)}&PROLIFIC_PID=62aa")
+        requested = []         # the platform's page is not reached from here: what the browser asked for
+        page.on("request", lambda request: requested.append(request.url))
+        join(page)
+        while not page.evaluate("Boolean(document.getElementById('finish'))"):
+            page.evaluate("(() => { const b = document.querySelector('#study button'); if (b) b.click(); })()")
+            page.wait_for_timeout(150)     # the next trial's buttons (the page server paces a page's answers)
+        page.click("#finish")
+        wait_until(lambda: f"{complete}?cc=C0DE42" in requested, timeout=30)
+        assert f"{served.url}/done" in requested
+        assert experimenter_view(served)["participants"][0]["state"] == "done"

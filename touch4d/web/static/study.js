@@ -105,9 +105,10 @@ export class StudyButtons {
     if (key === this.key) return;
     this.key = key;
     this.element.replaceChildren();
-    this.element.hidden = !study || !studyLines(study).length;
+    const finish = Boolean(study && study.phase === 'done' && this.finish);
+    this.element.hidden = !finish && (!study || !studyLines(study).length);
     if (this.element.hidden) return;
-    if (study.phase === 'done' && this.finish) {   // a served study: on to its end (a platform's completion page)
+    if (finish) {   // a served study: on to its end (a platform's completion page)
       const finish = document.createElement('a');
       finish.id = 'finish';
       finish.href = this.finish;
