@@ -258,3 +258,17 @@ def test_the_experimenter_page_is_live_by_server_sent_events_and_gives_every_tri
     assert text.splitlines()[0] == header and text.count(header) == 1          # one header
     assert [(r["participant"], r["index"]) for r in table] == [("P01", "0"), ("P01", "1"), ("P02", "0")]
     assert [r["response"] for r in table] == [r["response"] for who in ("P01", "P02") for r in rows(served.out, who)]
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--completion-code", "C0DE"], "--completion-code"),                       # without --complete-url
+    (["--complete-url", "javascript:alert(1)"], "--complete-url"),
+    (["--return-url", "ftp://example.org/"], "--return-url"),
+    (["--max-total", "5"], "--max-total"),                                      # without --open-link
+    (["--open-link", "--id-param", "a b"], "--id-param"),
+    (["--complete-url", COMPLETE, "--completion-code", "tab\there"], "--completion-code"),
+])
+def test_recruiting_flags_are_checked_before_anything_is_served(tmp_path, capsys, flags, named):
+    out = tmp_path / "out"
+    assert cli_main(["study", "serve", STUDY, "--out", str(out), "--port", "0", *flags]) == 2
+    assert named in capsys.readouterr().err and not out.exists()
