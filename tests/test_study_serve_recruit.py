@@ -22,7 +22,11 @@ from touch4d.cli import main as cli_main
 from touch4d.study.design import load_study
 from touch4d.study.plan import order_table, quick_plan
 
+from touch4d.study.recruitment import PENDING_S, Recruits
+from touch4d.web.invites import EXPERIMENTER
+
 from test_study_serve import answer, experimenter_view, invite, rows, serve, study
+from test_study_server_places import _server, _serving
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -272,3 +276,25 @@ def test_recruiting_flags_are_checked_before_anything_is_served(tmp_path, capsys
     out = tmp_path / "out"
     assert cli_main(["study", "serve", STUDY, "--out", str(out), "--port", "0", *flags]) == 2
     assert named in capsys.readouterr().err and not out.exists()
+
+
+def test_a_place_never_joined_is_freed_after_a_while_and_the_experimenter_closes_the_open_link(tmp_path):
+    async def body(server):
+        url = f"http://127.0.0.1:{server.port}"
+        link = f"{url}/open?key={server.open_key}"
+        async with client() as a, client() as b, client() as lab, client() as late:
+            _, first = await visit(a, link, PROLIFIC_PID="x1")
+            assert participant_of(first) == "P01"
+            server.participants["P01"].since -= PENDING_S + 1           # its link not joined for ten minutes
+            _, second = await visit(b, link, PROLIFIC_PID="x2")
+            assert participant_of(second) == "P01" and second != first    # its id again, a new link
+            assert Recruits(server.out).participant_of("PROLIFIC_PID=x1") is None
+            async with a.get(url + first, allow_redirects=False) as response:
+                assert response.status == 403                             # the stale link ended
+            async with lab.get(server.link(EXPERIMENTER, server.experimenter_token)) as response:
+                assert "close the open link" in await response.text()
+            async with lab.post(f"{url}/experimenter/close-open", allow_redirects=False) as response:
+                assert response.status == 303
+            assert (await visit(late, link, PROLIFIC_PID="x3"))[0] == 403
+            assert Recruits(server.out).key is None
+    _serving(_server(tmp_path / "out", open_link=True, quick=True), body)

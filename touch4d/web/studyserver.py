@@ -61,8 +61,8 @@ from touch4d.study.lock import SERVE, SessionLock
 from touch4d.study.participation import Life, State
 from touch4d.study.manifest import update_manifest
 from touch4d.study.plan import order_table, participant_index, plan_session, quick_plan
-from touch4d.study.recruitment import (PLATFORM_PARAMS, Place, Recruits, holds_row, identity, next_participant,
-                                       platform_params, rows_filled)
+from touch4d.study.recruitment import (PENDING_S, PLATFORM_PARAMS, Place, Recruits, holds_row, identity,
+                                       next_participant, platform_params, rows_filled)
 from touch4d.study.store import PARTICIPANT_ID, read_rows, rows_written, session_dir
 
 from .access import HOLDER, Access, CookieGate, cross_site
@@ -700,6 +700,7 @@ class StudyServer:
                 return self._open_page(403, "Your place has ended", "Your place in this study was ended by the "
                                        "experimenter. Please contact them.")
             raise web.HTTPSeeOther(f"/?participant={quote(known)}&token={token}")
+        self._free_stale()
         refusal = self._open_refusal()
         if refusal is not None:
             return refusal
@@ -713,6 +714,14 @@ class StudyServer:
         self.counts["open link"] += 1
         self._say(f"{participant}: made by the open link (counterbalancing row {row + 1})")
         raise web.HTTPSeeOther(f"/?participant={quote(participant)}&token={token}")
+
+    def _free_stale(self) -> None:
+        """Open-link places given a link but never joined within PENDING_S freed (their ids reused, the
+        links of OUT/invites.json bounded by the open link's rate times PENDING_S)."""
+        stale = time.time() - PENDING_S
+        for p in list(self.participants.values()):
+            if p.opened and p.life.state is State.INVITED and p.since is not None and p.since < stale:
+                self._free(p)
 
     def _open_refusal(self) -> web.Response | None:
         """Why the open link admits no one now (running at once, or the total reached), or None."""
