@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Mapping
 
 from touch4d.atomic import write_atomic
-from touch4d.web.access import check_token, new_token
+from touch4d.tokens import check_token, new_token
 
 from .store import check_participant_id
 

@@ -23,8 +23,6 @@ a headset on the LAN can reach, and the token a user provides (`check_token`: 12
 from __future__ import annotations
 
 import hashlib
-import re
-import secrets
 import socket
 import threading
 import time
@@ -35,29 +33,13 @@ from urllib.parse import urlsplit
 from aiohttp import web
 
 from touch4d.bus.config import is_loopback  # noqa: F401  (the bus's rule: 127.0.0.0/8, ::1, localhost)
+from touch4d.tokens import check_token, new_token  # noqa: F401  (the links' tokens: touch4d.tokens)
 
-TOKEN_BYTES = 16                                  # 128 bits
-MIN_TOKEN_CHARS = 22                              # base64url characters carrying 128 bits (6 bits each)
-TOKEN_CHARS = re.compile(r"[A-Za-z0-9_-]+")       # what secrets.token_urlsafe gives, safe in a URL
 MAX_COOKIES = 16                                  # per holder (browsers, reloads): the oldest goes first
 COOKIE = "touch4d"
 HOLDER = web.RequestKey("holder", str)             # request[HOLDER]: who the gate let in (None: an open path)
 REFUSED = ("touch4d: this page needs its link (the URL with a token, or its QR code, that you were given); "
            "the link may have expired or been revoked.\n")
-
-
-def new_token() -> str:
-    """A random URL-safe token (128 bits)."""
-    return secrets.token_urlsafe(TOKEN_BYTES)
-
-
-def check_token(token: str) -> str | None:
-    """Why a token of a user's own is unfit (None: fit): 128 bits at least, URL-safe characters."""
-    if not TOKEN_CHARS.fullmatch(token):
-        return "only the characters A-Z a-z 0-9 _ - (as `python -c 'import secrets; print(secrets.token_urlsafe(16))'` gives)"
-    if len(token) < MIN_TOKEN_CHARS:
-        return f"at least {MIN_TOKEN_CHARS} characters (128 bits), got {len(token)}"
-    return None
 
 
 def _digest(secret: str) -> bytes:
