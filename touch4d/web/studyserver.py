@@ -134,6 +134,7 @@ class Participant:
     tick: asyncio.TimerHandle | None = field(default=None, repr=False)   # its session's next deadline
     tick_due: float = float("inf")
     vibration: str | None = None       # what its welcome page found: headset, gamepad, none (None: not told)
+    starting: asyncio.Future | None = field(default=None, repr=False)   # a join making its session now
     device: dict | None = None         # what its device check measured (devicecheck.parse_report), for the manifest
     passed: bool | None = None         # whether that device passed the study's device_check (None: not judged)
     opened: bool = False               # made by the open link (freed again if its device fails or it quits first)
@@ -272,13 +273,16 @@ class StudyServer:
 
     # ---- participants' sessions ------------------------------------------------------------------
 
-    def _start_session(self, p: Participant) -> tuple[int, str] | None:
+    async def _start_session(self, p: Participant) -> tuple[int, str] | None:
         """Start a participant's session (touch4d.web.served): None, or the status and page that say
-        why not (the reason in the log, not on a page that faces the internet)."""
+        why not (the reason in the log, not on a page that faces the internet). Made in a thread: it
+        writes and fsyncs its manifest and trials.csv, which on the loop held every other participant's
+        frames while a wave of them joined."""
         try:
-            p.session = ServedSession(self.study, self.study_path, p.id, self.out, self.shared,
-                                      send=lambda conn, frame: self.pages.send(conn, frame),
-                                      broadcast=lambda frame, latest: self._to_page(p, frame, latest))
+            p.session = await asyncio.to_thread(
+                ServedSession, self.study, self.study_path, p.id, self.out, self.shared,
+                send=lambda conn, frame: self.pages.send(conn, frame),
+                broadcast=lambda frame, latest: self._to_page(p, frame, latest))
         except (Touch4dError, OSError) as exc:
             log.warning("%s: its session cannot start: %s", p.id, exc)
             p.life.stopped()
@@ -313,7 +317,8 @@ class StudyServer:
         return p.session is not None
 
     def running(self) -> int:
-        return sum(1 for p in self.participants.values() if p.session is not None)
+        """Participants whose session runs or is being made."""
+        return sum(1 for p in self.participants.values() if p.session is not None or p.starting is not None)
 
     def _after(self, p: Participant) -> None:
         """After anything its session did: finished? its next deadline armed."""
@@ -615,22 +620,25 @@ class StudyServer:
                 "check comes first</h1><p>Please open your link again and finish the device check.</p></body></html>"))
         if p.life.state is State.DONE and self.options.complete_url:
             raise web.HTTPSeeOther(self.completion_url())
-        refusal = self._start(p)
+        if p.starting is None:             # else a join already makes its session: wait with it
+            p.starting = asyncio.ensure_future(self._start(p))   # on, even if this request's browser goes
+            p.starting.add_done_callback(lambda _: setattr(p, "starting", None))
+        refusal = await asyncio.shield(p.starting)
         if refusal is not None:
             status, text = refusal
             return web.Response(status=status, text=text, content_type="text/html" if status != 500 else "text/plain")
         raise web.HTTPSeeOther("/")
 
-    def _start(self, p: Participant) -> tuple[int, str] | None:
+    async def _start(self, p: Participant) -> tuple[int, str] | None:
         """Start a participant's session unless it runs: None, or the status and page that say why not."""
         if self._running(p):
             return None
         if p.life.state is State.DONE:
             return 200, ("<!doctype html><html lang=en><meta charset=utf-8><title>Done</title><body><h1>Every "
                          "trial is done</h1><p>Thank you for taking part.</p></body></html>")
-        if self.running() >= self.max_participants:
+        if self.running() - 1 >= self.max_participants:    # itself (starting) not counted
             self.counts["full"] += 1
-            self._say(f"{p.id}: refused, the study is full ({self.running()} of {self.max_participants} "
+            self._say(f"{p.id}: refused, the study is full ({self.running() - 1} of {self.max_participants} "
                       "running; --max-participants to change)")
             return 503, ("<!doctype html><html lang=en><meta charset=utf-8><title>Full</title><body><h1>The "
                          "study is full right now</h1><p>Every place is taken. Please open your link again in a "
@@ -638,7 +646,7 @@ class StudyServer:
         back = self._rows(p.id) > 0
         self.counts["resumed" if back else "joined"] += 1
         p.life.join()      # revoked links never get here (the gate refused them)
-        refusal = self._start_session(p)
+        refusal = await self._start_session(p)
         if refusal is not None:
             return refusal
         p.since = time.time()
