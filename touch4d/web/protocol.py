@@ -309,13 +309,10 @@ class PosesBatch(msgspec.Struct, forbid_unknown_fields=True):
     hand: Annotated[list[Annotated[float, msgspec.Meta(ge=-MAX_SCREEN_UNITS, le=MAX_SCREEN_UNITS)]],
                     msgspec.Meta(max_length=7 * MAX_BATCH)]
 
-    def __post_init__(self):
+    def __post_init__(self):   # the quaternions: at once, in parse_page_message
         if len(self.valid) != len(self.time) or len(self.hand) != 7 * len(self.time):
             raise schema.Invalid(f"{len(self.time)} valid flags and {7 * len(self.time)} numbers (7 per time)",
                                  f"{len(self.valid)} and {len(self.hand)}", "hand")
-        for k, valid in enumerate(self.valid):
-            if valid:
-                _check_quaternion(self.hand[7 * k:7 * k + 7], f"hand[{k}]")
 
 
 class TouchesBatch(msgspec.Struct, forbid_unknown_fields=True):
@@ -420,7 +417,14 @@ def parse_page_message(data: str | bytes) -> dict:
             raise PageError("malformed", f"touches.intensity: expected a multiple of {n} values (one row per time), "
                                          f"got {len(t.intensity)}", "touches.intensity", f"a multiple of {n}")
         hand = np.array(p.hand, dtype=float).reshape(-1, 7)
-        return {"type": "batch", "time": np.array(p.time, dtype=float), "valid": np.array(p.valid, dtype=bool),
+        valid = np.array(p.valid, dtype=bool)
+        norms = np.sqrt((hand[:, 3:] ** 2).sum(axis=1))
+        bad = np.flatnonzero(valid & ~(np.abs(norms - 1.0) <= QUAT_TOLERANCE))
+        if len(bad):   # a tracked pose's orientation (an untracked one's is not read)
+            k = int(bad[0])
+            raise PageError("malformed", f"poses.hand[{k}]: expected a unit quaternion (norm {norms[k]:.4g})",
+                            f"poses.hand[{k}]", "a unit quaternion", hand[k].tolist())
+        return {"type": "batch", "time": np.array(p.time, dtype=float), "valid": valid,
                 "position": hand[:, :3], "orientation": hand[:, 3:],
                 "touch_time": np.array(t.time, dtype=float),
                 "intensity": np.array(t.intensity, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))}
