@@ -248,3 +248,23 @@ def test_every_trials_column_is_described():
     from touch4d.study.table import COLUMNS
 
     assert set(psychds.COLUMN_DESCRIPTIONS) == set(COLUMNS)
+
+
+def test_a_platforms_ids_and_the_user_agent_stay_out_of_the_dataset(study, tmp_path):
+    """What could name a participant on the recruitment platform is not shared; the rest is as recorded."""
+    import shutil
+    copy = tmp_path / "runs"
+    shutil.copytree(study, copy)
+    manifest = json.loads((copy / "P01" / "manifest.json").read_text())
+    manifest["platform"] = {"PROLIFIC_PID": "5f1e0a0b0c0d0e0f10111213", "STUDY_ID": "abc"}
+    manifest["device"] = {"browser": "OculusBrowser", "user_agent": "Mozilla/5.0 (X11; Linux x86_64) Quest 3",
+                          "hits": 6}
+    (copy / "P01" / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    out = tmp_path / "dataset"
+    assert main(["study", "export", str(copy), "--psych-ds", str(out)]) == 0
+    text = (out / "data" / "primary_data" / "P01" / "manifest.json").read_text()
+    shared = json.loads(text)
+    assert "platform" not in shared and "5f1e0a0b" not in text and "Quest 3" not in text
+    assert shared["device"] == {"browser": "OculusBrowser", "hits": 6}
+    del manifest["platform"], manifest["device"]["user_agent"]
+    assert shared == manifest

@@ -9,7 +9,8 @@ The dataset (Psych-DS 1.5.0):
 - `data/study-S_subject-P_session-N_data.csv`: one per participant and session, the rows of its
   trials.csv as they were (same columns and cells); keys from Psych-DS's vocabulary (study, subject,
   session), values reduced to the letters and digits the file-name grammar allows.
-- `data/primary_data/<session folder>/`: each session's manifest.json and MCAP logs, unchanged:
+- `data/primary_data/<session folder>/`: each session's manifest.json (without a recruitment
+  platform's ids and the browser's user agent: `shareable`) and MCAP logs, unchanged:
   the first recorded form of the data belongs under data/ (Psych-DS's raw-data principle), and
   primary_data is the spec's folder for primary data of any file type. `.psychds-ignore` keeps
   validators from reporting these files as unchecked.
@@ -246,6 +247,23 @@ def read_study(where) -> list[Session]:
     return sessions
 
 
+# What of a manifest could name a participant to someone who shares the dataset: the recruitment
+# platform's ids (PROLIFIC_PID and others: touch4d.study.recruitment) and the browser's user agent.
+PERSONAL = (("platform",), ("device", "user_agent"))
+
+
+def shareable(manifest: dict) -> dict:
+    """A manifest without what could identify its participant (PERSONAL), the rest as recorded."""
+    out = json.loads(json.dumps(manifest))
+    for path in PERSONAL:
+        holder = out
+        for key in path[:-1]:
+            holder = holder.get(key) if isinstance(holder, dict) else None
+        if isinstance(holder, dict):
+            holder.pop(path[-1], None)
+    return out
+
+
 # ---- the plan of the dataset ----------------------------------------------------------------------------
 
 
@@ -269,7 +287,8 @@ def plan_export(sessions: list[Session]) -> dict[str, str | Path]:
             files[f"{DATA}/{name}"] = csv_text(session.header, rows)
             index.append((name, participant, label, f"{PRIMARY}/{session.relative}/"))
         for record in session.records:
-            files[f"{PRIMARY}/{session.relative}/{record.name}"] = record
+            files[f"{PRIMARY}/{session.relative}/{record.name}"] = (
+                json.dumps(shareable(session.manifest), indent=2) + "\n" if record.name == MANIFEST else record)
     participants = sorted({p for p, _, _ in named.values()})
     files[DESCRIPTION] = json.dumps(description(study, [s.manifest for s in sessions], columns, participants,
                                                 len(named)), indent=2) + "\n"
