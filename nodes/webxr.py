@@ -37,7 +37,7 @@ from touch4d.tracking.webxr import HAND_SOURCES, HANDS, XR_STANDARD_BUTTONS
 from touch4d.web import access, tls
 from touch4d.study.gate import GATE_START
 from touch4d.web.bridge import BridgeConfig, WebBridge
-from touch4d.web.server import PageServer
+from touch4d.web.server import PageBounds, PageServer
 
 
 TOKEN_ENV = "TOUCH4D_WEBXR_TOKEN"
@@ -135,7 +135,8 @@ class WebXRNode(Node):
         # each page event, then the bridge's deadline re-armed
         connected, closed = self._then_schedule(self.bridge.connected), self._then_schedule(self.bridge.closed)
         deliver = self._then_schedule(lambda conn: self.server.deliver(conn))
-        self.server = PageServer(host, p["port"], self.access, ssl_context, max_pages=p["max_pages"],
+        self.server = PageServer(host, p["port"], self.access, ssl_context,
+                                 bounds=PageBounds(max_pages=p["max_pages"]),
                                  secret=self._secret(),
                                  loop=self.executor.asyncio_loop(serves_tls=ssl_context is not None),
                                  names=[n.strip() for n in p["names"].split(",") if n.strip()],

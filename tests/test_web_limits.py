@@ -11,7 +11,7 @@ import pytest
 
 from touch4d.web.access import Access
 from touch4d.web.protocol import MAX_PAGE_MESSAGE
-from touch4d.web.server import PageServer
+from touch4d.web.server import PageBounds, PageServer
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -101,7 +101,7 @@ def test_a_malformed_request_is_answered_and_counted_not_logged_with_a_traceback
 
 
 def test_a_connection_that_sends_nothing_or_trickles_is_closed(serve):
-    server, port = serve(header_timeout_s=0.5)
+    server, port = serve(bounds=PageBounds(header_timeout_s=0.5))
 
     async def probe():
         t0 = time.monotonic()
@@ -133,7 +133,7 @@ def test_a_connection_that_sends_nothing_or_trickles_is_closed(serve):
 
 
 def test_connections_from_one_address_are_capped(serve):
-    server, port = serve(max_per_address=4, limit_loopback=True)
+    server, port = serve(bounds=PageBounds(max_per_address=4, limit_loopback=True))
 
     async def probe():
         held = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]
@@ -156,7 +156,7 @@ def test_connections_from_one_address_are_capped_before_their_tls_handshake(serv
     from touch4d.web.tls import ensure_certificate, server_ssl_context
 
     cert, key, _ = ensure_certificate(tmp_path / "tls", ["127.0.0.1"])
-    server, port = serve(max_per_address=4, limit_loopback=True, header_timeout_s=20,
+    server, port = serve(bounds=PageBounds(max_per_address=4, limit_loopback=True, header_timeout_s=20),
                          ssl_context=server_ssl_context(cert, key))
 
     async def probe():
@@ -204,7 +204,7 @@ def test_a_message_over_the_page_limit_ends_the_connection_at_once(serve):
 
 
 def test_a_page_that_does_not_read_is_closed_and_counted(serve):
-    server, port = serve(send_timeout_s=1.0, max_queued=8)
+    server, port = serve(bounds=PageBounds(send_timeout_s=1.0, max_queued=8))
     connected = []
     server.on_connect = connected.append
 
@@ -288,7 +288,7 @@ def test_a_page_that_floods_pings_and_reads_nothing_is_closed_and_its_place_free
 def test_a_revoked_holder_loses_its_open_page_and_the_others_keep_theirs(serve):
     access = Access()
     tokens = {name: access.issue(name) for name in ("P01", "P02")}
-    server, port = serve(access=access, secure_cookie=False)
+    server, port = serve(access=access, bounds=PageBounds(secure_cookie=False))
 
     async def pages():
         async with aiohttp.ClientSession() as session:
@@ -322,7 +322,7 @@ def test_a_page_outlives_the_header_timeout(serve, tmp_path, tls):
         cert, key, _ = ensure_certificate(tmp_path, ["127.0.0.1"])
         context, client = server_ssl_context(cert, key), ssl.create_default_context(cafile=str(cert))
     received = []
-    server, port = serve(header_timeout_s=0.3, ssl_context=context,
+    server, port = serve(bounds=PageBounds(header_timeout_s=0.3), ssl_context=context,
                          on_message=lambda conn, data, arrival: received.append(data))
 
     async def page():
@@ -343,7 +343,7 @@ def test_two_servers_on_one_host_keep_their_own_cookies(serve):
     each) opened in one browser must not overwrite each other's cookie."""
     first, second = Access(), Access()
     tokens = first.issue("P01"), second.issue("P02")
-    ports = [serve(access=access, secure_cookie=False)[1] for access in (first, second)]
+    ports = [serve(access=access, bounds=PageBounds(secure_cookie=False))[1] for access in (first, second)]
 
     async def browse():
         async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as browser:

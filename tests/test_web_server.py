@@ -17,7 +17,7 @@ from touch4d.messages import ControllerState, HandPose, Heartbeat
 from touch4d.web.access import Access, is_loopback, page_url, qr_text
 from touch4d.web.tls import ensure_certificate, server_ssl_context
 from touch4d.web.protocol import unpack_frame
-from touch4d.web.server import PageServer
+from touch4d.web.server import PageBounds, PageServer
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -34,7 +34,7 @@ def fetch(url, ssl_context=None, headers=None):
 def lan_server():
     """A server bound beyond loopback (all interfaces) with a token; the test reaches it on 127.0.0.1."""
     access = Access()
-    server = PageServer("0.0.0.0", 0, access, secure_cookie=False)
+    server = PageServer("0.0.0.0", 0, access, bounds=PageBounds(secure_cookie=False))
     server.token = access.issue("headset")
     port = server.start()
     try:

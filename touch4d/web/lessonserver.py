@@ -39,7 +39,7 @@ from .hardening import ESCAPED, host_name
 from .inbox import TokenBucket
 from .invites import Invites
 from .lesson import CLASS, HEARTBEAT_S, TEACHER, TERMINAL, Lesson
-from .server import PageServer
+from .server import PageBounds, PageServer
 
 log = logging.getLogger(__name__)
 log.addFilter(ESCAPED)
@@ -68,8 +68,8 @@ class LessonServer(PageServer):
 
     def __init__(self, host: str, port: int, access: Access, max_students: int, *, ssl_context=None,
                  names=(), secure_cookie: bool = True, loop=None):
-        super().__init__(host, port, access, ssl_context, max_pages=max_students + 8, names=names,
-                         secure_cookie=secure_cookie, input_hz=INPUT_HZ, loop=loop)
+        bounds = PageBounds(max_pages=max_students + 8, input_hz=INPUT_HZ, secure_cookie=secure_cookie)
+        super().__init__(host, port, access, ssl_context, bounds=bounds, names=names, loop=loop)
         self.max_students = max_students
         self.buckets = {link: TokenBucket(rate, burst) for link, (rate, burst) in LINK_RATE.items()}
         self.over_budget = 0

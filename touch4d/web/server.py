@@ -36,6 +36,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Callable, Iterable
 
+import msgspec
 from aiohttp import WSMsgType, web
 
 from touch4d.eventloop import new_event_loop
@@ -54,6 +55,19 @@ WS_HEARTBEAT_S = 2.0         # a page that answers no ping within this is closed
 MAX_PAGES = 64               # pages connected at once: one more is refused (HTTP 503)
 SEND_TIMEOUT_S = 5.0         # one frame not taken by the page's socket within this: the page is closed
 MAX_QUEUED = 32              # in-order frames waiting for one page; one more closes it
+
+
+class PageBounds(msgspec.Struct, frozen=True, kw_only=True):
+    """What one page server allows its pages (see the module doc): its defaults are the page node's."""
+    max_pages: int = MAX_PAGES               # pages connected at once: the server's memory and send work
+    max_per_address: int = MAX_PER_ADDRESS   # TCP connections per client address: one host cannot take every slot
+    limit_loopback: bool = False             # count loopback clients too (else exempt: a reverse proxy's)
+    header_timeout_s: float = HEADER_TIMEOUT_S   # a request header whole within this: slow senders hold no slot
+    send_timeout_s: float = SEND_TIMEOUT_S   # one frame taken by a page's socket within this, else it is closed
+    max_queued: int = MAX_QUEUED             # in-order frames unsent to one page; one more closes it (memory)
+    input_hz: float = MAX_INPUT_HZ           # a page's inputs delivered at most this often (the node's CPU)
+    other_burst: int = OTHER_BURST           # a page's other messages over this burst are dropped (a flood)
+    secure_cookie: bool = True               # the access cookie only over HTTPS (False: plain-HTTP tests)
 
 
 def static_names(directory: Path) -> frozenset[str]:
@@ -84,10 +98,7 @@ class PageServer:
     """HTTP + WebSocket server for the WebXR page, running until `stop()`."""
 
     def __init__(self, host: str, port: int, access: Access | None = None, ssl_context=None, *,
-                 max_pages: int = MAX_PAGES, names: Iterable[str] = (), secure_cookie: bool = True,
-                 max_per_address: int = MAX_PER_ADDRESS, limit_loopback: bool = False,
-                 header_timeout_s: float = HEADER_TIMEOUT_S, send_timeout_s: float = SEND_TIMEOUT_S,
-                 max_queued: int = MAX_QUEUED, input_hz: float = MAX_INPUT_HZ, other_burst: int = OTHER_BURST,
+                 bounds: PageBounds = PageBounds(), names: Iterable[str] = (),
                  on_connect: Callable[[int], None] = lambda conn: None,
                  on_message: Callable[[int, object, float], None] = lambda conn, data, arrival: None,
                  on_close: Callable[[int], None] = lambda conn: None,
@@ -98,14 +109,14 @@ class PageServer:
         self.on_connect, self.on_message, self.on_close = on_connect, on_message, on_close
         self.on_pending = on_pending
         self.static_dir = Path(static_dir)
-        self.max_pages, self.send_timeout_s, self.max_queued = max_pages, send_timeout_s, max_queued
-        self.input_hz, self.other_burst = input_hz, other_burst   # a page's messages (touch4d.web.inbox)
+        self.bounds = bounds
         self.secret = secret
-        self.hardening = hardening or Hardening(host, names, ssl_context=ssl_context, max_per_address=max_per_address,
-                                                limit_loopback=limit_loopback, header_timeout_s=header_timeout_s,
-                                                log=log)
+        self.hardening = hardening or Hardening(host, names, ssl_context=ssl_context,
+                                                max_per_address=bounds.max_per_address,
+                                                limit_loopback=bounds.limit_loopback,
+                                                header_timeout_s=bounds.header_timeout_s, log=log)
         self.names = self.hardening.names
-        self.gate = CookieGate(access, secure=secure_cookie, open_prefixes=("/static/",)) if access else None
+        self.gate = CookieGate(access, secure=bounds.secure_cookie, open_prefixes=("/static/",)) if access else None
         # counted refusals and closes
         self.refused_origin = 0     # WebSockets from another site
         self.refused_secret = 0     # requests without the secret (with a `secret`)
@@ -325,11 +336,11 @@ class PageServer:
         if cross_site(request):
             self.refused_origin += 1
             return web.Response(status=403, text="touch4d: WebSocket from another origin refused\n")
-        if len(self.clients) >= self.max_pages:
+        if len(self.clients) >= self.bounds.max_pages:
             # Each page costs a setup frame and a send queue: a flood of connections must not take
             # the node's memory or its thread. A page that does not read is closed by the heartbeat.
             self.over_limit += 1
-            return web.Response(status=503, text=f"touch4d: {self.max_pages} pages are connected already "
+            return web.Response(status=503, text=f"touch4d: {self.bounds.max_pages} pages are connected already "
                                                  "(the webxr node's max_pages); close one and reload\n")
         # A page's pings are not answered (a browser never sends them): answering, the reading would wait
         # for the pongs to leave, and a page that reads nothing would hold its place for ever.
@@ -339,7 +350,7 @@ class PageServer:
         self.hardening.upgraded(request.transport)
         conn = next(self._ids)
         peer = request.transport.get_extra_info("peername") if request.transport else None
-        inbox = self._inboxes[conn] = Inbox(input_hz=self.input_hz, burst=self.other_burst)
+        inbox = self._inboxes[conn] = Inbox(input_hz=self.bounds.input_hz, burst=self.bounds.other_burst)
         client = self.clients[conn] = _Client(ws, request.transport, request.get(HOLDER), inbox,
                                               f"{peer[0]}:{peer[1]}" if peer else (request.remote or "?"))
         sender = asyncio.ensure_future(self._sender(client))
@@ -405,14 +416,14 @@ class PageServer:
                 # asyncio.timeout, not wait_for: no task per frame (a send that needs no drain
                 # completes in this step; wait_for's task cost a loop turn and a Task each time)
                 while client.queue:
-                    async with asyncio.timeout(self.send_timeout_s):
+                    async with asyncio.timeout(self.bounds.send_timeout_s):
                         await ws.send_bytes(client.queue.popleft())
                 if client.latest is not None:
                     data, client.latest = client.latest, None
-                    async with asyncio.timeout(self.send_timeout_s):
+                    async with asyncio.timeout(self.bounds.send_timeout_s):
                         await ws.send_bytes(data)
         except (asyncio.TimeoutError, TimeoutError):
-            self._drop(client, f"its socket took no frame within {self.send_timeout_s:g} s")
+            self._drop(client, f"its socket took no frame within {self.bounds.send_timeout_s:g} s")
         except (ConnectionError, RuntimeError):
             pass   # the page went away; the receive loop sees the close
 
@@ -434,8 +445,8 @@ class PageServer:
         client.ready = True
         if latest:
             client.latest = data
-        elif len(client.queue) >= self.max_queued:
-            self._drop(client, f"{self.max_queued} frames were waiting for it")
+        elif len(client.queue) >= self.bounds.max_queued:
+            self._drop(client, f"{self.bounds.max_queued} frames were waiting for it")
             return
         else:
             client.queue.append(data)

@@ -71,7 +71,7 @@ from .hardening import ESCAPED, SECURITY_HEADERS, Hardening, host_name, raise_fi
 from .inbox import TokenBucket
 from .invites import EXPERIMENTER, Invites, check_participant
 from .served import ServedOptions, ServedSession, Shared
-from .server import STATIC_DIR, PageServer, static_names
+from .server import STATIC_DIR, PageBounds, PageServer, static_names
 
 log = logging.getLogger("study-serve")
 log.addFilter(ESCAPED)   # a request path in a line: its control and bidi characters escaped
@@ -190,9 +190,9 @@ class StudyServer:
         self.hardening = Hardening(o.host, [host_name(o.public_url)] if o.public_url else [], headers=STUDY_HEADERS,
                                    log=log)
         # the pages' WebSockets: the page server's bounds, queues and heartbeat, through this server's /ws
-        self.pages = PageServer(o.host, 0, max_pages=10**6, hardening=self.hardening, on_connect=self._page_opened,
-                                on_message=self._page_message, on_close=self._page_closed,
-                                other_burst=round(PAGE_STALL_S * (1 / o.session.batch_s + 1)))
+        bounds = PageBounds(max_pages=10**6, other_burst=round(PAGE_STALL_S * (1 / o.session.batch_s + 1)))
+        self.pages = PageServer(o.host, 0, bounds=bounds, hardening=self.hardening, on_connect=self._page_opened,
+                                on_message=self._page_message, on_close=self._page_closed)
         self.participants: dict[str, Participant] = {}
         self.counts = {"full": 0, "forged": 0, "mismatched": 0, "joined": 0, "resumed": 0, "left": 0,
                        "over budget": 0, "no vibration": 0, "second page": 0, "device failed": 0, "open link": 0,
