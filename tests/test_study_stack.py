@@ -22,7 +22,7 @@ from touch4d.study.design import load_study
 from touch4d.study.gate import allowed
 from touch4d.study.observer import Exploration
 from touch4d.study.plan import condition_order, quick_plan
-from touch4d.study.session import run_session
+from touch4d.study.session import SessionOptions, run_session
 from touch4d.study.simulate import Timing
 from touch4d.study.table import COLUMNS
 
@@ -81,8 +81,8 @@ def test_a_quick_study_runs_every_cell_through_the_full_stack_and_survives_its_s
     watcher = Watcher()
     code = {}
     runner = threading.Thread(target=lambda: code.setdefault("rc", run_session(
-        STUDY, PARTICIPANT, tmp_path, [f"tracker.pace:={PACE}"], simulate=True, quick=True, seed=7, timeout_s=150,
-        echo=lambda line: None,
+        STUDY, PARTICIPANT, tmp_path, [f"tracker.pace:={PACE}"],
+        options=SessionOptions(simulate=True, quick=True, seed=7, timeout_s=150), echo=lambda line: None,
         on_ready=watcher.on_ready)))
     runner.start()
     runner.join(170)

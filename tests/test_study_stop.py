@@ -28,7 +28,7 @@ from touch4d.study.session import STOP_SIGNALS, Stopped, stop_on_signals
 RUNNER = textwrap.dedent("""
     import signal, sys
     from pathlib import Path
-    from touch4d.study.session import Stopped, run_session
+    from touch4d.study.session import SessionOptions, Stopped, run_session
 
     def ready(bus):
         Path(sys.argv[3]).write_text(bus.to_json())
@@ -42,8 +42,9 @@ RUNNER = textwrap.dedent("""
             raise RuntimeError("the run failed")
 
     try:
-        code = run_session("config/studies/paper.yaml", "P01", sys.argv[1], ["tracker.pace:=0.1"], simulate=True,
-                           quick=True, seed=1, echo=lambda line: None, on_ready=ready)
+        code = run_session("config/studies/paper.yaml", "P01", sys.argv[1], ["tracker.pace:=0.1"],
+                           options=SessionOptions(simulate=True, quick=True, seed=1),
+                           echo=lambda line: None, on_ready=ready)
     except Stopped as exc:
         code = exc.code
     sys.exit(code)

@@ -20,6 +20,8 @@ import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+import msgspec
+
 from .lock import claim_session
 from .store import next_segment, session_dir
 
@@ -87,6 +89,20 @@ def worst_exit(codes) -> int:
 STUDY_LAUNCH = "launch/study.yaml"
 
 
+class SessionOptions(msgspec.Struct, frozen=True, kw_only=True):
+    """How `run_session` runs a session (its callbacks aside): one value that run_simulation varies per participant."""
+    launch: str = STUDY_LAUNCH         # the launch file that runs the stack
+    session: str = "1"                 # the session's name within the participant's folder
+    quick: bool = False                # one trial per cell: checks the stack in minutes
+    simulate: bool = False             # a simulated observer instead of a person, on a private bus
+    seed: int | None = None            # the simulated observer's seed (None: its own)
+    order: int | None = None           # the condition order's row (None: the participant's own)
+    simulation: dict | None = None     # the settings a simulation records in the manifest
+    timeout_s: float | None = None     # stop the stack if the session is not done within this (None: never)
+    locked: bool = False               # the caller holds the session folder's lock (else it is claimed here)
+    bus: str | None = None             # a bus config file for the launch (not with `simulate`: its bus is private)
+
+
 def session_overrides(study_path, participant: str, out, *, session: str = "1", quick: bool = False,
                       simulate: bool = False, seed: int | None = None, order: int | None = None,
                       simulation: dict | None = None, user: list[str] = ()) -> list[str]:
@@ -116,18 +132,14 @@ def session_overrides(study_path, participant: str, out, *, session: str = "1", 
     return args
 
 
-def run_session(study_path, participant: str, out, overrides: list[str] = (), *, launch: str = STUDY_LAUNCH,
-                session: str = "1", quick: bool = False, simulate: bool = False, seed: int | None = None,
-                order: int | None = None, simulation: dict | None = None, timeout_s: float | None = None,
-                locked: bool = False, echo=print, on_ready=None, bus: str | None = None) -> int:
+def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
+                options: SessionOptions = SessionOptions(), echo=print, on_ready=None) -> int:
     """Run one participant's session through the full stack (`touch4d launch launch/study.yaml ...`)
     until the study node says it is done; returns the exit status (0: complete; the worst of the
     launch's and the session's). A signal stops it (Stopped, raised after the stack is down; the
     session resumes where it was when run again). `overrides` come last, so they win.
-    `simulation`: the settings a simulation records in the manifest; `locked`: the caller holds the
-    session folder (lock.claim_session; else it is claimed here). `on_ready(bus)` is called with the stack's
-    BusConfig once it runs (tests, tools). `bus`: a bus config file for the launch (not with `simulate`,
-    whose bus is private)."""
+    `options`: the run's settings (SessionOptions). `on_ready(bus)` is called with the stack's
+    BusConfig once it runs (tests, tools); `echo` gets the lines for the experimenter."""
     import sys
     import tempfile
 
@@ -136,11 +148,13 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
     from touch4d.bus.startup import PARENT_PID_ENV
     from touch4d.messages import StudyTrial
 
+    o = options
+    simulate, timeout_s = o.simulate, o.timeout_s
     directory = session_dir(out, participant)
-    args = [launch, *session_overrides(study_path, participant, out, session=session, quick=quick,
-                                       simulate=simulate, seed=seed, order=order, simulation=simulation,
-                                       user=overrides), *overrides]
-    with nullcontext() if locked else claim_session(directory), tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp, stop_on_signals():
+    args = [o.launch, *session_overrides(study_path, participant, out, session=o.session, quick=o.quick,
+                                         simulate=simulate, seed=o.seed, order=o.order, simulation=o.simulation,
+                                         user=overrides), *overrides]
+    with nullcontext() if o.locked else claim_session(directory), tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp, stop_on_signals():
         ready = Path(tmp) / "bus.json"
         bus_args = []
         if simulate:   # a private bus on free ports: simulations never meet a running stack
@@ -148,7 +162,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
             bus_file.write_text("broker: {bind: 127.0.0.1, pub_port: 0, sub_port: 0}\nconnect: 127.0.0.1\n")
             bus_args = ["--bus", str(bus_file)]
         else:          # the usual bus (or --bus FILE), so `touch4d topic pub study/command ...` reaches it
-            bus_args = ["--bus", str(bus)] if bus is not None else []
+            bus_args = ["--bus", str(o.bus)] if o.bus is not None else []
             echo(f"{participant}: pause with the Pause key (F9) or "
                  "touch4d topic pub study/command '{command: pause}'")
         env = {k: v for k, v in os.environ.items() if k != ENV_VAR} if simulate else dict(os.environ)
@@ -200,14 +214,15 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
         return worst_exit([launch_code, 0 if state["done"] else 1])
 
 
-def run_simulation(study_path, participants: int, out, overrides: list[str] = (), *, seed: int | None = None,
-                   quick: bool = False, echo=print, **kwargs) -> int:
-    """N simulated participants (P01 ...), one full-stack session each, in turn; the worst exit status.
-    A signal stops the run (Stopped): no later participant starts."""
+def run_simulation(study_path, participants: int, out, overrides: list[str] = (), *,
+                   options: SessionOptions = SessionOptions(), echo=print, on_ready=None) -> int:
+    """N simulated participants (P01 ...), one full-stack session each, in turn (`options.seed`, if any, + k
+    for the k-th); the worst exit status. A signal stops the run (Stopped): no later participant starts."""
     from .plan import participant_ids
 
     codes = []
     for k, participant in enumerate(participant_ids(participants)):
-        codes.append(run_session(study_path, participant, out, overrides, simulate=True, quick=quick,
-                                 seed=None if seed is None else seed + k, echo=echo, **kwargs))
+        seed = None if options.seed is None else options.seed + k
+        codes.append(run_session(study_path, participant, out, overrides, echo=echo, on_ready=on_ready,
+                                 options=msgspec.structs.replace(options, simulate=True, seed=seed)))
     return worst_exit(codes)

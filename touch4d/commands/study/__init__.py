@@ -422,10 +422,11 @@ def run_full_stack(args) -> int:
                 locks.enter_context(claim_session(session_dir(args.out, participant)))
             prepare_out(args.out, participants, _settings(study, args.quick, simulation), overwrite=args.overwrite)
             if args.simulate:
+                options = session.SessionOptions(seed=args.seed, quick=args.quick, simulation=simulation, locked=True)
                 return session.run_simulation(study_path, args.participants, args.out, [*observer, *args.items],
-                                              seed=args.seed, quick=args.quick, simulation=simulation, locked=True)
-            return session.run_session(study_path, args.participant, args.out, args.items, quick=args.quick,
-                                       order=args.order, locked=True, bus=args.bus)
+                                              options=options)
+            options = session.SessionOptions(quick=args.quick, order=args.order, locked=True, bus=args.bus)
+            return session.run_session(study_path, args.participant, args.out, args.items, options=options)
     except session.Stopped as exc:
         print(f"touch4d study run: {exc}; the stack is stopped")
         return exc.code
