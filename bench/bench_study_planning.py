@@ -143,11 +143,11 @@ def coverage() -> None:
 
 
 def design(study, glove, workers: int, *, seed: int = 0, random_layouts: int = 10) -> None:
-    from touch4d.study.glovedesign import design_gloves
+    from touch4d.study.glovedesign import DesignOptions, design_gloves
 
     started = time.perf_counter()
-    result = design_gloves(glove, study, [1, 2, 6, 10, 30], noise=HUMAN_NOISE, random_layouts=random_layouts,
-                           seed=seed, cluster=Cluster(workers=workers), progress=False)
+    result = design_gloves(glove, study, [1, 2, 6, 10, 30], options=DesignOptions(noise=HUMAN_NOISE,
+                           random_layouts=random_layouts, seed=seed), cluster=Cluster(workers=workers), progress=False)
     own = result["own"]["mean_bits"]
     print(f"glove design ({time.perf_counter() - started:.0f} s, {workers} workers, seed {seed}): bits per touch on "
           f"test examples, mean over {', '.join(result['tasks'])}; the paper's 30 motors: {own:.3f}")

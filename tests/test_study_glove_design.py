@@ -6,6 +6,7 @@ seed and also starts from the glove's own layout; more motors than sample points
 import json
 
 import cantools
+import msgspec
 import numpy as np
 import pytest
 
@@ -13,7 +14,8 @@ from touch4d.boards.config import load_glove_can
 from touch4d.cli import main
 from touch4d.study.design import load_study
 from touch4d.study.fanout import Cluster
-from touch4d.study.glovedesign import Examples, design_gloves, greedy_layout, improve_by_swaps, step_sample
+from touch4d.study.glovedesign import (DesignOptions, Examples, design_gloves, greedy_layout, improve_by_swaps,
+                                       step_sample)
 from touch4d.study.psychophysics import HUMAN_NOISE
 from touch4d.tactile import load_glove
 
@@ -46,8 +48,8 @@ def test_glove_design_writes_a_working_glove_that_study_transfer_accepts(tmp_pat
 @pytest.mark.timeout(200)
 def test_a_designed_pair_of_motors_tells_more_than_random_pairs_on_test_examples():
     study, glove = load_study(STUDY), load_glove()
-    result = design_gloves(glove, study, [2], noise=HUMAN_NOISE, random_layouts=8, rounds=1, tries=4, scenes=5,
-                           positions=5, progress=False, cluster=Cluster(workers=0))
+    options = DesignOptions(noise=HUMAN_NOISE, random_layouts=8, rounds=1, tries=4, scenes=5, positions=5)
+    result = design_gloves(glove, study, [2], options=options, progress=False, cluster=Cluster(workers=0))
     size = result["sizes"][2]
     assert size["designed"]["mean_bits"] > size["random_mean_bits"] + size["random_sd_bits"]
     assert 0.0 <= size["designed"]["mean_bits"] <= 1.585 + 1e-9
@@ -90,16 +92,17 @@ def test_the_search_is_deterministic_by_seed_and_at_the_gloves_motor_count_also_
     study, glove = load_study(STUDY), load_glove()
     own = sorted(set(int(s) for s in glove.motor_sample))
     pool = sorted(set(own) | set(range(0, 247, 25)))          # its 29 places and a few others: a quick search
-    kw = dict(noise=HUMAN_NOISE, random_layouts=0, rounds=1, tries=2, scenes=3, positions=3, candidates=pool,
-              progress=False, cluster=Cluster(workers=0))
-    first, again = (design_gloves(glove, study, [30], **kw) for _ in range(2))
+    options = DesignOptions(noise=HUMAN_NOISE, random_layouts=0, rounds=1, tries=2, scenes=3, positions=3)
+    kw = dict(candidates=pool, progress=False, cluster=Cluster(workers=0))
+    first, again = (design_gloves(glove, study, [30], options=options, **kw) for _ in range(2))
     size = first["sizes"][30]
     assert set(size["starts"]) == {"greedy", "the glove's own"}
     assert size["designed"] == max(size["starts"].values(), key=lambda d: d["validation_bits"])
     assert again["sizes"][30]["designed"]["places"] == size["designed"]["places"]
     assert {s: d["places"] for s, d in again["sizes"][30]["starts"].items()} == \
         {s: d["places"] for s, d in size["starts"].items()}
-    no_swaps = design_gloves(glove, study, [30], **{**kw, "rounds": 0})["sizes"][30]["starts"]["the glove's own"]
+    no_swaps = design_gloves(glove, study, [30], options=msgspec.structs.replace(options, rounds=0),
+                             **kw)["sizes"][30]["starts"]["the glove's own"]
     assert set(own) < set(no_swaps["places"]) and len(no_swaps["places"]) == 30   # its 29 places, one added
 
 
@@ -116,7 +119,8 @@ def test_regions_restrict_the_places_and_an_unknown_region_is_a_clear_error(caps
     palm = candidates_in(glove, ["palm"])
     assert palm == regions["palm"] and all(glove.samples[i][2] < 0 for i in palm)
     assert set(candidates_in(glove, ["index", "thumb"])) == set(regions["index"]) | set(regions["thumb"])
-    result = design_gloves(glove, study, [2], noise=HUMAN_NOISE, random_layouts=2, rounds=0, scenes=3, positions=3,
+    result = design_gloves(glove, study, [2], options=DesignOptions(noise=HUMAN_NOISE, random_layouts=2, rounds=0,
+                                                                     scenes=3, positions=3),
                            candidates=palm, progress=False, cluster=Cluster(workers=0))
     assert set(result["sizes"][2]["designed"]["places"]) <= set(palm)
     assert main(["glove", "design", "--motors", "2", "--study", STUDY, "--regions", "wrist", "--workers", "0",

@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from touch4d.errors import ConfigError
@@ -153,20 +154,32 @@ def _design_job(shared, kind: str, motors: int, draw: int, seed: int) -> dict:
             "validation_bits": validation_bits, **layout_bits(test, places)}
 
 
-def design_gloves(glove: Glove, study: Study, sizes: list[int], *, tasks: list[str] | None = None,
-                  noise: float, random_layouts: int = 10, rounds: int = 2, tries: int = 10, scenes: int = 16,
-                  positions: int = 12, seed: int = 0, candidates=None, cluster: Cluster = Cluster(), cache=None,
-                  progress: bool = True) -> dict:
+class DesignOptions(msgspec.Struct, frozen=True, kw_only=True):
+    """What `design_gloves` searches with: the same options give the same layouts (the seed decides every draw)."""
+    noise: float                       # the observer's noise on the skin model (psychophysics.HUMAN_NOISE)
+    tasks: list[str] | None = None     # the study's tasks scored (None: all of them)
+    random_layouts: int = 10           # random layouts per size: the baseline a design must beat
+    rounds: int = 2                    # swap rounds on validation after the greedy steps (0: greedy only)
+    tries: int = 10                    # places tried per motor and round of swaps
+    scenes: int = 16                   # scenes per task in each set of examples (search, validation, test)
+    positions: int = 12                # hand positions per scene in each set of examples
+    seed: int = 0                      # the examples' and the searches' draws
+
+
+def design_gloves(glove: Glove, study: Study, sizes: list[int], *, options: DesignOptions, candidates=None,
+                  cluster: Cluster = Cluster(), cache=None, progress: bool = True) -> dict:
     """Designed layouts of each size in `sizes` (at the glove's own motor count also one searched from
-    its own layout, the better on validation kept; `starts` holds both), `random_layouts` random ones of each, and the
-    glove's own layout, all scored on the test examples (bits per task and their mean)."""
-    tasks = tasks or [t.id for t in study.tasks]
+    its own layout, the better on validation kept; `starts` holds both), `options.random_layouts` random ones of
+    each, and the glove's own layout, all scored on the test examples (bits per task and their mean)."""
+    o = options
+    noise, random_layouts, rounds, tries, seed = o.noise, o.random_layouts, o.rounds, o.tries, o.seed
+    tasks = o.tasks or [t.id for t in study.tasks]
     pool = list(range(len(glove.samples))) if candidates is None else list(candidates)
     too_many = [k for k in sizes if k > len(pool)]
     if too_many:
         raise ConfigError("command line", "--motors", f"at most {len(pool)} motors (the glove's sample points "
                           "to place them at, in the regions chosen)", got=too_many[0])
-    settings = {"noise": noise, "scenes": scenes, "positions": positions, "seed": seed}
+    settings = {"noise": noise, "scenes": o.scenes, "positions": o.positions, "seed": seed}
     search, validation, test = (examples(glove, study, tasks, purpose=p, **settings) for p in PURPOSES)
     own = sorted(set(int(s) for s in glove.motor_sample))
     jobs = {f"designed-{k}": ("designed", k, 0, seed_of(study, DESIGN, f"designed-{k}", 0, seed)) for k in sizes}
@@ -239,5 +252,5 @@ def summary_text(result: dict) -> str:
 
 
 __all__ = ["Examples", "examples", "sample_regions", "candidates_in", "layout_bits", "greedy_layout", "step_sample",
-           "improve_by_swaps", "design_gloves",
+           "improve_by_swaps", "DesignOptions", "design_gloves",
            "glove_file_of", "write_glove", "summary_text"]

@@ -115,16 +115,17 @@ def register_glove_design(sub) -> None:
 
 
 def run_glove_design(args) -> int:
-    from touch4d.study.glovedesign import candidates_in, design_gloves, summary_text, write_glove
+    from touch4d.study.glovedesign import DesignOptions, candidates_in, design_gloves, summary_text, write_glove
     from touch4d.study.infotransfer import POSITIONS, SCENES
     from touch4d.study.psychophysics import HUMAN_NOISE
 
     study = _study(args.study)
     glove = _glove(args.glove)
     tasks = [study.task(t).id for t in args.task] if args.task else None
-    result = design_gloves(glove, study, [args.motors], tasks=tasks,
-                           noise=HUMAN_NOISE if args.noise is None else args.noise, random_layouts=args.random,
-                           rounds=args.rounds, tries=args.tries, scenes=args.scenes, positions=args.positions, seed=args.seed,
+    options = DesignOptions(tasks=tasks, noise=HUMAN_NOISE if args.noise is None else args.noise,
+                            random_layouts=args.random, rounds=args.rounds, tries=args.tries, scenes=args.scenes,
+                            positions=args.positions, seed=args.seed)
+    result = design_gloves(glove, study, [args.motors], options=options,
                            candidates=candidates_in(glove, args.regions), cluster=cluster_of(args),
                            progress=not args.json)
     places = result["sizes"][args.motors]["designed"]["places"]
