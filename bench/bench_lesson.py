@@ -10,8 +10,11 @@ slice commands (`touch4d lesson command`'s function), one every 150 ms; per chan
 
 Baseline, in the same run: the same changes with one student. Server cost per student: its CPU time
 (utime + stime, /proc) and resident memory with N students minus with none, over the same window, /N.
+`--delay-ms 50`: the students also through a relay on loopback that holds every chunk that long each
+way (touch4d.web.testing.DelayRelay; this kernel has no netem): the change then reaches a page one
+delay later, as over a home connection.
 
-    .venv/bin/python bench/bench_lesson.py [--students 30] [--changes 40] [--input-hz 30]
+    .venv/bin/python bench/bench_lesson.py [--students 30] [--changes 40] [--input-hz 30] [--delay-ms 50]
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -40,6 +44,11 @@ from touch4d.web.protocol import frame_header
 
 REPO = Path(__file__).resolve().parents[1]
 PERIOD_S = 0.15
+# the relay in a process of its own (in this one it would share the interpreter with the pages)
+RELAY = ("import signal, sys, time\nfrom touch4d.web.testing import DelayRelay\n"
+         "signal.signal(signal.SIGINT, lambda *_: sys.exit(0))\n"
+         "with DelayRelay(int(sys.argv[1]), float(sys.argv[2])) as relay:\n"
+         "    print(relay.port, flush=True)\n    while True: time.sleep(60)\n")
 
 
 def serve(out: Path, students: int):
@@ -55,6 +64,8 @@ def serve(out: Path, students: int):
         m = re.match(r"(teacher|class) link: (\S+)", line)
         if m:
             links[m.group(1)] = m.group(2)
+    said = proc.said = []   # its output read on (a full pipe would stop the server at its next line)
+    threading.Thread(target=lambda: said.extend(proc.stdout), daemon=True).start()
     return proc, links
 
 
@@ -112,8 +123,11 @@ async def run(out: Path, link: str, pid: int, students: int, changes: int, input
     idle_cpu, idle_rss, t0 = cpu_seconds(pid), rss_bytes(pid), time.perf_counter()
     await asyncio.sleep(2.0)
     idle_rate = (cpu_seconds(pid) - idle_cpu) / (time.perf_counter() - t0)
-    pages = [await join(link, grip) for _ in range(students)]
-    tasks = [asyncio.ensure_future(p.read()) for p in pages] + [asyncio.ensure_future(p.send(input_hz)) for p in pages]
+    pages, tasks = [], []
+    for _ in range(students):   # each reads from its join on: it answers the server's pings, as a browser does
+        pages.append(await join(link, grip))
+        tasks.append(asyncio.ensure_future(pages[-1].read()))
+    tasks += [asyncio.ensure_future(p.send(input_hz)) for p in pages]
     await asyncio.sleep(1.0)
     cpu0, t0 = cpu_seconds(pid), time.perf_counter()
     delays = []
@@ -149,12 +163,23 @@ async def _revision(page: Student, since: float) -> int:
     raise SystemExit("no frame of the change arrived within 2 s")
 
 
-def measure(students: int, changes: int, input_hz: float) -> dict:
+def measure(students: int, changes: int, input_hz: float, delay_ms: float = 0.0) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-lesson-") as tmp:
         out = Path(tmp) / "lesson"
         proc, links = serve(out, max(students, 1))
         try:
-            return asyncio.run(run(out, links["class"], proc.pid, students, changes, input_hz))
+            link = links["class"]
+            if not delay_ms:
+                return asyncio.run(run(out, link, proc.pid, students, changes, input_hz))
+            port = urlsplit(link).port
+            relay = subprocess.Popen([sys.executable, "-c", RELAY, str(port), str(delay_ms / 1000.0)], cwd=REPO,
+                                     stdout=subprocess.PIPE, text=True, start_new_session=True)
+            try:
+                relay_port = int(relay.stdout.readline())
+                link = link.replace(f":{port}/", f":{relay_port}/")
+                return {**asyncio.run(run(out, link, proc.pid, students, changes, input_hz)), "delay_ms": delay_ms}
+            finally:
+                stop(relay)
         finally:
             stop(proc)
 
@@ -164,6 +189,8 @@ def main() -> int:
     parser.add_argument("--students", type=int, default=30)
     parser.add_argument("--changes", type=int, default=40)
     parser.add_argument("--input-hz", type=float, default=30.0, help="each student's inputs per second")
+    parser.add_argument("--delay-ms", type=float, nargs="*", default=[50.0],
+                        help="also with the students through a relay adding this delay each way")
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"load {os.getloadavg()[0]:.2f}")
@@ -175,6 +202,11 @@ def main() -> int:
               f"{100 * r['cpu_per_student']:.2f} % of a core, {r['rss_per_student'] / 1e6:.2f} MB")
     print(f"ratio {args.students} students / 1: p50 {many['p50'] / base['p50']:.2f}x, "
           f"p99 {many['p99'] / base['p99']:.2f}x")
+    for delay in args.delay_ms:
+        r = measure(args.students, args.changes, args.input_hz, delay)
+        print(f"{r['students']:3d} students through {delay:.0f} ms each way: change -> page p50 {r['p50']:.1f} ms, "
+              f"p99 {r['p99']:.1f} ms ({r['frames']}/{r['expected']} frames); x{r['p50'] / many['p50']:.2f} p50 of "
+              "no delay")
     return 0
 
 

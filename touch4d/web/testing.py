@@ -135,29 +135,22 @@ class DelayRelay:
             task.add_done_callback(self._tasks.discard)
 
     async def _pipe(self, reader, writer) -> None:
-        """Each chunk read leaves `delay_s` after it came, in order (a queue and one sender)."""
+        """Each chunk read is written `delay_s` after it came, by a timer of its own: in order (one
+        delay for all), and a chunk costs one callback, not a task's wake-ups (a class's worth of
+        pages through one relay)."""
         import asyncio
 
         loop = asyncio.get_running_loop()
-        queue: asyncio.Queue = asyncio.Queue()
 
-        async def send():
-            while True:
-                due, data = await queue.get()
-                await asyncio.sleep(max(0.0, due - loop.time()))
-                if data is None:
-                    writer.close()
-                    return
+        def write(data: bytes) -> None:
+            if not writer.is_closing():
                 writer.write(data)
-                await writer.drain()
-        sender = asyncio.ensure_future(send())
         try:
             while True:
                 data = await reader.read(65536)
-                queue.put_nowait((loop.time() + self.delay_s, data or None))
                 if not data:
-                    break
-            await sender
+                    loop.call_at(loop.time() + self.delay_s, writer.close)
+                    return
+                loop.call_at(loop.time() + self.delay_s, write, data)
         except (ConnectionError, asyncio.CancelledError):
-            sender.cancel()
             writer.close()
