@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from touch4d.messages import (
-    TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, Heartbeat, InputEvents, MessageError, MotorCommand,
+    TOPIC_TYPES, TYPES, ControllerState, HandJoints, HandPose, HandPoses, Heartbeat, InputEvents, MessageError, MotorCommand, MotorCommands,
     MotorStatus, MotorTrace, PhysicsContacts, PhysicsInput, SceneCommand, SceneState, Stop, StudyCommand, StudyResponse,
     StudyTrial, TactileField, decode, decoder, encode,
 )
@@ -30,6 +30,9 @@ EXAMPLES = [
     TactileField(positions=np.zeros((4, 3)), l=np.array([0.1, np.nan, 0.3, np.nan]), s=np.ones(4),
                  h=np.full(4, 0.5), alpha=1.0, beta=0.5, gamma=1.0),
     MotorCommand(names=["palm0", "palm1"], intensity=[0.0, 0.4]),
+    HandPoses(stamps=[10.0, 10.014], positions=[[0.1, -0.2, 0.3], [0.0, 0.0, 0.0]],
+              orientations=[[0, 0, 0.6, 0.8], [0, 0, 0, 1]], valid=np.array([True, False])),
+    MotorCommands(names=["grip"], source_stamps=[10.0, 10.014], intensity=[[0.4], [0.0]]),
     MotorStatus(boards=[dict(id=1, online=True, faults=[], last_frame=1.0, state="operational")],
                 duty=np.zeros(30), bus_load=0.21, errors={"send": 0}),
     Stop(reason="test", origin="pytest"),

@@ -201,7 +201,8 @@ def bad_values(tp) -> list:
     spec = typing.get_args(tp)[1] if typing.get_origin(tp) is typing.Annotated else None
     if isinstance(spec, ArraySpec):
         shape = [n or 2 for n in spec.shape]
-        out = [np.zeros(shape + [1]), np.zeros(shape, bool), np.zeros(shape).tolist(), "x"]
+        other = np.zeros(shape) if spec.dtype.kind == "b" else np.zeros(shape, bool)   # another dtype's kind
+        out = [np.zeros(shape + [1]), other, np.zeros(shape).tolist(), "x"]
         if spec.finite:
             out.append(np.full(shape, np.inf))
         if None not in spec.shape:

@@ -41,9 +41,10 @@ def assert_same(got, want, where: str) -> None:
 
 
 def test_the_log_holds_every_topic_type_of_its_time():
-    """The log was recorded before the study, physics and other-hand topics existed; it holds every other one."""
+    """The log was recorded before the study, physics, other-hand and served-page topics existed; it holds
+    every other one."""
     later = {"study/trial", "study/response", "study/command", "physics/contacts", "physics/journal",
-             "hand/joints/other"}
+             "hand/joints/other", "hand/poses", "tactile/played"}
     assert {topic for topic, *_ in MESSAGES} == set(TOPIC_TYPES) - later
 
 

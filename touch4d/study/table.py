@@ -53,11 +53,11 @@ def find_tables(where) -> list[Path]:
         return [where]
     if not where.is_dir():
         raise ConfigError("command line", "DIR", "a folder of session folders, a session folder or a trials.csv",
-                          got=str(where))
+                          detail=f"{where}: no such file or folder")
     found = sorted(where.rglob(TRIALS))
     if not found:
         raise ConfigError("command line", "DIR", f"a folder with at least one {TRIALS} (in it or below it)",
-                          got=str(where))
+                          detail=f"{where}: none in it or below it")
     return found
 
 
