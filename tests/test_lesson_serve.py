@@ -147,10 +147,17 @@ def test_links_pages_and_a_terminal_command_that_every_page_shows(tmp_path):
         run(scenario())
 
 
-def test_the_command_line_says_what_is_wrong(tmp_path):
-    def cli(*args):
-        return subprocess.run([sys.executable, "-m", "touch4d.cli", "lesson", *args], cwd=REPO, capture_output=True,
-                              text=True, timeout=60)
+def test_the_command_line_says_what_is_wrong(tmp_path, capsys, monkeypatch):
+    from types import SimpleNamespace
+
+    from touch4d.cli import main
+
+    monkeypatch.chdir(REPO)
+
+    def cli(*args):   # in this process: the command line's own parsing and errors, without an interpreter's start
+        code = main(["lesson", *args])
+        said = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=said.out, stderr=said.err)
 
     missing = cli("serve", "no/such/scene.yaml", "--out", str(tmp_path / "x"))
     assert missing.returncode == 2 and "no/such/scene.yaml" in missing.stderr
