@@ -163,6 +163,7 @@ class ServeOptions(msgspec.Struct, kw_only=True, frozen=True):
     complete_url: str | None = None          # where a participant who finished every trial goes
     completion_code: str | None = None       # appended to complete_url as ?cc=CODE (Prolific's)
     return_url: str | None = None            # where one who quits, or whose device fails the check, goes
+    glove_check: bool = True                 # at start, say which tasks the glove cannot tell (seconds of CPU)
 
 
 class StudyServer:
@@ -1098,7 +1099,7 @@ class StudyServer:
         _refuse_shared(self.out)
         raise_file_limit()      # each participant holds a socket, its trials.csv, its log and its lock
         with self._claim_out(), self._listen() as self._socket:
-            check = self._check_glove()
+            check = self._check_glove() if self.options.glove_check else None
             try:
                 with asyncio.Runner(loop_factory=new_event_loop) as runner:   # uvloop's where installed
                     runner.run(self._serve())

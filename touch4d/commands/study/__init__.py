@@ -135,6 +135,9 @@ def _add_serve(sub) -> None:
     serve.add_argument("--calibration", default="config/calibration.yaml", metavar="FILE",
                        help="where the screen stands in the room until a participant re-centres it")
     serve.add_argument("--iti", type=_nonnegative, default=0.6, metavar="S", help="blank time between trials (default 0.6)")
+    serve.add_argument("--no-glove-check", action="store_true",
+                       help="at start, do not say which tasks the glove cannot tell (a process of seconds of simulation "
+                            "at the lowest priority; `touch4d study check STUDY --glove FILE` says the same)")
     recruit = serve.add_argument_group("recruiting online (docs/serving.md, \"A remote study from serve to export\")")
     recruit.add_argument("--open-link", action="store_true",
                          help="print one link for many: each visitor becomes a participant of their own (P01, P02, "
@@ -482,7 +485,7 @@ def run_serve(args) -> int:
                                                          what="calibration file")))
     options = ServeOptions(host=args.host, port=args.port, max_participants=args.max_participants,
                            public_url=args.public_url, leave_after_s=args.leave_after, session=session,
-                           **recruit_options(args))
+                           glove_check=not args.no_glove_check, **recruit_options(args))
     server = StudyServer(_study(args.study), study_path, Path(args.out), options)
     return server.run()
 
