@@ -140,7 +140,7 @@ def brute_force(parts, points, eye_distance):
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scene=st.lists(objects, min_size=1, max_size=3), seed=st.integers(0, 2**31 - 1),
        perspective=st.booleans())
-# a ray through a chord of the second object shorter than the reference's 2.5 mm step, which it skips
+# a ray through a chord of the second object shorter than the reference's step (0.0025 screen units), which it skips
 @example(scene=[(0, 1.0, (0.0, 0.0, 0.0, 1.0), [0.0, 0.0, 0.0, 0.0, 1.0, 0.0]),
                 (5, 0.84375, (0.296875, 0.0, -0.1171875, 1.0), [0.0, 0.625, 0.0, 3.140625, 0.625, 0.0])],
          seed=0, perspective=False)
