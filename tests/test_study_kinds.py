@@ -181,6 +181,14 @@ TOY_KIND = textwrap.dedent('''
             parse_study({"name": "toy", "tasks": [bad]}, "toy.yaml")
         except ConfigError as exc:
             out.setdefault("errors", []).append([exc.key, exc.expected])
+
+    class HalfTask(Task, tag="half", kw_only=True):   # a kind that forgot its scenes: said at once, by name
+        def stimulus_set(self):
+            return []
+    try:
+        task_kinds()
+    except TypeError as exc:
+        out["half"] = str(exc)
     print(json.dumps(out))
 ''')
 
@@ -196,3 +204,4 @@ def test_a_new_kind_is_one_subclass_that_study_files_and_plans_take_up():
     assert out["errors"][0][0] == "tasks[0].spins" and "one of the keys of kind spin" in out["errors"][0][1]
     assert out["errors"][1] == ["tasks[0].kind", "one of front-element, look-alikes, tilt, spin"]
     assert out["errors"][2][0] == "tasks[0].spins_deg" and "length >= 1" in out["errors"][2][1]
+    assert "HalfTask ('half') defines no scene_files, scene_of" in out["half"]

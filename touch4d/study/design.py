@@ -120,16 +120,16 @@ class Task(msgspec.Struct, forbid_unknown_fields=True, frozen=True, tag_field="k
 
     def stimulus_set(self) -> list[Stimulus]:
         """The task's stimuli: name, level and correct answer of each, in the task's order."""
-        raise NotImplementedError
+        raise NotImplementedError(_untold(self, "stimulus_set"))
 
     def scene_files(self) -> list[tuple[str, str]]:
         """(key below the task, path) of every scene file the task names, for checking them."""
-        raise NotImplementedError
+        raise NotImplementedError(_untold(self, "scene_files"))
 
     def scene_of(self, stimulus: str) -> tuple[str, str] | None:
         """(key below the task, path) of the scene file behind the stimulus named `stimulus`; None if
         the task shows none of that name."""
-        raise NotImplementedError
+        raise NotImplementedError(_untold(self, "scene_of"))
 
     def turns(self, level: float) -> list[list]:
         """The turns ([plane, degrees]) a stimulus of `level` adds to every object before the jitter."""
@@ -238,14 +238,28 @@ def _check_plane(plane: str, key: str) -> None:
         raise schema.Invalid("a rotation plane (two of x, y, z, w)", plane, key, choices=PLANES) from None
 
 
+KIND_METHODS = ("stimulus_set", "scene_files", "scene_of")   # what every kind says of itself
+
+
+def _untold(task, method: str) -> str:
+    return (f"task kind {type(task).__name__} defines no {method} (every kind defines "
+            f"{', '.join(KIND_METHODS)}: docs/code-map.md, \"A study's task kind\")")
+
+
 def task_kinds() -> dict[str, type[Task]]:
     """Every task kind defined, by name: the subclasses of Task below it (those not `kind_base`), in the
-    order their classes were defined (a base's kinds in its place)."""
+    order their classes were defined (a base's kinds in its place). A kind that does not define
+    KIND_METHODS is a TypeError naming it and them, before any study file is read with it."""
     out: dict[str, type[Task]] = {}
 
     def walk(cls):
         for sub in cls.__subclasses__():
             if not vars(sub).get("kind_base"):
+                missing = [m for m in KIND_METHODS if getattr(sub, m) is getattr(Task, m)]
+                if missing:
+                    raise TypeError(f"task kind {sub.__name__} ({sub.__struct_config__.tag!r}) defines no "
+                                    f"{', '.join(missing)}: every kind defines {', '.join(KIND_METHODS)} "
+                                    "(docs/code-map.md, \"A study's task kind\")")
                 out[sub.__struct_config__.tag] = sub
             walk(sub)
 
