@@ -23,11 +23,11 @@ the link's token for a cookie on first load (touch4d.web.access).
 """
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
 from touch4d.bus import Node, Param
+from touch4d.deadline import Deadline
 from touch4d.errors import ConfigError
 from touch4d.messages import (ControllerState, HandJoints, HandPose, MotorCommand, MotorStatus, SceneState,
                               Stop, StudyResponse, StudyTrial, TactileField)
@@ -149,7 +149,7 @@ class WebXRNode(Node):
         # a placement to store) runs at its next deadline (WebBridge.next_due), re-armed after every
         # event, not on a timer at the frame rate: with pages sending at 72 Hz, a 90 Hz timer was a
         # second wake-up of the participant's process per input.
-        self._tick_timer, self._tick_due = None, math.inf
+        self._deadline = Deadline(self.call_later, self.bridge.now, self._tick)
         for topic, msg_type, callback, optional in (
                 ("scene/state", SceneState, self.bridge.on_scene, False),
                 ("hand/pose", HandPose, self.bridge.on_hand_pose, False),
@@ -250,26 +250,14 @@ class WebXRNode(Node):
         return run
 
     def _tick(self) -> None:
-        self._tick_timer = None
         try:
             self.bridge.tick()
         finally:
             self._schedule()
 
     def _schedule(self) -> None:
-        """Arm the one deadline at the bridge's next_due, unless one as early already stands (it
-        comes, ticks and re-arms: so an input that only moves a deadline later costs no timer)."""
-        due = self.bridge.next_due()
-        if self._tick_timer is not None:
-            if self._tick_due <= due:
-                return
-            self._tick_timer.cancel()
-            self._tick_timer = None
-        self._tick_due = due
-        if math.isfinite(due):
-            self._tick_timer = self.call_later(max(0.0, due - self.bridge.now()), self._tick)
-        elif due < 0:   # -inf: due now
-            self._tick_timer = self.call_later(0.0, self._tick)
+        """The one deadline at the bridge's next_due (touch4d.deadline: unless one as early stands)."""
+        self._deadline.arm(self.bridge.next_due())
 
     def _publish(self, topic: str, msg) -> None:
         self.publishers[topic].publish(msg)

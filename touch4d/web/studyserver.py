@@ -54,6 +54,7 @@ from aiohttp import web
 
 from touch4d.bus.heap import freeze_startup_heap
 from touch4d.configfile import COMMAND_LINE
+from touch4d.deadline import Deadline
 from touch4d.errors import ConfigError, Touch4dError
 from touch4d.eventloop import new_event_loop
 from touch4d.study.design import Study
@@ -131,8 +132,7 @@ class Participant:
     conn: int | None = None            # its page's WebSocket, while one is open
     last_heard: float = 0.0            # wall clock of the last message its page sent
     leave: asyncio.TimerHandle | None = field(default=None, repr=False)
-    tick: asyncio.TimerHandle | None = field(default=None, repr=False)   # its session's next deadline
-    tick_due: float = float("inf")
+    tick: Deadline | None = field(default=None, repr=False)   # its session's next deadline
     vibration: str | None = None       # what its welcome page found: headset, gamepad, none (None: not told)
     starting: asyncio.Future | None = field(default=None, repr=False)   # a join making its session now
     device: dict | None = None         # what its device check measured (devicecheck.parse_report), for the manifest
@@ -303,7 +303,6 @@ class StudyServer:
             p.leave = None
         if p.tick is not None:
             p.tick.cancel()
-            p.tick, p.tick_due = None, float("inf")
         p.life.stopped()
         session, p.session = p.session, None
         if p.conn is not None:
@@ -334,20 +333,13 @@ class StudyServer:
         self._schedule(p)
 
     def _schedule(self, p: Participant) -> None:
-        """One timer per session, at its next deadline (touch4d.web.served: ServedSession.next_due),
-        unless one as early stands: a participant costs the loop its own deadlines only."""
-        due = p.session.next_due()
-        if p.tick is not None:
-            if p.tick_due <= due:
-                return
-            p.tick.cancel()
-            p.tick = None
-        p.tick_due = due
-        if due != float("inf"):
-            p.tick = self._loop.call_later(max(0.0, due - time.time()), self._tick, p)
+        """One timer per session, at its next deadline (touch4d.web.served: ServedSession.next_due;
+        touch4d.deadline): a participant costs the loop its own deadlines only."""
+        if p.tick is None:
+            p.tick = Deadline(self._loop.call_later, time.time, lambda: self._tick(p))
+        p.tick.arm(p.session.next_due())
 
     def _tick(self, p: Participant) -> None:
-        p.tick, p.tick_due = None, float("inf")
         if p.session is None:
             return
         try:
