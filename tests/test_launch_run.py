@@ -195,3 +195,37 @@ def test_two_publishers_of_one_input_are_warned_by_the_launcher_and_the_monitor(
         run.wait_for_line(r"^\[monitor\].*WARNING.*example/pose has 2 publishers", timeout=5)
         assert run.stop(timeout=30) == 0
     assert run.text.count("warning: example/pose has 2 publishers") == 1   # said once
+
+
+def test_ctrl_c_while_the_broker_starts_stops_the_launch_with_nothing_started_and_the_broker_closed(monkeypatch):
+    """The first moments of `touch4d launch`: a Ctrl+C there is a stop like any other, not an
+    exception that leaves the broker's thread and sockets open (the interpreter then hangs at exit)."""
+    import io
+    import threading
+
+    from touch4d.bus import broker as broker_module
+    from touch4d.bus.config import BusConfig
+    from touch4d.bus.launcher import Launcher
+    from touch4d.bus.launchfile import load_launch
+
+    real_start = broker_module.Broker.start
+    started = []
+
+    def start_then_ctrl_c(self):
+        endpoints = real_start(self)
+        started.append(self)
+        os.kill(os.getpid(), signal.SIGINT)   # arrives in the middle of the launcher's start
+        return endpoints
+
+    monkeypatch.setattr(broker_module.Broker, "start", start_then_ctrl_c)
+    out = io.BytesIO()
+    nodes = load_launch("launch/example.yaml")
+    launcher = Launcher(nodes, BusConfig(pub_port=0, sub_port=0, source="<test>"), out=out)
+    before = signal.getsignal(signal.SIGINT)
+    assert launcher.run() == 0
+    text = out.getvalue().decode()
+    assert "stopping (SIGINT)" in text and text.rstrip().endswith("stopped"), text
+    assert all(child.proc is None for child in launcher.children.values()), "a node started after the Ctrl+C"
+    assert started and started[0]._thread is None
+    assert not [t for t in threading.enumerate() if t.name == "touch4d-broker"], "the broker's thread is still running"
+    assert signal.getsignal(signal.SIGINT) is before   # the caller's handler is back

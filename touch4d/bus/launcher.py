@@ -249,16 +249,8 @@ class Launcher:
     # ---- main loop ---------------------------------------------------------------------------
 
     def run(self) -> int:
-        realtime = any(s.realtime for c in self.children.values() for s in c.specs)  # the loop crosses the broker
-        broker = Broker(self.bus, realtime=realtime) if self.start_broker else None
-        endpoints = broker.start() if broker else self.bus
-        self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
-                     "PYTHONUNBUFFERED": "1"}
-        try:
-            watch = BrokerWatch(endpoints.for_clients())   # a broker that dies stops the launch, named
-            self._broker_lost = watch.lost
-        except ConfigError:
-            watch = None   # no client keys on this machine: nothing to watch with
+        # Ctrl+C from here on only sets the stop reason: one that came while the broker was starting
+        # would otherwise leave its sockets open and the interpreter waiting on them at exit.
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_r, False)
         os.set_blocking(wake_w, False)
@@ -266,7 +258,18 @@ class Launcher:
         handlers = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
         self._selector.register(wake_r, selectors.EVENT_READ, None)
+        broker = watch = None
         try:
+            realtime = any(s.realtime for c in self.children.values() for s in c.specs)  # the loop crosses the broker
+            broker = Broker(self.bus, realtime=realtime) if self.start_broker else None
+            endpoints = broker.start() if broker else self.bus
+            self._env = {**os.environ, ENV_VAR: endpoints.for_clients().to_json(), LAUNCHER_PID_ENV: str(os.getpid()),
+                         "PYTHONUNBUFFERED": "1"}
+            try:
+                watch = BrokerWatch(endpoints.for_clients())   # a broker that dies stops the launch, named
+                self._broker_lost = watch.lost
+            except ConfigError:
+                watch = None   # no client keys on this machine: nothing to watch with
             if self.files[0]:
                 self.say(f"launch file {self.files[0]}; bus config {self.files[1] or 'defaults'}"
                          + (f"; every topic under {self.namespace}/" if self.namespace else ""))
@@ -275,6 +278,8 @@ class Launcher:
                          f"{endpoints.sub_endpoint}{' (CURVE)' if endpoints.curve else ''}")
             self._open_watch(endpoints)
             for child in self.children.values():
+                if self._stop_reason is not None:
+                    break   # stopped while starting: start no more
                 self._spawn(child)
             nodes = sum(len(c.specs) for c in self.children.values())
             self.say(f"started {nodes} node(s)"
