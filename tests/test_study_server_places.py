@@ -54,8 +54,8 @@ def _serving(server: StudyServer, body) -> None:
                 serve.result()          # its failure, as it was raised
             await body(server)
         finally:
-            if server._stopping is not None:
-                server._stopping.set()
+            if server.stopping is not None:
+                server.stopping.set()
             await serve
     asyncio.run(main())
 
@@ -67,7 +67,7 @@ def _url(server: StudyServer) -> str:
 def _link(server: StudyServer, participant: str) -> str:
     """A participant's link, invited now (as `touch4d study invite` does) and adopted."""
     link = server.link(participant, Invites(server.out).issue(participant))
-    server._load_invites()
+    server.load_invites()
     return link
 
 
@@ -83,7 +83,7 @@ async def _closed(ws, timeout: float = 10) -> bool:
 
 
 def _state(server: StudyServer, participant: str) -> dict:
-    return next(s for s in server.status() if s["participant"] == participant)
+    return next(s for s in server.experimenter.status() if s["participant"] == participant)
 
 
 def test_a_link_revoked_from_the_command_line_stops_its_session_without_a_request(tmp_path):
@@ -276,7 +276,7 @@ def test_the_welcome_back_counts_whole_rows_as_the_study_node_does(tmp_path):
         f.write("P01,1,0,4,3")                                  # the fourth row, cut short
     server = _server(tmp_path)
     Invites(tmp_path).issue("P01")
-    server._load_invites()
+    server.load_invites()
     assert "3 trials are done" in server._welcome(server.participants["P01"])
     assert len(TrialsFile(tmp_path / "P01" / "trials.csv").done) == 3     # the study node agrees
 

@@ -87,7 +87,7 @@ async def _keep(result: dict, coroutine) -> None:
 def test_only_its_host_names_are_served_and_every_answer_has_the_security_headers_and_no_banner(tmp_path):
     server = _server(tmp_path, public_url="https://study.example.org/")
     token = Invites(tmp_path).issue("P01")
-    server._load_invites()
+    server.load_invites()
 
     async def body(server):
         port, local = server.port, f"127.0.0.1:{server.port}"

@@ -29,11 +29,9 @@ comes before consent; a device that fails it is not a participant (an open-link 
 from __future__ import annotations
 
 import asyncio
-import csv
 import errno
 import hmac
 import html
-import io
 import json
 import logging
 import os
@@ -64,13 +62,14 @@ from touch4d.study.manifest import update_manifest
 from touch4d.study.plan import order_table, participant_index, plan_session, quick_plan
 from touch4d.study.recruitment import (PENDING_S, PLATFORM_PARAMS, Place, Recruits, holds_row, identity,
                                        next_participant, platform_params, rows_filled)
-from touch4d.study.store import PARTICIPANT_ID, read_rows, rows_written, session_dir
+from touch4d.study.store import PARTICIPANT_ID, rows_written, session_dir
 
 from .access import HOLDER, Access, CookieGate, cross_site
 from .devicecheck import MAX_BODY as MAX_DEVICE_BODY, answered, failures, parse_report
+from .experimenterpage import ExperimenterPage
 from .hardening import ESCAPED, SECURITY_HEADERS, Hardening, host_name, raise_file_limit
 from .inbox import TokenBucket
-from .invites import EXPERIMENTER, Invites, check_participant
+from .invites import EXPERIMENTER, Invites
 from .served import ServedOptions, ServedSession, Shared
 from .server import STATIC_DIR, PageBounds, PageServer, static_names
 
@@ -83,9 +82,6 @@ PAGE_GRACE_S = 60.0           # after a join, its page connects within this (or 
 # its page's frames every 0.1 s and a frame every 0.25 s (bench/bench_serve.py: 512 took about 0.4 of
 # one core and 1.3 MB each on a 2-core machine); the rest of the core is the room for joins and trials.
 PARTICIPANTS_PER_CORE = 250
-ACTIONS = ("pause", "resume", "revoke")   # the experimenter's buttons on each participant's row
-# The experimenter's pages: participants' states, never cached; their address (once with the token) sent nowhere.
-NO_STORE = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"}
 HOLDER_RATE = 20.0            # requests per second and link, on average (a page's load is ~15 files once)
 HOLDER_BURST = 60             # and at most this many at once
 # The page server's headers on every answer, but forms post here (join, the experimenter's); scripts
@@ -99,7 +95,6 @@ STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
 # messages (touch4d.web.inbox: 20 at once). This long of them may come at once; a flood is still cut.
 PAGE_STALL_S = 10.0
 OPEN_RATE, OPEN_BURST = 2.0, 20   # participants the open link makes per second (on average, at once)
-EVENTS_PERIOD_S = 1.0         # the experimenter page's events (server-sent), this often
 DEVICE_FAILED = ("Thank you for your interest. This device did not pass the check this study needs (its "
                  "vibration, or its frame rate), so it cannot take part; you have not been counted as a "
                  "participant.")
@@ -201,7 +196,7 @@ class StudyServer:
         self._logged: set[str] = set()
         self._plan_lengths: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._stopping: asyncio.Event | None = None
+        self.stopping: asyncio.Event | None = None
         self._tokens: dict[str, str] | None = None    # OUT/invites.json as last adopted
         self._invites_signature: tuple | None = None   # and its file's (Invites.signature) then
         self._budgets: dict[str, TokenBucket] = {}   # each holder's requests (a flood of one slows no one else)
@@ -216,7 +211,8 @@ class StudyServer:
         self.open_key: str | None = None             # issued when it serves with --open-link
         self._open_budget = TokenBucket(OPEN_RATE, OPEN_BURST)
         self._param_names = tuple(dict.fromkeys((*PLATFORM_PARAMS, *o.id_params)))
-        self._load_invites()
+        self.experimenter = ExperimenterPage(self)   # its page: /experimenter and below
+        self.load_invites()
 
     # ---- links ---------------------------------------------------------------------------------
 
@@ -225,7 +221,7 @@ class StudyServer:
             return self.public_url.rstrip("/")
         return f"http://{self.host}:{self.port}"
 
-    def _load_invites(self) -> None:
+    def load_invites(self) -> None:
         """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
         revoked or replaced there ends its holder's cookies and its session. A file that cannot be read as
         links keeps the links adopted before (logged once)."""
@@ -236,7 +232,7 @@ class StudyServer:
         try:
             tokens = self.invites.load()
         except ValueError as exc:
-            self._log_once("invites", f"{exc}; keeping the links read before")
+            self.log_once("invites", f"{exc}; keeping the links read before")
             return
         if tokens == self._tokens:
             return
@@ -248,13 +244,13 @@ class StudyServer:
             self.access.revoke(holder)
             p = self.participants.get(holder)
             if p is not None:
-                if self._running(p):
-                    self._say(f"{holder}: link {'replaced' if holder in tokens else 'revoked'}; its session stops")
+                if self.is_running(p):
+                    self.say(f"{holder}: link {'replaced' if holder in tokens else 'revoked'}; its session stops")
                     self._stop_session(p)
                 if holder not in tokens:
                     p.life.revoke()
             elif holder == EXPERIMENTER and holder in tokens:
-                self._say("the experimenter's link was replaced: the old one and its browsers are refused")
+                self.say("the experimenter's link was replaced: the old one and its browsers are refused")
         for holder, token in tokens.items():
             if self.access.check(token) != holder:
                 self.access.issue(holder, token=token)
@@ -263,11 +259,11 @@ class StudyServer:
             elif holder not in self.participants:
                 self._add_participant(holder)
             else:
-                self.participants[holder].life.invited(self._rows(holder), self._planned(holder))
+                self.participants[holder].life.invited(self.rows(holder), self.planned(holder))
 
     def _add_participant(self, holder: str) -> "Participant":
         """A participant the server learns of (a link, or a folder of data): its life as its data say."""
-        life = Life.from_data(self._rows(holder), self._planned(holder), invited=holder in (self._tokens or {}))
+        life = Life.from_data(self.rows(holder), self.planned(holder), invited=holder in (self._tokens or {}))
         p = self.participants[holder] = Participant(holder, life=life)
         return p
 
@@ -313,7 +309,7 @@ class StudyServer:
             except (Touch4dError, OSError) as exc:
                 log.warning("%s: its session did not close cleanly: %s", p.id, exc)
 
-    def _running(self, p: Participant) -> bool:
+    def is_running(self, p: Participant) -> bool:
         return p.session is not None
 
     def running(self) -> int:
@@ -329,7 +325,7 @@ class StudyServer:
             p.rows_seen, p.since = len(session.trials.rows), time.time()
         if session.finished and p.life.state is State.RUNNING:
             p.life.finished()
-            self._say(f"{p.id} is done: every trial has its row")
+            self.say(f"{p.id} is done: every trial has its row")
         self._schedule(p)
 
     def _schedule(self, p: Participant) -> None:
@@ -351,7 +347,7 @@ class StudyServer:
 
     def _failed(self, p: Participant, exc: Exception) -> None:
         log.error("%s: its session stopped: %s", p.id, exc)
-        self._say(f"{p.id}: its session stopped on an error (see the log); its link resumes it")
+        self.say(f"{p.id}: its session stopped on an error (see the log); its link resumes it")
         self._stop_session(p)
 
     def command(self, participant: str, command: str, reason: str) -> None:
@@ -361,7 +357,7 @@ class StudyServer:
             p.session.command(command, reason)
             self._after(p)
 
-    def _tell(self, p: Participant, command: str | None, reason: str) -> None:
+    def tell(self, p: Participant, command: str | None, reason: str) -> None:
         """Carry out the command a life event returned (None: nothing to do)."""
         if command is not None:
             self.command(p.id, command, reason)
@@ -382,8 +378,8 @@ class StudyServer:
             p.leave = None
         p.session.connected(conn, self.pages.peer(conn))
         if p.life.page_gone:   # the server's own pause (no page): the page back undoes it, not the experimenter's
-            self._tell(p, p.life.page_opened(), "the participant's page is back")
-            self._say(f"{p.id}: its page is back; " + ("its trial stays paused (by the experimenter)" if p.life.held
+            self.tell(p, p.life.page_opened(), "the participant's page is back")
+            self.say(f"{p.id}: its page is back; " + ("its trial stays paused (by the experimenter)" if p.life.held
                                                          else "trial resumed"))
         self._after(p)
 
@@ -407,8 +403,8 @@ class StudyServer:
         if p.session is None:
             return
         p.session.closed(conn)
-        self._tell(p, p.life.page_closed(), "the participant's page closed")
-        self._say(f"{p.id}: its page closed; paused (its session stops in {self.leave_after_s:g} s unless it comes "
+        self.tell(p, p.life.page_closed(), "the participant's page closed")
+        self.say(f"{p.id}: its page closed; paused (its session stops in {self.leave_after_s:g} s unless it comes "
                   "back)")
         p.leave = self._loop.call_later(self.leave_after_s, self._left, p)
         self._after(p)
@@ -422,20 +418,20 @@ class StudyServer:
 
     def _left(self, p: Participant) -> None:
         p.leave = None
-        if p.conn is None and self._running(p):
+        if p.conn is None and self.is_running(p):
             self.counts["left"] += 1
-            self._say(f"{p.id} left: its session stops (its link resumes it)")
+            self.say(f"{p.id} left: its session stops (its link resumes it)")
             self._stop_session(p)
 
     # ---- HTTP ----------------------------------------------------------------------------------
 
-    def _say(self, text: str) -> None:
+    def say(self, text: str) -> None:
         """One line on the terminal (and the log) for what the experimenter follows: joins, leaves,
         pauses, refusals for a full study, shutdown."""
         print(f"{time.strftime('%H:%M:%S')} {text}", flush=True)
         log.info("%s", text)
 
-    def _log_once(self, cause: str, text: str) -> None:
+    def log_once(self, cause: str, text: str) -> None:
         if cause not in self._logged:
             self._logged.add(cause)
             log.warning("%s (further ones are only counted)", text)
@@ -443,14 +439,14 @@ class StudyServer:
     @web.middleware
     async def _refusals(self, request: web.Request, handler):
         """The gate's 403 (a forged, expired or revoked token) counted and logged once."""
-        self._load_invites()
+        self.load_invites()
         try:
             return await handler(request)
         except web.HTTPForbidden:
             if HOLDER in request:
                 raise   # a holder refused something further (a mismatched id): counted there
             self.counts["forged"] += 1
-            self._log_once("forged", f"refused a request with a forged, expired or revoked link ({request.path})")
+            self.log_once("forged", f"refused a request with a forged, expired or revoked link ({request.path})")
             raise
 
     @web.middleware
@@ -463,7 +459,7 @@ class StudyServer:
                 bucket = self._budgets[holder] = TokenBucket(HOLDER_RATE, HOLDER_BURST)
             if not bucket.spend(time.monotonic()):
                 self.counts["over budget"] += 1
-                self._log_once(f"budget {holder}", f"{holder}: over {HOLDER_RATE:g} requests a second; "
+                self.log_once(f"budget {holder}", f"{holder}: over {HOLDER_RATE:g} requests a second; "
                                "answering 429 for the rest")
                 raise web.HTTPTooManyRequests(text="touch4d: too many requests; wait a second\n",
                                               headers={"Retry-After": "1"})
@@ -474,7 +470,7 @@ class StudyServer:
         wanted = request.query.get("participant")
         if wanted is not None and wanted != holder:
             self.counts["mismatched"] += 1
-            self._log_once("mismatched", f"refused a link whose participant id ({wanted[:32]!r}) is not its token's")
+            self.log_once("mismatched", f"refused a link whose participant id ({wanted[:32]!r}) is not its token's")
             raise web.HTTPForbidden(text="touch4d: this link's participant id does not match its token.\n")
         if holder == EXPERIMENTER:
             raise web.HTTPFound("/experimenter")
@@ -487,13 +483,13 @@ class StudyServer:
         p = self._participant(request)
         if p.life.state is State.DONE and self.options.complete_url:
             raise web.HTTPSeeOther(self.completion_url())   # back to the recruitment platform, with its code
-        if self._running(p) and p.life.state in (State.RUNNING, State.DONE):
+        if self.is_running(p) and p.life.state in (State.RUNNING, State.DONE):
             return web.FileResponse(STATIC_DIR / "index.html")   # the WebXR page, its session's
         return web.Response(text=self._welcome(p), content_type="text/html")
 
     def _welcome(self, p: Participant) -> str:
         study = self.study
-        rows = self._rows(p.id)
+        rows = self.rows(p.id)
         paragraphs = lambda text: "".join(f"<p>{html.escape(t.strip())}</p>" for t in text.split("\n\n") if t.strip())  # noqa: E731
         go = "Continue" if rows else "Join"
         return (f"<!doctype html><html lang=en><head><meta charset=utf-8><meta name=viewport "
@@ -539,7 +535,7 @@ class StudyServer:
             p.vibration = vibration
             if vibration == "none":
                 judged = "refused" if self.study.without_vibration == "refuse" else "allowed"
-                self._say(f"{p.id}: its browser cannot vibrate ({judged} by the study's without_vibration)")
+                self.say(f"{p.id}: its browser cannot vibrate ({judged} by the study's without_vibration)")
         check = self.study.device_check
         if check is None:
             refused = vibration == "none" and self.study.without_vibration == "refuse"
@@ -560,7 +556,7 @@ class StudyServer:
         (an open-link visitor's id and link are freed, its platform id forgotten: it may try another device)."""
         if p.passed is not False:
             self.counts["device failed"] += 1
-            self._say(f"{p.id}: its device failed the check ({'; '.join(why)})")
+            self.say(f"{p.id}: its device failed the check ({'; '.join(why)})")
         p.passed = p.device["passed"] = False
         if self._free(p):
             return {"freed": True}
@@ -568,11 +564,11 @@ class StudyServer:
 
     def _free(self, p: Participant) -> bool:
         """An open-link participant with no folder (never joined) given up: its link and id free again."""
-        if not p.opened or self._running(p) or session_dir(self.out, p.id).exists():
+        if not p.opened or self.is_running(p) or session_dir(self.out, p.id).exists():
             return False
         self.invites.revoke(p.id)
         self.recruits.forget(p.id)
-        self._load_invites()          # its cookies end
+        self.load_invites()          # its cookies end
         self.participants.pop(p.id, None)
         self._budgets.pop(p.id, None)
         return True
@@ -596,7 +592,7 @@ class StudyServer:
         self._participant(request)
         return web.json_response({"time_ms": time.time() * 1000}, headers={"Cache-Control": "no-store"})
 
-    def _rows(self, participant: str) -> int:
+    def rows(self, participant: str) -> int:
         return rows_written(session_dir(self.out, participant))
 
 
@@ -624,19 +620,19 @@ class StudyServer:
 
     async def _start(self, p: Participant) -> tuple[int, str] | None:
         """Start a participant's session unless it runs: None, or the status and page that say why not."""
-        if self._running(p):
+        if self.is_running(p):
             return None
         if p.life.state is State.DONE:
             return 200, ("<!doctype html><html lang=en><meta charset=utf-8><title>Done</title><body><h1>Every "
                          "trial is done</h1><p>Thank you for taking part.</p></body></html>")
         if self.running() - 1 >= self.max_participants:    # itself (starting) not counted
             self.counts["full"] += 1
-            self._say(f"{p.id}: refused, the study is full ({self.running() - 1} of {self.max_participants} "
+            self.say(f"{p.id}: refused, the study is full ({self.running() - 1} of {self.max_participants} "
                       "running; --max-participants to change)")
             return 503, ("<!doctype html><html lang=en><meta charset=utf-8><title>Full</title><body><h1>The "
                          "study is full right now</h1><p>Every place is taken. Please open your link again in a "
                          "few minutes.</p></body></html>")
-        back = self._rows(p.id) > 0
+        back = self.rows(p.id) > 0
         self.counts["resumed" if back else "joined"] += 1
         p.life.join()      # revoked links never get here (the gate refused them)
         refusal = await self._start_session(p)
@@ -644,8 +640,8 @@ class StudyServer:
             return refusal
         p.since = time.time()
         self._record(p)
-        self._say(f"{p.id} {'is back' if back else 'joined'}; {self.running()} of {self.max_participants} running")
-        self._tell(p, p.life.ready(), "the experimenter")   # held before: paused again at once
+        self.say(f"{p.id} {'is back' if back else 'joined'}; {self.running()} of {self.max_participants} running")
+        self.tell(p, p.life.ready(), "the experimenter")   # held before: paused again at once
         self._after(p)
         self._await_page(p)
         return None
@@ -680,7 +676,7 @@ class StudyServer:
         key = request.query.get("key", "")
         if self.open_key is None or not hmac.compare_digest(key.encode(), self.open_key.encode()):
             self.counts["forged"] += 1
-            self._log_once("open", "refused a visit by an open link that is closed or not this server's")
+            self.log_once("open", "refused a visit by an open link that is closed or not this server's")
             raise web.HTTPForbidden(text="touch4d: this study's open link is closed\n")
         holder = request.get(HOLDER)
         if holder in self.participants:          # this browser was here before: its own page
@@ -709,11 +705,11 @@ class StudyServer:
         token = self.invites.issue(participant)
         if params:
             self.recruits.remember(who or f"{participant} (no platform id)", participant, params)
-        self._load_invites()
+        self.load_invites()
         p = self.participants[participant]
         p.opened, p.since = True, time.time()
         self.counts["open link"] += 1
-        self._say(f"{participant}: made by the open link (counterbalancing row {row + 1})")
+        self.say(f"{participant}: made by the open link (counterbalancing row {row + 1})")
         raise web.HTTPSeeOther(f"/?participant={quote(participant)}&token={token}")
 
     def _free_stale(self) -> None:
@@ -734,7 +730,7 @@ class StudyServer:
         now = time.time()
         if total is not None and sum(holds_row(place, now, self.leave_after_s) for place in self._places()) >= total:
             self.counts["total reached"] += 1
-            self._log_once("total", f"the open link turned a visitor away: {total} participants done or under way "
+            self.log_once("total", f"the open link turned a visitor away: {total} participants done or under way "
                            "(--max-total)")
             return self._open_page(503, "The study has all its participants", "Thank you for your interest: "
                                    "this study needs no more participants.")
@@ -763,8 +759,8 @@ class StudyServer:
         if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: from another site refused\n")
         self.counts["quit"] += 1
-        self._say(f"{p.id} quit")
-        if self._running(p):
+        self.say(f"{p.id} quit")
+        if self.is_running(p):
             self._stop_session(p)
         self._free(p)
         if self.options.return_url:
@@ -776,7 +772,7 @@ class StudyServer:
         if name not in STATIC_NAMES:   # an over-long name, a folder, a `..`: never looked for
             raise web.HTTPNotFound(text="touch4d: no such file\n")
         p = self._participant(request)
-        if not self._running(p):
+        if not self.is_running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         return web.FileResponse(STATIC_DIR / name)
 
@@ -787,46 +783,24 @@ class StudyServer:
         p = self._participant(request)
         if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
-        if not self._running(p):
+        if not self.is_running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         if p.conn is not None:
             self.counts["second page"] += 1
-            self._log_once(f"second {p.id}", f"{p.id}: a second page refused while one is open")
+            self.log_once(f"second {p.id}", f"{p.id}: a second page refused while one is open")
             return web.Response(status=503, text="touch4d: this link is open in another page already; close it "
                                                  "and reload\n")
         return await self.pages.websocket(request)
 
-    # ---- the experimenter's page ---------------------------------------------------------------
+    # ---- the experimenter's page: touch4d.web.experimenterpage ----------------------------------
 
-    def _experimenter_only(self, request: web.Request) -> None:
-        if request[HOLDER] != EXPERIMENTER:
-            raise web.HTTPForbidden(text="touch4d: the experimenter's link only\n")
-
-    def _planned(self, participant: str) -> int:
+    def planned(self, participant: str) -> int:
         """How many trials the participant's session has (its plan: a pure function of study and id)."""
         if participant not in self._plan_lengths:
             plan = (quick_plan if self.quick else plan_session)(self.study, participant)
             self._plan_lengths[participant] = len(plan)
         return self._plan_lengths[participant]
 
-    def status(self) -> list[dict]:
-        """Every participant: state (and who paused it), trials done of planned, the trial now, seconds
-        since its page was last heard."""
-        now = time.time()
-        out = []
-        for p in sorted(self.participants.values(), key=lambda p: p.id):
-            t = p.session.trial if self._running(p) else None
-            page = p.session.page if self._running(p) else {}
-            rows = self._rows(p.id)
-            out.append({"participant": p.id, "state": p.life.shown(), "paused_by": p.life.paused_by,
-                        "vibration": p.vibration, "pages": p.pages,
-                        "rows": rows, "planned": self._planned(p.id),
-                        "trial": None if t is None or t.index < 0 else t.index + 1,
-                        "of": None if t is None else t.total, "phase": None if t is None else t.phase,
-                        "fps": page["fps"][-1] if page.get("fps") else None,
-                        "counts": dict(p.session.counts) if self._running(p) else None,
-                        "last_heard_s": None if not p.last_heard else round(now - p.last_heard, 1)})
-        return out
 
     def _adopt_folders(self) -> None:
         """Participants with a session folder in OUT but no link now (revoked before a restart) are
@@ -840,147 +814,6 @@ class StudyServer:
                     and any((self.out / name / f).exists() for f in ("manifest.json", "trials.csv")):
                 self._add_participant(name)
 
-    def _table(self) -> str:
-        """The participants' table (the experimenter's page, and what its script fetches each second)."""
-        cell = lambda value, unit="": "-" if value is None else f"{html.escape(str(value))}{unit}"  # noqa: E731
-        buttons = lambda who: "".join(  # noqa: E731
-            f"<form method=post action=/experimenter/{action}><input type=hidden name=participant "
-            f"value='{html.escape(who, quote=True)}'><button>{action}</button></form>" for action in ACTIONS)
-        rows = "".join(
-            f"<tr data-state={s['state']}><td>{html.escape(s['participant'])}</td>"
-            f"<td>{s['state']}{'' if s['paused_by'] is None else ' by ' + html.escape(s['paused_by'])}</td>"
-            f"<td>{s['rows']} of {s['planned']}</td><td>{cell(s['trial'])} of {cell(s['of'])}</td>"
-            f"<td>{cell(s['phase'])}</td><td>{cell(s['vibration'])}</td><td>{cell(s['fps'])}</td>"
-            f"<td>{cell(s['last_heard_s'], ' s')}</td>"
-            f"<td>{'' if s['state'] == 'revoked' else buttons(s['participant'])}</td></tr>"
-            for s in self.status())
-        summary = self.summary()
-        states = ", ".join(f"{n} {html.escape(state)}" for state, n in summary["states"].items()) or "none yet"
-        orders = " ".join(f"{'/'.join(html.escape(c) for c in order)}: {n};"
-                          for order, n in zip(order_table(self.study), summary["rows_filled"]))
-        return (f"<p id=summary>{self.running()} of {self.max_participants} running; refused while full: "
-                f"{self.counts['full']}; refused, cannot vibrate: {self.counts['no vibration']}</p>"
-                f"<p id=recruitment>participants: {states}; trials done: {summary['trials_done']}; device check "
-                f"failed: {self.counts['device failed']}; quit: {self.counts['quit']}; counterbalancing rows "
-                f"filled (done or under way): {orders} <a href=/experimenter/trials.csv download>all trials "
-                "(CSV)</a></p><table "
-                "id=participants><tr><th>participant</th><th>state</th><th>trials done</th><th>trial now</th>"
-                f"<th>phase</th><th>vibration</th><th>frame rate</th><th>last heard</th><th></th></tr>{rows}</table>")
-
-    def summary(self) -> dict:
-        """The study at a glance: participants by state, trials done, each counterbalancing row's
-        participants (done or under way), the open link's state."""
-        states: dict[str, int] = {}
-        for p in sorted(self.participants.values(), key=lambda p: p.id):
-            states[p.life.shown()] = states.get(p.life.shown(), 0) + 1
-        return {"states": states, "trials_done": sum(self._rows(who) for who in self.participants),
-                "rows_filled": self.rows_filled(), "open_link": self.open_key is not None}
-
-    def _view(self) -> dict:
-        """The experimenter's page as data (?format=json, and each server-sent event)."""
-        return {"participants": self.status(), "counts": self.counts, "running": self.running(),
-                "max_participants": self.max_participants, "summary": self.summary()}
-
-    async def _experimenter(self, request: web.Request) -> web.StreamResponse:
-        self._experimenter_only(request)
-        form = request.query.get("format")
-        if form == "json":
-            return web.json_response(self._view(), headers=NO_STORE)
-        if form == "table":
-            return web.Response(content_type="text/html", text=self._table(), headers=NO_STORE)
-        name = html.escape(self.study.name)
-        return web.Response(content_type="text/html", headers=NO_STORE, text=(
-            f"<!doctype html><html lang=en><meta charset=utf-8><meta name=referrer content=no-referrer>"
-            f"<title>{name}: participants</title><body><h1>{name}: participants</h1><div id=live>{self._table()}</div>"
-            f"<form method=post action=/experimenter/invite><input name=participant placeholder=P07>"
-            f"<button>invite</button></form>"
-            + ("<form method=post action=/experimenter/close-open><button>close the open link</button></form>"
-               if self.open_key is not None else "")
-            + "<script src=/experimenter.js></script></body></html>"))
-
-    def _still_experimenter(self, request: web.Request) -> bool:
-        """Whether the request's cookie (or token) is still the experimenter's (a replaced link ends it)."""
-        cookie = request.cookies.get(self.gate.cookie)
-        if cookie is not None and self.access.session_holder(cookie) == EXPERIMENTER:
-            return True
-        return self.access.check(request.query.get("token")) == EXPERIMENTER
-
-    async def _events(self, request: web.Request) -> web.StreamResponse:
-        """The experimenter's page live (server-sent events, text/event-stream): the table and the data
-        each EVENTS_PERIOD_S, until the page goes, its link is replaced, or the server stops."""
-        self._experimenter_only(request)
-        response = web.StreamResponse(headers={**NO_STORE, "Content-Type": "text/event-stream",
-                                               "X-Accel-Buffering": "no"})   # nginx: no buffering of the stream
-        await response.prepare(request)
-        try:
-            while self._still_experimenter(request):
-                event = json.dumps({**self._view(), "table": self._table()})
-                await response.write(f"data: {event}\n\n".encode())
-                try:
-                    await asyncio.wait_for(self._stopping.wait(), EVENTS_PERIOD_S)
-                    break
-                except asyncio.TimeoutError:
-                    pass
-        except (ConnectionError, asyncio.CancelledError):
-            pass
-        return response
-
-    async def _trials_csv(self, request: web.Request) -> web.StreamResponse:
-        """Every participant's trials.csv, one after another under one header (the columns of all)."""
-        self._experimenter_only(request)
-        return web.Response(body=await asyncio.to_thread(self._all_trials), content_type="text/csv", charset="utf-8",
-                            headers={**NO_STORE, "Content-Disposition": 'attachment; filename="trials.csv"'})
-
-    def _all_trials(self) -> bytes:
-        columns: dict[str, None] = {}
-        rows: list[dict] = []
-        for who in sorted(self.participants):
-            header, theirs = read_rows(session_dir(self.out, who))
-            columns.update(dict.fromkeys(header))
-            rows += theirs
-        text = io.StringIO()
-        writer = csv.DictWriter(text, fieldnames=list(columns), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-        return text.getvalue().encode()
-
-    async def _experimenter_script(self, request: web.Request) -> web.StreamResponse:
-        self._experimenter_only(request)
-        return web.FileResponse(STATIC_DIR / "experimenter.js", headers=NO_STORE)
-
-    async def _experimenter_action(self, request: web.Request) -> web.StreamResponse:
-        self._experimenter_only(request)
-        if cross_site(request):   # a form on another site posting with the experimenter's cookie
-            self._log_once("cross-site", "refused an experimenter action posted from another site")
-            raise web.HTTPForbidden(text="touch4d: actions from another site refused\n")
-        form = await request.post()
-        participant = str(form.get("participant", ""))
-        action = request.match_info["action"]
-        if action == "close-open":
-            if self.open_key is not None:
-                self.recruits.close()
-                self.open_key = None
-                self._say("the open link was closed by the experimenter")
-            raise web.HTTPSeeOther("/experimenter")
-        if action == "invite":
-            try:
-                token = self.invites.issue(check_participant(participant))   # never the experimenter's
-            except ValueError as exc:
-                raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
-            self._load_invites()
-            link = self.link(participant, token)
-            return web.Response(content_type="text/html", text=f"<!doctype html><p>{html.escape(link)}</p>"
-                                                                 "<p><a href=/experimenter>back</a></p>")
-        p = self.participants.get(participant)
-        if p is None:
-            raise web.HTTPNotFound(text="touch4d: no such participant\n")
-        if action in ("pause", "resume"):
-            self._tell(p, p.life.experimenter(action), "the experimenter")
-        elif action == "revoke":
-            self.invites.revoke(p.id)
-            self._load_invites()       # ends its cookies and its session (it shows as revoked)
-            self._say(f"{p.id}: link revoked by the experimenter")
-        raise web.HTTPSeeOther("/experimenter")
 
     def link(self, participant: str, token: str) -> str:
         return participant_link(self.base_url(), participant, token)
@@ -992,30 +825,25 @@ class StudyServer:
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
         if self.options.open_link:
             self.open_key = self.recruits.open()
-        self._load_invites()
+        self.load_invites()
         self._adopt_folders()
         self._loop = asyncio.get_running_loop()
         self.pages.mount(self._loop)
-        self._stopping = asyncio.Event()
+        self.stopping = asyncio.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
-            self._loop.add_signal_handler(sig, self._stopping.set)
+            self._loop.add_signal_handler(sig, self.stopping.set)
         app = self.hardening.application([self._refusals, self.gate.middleware, self._budget])
         app.router.add_get("/", self._index)
         app.router.add_post("/join", self._join)
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/static/{path:.*}", self._static)
-        app.router.add_get("/experimenter", self._experimenter)
-        app.router.add_get("/experimenter.js", self._experimenter_script)
         app.router.add_get("/welcome.js", self._welcome_script)
         app.router.add_post("/device", self._device)
         app.router.add_get("/clock", self._clock)
         app.router.add_get("/open", self._open)
         app.router.add_get("/done", self._done)
         app.router.add_post("/quit", self._quit)
-        app.router.add_get("/experimenter/events", self._events)
-        app.router.add_get("/experimenter/trials.csv", self._trials_csv)
-        app.router.add_post("/experimenter/{action:%s}" % "|".join((*ACTIONS, "invite", "close-open")),
-                            self._experimenter_action)
+        self.experimenter.add_routes(app)
         runner = self.hardening.runner(app)
         await runner.setup()
         site = web.SockSite(runner, sock)
@@ -1029,23 +857,23 @@ class StudyServer:
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
         watch = asyncio.ensure_future(self._watch_invites())
         try:
-            await self._stopping.wait()
+            await self.stopping.wait()
         finally:
             watch.cancel()
-            self._say(f"stopping: {self.running()} running participants' sessions stop (each resumes at its next "
+            self.say(f"stopping: {self.running()} running participants' sessions stop (each resumes at its next "
                       "trial when its link is opened again)")
             for p in self.participants.values():
                 if p.session is not None:
                     self._stop_session(p)
             await runner.cleanup()
-            self._say("stopped")
+            self.say("stopped")
 
     async def _watch_invites(self, period_s: float = 1.0) -> None:
         """A link revoked with `touch4d study invite --revoke` ends its session within `period_s`,
         whether or not anyone makes a request."""
         while True:
             await asyncio.sleep(period_s)
-            self._load_invites()
+            self.load_invites()
 
     def _check_glove(self) -> subprocess.Popen | None:
         """Say on the terminal which tasks the participants' glove cannot tell (`study check --glove`,
@@ -1062,7 +890,7 @@ class StudyServer:
         def relay() -> None:
             for line in check.stdout:
                 if line.startswith("warning:"):
-                    self._say(line.rstrip("\n"))
+                    self.say(line.rstrip("\n"))
             check.wait()
         threading.Thread(target=relay, name="glove-check", daemon=True).start()
         return check
