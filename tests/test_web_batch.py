@@ -6,16 +6,10 @@ buttons are told when they change. Each case's answer is written out here, not c
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
 
-import pytest
-
-from touch4d.configfile import CONFIG_DIR
+from pagejs import run_page_module
 from touch4d.web.bridge import ANSWER_BUTTONS
 from touch4d.web.protocol import MAX_BATCH, parse_page_message
-
-STATIC = CONFIG_DIR.parent / "touch4d" / "web" / "static"
 
 RUN = """
 import { Batch, buttonActions, MAX_BATCH } from './batch.mjs';
@@ -39,15 +33,7 @@ process.stdout.write(JSON.stringify(out));
 
 
 def run(tmp_path, payload):
-    node = shutil.which("node") or shutil.which("nodejs")
-    if node is None:
-        pytest.skip("no node.js here (./dev test installs npm, which brings it)")
-    (tmp_path / "batch.mjs").write_text((STATIC / "batch.js").read_text())
-    (tmp_path / "run.mjs").write_text(RUN)
-    done = subprocess.run([node, str(tmp_path / "run.mjs")], input=json.dumps(payload), capture_output=True,
-                          text=True, timeout=60, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
+    return run_page_module(tmp_path, "batch", RUN, payload)
 
 
 HAND = {"position": [0.1, 0.2, 0.3], "orientation": [0, 0, 0, 1]}

@@ -6,14 +6,12 @@ upward flapping). Load gone: back up to the node's setting. The setting reaches 
 setup frame (framebuffer_scale, foveation, pacing); the browser side: test_web_pacing_browser."""
 from __future__ import annotations
 
-import json
 import re
-import shutil
-import subprocess
 
 import pytest
 
-from test_web_touch import CALIBRATION, STATIC
+from pagejs import run_page_module
+from test_web_touch import CALIBRATION
 from touch4d.bus.params import check_params
 from touch4d.errors import ConfigError
 from touch4d.nodes.webxr import WebXRNode
@@ -54,16 +52,8 @@ HZ72, HZ45, HZ90 = 1000 / 72, 1000 / 45, 1000 / 90
 
 
 def run_pacing(tmp_path, scenarios: list[dict]) -> list[dict]:
-    node = shutil.which("node") or shutil.which("nodejs")
-    if node is None:
-        pytest.skip("no node.js here (./dev test installs npm, which brings it)")
-    (tmp_path / "pacing.mjs").write_text((STATIC / "pacing.js").read_text())
-    (tmp_path / "run.mjs").write_text(RUN)
     scenarios = [{"scale": 1.0, "foveation": 0.5, "adaptive": True, **s} for s in scenarios]
-    done = subprocess.run([node, str(tmp_path / "run.mjs")], input=json.dumps({"scenarios": scenarios}),
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
+    return run_page_module(tmp_path, "pacing", RUN, {"scenarios": scenarios})
 
 
 def test_on_time_frames_are_never_lowered(tmp_path):

@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
 
 from gpu_tactile_cases import quaternion_of
+from pagejs import run_page_module
 from touch4d.configfile import CONFIG_DIR
 from touch4d.tactile import load_glove
 from touch4d.tactile.stimulus import stimulus_of_distances
@@ -22,7 +21,6 @@ from touch4d.web.bridge import BridgeConfig, WebBridge
 from touch4d.web.haptics import haptic_level
 from touch4d.web.protocol import unpack_frame
 
-STATIC = CONFIG_DIR.parent / "touch4d" / "web" / "static"
 GLOVES = {"glove": CONFIG_DIR / "glove.yaml", "controller": CONFIG_DIR / "gloves" / "quest-controller.yaml"}
 
 RUN = """
@@ -40,15 +38,7 @@ process.stdout.write(JSON.stringify({ out, hands }));
 
 
 def run_page_model(tmp_path, payload: dict) -> dict:
-    node = shutil.which("node") or shutil.which("nodejs")
-    if node is None:
-        pytest.skip("no node.js here (./dev test installs npm, which brings it)")
-    (tmp_path / "touch.mjs").write_text((STATIC / "touch.js").read_text())
-    (tmp_path / "run.mjs").write_text(RUN)
-    done = subprocess.run([node, str(tmp_path / "run.mjs")], input=json.dumps(payload), capture_output=True,
-                          text=True, timeout=60, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
+    return run_page_module(tmp_path, "touch", RUN, payload)
 
 
 # a screen turned and off-centre, a hand off the grip and turned on it: every term of the transform counts
