@@ -137,7 +137,7 @@ def test_a_motor_command_with_nan_counts_it_as_zero():
 def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_overrides_win(tmp_path):
     from touch4d.bus.launchfile import load_launch
     from touch4d.cli import build_parser
-    from touch4d.study.session import STUDY_LAUNCH, session_overrides
+    from touch4d.study.session import STUDY_LAUNCH, SessionOptions, session_overrides
 
     # as touch4d.cli reads a command line: overrides after the options come back unknown and join the rest
     args, extra = build_parser("study").parse_known_args(["study", "run", "config/studies/paper.yaml", "--simulate",
@@ -146,8 +146,8 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
     args.items.extend(extra)
     assert args.items == ["renderer:=renderer", "study.iti_s:=1.5"]
     # an id YAML would read as a boolean reaches the nodes as the text it is
-    overrides = session_overrides("config/studies/paper.yaml", "true", tmp_path, quick=True, simulate=True, seed=3,
-                                  user=args.items)
+    overrides = session_overrides("config/studies/paper.yaml", "true", tmp_path,
+                                  SessionOptions(quick=True, simulate=True, seed=3), user=args.items)
     nodes = load_launch(STUDY_LAUNCH, [*overrides, *args.items])
     assert "monitor" not in nodes        # a simulation runs without what nobody watches, unless asked
     assert nodes["tracker"].module == "study_observer" and nodes["renderer"].module == "renderer"
@@ -162,8 +162,8 @@ def test_the_overrides_of_a_run_are_valid_for_the_study_launch_file_and_user_ove
     assert person["tracker"].module == "desktop" and person["study"].params["participant"] == "007"
     # a counterbalancing row and the simulation's settings reach the study node (and the observer's plan)
     settings = {"mode": "full stack", "noise": 0.08, "tracker": ["tracker.pace:=0.1"]}
-    picked = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "bob", tmp_path, order=3,
-                                                         simulate=True, simulation=settings))
+    picked = load_launch(STUDY_LAUNCH, session_overrides("config/studies/paper.yaml", "bob", tmp_path, SessionOptions(
+        order=3, simulate=True, simulation=settings)))
     assert picked["study"].params["order"] == 3 and picked["tracker"].params["order"] == 3
     assert json.loads(picked["study"].params["simulation"]) == settings
 

@@ -103,11 +103,13 @@ class SessionOptions(msgspec.Struct, frozen=True, kw_only=True):
     bus: str | None = None             # a bus config file for the launch (not with `simulate`: its bus is private)
 
 
-def session_overrides(study_path, participant: str, out, *, session: str = "1", quick: bool = False,
-                      simulate: bool = False, seed: int | None = None, order: int | None = None,
-                      simulation: dict | None = None, user: list[str] = ()) -> list[str]:
-    """The launch overrides that make launch/study.yaml run `participant`'s session into OUT. A
+def session_overrides(study_path, participant: str, out, options: SessionOptions = SessionOptions(),
+                      user: list[str] = ()) -> list[str]:
+    """The launch overrides that make launch/study.yaml run `participant`'s session into OUT as
+    `options` say (its session, quick, a simulation's observer, seed, order and settings). A
     simulation drops the renderer and the monitor unless the `user` overrides (which follow) name them."""
+    o = options
+    session, quick, simulate, seed, order, simulation = o.session, o.quick, o.simulate, o.seed, o.order, o.simulation
     directory = session_dir(out, participant)
     text = lambda value: json.dumps(str(value))   # noqa: E731 - a YAML string whatever it looks like
     flag = "true" if quick else "false"
@@ -151,9 +153,7 @@ def run_session(study_path, participant: str, out, overrides: list[str] = (), *,
     o = options
     simulate, timeout_s = o.simulate, o.timeout_s
     directory = session_dir(out, participant)
-    args = [o.launch, *session_overrides(study_path, participant, out, session=o.session, quick=o.quick,
-                                         simulate=simulate, seed=o.seed, order=o.order, simulation=o.simulation,
-                                         user=overrides), *overrides]
+    args = [o.launch, *session_overrides(study_path, participant, out, o, user=overrides), *overrides]
     with nullcontext() if o.locked else claim_session(directory), tempfile.TemporaryDirectory(prefix="touch4d-study-") as tmp, stop_on_signals():
         ready = Path(tmp) / "bus.json"
         bus_args = []
