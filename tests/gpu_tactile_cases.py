@@ -13,9 +13,10 @@ SHAPES = ("tesseract", "5-cell", "16-cell", "24-cell", "pyramid", "hollow-front"
 PLANES = ("xy", "xz", "xw", "yz", "yw", "zw")
 
 
-def random_scene(rng: np.random.Generator, projection: str | None = None):
+def random_scene(rng: np.random.Generator, projection: str | None = None, slice_w: float | None = None):
     """One to three objects in front of the screen, each turned in a few planes; orthographic or
-    perspective (eye 3 units behind the screen)."""
+    perspective (eye 3 units behind the screen); with `slice_w`, the slice view touching its
+    cross-section there."""
     objects = []
     for _ in range(int(rng.integers(1, 4))):
         steps = [[str(PLANES[k]), float(rng.uniform(-180, 180))] for k in rng.choice(6, size=3, replace=False)]
@@ -23,7 +24,8 @@ def random_scene(rng: np.random.Generator, projection: str | None = None):
                         "position": [*(float(v) for v in rng.uniform(-0.4, 0.4, 3)), float(rng.uniform(1.2, 2.2))],
                         "rotation": steps})
     projection = projection or str(rng.choice(["orthographic", "perspective"]))
-    return parse_scene({"objects": objects, "projection": projection, "eye_distance": 3.0})
+    view = {} if slice_w is None else {"view": "slice", "slice_w": float(slice_w), "slice_touch": "section"}
+    return parse_scene({"objects": objects, "projection": projection, "eye_distance": 3.0, **view})
 
 
 def quaternion_of(axis_angles) -> np.ndarray:

@@ -271,6 +271,8 @@ def test_interrupt_returns_from_spin_without_shutting_down_and_the_next_spin_spi
     ex.spin(5.0)
     assert time.monotonic() - start < 1.0
     ticks.clear()
+    start = time.monotonic()
     ex.spin(0.2)                                              # no interrupt left over: it spins its time
-    assert len(ticks) >= 10
+    # (its timer fires meanwhile; how often, a loaded machine decides)
+    assert time.monotonic() - start >= 0.2 - 1e-3 and len(ticks) >= 2
     ex.close()

@@ -103,6 +103,9 @@ def test_a_students_own_slice_is_theirs_alone_until_the_teacher_locks_it():
     mine, mine_arrays = pages.last(S1, "frame")
     theirs, theirs_arrays = pages.last(S2, "frame")
     assert mine["slice_w"] == 1.7 and theirs["slice_w"] == CLASS_W
+    # each page touches the cross-section it shows: its own cut, the class's
+    assert mine["touch_section"] and mine["touch_w"] == 1.7
+    assert theirs["touch_section"] and theirs["touch_w"] == CLASS_W
     expected = SceneView(view="slice", slice_w=1.7)
     expected.set_scene(lesson.control.message())
     assert np.allclose(mine_arrays["section"], np.asarray(expected.section, np.float32).ravel())
@@ -120,6 +123,7 @@ def test_a_students_own_slice_is_theirs_alone_until_the_teacher_locks_it():
     lesson.command("unlock")
     lesson.message(S1, json.dumps({"type": "own", "view": "both", "slice": 1.9}), 0.0)
     assert pages.last(S1, "frame")[0]["slice_w"] == 1.9 and pages.last(S1, "frame")[0]["view"] == "both"
+    assert not pages.last(S1, "frame")[0]["touch_section"]   # the both view: the projection is touched
 
 
 @pytest.mark.parametrize("verb, argument, expected", [

@@ -9,7 +9,6 @@ import pytest
 from gpu_tactile_cases import random_pose, random_scene
 from touch4d.configfile import CONFIG_DIR
 from touch4d.geometry.scene import parse_scene
-from touch4d.render.context import RenderError
 from touch4d.render.tactile import GpuTactile
 from touch4d.tactile import compute_stimulus, load_glove
 
@@ -58,7 +57,44 @@ def test_a_hand_outside_the_screen_or_before_any_object_feels_nothing(gpu):
     assert inside.any() and np.allclose(st.l[inside], 1.0, atol=1e-5)
 
 
-def test_a_slice_view_touching_its_section_is_refused_by_name(gpu):
-    scene = parse_scene({"objects": [{"shape": "tesseract", "position": [0, 0, 0, 1.5]}], "view": "slice"})
-    with pytest.raises(RenderError, match="cross-section"):
+@pytest.mark.parametrize("glove_name", sorted(GLOVES))
+def test_in_a_slice_view_the_gpu_touches_the_cross_section_as_the_cpu_model(gpu, glove_name):
+    """The slice view that touches its section: a sample whose point of the cut lies in an object
+    touches it at l = 0 (touch4d.geometry.section.SectionCaster), cuts across the objects' w extent,
+    orthographic and perspective (where the screen point stands for the world point scaled by
+    (d + c) / d), and one cut in front of the screen."""
+    glove = load_glove(GLOVES[glove_name])
+    rng = np.random.default_rng(20261207)
+    touching, worst = 0, 0.0
+    for k in range(12):
+        scene = random_scene(rng, slice_w=-0.2 if k == 0 else float(rng.uniform(0.6, 2.8)))
+        assert scene.touches_section
         gpu.set_scene(scene.to_message())
+        caster = scene.ray_caster()
+        for _ in range(15):
+            position, orientation = random_pose(rng)
+            cpu = compute_stimulus(glove, caster, position, orientation)
+            got = gpu.stimulus(glove, position, orientation)
+            # the same samples touched (a point on a section's boundary may go either way in float32)
+            assert np.count_nonzero(cpu.touched != got.touched) <= 1
+            both = cpu.touched & got.touched
+            assert np.all(got.l[both] == 0) and np.array_equal(got.hit[both], cpu.hit[both])
+            worst = max(worst, float(np.abs(got.V - cpu.V).max()))
+            touching += bool(cpu.V.max() > 0.05)
+    assert worst <= 0.01, f"a motor differs by {worst:.4f} of full drive"
+    assert touching >= 40, f"only {touching} of 180 poses touch a section: the cases prove little"
+
+
+def test_a_cut_behind_the_eye_or_beside_every_object_touches_nothing(gpu):
+    glove = load_glove(GLOVES["glove"])
+    tesseract = {"shape": "tesseract", "size": 1.0, "position": [0, 0, 0, 1.5]}
+    for spec in ({"slice_w": 1.5}, {"slice_w": 0.9}, {"slice_w": 2.1},
+                 {"slice_w": -3.5, "projection": "perspective", "eye_distance": 3.0}):
+        scene = parse_scene({"objects": [tesseract], "view": "slice", **spec})
+        gpu.set_scene(scene.to_message())
+        st = gpu.stimulus(glove, [0.0, 0.0, 0.0], [0, 0, 0, 1])
+        inside = np.abs(st.positions).max(axis=1) < 0.5   # within the tesseract's x, y, z extent
+        if spec["slice_w"] == 1.5:   # through the middle of its w extent (1 .. 2): every such sample at l = 0
+            assert inside.any() and np.all(st.l[inside] == 0) and not st.touched[~inside].any()
+        else:                        # beside its w extent, or behind the eye
+            assert not st.touched.any() and st.V.max() == 0

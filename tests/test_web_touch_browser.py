@@ -4,7 +4,8 @@ page computes (the renderer's ray test per glove sample, eq. 1-3 and the motors'
 touch4d/web/static/touch.js) equal, within 0.01 of full drive, the tactile node's for the same pose
 (its tactile/field, mixed by the glove's motors) and the Python model's; for the held controller
 (config/gloves/quest-controller.yaml, what it pulses) and per motor for the 30-motor glove
-(config/glove.yaml, what would go to its motors). What the page played comes back on tactile/motors."""
+(config/glove.yaml, what would go to its motors); in the projection and in a slice view that touches
+its cross-section. What the page played comes back on tactile/motors."""
 from __future__ import annotations
 
 import time
@@ -27,6 +28,7 @@ pytestmark = pytest.mark.timeout(400)
 
 GLOVES = {"controller": "config/gloves/quest-controller.yaml", "glove": "config/glove.yaml"}
 TOLERANCE = 0.01              # of full drive
+SCENES, POSES = 6, 7          # random scenes (four projections, two slice views), poses in each
 
 
 @pytest.fixture(scope="module")
@@ -87,14 +89,16 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
             page.evaluate("xr.position.set(0, 1.5, 0.8); xr.quaternion.set(0, 1, 0, 0)")   # cheap frames
             page.evaluate(RECORD_PULSES)
             rng = np.random.default_rng(31)
-            worst_node, worst_model, touching, published = 0.0, 0.0, 0, 0
-            for k in range(4):
-                scene = random_scene(rng, ("orthographic", "perspective")[k % 2])
+            worst_node, worst_model, touching, published, sections = 0.0, 0.0, 0, 0, 0
+            for k in range(SCENES):
+                # the last two: the slice view touching its cross-section (ray_caster: a SectionCaster)
+                cut = float(rng.uniform(1.0, 2.4)) if k >= SCENES - 2 else None
+                scene = random_scene(rng, ("orthographic", "perspective")[k % 2], slice_w=cut)
                 msg = scene.to_message()
                 msg.revision = 100 + k
                 show_scene(page, watcher, scenes, msg)
                 caster = scene.ray_caster()
-                for _ in range(7):
+                for _ in range(POSES):
                     position, orientation = random_pose(rng, 0.6)
                     since = len(motors)      # what the page plays for this pose goes out after this
                     got = hold(page, watcher, cal, position, orientation)
@@ -122,6 +126,7 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
                     worst_node = max(worst_node, float(np.abs(page_v - node_v).max()))
                     worst_model = max(worst_model, float(np.abs(page_v - model_v).max()))
                     touching += bool(model_v.max() > 0.05)
+                    sections += bool(cut is not None and model_v.max() > 0.05)
                     # what it played goes out on tactile/motors, the page's values
                     # (on a loaded machine the page's fail safe may play 0 for a while instead: counted, not waited on)
                     try:
@@ -130,11 +135,14 @@ def test_the_pages_touch_equals_the_tactile_nodes_on_random_scenes_and_poses(bro
                         published += 1
                     except TimeoutError:
                         pass
-            print(f"{glove_name}: page vs node {worst_node:.2e}, vs model {worst_model:.2e}, {touching}/28 poses touch")
+            poses = SCENES * POSES
+            print(f"{glove_name}: page vs node {worst_node:.2e}, vs model {worst_model:.2e}, {touching}/{poses} "
+                  f"poses touch, {sections} of them a slice's section")
             assert worst_node <= TOLERANCE, f"the page differs from the tactile node by {worst_node:.4f}"
             assert worst_model <= TOLERANCE, f"the page differs from the Python model by {worst_model:.4f}"
-            assert touching >= 8, f"only {touching} of 28 poses touch anything: the cases prove little"
-            assert published >= 14, f"what the page played reached tactile/motors for only {published} of 28 poses"
+            assert touching >= poses // 4, f"only {touching} of {poses} poses touch anything: the cases prove little"
+            assert sections >= 2, f"only {sections} poses touch a slice's section: the cases prove little"
+            assert published >= poses // 2, f"what the page played reached tactile/motors for only {published} of {poses} poses"
             if glove_name == "controller":   # the controller plays its one motor, the strongest
                 played = [v for h, v, _, _ in pulses(page) if h == "right"]
                 assert played and max(played) > 0.05 and all(0 <= v <= 1 for v in played)

@@ -1,6 +1,7 @@
 """The tactile model's rays on the GPU (paper eq. 4-7): the glove's samples placed by a hand pose and
 cast along +w by the renderer's own ray test (shaders/tactile.frag: halfspace.glsl's ray_span), so
-that what the hand feels and what the picture shows come from one kernel. The WebXR page runs the
+that what the hand feels and what the picture shows come from one kernel; in a slice view that
+touches its cross-section, the samples' points of the cut tested against the same cells. The WebXR page runs the
 same pass (touch4d/web/static/touch.js); this desktop one, on moderngl, is what tests hold against
 the CPU tactile engine (touch4d.tactile.compute_stimulus).
 
@@ -49,11 +50,8 @@ class GpuTactile:
 
     def set_scene(self, scene: Scene | SceneState) -> None:
         """Adopt a scene (its geometry uploaded once per change of its shapes, its transforms each
-        time). A slice view that touches its cross-section is the CPU's (SectionCaster): refused."""
+        time). A slice view that touches its cross-section is touched there (as SectionCaster)."""
         self.view.set_scene(scene)
-        if self.view.scene.touches_section:
-            raise RenderError("the GPU tactile pass touches the projection; a slice view that touches its "
-                              "cross-section has only the CPU's tactile model (touch4d.geometry.section)")
         self.backend.prepare(Frame(scene=self.view.layer))
 
     def depths(self, points: np.ndarray, rotation: np.ndarray, position) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -72,7 +70,8 @@ class GpuTactile:
         g = backend.geometry
         set_uniforms(self.prog, u_hand=tuple(np.asarray(rotation, np.float64).T.ravel()),
                      u_hand_at=tuple(float(v) for v in position), u_samples=len(points), u_bodies=g.n_bodies,
-                     u_eye=float(self.view.layer.perspective_eye or 0.0))
+                     u_eye=float(self.view.layer.perspective_eye or 0.0),
+                     u_section=self.view.touches_section, u_cut=float(self.view.slice_w))
         fbo.use()
         self.ctx.viewport = (0, 0, *fbo.size)
         self._vao.render(moderngl.TRIANGLES, vertices=3)

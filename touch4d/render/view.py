@@ -100,6 +100,12 @@ class SceneView:
         self.scene, self._scene_key = scene, key
         return True
 
+    @property
+    def touches_section(self) -> bool:
+        """Whether the glove touches the cross-section at slice_w, as drawn here: a slice view (this
+        view's own, when overridden) of a scene whose slice view touches its section."""
+        return self.scene is not None and self.view == "slice" and self.scene.slice_touch == "section"
+
     def set_hand(self, pose: HandPose) -> None:
         if not pose.valid:
             self.hand = None

@@ -391,7 +391,7 @@ class WebBridge:
             # the same texels the GPU backend writes into its t_objects texture
             arrays["t_objects"] = data_rows(layer.transforms)[0]
             fields.update(projection=layer.projection, eye=float(layer.perspective_eye or 0.0),
-                          touch_section=bool(self.view.scene.touches_section),
+                          touch_section=self.view.touches_section, touch_w=float(self.view.slice_w),
                           selected=int(self._scene.selected), revision=int(self._scene.revision))
             # the view; in the slice and both views the cross-section's triangles, cut here (static/slice.js)
             view = self.view

@@ -184,7 +184,8 @@ class Lesson:
         fields, arrays = unpack_frame(self.shared)
         fields.pop("kind", None)
         fields.update(view=view.view, slice_w=view.slice_w, w_extent=list(view.extent) if view.extent else None,
-                      scene_style=_style_fields(view.layer.style), touch_section=bool(view.scene.touches_section))
+                      scene_style=_style_fields(view.layer.style), touch_section=view.touches_section,
+                      touch_w=float(view.slice_w))
         arrays.pop("section", None)
         if view.section is not None:
             arrays["section"] = np.ascontiguousarray(view.section, dtype=np.float32).ravel()

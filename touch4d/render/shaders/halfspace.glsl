@@ -55,6 +55,19 @@ vec2 ray_span(int b, vec3 u) {
     return vec2(enter, leave);
 }
 
+// Whether the point at view depth v on the ray through u lies in body b: the slice view's touch
+// (tactile.frag), a point of the cross-section at v. The cells of ray_span, tested at one depth.
+bool inside_at(int b, vec3 u, float v) {
+    vec4 span = fetch(t_bodies, 3 * b);
+    vec4 o = vec4(u, v) - fetch(t_centres, b);
+    int start = int(span.x + 0.5);
+    int count = int(span.y + 0.5);
+    for (int k = 0; k < count; ++k) {
+        if (dot(fetch(t_view, start + k), o) > 1.0 + SLACK) return false;
+    }
+    return true;
+}
+
 // Whether body b hides the point at view depth v on the ray through u (tolerance `tol` in v).
 bool hides(int b, vec3 u, float v, float tol) {
     vec2 span = ray_span(b, u);

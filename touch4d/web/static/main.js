@@ -205,11 +205,10 @@ requestAnimationFrame(inlineLoop);
 
 // ---- the headset ----------------------------------------------------------------------------------
 
-// Whether the page's own touch may be felt: the study's condition allows it, the scene touches its
-// projection (a slice view touching its cross-section is the node's alone), the node is heard.
+// Whether the page's own touch may be felt: the study's condition allows it, the node is heard.
 function touchAllowed(now) {
   const f = state.frame;
-  return Boolean(f) && f.touch_on !== false && !f.touch_section && now - haptics.at <= gateStaleMs();
+  return Boolean(f) && f.touch_on !== false && now - haptics.at <= gateStaleMs();
 }
 
 // The page's own touch, each XR frame before the input goes out: the last pass's result if it has

@@ -4,9 +4,10 @@
 // (touch4d.tracking.calibration.hand_from_controller, touch4d.tactile.pose.place); their rays along
 // +w cast by the renderer's own ray test (shaders/tactile.frag, halfspace.glsl's ray_span: the test
 // every drawn fragment passes) into a float texture, read back asynchronously (a pixel buffer and a
-// fence, polled the next frame: never a stall); then eq. 1-3 and the motors' mix (`stimulus`, as
-// touch4d.tactile.stimulus) and the controller's one actuator's intensity (`level`, the strongest
-// motor, as touch4d.web.haptics). tests/test_web_touch.py holds these functions to the Python model.
+// fence, polled the next frame: never a stall; in a slice view touching its cross-section, the
+// samples' points of the cut, tested against the same cells); then eq. 1-3 and the motors' mix
+// (`stimulus`, as touch4d.tactile.stimulus) and the controller's one actuator's intensity (`level`,
+// the strongest motor, as touch4d.web.haptics). tests/test_web_touch.py holds these functions to the Python model.
 
 const SAMPLES_UNIT = 16;        // t_samples, after the renderer's 16 units (touch4d.render.tactile)
 const DATA_WIDTH = 1024;        // data textures' width (touch4d.render.scene_geometry)
@@ -151,6 +152,9 @@ export class PageTouch {
     gl.uniform1i(u.u_samples, this.n);
     gl.uniform1i(u.u_bodies, scene.geometry.bodies);
     gl.uniform1f(u.u_eye, scene.frame.eye || 0);
+    // a slice view touching its cross-section: the samples' points of the cut at w = touch_w
+    gl.uniform1i(u.u_section, scene.frame.touch_section ? 1 : 0);
+    gl.uniform1f(u.u_cut, scene.frame.touch_w || 0);
     gl.bindVertexArray(this.vao);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
     gl.bindVertexArray(null);
