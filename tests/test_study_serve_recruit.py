@@ -281,7 +281,7 @@ def test_recruiting_flags_are_checked_before_anything_is_served(tmp_path, capsys
 def test_a_place_never_joined_is_freed_after_a_while_and_the_experimenter_closes_the_open_link(tmp_path):
     async def body(server):
         url = f"http://127.0.0.1:{server.port}"
-        link = f"{url}/open?key={server.open_key}"
+        link = f"{url}/open?key={server.open_link.key}"
         async with client() as a, client() as b, client() as lab, client() as late:
             _, first = await visit(a, link, PROLIFIC_PID="x1")
             assert participant_of(first) == "P01"

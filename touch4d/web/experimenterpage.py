@@ -97,7 +97,7 @@ class ExperimenterPage:
         for p in sorted(self.server.participants.values(), key=lambda p: p.id):
             states[p.life.shown()] = states.get(p.life.shown(), 0) + 1
         return {"states": states, "trials_done": sum(self.server.rows(who) for who in self.server.participants),
-                "rows_filled": self.server.rows_filled(), "open_link": self.server.open_key is not None}
+                "rows_filled": self.server.open_link.rows_filled(), "open_link": self.server.open_link.key is not None}
 
     def view(self) -> dict:
         """The experimenter's page as data (?format=json, and each server-sent event)."""
@@ -118,7 +118,7 @@ class ExperimenterPage:
             f"<form method=post action=/experimenter/invite><input name=participant placeholder=P07>"
             f"<button>invite</button></form>"
             + ("<form method=post action=/experimenter/close-open><button>close the open link</button></form>"
-               if self.server.open_key is not None else "")
+               if self.server.open_link.key is not None else "")
             + "<script src=/experimenter.js></script></body></html>"))
 
     def _still_experimenter(self, request: web.Request) -> bool:
@@ -180,9 +180,8 @@ class ExperimenterPage:
         participant = str(form.get("participant", ""))
         action = request.match_info["action"]
         if action == "close-open":
-            if self.server.open_key is not None:
-                self.server.recruits.close()
-                self.server.open_key = None
+            if self.server.open_link.key is not None:
+                self.server.open_link.close()
                 self.server.say("the open link was closed by the experimenter")
             raise web.HTTPSeeOther("/experimenter")
         if action == "invite":

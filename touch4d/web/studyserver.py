@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import errno
-import hmac
 import html
 import json
 import logging
@@ -45,7 +44,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import quote, urlencode, urlsplit
+from urllib.parse import quote, urlsplit
 
 import msgspec
 from aiohttp import web
@@ -59,9 +58,7 @@ from touch4d.study.design import Study
 from touch4d.study.lock import SERVE, SessionLock
 from touch4d.study.participation import Life, State
 from touch4d.study.manifest import update_manifest
-from touch4d.study.plan import order_table, participant_index, plan_session, quick_plan
-from touch4d.study.recruitment import (PENDING_S, PLATFORM_PARAMS, Place, Recruits, holds_row, identity,
-                                       next_participant, platform_params, rows_filled)
+from touch4d.study.plan import plan_session, quick_plan
 from touch4d.study.store import PARTICIPANT_ID, rows_written, session_dir
 
 from .access import HOLDER, Access, CookieGate, cross_site
@@ -70,6 +67,7 @@ from .experimenterpage import ExperimenterPage
 from .hardening import ESCAPED, SECURITY_HEADERS, Hardening, host_name, raise_file_limit
 from .inbox import TokenBucket
 from .invites import EXPERIMENTER, Invites
+from .openlink import OpenLink
 from .served import ServedOptions, ServedSession, Shared
 from .server import STATIC_DIR, PageBounds, PageServer, static_names
 
@@ -94,7 +92,6 @@ STUDY_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": (
 # once, and the answer sent behind them must not be dropped by the page server's bound on a page's
 # messages (touch4d.web.inbox: 20 at once). This long of them may come at once; a flood is still cut.
 PAGE_STALL_S = 10.0
-OPEN_RATE, OPEN_BURST = 2.0, 20   # participants the open link makes per second (on average, at once)
 DEVICE_FAILED = ("Thank you for your interest. This device did not pass the check this study needs (its "
                  "vibration, or its frame rate), so it cannot take part; you have not been counted as a "
                  "participant.")
@@ -203,14 +200,7 @@ class StudyServer:
         self._by_conn: dict[int, Participant] = {}   # each open page's participant
         self.experimenter_token: str | None = None   # issued when it serves (run), not before
         self._socket: socket.socket | None = None   # bound by run() before OUT is written
-        try:
-            self.recruits = Recruits(self.out)        # the open link's key, platform ids -> participants
-        except ValueError as exc:
-            raise ConfigError(self.out / "recruits.json", "(file)", "the open link's file as the server wrote it",
-                              detail=str(exc)) from None
-        self.open_key: str | None = None             # issued when it serves with --open-link
-        self._open_budget = TokenBucket(OPEN_RATE, OPEN_BURST)
-        self._param_names = tuple(dict.fromkeys((*PLATFORM_PARAMS, *o.id_params)))
+        self.open_link = OpenLink(self)              # /open (with --open-link), /done, /quit
         self.experimenter = ExperimenterPage(self)   # its page: /experimenter and below
         self.load_invites()
 
@@ -220,6 +210,10 @@ class StudyServer:
         if self.public_url:
             return self.public_url.rstrip("/")
         return f"http://{self.host}:{self.port}"
+
+    def tokens(self) -> dict[str, str]:
+        """Each participant's token now (OUT/invites.json as last adopted)."""
+        return self._tokens or {}
 
     def load_invites(self) -> None:
         """Adopt OUT/invites.json (written by `touch4d study invite` too, while this runs): a link
@@ -246,7 +240,7 @@ class StudyServer:
             if p is not None:
                 if self.is_running(p):
                     self.say(f"{holder}: link {'replaced' if holder in tokens else 'revoked'}; its session stops")
-                    self._stop_session(p)
+                    self.stop_session(p)
                 if holder not in tokens:
                     p.life.revoke()
             elif holder == EXPERIMENTER and holder in tokens:
@@ -291,7 +285,7 @@ class StudyServer:
         if p.conn is not None:
             self.pages.send(p.conn, frame, latest)
 
-    def _stop_session(self, p: Participant) -> None:
+    def stop_session(self, p: Participant) -> None:
         """Its session ends: its page closed (it may come back), its log and manifest complete (the
         study keeps its rows)."""
         if p.leave is not None:
@@ -348,7 +342,7 @@ class StudyServer:
     def _failed(self, p: Participant, exc: Exception) -> None:
         log.error("%s: its session stopped: %s", p.id, exc)
         self.say(f"{p.id}: its session stopped on an error (see the log); its link resumes it")
-        self._stop_session(p)
+        self.stop_session(p)
 
     def command(self, participant: str, command: str, reason: str) -> None:
         """Pause or resume a participant's trials (on the server's loop)."""
@@ -421,7 +415,7 @@ class StudyServer:
         if p.conn is None and self.is_running(p):
             self.counts["left"] += 1
             self.say(f"{p.id} left: its session stops (its link resumes it)")
-            self._stop_session(p)
+            self.stop_session(p)
 
     # ---- HTTP ----------------------------------------------------------------------------------
 
@@ -465,7 +459,7 @@ class StudyServer:
                                               headers={"Retry-After": "1"})
         return await handler(request)
 
-    def _participant(self, request: web.Request) -> Participant:
+    def participant(self, request: web.Request) -> Participant:
         holder = request[HOLDER]
         wanted = request.query.get("participant")
         if wanted is not None and wanted != holder:
@@ -480,9 +474,9 @@ class StudyServer:
         return p
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        p = self._participant(request)
+        p = self.participant(request)
         if p.life.state is State.DONE and self.options.complete_url:
-            raise web.HTTPSeeOther(self.completion_url())   # back to the recruitment platform, with its code
+            raise web.HTTPSeeOther(self.open_link.completion_url())   # back to the recruitment platform, with its code
         if self.is_running(p) and p.life.state in (State.RUNNING, State.DONE):
             return web.FileResponse(STATIC_DIR / "index.html")   # the WebXR page, its session's
         return web.Response(text=self._welcome(p), content_type="text/html")
@@ -519,7 +513,7 @@ class StudyServer:
         can vibrate, its frame rate and, when the study file has `device_check`, its answers to the
         vibration test, judged here; the answer says what to tell the participant, whether Join is open,
         and whether the test is still to run (`check`: its trials)."""
-        p = self._participant(request)
+        p = self.participant(request)
         if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: from another site refused\n")
         if (request.content_length or 0) > MAX_DEVICE_BODY:
@@ -558,16 +552,16 @@ class StudyServer:
             self.counts["device failed"] += 1
             self.say(f"{p.id}: its device failed the check ({'; '.join(why)})")
         p.passed = p.device["passed"] = False
-        if self._free(p):
+        if self.free(p):
             return {"freed": True}
         return {}
 
-    def _free(self, p: Participant) -> bool:
+    def free(self, p: Participant) -> bool:
         """An open-link participant with no folder (never joined) given up: its link and id free again."""
         if not p.opened or self.is_running(p) or session_dir(self.out, p.id).exists():
             return False
         self.invites.revoke(p.id)
-        self.recruits.forget(p.id)
+        self.open_link.recruits.forget(p.id)
         self.load_invites()          # its cookies end
         self.participants.pop(p.id, None)
         self._budgets.pop(p.id, None)
@@ -578,7 +572,7 @@ class StudyServer:
         fields = {}
         if p.device is not None:
             fields["device"] = p.device
-        params = self.recruits.params_of(p.id)
+        params = self.open_link.recruits.params_of(p.id)
         if params:
             fields["platform"] = params
         if fields and p.session is not None:
@@ -589,7 +583,7 @@ class StudyServer:
 
     async def _clock(self, request: web.Request) -> web.StreamResponse:
         """The server's clock (ms), for the welcome page's round trip and clock offset."""
-        self._participant(request)
+        self.participant(request)
         return web.json_response({"time_ms": time.time() * 1000}, headers={"Cache-Control": "no-store"})
 
     def rows(self, participant: str) -> int:
@@ -597,7 +591,7 @@ class StudyServer:
 
 
     async def _join(self, request: web.Request) -> web.StreamResponse:
-        p = self._participant(request)
+        p = self.participant(request)
         if p.vibration == "none" and self.study.without_vibration == "refuse":
             self.counts["no vibration"] += 1
             return web.Response(status=403, content_type="text/html", text=(
@@ -608,7 +602,7 @@ class StudyServer:
                 "<!doctype html><html lang=en><meta charset=utf-8><title>Device check</title><body><h1>The device "
                 "check comes first</h1><p>Please open your link again and finish the device check.</p></body></html>"))
         if p.life.state is State.DONE and self.options.complete_url:
-            raise web.HTTPSeeOther(self.completion_url())
+            raise web.HTTPSeeOther(self.open_link.completion_url())
         if p.starting is None:             # else a join already makes its session: wait with it
             p.starting = asyncio.ensure_future(self._start(p))   # on, even if this request's browser goes
             p.starting.add_done_callback(lambda _: setattr(p, "starting", None))
@@ -646,132 +640,13 @@ class StudyServer:
         self._await_page(p)
         return None
 
-    # ---- the open link, a platform's ids, leaving for the platform ------------------------------------
-
-    def _places(self) -> list[Place]:
-        return [Place(p.id, p.life.shown(), p.since) for p in self.participants.values()]
-
-    def rows_filled(self) -> list[int]:
-        """Each counterbalancing row's participants, done or under way (touch4d.study.recruitment)."""
-        return rows_filled(len(order_table(self.study)), self._places(), lambda who: participant_index(self.study, who),
-                           time.time(), self.leave_after_s)
-
-    def _taken(self) -> set[str]:
-        """Ids with a link or a folder (the open link never makes them again)."""
-        try:
-            folders = {d.name for d in self.out.iterdir()}
-        except OSError:
-            folders = set()
-        return set(self.participants) | set(self._tokens or {}) | folders
-
-    def _open_page(self, status: int, title: str, text: str) -> web.Response:
-        return web.Response(status=status, content_type="text/html", text=(
-            f"<!doctype html><html lang=en><meta charset=utf-8><title>{html.escape(title)}</title><body>"
-            f"<h1>{html.escape(title)}</h1><p>{html.escape(text)}</p></body></html>"))
-
-    async def _open(self, request: web.Request) -> web.StreamResponse:
-        """The open link (`--open-link`): a visitor becomes a participant of their own (the next id whose
-        counterbalancing row is least filled) and goes to its link; a platform's id seen before goes
-        to its participant's link again; the visitor's own cookie back to its page."""
-        key = request.query.get("key", "")
-        if self.open_key is None or not hmac.compare_digest(key.encode(), self.open_key.encode()):
-            self.counts["forged"] += 1
-            self.log_once("open", "refused a visit by an open link that is closed or not this server's")
-            raise web.HTTPForbidden(text="touch4d: this study's open link is closed\n")
-        holder = request.get(HOLDER)
-        if holder in self.participants:          # this browser was here before: its own page
-            raise web.HTTPSeeOther("/")
-        if not self._open_budget.spend(time.monotonic()):
-            self.counts["over budget"] += 1
-            raise web.HTTPTooManyRequests(text="touch4d: too many visitors at once; wait a second\n",
-                                          headers={"Retry-After": "1"})
-        try:
-            params = platform_params(request.query, self._param_names)
-        except ValueError as exc:
-            raise web.HTTPBadRequest(text=f"touch4d: {exc}\n") from None
-        who = identity(params, self.options.id_params)
-        known = self.recruits.participant_of(who)
-        if known is not None:
-            token = (self._tokens or {}).get(known)
-            if token is None:
-                return self._open_page(403, "Your place has ended", "Your place in this study was ended by the "
-                                       "experimenter. Please contact them.")
-            raise web.HTTPSeeOther(f"/?participant={quote(known)}&token={token}")
-        self._free_stale()
-        refusal = self._open_refusal()
-        if refusal is not None:
-            return refusal
-        participant, row = next_participant(self.rows_filled(), self._taken())
-        token = self.invites.issue(participant)
-        if params:
-            self.recruits.remember(who or f"{participant} (no platform id)", participant, params)
-        self.load_invites()
-        p = self.participants[participant]
-        p.opened, p.since = True, time.time()
-        self.counts["open link"] += 1
-        self.say(f"{participant}: made by the open link (counterbalancing row {row + 1})")
-        raise web.HTTPSeeOther(f"/?participant={quote(participant)}&token={token}")
-
-    def _free_stale(self) -> None:
-        """Open-link places given a link but never joined within PENDING_S freed (their ids reused, the
-        links of OUT/invites.json bounded by the open link's rate times PENDING_S)."""
-        stale = time.time() - PENDING_S
-        for p in list(self.participants.values()):
-            if p.opened and p.life.state is State.INVITED and p.since is not None and p.since < stale:
-                self._free(p)
-
-    def _open_refusal(self) -> web.Response | None:
-        """Why the open link admits no one now (running at once, or the total reached), or None."""
-        if self.running() >= self.max_participants:
-            self.counts["full"] += 1
-            return self._open_page(503, "The study is full right now", "Every place is taken. Please open the "
-                                   "link again in a few minutes.")
-        total = self.options.max_total
-        now = time.time()
-        if total is not None and sum(holds_row(place, now, self.leave_after_s) for place in self._places()) >= total:
-            self.counts["total reached"] += 1
-            self.log_once("total", f"the open link turned a visitor away: {total} participants done or under way "
-                           "(--max-total)")
-            return self._open_page(503, "The study has all its participants", "Thank you for your interest: "
-                                   "this study needs no more participants.")
-        return None
-
-    def completion_url(self) -> str:
-        """--complete-url with --completion-code appended as `cc` (Prolific's way)."""
-        url, code = self.options.complete_url, self.options.completion_code
-        if not code:
-            return url
-        return f"{url}{'&' if urlsplit(url).query else '?'}{urlencode({'cc': code})}"
-
-    async def _done(self, request: web.Request) -> web.StreamResponse:
-        """Where the page goes when every trial is done: the platform's completion URL, or thanks."""
-        p = self._participant(request)
-        if p.life.state is not State.DONE:
-            raise web.HTTPSeeOther("/")
-        if self.options.complete_url:
-            raise web.HTTPSeeOther(self.completion_url())
-        return self._open_page(200, "Every trial is done", "Thank you for taking part.")
-
-    async def _quit(self, request: web.Request) -> web.StreamResponse:
-        """The participant leaves the study (the welcome page's Quit): its session stops (its rows stay);
-        an open-link place never joined is freed. Then the platform's return URL, or a page that says so."""
-        p = self._participant(request)
-        if cross_site(request):
-            raise web.HTTPForbidden(text="touch4d: from another site refused\n")
-        self.counts["quit"] += 1
-        self.say(f"{p.id} quit")
-        if self.is_running(p):
-            self._stop_session(p)
-        self._free(p)
-        if self.options.return_url:
-            raise web.HTTPSeeOther(self.options.return_url)
-        return self._open_page(200, "You have left the study", "Thank you. You may close this page.")
+    # ---- the page's files and WebSocket (the open link, /done and /quit: touch4d.web.openlink) -------
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
         name = request.match_info["path"]
         if name not in STATIC_NAMES:   # an over-long name, a folder, a `..`: never looked for
             raise web.HTTPNotFound(text="touch4d: no such file\n")
-        p = self._participant(request)
+        p = self.participant(request)
         if not self.is_running(p):
             raise web.HTTPNotFound(text="touch4d: join first\n")
         return web.FileResponse(STATIC_DIR / name)
@@ -780,7 +655,7 @@ class StudyServer:
         """The page's WebSocket: its participant's session's (touch4d.web.served), with the page
         server's bounds (message size, pacing, a heartbeat closing a page that vanished, slow
         readers closed); one page at a time per participant."""
-        p = self._participant(request)
+        p = self.participant(request)
         if cross_site(request):
             raise web.HTTPForbidden(text="touch4d: WebSocket from another origin refused\n")
         if not self.is_running(p):
@@ -824,7 +699,7 @@ class StudyServer:
         sock = self._socket or self._listen()     # bound before OUT is written
         self.experimenter_token = self.invites.issue(EXPERIMENTER, keep=True)
         if self.options.open_link:
-            self.open_key = self.recruits.open()
+            self.open_link.open()
         self.load_invites()
         self._adopt_folders()
         self._loop = asyncio.get_running_loop()
@@ -840,9 +715,7 @@ class StudyServer:
         app.router.add_get("/welcome.js", self._welcome_script)
         app.router.add_post("/device", self._device)
         app.router.add_get("/clock", self._clock)
-        app.router.add_get("/open", self._open)
-        app.router.add_get("/done", self._done)
-        app.router.add_post("/quit", self._quit)
+        self.open_link.add_routes(app)
         self.experimenter.add_routes(app)
         runner = self.hardening.runner(app)
         await runner.setup()
@@ -852,8 +725,8 @@ class StudyServer:
         (self.out / SERVED).write_text(json.dumps({"url": self.base_url()}) + "\n")
         print(f"study {self.study.name}: serving {self.base_url()}/ for up to {self.max_participants} participants"
               f"{self._cap_note}; data in {self.out}", flush=True)
-        if self.open_key is not None:
-            print(f"open link: {self.base_url()}/open?key={self.open_key}", flush=True)
+        if self.open_link.key is not None:
+            print(f"open link: {self.base_url()}/open?key={self.open_link.key}", flush=True)
         print(f"experimenter page: {self.base_url()}/experimenter?token={self.experimenter_token}", flush=True)
         watch = asyncio.ensure_future(self._watch_invites())
         try:
@@ -864,7 +737,7 @@ class StudyServer:
                       "trial when its link is opened again)")
             for p in self.participants.values():
                 if p.session is not None:
-                    self._stop_session(p)
+                    self.stop_session(p)
             await runner.cleanup()
             self.say("stopped")
 
