@@ -214,10 +214,17 @@ def test_the_lesson_is_recorded_for_replay(tmp_path):
     lesson.command("slice", "0.25")
     lesson.message(S1, input_message(calibration, [0, 0, 0], played={"time": 900.0, "intensity": [0.5]}), 1.0)
     lesson.message(S1, input_message(calibration, [0, 0, 0], time_ms=1001.0), 1.01)   # within 1 / RECORD_HZ
+    lesson.command("lock")
+    with pytest.raises(LessonError):
+        lesson.command("drive", "nobody")                # refused: not recorded
+    lesson.command("unlock")
     recording.close()
     messages = list(LogReader(tmp_path / "lesson.mcap").messages())
     topics = [m.topic for m in messages]
-    assert topics.count("scene/state") == 2 and topics.count("lesson/command") == 1
+    assert topics.count("scene/state") == 2
+    # the class's commands too, in order
+    assert [(c["command"], c["argument"]) for c in (m.decode() for m in messages if m.topic == "lesson/command")] \
+        == [("slice", "0.25"), ("lock", ""), ("unlock", "")]
     assert topics.count(f"lesson/student{S1}/hand/pose") == 1
     assert topics.count(f"lesson/student{S1}/tactile/motors") == 1
     states = [m.decode() for m in messages if m.topic == "scene/state"]

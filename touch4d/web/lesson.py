@@ -216,8 +216,8 @@ class Lesson:
         except (SceneCommandError, Touch4dError) as exc:
             raise LessonError(str(exc)) from None
         self.counts["commands"] += 1
-        if verb in SCENE_VERBS:
-            self.record("lesson/command", SceneCommand(command=verb, argument=argument))
+        # every command carried out, in order: the scene's and the class's (lock, drive, spotlight, ...)
+        self.record("lesson/command", SceneCommand(command=verb, argument=argument))
         if changed and verb in SCENE_VERBS + ("rotate",):
             self._scene_changed()
         shown = argument if verb != "load" else f"{len(argument)} characters of scene"
