@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from touch4d.bus import Node
-from touch4d.bus.testing import collect, running_broker, wait_until
+from touch4d.bus.testing import collect, running_broker
 from touch4d.geometry.scene import Scene, SceneObject
 from touch4d.messages import HandJoints, HandPose, MotorCommand
 from touch4d.nodes.tactile import TactileNode
@@ -81,14 +81,6 @@ def test_the_source_follows_the_joints_and_falls_back_to_the_pose(glove):
     assert out is None and err is None and src.using == "pose"
 
 
-def spin_until(nodes, predicate, timeout=20.0):
-    def step():
-        for n in nodes:
-            n.spin_once(0.002)
-        return predicate()
-    return wait_until(step, timeout=timeout, interval=0.0)
-
-
 @pytest.mark.timeout(60)
 def test_the_node_switches_to_the_rigid_hand_without_a_gap_in_the_motor_commands(glove):
     with running_broker() as bus:
@@ -101,10 +93,12 @@ def test_the_node_switches_to_the_rigid_hand_without_a_gap_in_the_motor_commands
             tactile.engine.set_scene(box_scene())       # (the scene node's part is tested elsewhere)
             period, t0 = 0.01, time.monotonic()
             k = 0
+            sent = []                                   # each pose's stamp as published
 
             def tick(with_joints):
                 nonlocal k
                 now = time.time()
+                sent.append(now)
                 if with_joints:
                     joints_pub.publish(curled(glove, now))
                 pose_pub.publish(pose(now))
@@ -120,15 +114,20 @@ def test_the_node_switches_to_the_rigid_hand_without_a_gap_in_the_motor_commands
             for _ in range(10):
                 tick(True)
             assert tactile.hand.using == "joints" and not index_on(glove, motors[-1])
-            switch = len(motors)
+            switch, first_pose = len(motors), len(sent)
             for _ in range(30):
                 tick(False)                               # the joints stop, the poses go on
-            spin_until((tactile, probe), lambda: tactile.hand.using == "pose" and len(motors) > switch + 5)
+            deadline = time.monotonic() + 20              # ... until the node has switched
+            while not (tactile.hand.using == "pose" and len(motors) > switch + 5):
+                assert time.monotonic() < deadline, "the node never switched to the rigid hand"
+                tick(False)
             assert index_on(glove, motors[-1])            # the straight, rigid hand
             # the commands' own stamps (their poses' and joint sets'): across the switch they pause for
-            # the timeout plus a pose period or two, below the motor node's watchdog (0.1 s)
+            # the timeout plus a pose period or two, below the motor node's watchdog (0.1 s); a loaded
+            # machine that published the poses further apart stretches that by its own gaps
             stamps = np.array([m.source_stamp for m in motors[switch - 3:]])
-            assert np.diff(stamps).max() < 0.05 + 3 * period + 0.01, np.diff(stamps).max()
+            step = max(period, float(np.diff(sent[first_pose - 1:]).max()))
+            assert np.diff(stamps).max() < 0.05 + 3 * step + 0.01, (np.diff(stamps).max(), step)
             stats = tactile.stats_flat()
             assert stats["hand_joints"] == 0 and stats["switches"] == 2 and stats["joints"] >= 5
             assert stats["poses_superseded"] >= 5
