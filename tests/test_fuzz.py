@@ -346,10 +346,10 @@ def test_a_yaml_alias_bomb_in_a_scene_or_launch_file_is_refused_at_once(tmp_path
     try:
         for load, path, key in ((load_scene, scene, "objects[0].size"), (load_launch, launch, "nodes.tracker.params.rate"),
                                 (load_launch, remap, "nodes.tracker.params.remap")):
-            started = time.monotonic()
+            started = time.process_time()     # this process's CPU: a loaded machine's waits do not count
             with pytest.raises(ConfigError) as err:
                 load(path)
-            assert time.monotonic() - started < 2.0
+            assert time.process_time() - started < 2.0   # refused before expanding (that takes minutes)
             assert key in str(err.value) and len(str(err.value)) < 1000
     finally:
         signal.alarm(0)

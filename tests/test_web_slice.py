@@ -145,8 +145,11 @@ def push(page, y: float, expect_w: float) -> None:
     """The right thumbstick pushed (y < 0: forward) until the page's frames cut at `expect_w`, then let go."""
     page.evaluate(f"xr.controllers.right.updateAxes('thumbstick', 0, {y})")
     page.wait_for_function(f"Math.abs(touch4d.frame.slice_w - {expect_w}) < 1e-6", timeout=30_000)
-    page.evaluate("xr.controllers.right.updateAxes('thumbstick', 0, 0)")
-    page.wait_for_timeout(200)                         # released: the next push is a new press
+    sent = page.evaluate("xr.controllers.right.updateAxes('thumbstick', 0, 0); touch4d.sent")
+    # released: the next push is a new press once the scene node has taken a released sample (it reads
+    # the controller's state latest-only): twenty inputs without the stick, and half a second
+    page.wait_for_function(f"touch4d.sent >= {sent} + 20", timeout=30_000)
+    page.wait_for_timeout(500)
 
 
 def eyes(page) -> list[np.ndarray]:
