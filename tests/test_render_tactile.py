@@ -22,28 +22,36 @@ def gpu():
     g.release()
 
 
-@pytest.mark.parametrize("glove_name", sorted(GLOVES))
-def test_gpu_touch_agrees_with_the_cpu_model_on_random_scenes_and_poses(gpu, glove_name):
-    glove = load_glove(GLOVES[glove_name])
-    rng = np.random.default_rng(20261206)
+def assert_agrees(gpu, glove, rng, make_scene, check_touched) -> None:
+    """12 scenes from `make_scene(k)`, 15 random poses each: the same samples touched (one may go
+    either way at a boundary in float32), `check_touched(got, cpu, both)` on those, every motor within
+    0.01 of full drive, and enough poses touching for the cases to prove something."""
     touching, worst = 0, 0.0
-    for _ in range(12):
-        scene = random_scene(rng)
+    for k in range(12):
+        scene = make_scene(k)
         gpu.set_scene(scene.to_message())
         caster = scene.ray_caster()
         for _ in range(15):
             position, orientation = random_pose(rng)
             cpu = compute_stimulus(glove, caster, position, orientation)
             got = gpu.stimulus(glove, position, orientation)
-            both = cpu.touched & got.touched
-            # the same samples touched (a ray grazing a body's boundary may go either way in float32)
             assert np.count_nonzero(cpu.touched != got.touched) <= 1
-            np.testing.assert_allclose(got.l[both], cpu.l[both], atol=1e-3)
-            assert np.array_equal(got.hit[both], cpu.hit[both])
+            check_touched(got, cpu, cpu.touched & got.touched)
             worst = max(worst, float(np.abs(got.V - cpu.V).max()))
             touching += bool(cpu.V.max() > 0.05)
     assert worst <= 0.01, f"a motor differs by {worst:.4f} of full drive"
     assert touching >= 40, f"only {touching} of 180 poses touch anything: the cases prove little"
+
+
+@pytest.mark.parametrize("glove_name", sorted(GLOVES))
+def test_gpu_touch_agrees_with_the_cpu_model_on_random_scenes_and_poses(gpu, glove_name):
+    rng = np.random.default_rng(20261206)
+
+    def same_depths(got, cpu, both):
+        np.testing.assert_allclose(got.l[both], cpu.l[both], atol=1e-3)
+        assert np.array_equal(got.hit[both], cpu.hit[both])
+
+    assert_agrees(gpu, load_glove(GLOVES[glove_name]), rng, lambda k: random_scene(rng), same_depths)
 
 
 def test_a_hand_outside_the_screen_or_before_any_object_feels_nothing(gpu):
@@ -63,26 +71,17 @@ def test_in_a_slice_view_the_gpu_touches_the_cross_section_as_the_cpu_model(gpu,
     touches it at l = 0 (touch4d.geometry.section.SectionCaster), cuts across the objects' w extent,
     orthographic and perspective (where the screen point stands for the world point scaled by
     (d + c) / d), and one cut in front of the screen."""
-    glove = load_glove(GLOVES[glove_name])
     rng = np.random.default_rng(20261207)
-    touching, worst = 0, 0.0
-    for k in range(12):
+
+    def section_scene(k):
         scene = random_scene(rng, slice_w=-0.2 if k == 0 else float(rng.uniform(0.6, 2.8)))
         assert scene.touches_section
-        gpu.set_scene(scene.to_message())
-        caster = scene.ray_caster()
-        for _ in range(15):
-            position, orientation = random_pose(rng)
-            cpu = compute_stimulus(glove, caster, position, orientation)
-            got = gpu.stimulus(glove, position, orientation)
-            # the same samples touched (a point on a section's boundary may go either way in float32)
-            assert np.count_nonzero(cpu.touched != got.touched) <= 1
-            both = cpu.touched & got.touched
-            assert np.all(got.l[both] == 0) and np.array_equal(got.hit[both], cpu.hit[both])
-            worst = max(worst, float(np.abs(got.V - cpu.V).max()))
-            touching += bool(cpu.V.max() > 0.05)
-    assert worst <= 0.01, f"a motor differs by {worst:.4f} of full drive"
-    assert touching >= 40, f"only {touching} of 180 poses touch a section: the cases prove little"
+        return scene
+
+    def pressed(got, cpu, both):   # in a section: l = 0, the same object
+        assert np.all(got.l[both] == 0) and np.array_equal(got.hit[both], cpu.hit[both])
+
+    assert_agrees(gpu, load_glove(GLOVES[glove_name]), rng, section_scene, pressed)
 
 
 def test_a_cut_behind_the_eye_or_beside_every_object_touches_nothing(gpu):
