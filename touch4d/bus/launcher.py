@@ -88,7 +88,7 @@ class Launcher:
 
     def __init__(self, nodes: dict[str, NodeSpec], bus: BusConfig, *, start_broker: bool = True,
                  duration: float | None = None, ready_file: str | None = None, out=None,
-                 launch_file: str | None = None, bus_file: str | None = None):
+                 launch_file: str | None = None, bus_file: str | None = None, signals: list[int] | None = None):
         self.bus = bus
         self.start_broker = start_broker
         self.duration = duration
@@ -106,6 +106,7 @@ class Launcher:
             text = f"[{role}]".ljust(width + 2) + " "
             self._prefix[role] = (f"\x1b[{_COLORS[i % len(_COLORS)]}m{text}\x1b[0m" if color else text).encode()
         self._stop_reason: str | None = None
+        self._early = signals if signals is not None else []   # SIGINT/SIGTERM that came before run()
         self._start_failure: tuple[str, int] | None = None  # (what to say last, exit code)
         self._output_closed = False
         self._selector = selectors.DefaultSelector()
@@ -256,6 +257,8 @@ class Launcher:
         os.set_blocking(wake_w, False)
         old_fd = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
         handlers = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        for signum in self._early:      # a stop asked for while the launch was being read
+            self._on_signal(signum, None)
         old_chld = signal.signal(signal.SIGCHLD, lambda *_: None)
         self._selector.register(wake_r, selectors.EVENT_READ, None)
         broker = watch = None

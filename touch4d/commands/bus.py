@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 from pathlib import Path
 
 from touch4d.bus.config import resolve_bus_config, user_bus_config
@@ -117,6 +118,11 @@ def _launch(args) -> int:
     from touch4d.bus.startup import PARENT_PID_ENV, die_with_parent
 
     die_with_parent(PARENT_PID_ENV)   # started by `touch4d study run`: its stack ends with it, even killed outright
+    # Ctrl+C from here on is remembered, not raised: a KeyboardInterrupt raised where Python swallows it
+    # (a fork's handlers while a library starts a process) would lose the stop; the launcher takes it up.
+    early: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: early.append(signum))
     files = [i for i in args.items if ":=" not in i]
     overrides = [i for i in args.items if ":=" in i]
     if len(files) > 1:
@@ -126,7 +132,7 @@ def _launch(args) -> int:
     nodes = load_checked(path, overrides, namespace=args.namespace)
     bus = user_bus_config(args.bus)
     return Launcher(nodes, bus, start_broker=not args.no_broker, duration=args.duration,
-                    ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source).run()
+                    ready_file=args.ready_file, launch_file=str(path), bus_file=bus.source, signals=early).run()
 
 
 def _topic_list(args) -> int:
